@@ -1,0 +1,57 @@
+"""The project's one exception hierarchy.
+
+Every error raised on purpose by Holo-realizer code derives from :class:`HoloError`,
+so a caller can catch everything the library reports with one ``except`` clause
+and still tell the kinds apart.
+"""
+
+from __future__ import annotations
+
+
+class HoloError(Exception):
+    """Base class of every error Holo-realizer raises on purpose."""
+
+
+class MeshFileError(HoloError):
+    """A mesh, object or scene file could not be read.
+
+    Parameters
+    ----------
+    path : str
+        The file that was being read.
+    where : str
+        The line (``"line 12"``) or element (``"face 7"``) at fault, or ``""``.
+    reason : str
+        What was wrong, in words.
+    """
+
+    def __init__(self, path: str, where: str, reason: str) -> None:
+        self.path = str(path)
+        self.where = where
+        self.reason = reason
+        loc = f"{self.path}, {where}" if where else self.path
+        super().__init__(f"{loc}: {reason}")
+
+
+class MeshError(HoloError):
+    """A mesh held in memory is invalid (bad indices, non-finite vertices...)."""
+
+
+class SettingsError(HoloError, ValueError):
+    """A setting is out of its documented range."""
+
+
+class RenderError(HoloError):
+    """The render pipeline could not produce a frame."""
+
+
+class ProtocolError(HoloError):
+    """Bytes or a message did not follow the documented protocol."""
+
+
+class DeviceError(HoloError):
+    """A device (serial port, simulated device) failed or could not be opened."""
+
+
+class LogFileError(HoloError):
+    """A recorded session log is unreadable or torn."""

@@ -1,0 +1,70 @@
+"""Numba kernel for crease-aware corner normals (see :func:`service.mesh.corner_normals`)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def corner_normals_kernel(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    weld: np.ndarray,
+    face_normals: np.ndarray,
+    cos_crease: float,
+) -> np.ndarray:
+    """Crease-aware smooth normals, shape (T, 3, 3).
+
+    ``vertices`` (V, 3), ``triangles`` (T, 3), ``weld`` (V,) welded vertex id,
+    ``face_normals`` (T, 3) unit normal of each triangle's polygon.
+    """
+    t_count = triangles.shape[0]
+    n_weld = weld.max() + 1 if weld.size else 0
+    # CSR list of triangle corners per welded vertex
+    deg = np.zeros(n_weld + 1, np.int64)
+    for t in range(t_count):
+        for c in range(3):
+            deg[weld[triangles[t, c]] + 1] += 1
+    for i in range(n_weld):
+        deg[i + 1] += deg[i]
+    fill = deg[:-1].copy()
+    adj = np.empty(t_count * 3, np.int64)
+    for t in range(t_count):
+        for c in range(3):
+            w = weld[triangles[t, c]]
+            adj[fill[w]] = t
+            fill[w] += 1
+    area_n = np.empty((t_count, 3))
+    for t in range(t_count):
+        a = vertices[triangles[t, 0]]
+        b = vertices[triangles[t, 1]]
+        c = vertices[triangles[t, 2]]
+        e1 = b - a
+        e2 = c - a
+        area = 0.5 * np.sqrt(
+            (e1[1] * e2[2] - e1[2] * e2[1]) ** 2
+            + (e1[2] * e2[0] - e1[0] * e2[2]) ** 2
+            + (e1[0] * e2[1] - e1[1] * e2[0]) ** 2
+        )
+        area_n[t] = face_normals[t] * (area + 1e-30)
+    out = np.empty((t_count, 3, 3))
+    for t in range(t_count):
+        for c in range(3):
+            w = weld[triangles[t, c]]
+            acc = np.zeros(3)
+            for j in range(deg[w], deg[w + 1]):
+                u = adj[j]
+                d = (
+                    face_normals[u, 0] * face_normals[t, 0]
+                    + face_normals[u, 1] * face_normals[t, 1]
+                    + face_normals[u, 2] * face_normals[t, 2]
+                )
+                if d >= cos_crease:
+                    acc += area_n[u]
+            ln = np.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2)
+            if ln > 0:
+                out[t, c] = acc / ln
+            else:
+                out[t, c] = face_normals[t]
+    return out

@@ -1,0 +1,287 @@
+"""Scene model: objects (mesh + material + transform + motion), lights, and flattening.
+
+Coordinates (thesis Fig. 1-1): right-handed, x to the right, y up, z out of the
+display toward the viewer, who sits near the +z axis.  The display plane is z = 0.
+Orientation is a unit quaternion ``(w, x, y, z)`` rotating object coordinates into
+world coordinates; a world point is ``position + R(orientation) @ (scale * p)``.
+
+All objects' polygons go into one list (thesis section 3.2) in object order, so a
+tie in average depth is resolved deterministically by object order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from service.errors import SettingsError
+from service.mesh import Mesh
+
+
+@dataclass(frozen=True)
+class Material:
+    """Surface reflectance (thesis chapter 4).
+
+    Attributes
+    ----------
+    colour : tuple of 3 floats in [0, 1]
+        Diffuse and ambient colour.
+    ambient, diffuse, specular : float >= 0
+        Coefficients k_a, k_d, k_s.
+    shininess : float >= 1
+        Exponent n of (R.V)^n or (N.H)^n (the thesis uses 1 to 5).
+    """
+
+    colour: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    ambient: float = 0.2
+    diffuse: float = 0.7
+    specular: float = 0.5
+    shininess: float = 5.0
+
+    def __post_init__(self) -> None:
+        c = tuple(float(v) for v in self.colour)
+        if len(c) != 3 or not all(0.0 <= v <= 1.0 for v in c):
+            raise SettingsError(f"material colour must be 3 values in [0, 1], got {self.colour}")
+        object.__setattr__(self, "colour", c)
+        for name in ("ambient", "diffuse", "specular"):
+            if not getattr(self, name) >= 0:
+                raise SettingsError(f"material {name} must be >= 0")
+        if not self.shininess >= 1:
+            raise SettingsError("material shininess must be >= 1")
+
+
+@dataclass(frozen=True)
+class Transform:
+    """Placement of an object.
+
+    Attributes
+    ----------
+    position : ndarray, shape (3,)
+    orientation : ndarray, shape (4,)
+        Unit quaternion (w, x, y, z).
+    scale : float
+    """
+
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    orientation: np.ndarray = field(default_factory=lambda: np.array([1.0, 0, 0, 0]))
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        pos = np.asarray(self.position, dtype=np.float64).reshape(3)
+        q = np.asarray(self.orientation, dtype=np.float64).reshape(4)
+        n = np.linalg.norm(q)
+        if not np.isfinite(n) or n < 1e-12 or not np.all(np.isfinite(pos)):
+            raise SettingsError("transform needs a finite position and a non-zero quaternion")
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise SettingsError(f"transform scale must be finite and > 0, got {self.scale}")
+        object.__setattr__(self, "position", pos)
+        object.__setattr__(self, "orientation", q / n)
+
+    def matrix(self) -> np.ndarray:
+        """Rotation times scale, shape (3, 3)."""
+        return quaternion_matrix(self.orientation) * self.scale
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Object to world coordinates, shape (N, 3) -> (N, 3)."""
+        return points @ self.matrix().T + self.position
+
+
+@dataclass(frozen=True)
+class MotionState:
+    """Linear and angular velocity and acceleration (world units and radians per second).
+
+    The Galilean stage uses these to give every pixel its apparent motion.
+    """
+
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    acceleration: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_acceleration: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        for name in ("velocity", "acceleration", "angular_velocity", "angular_acceleration"):
+            v = np.asarray(getattr(self, name), dtype=np.float64).reshape(3)
+            if not np.all(np.isfinite(v)):
+                raise SettingsError(f"motion {name} must be finite")
+            object.__setattr__(self, name, v)
+
+
+@dataclass(frozen=True)
+class Light:
+    """A light source.
+
+    Attributes
+    ----------
+    kind : {"directional", "point"}
+        A light at infinity (``vector`` is the direction *toward* the light) or a
+        point light (``vector`` is its position).
+    vector : ndarray, shape (3,)
+    colour : tuple of 3 floats
+    intensity : float
+    """
+
+    kind: str = "directional"
+    vector: np.ndarray = field(default_factory=lambda: np.array([0.3, 0.5, 1.0]))
+    colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    intensity: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("directional", "point"):
+            raise SettingsError(f"light kind must be 'directional' or 'point', got {self.kind!r}")
+        v = np.asarray(self.vector, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(v)) or (self.kind == "directional" and np.linalg.norm(v) == 0):
+            raise SettingsError("light vector must be finite (and non-zero for a directional light)")
+        object.__setattr__(self, "vector", v)
+        object.__setattr__(self, "colour", tuple(float(c) for c in self.colour))
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One object of a scene: a mesh with its material, placement and motion."""
+
+    mesh: Mesh
+    material: Material = field(default_factory=Material)
+    transform: Transform = field(default_factory=Transform)
+    motion: MotionState = field(default_factory=MotionState)
+    name: str = ""
+
+
+@dataclass
+class Scene:
+    """Objects and lights.  ``ambient`` is the ambient light level (0-1)."""
+
+    objects: list[SceneObject] = field(default_factory=list)
+    lights: list[Light] = field(default_factory=lambda: [Light()])
+    ambient: float = 1.0
+
+    def flatten(self) -> SceneArrays:
+        """All objects' polygons in one list, in world coordinates."""
+        return flatten(self)
+
+
+@dataclass(frozen=True)
+class SceneArrays:
+    """A scene flattened into one polygon list (world coordinates).
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (V, 3), float64
+    polygons : ndarray, shape (P, K), int64, padded with -1
+    counts : ndarray, shape (P,), int64
+    triangles : ndarray, shape (T, 3), int64
+    triangle_polygon : ndarray, shape (T,), int64
+    polygon_object : ndarray, shape (P,), int64
+        Index of the object each polygon belongs to.
+    normals : ndarray, shape (P, 3), float64
+        Unit polygon normals in world coordinates.
+    corner_normals : ndarray, shape (T, 3, 3), float64
+        Smooth normals at triangle corners (for per-vertex and per-point light).
+    materials : ndarray, shape (P, 7), float64
+        Per polygon: r, g, b, ambient, diffuse, specular, shininess.
+    """
+
+    vertices: np.ndarray
+    polygons: np.ndarray
+    counts: np.ndarray
+    triangles: np.ndarray
+    triangle_polygon: np.ndarray
+    polygon_object: np.ndarray
+    normals: np.ndarray
+    corner_normals: np.ndarray
+    materials: np.ndarray
+
+    @property
+    def n_polygons(self) -> int:
+        """Number of polygons P."""
+        return int(self.polygons.shape[0])
+
+
+def quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (w, x, y, z), shape (3, 3)."""
+    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def axis_angle_quaternion(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) for a rotation of ``angle`` radians about ``axis``."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * a])
+
+
+def euler_quaternion(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """Quaternion for yaw about y, then pitch about x, then roll about z (radians)."""
+    qy = axis_angle_quaternion([0, 1, 0], yaw)
+    qx = axis_angle_quaternion([1, 0, 0], pitch)
+    qz = axis_angle_quaternion([0, 0, 1], roll)
+    return quaternion_multiply(quaternion_multiply(qy, qx), qz)
+
+
+def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b of quaternions (w, x, y, z)."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def flatten(scene: Scene) -> SceneArrays:
+    """Concatenate every object's polygons into one world-space list (thesis 3.2)."""
+    verts, polys, counts, tris, tri_poly, poly_obj, mats = [], [], [], [], [], [], []
+    normals, corners = [], []
+    v_off = p_off = 0
+    k = max((o.mesh.polygons.shape[1] for o in scene.objects), default=3)
+    for i, obj in enumerate(scene.objects):
+        m = obj.mesh
+        verts.append(obj.transform.apply(m.vertices))
+        rot = quaternion_matrix(obj.transform.orientation)
+        normals.append(m.normals @ rot.T)
+        corners.append(m.corner_normals @ rot.T)
+        pad = np.full((m.n_polygons, k), -1, np.int64)
+        pad[:, : m.polygons.shape[1]] = np.where(m.polygons >= 0, m.polygons + v_off, -1)
+        polys.append(pad)
+        counts.append(m.counts)
+        tris.append(m.triangles + v_off)
+        tri_poly.append(m.triangle_polygon + p_off)
+        poly_obj.append(np.full(m.n_polygons, i, np.int64))
+        mt = obj.material
+        row = [*mt.colour, mt.ambient, mt.diffuse, mt.specular, mt.shininess]
+        mats.append(np.tile(np.array(row, np.float64), (m.n_polygons, 1)))
+        v_off += m.n_vertices
+        p_off += m.n_polygons
+    if not scene.objects:
+        z3 = np.zeros((0, 3))
+        zi = np.zeros(0, np.int64)
+        return SceneArrays(
+            z3, np.zeros((0, 3), np.int64), zi, np.zeros((0, 3), np.int64), zi, zi, z3,
+            np.zeros((0, 3, 3)), np.zeros((0, 7)),
+        )
+    vertices = np.concatenate(verts)
+    polygons = np.concatenate(polys)
+    cnt = np.concatenate(counts)
+    triangles = np.concatenate(tris)
+    tp = np.concatenate(tri_poly)
+    return SceneArrays(
+        vertices=vertices,
+        polygons=polygons,
+        counts=cnt,
+        triangles=triangles,
+        triangle_polygon=tp,
+        polygon_object=np.concatenate(poly_obj),
+        normals=np.concatenate(normals),
+        corner_normals=np.concatenate(corners),
+        materials=np.concatenate(mats),
+    )
