@@ -1,0 +1,155 @@
+"""Shared scan conversion: triangle setup and row spans in a zone's pixel grid.
+
+Every raster-based occlusion method (``zbuffer``, ``runlength``, ``bsp``) uses these
+helpers, so they cover exactly the same pixels and differ only in *which* surface
+wins a pixel.  Sampling is at pixel centres ``(c + 0.5, r + 0.5)``; spans are
+half-open in both directions (a pixel centre on a shared edge belongs to exactly
+one of the two triangles), and a triangle's depth is the plane through its three
+projected vertices, exact for the parallel projection used by every zone.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True, inline="always")
+def triangle_setup(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, rows: int) -> tuple:
+    """Prepare a projected triangle for :func:`row_span`.
+
+    Parameters
+    ----------
+    p0, p1, p2 : ndarray, shape (3,)
+        Projected vertices ``(sx, sy, depth)``.
+    rows : int
+        Number of rows of the grid (spans are clipped to it).
+
+    Returns
+    -------
+    tuple
+        ``(ok, r_first, r_last, ax, ay, bx, by, cx, cy, dz0, dzdx, dzdy)``: ``ok`` is
+        False for a triangle with no area on screen; rows ``r_first..r_last``
+        (inclusive) may hold pixels; a, b, c are the vertices sorted by row
+        coordinate; depth at (x, y) is ``dz0 + dzdx * x + dzdy * y``.
+    """
+    # sort by y (then x) so a shared edge is always evaluated from the same end
+    ax, ay, az = p0[0], p0[1], p0[2]
+    bx, by, bz = p1[0], p1[1], p1[2]
+    cx, cy, cz = p2[0], p2[1], p2[2]
+    if by < ay or (by == ay and bx < ax):
+        ax, ay, az, bx, by, bz = bx, by, bz, ax, ay, az
+    if cy < by or (cy == by and cx < bx):
+        bx, by, bz, cx, cy, cz = cx, cy, cz, bx, by, bz
+        if by < ay or (by == ay and bx < ax):
+            ax, ay, az, bx, by, bz = bx, by, bz, ax, ay, az
+    det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+    if det == 0.0 or not np.isfinite(det):
+        return (False, 0, -1, ax, ay, bx, by, cx, cy, 0.0, 0.0, 0.0)
+    dzdx = ((bz - az) * (cy - ay) - (cz - az) * (by - ay)) / det
+    dzdy = ((cz - az) * (bx - ax) - (bz - az) * (cx - ax)) / det
+    dz0 = az - dzdx * ax - dzdy * ay
+    r_first = max(int(np.ceil(ay - 0.5)), 0)
+    r_last = min(int(np.ceil(cy - 0.5)) - 1, rows - 1)
+    return (True, r_first, r_last, ax, ay, bx, by, cx, cy, dz0, dzdx, dzdy)
+
+
+@nb.njit(cache=True, inline="always")
+def _edge_x(x0: float, y0: float, x1: float, y1: float, y: float) -> float:
+    """x where the edge (x0, y0)-(x1, y1) (with y0 < y1) crosses the line at y."""
+    return x0 + (x1 - x0) * (y - y0) / (y1 - y0)
+
+
+@nb.njit(cache=True, inline="always")
+def row_span(
+    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, r: int, cols: int
+) -> tuple:
+    """Pixel columns covered by a set-up triangle on row ``r``.
+
+    Returns
+    -------
+    tuple of int
+        ``(c_first, c_last)`` inclusive, clipped to ``0..cols-1``; empty when
+        ``c_first > c_last``.
+    """
+    y = r + 0.5
+    x_long = _edge_x(ax, ay, cx, cy, y)
+    if y < by:
+        x_short = _edge_x(ax, ay, bx, by, y)
+    else:
+        x_short = _edge_x(bx, by, cx, cy, y)
+    xl = min(x_long, x_short)
+    xr = max(x_long, x_short)
+    c_first = max(int(np.ceil(xl - 0.5)), 0)
+    c_last = min(int(np.ceil(xr - 0.5)) - 1, cols - 1)
+    return c_first, c_last
+
+
+@nb.njit(cache=True, parallel=True)
+def zbuffer_kernel(
+    proj: np.ndarray, tris: np.ndarray, order: np.ndarray, tri_out: np.ndarray, depth_out: np.ndarray
+) -> None:
+    """Z-buffer every zone (zones in parallel).
+
+    Parameters
+    ----------
+    proj : ndarray, shape (Z, V, 3)
+    tris : ndarray, shape (T, 3)
+    order : ndarray, shape (N,)
+        Triangles to draw, in drawing order (front to back saves writes).
+    tri_out : ndarray, shape (Z, R, C), int32, filled with -1
+    depth_out : ndarray, shape (Z, R, C), float32, filled with +inf
+    """
+    zones, rows, cols = tri_out.shape
+    for z in nb.prange(zones):
+        pz = proj[z]
+        for t in order:
+            st = triangle_setup(pz[tris[t, 0]], pz[tris[t, 1]], pz[tris[t, 2]], rows)
+            if not st[0]:
+                continue
+            for r in range(st[1], st[2] + 1):
+                c0, c1 = row_span(st[3], st[4], st[5], st[6], st[7], st[8], r, cols)
+                y = r + 0.5
+                for c in range(c0, c1 + 1):
+                    d = st[9] + st[10] * (c + 0.5) + st[11] * y
+                    if d < depth_out[z, r, c]:
+                        depth_out[z, r, c] = d
+                        tri_out[z, r, c] = t
+
+
+@nb.njit(cache=True, parallel=True)
+def painter_kernel(
+    proj: np.ndarray,
+    tris: np.ndarray,
+    ids: np.ndarray,
+    orders: np.ndarray,
+    tri_out: np.ndarray,
+    depth_out: np.ndarray,
+) -> None:
+    """Painter's algorithm: draw back to front, each triangle overwriting what is there.
+
+    Parameters
+    ----------
+    proj : ndarray, shape (Z, V, 3)
+    tris : ndarray, shape (T, 3)
+    ids : ndarray, shape (T,)
+        Value written to ``tri_out`` for each triangle (e.g. the scene triangle a
+        BSP fragment came from).
+    orders : ndarray, shape (Z, N)
+        Per zone, triangles from farthest to nearest.
+    tri_out : ndarray, shape (Z, R, C), int32
+    depth_out : ndarray, shape (Z, R, C), float32
+    """
+    zones, rows, cols = tri_out.shape
+    for z in nb.prange(zones):
+        pz = proj[z]
+        for t in orders[z]:
+            st = triangle_setup(pz[tris[t, 0]], pz[tris[t, 1]], pz[tris[t, 2]], rows)
+            if not st[0]:
+                continue
+            for r in range(st[1], st[2] + 1):
+                c0, c1 = row_span(st[3], st[4], st[5], st[6], st[7], st[8], r, cols)
+                y = r + 0.5
+                for c in range(c0, c1 + 1):
+                    depth_out[z, r, c] = st[9] + st[10] * (c + 0.5) + st[11] * y
+                    tri_out[z, r, c] = ids[t]
