@@ -1,0 +1,249 @@
+"""Session log format: round trip, torn tails, corruption, killed writers."""
+
+import json
+import signal
+import subprocess
+import sys
+import textwrap
+import warnings
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from drivers.recording import (
+    MAGIC,
+    DeviceInfo,
+    LogHeader,
+    LogReader,
+    LogWarning,
+    LogWriter,
+    RawCaptureReader,
+    Record,
+    SerialSettings,
+)
+from service.errors import LogFileError, SettingsError
+
+ROOT = Path(__file__).resolve().parents[2]
+HATIRE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
+
+
+def header() -> LogHeader:
+    return LogHeader(
+        (
+            DeviceInfo("tracker", "hatire", SerialSettings("loop://", 115200, 8, "N", 1)),
+            DeviceInfo("dials", "dialbox", SerialSettings("/dev/ttyS1", 9600, 8, "E", 2)),
+        ),
+        start_wall_ns=1_700_000_000_000_000_000,
+        start_monotonic_ns=5_000,
+        extra={"note": "test"},
+    )
+
+
+def sample_records(n: int) -> list[Record]:
+    devs = ("tracker", "dials")
+    return [Record(devs[i % 2], 5_000 + i * 12_345, bytes([i % 256]) * (i % 37)) for i in range(n)]
+
+
+def write_log(path: Path, records: list[Record]) -> list[int]:
+    """Write records; return the file offset where each record starts."""
+    offsets = []
+    with LogWriter(path, header()) as w:
+        for r in records:
+            w._f.flush()
+            offsets.append(path.stat().st_size)
+            w.write(r.device, r.t_ns, r.data)
+    return offsets
+
+
+def read_all(path: Path) -> tuple[list[Record], LogReader]:
+    reader = LogReader(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogWarning)
+        return list(reader), reader
+
+
+def test_round_trip_keeps_bytes_times_devices_and_header(tmp_path):
+    recs = sample_records(50)
+    write_log(tmp_path / "a.hlog", recs)
+    got, reader = read_all(tmp_path / "a.hlog")
+    assert got == recs
+    assert reader.header == header()
+    assert (reader.stats.records, reader.stats.torn, reader.stats.corrupt) == (50, 0, 0)
+    d = reader.header.devices[1]
+    assert (d.protocol, d.serial.baudrate, d.serial.parity, d.serial.stopbits) == (
+        "dialbox",
+        9600,
+        "E",
+        2,
+    )
+
+
+def test_header_is_plain_json_after_magic(tmp_path):
+    write_log(tmp_path / "a.hlog", [])
+    raw = (tmp_path / "a.hlog").read_bytes()
+    assert raw.startswith(MAGIC)
+    js = json.loads(raw[18:-4])
+    assert js["devices"][0]["serial"]["url"] == "loop://"
+    assert js["start_wall_iso"].startswith("2023-11-14")
+
+
+def test_torn_at_every_offset_of_last_record_keeps_all_complete_ones(tmp_path):
+    recs = sample_records(6) + [Record("tracker", 99_999, b"\xaa\xaaSYNC?\xa7RC\x5d" * 3)]
+    path = tmp_path / "full.hlog"
+    offsets = write_log(path, recs)
+    full = path.read_bytes()
+    for cut in range(offsets[-1], len(full)):
+        p = tmp_path / "cut.hlog"
+        p.write_bytes(full[:cut])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            reader = LogReader(p)
+            got = list(reader)
+        assert got == recs[:-1], cut
+        torn_msgs = [w for w in caught if "torn last record" in str(w.message)]
+        assert len(torn_msgs) == len(caught) == (cut > offsets[-1])
+        assert reader.stats.torn == (cut > offsets[-1])
+        assert reader.stats.corrupt == 0
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(victim=st.integers(0, 9), byte_in_record=st.integers(0, 10_000), xor=st.integers(1, 255))
+def test_flipped_byte_is_reported_and_later_records_still_read(
+    tmp_path, victim, byte_in_record, xor
+):
+    recs = sample_records(10)
+    path = tmp_path / "f.hlog"
+    path.unlink(missing_ok=True)
+    offsets = write_log(path, recs)
+    raw = bytearray(path.read_bytes())
+    end = offsets[victim + 1] if victim + 1 < len(offsets) else len(raw)
+    at = offsets[victim] + byte_in_record % (end - offsets[victim])
+    raw[at] ^= xor
+    path.write_bytes(bytes(raw))
+    with pytest.warns(LogWarning, match="corrupt"):
+        reader = LogReader(path)
+        got = list(reader)
+    assert got == recs[:victim] + recs[victim + 1 :]
+    assert reader.stats.corrupt == 1 and reader.stats.torn == 0
+
+
+def test_garbage_between_records_is_skipped(tmp_path):
+    recs = sample_records(4)
+    path = tmp_path / "g.hlog"
+    offsets = write_log(path, recs)
+    raw = path.read_bytes()
+    junk = b"\xa7RC\x5d" + b"\x00" * 40 + b"\xa7R"
+    path.write_bytes(raw[: offsets[2]] + junk + raw[offsets[2] :])
+    got, reader = read_all(path)
+    assert got == recs
+    assert reader.stats.corrupt == 1
+    assert reader.stats.skipped_bytes == len(junk)
+
+
+@pytest.mark.parametrize(
+    ("content", "match"),
+    [
+        (b"", "too short"),
+        (b"NOTALOG!" * 4, "magic"),
+        (MAGIC + b"\x09\x00" + b"\x00" * 8, "version"),
+    ],
+)
+def test_unreadable_file_header_raises(tmp_path, content, match):
+    p = tmp_path / "bad.hlog"
+    p.write_bytes(content)
+    with pytest.raises(LogFileError, match=match):
+        LogReader(p)
+
+
+def test_torn_or_corrupt_file_header_raises(tmp_path):
+    p = tmp_path / "h.hlog"
+    write_log(p, [])
+    raw = p.read_bytes()
+    (tmp_path / "t.hlog").write_bytes(raw[:-3])
+    with pytest.raises(LogFileError, match="torn"):
+        LogReader(tmp_path / "t.hlog")
+    bad = bytearray(raw)
+    bad[30] ^= 1
+    (tmp_path / "c.hlog").write_bytes(bytes(bad))
+    with pytest.raises(LogFileError, match="CRC"):
+        LogReader(tmp_path / "c.hlog")
+    with pytest.raises(LogFileError):
+        LogReader(tmp_path / "missing.hlog")
+
+
+def test_writer_rejects_unknown_device_existing_file_and_closed_use(tmp_path):
+    p = tmp_path / "w.hlog"
+    with LogWriter(p, header()) as w, pytest.raises(SettingsError):
+        w.write("mouse", 1, b"x")
+    with pytest.raises(LogFileError):
+        LogWriter(p, header())
+    w = LogWriter(p, header(), overwrite=True)
+    w.close()
+    with pytest.raises(LogFileError):
+        w.write("tracker", 1, b"x")
+    with pytest.raises(SettingsError):
+        LogHeader((DeviceInfo("a", "x"), DeviceInfo("a", "y")))
+
+
+WRITER = textwrap.dedent(
+    """
+    import sys
+    from drivers.recording import DeviceInfo, LogHeader, LogWriter
+    h = LogHeader((DeviceInfo("tracker", "hatire"),))
+    with LogWriter(sys.argv[1], h, flush_every=int(sys.argv[2])) as w:
+        i = 0
+        while True:
+            w.write("tracker", i, i.to_bytes(4, "little") * (1 + i % 50))
+            i += 1
+            if i == 300:
+                print("ready", flush=True)
+    """
+)
+
+
+@pytest.mark.parametrize("flush_every", [1, 7])
+def test_killed_writer_process_leaves_readable_file(tmp_path, flush_every):
+    path = tmp_path / "killed.hlog"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", WRITER, str(path), str(flush_every)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+    )
+    try:
+        assert proc.stdout.readline() == b"ready\n"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    assert proc.returncode == -signal.SIGKILL
+    got, reader = read_all(path)
+    assert len(got) >= 300 - flush_every
+    assert reader.stats.corrupt == 0 and reader.stats.torn <= 1
+    for i, r in enumerate(got):
+        assert (r.device, r.t_ns, r.data) == ("tracker", i, i.to_bytes(4, "little") * (1 + i % 50))
+
+
+def test_raw_capture_reader_chunks_with_line_rate_times(tmp_path):
+    p = tmp_path / "raw.bin"
+    p.write_bytes(bytes(range(256)) * 4)
+    r = RawCaptureReader(p, protocol="hatire", baudrate=9600, chunk_size=100, skip_bytes=24)
+    recs = list(r)
+    assert b"".join(x.data for x in recs) == (bytes(range(256)) * 4)[24:]
+    assert [len(x.data) for x in recs] == [100] * 10
+    assert recs[0].t_ns == round(100 * 10 / 9600 * 1e9)
+    assert recs[-1].t_ns == round(1000 * 10 / 9600 * 1e9)
+    assert r.stats.records == 10
+    assert r.header.devices[0].protocol == "hatire"
+    assert r.header.devices[0].serial.baudrate == 9600
+
+
+@pytest.mark.skipif(not HATIRE.is_file(), reason="shared Hatire fixture not present")
+def test_raw_capture_reader_on_hatire_fixture():
+    recs = list(RawCaptureReader(HATIRE, protocol="hatire", chunk_size=30, skip_bytes=79))
+    data = b"".join(r.data for r in recs)
+    assert data == HATIRE.read_bytes()[79:]
+    assert data[:2] == b"\xaa\xaa"
+    assert recs[-1].t_ns == pytest.approx(len(data) * 10 / 115200 * 1e9, abs=1)
