@@ -180,7 +180,7 @@ def _hit(wv: np.ndarray, i: int, sg: float, claim: np.ndarray, ox: float, oy: fl
 
 
 @nb.njit(cache=True, parallel=True)
-def _cast(wv: np.ndarray, ids: np.ndarray, znear: np.ndarray, sign: np.ndarray,
+def _cast(wv: np.ndarray, rank: np.ndarray, znear: np.ndarray, sign: np.ndarray,
           claim: np.ndarray, plane: np.ndarray, box: np.ndarray, start: np.ndarray,
           items: np.ndarray, shears: np.ndarray, geom: np.ndarray,
           tri_out: np.ndarray, depth_out: np.ndarray) -> None:
@@ -190,8 +190,9 @@ def _cast(wv: np.ndarray, ids: np.ndarray, znear: np.ndarray, sign: np.ndarray,
     ----------
     wv : ndarray, shape (N, 3, 3)
         World corners, sorted by ``znear`` descending.
-    ids : ndarray, shape (N,)
-        Scene triangle index of each candidate; ``N`` also ranks ties (lower wins).
+    rank : ndarray, shape (N,)
+        Position of each candidate in ``order``; written to ``tri_out``, and the
+        lower rank wins an exact depth tie.
     znear : ndarray, shape (N,)
         Largest world z of each triangle (its nearest point), non-increasing.
     geom : ndarray, shape (3,)
@@ -221,10 +222,10 @@ def _cast(wv: np.ndarray, ids: np.ndarray, znear: np.ndarray, sign: np.ndarray,
                     if not _hit(wv, i, sign[z, i], claim[z, i], ox, oy, t):
                         continue
                     hz = plane[z, i, 0] + plane[z, i, 1] * ox + plane[z, i, 2] * oy
-                    if hz > best_z or (hz == best_z and ids[i] < ids[best]):
+                    if hz > best_z or (hz == best_z and rank[i] < rank[best]):
                         best_z, best = hz, i
                 if best >= 0:
-                    tri_out[z, r, c] = ids[best]
+                    tri_out[z, r, c] = rank[best]
                     depth_out[z, r, c] = -best_z
 
 
@@ -258,7 +259,6 @@ def raycast(
     # nearest point first; stable, so equal znear keeps the given order
     srt = np.argsort(-znear, kind="stable")
     wv, znear = np.ascontiguousarray(wv[srt]), np.ascontiguousarray(znear[srt])
-    ids = np.ascontiguousarray(order[srt])
     rank = np.ascontiguousarray(srt.astype(np.int64))  # tie rank = position in order
     shears = display.shears()
     half_w, half_h, s = display.width / 2, display.height / 2, display.pixel_size
