@@ -1,0 +1,645 @@
+"""Stage 5: light for every view zone (ambient + diffuse + specular, thesis chapter 4).
+
+Light model
+-----------
+For a surface point ``p`` with unit normal ``N``, material ``(r, g, b, k_a, k_d, k_s,
+n)`` (see :class:`service.scene.Material`) and the view vector ``V`` of zone ``k``
+(:meth:`service.display.DisplaySettings.view_vectors`; the projection is parallel, so
+``V`` is the same for every point of a zone), each colour channel ``c`` is
+
+    I_c = rgb_c * k_a * A
+        + sum_j  E_j,c * ( rgb_c * k_d * max(0, N.L_j)  +  k_s * S_j )
+
+clamped to [0, 1], where ``A`` is the scene's ambient level, ``E_j = colour_j *
+intensity_j`` is light ``j``'s colour, ``L_j`` the unit vector from ``p`` toward the
+light (a ``directional`` light's ``vector``, or ``normalise(position - p)`` for a
+``point`` light; no distance attenuation: the thesis sets ``I_i k_s / (r + k)`` to 1)
+and the specular term ``S_j`` is taken only where ``N.L_j > 0``.  The highlight has
+the light's colour, not the material's (thesis 4.2.1).  Models (:data:`MODELS`):
+
+``ambient``
+    ``I_c = rgb_c * k_a * A`` only: no diffuse, no specular, lights ignored (the dodge
+    game's fast mode, thesis 5.1.1; give game objects ``k_a`` near 1 and ``A = 1``
+    to keep them bright).
+``phong``
+    ``S = max(0, R.V)^n`` with ``R = 2 (N.L) N - L`` (thesis eq. 4.1).
+``blinn``
+    ``S = max(0, N.H)^n`` with ``H = normalise(L + V)`` (thesis eq. 4.2; the thesis
+    writes ``(L + V) / 2`` and calls it a unit vector, so we normalise).
+
+Evaluation (:data:`EVALUATIONS`)
+--------------------------------
+``polygon``
+    Flat: once per polygon per zone, at the polygon's centroid with its face normal,
+    as the thesis does (4.4).  A (Z, P, 3) colour table is gathered through
+    ``triangle_polygon[vis.triangle]``; the fast path.
+``vertex``
+    Gouraud: at every triangle corner (corner position, ``corner_normals``) per zone;
+    colours are interpolated across each pixel with barycentric coordinates of the
+    pixel centre ``(c + 0.5, r + 0.5)`` in the zone's 2-D projected triangle.  With a
+    parallel projection screen-space barycentrics equal the world-space ones, so no
+    perspective correction is needed.
+``point``
+    Per pixel: the corner normals interpolated by the same barycentrics (and
+    renormalised), at the pixel's world position from
+    :func:`service.projection.unproject` at its visible depth.  The accuracy
+    reference.
+
+Back-facing pixels
+------------------
+Normals face outward and back faces are culled earlier, but the multi-view cull
+keeps a polygon that faces *any* zone, so a zone may see a polygon whose face normal
+points away from it.  Such a pixel is lit as the side the viewer sees: all normals of
+that triangle (face and corner normals) are flipped, ``N -> -N``, whenever the face
+normal satisfies ``N_face . V < 0`` in that zone.  The decision is per triangle and
+zone, from the face normal, in every evaluation mode, so smooth normals near a
+silhouette are never flipped piecemeal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from service.display import DisplaySettings
+from service.errors import RenderError, SettingsError
+from service.mesh import polygon_mean
+from service.occlusion import Visibility
+from service.projection import unproject
+from service.scene import Light, SceneArrays
+
+#: Light model name -> kernel code (index into the specular-base tuple in the kernel).
+MODELS: dict[str, int] = {"ambient": 0, "phong": 1, "blinn": 2}
+
+#: Light vector kind -> 1 for a point light (vector is a position), 0 for a direction.
+_LIGHT_KINDS: dict[str, int] = {"directional": 0, "point": 1}
+
+
+@dataclass(frozen=True)
+class LightSettings:
+    """Settings of the light stage.
+
+    Attributes
+    ----------
+    model : {"ambient", "phong", "blinn"}
+        Light model (see the module notes).
+    evaluation : {"polygon", "vertex", "point"}
+        Where light is evaluated: per polygon (flat), per vertex (Gouraud) or per
+        pixel (the reference).
+    background : tuple of 3 ints in 0..255
+        Colour of pixels where nothing is visible.
+    """
+
+    model: str = "blinn"
+    evaluation: str = "polygon"
+    background: tuple[int, int, int] = (0, 0, 0)
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise SettingsError(f"light model must be one of {sorted(MODELS)}, got {self.model!r}")
+        if self.evaluation not in EVALUATIONS:
+            raise SettingsError(
+                f"light evaluation must be one of {sorted(EVALUATIONS)}, got {self.evaluation!r}"
+            )
+        bg = tuple(int(v) for v in self.background)
+        if len(bg) != 3 or not all(0 <= v <= 255 for v in bg):
+            raise SettingsError(f"background must be 3 integers 0..255, got {self.background}")
+        object.__setattr__(self, "background", bg)
+
+
+@dataclass(frozen=True)
+class _Packed:
+    """Per-call inputs packed as arrays for the kernels.
+
+    Attributes
+    ----------
+    views : ndarray, shape (Z, 3)
+    lvec : ndarray, shape (J, 3)
+        Unit direction toward a directional light, or a point light's position.
+    lpoint : ndarray, shape (J,), int64
+        1 for a point light.
+    lrgb : ndarray, shape (J, 3)
+        Light colour times intensity.
+    ambient : float
+    code : int
+        Model code from :data:`MODELS`.
+    background : ndarray, shape (3,), float32
+        Background colour in [0, 1].
+    affine : ndarray, shape (Z, 4, 3)
+        :func:`_unproject_affine` of the display.
+    """
+
+    views: np.ndarray
+    lvec: np.ndarray
+    lpoint: np.ndarray
+    lrgb: np.ndarray
+    ambient: float
+    code: int
+    background: np.ndarray
+    affine: np.ndarray
+
+
+def pack_lights(lights: list[Light]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lights as arrays.
+
+    Parameters
+    ----------
+    lights : list of Light
+
+    Returns
+    -------
+    lvec : ndarray, shape (J, 3), float64
+        Unit direction toward each directional light, or each point light's position.
+    lpoint : ndarray, shape (J,), int64
+        1 where the light is a point light.
+    lrgb : ndarray, shape (J, 3), float64
+        Colour times intensity.
+    """
+    lvec = np.zeros((len(lights), 3))
+    lpoint = np.zeros(len(lights), np.int64)
+    lrgb = np.zeros((len(lights), 3))
+    for j, lt in enumerate(lights):
+        lpoint[j] = _LIGHT_KINDS[lt.kind]
+        v = np.asarray(lt.vector, np.float64)
+        lvec[j] = v if lpoint[j] else v / np.linalg.norm(v)
+        lrgb[j] = np.asarray(lt.colour, np.float64) * float(lt.intensity)
+    return lvec, lpoint, lrgb
+
+
+@nb.njit(cache=True, inline="always")
+def _light_rgb(
+    p: np.ndarray,
+    nx: float,
+    ny: float,
+    nz: float,
+    mat: np.ndarray,
+    v: np.ndarray,
+    lvec: np.ndarray,
+    lpoint: np.ndarray,
+    lrgb: np.ndarray,
+    ambient: float,
+    code: int,
+) -> tuple:
+    """Colour (r, g, b) in [0, 1] at point ``p`` (3,) with normal (nx, ny, nz).
+
+    ``mat`` (7,) is one material row, ``v`` (3,) the unit view vector; the normal is
+    renormalised here (and must already be flipped toward the viewer).
+    """
+    ka = mat[3] * ambient
+    cr = mat[0] * ka
+    cg = mat[1] * ka
+    cb = mat[2] * ka
+    nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if code != 0 and nn > 0.0:
+        nx /= nn
+        ny /= nn
+        nz /= nn
+        for j in range(lvec.shape[0]):
+            lx, ly, lz = lvec[j, 0], lvec[j, 1], lvec[j, 2]
+            if lpoint[j] == 1:
+                lx, ly, lz = lx - p[0], ly - p[1], lz - p[2]
+                d = np.sqrt(lx * lx + ly * ly + lz * lz)
+                if d <= 1e-12:
+                    continue
+                lx, ly, lz = lx / d, ly / d, lz / d
+            ndl = nx * lx + ny * ly + nz * lz
+            if ndl <= 0.0:
+                continue
+            # phong: R.V with R = 2 (N.L) N - L
+            rdv = (2.0 * ndl * nx - lx) * v[0] + (2.0 * ndl * ny - ly) * v[1]
+            rdv += (2.0 * ndl * nz - lz) * v[2]
+            # blinn: N.H with H = normalise(L + V)
+            hx, hy, hz = lx + v[0], ly + v[1], lz + v[2]
+            hn = np.sqrt(hx * hx + hy * hy + hz * hz)
+            ndh = (nx * hx + ny * hy + nz * hz) / hn if hn > 0.0 else 0.0
+            base = (0.0, rdv, ndh)[code]
+            spec = mat[5] * base ** mat[6] if base > 0.0 else 0.0
+            dif = mat[4] * ndl
+            cr += lrgb[j, 0] * (mat[0] * dif + spec)
+            cg += lrgb[j, 1] * (mat[1] * dif + spec)
+            cb += lrgb[j, 2] * (mat[2] * dif + spec)
+    return min(max(cr, 0.0), 1.0), min(max(cg, 0.0), 1.0), min(max(cb, 0.0), 1.0)
+
+
+@nb.njit(cache=True, inline="always")
+def _facing(n: np.ndarray, v: np.ndarray) -> float:
+    """+1 if the face normal ``n`` (3,) faces the view vector ``v`` (3,), else -1."""
+    return 1.0 if n[0] * v[0] + n[1] * v[1] + n[2] * v[2] >= 0.0 else -1.0
+
+
+@nb.njit(cache=True)
+def _polygon_table(
+    centroids: np.ndarray,
+    normals: np.ndarray,
+    materials: np.ndarray,
+    views: np.ndarray,
+    lvec: np.ndarray,
+    lpoint: np.ndarray,
+    lrgb: np.ndarray,
+    ambient: float,
+    code: int,
+    out: np.ndarray,
+) -> None:
+    """Flat colour of every polygon in every zone into ``out`` (Z, P, 3) float32.
+
+    ``centroids`` and ``normals`` are (P, 3), ``materials`` (P, 7), ``views`` (Z, 3).
+    """
+    for z in range(views.shape[0]):
+        v = views[z]
+        for p in range(centroids.shape[0]):
+            s = _facing(normals[p], v)
+            r, g, b = _light_rgb(
+                centroids[p], s * normals[p, 0], s * normals[p, 1], s * normals[p, 2],
+                materials[p], v, lvec, lpoint, lrgb, ambient, code,
+            )
+            out[z, p, 0] = r
+            out[z, p, 1] = g
+            out[z, p, 2] = b
+
+
+@nb.njit(cache=True)
+def _corner_table(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    tri_poly: np.ndarray,
+    normals: np.ndarray,
+    corner_normals: np.ndarray,
+    materials: np.ndarray,
+    views: np.ndarray,
+    lvec: np.ndarray,
+    lpoint: np.ndarray,
+    lrgb: np.ndarray,
+    ambient: float,
+    code: int,
+    out: np.ndarray,
+) -> None:
+    """Colour at every triangle corner in every zone into ``out`` (Z, T, 3, 3) float32.
+
+    ``vertices`` (V, 3), ``triangles`` (T, 3), ``tri_poly`` (T,), ``normals`` (P, 3),
+    ``corner_normals`` (T, 3, 3), ``materials`` (P, 7), ``views`` (Z, 3).
+    """
+    for z in range(views.shape[0]):
+        v = views[z]
+        for t in range(triangles.shape[0]):
+            p = tri_poly[t]
+            s = _facing(normals[p], v)
+            for k in range(3):
+                cn = corner_normals[t, k]
+                r, g, b = _light_rgb(
+                    vertices[triangles[t, k]], s * cn[0], s * cn[1], s * cn[2],
+                    materials[p], v, lvec, lpoint, lrgb, ambient, code,
+                )
+                out[z, t, k, 0] = r
+                out[z, t, k, 1] = g
+                out[z, t, k, 2] = b
+
+
+@nb.njit(cache=True, inline="always")
+def _barycentric(pz: np.ndarray, tri: np.ndarray, x: float, y: float) -> tuple:
+    """Barycentric weights of (x, y) in the projected triangle ``pz[tri]``.
+
+    ``pz`` is one zone's projection (V, 3), ``tri`` (3,) vertex indices.  Weights are
+    clamped to >= 0 and renormalised (a pixel centre on an edge may fall a hair
+    outside); a triangle with no area on screen gets (1/3, 1/3, 1/3).
+    """
+    ax, ay = pz[tri[0], 0], pz[tri[0], 1]
+    bx, by = pz[tri[1], 0], pz[tri[1], 1]
+    cx, cy = pz[tri[2], 0], pz[tri[2], 1]
+    det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+    if det == 0.0:
+        return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
+    w1 = ((x - ax) * (cy - ay) - (cx - ax) * (y - ay)) / det
+    w2 = ((bx - ax) * (y - ay) - (x - ax) * (by - ay)) / det
+    w0 = max(1.0 - w1 - w2, 0.0)
+    w1 = max(w1, 0.0)
+    w2 = max(w2, 0.0)
+    tot = w0 + w1 + w2
+    return w0 / tot, w1 / tot, w2 / tot
+
+
+@nb.njit(cache=True)
+def _gather(
+    tri_map: np.ndarray, tri_poly: np.ndarray, table: np.ndarray, bg: np.ndarray, out: np.ndarray
+) -> None:
+    """``out[z, r, c] = table[z, tri_poly[tri_map[z, r, c]]]``, ``bg`` where empty.
+
+    ``tri_map`` (Z, R, C) int32, ``table`` (Z, P, 3), ``out`` (Z, R, C, 3) of the
+    table's dtype.
+    """
+    zones, rows, cols = tri_map.shape
+    for z in range(zones):
+        for r in range(rows):
+            for c in range(cols):
+                t = tri_map[z, r, c]
+                if t < 0:
+                    out[z, r, c, 0] = bg[0]
+                    out[z, r, c, 1] = bg[1]
+                    out[z, r, c, 2] = bg[2]
+                else:
+                    p = tri_poly[t]
+                    out[z, r, c, 0] = table[z, p, 0]
+                    out[z, r, c, 1] = table[z, p, 1]
+                    out[z, r, c, 2] = table[z, p, 2]
+
+
+@nb.njit(cache=True)
+def _gouraud_pixels(
+    tri_map: np.ndarray,
+    proj: np.ndarray,
+    triangles: np.ndarray,
+    corner: np.ndarray,
+    bg: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Interpolate corner colours (Z, T, 3, 3) across pixels into ``out`` (Z, R, C, 3)."""
+    zones, rows, cols = tri_map.shape
+    for z in range(zones):
+        pz = proj[z]
+        for r in range(rows):
+            for c in range(cols):
+                t = tri_map[z, r, c]
+                if t < 0:
+                    out[z, r, c, :] = bg
+                    continue
+                w0, w1, w2 = _barycentric(pz, triangles[t], c + 0.5, r + 0.5)
+                ct = corner[z, t]
+                for ch in range(3):
+                    out[z, r, c, ch] = w0 * ct[0, ch] + w1 * ct[1, ch] + w2 * ct[2, ch]
+
+
+@nb.njit(cache=True)
+def _point_pixels(
+    tri_map: np.ndarray,
+    depth: np.ndarray,
+    proj: np.ndarray,
+    affine: np.ndarray,
+    triangles: np.ndarray,
+    tri_poly: np.ndarray,
+    normals: np.ndarray,
+    corner_normals: np.ndarray,
+    materials: np.ndarray,
+    views: np.ndarray,
+    lights: tuple,
+    ambient: float,
+    code: int,
+    bg: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Light every covered pixel at its own world point and interpolated normal.
+
+    ``affine`` (Z, 4, 3) gives the world point at pixel (c, r) and depth d as
+    ``affine[z, 0] + c * affine[z, 1] + r * affine[z, 2] + d * affine[z, 3]`` (see
+    :func:`_unproject_affine`); ``lights`` is ``(lvec, lpoint, lrgb)``.
+    """
+    lvec, lpoint, lrgb = lights
+    zones, rows, cols = tri_map.shape
+    pt = np.empty(3)
+    for z in range(zones):
+        pz = proj[z]
+        v = views[z]
+        for r in range(rows):
+            for c in range(cols):
+                t = tri_map[z, r, c]
+                if t < 0:
+                    out[z, r, c, :] = bg
+                    continue
+                d = depth[z, r, c]
+                for k in range(3):
+                    pt[k] = affine[z, 0, k] + c * affine[z, 1, k] + r * affine[z, 2, k]
+                    pt[k] += d * affine[z, 3, k]
+                w0, w1, w2 = _barycentric(pz, triangles[t], c + 0.5, r + 0.5)
+                cn = corner_normals[t]
+                p = tri_poly[t]
+                s = _facing(normals[p], v)
+                nx = s * (w0 * cn[0, 0] + w1 * cn[1, 0] + w2 * cn[2, 0])
+                ny = s * (w0 * cn[0, 1] + w1 * cn[1, 1] + w2 * cn[2, 1])
+                nz = s * (w0 * cn[0, 2] + w1 * cn[1, 2] + w2 * cn[2, 2])
+                cr, cg, cb = _light_rgb(
+                    pt, nx, ny, nz, materials[p], v, lvec, lpoint, lrgb, ambient, code
+                )
+                out[z, r, c, 0] = cr
+                out[z, r, c, 1] = cg
+                out[z, r, c, 2] = cb
+
+
+@nb.njit(cache=True)
+def _quantise(x: np.ndarray, out: np.ndarray) -> None:
+    """``out = round(255 * x)`` for flat arrays ``x`` float32 in [0, 1] and ``out`` uint8."""
+    for i in range(x.size):
+        out[i] = np.uint8(x[i] * 255.0 + 0.5)
+
+
+def to_uint8(x: np.ndarray) -> np.ndarray:
+    """Colours in [0, 1] (any shape, float32) to uint8 ``round(255 * x)``, same shape."""
+    src = np.ascontiguousarray(np.clip(x, 0.0, 1.0), dtype=np.float32)
+    out = np.empty(src.shape, np.uint8)
+    _quantise(src.reshape(-1), out.reshape(-1))
+    return out
+
+
+def _unproject_affine(display: DisplaySettings) -> np.ndarray:
+    """Coefficients of :func:`unproject`, which is affine in (col, row, depth).
+
+    Returns
+    -------
+    ndarray, shape (Z, 4, 3)
+        Per zone: the world point at (0, 0, 0) and its derivatives by col, row, depth.
+    """
+    cols = np.array([0, 1, 0, 0])
+    rows = np.array([0, 0, 1, 0])
+    dep = np.array([0.0, 0.0, 0.0, 1.0])
+    out = np.empty((display.zones, 4, 3))
+    for z in range(display.zones):
+        w = unproject(z, cols, rows, dep, display)
+        out[z, 0] = w[0]
+        out[z, 1:] = w[1:] - w[0]
+    return out
+
+
+def _eval_polygon(
+    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, quantise: bool
+) -> np.ndarray:
+    """Flat light: (Z, P, 3) table gathered per pixel; (Z, R, C, 3) float32 or uint8."""
+    zones = k.views.shape[0]
+    table = np.empty((zones, scene.n_polygons, 3), np.float32)
+    if scene.n_polygons:
+        centroids = polygon_mean(scene.vertices, scene.polygons, scene.counts)
+        _polygon_table(
+            centroids, np.ascontiguousarray(scene.normals, np.float64), scene.materials,
+            k.views, k.lvec, k.lpoint, k.lrgb, k.ambient, k.code, table,
+        )
+    bg = k.background
+    if quantise:
+        table, bg = to_uint8(table), to_uint8(bg)
+    out = np.empty((*vis.triangle.shape, 3), table.dtype)
+    _gather(vis.triangle, scene.triangle_polygon, table, bg, out)
+    return out
+
+
+def _eval_vertex(
+    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, quantise: bool
+) -> np.ndarray:
+    """Gouraud light: corner colours interpolated per pixel; (Z, R, C, 3)."""
+    zones = k.views.shape[0]
+    corner = np.empty((zones, scene.triangles.shape[0], 3, 3), np.float32)
+    _corner_table(
+        scene.vertices, scene.triangles, scene.triangle_polygon, scene.normals,
+        scene.corner_normals, scene.materials, k.views, k.lvec, k.lpoint, k.lrgb,
+        k.ambient, k.code, corner,
+    )
+    out = np.empty((*vis.triangle.shape, 3), np.float32)
+    _gouraud_pixels(vis.triangle, proj, scene.triangles, corner, k.background, out)
+    return to_uint8(out) if quantise else out
+
+
+def _eval_point(
+    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, quantise: bool
+) -> np.ndarray:
+    """Per-pixel light at the unprojected point with interpolated normal; (Z, R, C, 3)."""
+    out = np.empty((*vis.triangle.shape, 3), np.float32)
+    _point_pixels(
+        vis.triangle, vis.depth, proj, k.affine, scene.triangles,
+        scene.triangle_polygon, scene.normals, scene.corner_normals, scene.materials,
+        k.views, (k.lvec, k.lpoint, k.lrgb), k.ambient, k.code, k.background, out,
+    )
+    return to_uint8(out) if quantise else out
+
+
+#: Evaluation name -> function(scene, proj, vis, packed, quantise) -> (Z, R, C, 3).
+EVALUATIONS = {"polygon": _eval_polygon, "vertex": _eval_vertex, "point": _eval_point}
+
+
+def _check(scene: SceneArrays, proj: np.ndarray, vis: Visibility, display: DisplaySettings) -> None:
+    """Raise :class:`RenderError` when the inputs' shapes disagree."""
+    zrc = (display.zones, display.rows, display.cols)
+    if vis.triangle.shape != zrc or vis.depth.shape != zrc:
+        raise RenderError(f"visibility buffers are {vis.triangle.shape}, display needs {zrc}")
+    if proj.shape != (display.zones, scene.vertices.shape[0], 3):
+        raise RenderError(
+            f"projection is {proj.shape}, expected {(display.zones, scene.vertices.shape[0], 3)}"
+        )
+
+
+def _render(
+    scene: SceneArrays,
+    proj: np.ndarray,
+    vis: Visibility,
+    display: DisplaySettings,
+    lights: list[Light],
+    ambient_level: float,
+    settings: LightSettings,
+    quantise: bool,
+) -> np.ndarray:
+    """Shared body of :func:`shade` and :func:`shade_linear`."""
+    _check(scene, proj, vis, display)
+    lvec, lpoint, lrgb = pack_lights(lights)
+    packed = _Packed(
+        views=display.view_vectors(),
+        lvec=lvec,
+        lpoint=lpoint,
+        lrgb=lrgb,
+        ambient=float(ambient_level),
+        code=MODELS[settings.model],
+        background=np.asarray(settings.background, np.float32) / np.float32(255),
+        affine=_unproject_affine(display),
+    )
+    tri = np.ascontiguousarray(vis.triangle, np.int32)
+    dep = np.ascontiguousarray(vis.depth, np.float32)
+    proj = np.ascontiguousarray(proj, np.float64)
+    return EVALUATIONS[settings.evaluation](scene, proj, Visibility(tri, dep), packed, quantise)
+
+
+def shade(
+    scene: SceneArrays,
+    proj: np.ndarray,
+    vis: Visibility,
+    display: DisplaySettings,
+    lights: list[Light],
+    ambient_level: float,
+    settings: LightSettings | None = None,
+) -> np.ndarray:
+    """Colour every pixel of every zone.
+
+    Parameters
+    ----------
+    scene : SceneArrays
+        The flattened scene (world coordinates).
+    proj : ndarray, shape (Z, V, 3)
+        :func:`service.projection.project` of ``scene.vertices``.
+    vis : Visibility
+        Triangle and depth seen at each pixel, shapes (Z, R, C).
+    display : DisplaySettings
+    lights : list of Light
+    ambient_level : float
+        The scene's ambient light level ``A``.
+    settings : LightSettings, optional
+        Model, evaluation and background (default: Blinn per polygon, black).
+
+    Returns
+    -------
+    ndarray, shape (Z, R, C, 3), uint8
+        ``round(255 * shade_linear(...))``.
+
+    Raises
+    ------
+    RenderError
+        If the shapes of ``proj`` or ``vis`` do not match ``scene`` and ``display``.
+    """
+    settings = settings or LightSettings()
+    return _render(scene, proj, vis, display, lights, ambient_level, settings, True)
+
+
+def shade_linear(
+    scene: SceneArrays,
+    proj: np.ndarray,
+    vis: Visibility,
+    display: DisplaySettings,
+    lights: list[Light],
+    ambient_level: float,
+    settings: LightSettings | None = None,
+) -> np.ndarray:
+    """Like :func:`shade` but unquantised: shape (Z, R, C, 3), float32 in [0, 1]."""
+    settings = settings or LightSettings()
+    return _render(scene, proj, vis, display, lights, ambient_level, settings, False)
+
+
+def intensity(
+    scene: SceneArrays,
+    proj: np.ndarray,
+    vis: Visibility,
+    display: DisplaySettings,
+    lights: list[Light],
+    ambient_level: float,
+    settings: LightSettings | None = None,
+) -> np.ndarray:
+    """Per-pixel intensity: the mean of the three channels of :func:`shade_linear`.
+
+    Returns
+    -------
+    ndarray, shape (Z, R, C), float32 in [0, 1]
+        The background's intensity where ``vis.triangle`` is -1.
+    """
+    lin = shade_linear(scene, proj, vis, display, lights, ambient_level, settings)
+    return lin.mean(axis=-1, dtype=np.float32)
+
+
+def intensity_error(test: np.ndarray, reference: np.ndarray, covered: np.ndarray) -> float:
+    """Mean absolute intensity difference over covered pixels.
+
+    Parameters
+    ----------
+    test, reference : ndarray, shape (Z, R, C)
+        Intensities from :func:`intensity` on the same visibility buffer.
+    covered : ndarray, shape (Z, R, C), bool
+        Pixels to compare (e.g. ``vis.triangle >= 0``).
+
+    Returns
+    -------
+    float
+        0.0 when no pixel is covered.
+    """
+    if not np.any(covered):
+        return 0.0
+    return float(np.mean(np.abs(test[covered] - reference[covered])))
