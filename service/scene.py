@@ -249,7 +249,7 @@ def flatten(scene: Scene) -> SceneArrays:
         verts.append(obj.transform.apply(m.vertices))
         rot = quaternion_matrix(obj.transform.orientation)
         normals.append(m.normals @ rot.T)
-        corners.append(m.corner_normals @ rot.T)
+        corners.append((m.corner_normals.reshape(-1, 3) @ rot.T).reshape(-1, 3, 3))
         pad = np.full((m.n_polygons, k), -1, np.int64)
         pad[:, : m.polygons.shape[1]] = np.where(m.polygons >= 0, m.polygons + v_off, -1)
         polys.append(pad)

@@ -1,0 +1,1 @@
+"""Benchmarks: time against error for every method with alternatives (not tests)."""

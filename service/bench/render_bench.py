@@ -1,0 +1,181 @@
+"""Occlusion benchmark: milliseconds per update against % of pixels unlike ray casting.
+
+For every scene x occlusion method x zone count, render the same frame, time the
+whole update (median of several) and compare the polygon seen at every pixel of
+every zone with the ray-cast reference.  A second sweep measures how the
+run-length method's error (with its z-buffer fallback switched off) grows with the
+viewing angle and the zone count.  Writes ``render_bench.json``, ``.csv`` and PNG
+charts to the output folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from service.display import DisplaySettings
+from service.light import LightSettings
+from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
+from service.scenes import builtin_scene
+
+ZONES = (1, 5, 9, 17, 33)
+SCENE_NAMES = ("game", "sphere-torus", "cyclic")
+ANGLES = (4, 8, 16, 24, 32, 45, 60)
+
+
+def polygon_map(
+    renderer: Renderer, arrays, display, settings, repeats: int
+) -> tuple[np.ndarray, float, dict]:
+    """Polygon seen at each pixel (Z, R, C) (-1 empty), median update ms and stats.
+
+    The update is stages 1-4 (project, cull, sort, occlusion) of a flattened scene.
+    """
+    ms = []
+    for _ in range(repeats):
+        clock: dict[str, float] = {}
+        vis, counts, _ = renderer.visibility(arrays, display, settings, StageClock(clock))
+        ms.append(sum(clock.values()))
+    poly = np.where(vis.triangle >= 0, arrays.triangle_polygon[np.maximum(vis.triangle, 0)], -1)
+    return poly, float(np.median(ms)), {**vis.stats, **counts}
+
+
+def measure(scene_name: str, zones: int, angle: float, methods, repeats: int, fallback=True,
+            size=(320, 240)):
+    """Rows of {scene, zones, angle, method, ms, pct_differ, ...} for one configuration."""
+    arrays = builtin_scene(scene_name).flatten()
+    display = DisplaySettings(zones=zones, angle_deg=angle, cols=size[0], rows=size[1])
+    ref, ref_ms, _ = polygon_map(Renderer(), arrays, display, RenderSettings(method="raycast"), 1)
+    rows = []
+    for method in methods:
+        settings = RenderSettings(method=method, painter_fallback=fallback, light=LightSettings("ambient"))
+        renderer = Renderer()
+        if method == "bsp":
+            renderer.visibility(arrays, display, settings)  # build the tree once: static geometry
+        poly, ms, stats = (ref, ref_ms, {}) if method == "raycast" else polygon_map(
+            renderer, arrays, display, settings, repeats)
+        rows.append({
+            "scene": scene_name, "zones": zones, "angle_deg": angle, "method": method,
+            "fallback": fallback, "ms": round(ms, 3),
+            "pct_differ": round(100.0 * float(np.mean(poly != ref)), 4),
+            "polygons": int(arrays.n_polygons),
+            "inconsistent_pixels": int(stats.get("inconsistent_pixels", 0)),
+            "fell_back": stats.get("fallback") is not None,
+        })
+    return rows
+
+
+def chart_methods(rows: list[dict], path: Path) -> None:
+    """One panel per scene: ms per update (x, log) against % pixels differing (y)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r["scene"] for r in rows})
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.2), squeeze=False)
+    markers = dict(zip(METHOD_NAMES, "o^sD", strict=True))
+    for ax, scene in zip(axes[0], scenes, strict=True):
+        for method in METHOD_NAMES:
+            pts = [r for r in rows if r["scene"] == scene and r["method"] == method]
+            if not pts:
+                continue
+            ax.plot([r["ms"] for r in pts], [r["pct_differ"] for r in pts], marker=markers[method],
+                    label=method)
+            for r in pts:
+                ax.annotate(str(r["zones"]), (r["ms"], r["pct_differ"]), fontsize=7,
+                            textcoords="offset points", xytext=(3, 3))
+        ax.set_xscale("log")
+        ax.set_xlabel("ms per update (labels: zones)")
+        ax.set_ylabel("% pixels unlike ray casting")
+        ax.set_title(scene)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def chart_sweep(rows: list[dict], key: str, path: Path, title: str) -> None:
+    """Run-length error (no fallback) against ``key`` (viewing angle or zones)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for method in ("runlength", "zbuffer"):
+        pts = sorted((r[key], r["pct_differ"]) for r in rows if r["method"] == method)
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=method)
+    ax.set_xlabel(key.replace("_", " "))
+    ax.set_ylabel("% pixels unlike ray casting")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_rows(rows: list[dict], stem: Path) -> None:
+    """Write rows as CSV and JSON next to each other."""
+    stem.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+    with stem.with_suffix(".csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the occlusion benchmark; return the exit status."""
+    p = argparse.ArgumentParser(prog="holo-bench render", description=__doc__)
+    p.add_argument("--out", default="bench-out", help="output folder")
+    p.add_argument("--quick", action="store_true", help="zones 1 and 5 only, fewer repeats")
+    p.add_argument("--scenes", default=",".join(SCENE_NAMES), help="comma-separated scene names")
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    zones = (1, 5) if args.quick else ZONES
+    reps = 3 if args.quick else 7
+    for m in METHOD_NAMES:
+        warm_up(RenderSettings(method=m))
+    rows = []
+    scenes = args.scenes.split(",")
+    total = len(scenes) * len(zones)
+    for i, (scene, z) in enumerate(((s, z) for s in scenes for z in zones), 1):
+        print(f"[{i}/{total}] {scene}, {z} zones", file=sys.stderr, flush=True)
+        rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback=False)
+        rows += [dict(r, method="runlength+fallback") for r in measure(scene, z, 16.0, ["runlength"], reps)]
+    write_rows(rows, out / "render_bench")
+    chart_methods([r for r in rows if r["method"] in METHOD_NAMES], out / "render_bench.png")
+    sweep = []
+    for a in ANGLES if not args.quick else (8, 16, 32, 60):
+        sweep += measure("game", 5, float(a), ("runlength", "zbuffer"), reps, fallback=False)
+    for z in zones:
+        sweep += measure("game", z, 32.0, ("runlength", "zbuffer"), reps, fallback=False)
+    write_rows(sweep, out / "runlength_sweep")
+    chart_sweep([r for r in sweep if r["zones"] == 5], "angle_deg", out / "runlength_angle.png",
+                "game scene, 5 zones: error vs viewing angle")
+    chart_sweep([r for r in sweep if r["angle_deg"] == 32.0], "zones", out / "runlength_zones.png",
+                "game scene, 32 degrees: error vs zone count")
+    print_summary(rows)
+    return 0
+
+
+def print_summary(rows: list[dict]) -> None:
+    """Table of ms and error, with ms as ratios to one zone with the z-buffer."""
+    for scene in sorted({r["scene"] for r in rows}):
+        base = next(r["ms"] for r in rows if r["scene"] == scene and r["zones"] == 1
+                    and r["method"] == "zbuffer")
+        print(f"\n{scene}: ms per update (ratio to 1-zone z-buffer = {base:.2f} ms), % differ")
+        for r in (r for r in rows if r["scene"] == scene):
+            print(f"  {r['method']:20s} {r['zones']:3d} zones {r['ms']:9.2f} ms  x{r['ms'] / base:6.2f}"
+                  f"  {r['pct_differ']:8.4f} %")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,42 @@
+"""``holo-bench``: run one of the project's benchmarks by name.
+
+Each benchmark writes CSV or JSON plus matplotlib charts to ``--out``; see the
+README's "Benchmarks" section for how to read them.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+BENCHES = {
+    "render": ("service.bench.render_bench", "occlusion methods x zone counts: ms vs % pixels unlike ray casting"),
+    "light": ("service.bench.light_bench", "specular per polygon / vertex / point: ms vs intensity error"),
+    "galilean": ("service.bench.galilean_bench", "Galilean stage: thought experiments and the order x interval sweep"),
+    "filters": ("drivers.bench_filters", "pose filters: jitter vs lag"),
+    "decoders": ("drivers.bench_decoders", "serial protocol decoders: MB/s"),
+}
+
+
+def usage() -> str:
+    """The help text listing the benchmarks."""
+    lines = ["usage: holo-bench NAME [options]   (holo-bench NAME --help for its options)", "", "benchmarks:"]
+    lines += [f"  {name:10s} {text}" for name, (_, text) in BENCHES.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Dispatch to a benchmark's ``main``; return the exit status."""
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage())
+        return 0
+    if argv[0] not in BENCHES:
+        print(f"holo-bench: unknown benchmark {argv[0]!r}\n\n{usage()}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(BENCHES[argv[0]][0])
+    return int(module.main(argv[1:]) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""The render pipeline: scene -> cull -> sort -> occlusion -> light -> frame.
+
+Each stage is a plain function over arrays (see the stage modules); this module
+only wires them together, times them, and applies the painter's-order fallback:
+when the run-length method reports that the average-z order decided a pixel the
+scene did not (cyclic overlap, interpenetration), the frame is redone with the
+z-buffer and the fallback is reported in the stats instead of showing a wrong
+picture.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from service.cull import CullSettings, cull
+from service.depth_sort import average_z, sort_polygons, triangle_order
+from service.display import DisplaySettings
+from service.errors import SettingsError
+from service.frame import Frame
+from service.light import LightSettings, shade
+from service.occlusion import Visibility
+from service.occlusion.bsp import BspCache
+from service.occlusion.raycast import raycast
+from service.occlusion.runlength import runlength
+from service.occlusion.zbuffer import zbuffer
+from service.projection import project
+from service.scene import Scene, SceneArrays
+
+OcclusionFn = Callable[[SceneArrays, np.ndarray, DisplaySettings, np.ndarray], Visibility]
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Choices for one render.
+
+    Attributes
+    ----------
+    method : {"zbuffer", "runlength", "bsp", "raycast"}
+        Occlusion method.
+    cull : CullSettings
+    light : LightSettings
+    painter_fallback : bool
+        Redo a run-length frame with the z-buffer when the sort proved inconsistent.
+    painter_tolerance : int
+        Inconsistent pixels tolerated before falling back (0: any).
+    """
+
+    method: str = "zbuffer"
+    cull: CullSettings = field(default_factory=CullSettings)
+    light: LightSettings = field(default_factory=LightSettings)
+    painter_fallback: bool = True
+    painter_tolerance: int = 0
+
+    def __post_init__(self) -> None:
+        if self.method not in METHOD_NAMES:
+            raise SettingsError(f"method must be one of {METHOD_NAMES}, got {self.method!r}")
+        if self.painter_tolerance < 0:
+            raise SettingsError("painter_tolerance must be >= 0")
+
+
+METHOD_NAMES = ("runlength", "zbuffer", "bsp", "raycast")
+
+
+class Renderer:
+    """Renders scenes; keeps what can be reused between frames (the BSP tree)."""
+
+    def __init__(self) -> None:
+        self._bsp = BspCache()
+        self._methods: dict[str, OcclusionFn] = {
+            "runlength": runlength,
+            "zbuffer": zbuffer,
+            "bsp": self._bsp.render,
+            "raycast": raycast,
+        }
+
+    def render(
+        self, scene: Scene, display: DisplaySettings, settings: RenderSettings | None = None
+    ) -> Frame:
+        """Render every view zone of a scene.
+
+        Returns
+        -------
+        Frame
+            ``colour`` (Z, R, C, 3) uint8, ``depth`` (Z, R, C) float32 and ``stats``
+            with polygon counts, per-stage milliseconds and occlusion counters.
+        """
+        settings = settings or RenderSettings()
+        ms: dict[str, float] = {}
+        clock = StageClock(ms)
+        with clock("flatten"):
+            arrays = scene.flatten()
+        vis, counts, proj = self.visibility(arrays, display, settings, clock)
+        with clock("light"):
+            colour = shade(arrays, proj, vis, display, scene.lights, scene.ambient, settings.light)
+        stats = {"polygons": counts, "ms": ms, "occlusion": vis.stats, "method": settings.method}
+        stats["ms"]["total"] = float(sum(ms.values()))
+        return Frame(colour=colour, depth=vis.depth, stats=stats)
+
+    def visibility(
+        self,
+        arrays: SceneArrays,
+        display: DisplaySettings,
+        settings: RenderSettings,
+        clock: StageClock | None = None,
+    ) -> tuple[Visibility, dict, np.ndarray]:
+        """Stages 1-4: project, cull, sort, occlusion (with the painter fallback)."""
+        clock = clock or StageClock({})
+        with clock("project"):
+            proj = project(arrays.vertices, display)
+        with clock("cull"):
+            keep, counts = cull(arrays.normals, display, settings.cull)
+        with clock("sort"):
+            poly_order = sort_polygons(average_z(arrays.vertices, arrays.polygons, arrays.counts), keep)
+            order = triangle_order(poly_order, arrays.triangle_polygon)
+        with clock("occlusion"):
+            vis = self._methods[settings.method](arrays, proj, display, order)
+        bad = vis.stats.get("inconsistent_pixels", 0)
+        if settings.painter_fallback and bad > settings.painter_tolerance:
+            with clock("fallback"):
+                redo = zbuffer(arrays, proj, display, order)
+            redo.stats = {**vis.stats, "fallback": "zbuffer"}
+            vis = redo
+        drawn = np.unique(arrays.triangle_polygon[vis.triangle[vis.triangle >= 0]]).size
+        counts["drawn"] = int(drawn)
+        return vis, counts, proj
+
+
+class StageClock:
+    """Context-manager factory that adds each stage's milliseconds to a dict."""
+
+    def __init__(self, ms: dict[str, float]) -> None:
+        self.ms = ms
+        self._name = ""
+        self._t0 = 0
+
+    def __call__(self, name: str) -> StageClock:
+        self._name = name
+        return self
+
+    def __enter__(self) -> None:
+        self._t0 = time.perf_counter_ns()
+
+    def __exit__(self, *exc: object) -> None:
+        self.ms[self._name] = self.ms.get(self._name, 0.0) + (time.perf_counter_ns() - self._t0) / 1e6
+
+
+def warm_up(settings: RenderSettings | None = None) -> None:
+    """Compile (or load from numba's cache) the kernels a render will use.
+
+    Renders a one-triangle scene with the same settings, so timings of the next real
+    render measure the work and not the compiler.
+    """
+    from service.mesh import Mesh
+    from service.scene import SceneObject
+
+    tri = Mesh.from_triangles([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.1]], [[0, 1, 2]])
+    Renderer().render(Scene([SceneObject(tri)]), DisplaySettings(zones=2, cols=8, rows=8), settings)
