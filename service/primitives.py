@@ -295,3 +295,13 @@ def attacker(detail: int = 8, radius: float = 0.1, spike: float = 0.9) -> Mesh:
     rise = np.clip((near - base) / (1 - base), 0.0, 1.0) ** 1.5
     verts = unit * (radius * (1 + spike * rise))[:, None]
     return Mesh.from_triangles(verts, tris, "attacker")
+
+
+PRIMITIVES = {
+    "cube": cube,
+    "sphere": sphere,
+    "torus": torus,
+    "player": player,
+    "attacker": attacker,
+}
+"""Primitive builders by name (used by scene files and built-in scenes)."""

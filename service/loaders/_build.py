@@ -1,0 +1,145 @@
+"""Helpers shared by the mesh loaders: reading, decoding, number parsing, assembly.
+
+Every failure becomes a :class:`~service.errors.MeshFileError` naming the file and
+the line or element, so no loader lets a bare ``ValueError``, ``UnicodeDecodeError``
+or numpy error escape.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from service.errors import MeshError, MeshFileError
+from service.mesh import Mesh
+
+
+def read_bytes(path: str | Path) -> bytes:
+    """The whole file; an unreadable or empty file raises :class:`MeshFileError`."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise MeshFileError(str(path), "", f"cannot read the file: {exc.strerror or exc}") from None
+    if not data.strip():
+        raise MeshFileError(str(path), "", "the file is empty")
+    return data
+
+
+def decode_text(path: str | Path, data: bytes, first_line: int = 1) -> str:
+    """Decode UTF-8 text (a BOM is dropped), refusing binary data.
+
+    Parameters
+    ----------
+    path : str or Path
+        For messages.
+    data : bytes
+    first_line : int
+        Line number of the first line of ``data`` in the file.
+    """
+    nul = data.find(b"\x00")
+    if nul >= 0:
+        line = first_line + data.count(b"\n", 0, nul)
+        raise MeshFileError(str(path), f"line {line}", "binary data (a NUL byte) in a text file")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = first_line + data.count(b"\n", 0, exc.start)
+        raise MeshFileError(str(path), f"line {line}", "the text is not valid UTF-8") from None
+    return text.removeprefix("\ufeff")
+
+
+def text_lines(path: str | Path) -> list[str]:
+    """Read a text file as a list of lines (line ``n`` at index ``n - 1``)."""
+    return decode_text(path, read_bytes(path)).splitlines()
+
+
+def to_float(path: str | Path, where: str, token: str) -> float:
+    """Parse a finite float or raise :class:`MeshFileError` at ``where``."""
+    try:
+        value = float(token)
+    except ValueError:
+        raise MeshFileError(str(path), where, f"not a number: {token[:40]!r}") from None
+    if not math.isfinite(value):
+        raise MeshFileError(str(path), where, f"coordinate is not finite: {token[:40]!r}")
+    return value
+
+
+def to_int(path: str | Path, where: str, token: str, what: str) -> int:
+    """Parse an integer (``what`` names it in messages) or raise at ``where``."""
+    try:
+        return int(token)
+    except ValueError:
+        raise MeshFileError(str(path), where, f"{what} is not an integer: {token[:40]!r}") from None
+
+
+def pad_flat(flat: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Padded polygon array from concatenated indices.
+
+    Parameters
+    ----------
+    flat : ndarray, shape (sum(counts),)
+        Vertex indices of all polygons, one after another.
+    counts : ndarray, shape (P,)
+
+    Returns
+    -------
+    ndarray, shape (P, max(counts)), int64
+        Padded with -1.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    width = int(counts.max()) if counts.size else 3
+    out = np.full((counts.size, width), -1, dtype=np.int64)
+    rows = np.repeat(np.arange(counts.size), counts)
+    cols = np.arange(rows.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    out[rows, cols] = flat
+    return out
+
+
+def twice_areas(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Twice each polygon's vector area (Newell), shape (P,)."""
+    total = np.zeros((polygons.shape[0], 3))
+    ar = np.arange(polygons.shape[0])
+    for i in range(polygons.shape[1]):
+        nxt = np.where(i + 1 < counts, min(i + 1, polygons.shape[1] - 1), 0)
+        cross = np.cross(vertices[polygons[:, i]], vertices[polygons[ar, nxt]])
+        total += np.where((counts > i)[:, None], cross, 0.0)
+    return np.linalg.norm(total, axis=1)
+
+
+def finish_mesh(
+    path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray
+) -> Mesh:
+    """Drop zero-area polygons (with a warning naming the file) and build the mesh.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file read; its stem names the mesh.
+    vertices : ndarray, shape (V, 3), finite
+    polygons : ndarray, shape (P, K), indices checked in range, padded with -1
+    counts : ndarray, shape (P,), each >= 3
+
+    Returns
+    -------
+    Mesh
+    """
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    if counts.size:
+        centred = vertices - vertices.mean(axis=0) if vertices.size else vertices
+        scale = float(np.abs(centred).max()) if vertices.size else 0.0
+        keep = twice_areas(centred, polygons, counts) > 1e-12 * scale * scale
+        if not keep.all():
+            warnings.warn(
+                f"{path}: dropped {int((~keep).sum())} degenerate (zero-area) polygon(s)",
+                stacklevel=3,
+            )
+            polygons, counts = polygons[keep], counts[keep]
+            width = int(counts.max()) if counts.size else 3
+            polygons = polygons[:, :width] if counts.size else np.zeros((0, 3), np.int64)
+    try:
+        return Mesh(vertices, polygons.astype(np.int64), counts.astype(np.int64), Path(path).stem)
+    except MeshError as exc:
+        raise MeshFileError(str(path), "", str(exc)) from None

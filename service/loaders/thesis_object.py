@@ -1,0 +1,138 @@
+"""The thesis's object file (``.hobj``): counts, then each polygon's vertex coordinates.
+
+Seed 000, section 3.1: "The object file contains the number of polygons, the number
+of vertices in the object, and the (x, y, z) coordinates for each vertex of each
+polygon"; the program reads ``Numverts`` (vertices in the whole object, counted
+polygon by polygon) and ``Numpolyg``.  The exact grammar is in
+``docs/file-formats.md``::
+
+    # comment            (anything after '#' on any line)
+    NUMVERTS NUMPOLYG    (first data line; NUMVERTS = sum of the k below)
+    k                    (per polygon: its vertex count, k >= 3)
+    x y z                (k lines, counter-clockwise seen from outside)
+    ...
+
+Blank lines are ignored.  Coordinates repeated exactly are welded into one shared
+vertex (in order of first appearance) so smooth normals work.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from service.errors import MeshFileError
+from service.loaders._build import finish_mesh, pad_flat, text_lines, to_float, to_int
+from service.mesh import Mesh
+
+
+def _data_lines(lines: list[str]) -> list[tuple[int, list[str]]]:
+    """(line number, tokens) of every line with data, comments removed."""
+    out = []
+    for n, line in enumerate(lines, start=1):
+        tokens = line.split("#", 1)[0].split()
+        if tokens:
+            out.append((n, tokens))
+    return out
+
+
+def _header(path: Path, rows: list) -> tuple[int, int]:
+    """NUMVERTS and NUMPOLYG from the first data line."""
+    if not rows:
+        raise MeshFileError(str(path), "", "the file has no data (only comments)")
+    n, tokens = rows[0]
+    where = f"line {n}"
+    if len(tokens) != 2:
+        reason = f"expected 'NUMVERTS NUMPOLYG', got {len(tokens)} values"
+        raise MeshFileError(str(path), where, reason)
+    nverts = to_int(path, where, tokens[0], "NUMVERTS")
+    npolyg = to_int(path, where, tokens[1], "NUMPOLYG")
+    if nverts < 3 or npolyg < 1:
+        raise MeshFileError(str(path), where, "NUMVERTS must be >= 3 and NUMPOLYG >= 1")
+    return nverts, npolyg
+
+
+def _polygon(path: Path, rows: list, pos: int, p: int, coords: list) -> tuple[int, int]:
+    """Read polygon ``p`` starting at ``rows[pos]``; append its coordinates.
+
+    Returns the next position and the polygon's vertex count.
+    """
+    if pos >= len(rows):
+        raise MeshFileError(str(path), f"polygon {p}", "the file ends before this polygon")
+    n, tokens = rows[pos]
+    where = f"line {n}"
+    if len(tokens) != 1:
+        raise MeshFileError(str(path), where, f"expected the vertex count of polygon {p}")
+    k = to_int(path, where, tokens[0], "vertex count")
+    if k < 3:
+        raise MeshFileError(str(path), where, f"polygon {p} has {k} vertices; at least 3 needed")
+    if pos + k >= len(rows):
+        raise MeshFileError(
+            str(path), f"polygon {p}", f"the file ends inside this polygon (line {n} says {k})"
+        )
+    for n, tokens in rows[pos + 1 : pos + 1 + k]:
+        if len(tokens) != 3:
+            reason = f"expected 'x y z', got {len(tokens)} values"
+            raise MeshFileError(str(path), f"line {n}", reason)
+        coords.append([to_float(path, f"line {n}", t) for t in tokens])
+    return pos + 1 + k, k
+
+
+def load_thesis_object(path: str | Path) -> Mesh:
+    """Read a thesis object file.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    Mesh
+        Welded vertices (V, 3); polygons (NUMPOLYG, max k), minus any zero-area ones.
+
+    Raises
+    ------
+    MeshFileError
+        Naming the line or polygon at fault.
+    """
+    path = Path(path)
+    rows = _data_lines(text_lines(path))
+    nverts, npolyg = _header(path, rows)
+    coords: list[list[float]] = []
+    counts = np.empty(npolyg, dtype=np.int64)
+    pos = 1
+    for p in range(npolyg):
+        pos, counts[p] = _polygon(path, rows, pos, p, coords)
+    if pos < len(rows):
+        raise MeshFileError(str(path), f"line {rows[pos][0]}", "data after the last polygon")
+    if int(counts.sum()) != nverts:
+        raise MeshFileError(
+            str(path), f"line {rows[0][0]}",
+            f"NUMVERTS is {nverts} but the polygons list {int(counts.sum())} vertices",
+        )
+    points = np.array(coords, dtype=np.float64) + 0.0  # + 0.0 turns -0.0 into 0.0
+    _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    flat = rank[inverse.reshape(-1)]
+    return finish_mesh(path, points[first[order]], pad_flat(flat, counts), counts)
+
+
+def save_thesis_object(path: str | Path, mesh: Mesh, comment: str = "") -> None:
+    """Write a mesh as a thesis object file (coordinates written exactly, ``repr``).
+
+    Parameters
+    ----------
+    path : str or Path
+    mesh : Mesh
+    comment : str
+        Written as ``#`` lines at the top.
+    """
+    out = [f"# {line}" for line in comment.splitlines()]
+    out.append(f"{int(mesh.counts.sum())} {mesh.n_polygons}")
+    for row, k in zip(mesh.polygons, mesh.counts, strict=True):
+        out.append(str(int(k)))
+        out.extend(" ".join(repr(float(c)) for c in mesh.vertices[i]) for i in row[:k])
+    Path(path).write_text("\n".join(out) + "\n", encoding="utf-8")
