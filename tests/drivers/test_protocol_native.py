@@ -1,0 +1,148 @@
+"""Native tracker protocol: framing, CRC, resync, quaternion conversion, chunking."""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import Counter
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.events import PoseEvent, StatusEvent
+from drivers.protocols.crc import crc16_ccitt, crc16_ccitt_reference, crc32
+from drivers.protocols.native import (
+    NativeDecoder,
+    NativeFramer,
+    encode_command,
+    encode_frame,
+    encode_pose,
+    encode_text,
+    euler_from_quat,
+    quat_from_euler,
+)
+from service.errors import ProtocolError
+
+
+def feed_split(dec, data: bytes, cuts: list[int]) -> list:
+    events, prev = [], 0
+    for c in sorted(set(cuts)) + [len(data)]:
+        events += dec.feed(data[prev:c], 0)
+        prev = c
+    return events + dec.flush(0)
+
+
+def pose_frames(n: int, start: int = 0) -> list[bytes]:
+    return [encode_pose(start + i, 1000 * i, (i, -i, 0.5), quat_from_euler(i, 0, 0))
+            for i in range(n)]
+
+
+def test_crc_check_values():
+    assert crc16_ccitt(b"123456789") == 0x29B1 == crc16_ccitt_reference(b"123456789")
+    assert crc32(b"123456789") == 0xCBF43926
+
+
+@given(st.binary(max_size=64))
+def test_crc16_matches_reference(data):
+    assert crc16_ccitt(data) == crc16_ccitt_reference(data)
+
+
+@given(st.floats(-179, 179), st.floats(-89, 89), st.floats(-179, 179))
+def test_euler_quaternion_round_trip(yaw, pitch, roll):
+    q = quat_from_euler(yaw, pitch, roll)
+    assert math.isclose(sum(c * c for c in q), 1.0, rel_tol=1e-9)
+    back = euler_from_quat(q)
+    assert back == pytest.approx((yaw, pitch, roll), abs=1e-6)
+
+
+def test_quaternion_convention_yaw_is_about_y():
+    w, x, y, z = quat_from_euler(90, 0, 0)
+    assert (w, x, y, z) == pytest.approx((math.sqrt(0.5), 0, math.sqrt(0.5), 0))
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(1, 12), st.lists(st.integers(0, 600), max_size=12))
+def test_round_trip_any_split(n, cuts):
+    data = b"".join(pose_frames(n, start=2**32 - 3))
+    events = feed_split(NativeDecoder(), data, cuts)
+    assert [e.seq for e in events] == [(2**32 - 3 + i) % 2**32 for i in range(n)]
+    assert all(isinstance(e, PoseEvent) for e in events)  # seq wrap is not a gap
+    assert [e.device_t_us for e in events] == [1000 * i for i in range(n)]
+    assert events[-1].yaw == pytest.approx(n - 1, abs=1e-4)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.randoms(use_true_random=False))
+def test_single_byte_corruption_loses_only_that_frame(rnd):
+    frames = pose_frames(20)
+    bad = rnd.randrange(20)
+    raw = bytearray(frames[bad])
+    raw[rnd.randrange(len(raw))] ^= rnd.randrange(1, 256)
+    frames[bad] = bytes(raw)
+    dec = NativeDecoder()
+    events = dec.feed(b"".join(frames), 0) + dec.flush(0)
+    seqs = [e.seq for e in events if isinstance(e, PoseEvent)]
+    assert seqs == [i for i in range(20) if i != bad]
+    assert dec.stats.frames == 19
+    if 0 < bad < 19:
+        assert dec.stats.counter_gaps == 1
+
+
+def test_garbage_runs_counted_exactly():
+    rng = random.Random(3)
+    frames = pose_frames(10)
+    junk = [bytes(rng.randrange(256) for _ in range(k)) for k in (0, 5, 0, 17, 1, 0, 3, 0, 0, 9)]
+    data = b"".join(j + f for j, f in zip(junk, frames, strict=True))
+    dec = NativeDecoder()
+    events = dec.feed(data, 0)
+    assert [e.seq for e in events if isinstance(e, PoseEvent)] == list(range(10))
+    resyncs = [e.details["discarded"] for e in events if getattr(e, "event", "") == "resync"]
+    assert resyncs == [5, 17, 1, 3, 9]
+    assert dec.stats.bytes_discarded == 35
+
+
+def test_crc_error_reported_and_next_frame_recovered():
+    frames = pose_frames(3)
+    broken = bytearray(frames[1])
+    broken[20] ^= 0x40
+    dec = NativeDecoder()
+    events = dec.feed(frames[0] + bytes(broken) + frames[2], 0)
+    kinds = Counter(e.event for e in events if isinstance(e, StatusEvent))
+    assert kinds == Counter({"crc_error": 1, "resync": 1, "counter_gap": 1})
+    assert dec.stats.crc_errors == 1
+
+
+def test_truncated_frame_at_flush_and_mid_stream():
+    frames = pose_frames(3)
+    dec = NativeDecoder()
+    events = dec.feed(frames[0][:30] + frames[1] + frames[2][:10], 0) + dec.flush(0)
+    assert [e.seq for e in events if isinstance(e, PoseEvent)] == [1]
+    assert dec.stats.truncated == 1  # the torn tail
+    assert dec.stats.resyncs >= 1   # the torn head is discarded as garbage
+
+
+def test_text_frames_and_commands():
+    data = encode_text(1, 7, "hello") + encode_text(2, 8, "bad", error=True)
+    events = NativeDecoder().feed(data, 0)
+    assert [(e.event, e.details["text"]) for e in events] == [("info", "hello"), ("error", "bad")]
+    framer = NativeFramer()
+    out = framer.feed(encode_command("start") + encode_command("reset"))
+    assert [f.type for f in out] == [0x10, 0x12]
+
+
+def test_unit_quaternion_checked():
+    data = encode_pose(0, 0, (0, 0, 0), (2.0, 0, 0, 0))
+    dec = NativeDecoder()
+    events = dec.feed(data, 0)
+    assert dec.stats.out_of_range == 1
+    assert events[0].details["reason"] == "out_of_range"
+
+
+def test_encoder_rejects_bad_input():
+    with pytest.raises(ProtocolError):
+        encode_frame(0x99, b"")
+    with pytest.raises(ProtocolError):
+        encode_frame(0x01, b"short")
+    with pytest.raises(ProtocolError):
+        encode_command("fly")

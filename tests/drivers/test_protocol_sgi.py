@@ -1,0 +1,134 @@
+"""SGI dial and button box codec: packets, wrap, resync, 10 ms rule, re-init request."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.events import ButtonEvent, DialEvent, StatusEvent
+from drivers.protocols.sgi_dialbox import (
+    SgiCommandParser,
+    SgiDecoder,
+    button_code,
+    encode_all_lamps,
+    encode_button,
+    encode_dial,
+    encode_enable_dials,
+    encode_filter,
+    encode_lamps,
+    init_sequence,
+)
+from service.errors import ProtocolError
+
+MS = 1_000_000
+
+
+def test_button_numbering_matches_vrpn():
+    assert button_code(0, True) == 0xD8 and button_code(31, True) == 0xC7
+    assert button_code(7, True) == 0xDF and button_code(8, True) == 0xD0
+    assert button_code(16, False) == 0xE8 and button_code(0, False) == 0xF8
+    events = SgiDecoder().feed(bytes(range(0xC0, 0x100)), 0)
+    assert sorted(e.index for e in events if e.pressed) == list(range(32))
+    assert sorted(e.index for e in events if not e.pressed) == list(range(32))
+
+
+def test_dial_unwraps_across_16_bit_wrap():
+    dec = SgiDecoder()
+    counters = [32000, 32767, -32768, -32000, 32000]
+    events = dec.feed(b"".join(encode_dial(3, c) for c in counters), 0)
+    assert [e.delta for e in events] == [32000, 767, 1, 768, -1536]
+    assert [e.value for e in events] == [32000, 32767, 32768, 33536, 32000]
+    assert events[2].turns() == pytest.approx(32768 / 200)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.one_of(st.tuples(st.just("d"), st.integers(0, 7), st.integers(-400, 400)),
+                          st.tuples(st.just("b"), st.integers(0, 31), st.booleans())),
+                max_size=30),
+       st.lists(st.integers(0, 100), max_size=10))
+def test_round_trip_any_split(script, cuts):
+    counters, data, expected = [0] * 8, b"", []
+    for kind, idx, arg in script:
+        if kind == "d":
+            counters[idx] += arg
+            data += encode_dial(idx, counters[idx])
+            expected.append(("dial", idx, counters[idx]))
+        else:
+            data += encode_button(idx, arg)
+            expected.append(("button", idx, arg))
+    dec, events, prev = SgiDecoder(), [], 0
+    for c in sorted(set(cuts)) + [len(data)]:
+        events += dec.feed(data[prev:c], 0)
+        prev = c
+    got = [("dial", e.index, e.value) if isinstance(e, DialEvent) else
+           ("button", e.index, e.pressed) for e in events]
+    assert got == expected
+
+
+def test_unknown_bytes_discarded_and_reported_per_run():
+    data = b"\x01\x02" + encode_button(5, True) + b"\x99" + encode_dial(1, 10) + b"\x40\x41"
+    dec = SgiDecoder()
+    events = dec.feed(data, 0) + dec.flush(0)
+    assert [e.details["discarded"] for e in events if isinstance(e, StatusEvent)] == [2, 1, 2]
+    assert [type(e).__name__ for e in events if not isinstance(e, StatusEvent)] == [
+        "ButtonEvent", "DialEvent"]
+    assert dec.stats.bytes_discarded == 5 and dec.stats.resyncs == 3
+
+
+def test_dial_packet_not_completed_in_10ms_is_discarded():
+    dec = SgiDecoder()
+    assert dec.feed(b"\x32\x00", 0) == []
+    late = dec.feed(b"\x05" + encode_button(0, True), 11 * MS)
+    assert [e.event for e in late if isinstance(e, StatusEvent)] == ["truncated", "resync"]
+    assert [e.index for e in late if isinstance(e, ButtonEvent)] == [0]
+    assert dec.stats.truncated == 1
+
+
+def test_dial_packet_completed_within_10ms_is_kept():
+    dec = SgiDecoder()
+    dec.feed(b"\x32\x00", 0)
+    events = dec.feed(b"\x05", 9 * MS)
+    assert events == [DialEvent(9 * MS, 2, 5, 5)]
+
+
+def test_repeated_garbage_requests_reinit_once():
+    dec = SgiDecoder(garbage_limit=8)
+    events = dec.feed(b"\x01" * 20, 0)
+    reinit = [e for e in events if isinstance(e, StatusEvent) and e.needs_reinit]
+    assert len(reinit) == 1
+    after_good = dec.feed(encode_button(1, True) + b"\x01" * 7, 1)
+    assert not any(getattr(e, "needs_reinit", False) for e in after_good)
+    assert [e.needs_reinit for e in dec.feed(b"\x01", 2)] == [True]
+
+
+def test_reset_ack_is_info_and_reset_zeroes_counters():
+    dec = SgiDecoder()
+    dec.feed(encode_dial(0, 50), 0)
+    dec.reset()
+    events = dec.feed(b"\x20" + encode_dial(0, 60), 0)
+    assert events[0].details == {"message": "reset_ack"}
+    assert events[1].delta == 60 and events[1].value == 60
+
+
+def test_host_commands_encode_and_parse():
+    assert encode_lamps(0b1_0000_0001) == bytes((0x75, 0x01, 0x01, 0x00, 0x00))
+    assert encode_lamps(1 << 31) == bytes((0x75, 0, 0, 0, 0x80))
+    assert encode_all_lamps(True) == b"\x4b" and encode_all_lamps(False) == b"\x4c"
+    assert encode_enable_dials() == b"\x50\xff\xff"
+    assert encode_filter(2, 7) == b"\x53\x02\x07"
+    with pytest.raises(ProtocolError):
+        encode_filter(8, 0)
+    steps = init_sequence(0.5)
+    stream = b"".join(s.data for s in steps)
+    parsed = SgiCommandParser().feed(b"\x00" + stream)
+    assert [c for c, _ in parsed] == [0x20, 0x20, 0x50, 0x71, 0x73, 0x71, 0x73]
+    assert steps[1].wait_s == 0.5 and steps[1].expect == b"\x20"
+
+
+def test_dial_event_schema():
+    ev = SgiDecoder().feed(encode_dial(7, -3), 1_000_000_000)[0]
+    assert ev.to_dict() == {"t": 1.0, "device": "dials", "kind": "dial", "index": 7,
+                            "delta": -3, "value": -3}
+    assert ev.to_json() == (
+        '{"t":1.0,"device":"dials","kind":"dial","index":7,"delta":-3,"value":-3}')
