@@ -51,8 +51,16 @@ def signed_volume(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray
     return total / 6.0
 
 
-def _outward(vertices: np.ndarray, polys: list, name: str) -> Mesh:
-    """Build a mesh, reversing every polygon if the signed volume is negative."""
+def outward_mesh(vertices: np.ndarray, polys: list, name: str) -> Mesh:
+    """Build a closed mesh, reversing every polygon if its signed volume is negative.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+    polys : list of lists of int
+        Consistently wound polygons (either way round).
+    name : str
+    """
     mesh = Mesh.from_polygons(vertices, polys, name)
     if signed_volume(mesh.vertices, mesh.polygons, mesh.counts) < 0:
         mesh = Mesh.from_polygons(vertices, [list(reversed(p)) for p in polys], name)
@@ -97,7 +105,7 @@ def lathe(profile: np.ndarray, n_around: int, name: str = "lathe") -> Mesh:
             k = (j + 1) % n_around
             quad = [up[j], low[j], low[k], up[k]]
             polys.append([v for i, v in enumerate(quad) if v != quad[i - 1]])
-    return _outward(np.array(verts), polys, name)
+    return outward_mesh(np.array(verts), polys, name)
 
 
 def cube(size: float = 1.0) -> Mesh:
@@ -165,7 +173,7 @@ def torus(R: float = 0.5, r: float = 0.15, n_major: int = 32, n_minor: int = 12)
         for j in range(n_minor):
             i1, j1 = (i + 1) % n_major, (j + 1) % n_minor
             polys.append([i * n_minor + j, i1 * n_minor + j, i1 * n_minor + j1, i * n_minor + j1])
-    return _outward(verts, polys, "torus")
+    return outward_mesh(verts, polys, "torus")
 
 
 def _prism(tri: np.ndarray, thickness: float, angle: float) -> tuple[np.ndarray, list]:
@@ -214,7 +222,7 @@ def player(detail: int = 4, size: float = 0.35) -> Mesh:
     fin = np.array([[0.08, -0.1], [0.1, -0.38], [0.3, -0.44]])
     for k, shape in enumerate((wing, fin, wing, fin)):
         verts, faces = _prism(shape, 0.025, k * np.pi / 2)
-        parts.append(_outward(verts, faces, "fin"))
+        parts.append(outward_mesh(verts, faces, "fin"))
     mesh = _combine(parts, "player")
     return Mesh(mesh.vertices * size, mesh.polygons, mesh.counts, "player")
 
