@@ -217,3 +217,25 @@ def test_constant_rate_rotation_unwrapped_for_any_start(name, start, rate):
     assert np.all(np.abs(vel[1:, 3]) <= abs(rate) * 1.6 + 1e-6)
     if name in ("raw", "alpha-beta", "alpha-beta-gamma"):
         np.testing.assert_allclose(vel[-1, 3], rate, atol=1e-6 + 0.02 * abs(rate))
+
+
+def test_bench_lag_estimate_recovers_known_delay():
+    from drivers.bench_filters import best_lag
+
+    t = np.arange(2000) / 80.0
+    ref = np.c_[np.sin(2 * np.pi * 0.5 * t), np.cos(2 * np.pi * 0.3 * t)]
+    delayed = np.c_[np.sin(2 * np.pi * 0.5 * (t - 0.04)), np.cos(2 * np.pi * 0.3 * (t - 0.04))]
+    lag, resid = best_lag(t, delayed, ref)
+    assert lag == pytest.approx(0.04, abs=0.0011)
+    assert resid < 1e-3
+
+
+def test_bench_simulations_are_seeded_and_cross_180():
+    from drivers.bench_filters import simulated
+
+    a, b = simulated(7), simulated(7)
+    for da, db in zip(a, b, strict=True):
+        np.testing.assert_array_equal(da.samples, db.samples)
+        assert np.all(np.diff(da.t) > 0)
+    turn = a[2]
+    assert turn.truth[:, 3].max() > 240 and np.abs(turn.samples[:, 3]).max() <= 180
