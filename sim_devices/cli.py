@@ -1,0 +1,115 @@
+"""``holo-sim``: run a simulated tracker or dial box on a pty or a TCP port.
+
+Examples::
+
+    holo-sim tracker --pty                       # prints /dev/pts/N, streams Hatire
+    holo-sim tracker --protocol native --tcp 7001 --motion turn:amplitude=45
+    holo-sim tracker --faults corrupt=0.02,burst=0.01,split,seed=3 --seconds 30
+    holo-sim dials --pty --seconds 20            # answers the init handshake, then plays
+
+The first stdout line is the path or URL a client opens (flushed at once).  When the
+run ends a JSON summary (bytes sent, faults applied) is printed on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+from collections.abc import Sequence
+
+from service.errors import HoloError
+from sim_devices.dialbox import DialBoxSim, demo_script
+from sim_devices.endpoints import DeviceRunner, PtyLink, TcpLink
+from sim_devices.faults import FaultSpec
+from sim_devices.motion import MOTIONS, make_motion
+from sim_devices.tracker import TrackerSim
+
+FAULT_HELP = ("comma-separated faults, e.g. 'corrupt=0.02,drop=0.01,truncate=0.01,"
+              "burst=0.01,burst_len=4-40,wrong_baud=0.005,split,max_split=8,pause=0.01,"
+              "pause_s=0.1,disconnect=0.001,reconnect_s=1,seed=3' (probabilities per frame)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (also used for ``--help``)."""
+    p = argparse.ArgumentParser(
+        prog="holo-sim", description="Simulated head tracker (Hatire or native protocol) "
+        "or SGI dial and button box, served on a pty pair or a TCP port on 127.0.0.1.",
+        epilog="The first line on stdout is what a client opens (a /dev/pts path or a "
+        "socket:// URL); a JSON summary follows when the run ends.")
+    p.add_argument("device", choices=("tracker", "dials"), help="which device to simulate")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true", help="serve on a pty pair (default)")
+    where.add_argument("--tcp", type=int, metavar="PORT",
+                       help="serve on 127.0.0.1:PORT (0 = any free port)")
+    p.add_argument("--pty-link", metavar="PATH",
+                   help="keep a symlink at PATH to the current pty (survives reconnects)")
+    p.add_argument("--protocol", choices=("hatire", "native"), default="hatire",
+                   help="tracker protocol (default: %(default)s)")
+    p.add_argument("--motion", default="sway",
+                   help=f"tracker motion: {', '.join(MOTIONS)}, options as "
+                   "name:key=value,... (e.g. turn:amplitude=45, replay:file=log; "
+                   "default: %(default)s)")
+    p.add_argument("--noise", type=float, default=0.0, metavar="DEG",
+                   help="Gaussian angle noise (std, degrees; position noise = 2.5x in mm)")
+    p.add_argument("--rate", type=float, default=60.0, metavar="HZ",
+                   help="tracker frame rate (default: %(default)s)")
+    p.add_argument("--byte-order", choices=("little", "big"), default="little",
+                   help="Hatire byte order (default: %(default)s)")
+    p.add_argument("--wait-start", action="store_true",
+                   help="tracker waits for the host's start command before streaming")
+    p.add_argument("--enabled", action="store_true",
+                   help="dial box reports without waiting for the init handshake")
+    p.add_argument("--faults", default="", help=FAULT_HELP)
+    p.add_argument("--seconds", type=float, default=None,
+                   help="stop after N seconds of device time (default: until Ctrl-C; "
+                   "dials: 30)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed for motion, script and noise (default: %(default)s)")
+    p.add_argument("--no-pace", action="store_true",
+                   help="do not pace writes to the baud rate")
+    p.add_argument("--fast", action="store_true",
+                   help="send frames as fast as possible instead of in real time")
+    return p
+
+
+def _device(args: argparse.Namespace) -> TrackerSim | DialBoxSim:
+    if args.device == "tracker":
+        motion = make_motion(args.motion, args.seed, args.noise, 2.5 * args.noise)
+        return TrackerSim(args.protocol, motion, args.rate, args.byte_order,
+                          autostart=not args.wait_start)
+    return DialBoxSim(demo_script(args.seed, args.seconds or 30.0), enabled=args.enabled)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the simulator; returns the exit status (0 ok, 2 bad settings or device)."""
+    args = build_parser().parse_args(argv)
+    try:
+        device = _device(args)
+        faults = FaultSpec.parse(args.faults)
+        link = TcpLink(args.tcp) if args.tcp is not None else PtyLink(args.pty_link)
+    except HoloError as exc:
+        print(f"holo-sim: {exc}", file=sys.stderr)
+        return 2
+    print(getattr(link, "path", link.name), flush=True)
+    runner = DeviceRunner(device, link, faults, args.seconds, realtime=not args.fast,
+                          pace=not args.no_pace)
+    signal.signal(signal.SIGTERM, lambda *_: runner.stop_event.set())
+    try:
+        runner.run()
+    except KeyboardInterrupt:
+        pass
+    except HoloError as exc:
+        print(f"holo-sim: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        link.close()
+    led = runner.ledger
+    print(json.dumps({"bytes_sent": runner.bytes_sent, "frames": led.frames,
+                      "intact": len(led.intact), "faults": dict(led.counts)}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
