@@ -247,3 +247,27 @@ def test_raw_capture_reader_on_hatire_fixture():
     assert data == HATIRE.read_bytes()[79:]
     assert data[:2] == b"\xaa\xaa"
     assert recs[-1].t_ns == pytest.approx(len(data) * 10 / 115200 * 1e9, abs=1)
+
+
+@pytest.mark.skipif(not HATIRE.is_file(), reason="shared Hatire fixture not present")
+def test_raw_capture_replays_through_the_hatire_decoder():
+    hatire = pytest.importorskip("drivers.protocols.hatire")
+    dec = hatire.HatireDecoder(angle_limit=360.0)
+    poses = []
+    for rec in RawCaptureReader(HATIRE, protocol="hatire", chunk_size=17):
+        poses += [e for e in dec.feed(rec.data, rec.t_ns) if hasattr(e, "yaw")]
+    assert len(poses) == 4765
+    assert all(b.t_ns >= a.t_ns for a, b in zip(poses, poses[1:], strict=False))
+
+
+def test_log_round_trip_of_a_hatire_stream_feeds_the_decoder_identically(tmp_path):
+    hatire = pytest.importorskip("drivers.protocols.hatire")
+    stream = b"".join(hatire.encode_pose(k, k * 0.5, -k, 1.0) for k in range(100))
+    path = tmp_path / "h.hlog"
+    with LogWriter(path, LogHeader((DeviceInfo("tracker", "hatire"),))) as w:
+        for k in range(0, len(stream), 23):
+            w.write("tracker", k * 1000, stream[k : k + 23])
+    dec = hatire.HatireDecoder()
+    poses = [e for r in LogReader(path) for e in dec.feed(r.data, r.t_ns) if hasattr(e, "yaw")]
+    assert [p.seq for p in poses] == list(range(100))
+    assert poses[10].yaw == 5.0

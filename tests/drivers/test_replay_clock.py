@@ -157,3 +157,18 @@ def test_lateness_bounded_by_one_oversleep(gaps, speed, overshoot):
     target = at[0] + np.round((t - t[0]) / speed)
     late = np.array(at) - target
     assert late.min() >= 0 and late.max() <= overshoot + 1
+
+
+def test_replays_a_log_file_at_recorded_times(tmp_path):
+    from drivers.recording import DeviceInfo, LogHeader, LogReader, LogWriter
+
+    path = tmp_path / "s.hlog"
+    t = 7_000_000_000 + np.arange(200) * 12_500_000
+    with LogWriter(path, LogHeader((DeviceInfo("tracker", "hatire"),))) as w:
+        for k, tk in enumerate(t):
+            w.write("tracker", int(tk), bytes([k % 256]))
+    clock = FakeClock(overshoot_ns=50_000)
+    got, at, _ = play(LogReader(path), clock, speed=2.0, loop=True, max_passes=2)
+    assert [r.data[0] for r in got] == [k % 256 for k in range(200)] * 2
+    late = np.array(at[:200]) - (at[0] + (t - t[0]) // 2)
+    assert 0 <= late.min() and late.max() <= 50_000
