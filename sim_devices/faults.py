@@ -133,14 +133,18 @@ class FaultLedger:
     intact : list of int
         Indices of frames sent byte-for-byte intact.
     damaged : dict
-        Frame index -> the damage done to it.
+        Frame index -> ``(fault, detail)``: corrupt -> byte position, drop -> bytes
+        removed, truncate -> bytes kept, wrong_baud -> bytes sent instead.
+    burst_bytes : int
+        Garbage bytes sent in bursts.
     frames : int
         Frames seen.
     """
 
     counts: Counter = field(default_factory=Counter)
     intact: list[int] = field(default_factory=list)
-    damaged: dict[int, str] = field(default_factory=dict)
+    damaged: dict[int, tuple[str, int]] = field(default_factory=dict)
+    burst_bytes: int = 0
     frames: int = 0
 
 
@@ -187,15 +191,16 @@ class FaultInjector:
         led.frames += 1
         data, damage = frame, self._pick_damage(rng.random())
         if damage:
-            data = self._damage[damage](frame)
+            data, detail = self._damage[damage](frame)
             led.counts[damage] += 1
-            led.damaged[index] = damage
+            led.damaged[index] = (damage, detail)
         else:
             led.intact.append(index)
         actions = self._writes(data)
         if rng.random() < spec.burst:
             led.counts["burst"] += 1
             size = rng.randint(*spec.burst_len)
+            led.burst_bytes += size
             actions += self._writes(bytes(rng.randrange(256) for _ in range(size)))
         if rng.random() < spec.pause:
             led.counts["pause"] += 1
@@ -225,19 +230,23 @@ class FaultInjector:
             pos += size
         return out
 
-    def _corrupt(self, frame: bytes) -> bytes:
+    def _corrupt(self, frame: bytes) -> tuple[bytes, int]:
         raw = bytearray(frame)
-        raw[self._rng.randrange(len(raw))] ^= self._rng.randrange(1, 256)
-        return bytes(raw)
+        pos = self._rng.randrange(len(raw))
+        raw[pos] ^= self._rng.randrange(1, 256)
+        return bytes(raw), pos
 
-    def _drop(self, frame: bytes) -> bytes:
+    def _drop(self, frame: bytes) -> tuple[bytes, int]:
         raw = bytearray(frame)
-        for _ in range(min(self._rng.randint(1, 3), len(raw) - 1)):
+        count = min(self._rng.randint(1, 3), len(raw) - 1)
+        for _ in range(count):
             del raw[self._rng.randrange(len(raw))]
-        return bytes(raw)
+        return bytes(raw), count
 
-    def _truncate(self, frame: bytes) -> bytes:
-        return frame[:self._rng.randint(min(2, len(frame) - 1), len(frame) - 1)]
+    def _truncate(self, frame: bytes) -> tuple[bytes, int]:
+        kept = self._rng.randint(min(2, len(frame) - 1), len(frame) - 1)
+        return frame[:kept], kept
 
-    def _wrong_baud(self, frame: bytes) -> bytes:
-        return wrong_baud_bytes(frame, self.spec.baud_ratio)
+    def _wrong_baud(self, frame: bytes) -> tuple[bytes, int]:
+        data = wrong_baud_bytes(frame, self.spec.baud_ratio)
+        return data, len(data)

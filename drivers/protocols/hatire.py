@@ -34,7 +34,7 @@ Host to device: single-byte commands, configurable (:class:`HatireCommands`); th
 defaults are ``S`` start, ``s`` stop, ``R`` reset.
 
 Resync: the decoder scans for ``AA AA``.  A candidate whose byte 28-29 are not
-``55 55`` is not a frame: if another header starts inside it (at least 4 bytes in)
+``55 55`` is not a frame: if another header starts inside it (4 to 29 bytes in)
 the candidate is a truncated frame (``truncated`` status, bytes discarded), otherwise
 one byte is dropped and the scan goes on from the next byte, so an intact frame that
 follows or overlaps garbage is never lost.  Discarded bytes form runs; each run is
@@ -177,6 +177,8 @@ class HatireDecoder:
             if buf[j + 28] == 0x55 and buf[j + 29] == 0x55:
                 self._frame(buf, j, t_ns, events)
                 pos = j + FRAME_LEN
+            elif n - j <= FRAME_LEN:
+                break  # need one more byte to see whether a header starts at j + 29
             else:
                 pos = self._bad_candidate(buf, j, t_ns, events)
         del buf[:pos]
@@ -212,7 +214,7 @@ class HatireDecoder:
         events.append(StatusEvent(t_ns, "tracker", "truncated", {"bytes": size}))
 
     def _bad_candidate(self, buf: bytearray, j: int, t_ns: int, events: list[Event]) -> int:
-        nxt = buf.find(HEADER, j + MIN_TRUNCATED, j + FRAME_LEN - 1)
+        nxt = buf.find(HEADER, j + MIN_TRUNCATED, j + FRAME_LEN + 1)
         if nxt < 0:
             self._drop(1)
             return j + 1
