@@ -187,6 +187,7 @@ def capture(path: Path) -> Dataset:
 def _decode_capture(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Counters (N,) and poses (N, 6) ``(x, y, z, yaw, pitch, roll)`` of the capture."""
     try:
+        from drivers.events import PoseEvent
         from drivers.protocols.hatire import HatireDecoder
     except ImportError:  # the decoder is another module; keep the bench usable alone
         return _local_parse(path.read_bytes()[CAPTURE_BANNER:])
@@ -195,7 +196,7 @@ def _decode_capture(path: Path) -> tuple[np.ndarray, np.ndarray]:
     rows = []
     for rec in reader:
         for ev in dec.feed(rec.data, rec.t_ns):
-            if type(ev).__name__ == "PoseEvent":
+            if isinstance(ev, PoseEvent):
                 rows.append((ev.seq, ev.x, ev.y, ev.z, ev.yaw, ev.pitch, ev.roll))
     arr = np.array(rows, dtype=np.float64)
     return arr[:, 0].astype(np.int64), arr[:, 1:]

@@ -475,6 +475,9 @@ class RawCaptureReader:
     Attributes
     ----------
     header : LogHeader
+        Synthetic: one device (serial URL ``file://<path>``, the given baud rate),
+        ``start_wall_ns`` from the file's modification time,
+        ``start_monotonic_ns = t0_ns`` and ``extra["synthetic_times"] = True``.
     stats : ReadStats
     """
 
