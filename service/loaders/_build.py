@@ -122,23 +122,28 @@ def finish_mesh(
     polygons : ndarray, shape (P, K), indices checked in range, padded with -1
     counts : ndarray, shape (P,), each >= 3
 
+    Raises
+    ------
+    MeshFileError
+        If there are no polygons, or none with a non-zero area.
+
     Returns
     -------
     Mesh
     """
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    if counts.size:
-        centred = vertices - vertices.mean(axis=0) if vertices.size else vertices
-        scale = float(np.abs(centred).max()) if vertices.size else 0.0
-        keep = twice_areas(centred, polygons, counts) > 1e-12 * scale * scale
-        if not keep.all():
-            warnings.warn(
-                f"{path}: dropped {int((~keep).sum())} degenerate (zero-area) polygon(s)",
-                stacklevel=3,
-            )
-            polygons, counts = polygons[keep], counts[keep]
-            width = int(counts.max()) if counts.size else 3
-            polygons = polygons[:, :width] if counts.size else np.zeros((0, 3), np.int64)
+    if counts.size == 0:
+        raise MeshFileError(str(path), "", "the file has no polygons")
+    centred = vertices - vertices.mean(axis=0)
+    scale = float(np.abs(centred).max())
+    keep = twice_areas(centred, polygons, counts) > 1e-12 * scale * scale
+    if not keep.any():
+        raise MeshFileError(str(path), "", "every polygon is degenerate (zero area)")
+    if not keep.all():
+        dropped = int((~keep).sum())
+        warnings.warn(f"{path}: dropped {dropped} degenerate (zero-area) polygon(s)", stacklevel=3)
+        polygons, counts = polygons[keep], counts[keep]
+        polygons = polygons[:, : int(counts.max())]
     try:
         return Mesh(vertices, polygons.astype(np.int64), counts.astype(np.int64), Path(path).stem)
     except MeshError as exc:

@@ -45,7 +45,6 @@ class Element:
 
     name: str
     count: int
-    line: int
     props: list[Property] = field(default_factory=list)
 
 
@@ -76,7 +75,7 @@ def _h_element(path: Path, where: str, tokens: list[str], head: Header) -> None:
     count = to_int(path, where, tokens[2], "element count")
     if count < 0:
         raise MeshFileError(str(path), where, "element count is negative")
-    head.elements.append(Element(tokens[1], count, int(where.split()[1])))
+    head.elements.append(Element(tokens[1], count))
 
 
 def _h_property(path: Path, where: str, tokens: list[str], head: Header) -> None:

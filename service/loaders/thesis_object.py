@@ -31,7 +31,7 @@ def _data_lines(lines: list[str]) -> list[tuple[int, list[str]]]:
     """(line number, tokens) of every line with data, comments removed."""
     out = []
     for n, line in enumerate(lines, start=1):
-        tokens = line.split("#", 1)[0].split()
+        tokens = (line[: line.index("#")] if "#" in line else line).split()
         if tokens:
             out.append((n, tokens))
     return out
@@ -53,30 +53,73 @@ def _header(path: Path, rows: list) -> tuple[int, int]:
     return nverts, npolyg
 
 
-def _polygon(path: Path, rows: list, pos: int, p: int, coords: list) -> tuple[int, int]:
-    """Read polygon ``p`` starting at ``rows[pos]``; append its coordinates.
+def _structure(path: Path, rows: list, npolyg: int) -> tuple[np.ndarray, list[int]]:
+    """Walk the polygon headers: each polygon's k, and where its first coordinate row is."""
+    counts = np.empty(npolyg, dtype=np.int64)
+    starts, pos = [], 1
+    for p in range(npolyg):
+        if pos >= len(rows):
+            raise MeshFileError(str(path), f"polygon {p}", "the file ends before this polygon")
+        n, tokens = rows[pos]
+        where = f"line {n}"
+        if len(tokens) != 1:
+            raise MeshFileError(str(path), where, f"expected the vertex count of polygon {p}")
+        k = to_int(path, where, tokens[0], "vertex count")
+        if k < 3:
+            reason = f"polygon {p} has {k} vertices; at least 3 needed"
+            raise MeshFileError(str(path), where, reason)
+        if pos + k >= len(rows):
+            reason = f"the file ends inside this polygon (line {n} says {k} vertices)"
+            raise MeshFileError(str(path), f"polygon {p}", reason)
+        counts[p] = k
+        starts.append(pos + 1)
+        pos += 1 + k
+    if pos < len(rows):
+        raise MeshFileError(str(path), f"line {rows[pos][0]}", "data after the last polygon")
+    return counts, starts
 
-    Returns the next position and the polygon's vertex count.
-    """
-    if pos >= len(rows):
-        raise MeshFileError(str(path), f"polygon {p}", "the file ends before this polygon")
-    n, tokens = rows[pos]
-    where = f"line {n}"
-    if len(tokens) != 1:
-        raise MeshFileError(str(path), where, f"expected the vertex count of polygon {p}")
-    k = to_int(path, where, tokens[0], "vertex count")
-    if k < 3:
-        raise MeshFileError(str(path), where, f"polygon {p} has {k} vertices; at least 3 needed")
-    if pos + k >= len(rows):
-        raise MeshFileError(
-            str(path), f"polygon {p}", f"the file ends inside this polygon (line {n} says {k})"
-        )
-    for n, tokens in rows[pos + 1 : pos + 1 + k]:
+
+def _coordinates(path: Path, rows: list, counts: np.ndarray, starts: list[int]) -> np.ndarray:
+    """The x y z rows of all polygons, shape (sum(counts), 3); errors name the line."""
+    picked = [rows[s + j] for s, k in zip(starts, counts.tolist(), strict=True) for j in range(k)]
+    for n, tokens in picked:
         if len(tokens) != 3:
             reason = f"expected 'x y z', got {len(tokens)} values"
             raise MeshFileError(str(path), f"line {n}", reason)
-        coords.append([to_float(path, f"line {n}", t) for t in tokens])
-    return pos + 1 + k, k
+    try:
+        points = np.array([float(t) for _, tokens in picked for t in tokens]).reshape(-1, 3)
+    except ValueError:
+        points = None  # find the culprit line below
+    if points is None or not np.all(np.isfinite(points)):
+        for n, tokens in picked:
+            for t in tokens:
+                to_float(path, f"line {n}", t)
+    return points + 0.0  # + 0.0 turns -0.0 into 0.0 so welding compares values
+
+
+def weld(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge exactly equal rows, keeping the order of first appearance.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+
+    Returns
+    -------
+    unique : ndarray, shape (V, 3)
+    index : ndarray, shape (N,), int64
+        ``unique[index] == points``.
+    """
+    order = np.lexsort(points.T[::-1])
+    srt = points[order]
+    new = np.concatenate([[True], np.any(srt[1:] != srt[:-1], axis=1)])
+    group = np.cumsum(new) - 1
+    first = order[new]  # lexsort is stable: the earliest row of each group
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(first.size)
+    index = np.empty(points.shape[0], dtype=np.int64)
+    index[order] = rank[group]
+    return points[np.sort(first)], index
 
 
 def load_thesis_object(path: str | Path) -> Mesh:
@@ -99,25 +142,12 @@ def load_thesis_object(path: str | Path) -> Mesh:
     path = Path(path)
     rows = _data_lines(text_lines(path))
     nverts, npolyg = _header(path, rows)
-    coords: list[list[float]] = []
-    counts = np.empty(npolyg, dtype=np.int64)
-    pos = 1
-    for p in range(npolyg):
-        pos, counts[p] = _polygon(path, rows, pos, p, coords)
-    if pos < len(rows):
-        raise MeshFileError(str(path), f"line {rows[pos][0]}", "data after the last polygon")
+    counts, starts = _structure(path, rows, npolyg)
     if int(counts.sum()) != nverts:
-        raise MeshFileError(
-            str(path), f"line {rows[0][0]}",
-            f"NUMVERTS is {nverts} but the polygons list {int(counts.sum())} vertices",
-        )
-    points = np.array(coords, dtype=np.float64) + 0.0  # + 0.0 turns -0.0 into 0.0
-    _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(order.size)
-    flat = rank[inverse.reshape(-1)]
-    return finish_mesh(path, points[first[order]], pad_flat(flat, counts), counts)
+        reason = f"NUMVERTS is {nverts} but the polygons list {int(counts.sum())} vertices"
+        raise MeshFileError(str(path), f"line {rows[0][0]}", reason)
+    vertices, index = weld(_coordinates(path, rows, counts, starts))
+    return finish_mesh(path, vertices, pad_flat(index, counts), counts)
 
 
 def save_thesis_object(path: str | Path, mesh: Mesh, comment: str = "") -> None:

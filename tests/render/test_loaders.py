@@ -364,3 +364,20 @@ def test_single_mesh_becomes_fitted_one_object_scene(tmp_path):
     world = scene.flatten().vertices
     assert np.allclose(world.min(0), -0.8) and np.allclose(world.max(0), 0.8)
     assert scene.objects[0].name == "box"
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "reason"),
+    [
+        ("none.ply", "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+         "property float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n",
+         "no polygons"),
+        ("flat.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n", "every polygon is degenerate"),
+    ],
+)
+def test_files_without_usable_polygons(tmp_path, name, content, reason):
+    (tmp_path / name).write_text(content)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(MeshFileError, match=reason):
+            load_mesh(tmp_path / name)
