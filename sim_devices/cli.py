@@ -67,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "dials: 30)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed for motion, script and noise (default: %(default)s)")
+    p.add_argument("--baud", type=int, default=None,
+                   help="rate writes are paced to (default: 115200 tracker, 9600 dials)")
     p.add_argument("--no-pace", action="store_true",
                    help="do not pace writes to the baud rate")
     p.add_argument("--fast", action="store_true",
@@ -89,12 +91,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         device = _device(args)
         faults = FaultSpec.parse(args.faults)
         link = TcpLink(args.tcp) if args.tcp is not None else PtyLink(args.pty_link)
+        runner = DeviceRunner(device, link, faults, args.seconds, realtime=not args.fast,
+                              pace=not args.no_pace, baud=args.baud)
     except HoloError as exc:
         print(f"holo-sim: {exc}", file=sys.stderr)
         return 2
     print(getattr(link, "path", link.name), flush=True)
-    runner = DeviceRunner(device, link, faults, args.seconds, realtime=not args.fast,
-                          pace=not args.no_pace)
     signal.signal(signal.SIGTERM, lambda *_: runner.stop_event.set())
     try:
         runner.run()
@@ -104,6 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"holo-sim: {exc}", file=sys.stderr)
         return 2
     finally:
+        link.drain()
         link.close()
     led = runner.ledger
     print(json.dumps({"bytes_sent": runner.bytes_sent, "frames": led.frames,

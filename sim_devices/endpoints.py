@@ -35,7 +35,7 @@ from typing import Protocol
 
 import serial
 
-from service.errors import DeviceError
+from service.errors import DeviceError, SettingsError
 from sim_devices.faults import Disconnect, FaultInjector, FaultLedger, FaultSpec, Pause, Write
 
 POLL_S = 0.005
@@ -74,6 +74,9 @@ class LoopLink:
     def read_available(self) -> bytes:
         """Nothing: a loop port cannot carry host commands separately."""
         return b""
+
+    def drain(self, timeout: float = 2.0) -> None:
+        """Nothing to wait for (the reader holds the same port)."""
 
     def disconnect(self) -> None:
         """Nothing to drop on a loop port."""
@@ -142,6 +145,20 @@ class PtyLink:
             return os.read(self._master, 4096)
         except (BlockingIOError, OSError):
             return b""
+
+    def drain(self, timeout: float = 2.0) -> None:
+        """Wait (up to ``timeout``) until the client has read what was sent."""
+        import fcntl
+        import struct
+        import termios
+
+        deadline = time.monotonic() + timeout
+        buf = bytearray(4)
+        while self._slave >= 0 and time.monotonic() < deadline:
+            fcntl.ioctl(self._slave, termios.FIONREAD, buf)
+            if struct.unpack("i", buf)[0] == 0:
+                return
+            select.select([], [], [], POLL_S)
 
     def disconnect(self) -> None:
         """Close both ends (a client sees the device vanish)."""
@@ -224,6 +241,9 @@ class TcpLink:
             self.disconnect()
         return data
 
+    def drain(self, timeout: float = 2.0) -> None:
+        """Nothing to wait for: the kernel delivers sent bytes after a close."""
+
     def disconnect(self) -> None:
         """Close the client connection."""
         if self._conn is not None:
@@ -258,17 +278,22 @@ class DeviceRunner:
         Send each frame at its time (True) or as fast as possible (False).
     pace : bool
         Sleep ``10 * len / baud`` after each write.
+    baud : int or None
+        Rate to pace to (default: the device's own, e.g. 115200 or 9600).
     """
 
     def __init__(self, device: SimDevice, link: object, faults: FaultSpec | None = None,
                  seconds: float | None = None, realtime: bool = True,
-                 pace: bool = True) -> None:
+                 pace: bool = True, baud: int | None = None) -> None:
         self.device = device
         self.link = link
         self.injector = FaultInjector(faults)
         self.seconds = seconds
         self.realtime = realtime
         self.pace = pace
+        self.baud = baud or device.baud
+        if self.baud <= 0:
+            raise SettingsError("baud must be > 0")
         self.stop_event = threading.Event()
         self.done = threading.Event()
         self.bytes_sent = 0
@@ -342,7 +367,7 @@ class DeviceRunner:
             return
         self.bytes_sent += len(action.data)
         if self.pace:
-            self.stop_event.wait(BITS_PER_BYTE * len(action.data) / self.device.baud)
+            self.stop_event.wait(BITS_PER_BYTE * len(action.data) / self.baud)
 
     def _pause(self, action: Pause) -> None:
         self.stop_event.wait(action.seconds)

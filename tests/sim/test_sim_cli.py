@@ -1,0 +1,62 @@
+"""holo-sim CLI in a separate process: pty path on the first line, decodable stream."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+import serial
+
+from drivers.events import PoseEvent
+from drivers.protocols import make_decoder
+from sim_devices.cli import build_parser, main
+
+posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
+
+
+def test_help_lists_every_option(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for opt in ("--protocol", "--pty", "--tcp", "--motion", "--faults", "--seconds", "--seed",
+                "--no-pace"):
+        assert opt in out
+
+
+def test_bad_settings_exit_2(capsys):
+    assert main(["tracker", "--motion", "moonwalk", "--seconds", "0"]) == 2
+    assert "unknown motion" in capsys.readouterr().err
+    assert main(["tracker", "--faults", "corrupt=7", "--seconds", "0"]) == 2
+    assert build_parser().parse_args(["dials"]).protocol == "hatire"
+
+
+@posix_only
+@pytest.mark.parametrize("protocol", ["hatire", "native"])
+def test_pty_across_processes(protocol):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim_devices.cli", "tracker", "--pty", "--protocol", protocol,
+         "--rate", "200", "--seconds", "1", "--seed", "3", "--faults", "burst=0.05,seed=1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/")
+        port = serial.serial_for_url(path, timeout=0.05)
+        dec = make_decoder(protocol)
+        poses: list[PoseEvent] = []
+        deadline = time.monotonic() + 10
+        while len(poses) < 200 and time.monotonic() < deadline:
+            chunk = port.read(max(1, port.in_waiting))
+            poses += [e for e in dec.feed(chunk, time.monotonic_ns())
+                      if isinstance(e, PoseEvent)]
+        port.close()
+        out, err = proc.communicate(timeout=10)
+    finally:
+        proc.kill()
+    assert [p.seq for p in poses] == list(range(200))
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["frames"] == 200 and summary["faults"]["burst"] > 0
+    assert dec.stats.bytes_discarded > 0 and proc.returncode == 0, err
