@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import MeshFileError
+from service.errors import MeshFileError, SettingsError
 from service.loaders._build import decode_text, finish_mesh, pad_flat, read_bytes, to_int
 from service.mesh import Mesh
 
@@ -158,24 +158,6 @@ def _ascii_record(path: Path, where: str, tokens: list[str], props: list[Propert
     if i != len(tokens):
         raise MeshFileError(str(path), where, "more values than the declared properties")
     return values
-
-
-def _read_ascii(path: Path, data: bytes, head: Header, start: int) -> dict[str, tuple]:
-    """Records of the vertex and face elements: {name: (list of records, first line)}."""
-    lines = decode_text(path, data[start:], head.n_lines + 1).splitlines()
-    rows = [(head.n_lines + 1 + i, s.split()) for i, s in enumerate(lines) if s.strip()]
-    out, pos = {}, 0
-    for el in head.elements:
-        if pos + el.count > len(rows):
-            raise MeshFileError(
-                str(path), f"{el.name} {len(rows) - pos}", "the file ends early (truncated)"
-            )
-        chunk = rows[pos : pos + el.count]
-        pos += el.count
-        if el.name in ("vertex", "face"):
-            recs = [_ascii_record(path, f"line {n}", t, el.props) for n, t in chunk]
-            out[el.name] = (recs, [n for n, _ in chunk])
-    return out
 
 
 # --- binary body ------------------------------------------------------------------
@@ -370,9 +352,14 @@ def save_ply(path: str | Path, mesh: Mesh, fmt: str = "binary_little_endian") ->
     path : str or Path
     mesh : Mesh
     fmt : {"ascii", "binary_little_endian", "binary_big_endian"}
+
+    Raises
+    ------
+    SettingsError
+        For another format, or a polygon of more than 255 vertices.
     """
     if fmt not in FORMATS or mesh.counts.size and mesh.counts.max() > 255:
-        raise ValueError(f"cannot write PLY format {fmt!r} (or a face has > 255 vertices)")
+        raise SettingsError(f"cannot write PLY format {fmt!r} (or a face has > 255 vertices)")
     head = (
         f"ply\nformat {fmt} 1.0\ncomment written by Holo-realizer\n"
         f"element vertex {mesh.n_vertices}\nproperty double x\nproperty double y\n"
