@@ -1,0 +1,272 @@
+"""Fixed-point layout of galpixel motion (seed 002, section 3.1).
+
+Bit budget
+----------
+For a display of linear size ``D`` pixels, a rated propagation time ``N_prop``
+refreshes and a recognisability time ``N_recog`` refreshes, each of the x and y
+components of a galpixel's motion needs (logs base 2, rounded up)
+
+===================  ==================================  ==========================
+quantity             bits                                why
+===================  ==================================  ==========================
+fractional position  ``log2 N_prop``                     a 1/N_prop px/refresh speed
+                                                         moves 1 px in N_prop refreshes
+fractional velocity  ``2 log2 N_prop - 1``               carries the acceleration's
+fractional accel.    ``2 log2 N_prop - 1``               ``a N_prop^2 / 2 = 1 px``
+integral velocity    ``log2 D - log2 N_recog + 2``       projectile across D in N_recog
+integral accel.      ``log2 D - 2 log2 N_recog + 3``     the same projectile
+===================  ==================================  ==========================
+
+so ``N_bits = 2 log2 D + 5 log2 N_prop - 3 log2 N_recog + 3`` (31 for D = 1024,
+N_prop = N_recog = 16).  The integral position (``log2 D`` bits) is the galpixel's
+place in the pixmap matrix and is not counted.  G(3)'s jerk, which the paper does
+not size, gets ``3 log2 N_prop - 2`` fractional bits (``j N_prop^3 / 6 = 1 px``);
+a G(3) galpixmap keeps velocity, acceleration and jerk at that precision.
+
+Arithmetic
+----------
+Positions are integers in units of ``2^-fp`` px, motion in units of ``2^-fm``
+(``fp``, ``fm`` the fractional bits).  One refresh (equations 12-13, extended to
+the jerk) adds to the position the *exact* step ``v + a/2 + j/6`` rounded half up
+to ``fp`` bits (the paper's "add 0.00001000 and truncate"), then ``v += a + j/2``
+(rounded half up to ``fm`` bits) and ``a += j``.
+
+A position is shown at the pixel ``floor(x + 1/2)`` (symmetric rounding): the
+fraction lives in ``[-1/2, 1/2)``, so a galpixel at 1/16 px/refresh moving right
+jumps at refresh 8 and moving left at refresh 9.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from service.errors import SettingsError
+
+
+def _log2_ceil(n: float, name: str) -> int:
+    if not (np.isfinite(n) and n >= 1):
+        raise SettingsError(f"{name} must be a finite number >= 1, got {n!r}")
+    return int(math.ceil(math.log2(n) - 1e-12))
+
+
+@dataclass(frozen=True)
+class BitBudget:
+    """Bits per x or y motion component (section 3.1).
+
+    Attributes
+    ----------
+    display, n_prop, n_recog : int
+        D, N_prop and N_recog the budget was computed for.
+    frac_position, frac_velocity, frac_acceleration, frac_jerk : int
+    int_position, int_velocity, int_acceleration : int
+        ``int_position`` is held by the matrix address, not stored.
+    """
+
+    display: int
+    n_prop: int
+    n_recog: int
+    frac_position: int
+    frac_velocity: int
+    frac_acceleration: int
+    frac_jerk: int
+    int_position: int
+    int_velocity: int
+    int_acceleration: int
+
+    @property
+    def total(self) -> int:
+        """The paper's N_bits: stored bits of one component of a G(2) galpixel."""
+        return (self.frac_position + self.frac_velocity + self.frac_acceleration
+                + self.int_velocity + self.int_acceleration)
+
+
+def bit_budget(display: int, n_prop: int = 16, n_recog: int = 16) -> BitBudget:
+    """Bits per component for display size D, rated N_prop and recognisability N_recog.
+
+    Parameters
+    ----------
+    display : int
+        Linear display size D in pixels (the larger of width and height).
+    n_prop : int
+        Rated propagation time in refreshes, >= 4.
+    n_recog : int
+        Recognisability time in refreshes, >= 1.
+
+    Returns
+    -------
+    BitBudget
+
+    Raises
+    ------
+    SettingsError
+        For D < 1, N_prop < 4 or N_recog < 1.
+    """
+    ld = _log2_ceil(display, "display size")
+    lp = _log2_ceil(n_prop, "n_prop")
+    lr = _log2_ceil(n_recog, "n_recog")
+    if n_prop < 4:
+        raise SettingsError(f"n_prop must be >= 4 (two fractional position bits), got {n_prop}")
+    return BitBudget(
+        display=int(display), n_prop=int(n_prop), n_recog=int(n_recog),
+        frac_position=lp, frac_velocity=2 * lp - 1, frac_acceleration=2 * lp - 1,
+        frac_jerk=3 * lp - 2, int_position=ld,
+        int_velocity=ld - lr + 2, int_acceleration=ld - 2 * lr + 3,
+    )
+
+
+@dataclass(frozen=True)
+class FixedPoint:
+    """The fixed-point format one galpixmap uses.
+
+    Attributes
+    ----------
+    fp : int
+        Fractional bits of position.
+    fm : int
+        Fractional bits of velocity, acceleration (and jerk for G(3)).
+    v_max, a_max, j_max : float
+        Largest magnitudes (px per refresh^n) the integral bits hold; larger
+        values are clamped and flagged.
+    """
+
+    fp: int
+    fm: int
+    v_max: float
+    a_max: float
+    j_max: float
+
+    @classmethod
+    def for_order(cls, budget: BitBudget, order: int) -> FixedPoint:
+        """The format of a G(``order``) galpixmap under ``budget``."""
+        fm = budget.frac_jerk if order == 3 else budget.frac_velocity
+        v_max = 2.0 ** budget.int_velocity
+        a_max = 2.0 ** max(budget.int_acceleration, 0)
+        return cls(budget.frac_position, fm, v_max, a_max, a_max)
+
+    @property
+    def shift(self) -> int:
+        """``fm - fp``: bits dropped when a motion step becomes a position step."""
+        return self.fm - self.fp
+
+    def quantise(self, values: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray]:
+        """Motion values (px per refresh^n) to int32 fixed point, round half up.
+
+        Parameters
+        ----------
+        values : ndarray, any shape, float
+        limit : float
+            Magnitude bound; NaN, +-inf and values beyond it are clamped (NaN to 0).
+
+        Returns
+        -------
+        fixed : ndarray, same shape, int32
+        bad : ndarray, same shape, bool
+            Where a value was non-finite or clamped.
+        """
+        v = np.asarray(values, np.float64)
+        bad = ~np.isfinite(v) | (np.abs(v) > limit)
+        v = np.clip(np.nan_to_num(v, nan=0.0, posinf=limit, neginf=-limit), -limit, limit)
+        return np.floor(v * 2.0**self.fm + 0.5).astype(np.int32), bad
+
+    def to_float(self, fixed: np.ndarray) -> np.ndarray:
+        """Fixed-point motion back to px per refresh^n (float64)."""
+        return np.asarray(fixed, np.float64) / 2.0**self.fm
+
+
+@nb.njit(cache=True, inline="always")
+def advance(x: int, v: int, a: int, j: int, order: int, fp: int, fm: int) -> tuple:
+    """One refresh of one fixed-point component (equations 12-13 and their G(3) analogue).
+
+    ``x`` is a position in units of ``2^-fp`` px; ``v``, ``a``, ``j`` are in units
+    of ``2^-fm`` px/refresh^n.  Returns the new ``(x, v, a)`` (jerk is constant).
+    """
+    s = fm - fp
+    if order == 1:
+        x += (v + (1 << (s - 1))) >> s
+    elif order == 2:
+        x += (2 * v + a + (1 << s)) >> (s + 1)
+        v += a
+    elif order == 3:
+        x += (6 * v + 3 * a + j + (3 << s)) // (6 << s)
+        v += a + ((j + 1) >> 1)
+        a += j
+    return x, v, a
+
+
+@nb.njit(cache=True, inline="always")
+def pixel_of(x: int, fp: int) -> int:
+    """Pixel shown for fixed-point position ``x``: ``floor(x + 1/2)`` (symmetric rounding)."""
+    return (x + (1 << (fp - 1))) >> fp
+
+
+@nb.njit(cache=True)
+def propagate_points(
+    x: np.ndarray, v: np.ndarray, a: np.ndarray, j: np.ndarray, order: int, fp: int, fm: int,
+    steps: int,
+) -> np.ndarray:
+    """Propagate control points ``steps`` refreshes with the galpixel arithmetic.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, K), int64
+        Fixed-point positions (``2^-fp`` px), K components.
+    v, a, j : ndarray, shape (N, K), int64
+        Fixed-point motion (``2^-fm``).
+    order, fp, fm, steps : int
+
+    Returns
+    -------
+    ndarray, shape (steps + 1, N, K), int64
+        Positions after 0, 1, ..., ``steps`` refreshes.
+    """
+    n, k = x.shape
+    out = np.empty((steps + 1, n, k), np.int64)
+    for i in range(n):
+        for c in range(k):
+            xi, vi, ai = x[i, c], v[i, c], a[i, c]
+            out[0, i, c] = xi
+            for t in range(steps):
+                xi, vi, ai = advance(xi, vi, ai, j[i, c], order, fp, fm)
+                out[t + 1, i, c] = xi
+    return out
+
+
+def points_fixed(
+    position: np.ndarray, motion: np.ndarray, fixed: FixedPoint, order: int,
+    subpixel: bool = False,
+) -> tuple[np.ndarray, ...]:
+    """Control points as a renderer paints them: pixel-centred, motion quantised.
+
+    Parameters
+    ----------
+    position : ndarray, shape (N, K)
+        Exact positions in px.
+    motion : ndarray, shape (3, N, K)
+        Velocity, acceleration, jerk in px per refresh^n (orders above ``order``
+        are ignored).
+    fixed : FixedPoint
+    order : int
+    subpixel : bool
+        Keep the position's fraction (to ``fp`` bits) instead of painting the
+        nearest pixel with fraction zero.
+
+    Returns
+    -------
+    x, v, a, j : ndarray, shape (N, K), int64
+        ``x`` is the nearest pixel (fraction zero), as an update paints it.
+    """
+    pos = np.asarray(position, np.float64)
+    if subpixel:
+        x = np.floor(pos * 2.0**fixed.fp + 0.5).astype(np.int64)
+    else:
+        x = (np.floor(pos + 0.5).astype(np.int64)) << fixed.fp
+    lims = (fixed.v_max, fixed.a_max, fixed.j_max)
+    out = []
+    for n in range(3):
+        q = fixed.quantise(motion[n], lims[n])[0].astype(np.int64)
+        out.append(q if n < order else np.zeros_like(q))
+    return (x, *out)

@@ -1,0 +1,247 @@
+"""Galpixmaps G(n), n = 0..3, stored as structure-of-arrays (seed 002, sections 2.4 and 3.1).
+
+Every field is its own array (component planes first), so the colour planes are an
+ordinary frame buffer and the motion planes sit beside them, as section 3.1 asks
+for a retrofit.  Shapes use Z zones, H rows and W columns of the *logical* map,
+which may include an out-of-view margin around the display (see ``stage``).
+
+=========  ===========================  =====================================================
+field      shape, dtype                 meaning
+=========  ===========================  =====================================================
+colour     (3, Z, H, W) float32         r, g, b in 0..255 (unclipped while propagating)
+depth      (Z, H, W) float32            -z, smaller is nearer; +inf where empty
+frac       (2, Z, H, W) int16           fractional x, y position, units 2^-fp px,
+                                        in [-2^(fp-1), 2^(fp-1))
+motion     (2n, Z, H, W) int32          vx, vy, ax, ay, jx, jy (first 2n), units 2^-fm
+zmotion    (n, Z, H, W) float32         vz, az, jz (first n), depth units per refresh^k
+dcolour    (4 or 0, Z, H, W) float32    dA/dt, dB/dt, dC/dt, d2A/dt2 per refresh
+                                        (equations 17-18); 0 planes when switched off
+debris     (Z, H, W) uint8              1: debris (no motion, never overrides a galpixel)
+obj        (Z, H, W) int32              scene object index of the galpixel, -1 none
+=========  ===========================  =====================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from service.errors import HoloError
+from service.galilean.fixed_point import FixedPoint
+
+#: Highest galpixmap order implemented.
+MAX_ORDER = 3
+
+#: A, B, C encoding of equation 17, rows A, B, C; columns r, g, b.
+RGB_TO_ABC = np.array([[1, 1, 1], [2, -1, -1], [1, -2, 1]], np.float64) / 3.0
+#: Its inverse, equation 18: r = A + B, g = A - C, b = A - B + C.
+ABC_TO_RGB = np.array([[1, 1, 0], [1, 0, -1], [1, -1, 1]], np.float64)
+
+
+class GalileanError(HoloError, ValueError):
+    """Galilean-stage input is malformed (the message names the field)."""
+
+
+#: field name -> (dtype, leading planes as a function of (order, colour planes)).
+_LAYOUT = {
+    "colour": (np.float32, lambda n, k: 3),
+    "depth": (np.float32, None),
+    "frac": (np.int16, lambda n, k: 2),
+    "motion": (np.int32, lambda n, k: 2 * n),
+    "zmotion": (np.float32, lambda n, k: n),
+    "dcolour": (np.float32, lambda n, k: k),
+    "debris": (np.uint8, None),
+    "obj": (np.int32, None),
+}
+
+
+@dataclass
+class Galpixmap:
+    """A G(``order``) galpixmap; see the module notes for the fields."""
+
+    order: int
+    fixed: FixedPoint
+    colour: np.ndarray
+    depth: np.ndarray
+    frac: np.ndarray
+    motion: np.ndarray
+    zmotion: np.ndarray
+    dcolour: np.ndarray
+    debris: np.ndarray
+    obj: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """(Z, H, W)."""
+        return tuple(self.depth.shape)  # type: ignore[return-value]
+
+    @property
+    def colour_planes(self) -> int:
+        """4 when colour derivatives are carried, else 0."""
+        return int(self.dcolour.shape[0])
+
+    def validate(self) -> None:
+        """Check every field's shape and dtype.
+
+        Raises
+        ------
+        GalileanError
+            Naming the first field that does not fit.
+        """
+        if self.order not in range(MAX_ORDER + 1):
+            raise GalileanError(f"galpixmap order must be 0..{MAX_ORDER}, got {self.order!r}")
+        if not isinstance(self.depth, np.ndarray) or self.depth.ndim != 3:
+            raise GalileanError("galpixmap field 'depth' must be a (Z, H, W) array")
+        base = self.depth.shape
+        k = np.asarray(self.dcolour).shape[0] if np.ndim(self.dcolour) == 4 else -1
+        if k not in (0, 4):
+            raise GalileanError("galpixmap field 'dcolour' must have 0 or 4 planes")
+        for name, (dtype, planes) in _LAYOUT.items():
+            arr = getattr(self, name)
+            want = base if planes is None else (planes(self.order, k), *base)
+            if not isinstance(arr, np.ndarray) or arr.shape != want or arr.dtype != dtype:
+                got = getattr(arr, "shape", None), getattr(arr, "dtype", None)
+                raise GalileanError(
+                    f"galpixmap field {name!r} must be {want} {np.dtype(dtype)}, got {got}")
+
+    @classmethod
+    def empty(
+        cls, order: int, fixed: FixedPoint, shape: tuple[int, int, int], colour_motion: bool = True
+    ) -> Galpixmap:
+        """An all-debris map ("clear-frame debris": black, depth +inf, no object)."""
+        k = 4 if colour_motion else 0
+        arrays = {}
+        for name, (dtype, planes) in _LAYOUT.items():
+            full = tuple(shape) if planes is None else (planes(order, k), *shape)
+            arrays[name] = np.zeros(full, dtype)
+        arrays["depth"][:] = np.inf
+        arrays["debris"][:] = 1
+        arrays["obj"][:] = -1
+        return cls(order=order, fixed=fixed, **arrays)
+
+    def copy(self) -> Galpixmap:
+        """A deep copy."""
+        kw = {f.name: getattr(self, f.name) for f in fields(self)}
+        kw.update({n: getattr(self, n).copy() for n in _LAYOUT})
+        return Galpixmap(**kw)
+
+    def arrays(self) -> tuple:
+        """The fields as the tuple the kernels take (order of :data:`_LAYOUT`)."""
+        return tuple(getattr(self, n) for n in _LAYOUT)
+
+    def window(self, margin: int) -> tuple[np.ndarray, np.ndarray]:
+        """Displayed part: colour (Z, R, C, 3) uint8 and depth (Z, R, C) float32."""
+        z, h, w = self.shape
+        sl = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
+        col = np.clip(np.rint(self.colour[(slice(None), *sl)]), 0, 255).astype(np.uint8)
+        return np.ascontiguousarray(np.moveaxis(col, 0, -1)), self.depth[sl].copy()
+
+
+def rgb_to_abc(rgb: np.ndarray) -> np.ndarray:
+    """Equation 17 on the last axis: (..., 3) r, g, b -> (..., 3) A, B, C."""
+    return np.asarray(rgb, np.float64) @ RGB_TO_ABC.T
+
+
+def abc_to_rgb(abc: np.ndarray) -> np.ndarray:
+    """Equation 18 on the last axis: (..., 3) A, B, C -> (..., 3) r, g, b."""
+    return np.asarray(abc, np.float64) @ ABC_TO_RGB.T
+
+
+def _check(name: str, arr: np.ndarray | None, shape: tuple) -> np.ndarray | None:
+    if arr is None:
+        return None
+    a = np.asarray(arr)
+    if a.shape != shape:
+        raise GalileanError(f"{name} must have shape {shape}, got {a.shape}")
+    return a
+
+
+def _pad(a: np.ndarray, margin: int, value: float) -> np.ndarray:
+    if margin == 0:
+        return a
+    width = [(0, 0)] * (a.ndim - 2) + [(margin, margin), (margin, margin)]
+    return np.pad(a, width, constant_values=value)
+
+
+def build(
+    colour: np.ndarray,
+    depth: np.ndarray,
+    order: int,
+    fixed: FixedPoint,
+    derivatives: np.ndarray | None = None,
+    dcolour: np.ndarray | None = None,
+    obj: np.ndarray | None = None,
+    margin: int = 0,
+) -> tuple[Galpixmap, dict]:
+    """A galpixmap from a render: colour, depth and per-pixel apparent motion.
+
+    Parameters
+    ----------
+    colour : ndarray, shape (Z, R, C, 3), uint8 or float
+    depth : ndarray, shape (Z, R, C)
+        +inf where nothing was drawn (an empty background galpixel, no motion).
+    order : int
+        0..3; derivatives above the order are dropped.
+    fixed : FixedPoint
+    derivatives : ndarray, shape (3, 3, Z, R, C), optional
+        ``[k, c]``: the (k+1)-th time derivative of component c (x, y in px, z in
+        depth units) per refresh^(k+1).  None: no motion.
+    dcolour : ndarray, shape (4, Z, R, C), optional
+        dA, dB, dC, d2A per refresh.  None: colour motion switched off.
+    obj : ndarray, shape (Z, R, C), optional
+        Object index per pixel (-1 none).
+    margin : int
+        Out-of-view margin added around the map (debris, depth +inf).
+
+    Returns
+    -------
+    Galpixmap
+    dict
+        ``{"clamped": n}``: motion values that were NaN, infinite or beyond the
+        integral bits and were clamped.
+
+    Raises
+    ------
+    GalileanError
+        If a field's shape does not match ``depth``'s (the message names it).
+    """
+    dep = np.asarray(depth, np.float32)
+    if dep.ndim != 3:
+        raise GalileanError(f"depth must be (Z, R, C), got {dep.shape}")
+    col = _check("colour", colour, (*dep.shape, 3))
+    der = _check("derivatives", derivatives, (3, 3, *dep.shape))
+    dcol = _check("dcolour", dcolour, (4, *dep.shape))
+    ob = _check("obj", obj, dep.shape)
+    gp = Galpixmap.empty(order, fixed, tuple(dep.shape), dcol is not None)
+    gp.colour[:] = np.moveaxis(col, -1, 0)
+    gp.depth[:] = np.where(np.isnan(dep), np.inf, dep)
+    gp.debris[:] = 0
+    if ob is not None:
+        gp.obj[:] = ob
+    if dcol is not None:
+        gp.dcolour[:] = np.nan_to_num(dcol, nan=0.0, posinf=0.0, neginf=0.0)
+    clamped = 0
+    if der is not None and order > 0:
+        finite = np.isfinite(gp.depth)
+        limits = (fixed.v_max, fixed.a_max, fixed.j_max)
+        for k in range(order):
+            q, bad = fixed.quantise(np.where(finite, der[k, :2], 0.0), limits[k])
+            gp.motion[2 * k: 2 * k + 2] = q
+            zk = np.where(finite, der[k, 2], 0.0)
+            zbad = ~np.isfinite(zk) | (np.abs(zk) > 1e6)
+            gp.zmotion[k] = np.where(zbad, 0.0, zk)
+            clamped += int(bad.sum() + zbad.sum())
+    if margin:
+        gp = _padded(gp, margin)
+    return gp, {"clamped": clamped}
+
+
+def _padded(gp: Galpixmap, margin: int) -> Galpixmap:
+    """``gp`` with an out-of-view margin of debris (depth +inf, obj -1) around it."""
+    fill = {"depth": np.inf, "debris": 1, "obj": -1}
+    kw = {n: _pad(getattr(gp, n), margin, fill.get(n, 0)) for n in _LAYOUT}
+    return Galpixmap(order=gp.order, fixed=gp.fixed, **kw)

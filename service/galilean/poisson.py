@@ -1,0 +1,146 @@
+"""The Poisson test (equation 34) and the expansion sweep (seed 002, section 3.1).
+
+Inside one smooth surface the depth map z(x, y) is locally a plane, so its
+Laplacian vanishes; where two surfaces abut it has a source.  On the pixel grid
+
+    lap z(x0, y0) = z(x0+1, y0) + z(x0-1, y0) + z(x0, y0+1) + z(x0, y0-1) - 4 z(x0, y0)   (34)
+
+and the **Poisson flag** of a pixel is 1 ("yes, a source": an edge) when
+``|lap z| > threshold``, when any of the five pixels is debris or empty (depth
++inf), and on the map's border; 0 inside a surface.
+
+The **second sweep** scans the new map for debris.  A debris pixel is *expanded*
+when a neighbour (left; optionally also up, right, down) is a galpixel propagated
+this refresh whose origin in the old map (its reverse propagation, which the first
+sweep recorded exactly) had Poisson flag 0: the debris lies inside an expanding
+surface.  It is then filled by replicating that neighbour (``"replicate"``: colour,
+depth, derivatives and all, fraction zeroed) or by averaging the colour and depth
+of all qualifying neighbours (``"average"``; motion from the first).  Otherwise the
+debris stays (a just-unobscured pixel).  Expanded pixels do not qualify others in
+the same sweep.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+#: Expansion mode name -> kernel code.
+EXPANSION_MODES: dict[str, int] = {"replicate": 0, "average": 1}
+
+#: Neighbour offsets (dr, dc) in the order they are consulted: left, up, right, down.
+NEIGHBOURS = np.array([[0, -1], [-1, 0], [0, 1], [1, 0]], np.int64)
+
+
+@nb.njit(cache=True, inline="always")
+def poisson_flag(depth: np.ndarray, debris: np.ndarray, z: int, r: int, c: int,
+                 threshold: float) -> int:
+    """Poisson flag of pixel (z, r, c): 1 for a source/edge/debris/border, 0 interior."""
+    h, w = depth.shape[1], depth.shape[2]
+    if r == 0 or c == 0 or r == h - 1 or c == w - 1:
+        return 1
+    if (debris[z, r, c] | debris[z, r, c - 1] | debris[z, r, c + 1]
+            | debris[z, r - 1, c] | debris[z, r + 1, c]):
+        return 1
+    lap = (depth[z, r, c + 1] + depth[z, r, c - 1] + depth[z, r + 1, c] + depth[z, r - 1, c]
+           - 4.0 * depth[z, r, c])
+    if not np.isfinite(lap) or abs(lap) > threshold:
+        return 1
+    return 0
+
+
+@nb.njit(cache=True)
+def poisson_map(depth: np.ndarray, debris: np.ndarray, threshold: float) -> np.ndarray:
+    """Poisson flag map of a whole map.
+
+    Parameters
+    ----------
+    depth : ndarray, shape (Z, H, W), float32
+    debris : ndarray, shape (Z, H, W), uint8
+    threshold : float
+
+    Returns
+    -------
+    ndarray, shape (Z, H, W), uint8
+    """
+    out = np.empty(depth.shape, np.uint8)
+    for z in range(depth.shape[0]):
+        for r in range(depth.shape[1]):
+            for c in range(depth.shape[2]):
+                out[z, r, c] = poisson_flag(depth, debris, z, r, c, threshold)
+    return out
+
+
+@nb.njit(cache=True)
+def expand(
+    new: tuple, src_idx: np.ndarray, flags: np.ndarray, n_neighbours: int, mode: int,
+    stats: np.ndarray,
+) -> None:
+    """Second sweep: fill debris inside expanding surfaces.
+
+    Parameters
+    ----------
+    new : tuple of arrays
+        The new main map after the first sweep (see :mod:`.propagate`); changed in place.
+    src_idx : ndarray, shape (Z, H, W), int32
+        Origin ``r * W + c`` in the old map of each propagated galpixel, < 0 otherwise.
+    flags : ndarray, shape (Z, H, W), uint8
+        Poisson flags of the old map.
+    n_neighbours : int
+        1 (left only) to 4 (left, up, right, down).
+    mode : int
+        A value of :data:`EXPANSION_MODES`.
+    stats : ndarray, shape (7,), int64
+        ``stats[5]`` counts expanded pixels.
+    """
+    nz, h, w = src_idx.shape
+    col, dep, frac, deb = new[0], new[1], new[2], new[6]
+    for z in range(nz):
+        for r in range(h):
+            for c in range(w):
+                if deb[z, r, c] == 0:
+                    continue
+                first, n = -1, 0
+                acc0 = acc1 = acc2 = accd = 0.0
+                for k in range(n_neighbours):
+                    rr, cc = r + NEIGHBOURS[k, 0], c + NEIGHBOURS[k, 1]
+                    if rr < 0 or cc < 0 or rr >= h or cc >= w or deb[z, rr, cc] == 1:
+                        continue
+                    s = src_idx[z, rr, cc]
+                    if s < 0 or flags[z, s // w, s % w] == 1:
+                        continue
+                    if first < 0:
+                        first = rr * w + cc
+                    n += 1
+                    acc0 += col[0, z, rr, cc]
+                    acc1 += col[1, z, rr, cc]
+                    acc2 += col[2, z, rr, cc]
+                    accd += dep[z, rr, cc]
+                if first < 0:
+                    continue
+                _replicate(new, z, first // w, first % w, r, c)
+                if mode == 1:
+                    col[0, z, r, c] = acc0 / n
+                    col[1, z, r, c] = acc1 / n
+                    col[2, z, r, c] = acc2 / n
+                    dep[z, r, c] = accd / n
+                frac[0, z, r, c] = 0
+                frac[1, z, r, c] = 0
+                src_idx[z, r, c] = -3
+                stats[5] += 1
+
+
+@nb.njit(cache=True, inline="always")
+def _replicate(m: tuple, z: int, r: int, c: int, qr: int, qc: int) -> None:
+    """Copy every field of galpixel (z, r, c) to (z, qr, qc) of the same map."""
+    for k in range(3):
+        m[0][k, z, qr, qc] = m[0][k, z, r, c]
+    m[1][z, qr, qc] = m[1][z, r, c]
+    for k in range(m[3].shape[0]):
+        m[3][k, z, qr, qc] = m[3][k, z, r, c]
+    for k in range(m[4].shape[0]):
+        m[4][k, z, qr, qc] = m[4][k, z, r, c]
+    for k in range(m[5].shape[0]):
+        m[5][k, z, qr, qc] = m[5][k, z, r, c]
+    m[6][z, qr, qc] = 0
+    m[7][z, qr, qc] = m[7][z, r, c]

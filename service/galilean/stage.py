@@ -1,0 +1,354 @@
+"""The Galilean stage: turns renders (updates) into frames at the refresh rate.
+
+The service drives one :class:`GalileanStage` per display::
+
+    stage = GalileanStage(display, GalileanSettings(order=2))
+    stage.update(render_with_motion(...), rendezvous=n)   # graft at refresh n
+    out = stage.refresh()                                 # one displayed frame
+
+Each :meth:`GalileanStage.refresh` (1) applies a pending head-motion update to every
+galpixel's motion, (2) propagates the map one refresh (one-pass scatter, Poisson
+flags, obscuration cache, expansion sweep) unless a global update replaces it, (3)
+grafts every update whose rendezvous is this refresh, and (4) returns the displayed
+window with flags and counters.  A render handed in after its rendezvous is refused
+(never a late graft); an incomplete one is grafted and reported as an
+``incomplete_update`` event.
+
+**Order guard** (section 2.5's warning made a check): when updates carry control
+points, each global update measures how well every order up to the configured one
+predicted the new control points from the previous update; when a lower order did
+better on average, the stage drops the higher derivatives (e.g. G(3) fed noisy,
+numerically differentiated motion falls back to G(2)) and flags it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from service.display import DisplaySettings
+from service.errors import SettingsError
+from service.galilean.fixed_point import FixedPoint, bit_budget, propagate_points
+from service.galilean.galpixmap import Galpixmap, GalileanError, build
+from service.galilean.head_motion import apply_viewer_motion
+from service.galilean.local_update import graft
+from service.galilean.motion_field import RenderedUpdate
+from service.galilean.poisson import EXPANSION_MODES, expand
+from service.galilean.propagate import STAT_NAMES, sweep
+from service.scene import MotionState
+
+
+@dataclass(frozen=True)
+class GalileanSettings:
+    """Settings of the Galilean stage.
+
+    Attributes
+    ----------
+    order : int
+        Galpixmap order n of G(n), 0..3 (2 recommended, section 2.5).
+    n_prop, n_recog : int
+        Rated propagation time and recognisability time in refreshes (bit budget).
+    refresh_hz : float
+        Refresh rate (converts head motion per second to per refresh).
+    margin : int
+        Out-of-view margin in pixels on every side (0: galpixels leaving the
+        display are dropped).
+    cache : bool
+        Obscuration cache on or off.
+    poisson : bool
+        Poisson test and expansion sweep on or off.
+    poisson_threshold : float
+        ``|laplacian(depth)|`` above which a pixel is a source (depth units).
+    neighbours : int
+        Neighbours the expansion consults: 1 (left) to 4 (left, up, right, down).
+    expansion : {"replicate", "average"}
+    colour_motion : bool
+        Carry colour derivatives dA, dB, dC, d2A.
+    order_guard : bool
+        Fall back to a lower order when it predicted the control points better.
+    """
+
+    order: int = 2
+    n_prop: int = 16
+    n_recog: int = 16
+    refresh_hz: float = 60.0
+    margin: int = 0
+    cache: bool = False
+    poisson: bool = True
+    poisson_threshold: float = 0.02
+    neighbours: int = 4
+    expansion: str = "average"
+    colour_motion: bool = True
+    order_guard: bool = True
+
+    def __post_init__(self) -> None:
+        checks = {
+            "order": self.order in (0, 1, 2, 3),
+            "n_prop": isinstance(self.n_prop, int) and self.n_prop >= 4,
+            "n_recog": isinstance(self.n_recog, int) and self.n_recog >= 1,
+            "refresh_hz": np.isfinite(self.refresh_hz) and self.refresh_hz > 0,
+            "margin": isinstance(self.margin, int) and 0 <= self.margin <= 4096,
+            "poisson_threshold": np.isfinite(self.poisson_threshold) and self.poisson_threshold >= 0,
+            "neighbours": self.neighbours in (1, 2, 3, 4),
+            "expansion": self.expansion in EXPANSION_MODES,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise SettingsError(f"Galilean setting {name} is out of range: {getattr(self, name)!r}")
+
+
+@dataclass
+class Refresh:
+    """One displayed frame.
+
+    Attributes
+    ----------
+    index : int
+        Refresh number, from 0.
+    colour : ndarray, shape (Z, R, C, 3), uint8
+    depth : ndarray, shape (Z, R, C), float32
+    debris : ndarray, shape (Z, R, C), bool
+        Pixels showing debris (G(0) fallback) rather than a galpixel.
+    flags : dict
+        ``updated`` (a graft happened), ``age`` (refreshes since the last global
+        update), ``past_rating`` (age > N_prop), ``order`` (order in use),
+        ``order_fallback``, ``events`` (incomplete updates, late renders refused).
+    stats : dict
+        Kernel counters (see :data:`service.galilean.propagate.STAT_NAMES`) and ``ms``.
+    """
+
+    index: int
+    colour: np.ndarray
+    depth: np.ndarray
+    debris: np.ndarray
+    flags: dict
+    stats: dict
+
+
+@dataclass
+class _Pending:
+    buffer: Galpixmap
+    rendezvous: int
+    objects: tuple[int, ...] | None
+    complete: bool
+    unfinished: tuple[int, ...]
+    points: np.ndarray | None = None
+    point_derivs: np.ndarray | None = None
+
+
+@dataclass
+class _Guard:
+    """Running prediction errors of each order (exponentially averaged)."""
+
+    errors: np.ndarray
+    last: tuple | None = None
+    seen: int = 0
+
+
+class GalileanStage:
+    """Propagates galpixmaps between renders; see the module notes."""
+
+    def __init__(self, display: DisplaySettings, settings: GalileanSettings | None = None) -> None:
+        self.display = display
+        self.settings = s = settings or GalileanSettings()
+        self.budget = bit_budget(max(display.cols, display.rows), s.n_prop, s.n_recog)
+        self.fixed = FixedPoint.for_order(self.budget, s.order)
+        m = s.margin
+        self.shape = (display.zones, display.rows + 2 * m, display.cols + 2 * m)
+        new = lambda: Galpixmap.empty(s.order, self.fixed, self.shape, s.colour_motion)  # noqa: E731
+        self.map, self._spare = new(), new()
+        self.cache = (new(), new()) if s.cache else None
+        self._flags = np.ones(self.shape, np.uint8)
+        self._src = np.full(self.shape, -1, np.int32)
+        self.index = 0
+        self.age = 0
+        self.order = s.order
+        self._pending: list[_Pending] = []
+        self._events: list[dict] = []
+        self._viewer = MotionState()
+        self._viewer_next: MotionState | None = None
+        self._guard = _Guard(np.zeros(s.order + 1))
+        self._started = False
+
+    # ----------------------------------------------------------------- inputs
+    def update(
+        self, rendered: RenderedUpdate, rendezvous: int | None = None,
+        objects: tuple[int, ...] | None = None, complete: bool = True,
+        unfinished: tuple[int, ...] = (),
+    ) -> bool:
+        """Hand in a render to graft at refresh ``rendezvous`` (default: the next one).
+
+        ``objects`` None is a global update (the map is replaced); a tuple makes it
+        a local update of those objects (a Flinders Street buffer: pixels of other
+        objects are debris).  Returns False (and records an event) when the
+        rendezvous has already passed: late renders are never grafted.
+        """
+        fr = rendered.frame
+        if fr.colour.shape[:3] != (self.display.zones, self.display.rows, self.display.cols):
+            raise GalileanError(f"update colour has shape {fr.colour.shape}, display needs "
+                                f"{(self.display.zones, self.display.rows, self.display.cols, 3)}")
+        buf, info = build(fr.colour, fr.depth, self.settings.order, self.fixed,
+                          rendered.derivatives, rendered.dcolour if self.settings.colour_motion
+                          else None, rendered.obj, self.settings.margin)
+        if objects is not None:
+            keep = np.isin(buf.obj, np.asarray(objects, np.int32))
+            buf.debris[~keep] = 1
+        if info["clamped"]:
+            self._events.append({"kind": "motion_clamped", "count": info["clamped"]})
+        self._viewer_baked = rendered.viewer_motion
+        return self.submit(buf, rendezvous, objects, complete, unfinished,
+                           getattr(rendered, "points", None), getattr(rendered, "point_derivs", None))
+
+    def submit(
+        self, buffer: Galpixmap, rendezvous: int | None = None,
+        objects: tuple[int, ...] | None = None, complete: bool = True,
+        unfinished: tuple[int, ...] = (), points: np.ndarray | None = None,
+        point_derivs: np.ndarray | None = None,
+    ) -> bool:
+        """Queue a galpixmap (e.g. a Flinders Street buffer) for grafting; see :meth:`update`."""
+        if buffer.shape != self.shape or buffer.order != self.settings.order:
+            raise GalileanError(f"buffer must be a G({self.settings.order}) map of shape "
+                                f"{self.shape}, got G({buffer.order}) {buffer.shape}")
+        when = self.index if rendezvous is None else int(rendezvous)
+        if when < self.index:
+            self._events.append({"kind": "late_refused", "rendezvous": when, "refresh": self.index})
+            return False
+        self._pending.append(_Pending(buffer, when, None if objects is None else tuple(objects),
+                                      complete, tuple(unfinished), points, point_derivs))
+        return True
+
+    def viewer(self, motion: MotionState) -> None:
+        """New viewer motion (viewer frame, per second) from the pose filter.
+
+        At the next refresh every galpixel's motion gets the change from the
+        viewer motion already in it (section 4.2's global update).
+        """
+        self._viewer_next = motion
+
+    # ---------------------------------------------------------------- refresh
+    def refresh(self) -> Refresh:
+        """Produce the next displayed frame."""
+        t0 = time.perf_counter()
+        stats = dict.fromkeys(STAT_NAMES, 0)
+        due = [p for p in self._pending if p.rendezvous == self.index]
+        self._pending = [p for p in self._pending if p.rendezvous > self.index]
+        if self._viewer_next is not None:
+            stats["viewer_updated"] = apply_viewer_motion(
+                self.map, self.display, self.settings.margin, self._viewer, self._viewer_next,
+                self.settings.refresh_hz)
+            self._viewer, self._viewer_next = self._viewer_next, None
+        if self._started and not any(p.objects is None for p in due):
+            stats.update(self._propagate())
+            self.age += 1
+        for p in due:
+            self._graft(p)
+        colour, depth = self.map.window(self.settings.margin)
+        m = self.settings.margin
+        debris = self.map.debris[:, m:self.shape[1] - m, m:self.shape[2] - m].astype(bool)
+        events, self._events = self._events, []
+        flags = {"updated": bool(due), "age": self.age,
+                 "past_rating": self.age > self.settings.n_prop, "order": self.order,
+                 "order_fallback": self.order < self.settings.order, "events": events}
+        stats["ms"] = (time.perf_counter() - t0) * 1e3
+        out = Refresh(self.index, colour, depth, debris, flags, stats)
+        self.index += 1
+        return out
+
+    def _propagate(self) -> dict:
+        """One refresh of the whole map (both sweeps); returns the counters."""
+        s = self.settings
+        new = self._spare
+        new.debris.fill(1)
+        counters = np.zeros(len(STAT_NAMES), np.int64)
+        if self.cache is not None:
+            cold, cnew = self.cache
+            cnew.debris.fill(1)
+        else:
+            cold = cnew = new
+        thr = s.poisson_threshold if s.poisson else -1.0
+        sweep(self.map.arrays(), new.arrays(), cold.arrays(), cnew.arrays(), self.cache is not None,
+              self._flags, self._src, self.order, self.fixed.fp, self.fixed.fm, thr, counters)
+        if s.poisson:
+            expand(new.arrays(), self._src, self._flags, s.neighbours,
+                   EXPANSION_MODES[s.expansion], counters)
+        counters[6] = int(new.debris.sum())
+        self.map, self._spare = new, self.map
+        if self.cache is not None:
+            self.cache = (cnew, cold)
+        return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
+
+    def _graft(self, p: _Pending) -> None:
+        if p.objects is None:
+            for name, arr in zip(("colour", "depth", "frac", "motion", "zmotion", "dcolour",
+                                  "debris", "obj"), p.buffer.arrays(), strict=True):
+                np.copyto(getattr(self.map, name), arr)
+            if self.cache is not None:
+                self.cache[0].debris.fill(1)
+            self._guard_update(p)
+            self.age = 0
+            self._viewer = getattr(self, "_viewer_baked", self._viewer)
+        else:
+            graft(self.map, p.buffer, p.objects)
+        if not p.complete:
+            self._events.append({"kind": "incomplete_update", "refresh": self.index,
+                                 "unfinished": list(p.unfinished)})
+        self._started = True
+        if self.order < self.settings.order:
+            _drop_orders(self.map, self.order)
+
+    def _guard_update(self, p: _Pending) -> None:
+        """Order guard: score each order's prediction of the new control points."""
+        g = self._guard
+        if not self.settings.order_guard or p.points is None:
+            return
+        if g.last is not None and self.age > 0:
+            errs = prediction_errors(g.last[0], g.last[1], p.points, self.age, self.fixed,
+                                     self.settings.order)
+            g.errors = errs if g.seen == 0 else 0.5 * g.errors + 0.5 * errs
+            g.seen += 1
+            best = int(np.argmin(g.errors + 1e-9 * np.arange(g.errors.size)))
+            self.order = best if g.errors[best] < 0.5 * g.errors[self.settings.order] \
+                else self.settings.order
+        g.last = (p.points, p.point_derivs)
+
+
+def _drop_orders(gp: Galpixmap, order: int) -> None:
+    """Zero the motion planes above ``order`` (a lower-order fallback)."""
+    gp.motion[2 * order:] = 0
+    gp.zmotion[order:] = 0
+
+
+def prediction_errors(
+    points: np.ndarray, derivs: np.ndarray, actual: np.ndarray, steps: int, fixed: FixedPoint,
+    order: int,
+) -> np.ndarray:
+    """How far each order 0..``order`` would have displayed control points after ``steps``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Control points' display positions (px) at the earlier update.
+    derivs : ndarray, shape (3, N, 2)
+        Their velocity, acceleration, jerk per refresh^n.
+    actual : ndarray, shape (N, 2)
+        Their true positions ``steps`` refreshes later.
+    steps : int
+    fixed : FixedPoint
+    order : int
+
+    Returns
+    -------
+    ndarray, shape (order + 1,)
+        Maximum distance in px per order.
+    """
+    from service.galilean.fixed_point import points_fixed
+
+    out = np.zeros(order + 1)
+    for n in range(order + 1):
+        x, v, a, j = points_fixed(points, derivs, fixed, n)
+        path = propagate_points(x, v, a, j, n, fixed.fp, fixed.fm, steps)
+        shown = path[-1] / 2.0**fixed.fp
+        out[n] = float(np.max(np.linalg.norm(shown - actual, axis=-1))) if len(actual) else 0.0
+    return out

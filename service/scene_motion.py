@@ -1,0 +1,140 @@
+"""Advance a scene in time by its objects' motion, and look at it from a moving viewer.
+
+Each :class:`~service.scene.SceneObject` carries a :class:`~service.scene.MotionState`
+(world units and radians, per second).  At a time ``dt`` after the scene's state:
+
+* position ``p + v dt + a dt^2 / 2``;
+* orientation ``exp(phi / 2) * q`` with the rotation vector
+  ``phi = w dt + alpha dt^2 / 2`` (world frame).  This is the exact integral of
+  the angular velocity when ``alpha`` is parallel to ``w`` (or zero), the cases
+  the Galilean stage's experiments use; otherwise a second-order approximation.
+
+A **viewer** is a :class:`~service.scene.Transform` (the head's pose in the world)
+with its own ``MotionState``; :func:`view_scene` re-expresses a scene in the
+viewer's frame, so the display model of :mod:`service.display` applies unchanged.
+
+:func:`control_points` gives the exact projected vertex positions of every object,
+the "true control points" the local-update error estimate compares with what the
+Galilean stage displays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from service.display import DisplaySettings
+from service.projection import project
+from service.scene import (
+    MotionState,
+    Scene,
+    Transform,
+    quaternion_matrix,
+    quaternion_multiply,
+)
+
+
+def rotation_vector(motion: MotionState, dt: float) -> np.ndarray:
+    """Rotation vector ``w dt + alpha dt^2 / 2`` (radians, world frame), shape (3,)."""
+    return motion.angular_velocity * dt + 0.5 * motion.angular_acceleration * dt * dt
+
+
+def rotation_angle(motion: MotionState, dt: float) -> float:
+    """Angle in radians an object turns in ``dt`` seconds (the use-by clock)."""
+    return float(np.linalg.norm(rotation_vector(motion, dt)))
+
+
+def _exp_quaternion(phi: np.ndarray) -> np.ndarray:
+    angle = float(np.linalg.norm(phi))
+    if angle < 1e-15:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * phi / angle])
+
+
+def advance_transform(transform: Transform, motion: MotionState, dt: float) -> Transform:
+    """The transform ``dt`` seconds later under ``motion``.
+
+    Parameters
+    ----------
+    transform : Transform
+    motion : MotionState
+    dt : float
+        Seconds (may be negative).
+
+    Returns
+    -------
+    Transform
+    """
+    pos = transform.position + motion.velocity * dt + 0.5 * motion.acceleration * dt * dt
+    q = quaternion_multiply(_exp_quaternion(rotation_vector(motion, dt)), transform.orientation)
+    return Transform(position=pos, orientation=q, scale=transform.scale)
+
+
+def advance_scene(scene: Scene, dt: float) -> Scene:
+    """The scene ``dt`` seconds later (motion states unchanged except velocity).
+
+    Velocities are advanced too (``v + a dt``, ``w + alpha dt``), so advancing by
+    ``dt1`` then ``dt2`` equals advancing by ``dt1 + dt2`` for uniform acceleration.
+    """
+    objs = []
+    for o in scene.objects:
+        m = o.motion
+        m2 = MotionState(m.velocity + m.acceleration * dt, m.acceleration,
+                         m.angular_velocity + m.angular_acceleration * dt, m.angular_acceleration)
+        objs.append(replace(o, transform=advance_transform(o.transform, m, dt), motion=m2))
+    return Scene(objects=objs, lights=list(scene.lights), ambient=scene.ambient)
+
+
+def view_scene(scene: Scene, viewer: Transform) -> Scene:
+    """The scene in the viewer's frame: ``R_v^T (p - p_v)``, ``q_v^* q``.
+
+    The viewer at the identity transform sees the scene unchanged.  Lights are
+    re-expressed too, so the lighting moves with the world, not with the head.
+    """
+    rt = quaternion_matrix(viewer.orientation).T
+    qc = viewer.orientation * np.array([1.0, -1.0, -1.0, -1.0])
+    objs = []
+    for o in scene.objects:
+        t = o.transform
+        pos = rt @ (t.position - viewer.position)
+        ori = quaternion_multiply(qc, t.orientation)
+        objs.append(replace(o, transform=Transform(pos, ori, t.scale)))
+    lights = []
+    for li in scene.lights:
+        vec = rt @ (li.vector - viewer.position) if li.kind == "point" else rt @ li.vector
+        lights.append(replace(li, vector=vec))
+    return Scene(objects=objs, lights=lights, ambient=scene.ambient)
+
+
+def scene_at(
+    scene: Scene, dt: float, viewer: Transform | None = None, viewer_motion: MotionState | None = None
+) -> Scene:
+    """The scene ``dt`` seconds later as the (moving) viewer then sees it."""
+    moved = advance_scene(scene, dt)
+    if viewer is None:
+        return moved
+    pose = advance_transform(viewer, viewer_motion or MotionState(), dt)
+    return view_scene(moved, pose)
+
+
+def control_points(
+    scene: Scene, dt: float, display: DisplaySettings,
+    viewer: Transform | None = None, viewer_motion: MotionState | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact projected vertex positions ``dt`` seconds later.
+
+    Returns
+    -------
+    proj : ndarray, shape (Z, V, 3)
+        Column, row (pixel units, centres at +0.5) and depth of every vertex of
+        the flattened scene, per zone.
+    vertex_object : ndarray, shape (V,), int64
+        Object index of each vertex.
+    """
+    s = scene_at(scene, dt, viewer, viewer_motion)
+    verts = [o.transform.apply(o.mesh.vertices) for o in s.objects]
+    owner = [np.full(o.mesh.n_vertices, i, np.int64) for i, o in enumerate(s.objects)]
+    if not verts:
+        return np.zeros((display.zones, 0, 3)), np.zeros(0, np.int64)
+    return project(np.concatenate(verts), display), np.concatenate(owner)
