@@ -10,9 +10,18 @@ import importlib
 import sys
 
 BENCHES = {
-    "render": ("service.bench.render_bench", "occlusion methods x zone counts: ms vs % pixels unlike ray casting"),
-    "light": ("service.bench.light_bench", "specular per polygon / vertex / point: ms vs intensity error"),
-    "galilean": ("service.bench.galilean_bench", "Galilean stage: thought experiments and the order x interval sweep"),
+    "render": (
+        "service.bench.render_bench",
+        "occlusion methods x zone counts: ms vs % pixels unlike ray casting",
+    ),
+    "light": (
+        "service.bench.light_bench",
+        "specular per polygon / vertex / point: ms vs intensity error",
+    ),
+    "galilean": (
+        "service.bench.galilean_bench",
+        "Galilean stage: thought experiments and the order x interval sweep",
+    ),
     "filters": ("drivers.bench_filters", "pose filters: jitter vs lag"),
     "decoders": ("drivers.bench_decoders", "serial protocol decoders: MB/s"),
 }
@@ -20,7 +29,11 @@ BENCHES = {
 
 def usage() -> str:
     """The help text listing the benchmarks."""
-    lines = ["usage: holo-bench NAME [options]   (holo-bench NAME --help for its options)", "", "benchmarks:"]
+    lines = [
+        "usage: holo-bench NAME [options]   (holo-bench NAME --help for its options)",
+        "",
+        "benchmarks:",
+    ]
     lines += [f"  {name:10s} {text}" for name, (_, text) in BENCHES.items()]
     return "\n".join(lines)
 

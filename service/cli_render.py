@@ -38,18 +38,31 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("scene", metavar="SCENE", help="scene or mesh file, or builtin:NAME")
     p.add_argument("--zones", type=int, default=5, help="view zones, 1-64 (default 5)")
-    p.add_argument("--angle", type=float, default=16.0, help="viewing angle in degrees, 0-60 (default 16)")
+    p.add_argument(
+        "--angle", type=float, default=16.0, help="viewing angle in degrees, 0-60 (default 16)"
+    )
     p.add_argument("--size", default="320x240", help="pixels per zone image, WxH (default 320x240)")
     p.add_argument("--method", choices=METHOD_NAMES, default="zbuffer", help="occlusion method")
     p.add_argument("--light", choices=LIGHT_MODELS, default="blinn", help="light model")
-    p.add_argument("--specular", choices=EVALUATIONS, default="polygon",
-                   help="where light is evaluated: per polygon (thesis), vertex or point")
+    p.add_argument(
+        "--specular",
+        choices=EVALUATIONS,
+        default="polygon",
+        help="where light is evaluated: per polygon (thesis), vertex or point",
+    )
     p.add_argument("--cull", choices=sorted(CULLS), default="modified", help="back-face cull")
-    p.add_argument("--no-fallback", action="store_true",
-                   help="keep a run-length frame even when its depth order proved wrong")
+    p.add_argument(
+        "--no-fallback",
+        action="store_true",
+        help="keep a run-length frame even when its depth order proved wrong",
+    )
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
     p.add_argument("--out", default="render-out", help="output folder (default render-out)")
-    p.add_argument("--json", action="store_true", help="print one JSON object with settings, counts and timings")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object with settings, counts and timings",
+    )
     return p
 
 
@@ -81,9 +94,14 @@ def run(args: argparse.Namespace) -> dict:
     return {
         "scene": args.scene,
         "settings": {
-            "zones": args.zones, "angle_deg": args.angle, "size": [cols, rows],
-            "method": args.method, "light": args.light, "specular": args.specular,
-            "cull": args.cull, "painter_fallback": not args.no_fallback,
+            "zones": args.zones,
+            "angle_deg": args.angle,
+            "size": [cols, rows],
+            "method": args.method,
+            "light": args.light,
+            "specular": args.specular,
+            "cull": args.cull,
+            "painter_fallback": not args.no_fallback,
         },
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
@@ -107,12 +125,16 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(report))
     else:
         p = report["polygons"]
-        print(f"{p['in']} polygons, {p['culled']} culled, {p['drawn']} drawn; "
-              f"{report['ms']['total']:.1f} ms; wrote {report['out']}/")
+        print(
+            f"{p['in']} polygons, {p['culled']} culled, {p['drawn']} drawn; "
+            f"{report['ms']['total']:.1f} ms; wrote {report['out']}/"
+        )
         fb = report["occlusion"].get("fallback")
         if fb:
-            print(f"note: average-z order was inconsistent "
-                  f"({report['occlusion']['inconsistent_pixels']} pixels); redrawn with the {fb}")
+            print(
+                f"note: average-z order was inconsistent "
+                f"({report['occlusion']['inconsistent_pixels']} pixels); redrawn with the {fb}"
+            )
     return 0
 
 

@@ -39,15 +39,19 @@ def main(argv: list[str] | None = None) -> int:
     scene = builtin_scene(args.scene)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"scene {args.scene!r}: {sum(o.mesh.n_polygons for o in scene.objects)} polygons in "
-          f"{len(scene.objects)} objects; {display.zones} zones across {display.angle_deg} degrees, "
-          f"{display.cols}x{display.rows} each")
+    print(
+        f"scene {args.scene!r}: {sum(o.mesh.n_polygons for o in scene.objects)} polygons in "
+        f"{len(scene.objects)} objects; {display.zones} zones across {display.angle_deg} degrees, "
+        f"{display.cols}x{display.rows} each"
+    )
     reference = None
     rows = []
     for method in ("raycast", *[m for m in METHOD_NAMES if m != "raycast"]):
         settings = RenderSettings(method=method, light=LightSettings("blinn", "polygon"))
         warm_up(settings)
-        frame, ms = _median_frame(Renderer(), scene, display, settings, 1 if method == "raycast" else args.repeats)
+        frame, ms = _median_frame(
+            Renderer(), scene, display, settings, 1 if method == "raycast" else args.repeats
+        )
         if reference is None:
             reference = frame
         diff = 100.0 * np.mean(np.any(frame.colour != reference.colour, axis=-1))

@@ -56,7 +56,9 @@ class DisplaySettings:
         if not (0.0 <= float(self.angle_deg) <= 60.0):
             raise SettingsError(f"viewing angle must be 0 to 60 degrees, got {self.angle_deg}")
         if not (1 <= self.cols <= 8192 and 1 <= self.rows <= 8192):
-            raise SettingsError(f"display size must be 1..8192 each way, got {self.cols}x{self.rows}")
+            raise SettingsError(
+                f"display size must be 1..8192 each way, got {self.cols}x{self.rows}"
+            )
         if not (np.isfinite(self.width) and self.width > 0):
             raise SettingsError(f"display width must be > 0, got {self.width}")
 

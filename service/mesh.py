@@ -96,7 +96,9 @@ class Mesh:
         return cls(verts, arr, counts, name)
 
     @classmethod
-    def from_triangles(cls, vertices: np.ndarray, triangles: np.ndarray, name: str = "mesh") -> Mesh:
+    def from_triangles(
+        cls, vertices: np.ndarray, triangles: np.ndarray, name: str = "mesh"
+    ) -> Mesh:
         """Build a mesh whose polygons are the given triangles, shape (T, 3)."""
         tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
         return cls(

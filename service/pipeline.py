@@ -10,6 +10,7 @@ picture.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,7 +24,7 @@ from service.errors import SettingsError
 from service.frame import Frame
 from service.light import LightSettings, shade
 from service.occlusion import Visibility
-from service.occlusion.bsp import BspCache
+from service.occlusion.bsp import BspCache, bsp
 from service.occlusion.raycast import raycast
 from service.occlusion.runlength import runlength
 from service.occlusion.zbuffer import zbuffer
@@ -73,7 +74,7 @@ class Renderer:
         self._methods: dict[str, OcclusionFn] = {
             "runlength": runlength,
             "zbuffer": zbuffer,
-            "bsp": self._bsp.render,
+            "bsp": functools.partial(bsp, tree=self._bsp),
             "raycast": raycast,
         }
 
@@ -114,7 +115,9 @@ class Renderer:
         with clock("cull"):
             keep, counts = cull(arrays.normals, display, settings.cull)
         with clock("sort"):
-            poly_order = sort_polygons(average_z(arrays.vertices, arrays.polygons, arrays.counts), keep)
+            poly_order = sort_polygons(
+                average_z(arrays.vertices, arrays.polygons, arrays.counts), keep
+            )
             order = triangle_order(poly_order, arrays.triangle_polygon)
         with clock("occlusion"):
             vis = self._methods[settings.method](arrays, proj, display, order)
@@ -138,6 +141,7 @@ class StageClock:
         self._t0 = 0
 
     def __call__(self, name: str) -> StageClock:
+        """Name the stage the next ``with`` block times."""
         self._name = name
         return self
 
@@ -145,7 +149,9 @@ class StageClock:
         self._t0 = time.perf_counter_ns()
 
     def __exit__(self, *exc: object) -> None:
-        self.ms[self._name] = self.ms.get(self._name, 0.0) + (time.perf_counter_ns() - self._t0) / 1e6
+        self.ms[self._name] = (
+            self.ms.get(self._name, 0.0) + (time.perf_counter_ns() - self._t0) / 1e6
+        )
 
 
 def warm_up(settings: RenderSettings | None = None) -> None:

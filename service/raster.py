@@ -56,7 +56,7 @@ def triangle_setup(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, rows: int) ->
 
 @nb.njit(cache=True, inline="always")
 def _edge_x(x0: float, y0: float, x1: float, y1: float, y: float) -> float:
-    """x where the edge (x0, y0)-(x1, y1) (with y0 < y1) crosses the line at y."""
+    """X where the edge (x0, y0)-(x1, y1) (with y0 < y1) crosses the line at y."""
     return x0 + (x1 - x0) * (y - y0) / (y1 - y0)
 
 
@@ -87,7 +87,11 @@ def row_span(
 
 @nb.njit(cache=True, parallel=True)
 def zbuffer_kernel(
-    proj: np.ndarray, tris: np.ndarray, order: np.ndarray, tri_out: np.ndarray, depth_out: np.ndarray
+    proj: np.ndarray,
+    tris: np.ndarray,
+    order: np.ndarray,
+    tri_out: np.ndarray,
+    depth_out: np.ndarray,
 ) -> None:
     """Z-buffer every zone (zones in parallel).
 

@@ -131,7 +131,9 @@ class Light:
             raise SettingsError(f"light kind must be 'directional' or 'point', got {self.kind!r}")
         v = np.asarray(self.vector, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(v)) or (self.kind == "directional" and np.linalg.norm(v) == 0):
-            raise SettingsError("light vector must be finite (and non-zero for a directional light)")
+            raise SettingsError(
+                "light vector must be finite (and non-zero for a directional light)"
+            )
         object.__setattr__(self, "vector", v)
         object.__setattr__(self, "colour", tuple(float(c) for c in self.colour))
 
@@ -266,8 +268,15 @@ def flatten(scene: Scene) -> SceneArrays:
         z3 = np.zeros((0, 3))
         zi = np.zeros(0, np.int64)
         return SceneArrays(
-            z3, np.zeros((0, 3), np.int64), zi, np.zeros((0, 3), np.int64), zi, zi, z3,
-            np.zeros((0, 3, 3)), np.zeros((0, 7)),
+            z3,
+            np.zeros((0, 3), np.int64),
+            zi,
+            np.zeros((0, 3), np.int64),
+            zi,
+            zi,
+            z3,
+            np.zeros((0, 3, 3)),
+            np.zeros((0, 7)),
         )
     vertices = np.concatenate(verts)
     polygons = np.concatenate(polys)

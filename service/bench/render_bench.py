@@ -44,28 +44,40 @@ def polygon_map(
     return poly, float(np.median(ms)), {**vis.stats, **counts}
 
 
-def measure(scene_name: str, zones: int, angle: float, methods, repeats: int, fallback=True,
-            size=(320, 240)):
+def measure(
+    scene_name: str, zones: int, angle: float, methods, repeats: int, fallback=True, size=(320, 240)
+):
     """Rows of {scene, zones, angle, method, ms, pct_differ, ...} for one configuration."""
     arrays = builtin_scene(scene_name).flatten()
     display = DisplaySettings(zones=zones, angle_deg=angle, cols=size[0], rows=size[1])
     ref, ref_ms, _ = polygon_map(Renderer(), arrays, display, RenderSettings(method="raycast"), 1)
     rows = []
     for method in methods:
-        settings = RenderSettings(method=method, painter_fallback=fallback, light=LightSettings("ambient"))
+        settings = RenderSettings(
+            method=method, painter_fallback=fallback, light=LightSettings("ambient")
+        )
         renderer = Renderer()
         if method == "bsp":
             renderer.visibility(arrays, display, settings)  # build the tree once: static geometry
-        poly, ms, stats = (ref, ref_ms, {}) if method == "raycast" else polygon_map(
-            renderer, arrays, display, settings, repeats)
-        rows.append({
-            "scene": scene_name, "zones": zones, "angle_deg": angle, "method": method,
-            "fallback": fallback, "ms": round(ms, 3),
-            "pct_differ": round(100.0 * float(np.mean(poly != ref)), 4),
-            "polygons": int(arrays.n_polygons),
-            "inconsistent_pixels": int(stats.get("inconsistent_pixels", 0)),
-            "fell_back": stats.get("fallback") is not None,
-        })
+        poly, ms, stats = (
+            (ref, ref_ms, {})
+            if method == "raycast"
+            else polygon_map(renderer, arrays, display, settings, repeats)
+        )
+        rows.append(
+            {
+                "scene": scene_name,
+                "zones": zones,
+                "angle_deg": angle,
+                "method": method,
+                "fallback": fallback,
+                "ms": round(ms, 3),
+                "pct_differ": round(100.0 * float(np.mean(poly != ref)), 4),
+                "polygons": int(arrays.n_polygons),
+                "inconsistent_pixels": int(stats.get("inconsistent_pixels", 0)),
+                "fell_back": stats.get("fallback") is not None,
+            }
+        )
     return rows
 
 
@@ -84,11 +96,20 @@ def chart_methods(rows: list[dict], path: Path) -> None:
             pts = [r for r in rows if r["scene"] == scene and r["method"] == method]
             if not pts:
                 continue
-            ax.plot([r["ms"] for r in pts], [r["pct_differ"] for r in pts], marker=markers[method],
-                    label=method)
+            ax.plot(
+                [r["ms"] for r in pts],
+                [r["pct_differ"] for r in pts],
+                marker=markers[method],
+                label=method,
+            )
             for r in pts:
-                ax.annotate(str(r["zones"]), (r["ms"], r["pct_differ"]), fontsize=7,
-                            textcoords="offset points", xytext=(3, 3))
+                ax.annotate(
+                    str(r["zones"]),
+                    (r["ms"], r["pct_differ"]),
+                    fontsize=7,
+                    textcoords="offset points",
+                    xytext=(3, 3),
+                )
         ax.set_xscale("log")
         ax.set_xlabel("ms per update (labels: zones)")
         ax.set_ylabel("% pixels unlike ray casting")
@@ -149,7 +170,10 @@ def main(argv: list[str] | None = None) -> int:
     for i, (scene, z) in enumerate(((s, z) for s in scenes for z in zones), 1):
         print(f"[{i}/{total}] {scene}, {z} zones", file=sys.stderr, flush=True)
         rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback=False)
-        rows += [dict(r, method="runlength+fallback") for r in measure(scene, z, 16.0, ["runlength"], reps)]
+        rows += [
+            dict(r, method="runlength+fallback")
+            for r in measure(scene, z, 16.0, ["runlength"], reps)
+        ]
     write_rows(rows, out / "render_bench")
     chart_methods([r for r in rows if r["method"] in METHOD_NAMES], out / "render_bench.png")
     sweep = []
@@ -158,10 +182,18 @@ def main(argv: list[str] | None = None) -> int:
     for z in zones:
         sweep += measure("game", z, 32.0, ("runlength", "zbuffer"), reps, fallback=False)
     write_rows(sweep, out / "runlength_sweep")
-    chart_sweep([r for r in sweep if r["zones"] == 5], "angle_deg", out / "runlength_angle.png",
-                "game scene, 5 zones: error vs viewing angle")
-    chart_sweep([r for r in sweep if r["angle_deg"] == 32.0], "zones", out / "runlength_zones.png",
-                "game scene, 32 degrees: error vs zone count")
+    chart_sweep(
+        [r for r in sweep if r["zones"] == 5],
+        "angle_deg",
+        out / "runlength_angle.png",
+        "game scene, 5 zones: error vs viewing angle",
+    )
+    chart_sweep(
+        [r for r in sweep if r["angle_deg"] == 32.0],
+        "zones",
+        out / "runlength_zones.png",
+        "game scene, 32 degrees: error vs zone count",
+    )
     print_summary(rows)
     return 0
 
@@ -169,12 +201,17 @@ def main(argv: list[str] | None = None) -> int:
 def print_summary(rows: list[dict]) -> None:
     """Table of ms and error, with ms as ratios to one zone with the z-buffer."""
     for scene in sorted({r["scene"] for r in rows}):
-        base = next(r["ms"] for r in rows if r["scene"] == scene and r["zones"] == 1
-                    and r["method"] == "zbuffer")
+        base = next(
+            r["ms"]
+            for r in rows
+            if r["scene"] == scene and r["zones"] == 1 and r["method"] == "zbuffer"
+        )
         print(f"\n{scene}: ms per update (ratio to 1-zone z-buffer = {base:.2f} ms), % differ")
         for r in (r for r in rows if r["scene"] == scene):
-            print(f"  {r['method']:20s} {r['zones']:3d} zones {r['ms']:9.2f} ms  x{r['ms'] / base:6.2f}"
-                  f"  {r['pct_differ']:8.4f} %")
+            print(
+                f"  {r['method']:20s} {r['zones']:3d} zones {r['ms']:9.2f} ms"
+                f"  x{r['ms'] / base:6.2f}  {r['pct_differ']:8.4f} %"
+            )
 
 
 if __name__ == "__main__":

@@ -212,7 +212,9 @@ def runlength(
     """
     vis = Visibility.empty(display.zones, display.rows, display.cols)
     bad = np.zeros(display.zones, np.int64)
-    runlength_kernel(proj, scene.triangles, np.ascontiguousarray(order), vis.triangle, vis.depth, bad)
+    runlength_kernel(
+        proj, scene.triangles, np.ascontiguousarray(order), vis.triangle, vis.depth, bad
+    )
     vis.stats["inconsistent_pixels"] = int(bad.sum())
     vis.stats["inconsistent_by_zone"] = bad.tolist()
     return vis

@@ -13,7 +13,12 @@ from service.scene import Scene, SceneObject
 
 
 def square(cx: float, cy: float, z: float, half: float) -> Mesh:
-    v = [[cx - half, cy - half, z], [cx + half, cy - half, z], [cx + half, cy + half, z], [cx - half, cy + half, z]]
+    v = [
+        [cx - half, cy - half, z],
+        [cx + half, cy - half, z],
+        [cx + half, cy + half, z],
+        [cx - half, cy + half, z],
+    ]
     return Mesh.from_polygons(np.array(v), [[0, 1, 2, 3]])
 
 
@@ -21,7 +26,10 @@ def prepare(meshes, display):
     arrays = Scene([SceneObject(m) for m in meshes]).flatten()
     proj = project(arrays.vertices, display)
     keep, _ = cull(arrays.normals, display, CullSettings("modified"))
-    order = triangle_order(sort_polygons(average_z(arrays.vertices, arrays.polygons, arrays.counts), keep), arrays.triangle_polygon)
+    order = triangle_order(
+        sort_polygons(average_z(arrays.vertices, arrays.polygons, arrays.counts), keep),
+        arrays.triangle_polygon,
+    )
     return arrays, proj, order
 
 
@@ -57,8 +65,14 @@ def test_nearer_square_wins_and_shifts_with_zone():
 def test_runlength_reports_a_wrong_sort():
     # Two crossing quads: average z says A is in front, but B pokes through it.
     d = DisplaySettings(zones=1, angle_deg=0, cols=40, rows=40, width=2.0)
-    a = Mesh.from_polygons(np.array([[-0.8, -0.8, 0.1], [0.8, -0.8, 0.1], [0.8, 0.8, 0.1], [-0.8, 0.8, 0.1]]), [[0, 1, 2, 3]])
-    b = Mesh.from_polygons(np.array([[-0.8, -0.8, -0.5], [0.8, -0.8, 0.5], [0.8, 0.8, 0.5], [-0.8, 0.8, -0.5]]), [[0, 1, 2, 3]])
+    a = Mesh.from_polygons(
+        np.array([[-0.8, -0.8, 0.1], [0.8, -0.8, 0.1], [0.8, 0.8, 0.1], [-0.8, 0.8, 0.1]]),
+        [[0, 1, 2, 3]],
+    )
+    b = Mesh.from_polygons(
+        np.array([[-0.8, -0.8, -0.5], [0.8, -0.8, 0.5], [0.8, 0.8, 0.5], [-0.8, 0.8, -0.5]]),
+        [[0, 1, 2, 3]],
+    )
     arrays, proj, order = prepare([a, b], d)
     rl = runlength(arrays, proj, d, order)
     zb = zbuffer(arrays, proj, d, order)
