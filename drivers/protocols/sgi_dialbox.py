@@ -168,8 +168,8 @@ class SgiDecoder:
         self.dial_timeout_ns = dial_timeout_ns
         self.garbage_limit = garbage_limit
         self.stats = DecoderStats()
-        self._handlers = (self._garbage_byte, self._reset_ack, self._dial_start,
-                          self._press, self._release)
+        # indexed by _KIND; garbage runs and dial packets are handled inline in _scan
+        self._handlers = (None, self._reset_ack, None, self._press, self._release)
         self.reset()
 
     def reset(self) -> None:
@@ -187,15 +187,38 @@ class SgiDecoder:
         events: list[Event] = []
         if self._partial and data and t_ns - self._t_start > self.dial_timeout_ns:
             self._drop_partial(t_ns, events)
-        partial, handlers, kind = self._partial, self._handlers, _KIND
-        for b in data:
-            if partial:
-                partial.append(b)
-                if len(partial) == 3:
-                    self._dial_done(t_ns, events)
-            else:
-                handlers[kind[b]](b, t_ns, events)
+        i = 0
+        if self._partial:
+            i = 3 - len(self._partial)
+            self._partial += data[:i]
+            if len(self._partial) < 3:
+                return events
+            self._dial_done(self._partial, 0, t_ns, events)
+            self._partial.clear()
+        self._scan(data, i, t_ns, events)
         return events
+
+    def _scan(self, data: bytes, i: int, t_ns: int, events: list[Event]) -> None:
+        """The hot loop: whole dial packets inline, other bytes via the handler table."""
+        n, kind, handlers, dial_done = len(data), _KIND, self._handlers, self._dial_done
+        while i < n:
+            k = kind[data[i]]
+            if k == 2:
+                if i + 3 > n:
+                    self._partial += data[i:]
+                    self._t_start = t_ns
+                    return
+                dial_done(data, i, t_ns, events)
+                i += 3
+            elif k:
+                handlers[k](data[i], t_ns, events)
+                i += 1
+            else:
+                j = i + 1
+                while j < n and not kind[data[j]]:
+                    j += 1
+                self._garbage_run(j - i, t_ns, events)
+                i = j
 
     def flush(self, t_ns: int) -> list[Event]:
         """End of input: an unfinished dial packet is truncated; report garbage."""
@@ -224,11 +247,12 @@ class SgiDecoder:
         self._since_good = 0
         self.stats.frames += 1
 
-    def _garbage_byte(self, b: int, t_ns: int, events: list[Event]) -> None:
-        self._garbage += 1
-        self._since_good += 1
-        self.stats.bytes_discarded += 1
-        if self._since_good == self.garbage_limit:
+    def _garbage_run(self, count: int, t_ns: int, events: list[Event]) -> None:
+        before = self._since_good
+        self._garbage += count
+        self._since_good += count
+        self.stats.bytes_discarded += count
+        if before < self.garbage_limit <= self._since_good:
             events.append(StatusEvent(t_ns, "dials", "error",
                                       {"reason": "repeated_garbage", "action": "reinit"}))
 
@@ -236,19 +260,18 @@ class SgiDecoder:
         self._good(t_ns, events)
         events.append(StatusEvent(t_ns, "dials", "info", {"message": "reset_ack"}))
 
-    def _dial_start(self, b: int, t_ns: int, events: list[Event]) -> None:
-        self._partial.append(b)
-        self._t_start = t_ns
-
-    def _dial_done(self, t_ns: int, events: list[Event]) -> None:
-        p = self._partial
-        index, counter = p[0] - 0x30, int.from_bytes(p[1:3], "big", signed=True)
-        p.clear()
-        self._good(t_ns, events)
+    def _dial_done(self, p: bytes | bytearray, i: int, t_ns: int, events: list[Event]) -> None:
+        if self._garbage:
+            self._end_garbage(t_ns, events)
+        self._since_good = 0
+        self.stats.frames += 1
+        index = p[i] - 0x30
+        counter = (p[i + 1] << 8) | p[i + 2]
         delta = ((counter - self._counters[index] + 0x8000) & 0xFFFF) - 0x8000
         self._counters[index] = counter
-        self._values[index] += delta
-        events.append(DialEvent(t_ns, index, delta, self._values[index]))
+        value = self._values[index] + delta
+        self._values[index] = value
+        events.append(DialEvent(t_ns, index, delta, value))
 
     def _press(self, b: int, t_ns: int, events: list[Event]) -> None:
         self._good(t_ns, events)
