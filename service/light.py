@@ -65,7 +65,6 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.errors import RenderError, SettingsError
-from service.mesh import polygon_mean
 from service.occlusion import Visibility
 from service.projection import unproject
 from service.scene import Light, SceneArrays
@@ -116,29 +115,28 @@ class _Packed:
     Attributes
     ----------
     views : ndarray, shape (Z, 3)
-    lvec : ndarray, shape (J, 3)
-        Unit direction toward a directional light, or a point light's position.
-    lpoint : ndarray, shape (J,), int64
-        1 for a point light.
-    lrgb : ndarray, shape (J, 3)
-        Light colour times intensity.
+    lights : tuple
+        ``(lvec, lpoint, lrgb)`` from :func:`pack_lights`.
     ambient : float
     code : int
         Model code from :data:`MODELS`.
-    background : ndarray, shape (3,), float32
+    background : ndarray, shape (3,), float64
         Background colour in [0, 1].
     affine : ndarray, shape (Z, 4, 3)
         :func:`_unproject_affine` of the display.
+    scale, offset : float
+        Output value = float32(colour) * scale + offset: (255, 0.5) into uint8
+        (the store truncates, so this rounds), (1, 0) into float32.
     """
 
     views: np.ndarray
-    lvec: np.ndarray
-    lpoint: np.ndarray
-    lrgb: np.ndarray
+    lights: tuple
     ambient: float
     code: int
     background: np.ndarray
     affine: np.ndarray
+    scale: float
+    offset: float
 
 
 def pack_lights(lights: list[Light]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,24 +167,34 @@ def pack_lights(lights: list[Light]) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 @nb.njit(cache=True, inline="always")
+def _power(base: float, n: float) -> float:
+    """``base ** n``; whole exponents up to 4096 use integer powering (10x faster)."""
+    if n <= 4096.0 and n == np.floor(n):
+        return base ** np.int64(n)
+    return base**n
+
+
+@nb.njit(cache=True, inline="always")
 def _light_rgb(
-    p: np.ndarray,
+    px: float,
+    py: float,
+    pz: float,
     nx: float,
     ny: float,
     nz: float,
     mat: np.ndarray,
     v: np.ndarray,
-    lvec: np.ndarray,
-    lpoint: np.ndarray,
-    lrgb: np.ndarray,
+    lights: tuple,
     ambient: float,
     code: int,
 ) -> tuple:
-    """Colour (r, g, b) in [0, 1] at point ``p`` (3,) with normal (nx, ny, nz).
+    """Colour (r, g, b) in [0, 1] at point (px, py, pz) with normal (nx, ny, nz).
 
-    ``mat`` (7,) is one material row, ``v`` (3,) the unit view vector; the normal is
-    renormalised here (and must already be flipped toward the viewer).
+    ``mat`` (7,) is one material row, ``v`` (3,) the unit view vector, ``lights``
+    the tuple from :func:`pack_lights`; the normal is renormalised here (and must
+    already be flipped toward the viewer).
     """
+    lvec, lpoint, lrgb = lights
     ka = mat[3] * ambient
     cr = mat[0] * ka
     cg = mat[1] * ka
@@ -199,7 +207,7 @@ def _light_rgb(
         for j in range(lvec.shape[0]):
             lx, ly, lz = lvec[j, 0], lvec[j, 1], lvec[j, 2]
             if lpoint[j] == 1:
-                lx, ly, lz = lx - p[0], ly - p[1], lz - p[2]
+                lx, ly, lz = lx - px, ly - py, lz - pz
                 d = np.sqrt(lx * lx + ly * ly + lz * lz)
                 if d <= 1e-12:
                     continue
@@ -215,7 +223,7 @@ def _light_rgb(
             hn = np.sqrt(hx * hx + hy * hy + hz * hz)
             ndh = (nx * hx + ny * hy + nz * hz) / hn if hn > 0.0 else 0.0
             base = (0.0, rdv, ndh)[code]
-            spec = mat[5] * base ** mat[6] if base > 0.0 else 0.0
+            spec = mat[5] * _power(base, mat[6]) if base > 0.0 else 0.0
             dif = mat[4] * ndl
             cr += lrgb[j, 0] * (mat[0] * dif + spec)
             cg += lrgb[j, 1] * (mat[1] * dif + spec)
@@ -224,42 +232,76 @@ def _light_rgb(
 
 
 @nb.njit(cache=True, inline="always")
-def _facing(n: np.ndarray, v: np.ndarray) -> float:
-    """+1 if the face normal ``n`` (3,) faces the view vector ``v`` (3,), else -1."""
-    return 1.0 if n[0] * v[0] + n[1] * v[1] + n[2] * v[2] >= 0.0 else -1.0
+def _facing(normals: np.ndarray, p: int, v: np.ndarray) -> float:
+    """+1 if face normal ``normals[p]`` faces the view vector ``v`` (3,), else -1."""
+    d = normals[p, 0] * v[0] + normals[p, 1] * v[1] + normals[p, 2] * v[2]
+    return 1.0 if d >= 0.0 else -1.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
+def _store(
+    out: np.ndarray, z: int, r: int, c: int, rgb: tuple, scale: float, offset: float
+) -> None:
+    """``out[z, r, c] = float32(rgb) * scale + offset`` (the cast truncates for uint8)."""
+    for ch in range(3):
+        out[z, r, c, ch] = np.float64(np.float32(rgb[ch])) * scale + offset
+
+
+@nb.njit(cache=True, parallel=True)
+def _mark(tri_map: np.ndarray, item: np.ndarray, n_items: int) -> np.ndarray:
+    """Which items each zone shows: (Z, n_items) bool, ``item`` (T,) maps triangles."""
+    zones, rows, cols = tri_map.shape
+    needed = np.zeros((zones, n_items), np.bool_)
+    for i in nb.prange(zones * rows):
+        z, r = i // rows, i % rows
+        for c in range(cols):
+            t = tri_map[z, r, c]
+            if t >= 0:
+                needed[z, item[t]] = True
+    return needed
+
+
+@nb.njit(cache=True, parallel=True)
 def _polygon_table(
-    centroids: np.ndarray,
+    vertices: np.ndarray,
+    polygons: np.ndarray,
+    counts: np.ndarray,
     normals: np.ndarray,
     materials: np.ndarray,
     views: np.ndarray,
-    lvec: np.ndarray,
-    lpoint: np.ndarray,
-    lrgb: np.ndarray,
+    needed: np.ndarray,
+    lights: tuple,
     ambient: float,
     code: int,
     out: np.ndarray,
 ) -> None:
-    """Flat colour of every polygon in every zone into ``out`` (Z, P, 3) float32.
+    """Flat colour of every needed polygon in every zone into ``out`` (Z, P, 3) float32.
 
-    ``centroids`` and ``normals`` are (P, 3), ``materials`` (P, 7), ``views`` (Z, 3).
+    Light is evaluated at the polygon's centroid (mean of its vertices) with its face
+    normal.  ``polygons`` (P, K) padded, ``counts`` (P,), ``normals`` (P, 3),
+    ``materials`` (P, 7), ``views`` (Z, 3), ``needed`` (Z, P) bool.
     """
-    for z in range(views.shape[0]):
-        v = views[z]
-        for p in range(centroids.shape[0]):
-            s = _facing(normals[p], v)
-            r, g, b = _light_rgb(
-                centroids[p], s * normals[p, 0], s * normals[p, 1], s * normals[p, 2],
-                materials[p], v, lvec, lpoint, lrgb, ambient, code,
-            )
-            out[z, p, 0] = r
-            out[z, p, 1] = g
-            out[z, p, 2] = b
+    n = normals.shape[0]
+    for i in nb.prange(views.shape[0] * n):
+        z, p = i // n, i % n
+        if not needed[z, p]:
+            continue
+        cx = cy = cz = 0.0
+        for k in range(counts[p]):
+            cx += vertices[polygons[p, k], 0]
+            cy += vertices[polygons[p, k], 1]
+            cz += vertices[polygons[p, k], 2]
+        s = _facing(normals, p, views[z])
+        rgb = _light_rgb(
+            cx / counts[p], cy / counts[p], cz / counts[p],
+            s * normals[p, 0], s * normals[p, 1], s * normals[p, 2],
+            materials[p], views[z], lights, ambient, code,
+        )
+        for ch in range(3):
+            out[z, p, ch] = rgb[ch]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def _corner_table(
     vertices: np.ndarray,
     triangles: np.ndarray,
@@ -268,175 +310,174 @@ def _corner_table(
     corner_normals: np.ndarray,
     materials: np.ndarray,
     views: np.ndarray,
-    lvec: np.ndarray,
-    lpoint: np.ndarray,
-    lrgb: np.ndarray,
+    needed: np.ndarray,
+    lights: tuple,
     ambient: float,
     code: int,
     out: np.ndarray,
 ) -> None:
-    """Colour at every triangle corner in every zone into ``out`` (Z, T, 3, 3) float32.
+    """Colour at the corners of every needed triangle per zone into ``out`` (Z, T, 3, 3).
 
-    ``vertices`` (V, 3), ``triangles`` (T, 3), ``tri_poly`` (T,), ``normals`` (P, 3),
-    ``corner_normals`` (T, 3, 3), ``materials`` (P, 7), ``views`` (Z, 3).
+    ``triangles`` (T, 3), ``tri_poly`` (T,), ``normals`` (P, 3), ``corner_normals``
+    (T, 3, 3), ``materials`` (P, 7), ``views`` (Z, 3), ``needed`` (Z, T) bool.
     """
-    for z in range(views.shape[0]):
-        v = views[z]
-        for t in range(triangles.shape[0]):
-            p = tri_poly[t]
-            s = _facing(normals[p], v)
-            for k in range(3):
-                cn = corner_normals[t, k]
-                r, g, b = _light_rgb(
-                    vertices[triangles[t, k]], s * cn[0], s * cn[1], s * cn[2],
-                    materials[p], v, lvec, lpoint, lrgb, ambient, code,
-                )
-                out[z, t, k, 0] = r
-                out[z, t, k, 1] = g
-                out[z, t, k, 2] = b
+    n = triangles.shape[0]
+    for i in nb.prange(views.shape[0] * n):
+        z, t = i // n, i % n
+        if not needed[z, t]:
+            continue
+        p = tri_poly[t]
+        s = _facing(normals, p, views[z])
+        for k in range(3):
+            q = triangles[t, k]
+            rgb = _light_rgb(
+                vertices[q, 0], vertices[q, 1], vertices[q, 2],
+                s * corner_normals[t, k, 0], s * corner_normals[t, k, 1],
+                s * corner_normals[t, k, 2],
+                materials[p], views[z], lights, ambient, code,
+            )
+            for ch in range(3):
+                out[z, t, k, ch] = rgb[ch]
 
 
 @nb.njit(cache=True, inline="always")
-def _barycentric(pz: np.ndarray, tri: np.ndarray, x: float, y: float) -> tuple:
-    """Barycentric weights of (x, y) in the projected triangle ``pz[tri]``.
+def _barycentric(pz: np.ndarray, a: int, b: int, c: int, x: float, y: float) -> tuple:
+    """Barycentric weights of (x, y) in the projected triangle of vertices a, b, c.
 
-    ``pz`` is one zone's projection (V, 3), ``tri`` (3,) vertex indices.  Weights are
-    clamped to >= 0 and renormalised (a pixel centre on an edge may fall a hair
-    outside); a triangle with no area on screen gets (1/3, 1/3, 1/3).
+    ``pz`` is one zone's projection (V, 3).  Weights are clamped to >= 0 and
+    renormalised (a pixel centre on an edge may fall a hair outside); a triangle
+    with no area on screen gets (1/3, 1/3, 1/3).
     """
-    ax, ay = pz[tri[0], 0], pz[tri[0], 1]
-    bx, by = pz[tri[1], 0], pz[tri[1], 1]
-    cx, cy = pz[tri[2], 0], pz[tri[2], 1]
+    ax, ay = pz[a, 0], pz[a, 1]
+    bx, by = pz[b, 0], pz[b, 1]
+    cx, cy = pz[c, 0], pz[c, 1]
     det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
     if det == 0.0:
         return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
-    w1 = ((x - ax) * (cy - ay) - (cx - ax) * (y - ay)) / det
-    w2 = ((bx - ax) * (y - ay) - (x - ax) * (by - ay)) / det
+    w1 = max(((x - ax) * (cy - ay) - (cx - ax) * (y - ay)) / det, 0.0)
+    w2 = max(((bx - ax) * (y - ay) - (x - ax) * (by - ay)) / det, 0.0)
     w0 = max(1.0 - w1 - w2, 0.0)
-    w1 = max(w1, 0.0)
-    w2 = max(w2, 0.0)
     tot = w0 + w1 + w2
     return w0 / tot, w1 / tot, w2 / tot
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def _gather(
-    tri_map: np.ndarray, tri_poly: np.ndarray, table: np.ndarray, bg: np.ndarray, out: np.ndarray
+    tri_map: np.ndarray,
+    tri_poly: np.ndarray,
+    table: np.ndarray,
+    bg: np.ndarray,
+    scale: float,
+    offset: float,
+    out: np.ndarray,
 ) -> None:
-    """``out[z, r, c] = table[z, tri_poly[tri_map[z, r, c]]]``, ``bg`` where empty.
+    """``out[z, r, c] = table[z, tri_poly[tri_map[z, r, c]]]`` (``bg`` where empty).
 
-    ``tri_map`` (Z, R, C) int32, ``table`` (Z, P, 3), ``out`` (Z, R, C, 3) of the
-    table's dtype.
+    ``tri_map`` (Z, R, C) int32, ``table`` (Z, P, 3) float32, ``out`` (Z, R, C, 3);
+    values go through :func:`_store`.
     """
     zones, rows, cols = tri_map.shape
-    for z in range(zones):
-        for r in range(rows):
-            for c in range(cols):
-                t = tri_map[z, r, c]
-                if t < 0:
-                    out[z, r, c, 0] = bg[0]
-                    out[z, r, c, 1] = bg[1]
-                    out[z, r, c, 2] = bg[2]
-                else:
-                    p = tri_poly[t]
-                    out[z, r, c, 0] = table[z, p, 0]
-                    out[z, r, c, 1] = table[z, p, 1]
-                    out[z, r, c, 2] = table[z, p, 2]
+    for i in nb.prange(zones * rows):
+        z, r = i // rows, i % rows
+        for c in range(cols):
+            t = tri_map[z, r, c]
+            if t < 0:
+                _store(out, z, r, c, (bg[0], bg[1], bg[2]), scale, offset)
+            else:
+                p = tri_poly[t]
+                rgb = (np.float64(table[z, p, 0]), np.float64(table[z, p, 1]),
+                       np.float64(table[z, p, 2]))
+                _store(out, z, r, c, rgb, scale, offset)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def _gouraud_pixels(
     tri_map: np.ndarray,
     proj: np.ndarray,
     triangles: np.ndarray,
     corner: np.ndarray,
     bg: np.ndarray,
+    scale: float,
+    offset: float,
     out: np.ndarray,
 ) -> None:
     """Interpolate corner colours (Z, T, 3, 3) across pixels into ``out`` (Z, R, C, 3)."""
     zones, rows, cols = tri_map.shape
-    for z in range(zones):
-        pz = proj[z]
-        for r in range(rows):
-            for c in range(cols):
-                t = tri_map[z, r, c]
-                if t < 0:
-                    out[z, r, c, :] = bg
-                    continue
-                w0, w1, w2 = _barycentric(pz, triangles[t], c + 0.5, r + 0.5)
-                ct = corner[z, t]
-                for ch in range(3):
-                    out[z, r, c, ch] = w0 * ct[0, ch] + w1 * ct[1, ch] + w2 * ct[2, ch]
+    for i in nb.prange(zones * rows):
+        z, r = i // rows, i % rows
+        for c in range(cols):
+            t = tri_map[z, r, c]
+            if t < 0:
+                _store(out, z, r, c, (bg[0], bg[1], bg[2]), scale, offset)
+                continue
+            w0, w1, w2 = _barycentric(
+                proj[z], triangles[t, 0], triangles[t, 1], triangles[t, 2], c + 0.5, r + 0.5
+            )
+            rgb = (
+                w0 * corner[z, t, 0, 0] + w1 * corner[z, t, 1, 0] + w2 * corner[z, t, 2, 0],
+                w0 * corner[z, t, 0, 1] + w1 * corner[z, t, 1, 1] + w2 * corner[z, t, 2, 1],
+                w0 * corner[z, t, 0, 2] + w1 * corner[z, t, 1, 2] + w2 * corner[z, t, 2, 2],
+            )
+            _store(out, z, r, c, rgb, scale, offset)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def _point_pixels(
     tri_map: np.ndarray,
     depth: np.ndarray,
     proj: np.ndarray,
     affine: np.ndarray,
-    triangles: np.ndarray,
-    tri_poly: np.ndarray,
-    normals: np.ndarray,
-    corner_normals: np.ndarray,
+    geometry: tuple,
     materials: np.ndarray,
     views: np.ndarray,
     lights: tuple,
     ambient: float,
     code: int,
     bg: np.ndarray,
+    scale: float,
+    offset: float,
     out: np.ndarray,
 ) -> None:
     """Light every covered pixel at its own world point and interpolated normal.
 
     ``affine`` (Z, 4, 3) gives the world point at pixel (c, r) and depth d as
     ``affine[z, 0] + c * affine[z, 1] + r * affine[z, 2] + d * affine[z, 3]`` (see
-    :func:`_unproject_affine`); ``lights`` is ``(lvec, lpoint, lrgb)``.
+    :func:`_unproject_affine`); ``geometry`` is ``(triangles (T, 3), tri_poly (T,),
+    normals (P, 3), corner_normals (T, 3, 3))``.
     """
-    lvec, lpoint, lrgb = lights
+    triangles, tri_poly, normals, cn = geometry
     zones, rows, cols = tri_map.shape
-    pt = np.empty(3)
-    for z in range(zones):
-        pz = proj[z]
-        v = views[z]
-        for r in range(rows):
-            for c in range(cols):
-                t = tri_map[z, r, c]
-                if t < 0:
-                    out[z, r, c, :] = bg
-                    continue
-                d = depth[z, r, c]
-                for k in range(3):
-                    pt[k] = affine[z, 0, k] + c * affine[z, 1, k] + r * affine[z, 2, k]
-                    pt[k] += d * affine[z, 3, k]
-                w0, w1, w2 = _barycentric(pz, triangles[t], c + 0.5, r + 0.5)
-                cn = corner_normals[t]
-                p = tri_poly[t]
-                s = _facing(normals[p], v)
-                nx = s * (w0 * cn[0, 0] + w1 * cn[1, 0] + w2 * cn[2, 0])
-                ny = s * (w0 * cn[0, 1] + w1 * cn[1, 1] + w2 * cn[2, 1])
-                nz = s * (w0 * cn[0, 2] + w1 * cn[1, 2] + w2 * cn[2, 2])
-                cr, cg, cb = _light_rgb(
-                    pt, nx, ny, nz, materials[p], v, lvec, lpoint, lrgb, ambient, code
-                )
-                out[z, r, c, 0] = cr
-                out[z, r, c, 1] = cg
-                out[z, r, c, 2] = cb
-
-
-@nb.njit(cache=True)
-def _quantise(x: np.ndarray, out: np.ndarray) -> None:
-    """``out = round(255 * x)`` for flat arrays ``x`` float32 in [0, 1] and ``out`` uint8."""
-    for i in range(x.size):
-        out[i] = np.uint8(x[i] * 255.0 + 0.5)
+    for i in nb.prange(zones * rows):
+        z, r = i // rows, i % rows
+        a = affine[z]
+        for c in range(cols):
+            t = tri_map[z, r, c]
+            if t < 0:
+                _store(out, z, r, c, (bg[0], bg[1], bg[2]), scale, offset)
+                continue
+            d = np.float64(depth[z, r, c])
+            px = a[0, 0] + c * a[1, 0] + r * a[2, 0] + d * a[3, 0]
+            py = a[0, 1] + c * a[1, 1] + r * a[2, 1] + d * a[3, 1]
+            pz = a[0, 2] + c * a[1, 2] + r * a[2, 2] + d * a[3, 2]
+            w0, w1, w2 = _barycentric(
+                proj[z], triangles[t, 0], triangles[t, 1], triangles[t, 2], c + 0.5, r + 0.5
+            )
+            p = tri_poly[t]
+            s = _facing(normals, p, views[z])
+            nx = s * (w0 * cn[t, 0, 0] + w1 * cn[t, 1, 0] + w2 * cn[t, 2, 0])
+            ny = s * (w0 * cn[t, 0, 1] + w1 * cn[t, 1, 1] + w2 * cn[t, 2, 1])
+            nz = s * (w0 * cn[t, 0, 2] + w1 * cn[t, 1, 2] + w2 * cn[t, 2, 2])
+            rgb = _light_rgb(px, py, pz, nx, ny, nz, materials[p], views[z], lights, ambient, code)
+            _store(out, z, r, c, rgb, scale, offset)
 
 
 def to_uint8(x: np.ndarray) -> np.ndarray:
-    """Colours in [0, 1] (any shape, float32) to uint8 ``round(255 * x)``, same shape."""
-    src = np.ascontiguousarray(np.clip(x, 0.0, 1.0), dtype=np.float32)
-    out = np.empty(src.shape, np.uint8)
-    _quantise(src.reshape(-1), out.reshape(-1))
-    return out
+    """Colours in [0, 1] to uint8 ``floor(255 * x + 0.5)`` (x rounded to float32 first).
+
+    This is exactly the quantisation :func:`shade` applies to :func:`shade_linear`.
+    """
+    v = np.clip(np.asarray(x, np.float32), 0.0, 1.0).astype(np.float64)
+    return (v * 255.0 + 0.5).astype(np.uint8)
 
 
 def _unproject_affine(display: DisplaySettings) -> np.ndarray:
@@ -459,55 +500,47 @@ def _unproject_affine(display: DisplaySettings) -> np.ndarray:
 
 
 def _eval_polygon(
-    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, quantise: bool
-) -> np.ndarray:
-    """Flat light: (Z, P, 3) table gathered per pixel; (Z, R, C, 3) float32 or uint8."""
-    zones = k.views.shape[0]
-    table = np.empty((zones, scene.n_polygons, 3), np.float32)
-    if scene.n_polygons:
-        centroids = polygon_mean(scene.vertices, scene.polygons, scene.counts)
-        _polygon_table(
-            centroids, np.ascontiguousarray(scene.normals, np.float64), scene.materials,
-            k.views, k.lvec, k.lpoint, k.lrgb, k.ambient, k.code, table,
-        )
-    bg = k.background
-    if quantise:
-        table, bg = to_uint8(table), to_uint8(bg)
-    out = np.empty((*vis.triangle.shape, 3), table.dtype)
-    _gather(vis.triangle, scene.triangle_polygon, table, bg, out)
-    return out
+    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, out: np.ndarray
+) -> None:
+    """Flat light: a (Z, P, 3) table for the polygons each zone shows, gathered per pixel."""
+    needed = _mark(vis.triangle, scene.triangle_polygon, scene.n_polygons)
+    table = np.zeros((k.views.shape[0], scene.n_polygons, 3), np.float32)
+    _polygon_table(
+        scene.vertices, scene.polygons, scene.counts, scene.normals, scene.materials,
+        k.views, needed, k.lights, k.ambient, k.code, table,
+    )
+    _gather(vis.triangle, scene.triangle_polygon, table, k.background, k.scale, k.offset, out)
 
 
 def _eval_vertex(
-    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, quantise: bool
-) -> np.ndarray:
-    """Gouraud light: corner colours interpolated per pixel; (Z, R, C, 3)."""
-    zones = k.views.shape[0]
-    corner = np.empty((zones, scene.triangles.shape[0], 3, 3), np.float32)
+    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, out: np.ndarray
+) -> None:
+    """Gouraud light: corner colours of the triangles each zone shows, interpolated."""
+    n_tri = scene.triangles.shape[0]
+    needed = _mark(vis.triangle, np.arange(n_tri), n_tri)
+    corner = np.zeros((k.views.shape[0], n_tri, 3, 3), np.float32)
     _corner_table(
         scene.vertices, scene.triangles, scene.triangle_polygon, scene.normals,
-        scene.corner_normals, scene.materials, k.views, k.lvec, k.lpoint, k.lrgb,
-        k.ambient, k.code, corner,
+        scene.corner_normals, scene.materials, k.views, needed, k.lights, k.ambient,
+        k.code, corner,
     )
-    out = np.empty((*vis.triangle.shape, 3), np.float32)
-    _gouraud_pixels(vis.triangle, proj, scene.triangles, corner, k.background, out)
-    return to_uint8(out) if quantise else out
+    _gouraud_pixels(
+        vis.triangle, proj, scene.triangles, corner, k.background, k.scale, k.offset, out
+    )
 
 
 def _eval_point(
-    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, quantise: bool
-) -> np.ndarray:
-    """Per-pixel light at the unprojected point with interpolated normal; (Z, R, C, 3)."""
-    out = np.empty((*vis.triangle.shape, 3), np.float32)
+    scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, out: np.ndarray
+) -> None:
+    """Per-pixel light at the unprojected point with the interpolated normal."""
+    geometry = (scene.triangles, scene.triangle_polygon, scene.normals, scene.corner_normals)
     _point_pixels(
-        vis.triangle, vis.depth, proj, k.affine, scene.triangles,
-        scene.triangle_polygon, scene.normals, scene.corner_normals, scene.materials,
-        k.views, (k.lvec, k.lpoint, k.lrgb), k.ambient, k.code, k.background, out,
+        vis.triangle, vis.depth, proj, k.affine, geometry, scene.materials, k.views,
+        k.lights, k.ambient, k.code, k.background, k.scale, k.offset, out,
     )
-    return to_uint8(out) if quantise else out
 
 
-#: Evaluation name -> function(scene, proj, vis, packed, quantise) -> (Z, R, C, 3).
+#: Evaluation name -> function(scene, proj, vis, packed, out (Z, R, C, 3)) filling out.
 EVALUATIONS = {"polygon": _eval_polygon, "vertex": _eval_vertex, "point": _eval_point}
 
 
@@ -532,23 +565,25 @@ def _render(
     settings: LightSettings,
     quantise: bool,
 ) -> np.ndarray:
-    """Shared body of :func:`shade` and :func:`shade_linear`."""
+    """Shared body of :func:`shade` (``quantise``: uint8) and :func:`shade_linear`."""
     _check(scene, proj, vis, display)
-    lvec, lpoint, lrgb = pack_lights(lights)
     packed = _Packed(
         views=display.view_vectors(),
-        lvec=lvec,
-        lpoint=lpoint,
-        lrgb=lrgb,
+        lights=pack_lights(lights),
         ambient=float(ambient_level),
         code=MODELS[settings.model],
-        background=np.asarray(settings.background, np.float32) / np.float32(255),
+        background=np.asarray(settings.background, np.float64) / 255.0,
         affine=_unproject_affine(display),
+        scale=255.0 if quantise else 1.0,
+        offset=0.5 if quantise else 0.0,
     )
-    tri = np.ascontiguousarray(vis.triangle, np.int32)
-    dep = np.ascontiguousarray(vis.depth, np.float32)
+    vis = Visibility(
+        np.ascontiguousarray(vis.triangle, np.int32), np.ascontiguousarray(vis.depth, np.float32)
+    )
+    out = np.empty((*vis.triangle.shape, 3), np.uint8 if quantise else np.float32)
     proj = np.ascontiguousarray(proj, np.float64)
-    return EVALUATIONS[settings.evaluation](scene, proj, Visibility(tri, dep), packed, quantise)
+    EVALUATIONS[settings.evaluation](scene, proj, vis, packed, out)
+    return out
 
 
 def shade(

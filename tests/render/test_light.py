@@ -230,3 +230,23 @@ def test_bad_settings_and_shapes_are_refused():
         shade(sa, proj, Visibility.empty(1, 8, 8), HEAD_ON, [], 1.0)
     with pytest.raises(RenderError):
         shade(sa, proj[:, :2], Visibility.empty(1, 16, 16), HEAD_ON, [], 1.0)
+
+
+def test_light_benchmark_writes_its_files_and_ranks_modes(tmp_path, capsys):
+    from service.bench import light_bench
+
+    argv = ["--out", str(tmp_path), "--scenes", "sphere", "--zones", "1,3", "--size", "64x48",
+            "--repeats", "1"]
+    assert light_bench.main(argv) == 0
+    for name in ("light_bench.json", "light_bench.csv", "light_bench.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    import json
+
+    rows = json.loads((tmp_path / "light_bench.json").read_text())["rows"]
+    assert len(rows) == 2 * len(light_bench.VARIANTS)
+    err = {(r["zones"], r["model"], r["evaluation"]): r["error"] for r in rows}
+    for z in (1, 3):
+        assert err[(z, "blinn", "point")] == 0.0
+        assert err[(z, "blinn", "vertex")] < err[(z, "blinn", "polygon")]
+        assert err[(z, "blinn", "polygon")] < err[(z, "ambient", "polygon")]
+    assert "wrote" in capsys.readouterr().out

@@ -1,0 +1,213 @@
+"""Light benchmark: milliseconds per frame against intensity error vs per-point Blinn.
+
+For every scene x zone count, the visibility buffer is made once by the real
+stages 1-4 (project, modified cull, average-z sort, z-buffer: :func:`visibility`),
+then :func:`service.light.shade` is timed for
+every evaluation (polygon / vertex / point) x model (phong / blinn), plus the
+game's ``ambient`` fast mode, as the median of ``--repeats`` runs after a warm-up.
+Accuracy is the mean absolute difference of :func:`service.light.intensity` (mean
+of r, g, b in [0, 1]) from per-point Blinn over the covered pixels of every zone.
+Writes ``light_bench.json``, ``light_bench.csv`` and ``light_bench.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from service.cull import cull
+from service.depth_sort import average_z, sort_polygons, triangle_order
+from service.display import DisplaySettings, parse_size
+from service.light import LightSettings, intensity, intensity_error, shade
+from service.occlusion import Visibility
+from service.occlusion.zbuffer import zbuffer
+from service.primitives import sphere
+from service.projection import project
+from service.scene import Light, Material, Scene, SceneArrays, SceneObject
+from service.scenes import builtin_scene
+
+#: (model, evaluation) pairs measured; ("blinn", "point") is the reference.
+VARIANTS = (
+    ("ambient", "polygon"),
+    ("phong", "polygon"),
+    ("blinn", "polygon"),
+    ("phong", "vertex"),
+    ("blinn", "vertex"),
+    ("phong", "point"),
+    ("blinn", "point"),
+)
+REFERENCE = LightSettings("blinn", "point")
+
+
+def sphere_scene() -> Scene:
+    """One shiny UV sphere (16 x 32) under a key, a fill and a point light."""
+    ball = SceneObject(
+        sphere(0.6, 16, 32),
+        Material((0.85, 0.3, 0.25), ambient=0.15, diffuse=0.65, specular=0.8, shininess=5.0),
+        name="sphere",
+    )
+    lights = [
+        Light("directional", np.array([0.4, 0.6, 1.0]), (1.0, 1.0, 1.0), 0.9),
+        Light("directional", np.array([-0.6, -0.2, 0.5]), (0.6, 0.7, 1.0), 0.3),
+        Light("point", np.array([-0.6, 0.7, 1.2]), (1.0, 0.95, 0.85), 0.8),
+    ]
+    return Scene(objects=[ball], lights=lights, ambient=1.0)
+
+
+#: Scene name -> builder; names other than "sphere" come from service.scenes.
+SCENES = {"sphere": sphere_scene}
+
+
+def load_scene(name: str) -> Scene:
+    """The benchmark's own ``sphere`` or a built-in scene by name."""
+    return SCENES.get(name, lambda: builtin_scene(name))()
+
+
+def visibility(arrays: SceneArrays, display: DisplaySettings) -> tuple[Visibility, np.ndarray]:
+    """Stages 1-4 with their default settings: (Visibility, projection (Z, V, 3))."""
+    proj = project(arrays.vertices, display)
+    keep, _ = cull(arrays.normals, display)
+    order = sort_polygons(average_z(arrays.vertices, arrays.polygons, arrays.counts), keep)
+    return zbuffer(arrays, proj, display, triangle_order(order, arrays.triangle_polygon)), proj
+
+
+def time_ms(fn, repeats: int) -> tuple[float, float]:
+    """Median wall and CPU (this process, all threads) milliseconds of ``fn()``.
+
+    One warm-up call first.  On a loaded machine the CPU time of a single-threaded
+    run (``NUMBA_NUM_THREADS=1``) is the fairer estimate of an idle machine's wall time.
+    """
+    fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn()
+        wall.append((time.perf_counter() - t0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return float(np.median(wall)), float(np.median(cpu))
+
+
+def measure(scene_name: str, zones: int, size: tuple[int, int], repeats: int) -> list[dict]:
+    """Rows {scene, zones, model, evaluation, ms, ms_per_zone, error, ...} for one setup."""
+    scene = load_scene(scene_name)
+    arrays = scene.flatten()
+    display = DisplaySettings(zones=zones, cols=size[0], rows=size[1])
+    vis, proj = visibility(arrays, display)
+    covered = vis.triangle >= 0
+    args = (arrays, proj, vis, display, scene.lights, scene.ambient)
+    ref = intensity(*args, REFERENCE)
+    rows = []
+    for model, evaluation in VARIANTS:
+        st = LightSettings(model, evaluation)
+        ms, cpu_ms = time_ms(lambda st=st: shade(*args, st), repeats)
+        rows.append(
+            {
+                "scene": scene_name,
+                "zones": zones,
+                "cols": size[0],
+                "rows": size[1],
+                "polygons": int(arrays.n_polygons),
+                "covered_pixels": int(covered.sum()),
+                "model": model,
+                "evaluation": evaluation,
+                "ms": round(ms, 4),
+                "ms_per_zone": round(ms / zones, 4),
+                "cpu_ms": round(cpu_ms, 4),
+                "error": round(intensity_error(intensity(*args, st), ref, covered), 6),
+            }
+        )
+    return rows
+
+
+def chart(rows: list[dict], path: Path) -> None:
+    """Scatter of ms per frame (log) against intensity error, one panel per scene."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r["scene"] for r in rows})
+    markers = {"polygon": "s", "vertex": "^", "point": "o"}
+    colours = {"ambient": "tab:grey", "phong": "tab:orange", "blinn": "tab:blue"}
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.5), squeeze=False)
+    for ax, name in zip(axes[0], scenes, strict=True):
+        for r in (r for r in rows if r["scene"] == name):
+            filled = r["zones"] > 1
+            ax.scatter(r["ms"], r["error"], marker=markers[r["evaluation"]], s=60,
+                       color=colours[r["model"]] if filled else "none",
+                       edgecolors=colours[r["model"]])
+            ax.annotate(f"{r['model'][0]}/{r['evaluation'][:2]} z{r['zones']}",
+                        (r["ms"], r["error"]), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_xlabel("ms per frame (all zones), log")
+        ax.set_ylabel("mean |intensity - per-point Blinn|")
+        ax.set_title(f"{name}: hollow 1 zone, filled 5+ zones")
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write(rows: list[dict], meta: dict, out: Path) -> list[Path]:
+    """Write JSON (meta + rows), CSV (rows) and the chart; return the paths."""
+    out.mkdir(parents=True, exist_ok=True)
+    jpath, cpath, ppath = out / "light_bench.json", out / "light_bench.csv", out / "light_bench.png"
+    jpath.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    with cpath.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    chart(rows, ppath)
+    return [jpath, cpath, ppath]
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """Command-line options."""
+    ap = argparse.ArgumentParser(prog="holo-bench light", description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=Path("bench-out/light"), help="output folder")
+    ap.add_argument("--scenes", default="sphere,sphere-torus,game",
+                    help="comma-separated: sphere or built-in scene names")
+    ap.add_argument("--zones", default="1,5", help="comma-separated zone counts")
+    ap.add_argument("--size", default="320x240", help="pixels per zone, COLSxROWS")
+    ap.add_argument("--repeats", type=int, default=20, help="timed runs per variant (median)")
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark, write its files and print a summary table."""
+    args = parse_args(argv)
+    size = parse_size(args.size)
+    rows = []
+    for name in args.scenes.split(","):
+        for zones in (int(z) for z in args.zones.split(",")):
+            rows += measure(name, zones, size, max(1, args.repeats))
+    meta = {
+        "what": "shade() ms per frame and mean |intensity error| vs per-point Blinn",
+        "size": list(size),
+        "repeats": args.repeats,
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "numba_threads": numba.get_num_threads(),
+        "load_average": list(os.getloadavg()),
+    }
+    paths = write(rows, meta, args.out)
+    head = ("scene", "Z", "model", "eval", "ms", "ms/zone", "cpu ms", "error")
+    print("{:13s} {:>2s} {:7s} {:7s} {:>8s} {:>8s} {:>8s} {:>8s}".format(*head))
+    for r in rows:
+        print(f"{r['scene']:13s} {r['zones']:2d} {r['model']:7s} {r['evaluation']:7s} "
+              f"{r['ms']:8.3f} {r['ms_per_zone']:8.3f} {r['cpu_ms']:8.3f} {r['error']:8.5f}")
+    print("wrote", ", ".join(str(p) for p in paths))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
