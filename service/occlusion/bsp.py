@@ -113,117 +113,228 @@ def fingerprint(vertices: np.ndarray, triangles: np.ndarray, tri_ids: np.ndarray
     return h.digest()
 
 
-class _Pool:
-    """Growing store of fragments: corners (n, 3, 3), scene id (n,), rank in order (n,)."""
-
-    def __init__(self, verts: np.ndarray, ids: np.ndarray) -> None:
-        self.v = verts.copy()
-        self.id = ids.copy()
-        self.rank = np.arange(ids.size, dtype=np.int64)
-        self.n = ids.size
-
-    def add(self, tris: list, tri_id: int, rank: int) -> list[int]:
-        """Append fragments (each a (3, 3) array) of one parent; return their indices."""
-        if self.n + len(tris) > self.id.size:
-            cap = max(2 * self.id.size, self.n + len(tris), 16)
-            self.v = np.resize(self.v, (cap, 3, 3))
-            self.id = np.resize(self.id, cap)
-            self.rank = np.resize(self.rank, cap)
-        idx = list(range(self.n, self.n + len(tris)))
-        for i, t in zip(idx, tris, strict=True):
-            self.v[i] = t
-        self.id[idx] = tri_id
-        self.rank[idx] = rank
-        self.n += len(tris)
-        return idx
+@nb.njit(cache=True)
+def _rand(state: np.ndarray, n: int) -> int:
+    """Next xorshift64 draw in ``0..n-1``; ``state`` (1,) uint64 is advanced."""
+    x = state[0]
+    x ^= x << np.uint64(13)
+    x ^= x >> np.uint64(7)
+    x ^= x << np.uint64(17)
+    state[0] = x
+    return int(x % np.uint64(n))
 
 
-def _planes(tv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit normals (n, 3), offsets (n,) and areas x2 (n,) of triangles (n, 3, 3)."""
-    nrm = np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0])
-    length = np.linalg.norm(nrm, axis=1)
-    unit = nrm / np.where(length > 0, length, 1.0)[:, None]
-    return unit, np.einsum("ij,ij->i", unit, tv[:, 0]), length
+@nb.njit(cache=True)
+def _plane(t: np.ndarray) -> tuple:
+    """Unit normal (3,), offset and twice the area of a triangle (3, 3)."""
+    e1x, e1y, e1z = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
+    e2x, e2y, e2z = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1], t[2, 2] - t[0, 2]
+    n = np.empty(3)
+    n[0], n[1], n[2] = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    if length > 0:
+        n /= length
+    return n, n[0] * t[0, 0] + n[1] * t[0, 1] + n[2] * t[0, 2], length
 
 
-def _sides(dist: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per triangle: has a vertex in front, has a vertex behind; dist (..., 3)."""
-    return (dist > eps).any(axis=-1), (dist < -eps).any(axis=-1)
+@nb.njit(cache=True)
+def _side(t: np.ndarray, n: np.ndarray, d: float, eps: float) -> int:
+    """0 on the plane, 1 in front, 2 behind, 3 straddling (a corner each side)."""
+    pos = neg = False
+    for k in range(3):
+        x = n[0] * t[k, 0] + n[1] * t[k, 1] + n[2] * t[k, 2] - d
+        pos |= x > eps
+        neg |= x < -eps
+    return (1 if pos else 0) + (2 if neg else 0)
 
 
-def _choose(pool: _Pool, s: np.ndarray, rng: np.random.Generator, eps: float) -> int:
-    """Pick the splitter among a few random fragments of ``s``: fewest splits, then balance."""
-    cand = s if s.size <= CANDIDATES else rng.choice(s, CANDIDATES, replace=False)
-    sample = s if s.size <= SAMPLE else rng.choice(s, SAMPLE, replace=False)
-    n, d, _ = _planes(pool.v[cand])
-    dist = np.einsum("kj,mvj->kmv", n, pool.v[sample]) - d[:, None, None]
-    pos, neg = _sides(dist, eps)
-    splits = (pos & neg).sum(axis=1)
-    imbalance = np.abs((pos & ~neg).sum(axis=1) - (neg & ~pos).sum(axis=1))
-    return int(cand[np.argmin(SPLIT_WEIGHT * splits + imbalance)])
+@nb.njit(cache=True)
+def _choose(pv: np.ndarray, seg: np.ndarray, eps: float, state: np.ndarray) -> int:
+    """Splitter among a few random fragments of ``seg``: fewest splits, then balance."""
+    m = seg.size
+    best, best_score = seg[0], np.inf
+    for _ in range(min(CANDIDATES, m)):
+        c = seg[_rand(state, m)]
+        n, d, area = _plane(pv[c])
+        if area <= eps * eps:
+            continue
+        counts = np.zeros(4, np.int64)
+        for j in range(min(SAMPLE, m)):
+            f = seg[j] if m <= SAMPLE else seg[_rand(state, m)]
+            counts[_side(pv[f], n, d, eps)] += 1
+        score = SPLIT_WEIGHT * counts[3] + abs(counts[1] - counts[2])
+        if score < best_score:
+            best, best_score = c, score
+    return best
 
 
-def _fan(poly: list) -> list:
-    """Fan-triangulate a convex polygon given as a list of (3,) corners."""
-    return [np.array([poly[0], poly[k], poly[k + 1]]) for k in range(1, len(poly) - 1)]
+@nb.njit(cache=True)
+def _clip(t: np.ndarray, n: np.ndarray, d: float, eps: float) -> tuple:
+    """Split a triangle (3, 3) by a plane into front and back convex polygons.
 
-
-def split_triangle(tri: np.ndarray, dist: np.ndarray, eps: float) -> tuple[list, list]:
-    """Split a triangle by a plane.
-
-    Parameters
-    ----------
-    tri : ndarray, shape (3, 3)
-        Corners, in winding order (kept by the fragments).
-    dist : ndarray, shape (3,)
-        Signed distance of each corner from the plane.
-    eps : float
-        Corners within ``eps`` of the plane lie on it (go to both sides).
-
-    Returns
-    -------
-    tuple of two lists
-        Front and back fragments, each a (3, 3) array.
+    Returns ``front (4, 3), n_front, back (4, 3), n_back``; corners within ``eps``
+    of the plane go to both, and the winding is kept.
     """
-    side = np.where(dist > eps, 1, np.where(dist < -eps, -1, 0))
-    front, back = [], []
+    dist = np.empty(3)
+    side = np.empty(3, np.int64)
+    for k in range(3):
+        dist[k] = n[0] * t[k, 0] + n[1] * t[k, 1] + n[2] * t[k, 2] - d
+        side[k] = 1 if dist[k] > eps else (-1 if dist[k] < -eps else 0)
+    fr, bk = np.empty((4, 3)), np.empty((4, 3))
+    nf = nb_ = 0
     for i in range(3):
         j = (i + 1) % 3
         if side[i] >= 0:
-            front.append(tri[i])
+            fr[nf] = t[i]
+            nf += 1
         if side[i] <= 0:
-            back.append(tri[i])
+            bk[nb_] = t[i]
+            nb_ += 1
         if side[i] * side[j] < 0:
-            x = tri[i] + dist[i] / (dist[i] - dist[j]) * (tri[j] - tri[i])
-            front.append(x)
-            back.append(x)
-    return _fan(front), _fan(back)
+            a = dist[i] / (dist[i] - dist[j])
+            for q in range(3):
+                fr[nf, q] = t[i, q] + a * (t[j, q] - t[i, q])
+                bk[nb_, q] = fr[nf, q]
+            nf += 1
+            nb_ += 1
+    return fr, nf, bk, nb_
 
 
-def _nonzero(tris: list, eps: float) -> list:
-    """Drop fragments (each (3, 3)) whose area is negligible (no method can show them)."""
-    return [t for t in tris if np.linalg.norm(np.cross(t[1] - t[0], t[2] - t[0])) > eps * eps]
+@nb.njit(cache=True)
+def _grow_i(a: np.ndarray, need: int) -> np.ndarray:
+    """Int array (n,) with room for ``need`` entries (capacity doubles)."""
+    if need <= a.shape[0]:
+        return a
+    out = np.empty(max(need, 2 * a.shape[0], 16), np.int64)
+    out[: a.shape[0]] = a
+    return out
 
 
-def _partition(pool: _Pool, s: np.ndarray, n: np.ndarray, d: float, eps: float) -> tuple:
-    """Classify fragments ``s`` against plane ``n . x = d``, splitting straddlers.
+@nb.njit(cache=True)
+def _grow_f(a: np.ndarray, need: int) -> np.ndarray:
+    """Float array (n, 3) with room for ``need`` rows (capacity doubles)."""
+    if need <= a.shape[0]:
+        return a
+    out = np.empty((max(need, 2 * a.shape[0], 16), 3))
+    flat, src = out.reshape(-1), a.reshape(-1)
+    for i in range(src.size):
+        flat[i] = src[i]
+    return out
+
+
+@nb.njit(cache=True)
+def _grow_t(a: np.ndarray, need: int) -> np.ndarray:
+    """Float array (n, 3, 3) with room for ``need`` rows (capacity doubles)."""
+    if need <= a.shape[0]:
+        return a
+    out = np.empty((max(need, 2 * a.shape[0], 16), 3, 3))
+    flat, src = out.reshape(-1), a.reshape(-1)
+    for i in range(src.size):
+        flat[i] = src[i]
+    return out
+
+
+@nb.njit(cache=True)
+def _emit(poly: np.ndarray, k: int, rank: int, pv: np.ndarray, prank: np.ndarray,
+          n_pool: int, out: np.ndarray, n_out: int, eps: float) -> tuple:
+    """Fan a clipped polygon into the pool (dropping zero-area pieces); list them in ``out``.
+
+    The pool must have room for ``k - 2`` more fragments.  Returns the new
+    ``n_pool, n_out``.
+    """
+    for j in range(1, k - 1):
+        pv[n_pool, 0], pv[n_pool, 1], pv[n_pool, 2] = poly[0], poly[j], poly[j + 1]
+        if _plane(pv[n_pool])[2] <= eps * eps:
+            continue
+        prank[n_pool] = rank
+        out[n_out] = n_pool
+        n_pool += 1
+        n_out += 1
+    return n_pool, n_out
+
+
+@nb.njit(cache=True)
+def _partition(seg: np.ndarray, pv: np.ndarray, prank: np.ndarray, n_pool: int,
+               n: np.ndarray, d: float, eps: float) -> tuple:
+    """Classify fragments ``seg`` against a plane, splitting the ones that straddle it.
+
+    The pool ``pv (P, 3, 3), prank (P,)`` must have room for ``4 * seg.size`` more
+    fragments.  Returns ``on, front, back`` (pool index arrays), the new
+    ``n_pool`` and the number of fragments split.
+    """
+    on = np.empty(seg.size, np.int64)
+    fr = np.empty(2 * seg.size, np.int64)
+    bk = np.empty(2 * seg.size, np.int64)
+    n_on = n_fr = n_bk = splits = 0
+    for f in seg:
+        s = _side(pv[f], n, d, eps)
+        if s == 0:
+            on[n_on] = f
+            n_on += 1
+        elif s == 1:
+            fr[n_fr] = f
+            n_fr += 1
+        elif s == 2:
+            bk[n_bk] = f
+            n_bk += 1
+        else:
+            splits += 1
+            pf, kf, pb, kb = _clip(pv[f], n, d, eps)
+            n_pool, n_fr = _emit(pf, kf, prank[f], pv, prank, n_pool, fr, n_fr, eps)
+            n_pool, n_bk = _emit(pb, kb, prank[f], pv, prank, n_pool, bk, n_bk, eps)
+    return on[:n_on], fr[:n_fr], bk[:n_bk], n_pool, splits
+
+
+@nb.njit(cache=True)
+def _build_kernel(tv: np.ndarray, keep: np.ndarray, eps: float, seed: int) -> tuple:
+    """Build the tree depth first with an explicit stack (no recursion limit).
+
+    Fragment index sets live as segments of one buffer; a popped segment is always
+    the last one, so its children overwrite it in place.
 
     Returns
     -------
     tuple
-        ``(on, front, back, splits)``: pool index arrays and the number split.
+        ``normal (M, 3), front (M,), back (M,), depth (M,), node_frags (F,),
+        node_start (M + 1,), pool corners (P, 3, 3), pool rank (P,), splits``.
     """
-    dist = pool.v[s] @ n - d  # (|s|, 3)
-    pos, neg = _sides(dist, eps)
-    front, back = list(s[pos & ~neg]), list(s[neg & ~pos])
-    straddle = np.nonzero(pos & neg)[0]
-    for k in straddle:
-        f, b = (_nonzero(x, eps) for x in split_triangle(pool.v[s[k]], dist[k], eps))
-        tid, rank = int(pool.id[s[k]]), int(pool.rank[s[k]])
-        front += pool.add(f, tid, rank)
-        back += pool.add(b, tid, rank)
-    on = s[~pos & ~neg]
-    return on, np.array(front, np.int64), np.array(back, np.int64), straddle.size
+    pv, prank, n_pool = tv.copy(), np.arange(tv.shape[0]), tv.shape[0]
+    buf = keep.copy()
+    # stack rows: lo, length, parent * 2 + side (0 front, 1 back), depth
+    stack = np.empty(4 * 16, np.int64)
+    stack[0:4] = np.array([0, keep.size, -1, 1])
+    sp = 1 if keep.size else 0
+    nrm, kid, depth = np.empty((0, 3)), np.empty(0, np.int64), np.empty(0, np.int64)
+    nfrag, nstart = np.empty(0, np.int64), np.zeros(1, np.int64)
+    m = n_nf = splits = 0
+    state = np.array([np.uint64(seed) * np.uint64(2654435761) + np.uint64(88172645463325252)])
+    while sp > 0:
+        sp -= 1
+        lo, ln, ps, dp = stack[4 * sp], stack[4 * sp + 1], stack[4 * sp + 2], stack[4 * sp + 3]
+        seg = buf[lo: lo + ln]
+        n, d, _ = _plane(pv[_choose(pv, seg, eps, state)])
+        pv, prank = _grow_t(pv, n_pool + 4 * ln), _grow_i(prank, n_pool + 4 * ln)
+        on, fr, bk, n_pool, k = _partition(seg, pv, prank, n_pool, n, d, eps)
+        splits += k
+        nrm, kid, depth = _grow_f(nrm, m + 1), _grow_i(kid, 2 * m + 2), _grow_i(depth, m + 1)
+        nrm[m], kid[2 * m], kid[2 * m + 1], depth[m] = n, -1, -1, dp
+        if ps >= 0:
+            kid[ps] = m
+        nfrag, nstart = _grow_i(nfrag, n_nf + on.size), _grow_i(nstart, m + 2)
+        nfrag[n_nf: n_nf + on.size] = on
+        n_nf += on.size
+        nstart[m + 1] = n_nf
+        buf = _grow_i(buf, lo + fr.size + bk.size)
+        buf[lo: lo + fr.size] = fr
+        buf[lo + fr.size: lo + fr.size + bk.size] = bk
+        stack = _grow_i(stack, 4 * sp + 8)
+        for side, c_lo, c_len in ((0, lo, fr.size), (1, lo + fr.size, bk.size)):
+            if c_len:
+                stack[4 * sp: 4 * sp + 4] = np.array([c_lo, c_len, 2 * m + side, dp + 1])
+                sp += 1
+        m += 1
+    return (nrm[:m], kid[0: 2 * m: 2].copy(), kid[1: 2 * m: 2].copy(), depth[:m],
+            nfrag[:n_nf], nstart[: m + 1].copy(), pv[:n_pool], prank[:n_pool], splits)
 
 
 def build_bsp(
@@ -250,50 +361,24 @@ def build_bsp(
     t0 = time.perf_counter()
     ids = np.asarray(tri_ids, np.int64).reshape(-1)
     key = fingerprint(vertices, triangles, ids)
-    tv = vertices[triangles[ids]] if ids.size else np.zeros((0, 3, 3))
+    tv = np.ascontiguousarray(vertices[triangles[ids]], np.float64).reshape(-1, 3, 3)
     extent = float(np.ptp(tv.reshape(-1, 3), axis=0).max()) if ids.size else 1.0
     eps = EPS_REL * max(extent, 1e-12)
-    pool = _Pool(tv, ids)
-    keep = np.nonzero(_planes(tv)[2] > eps * eps)[0]
-    nodes: list = []  # per node: [normal, frags, front, back, depth]
-    stack = [(-1, 0, keep)] if keep.size else []
-    rng = np.random.default_rng(seed)
-    splits = 0
-    while stack:
-        parent, side, s = stack.pop()
-        me = len(nodes)
-        if parent >= 0:
-            nodes[parent][2 + side] = me
-        n, d, _ = _planes(pool.v[[_choose(pool, s, rng, eps)]])
-        on, fr, bk, k = _partition(pool, s, n[0], float(d[0]), eps)
-        splits += k
-        depth = nodes[parent][4] + 1 if parent >= 0 else 1
-        nodes.append([n[0], on, -1, -1, depth])
-        stack += [(me, i, c) for i, c in enumerate((fr, bk)) if c.size]
-    return _flatten(nodes, pool, key, splits, t0)
-
-
-def _flatten(nodes: list, pool: _Pool, key: bytes, splits: int, t0: float) -> BspTree:
-    """Turn the node list into a :class:`BspTree` with fragments grouped by node."""
-    m = len(nodes)
-    # within a node paint later-in-order first, so the earliest ends on top
-    groups = [on[np.argsort(-pool.rank[on], kind="stable")] for _, on, _, _, _ in nodes]
-    counts = np.array([g.size for g in groups], np.int64)
-    frags = np.concatenate(groups) if m else np.zeros(0, np.int64)
-    tree = BspTree(
-        key=key,
-        front=np.array([nd[2] for nd in nodes], np.int64).reshape(m),
-        back=np.array([nd[3] for nd in nodes], np.int64).reshape(m),
-        normal=np.array([nd[0] for nd in nodes], np.float64).reshape(m, 3),
-        node_start=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-        frag_vertices=np.ascontiguousarray(pool.v[frags]),
-        frag_ids=np.ascontiguousarray(pool.id[frags]),
+    area = np.linalg.norm(np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]), axis=1)
+    keep = np.nonzero(area > eps * eps)[0].astype(np.int64)
+    nrm, front, back, depth, nfrag, nstart, pv, prank, splits = _build_kernel(
+        tv, keep, eps, seed
     )
+    # within a node paint later-in-order first, so the earliest ends on top
+    node_of = np.repeat(np.arange(front.size), np.diff(nstart))
+    frags = nfrag[np.lexsort((-prank[nfrag], node_of))]
+    tree = BspTree(key, front, back, nrm, nstart, np.ascontiguousarray(pv[frags]),
+                   ids[prank[frags]])
     tree.stats = {
-        "nodes": m,
+        "nodes": int(front.size),
         "fragments": int(frags.size),
         "splits": int(splits),
-        "depth": max((nd[4] for nd in nodes), default=0),
+        "depth": int(depth.max(initial=0)),
         "build_ms": (time.perf_counter() - t0) * 1e3,
     }
     return tree

@@ -107,12 +107,12 @@ def _setup(wv: np.ndarray, shears: np.ndarray, half_w: float, half_h: float,
     for z in range(zones):
         t = shears[z]
         for i in range(n):
-            a, b, c = wv[i, 0], wv[i, 1], wv[i, 2]
-            e1 = b - a
-            e2 = c - a
-            nx = e1[1] * e2[2] - e1[2] * e2[1]
-            ny = e1[2] * e2[0] - e1[0] * e2[2]
-            nz = e1[0] * e2[1] - e1[1] * e2[0]
+            a = wv[i, 0]
+            e1x, e1y, e1z = wv[i, 1, 0] - a[0], wv[i, 1, 1] - a[1], wv[i, 1, 2] - a[2]
+            e2x, e2y, e2z = wv[i, 2, 0] - a[0], wv[i, 2, 1] - a[1], wv[i, 2, 2] - a[2]
+            nx = e1y * e2z - e1z * e2y
+            ny = e1z * e2x - e1x * e2z
+            nz = e1x * e2y - e1y * e2x
             det = t * nx + nz  # n . d
             if det == 0.0 or not np.isfinite(det):
                 continue
@@ -125,18 +125,24 @@ def _setup(wv: np.ndarray, shears: np.ndarray, half_w: float, half_h: float,
             plane[z, i, 0] = (nx * a[0] + ny * a[1] + nz * a[2]) / det
             plane[z, i, 1] = -nx / det
             plane[z, i, 2] = -ny / det
-            xs = (wv[i, :, 0] - wv[i, :, 2] * t + half_w) / s
-            ys = (half_h - wv[i, :, 1]) / s
-            box[z, i, 0] = max(int(np.ceil(ys.min() - 0.5)) - 1, 0)
-            box[z, i, 1] = min(int(np.floor(ys.max() - 0.5)) + 1, rows - 1)
-            box[z, i, 2] = max(int(np.ceil(xs.min() - 0.5)) - 1, 0)
-            box[z, i, 3] = min(int(np.floor(xs.max() - 0.5)) + 1, cols - 1)
+            x0 = y0 = np.inf
+            x1 = y1 = -np.inf
+            for k in range(3):
+                xs = (wv[i, k, 0] - wv[i, k, 2] * t + half_w) / s
+                ys = (half_h - wv[i, k, 1]) / s
+                x0, x1, y0, y1 = min(x0, xs), max(x1, xs), min(y0, ys), max(y1, ys)
+            box[z, i, 0] = max(int(np.ceil(y0 - 0.5)) - 1, 0)
+            box[z, i, 1] = min(int(np.floor(y1 - 0.5)) + 1, rows - 1)
+            box[z, i, 2] = max(int(np.ceil(x0 - 0.5)) - 1, 0)
+            box[z, i, 3] = min(int(np.floor(x1 - 0.5)) + 1, cols - 1)
     return sign, claim, plane, box
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True)
 def _bin(sign: np.ndarray, box: np.ndarray, ty: int, tx: int) -> tuple:
     """Bin triangles into tiles per zone, keeping their input order within each tile.
+
+    Serial: it is a small part of the cost, and a parallel kernel compiles slowly.
 
     Returns
     -------
@@ -146,7 +152,7 @@ def _bin(sign: np.ndarray, box: np.ndarray, ty: int, tx: int) -> tuple:
     zones, n = sign.shape
     nt = ty * tx
     counts = np.zeros(zones * nt + 1, np.int64)
-    for z in nb.prange(zones):
+    for z in range(zones):
         for i in range(n):
             if sign[z, i] == 0.0 or box[z, i, 0] > box[z, i, 1] or box[z, i, 2] > box[z, i, 3]:
                 continue
@@ -155,7 +161,7 @@ def _bin(sign: np.ndarray, box: np.ndarray, ty: int, tx: int) -> tuple:
                     counts[z * nt + yy * tx + xx + 1] += 1
     start = np.cumsum(counts)
     items = np.empty(start[-1], np.int64)
-    for z in nb.prange(zones):
+    for z in range(zones):
         fill = start[z * nt: (z + 1) * nt].copy()
         for i in range(n):
             if sign[z, i] == 0.0 or box[z, i, 0] > box[z, i, 1] or box[z, i, 2] > box[z, i, 3]:
