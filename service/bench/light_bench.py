@@ -6,7 +6,9 @@ then :func:`service.light.shade` is timed for
 every evaluation (polygon / vertex / point) x model (phong / blinn), plus the
 game's ``ambient`` fast mode, as the median of ``--repeats`` runs after a warm-up.
 Accuracy is the mean absolute difference of :func:`service.light.intensity` (mean
-of r, g, b in [0, 1]) from per-point Blinn over the covered pixels of every zone.
+of r, g, b in [0, 1]) from per-point Blinn over the covered pixels of every zone
+(``error``), and from per-point evaluation of the same model
+(``error_vs_own_point``: the evaluation's error alone, without the model's).
 Writes ``light_bench.json``, ``light_bench.csv`` and ``light_bench.png``.
 """
 
@@ -104,9 +106,11 @@ def measure(scene_name: str, zones: int, size: tuple[int, int], repeats: int) ->
     covered = vis.triangle >= 0
     args = (arrays, proj, vis, display, scene.lights, scene.ambient)
     ref = intensity(*args, REFERENCE)
+    own = {m: intensity(*args, LightSettings(m, "point")) for m in {m for m, _ in VARIANTS}}
     rows = []
     for model, evaluation in VARIANTS:
         st = LightSettings(model, evaluation)
+        lit = intensity(*args, st)
         ms, cpu_ms = time_ms(lambda st=st: shade(*args, st), repeats)
         rows.append(
             {
@@ -121,7 +125,8 @@ def measure(scene_name: str, zones: int, size: tuple[int, int], repeats: int) ->
                 "ms": round(ms, 4),
                 "ms_per_zone": round(ms / zones, 4),
                 "cpu_ms": round(cpu_ms, 4),
-                "error": round(intensity_error(intensity(*args, st), ref, covered), 6),
+                "error": round(intensity_error(lit, ref, covered), 6),
+                "error_vs_own_point": round(intensity_error(lit, own[model], covered), 6),
             }
         )
     return rows
