@@ -1,0 +1,251 @@
+"""``holo-devices``: read the tracker and the dial box, publish, record, dump.
+
+Examples::
+
+    holo-devices --tracker /dev/ttyUSB0 --dump
+    holo-devices --tracker /dev/ttyACM0 --tracker-protocol native --dials /dev/ttyUSB1
+                 --pub tcp://127.0.0.1:5556 --record session.hlog      (one line)
+    holo-devices --tracker socket://127.0.0.1:7001 --dump --seconds 10
+
+``--dump`` prints one JSON object per event per line on stdout (schema in
+``docs/drivers.md``); problems with the links (errors, reconnects) also go to stderr
+as one line each.  Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue
+is drained, the recorder closed (the log is complete) and a JSON summary of each
+device's statistics is printed on stderr.  Exit status: 0, or 2 for bad settings
+(an address that cannot be bound, a log that cannot be created).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, TextIO
+
+from drivers.dialbox_driver import DialBoxDriver
+from drivers.events import Event, StatusEvent
+from drivers.protocols.sgi_dialbox import BAUD as SGI_BAUD
+from drivers.publisher import Publisher
+from drivers.reader import (
+    CONTROL_PROTOCOL,
+    CONTROL_SUFFIX,
+    Chunk,
+    DeviceReader,
+    EventHub,
+    Item,
+    ReaderSettings,
+)
+from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
+from service.errors import HoloError
+
+Listener = Callable[[Item, list[Event]], None]
+#: status events echoed on stderr.
+LOUD_STATUS = frozenset({"error", "reconnect"})
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (also used for ``--help``)."""
+    p = argparse.ArgumentParser(
+        prog="holo-devices",
+        description="Read a head tracker and an SGI dial box over serial ports "
+        "(pyserial URLs), publish their events on ZeroMQ, record raw bytes, dump JSON.")
+    p.add_argument("--tracker", metavar="URL",
+                   help="tracker port: /dev/ttyUSB0, loop://, socket://host:port, rfc2217://")
+    p.add_argument("--tracker-protocol", choices=("hatire", "native"), default="hatire",
+                   help="tracker byte protocol (default: %(default)s)")
+    p.add_argument("--dials", metavar="URL", help="SGI dial and button box port")
+    p.add_argument("--pub", metavar="ADDR",
+                   help="publish events on a ZeroMQ socket bound here, e.g. tcp://127.0.0.1:5556")
+    p.add_argument("--pub-pose", metavar="ADDR",
+                   help="also publish poses alone (single frame, conflating) here")
+    p.add_argument("--record", metavar="FILE", help="record raw bytes to a new session log")
+    p.add_argument("--dump", action="store_true", help="print one JSON line per event")
+    p.add_argument("--baud", type=int, default=115200,
+                   help="tracker baud rate (default: %(default)s)")
+    p.add_argument("--dials-baud", type=int, default=SGI_BAUD,
+                   help="dial box baud rate (default: %(default)s)")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="stop after N seconds (default: run until Ctrl-C / SIGTERM)")
+    p.add_argument("--watchdog", type=float, default=2.0, metavar="S",
+                   help="reopen the tracker port after S s without a valid frame "
+                   "(0: only on errors; default: %(default)s)")
+    p.add_argument("--dials-watchdog", type=float, default=0.0, metavar="S",
+                   help="same for the dial box, which is silent when untouched "
+                   "(default: 0 = only on errors)")
+    p.add_argument("--reset-wait", type=float, default=1.0, metavar="S",
+                   help="longest wait for the dial box's reset answer (default: %(default)s)")
+    p.add_argument("--lamps", type=lambda s: int(s, 0), default=0, metavar="MASK",
+                   help="dial box lamps to light after init, e.g. 0xffffffff")
+    return p
+
+
+def log_devices(settings: Sequence[ReaderSettings]) -> tuple[DeviceInfo, ...]:
+    """Header devices of a session log: each reader's bytes and its control records."""
+    out: list[DeviceInfo] = []
+    for s in settings:
+        out.append(DeviceInfo(s.device_name, s.protocol, SerialSettings(s.url, s.baudrate)))
+        out.append(DeviceInfo(s.device_name + CONTROL_SUFFIX, CONTROL_PROTOCOL))
+    return tuple(out)
+
+
+def recorder_listener(writer: LogWriter) -> Listener:
+    """A hub listener writing chunks and control records to ``writer``."""
+
+    def record(item: Item, events: list[Event]) -> None:
+        if isinstance(item, Chunk):
+            writer.write(item.device, item.t_ns, item.data)
+        else:
+            writer.write(item.device + CONTROL_SUFFIX, item.t_ns, item.to_bytes())
+
+    return record
+
+
+def dump_listener(out: TextIO, t0_ns: int) -> Listener:
+    """A hub listener writing one dump-schema JSON line per event to ``out``."""
+
+    def dump(item: Item, events: list[Event]) -> None:
+        if events:
+            out.write("".join(ev.to_json(t0_ns) + "\n" for ev in events))
+
+    return dump
+
+
+def stderr_listener(err: TextIO, t0_ns: int) -> Listener:
+    """A hub listener echoing link errors and reconnects on ``err``."""
+
+    def echo(item: Item, events: list[Event]) -> None:
+        for ev in events:
+            if isinstance(ev, StatusEvent) and ev.event in LOUD_STATUS:
+                err.write(f"{ev.device}: {ev.event} {json.dumps(dict(ev.details))}\n")
+
+    return echo
+
+
+def _settings(args: argparse.Namespace) -> list[tuple[ReaderSettings, DialBoxDriver | None]]:
+    out: list[tuple[ReaderSettings, DialBoxDriver | None]] = []
+    if args.tracker:
+        out.append((ReaderSettings(args.tracker, args.tracker_protocol, "tracker", args.baud,
+                                   watchdog_s=args.watchdog or None), None))
+    if args.dials:
+        out.append((ReaderSettings(args.dials, "sgi", "dials", args.dials_baud,
+                                   watchdog_s=args.dials_watchdog or None),
+                    DialBoxDriver(args.reset_wait, args.lamps)))
+    return out
+
+
+class DeviceSession:
+    """Readers, hub and listeners of one ``holo-devices`` run.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed command line.
+    out, err : text streams
+        Where the dump and the messages go.
+    """
+
+    def __init__(self, args: argparse.Namespace, out: TextIO, err: TextIO) -> None:
+        self.args = args
+        self.out = out
+        self.stop = threading.Event()
+        self.hub = EventHub()
+        specs = _settings(args)
+        self.header = LogHeader(log_devices([s for s, _ in specs]),
+                                extra={"program": "holo-devices",
+                                       "t0": "start_monotonic_ns"})
+        self.t0_ns = self.header.start_monotonic_ns
+        self.readers = [DeviceReader(s, self.hub.put, hooks=h) for s, h in specs]
+        self.writer: LogWriter | None = None
+        self.publisher: Publisher | None = None
+        self.listeners: list[Listener] = []
+        try:
+            self._open_outputs(err)
+        except HoloError:
+            self._close_outputs()
+            raise
+
+    def _open_outputs(self, err: TextIO) -> None:
+        a = self.args
+        if a.record:
+            self.writer = LogWriter(a.record, self.header)
+            self.listeners.append(recorder_listener(self.writer))
+        if a.pub:
+            self.publisher = Publisher(a.pub, self.t0_ns, pose_address=a.pub_pose)
+            pub = self.publisher
+            self.listeners.append(lambda item, events: pub.publish_all(events))
+        if a.dump:
+            self.listeners.append(dump_listener(self.out, self.t0_ns))
+        self.listeners.append(stderr_listener(err, self.t0_ns))
+
+    def stats(self) -> dict[str, Any]:
+        """Every reader's statistics by device name."""
+        return {r.name: r.stats() for r in self.readers}
+
+    def run(self) -> None:
+        """Start the readers and dispatch until stopped or ``--seconds`` are up."""
+        for r in self.readers:
+            r.start()
+        seconds = self.args.seconds
+        end = None if seconds is None else time.monotonic() + seconds
+        while not self.stop.is_set() and (end is None or time.monotonic() < end):
+            self._dispatch(0.05)
+
+    def _dispatch(self, timeout_s: float) -> int:
+        n = self.hub.dispatch(self.listeners, timeout_s)
+        if n:
+            self.out.flush()
+        if self.publisher is not None:
+            self.publisher.service(self.stats)
+        return n
+
+    def close(self) -> None:
+        """Stop and join the readers, drain the hub, close the log and the publisher."""
+        for r in self.readers:
+            r.stop()
+        with contextlib.suppress(BrokenPipeError):
+            while self._dispatch(0.0):
+                pass
+        self._close_outputs()
+
+    def _close_outputs(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+        if self.publisher is not None:
+            self.publisher.close()
+
+
+def _install_signals(stop: threading.Event) -> None:
+    with contextlib.suppress(ValueError):  # not the main thread: leave them alone
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``holo-devices``; returns the exit status (0, or 2 for bad settings)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not (args.tracker or args.dials):
+        parser.error("give --tracker URL and/or --dials URL")
+    try:
+        session = DeviceSession(args, sys.stdout, sys.stderr)
+    except HoloError as exc:
+        print(f"holo-devices: {exc}", file=sys.stderr)
+        return 2
+    _install_signals(session.stop)
+    try:
+        session.run()
+    except (KeyboardInterrupt, BrokenPipeError):
+        pass
+    finally:
+        session.close()
+    print(json.dumps({"stats": session.stats()}), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,280 @@
+"""``holo-replay``: replay a session log (or a raw byte capture) through the decoders.
+
+Examples::
+
+    holo-replay session.hlog --dump                      # recorded timing, JSON lines
+    holo-replay session.hlog --as-fast-as-possible --dump
+    holo-replay session.hlog --speed 2 --skip 10 --loop --pub tcp://127.0.0.1:5556
+    holo-replay session.hlog --to-port /dev/pts/7        # a running holo-devices sees it
+    holo-replay capture.log --protocol hatire --as-fast-as-possible --dump
+
+Records are paced by :class:`drivers.replay_clock.ReplayScheduler` (absolute targets
+from the start: no drift).  Each device's bytes and control records go through the
+same :class:`drivers.reader.DeviceStream` as in ``holo-devices``, and ``t`` is
+``(t_ns - start_monotonic_ns) / 1e9`` with the log header's session start, so the
+``--dump`` output equals what ``holo-devices --dump`` printed live.  ``--skip S``
+still decodes the first S seconds (decoder state stays right) but prints and
+publishes nothing from them.  ``--to-port URL`` writes one device's bytes
+(``--device``, default the first) into a serial port at the recorded timing.
+
+A file without the log magic is read as a raw capture (``--protocol`` required):
+chunks of ``--chunk-size`` bytes stamped at the line rate of ``--baud``; time 0 is
+its first byte.  Exit status: 0, 2 for a bad file or settings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import sys
+import threading
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import serial
+
+from drivers.cli_devices import Listener, dump_listener
+from drivers.events import Event
+from drivers.protocols import DEVICE_OF
+from drivers.publisher import Publisher
+from drivers.reader import CONTROL_PROTOCOL, CONTROL_SUFFIX, Chunk, Control, DeviceStream, Item
+from drivers.recording import MAGIC, LogHeader, LogReader, RawCaptureReader, Record
+from drivers.replay_clock import ReplayScheduler, ReplaySettings
+from service.errors import DeviceError, HoloError, LogFileError, SettingsError
+
+#: default line rate per protocol for raw captures.
+RAW_BAUD = {"hatire": 115200, "native": 115200, "sgi": 9600}
+
+
+class _Stopped(Exception):
+    """Raised by the replay's sleep when a stop was asked for."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (also used for ``--help``)."""
+    p = argparse.ArgumentParser(
+        prog="holo-replay",
+        description="Replay a holo-devices session log (or a raw serial capture) at its "
+        "recorded timing: dump, publish, or write the bytes into a serial port.")
+    p.add_argument("file", type=Path, help="session log, or raw capture with --protocol")
+    speed = p.add_mutually_exclusive_group()
+    speed.add_argument("--speed", type=float, default=1.0, help="speed factor (default 1)")
+    speed.add_argument("--as-fast-as-possible", action="store_true", help="never wait")
+    p.add_argument("--skip", type=float, default=0.0, metavar="S",
+                   help="start S recorded seconds in")
+    p.add_argument("--loop", action="store_true", help="start again at the end")
+    p.add_argument("--passes", type=int, default=None, metavar="N",
+                   help="with --loop, stop after N passes")
+    p.add_argument("--pub", metavar="ADDR", help="publish events on ZeroMQ (as holo-devices)")
+    p.add_argument("--pub-pose", metavar="ADDR", help="pose-only conflating endpoint")
+    p.add_argument("--dump", action="store_true", help="print one JSON line per event")
+    p.add_argument("--to-port", metavar="URL", help="write a device's bytes into this port")
+    p.add_argument("--device", metavar="NAME", help="device whose bytes --to-port writes")
+    p.add_argument("--protocol", choices=tuple(RAW_BAUD), help="protocol of a raw capture")
+    p.add_argument("--baud", type=int, default=None,
+                   help="raw capture line rate / --to-port baud (default: per protocol)")
+    p.add_argument("--chunk-size", type=int, default=64, help="raw capture bytes per chunk")
+    p.add_argument("--skip-bytes", type=int, default=0, help="raw capture bytes to drop first")
+    return p
+
+
+def open_source(args: argparse.Namespace) -> LogReader | RawCaptureReader:
+    """A :class:`LogReader`, or a :class:`RawCaptureReader` for a file without the magic.
+
+    Raises
+    ------
+    LogFileError
+        Missing file, damaged header, or a raw capture without ``--protocol``.
+    """
+    try:
+        with open(args.file, "rb") as f:
+            head = f.read(len(MAGIC))
+    except OSError as exc:
+        raise LogFileError(f"{args.file}: cannot open: {exc}") from exc
+    if head == MAGIC:
+        return LogReader(args.file, warn=False)
+    if args.protocol is None:
+        raise LogFileError(f"{args.file}: not a session log (no HOLOLOG magic); "
+                           "pass --protocol to replay a raw capture")
+    return RawCaptureReader(args.file, protocol=args.protocol,
+                            baudrate=args.baud or RAW_BAUD[args.protocol],
+                            chunk_size=args.chunk_size, skip_bytes=args.skip_bytes,
+                            device=DEVICE_OF[args.protocol])
+
+
+def data_devices(header: LogHeader) -> list[tuple[str, str]]:
+    """``(name, protocol)`` of the devices whose bytes the log holds."""
+    return [(d.name, d.protocol) for d in header.devices if d.protocol != CONTROL_PROTOCOL]
+
+
+class Replayer:
+    """Turns records into items and events, one :class:`DeviceStream` per device.
+
+    Parameters
+    ----------
+    header : LogHeader
+    """
+
+    def __init__(self, header: LogHeader) -> None:
+        self.header = header
+        self.t0_ns = header.start_monotonic_ns
+        self._devices = data_devices(header)
+        self.reset()
+
+    def reset(self) -> None:
+        """Fresh decoders (a new pass)."""
+        self.streams = {name: DeviceStream(name, proto) for name, proto in self._devices}
+
+    def item(self, rec: Record) -> Item:
+        """The live reader's item for a record."""
+        if rec.device.endswith(CONTROL_SUFFIX):
+            return Control.from_bytes(rec.device[: -len(CONTROL_SUFFIX)], rec.t_ns, rec.data)
+        return Chunk(rec.device, rec.t_ns, rec.data)
+
+    def events(self, item: Item) -> list[Event]:
+        """Decode an item as the live reader did (unknown devices give nothing)."""
+        stream = self.streams.get(item.device)
+        return stream.process(item) if stream is not None else []
+
+
+class ReplaySession:
+    """One ``holo-replay`` run: source, scheduler, outputs.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    out : text stream
+        Where the dump goes.
+    """
+
+    def __init__(self, args: argparse.Namespace, out: TextIO) -> None:
+        self.args = args
+        self.out = out
+        self.stop = threading.Event()
+        self.source = open_source(args)
+        self.replayer = Replayer(self.source.header)
+        settings = ReplaySettings(speed=args.speed, as_fast_as_possible=args.as_fast_as_possible,
+                                  skip_s=args.skip, skip_mode="drop" if args.to_port else "fast",
+                                  loop=args.loop, max_passes=args.passes)
+        self.scheduler: ReplayScheduler[Record] = ReplayScheduler(settings, sleep=self._sleep)
+        self.listeners: list[Listener] = []
+        self.publisher: Publisher | None = None
+        self.port: Any = None
+        self.port_device: str | None = None
+        try:
+            self._open_outputs()
+        except HoloError:
+            self.close()
+            raise
+
+    def _sleep(self, seconds: float) -> None:
+        if self.stop.wait(seconds):
+            raise _Stopped
+
+    def _open_outputs(self) -> None:
+        a, t0 = self.args, self.replayer.t0_ns
+        if a.pub:
+            self.publisher = Publisher(a.pub, t0, pose_address=a.pub_pose)
+            pub = self.publisher
+            self.listeners.append(lambda item, events: pub.publish_all(events))
+        if a.dump:
+            self.listeners.append(dump_listener(self.out, t0))
+        if a.to_port:
+            self._open_port(a)
+
+    def _open_port(self, a: argparse.Namespace) -> None:
+        names = [n for n, _ in data_devices(self.source.header)]
+        self.port_device = a.device or names[0]
+        if self.port_device not in names:
+            raise SettingsError(f"--device {self.port_device!r} not in the log: {names}")
+        proto = dict(data_devices(self.source.header))[self.port_device]
+        baud = a.baud or RAW_BAUD.get(proto, 115200)
+        try:
+            self.port = serial.serial_for_url(a.to_port, baudrate=baud, write_timeout=2.0)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceError(f"cannot open {a.to_port!r}: {exc}") from exc
+
+    def _records(self) -> Iterator[tuple[int, Record]]:
+        """Scheduled records with the pass number."""
+        for rec in self.scheduler.play(self.source):
+            yield self.scheduler.stats.passes, rec
+
+    def run(self) -> None:
+        """Replay everything (or until stopped)."""
+        first = next(iter(self.source), None)
+        if first is None:
+            return
+        show_from = first.t_ns + round(self.args.skip * 1e9)
+        current = 0
+        with contextlib.suppress(_Stopped):
+            for n_pass, rec in self._records():
+                if n_pass != current:
+                    current = n_pass
+                    self.replayer.reset()
+                self._one(rec, rec.t_ns >= show_from)
+                if self.stop.is_set():
+                    break
+
+    def _one(self, rec: Record, show: bool) -> None:
+        item = self.replayer.item(rec)
+        if self.port is not None and isinstance(item, Chunk) and item.device == self.port_device:
+            self.port.write(item.data)
+        events = self.replayer.events(item)
+        if show:
+            self._dispatch(item, events)
+
+    def _dispatch(self, item: Item, events: list[Event]) -> None:
+        for listener in self.listeners:
+            listener(item, events)
+        if events and not self.args.as_fast_as_possible:
+            self.out.flush()
+        if self.publisher is not None:
+            self.publisher.service()
+
+    def close(self) -> None:
+        """Close the publisher and the port."""
+        if self.publisher is not None:
+            self.publisher.close()
+        if self.port is not None:
+            with contextlib.suppress(Exception):
+                self.port.flush()
+            self.port.close()
+
+    def problems(self) -> Iterable[str]:
+        """What the log reader skipped (torn tail, corrupt regions)."""
+        st = self.source.stats
+        if st.torn or st.corrupt:
+            yield (f"log damage: {st.torn} torn, {st.corrupt} corrupt regions, "
+                   f"{st.skipped_bytes} bytes skipped")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``holo-replay``; returns the exit status (0, or 2 for bad input)."""
+    args = build_parser().parse_args(argv)
+    try:
+        session = ReplaySession(args, sys.stdout)
+    except HoloError as exc:
+        print(f"holo-replay: {exc}", file=sys.stderr)
+        return 2
+    with contextlib.suppress(ValueError):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: session.stop.set())
+    try:
+        session.run()
+        sys.stdout.flush()
+    except (KeyboardInterrupt, BrokenPipeError):
+        pass
+    except (HoloError, serial.SerialException) as exc:
+        print(f"holo-replay: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        session.close()
+    for line in session.problems():
+        print(f"holo-replay: {line}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,243 @@
+"""Device events on a ZeroMQ publisher socket (message layout: ``docs/device-messages.md``).
+
+Every message is two frames, a topic and a JSON object (UTF-8; never pickle):
+
+=============  ===================================================================
+``b"pose"``    a tracker pose: the dump fields plus ``t_ns``, ``n`` and ``session``;
+               a latest-value stream (each pose is complete; dropping any is
+               harmless)
+``b"dials"``   a dial turn or button press/release (``kind`` ``dial``/``button``),
+               a reset of the state to zero after the box was (re)initialised
+               (``kind`` ``reset``; these three bump ``seq``) or a snapshot (``kind``
+               ``state``; same ``seq``); a lossless stream with the sequence number
+               ``seq`` and the absolute state (``dials``: 8 ints, ``buttons``: 32
+               bools) in every message
+``b"status"``  link status (the dump's status events)
+``b"stats"``   reader statistics, once a second
+=============  ===================================================================
+
+The socket is an XPUB: each new subscription makes the publisher send a ``state``
+snapshot at once (ZeroMQ's "last value cache" pattern), and a snapshot also goes out
+every ``snapshot_s`` seconds, so a subscriber that joins late knows the absolute
+dial and button state without waiting for the next turn.
+
+ZeroMQ's ``CONFLATE`` option does not work with multipart messages, so a subscriber
+that wants libzmq to keep only the newest pose connects to the optional pose-only
+endpoint (``pose_address``): a PUB socket sending single-frame pose JSON with
+``CONFLATE`` set on the sending side too.
+
+A :class:`Publisher` is used from one thread only (the hub's consumer).
+"""
+
+from __future__ import annotations
+
+import json
+import secrets
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import zmq
+
+from drivers.events import ButtonEvent, DialEvent, Event, PoseEvent, StatusEvent
+from drivers.protocols.sgi_dialbox import NUM_BUTTONS, NUM_DIALS
+from service.errors import DeviceError
+
+#: event kind -> topic frame.
+TOPICS = {"pose": b"pose", "dial": b"dials", "button": b"dials", "status": b"status"}
+STATS_TOPIC = b"stats"
+#: Send high-water mark (messages queued per subscriber before PUB drops).
+SNDHWM = 100_000
+LINGER_MS = 500
+
+
+def _dumps(obj: Mapping[str, Any]) -> bytes:
+    return json.dumps(obj, separators=(",", ":")).encode()
+
+
+class DialState:
+    """Absolute dial values and button states, with the stream's sequence number."""
+
+    def __init__(self) -> None:
+        self.seq = 0
+        self.dials = [0] * NUM_DIALS
+        self.buttons = [False] * NUM_BUTTONS
+        self._apply: dict[type, Callable[[Any], bool]] = {
+            DialEvent: self._dial, ButtonEvent: self._button, StatusEvent: self._status,
+            PoseEvent: lambda ev: False}
+
+    def apply(self, event: Event) -> bool:
+        """Update from ``event``; True when the state changed (``seq`` was bumped)."""
+        changed = self._apply[type(event)](event)
+        self.seq += int(changed)
+        return changed
+
+    def snapshot(self) -> dict[str, Any]:
+        """``seq``, ``dials``, ``buttons`` as JSON-able values."""
+        return {"seq": self.seq, "dials": list(self.dials), "buttons": list(self.buttons)}
+
+    def _dial(self, ev: DialEvent) -> bool:
+        self.dials[ev.index] = ev.value
+        return True
+
+    def _button(self, ev: ButtonEvent) -> bool:
+        self.buttons[ev.index] = ev.pressed
+        return True
+
+    def _status(self, ev: StatusEvent) -> bool:
+        if ev.device != "dials" or not ev.details.get("decoder_reset"):
+            return False
+        self.dials = [0] * NUM_DIALS
+        self.buttons = [False] * NUM_BUTTONS
+        return True
+
+
+class Publisher:
+    """Publishes events (see the module docstring).
+
+    Parameters
+    ----------
+    address : str
+        Where to bind, e.g. ``tcp://127.0.0.1:5556`` (``tcp://127.0.0.1:0`` or
+        ``:*`` picks a free port; :attr:`address` then holds the real one).
+    t0_ns : int
+        Session start; messages' ``t`` is seconds since it (as in the dump).
+    pose_address : str or None
+        Also bind a pose-only, single-frame, conflating PUB socket here.
+    snapshot_s : float
+        Period of the ``state`` snapshots and ``stats`` messages.
+    context : zmq.Context or None
+        Defaults to the process-wide instance.
+    clock_ns : callable
+        For the snapshot period.
+
+    Raises
+    ------
+    DeviceError
+        The address cannot be bound.
+    """
+
+    def __init__(self, address: str, t0_ns: int = 0, *, pose_address: str | None = None,
+                 snapshot_s: float = 1.0, context: zmq.Context | None = None,
+                 clock_ns: Callable[[], int] = time.monotonic_ns) -> None:
+        self.t0_ns = t0_ns
+        self.session = secrets.token_hex(4)
+        self.state = DialState()
+        self.snapshot_s = snapshot_s
+        self.counts = {"pose": 0, "status": 0, "stats": 0}
+        self._clock = clock_ns
+        self._last_snapshot = clock_ns()
+        ctx = context or zmq.Context.instance()
+        self._sock = self._bind(ctx, zmq.XPUB, address, {zmq.XPUB_VERBOSE: 1})
+        self.address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        self._pose_sock = None
+        self.pose_address: str | None = None
+        if pose_address:
+            self._pose_sock = self._bind(ctx, zmq.PUB, pose_address, {zmq.CONFLATE: 1})
+            self.pose_address = self._pose_sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        self._send_kind = {"pose": self._pose, "dial": self._dials, "button": self._dials,
+                           "status": self._status}
+
+    def _bind(self, ctx: zmq.Context, kind: int, address: str,
+              options: Mapping[int, int]) -> zmq.Socket:
+        sock = ctx.socket(kind)
+        sock.setsockopt(zmq.LINGER, LINGER_MS)
+        sock.setsockopt(zmq.SNDHWM, SNDHWM)
+        for opt, value in options.items():
+            sock.setsockopt(opt, value)
+        try:
+            sock.bind(address)
+        except zmq.ZMQError as exc:
+            sock.close(0)
+            raise DeviceError(f"cannot bind publisher to {address!r}: {exc}") from exc
+        return sock
+
+    def _envelope(self, ev: Event) -> dict[str, Any]:
+        d = ev.to_dict(self.t0_ns)
+        d["t_ns"] = ev.t_ns
+        d["session"] = self.session
+        return d
+
+    def publish(self, event: Event) -> None:
+        """Publish one event on its topic."""
+        self._send_kind[event.kind](event)
+
+    def publish_all(self, events: list[Event]) -> None:
+        """Publish events in order."""
+        for ev in events:
+            self._send_kind[ev.kind](ev)
+
+    def _pose(self, ev: PoseEvent) -> None:
+        self.counts["pose"] += 1
+        d = self._envelope(ev)
+        d["n"] = self.counts["pose"]
+        body = _dumps(d)
+        self._sock.send_multipart((b"pose", body), copy=False)
+        if self._pose_sock is not None:
+            self._pose_sock.send(body, copy=False)
+
+    def _dials(self, ev: DialEvent | ButtonEvent) -> None:
+        self.state.apply(ev)
+        d = self._envelope(ev)
+        d.update(self.state.snapshot())
+        self._sock.send_multipart((b"dials", _dumps(d)), copy=False)
+
+    def _status(self, ev: StatusEvent) -> None:
+        self.counts["status"] += 1
+        d = self._envelope(ev)
+        d["n"] = self.counts["status"]
+        self._sock.send_multipart((b"status", _dumps(d)), copy=False)
+        if self.state.apply(ev):
+            self._send_state("reset", ev.t_ns, {"reason": ev.event})
+
+    def publish_state(self) -> None:
+        """Send a ``state`` snapshot on ``b"dials"`` (seq unchanged)."""
+        now = self._clock()
+        self._send_state("state", now)
+        self._last_snapshot = now
+
+    def _send_state(self, kind: str, t_ns: int, extra: Mapping[str, Any] | None = None) -> None:
+        d = {"t": (t_ns - self.t0_ns) / 1e9, "t_ns": t_ns, "device": "dials", "kind": kind,
+             "session": self.session, **(extra or {})}
+        d.update(self.state.snapshot())
+        self._sock.send_multipart((b"dials", _dumps(d)), copy=False)
+
+    def publish_stats(self, stats: Mapping[str, Any]) -> None:
+        """Send reader statistics on ``b"stats"`` (``devices``: name -> counters)."""
+        self.counts["stats"] += 1
+        now = self._clock()
+        d = {"t": (now - self.t0_ns) / 1e9, "t_ns": now, "kind": "stats",
+             "session": self.session, "n": self.counts["stats"], "devices": dict(stats)}
+        self._sock.send_multipart((STATS_TOPIC, _dumps(d)), copy=False)
+
+    def service(self, stats: Callable[[], Mapping[str, Any]] | None = None) -> int:
+        """Answer new subscriptions with a snapshot; send the periodic snapshot/stats.
+
+        Call it often from the publishing thread (it never blocks).  Returns the
+        number of subscription messages seen.
+        """
+        seen = 0
+        while True:
+            try:
+                msg = self._sock.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            seen += bool(msg[:1] == b"\x01")
+        due = self._clock() - self._last_snapshot >= self.snapshot_s * 1e9
+        if seen or due:
+            self.publish_state()
+        if due and stats is not None:
+            self.publish_stats(stats())
+        return seen
+
+    def close(self) -> None:
+        """Close the sockets (pending messages get ``LINGER_MS`` to go out)."""
+        for sock in (self._sock, self._pose_sock):
+            if sock is not None and not sock.closed:
+                sock.close()
+
+    def __enter__(self) -> Publisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
