@@ -1,0 +1,97 @@
+"""holo-render as a user runs it: a real process, real files."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from service.loaders import save_obj
+from service.png import read_png
+from service.primitives import torus
+
+
+def run(*args, cwd=None):
+    return subprocess.run(
+        [sys.executable, "-m", "service.cli_render", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=cwd,
+    )
+
+
+def test_renders_a_mesh_file_and_reports_json(tmp_path):
+    mesh = tmp_path / "ring.obj"
+    save_obj(mesh, torus(0.5, 0.2, 24, 12))
+    out = tmp_path / "out"
+    r = run(
+        str(mesh),
+        "--zones",
+        "3",
+        "--size",
+        "64x48",
+        "--method",
+        "runlength",
+        "--light",
+        "phong",
+        "--specular",
+        "vertex",
+        "--out",
+        str(out),
+        "--json",
+    )
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    assert report["settings"]["zones"] == 3 and report["settings"]["method"] == "runlength"
+    p = report["polygons"]
+    assert p["in"] == 24 * 12 and p["in"] == p["culled"] + p["kept"] and p["drawn"] > 0
+    assert {"project", "cull", "sort", "occlusion", "light"} <= set(report["ms"])
+    for k in range(3):
+        img = read_png(out / f"zone-{k:02d}.png")
+        assert img.shape == (48, 64, 3)
+        depth = np.load(out / f"depth-{k:02d}.npy")
+        assert depth.dtype == np.float32 and depth.shape == (48, 64)
+        assert np.isinf(depth).any() and np.isfinite(depth).any()
+        assert ((img.sum(axis=2) > 0) <= np.isfinite(depth)).all()
+    assert read_png(out / "strip.png").shape[1] >= 3 * 64
+
+
+def test_builtin_scene_and_fallback_note(tmp_path):
+    r = run("builtin:cyclic", "--method", "runlength", "--size", "80x60", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "redrawn with the zbuffer" in r.stdout
+
+
+def test_bad_file_names_file_and_line(tmp_path):
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 zz\nf 1 2 3\n")
+    r = run(str(bad), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2
+    assert "bad.obj" in r.stderr and "line 3" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_missing_file_and_bad_size_are_clear(tmp_path):
+    r = run(str(tmp_path / "nope.ply"), "--out", str(tmp_path))
+    assert r.returncode == 2 and "nope.ply" in r.stderr and "Traceback" not in r.stderr
+    r = run("builtin:demo", "--size", "big", "--out", str(tmp_path))
+    assert r.returncode == 2 and "320x240" in r.stderr
+    r = run("builtin:demo", "--zones", "0", "--out", str(tmp_path))
+    assert r.returncode == 2 and "zones" in r.stderr
+
+
+def test_help_lists_the_options():
+    r = run("--help")
+    assert r.returncode == 0
+    for opt in (
+        "--zones",
+        "--angle",
+        "--size",
+        "--method",
+        "--light",
+        "--specular",
+        "--out",
+        "--json",
+    ):
+        assert opt in r.stdout

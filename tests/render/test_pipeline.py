@@ -1,0 +1,141 @@
+"""The whole pipeline: methods agree with ray casting, cull and sort rules, fallback."""
+
+import numpy as np
+import pytest
+
+from service.cull import CullSettings, cull
+from service.depth_sort import average_z, sort_polygons
+from service.display import DisplaySettings
+from service.errors import SettingsError
+from service.light import LightSettings
+from service.mesh import Mesh
+from service.pipeline import METHOD_NAMES, Renderer, RenderSettings
+from service.scene import Scene, SceneObject
+from service.scenes import builtin_scene
+
+SMALL = DisplaySettings(zones=5, angle_deg=16.0, cols=96, rows=72)
+
+
+def polygon_map(scene, display, method, fallback=True):
+    arrays = scene.flatten()
+    settings = RenderSettings(method=method, painter_fallback=fallback)
+    vis, counts, _ = Renderer().visibility(arrays, display, settings)
+    poly = np.where(vis.triangle >= 0, arrays.triangle_polygon[np.maximum(vis.triangle, 0)], -1)
+    return poly, vis, counts
+
+
+@pytest.mark.parametrize("method", [m for m in METHOD_NAMES if m != "raycast"])
+def test_methods_match_ray_casting_on_sphere_and_torus(method):
+    scene = builtin_scene("sphere-torus")
+    ref, _, _ = polygon_map(scene, SMALL, "raycast")
+    got, _, _ = polygon_map(scene, SMALL, method, fallback=False)
+    assert np.mean(got == ref) >= 0.999
+
+
+def test_runlength_within_16_degrees_on_the_game_scene():
+    scene = builtin_scene("game")
+    ref, _, _ = polygon_map(scene, SMALL, "raycast")
+    got, vis, _ = polygon_map(scene, SMALL, "runlength", fallback=False)
+    assert np.mean(got == ref) >= 0.995
+
+
+def test_cyclic_overlap_is_detected_and_falls_back_to_the_zbuffer():
+    scene = builtin_scene("cyclic")
+    ref, _, _ = polygon_map(scene, SMALL, "raycast")
+    wrong, vis_wrong, _ = polygon_map(scene, SMALL, "runlength", fallback=False)
+    assert vis_wrong.stats["inconsistent_pixels"] > 0
+    assert np.mean(wrong != ref) > 0.001  # painter's order alone shows the wrong picture
+    fixed, vis, _ = polygon_map(scene, SMALL, "runlength")
+    assert vis.stats["fallback"] == "zbuffer"
+    assert np.mean(fixed == ref) >= 0.999
+
+
+def test_interpenetration_is_detected_too():
+    scene = builtin_scene("threaded")
+    _, vis, _ = polygon_map(scene, SMALL, "runlength", fallback=False)
+    assert vis.stats["inconsistent_pixels"] > 0
+    _, vis, _ = polygon_map(scene, SMALL, "runlength")
+    assert vis.stats.get("fallback") == "zbuffer"
+
+
+def test_bsp_is_right_where_average_z_is_wrong():
+    for name in ("cyclic", "threaded"):
+        scene = builtin_scene(name)
+        ref, _, _ = polygon_map(scene, SMALL, "raycast")
+        got, _, _ = polygon_map(scene, SMALL, "bsp")
+        assert np.mean(got == ref) >= 0.999, name
+
+
+def facing(nx: float, nz: float) -> Mesh:
+    """A small triangle whose normal is (nx, 0, nz) (normalised later)."""
+    n = np.array([nx, 0.0, nz]) / np.hypot(nx, nz)
+    u = np.array([0.0, 1.0, 0.0])
+    w = np.cross(u, n)
+    v = np.array([np.zeros(3), 0.1 * w, 0.1 * u])
+    return Mesh.from_triangles(v, [[0, 1, 2]])
+
+
+def test_modified_cull_keeps_polygons_that_face_any_zone():
+    display = DisplaySettings(zones=5, angle_deg=16.0)
+    edge = np.radians(6.4)  # the outermost zone's direction
+    # normals just past 90 degrees from +z: facing only the outermost zones
+    meshes = [
+        facing(1.0, 0.0),  # edge-on to the straight-on view, faces zone 4
+        facing(np.cos(edge - 0.01), -np.sin(edge - 0.01)),  # faces zone 4 only
+        facing(np.cos(edge + 0.01), -np.sin(edge + 0.01)),  # faces no zone
+        facing(0.0, 1.0),
+        facing(0.0, -1.0),
+    ]
+    arrays = Scene([SceneObject(m) for m in meshes]).flatten()
+    keep, counts = cull(arrays.normals, display, CullSettings("modified"))
+    assert keep.tolist() == [True, True, False, True, False]
+    assert counts == {"in": 5, "culled": 2, "kept": 3}
+    plain, _ = cull(arrays.normals, display, CullSettings("plain"))
+    assert plain.tolist() == [False, False, False, True, False]
+
+
+def test_sort_is_nearest_first_and_ties_keep_object_order():
+    z = np.array([0.0, 0.5, 0.5, -1.0, 0.5])
+    assert sort_polygons(z).tolist() == [1, 2, 4, 0, 3]
+    assert sort_polygons(z, np.array([1, 0, 1, 1, 1], bool)).tolist() == [2, 4, 0, 3]
+
+
+def test_coincident_objects_first_object_wins():
+    # Thesis 3.2: equal average z -> object 1 takes precedence over object 2.
+    tri = [[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0]]
+    a = Mesh.from_triangles(tri, [[0, 1, 2]])
+    scene = Scene([SceneObject(a), SceneObject(a)])
+    arrays = scene.flatten()
+    assert np.allclose(average_z(arrays.vertices, arrays.polygons, arrays.counts), 0.0)
+    for method in ("runlength", "zbuffer"):
+        poly, _, _ = polygon_map(scene, SMALL, method)
+        assert set(np.unique(poly)) == {-1, 0}
+
+
+def test_render_gives_frame_with_counts_and_timings():
+    scene = builtin_scene("demo")
+    frame = Renderer().render(scene, SMALL, RenderSettings(light=LightSettings("phong", "vertex")))
+    assert frame.colour.shape == (5, 72, 96, 3) and frame.colour.dtype == np.uint8
+    assert frame.depth.shape == (5, 72, 96) and frame.depth.dtype == np.float32
+    counts = frame.stats["polygons"]
+    assert counts["in"] == sum(o.mesh.n_polygons for o in scene.objects)
+    assert counts["culled"] + counts["kept"] == counts["in"]
+    assert 0 < counts["drawn"] <= counts["kept"]
+    for stage in ("flatten", "project", "cull", "sort", "occlusion", "light", "total"):
+        assert frame.stats["ms"][stage] >= 0
+    empty = np.isinf(frame.depth)
+    assert (frame.colour[empty] == 0).all() and not empty.all()
+
+
+def test_zones_see_parallax():
+    frame = Renderer().render(builtin_scene("demo"), SMALL)
+    assert not np.array_equal(frame.colour[0], frame.colour[4])
+
+
+def test_bad_settings_are_clear_errors():
+    with pytest.raises(SettingsError, match="method"):
+        RenderSettings(method="magic")
+    with pytest.raises(SettingsError, match="zones"):
+        DisplaySettings(zones=65)
+    with pytest.raises(SettingsError, match="angle"):
+        DisplaySettings(angle_deg=61)
