@@ -154,10 +154,10 @@ class PtyLink:
 
         deadline = time.monotonic() + timeout
         buf = bytearray(4)
-        while self._slave >= 0 and time.monotonic() < deadline:
+        empty = 0  # the kernel moves pty data in the background: want 3 empty looks
+        while self._slave >= 0 and empty < 3 and time.monotonic() < deadline:
             fcntl.ioctl(self._slave, termios.FIONREAD, buf)
-            if struct.unpack("i", buf)[0] == 0:
-                return
+            empty = empty + 1 if struct.unpack("i", buf)[0] == 0 else 0
             select.select([], [], [], POLL_S)
 
     def disconnect(self) -> None:

@@ -214,8 +214,8 @@ class HatireDecoder:
         events.append(StatusEvent(t_ns, "tracker", "truncated", {"bytes": size}))
 
     def _bad_candidate(self, buf: bytearray, j: int, t_ns: int, events: list[Event]) -> int:
-        nxt = buf.find(HEADER, j + MIN_TRUNCATED, j + FRAME_LEN + 1)
-        if nxt < 0:
+        nxt = buf.find(HEADER, j + 1, j + FRAME_LEN + 1)
+        if nxt < 0 or nxt < j + MIN_TRUNCATED:
             self._drop(1)
             return j + 1
         self._end_garbage(t_ns, events)

@@ -198,18 +198,27 @@ class NativeFramer:
             self.garbage = 0
 
     def flush(self) -> list[Frame | tuple[str, int]]:
-        """End of input: leftovers become ``("truncated", n)`` or garbage."""
+        """End of input: an unfinished frame becomes ``("truncated", n)``.
+
+        Its bytes run to the next sync (or the end); what follows is scanned again, so
+        a whole frame behind a bogus length field is still delivered.
+        """
         out: list[Frame | tuple[str, int]] = []
-        left = len(self._buf)
-        if left and self._buf.startswith(SYNC):
+        buf = self._buf
+        while buf:
+            if not buf.startswith(SYNC):
+                self._drop(len(buf))
+                buf.clear()
+                break
+            nxt = buf.find(SYNC, 1)
+            size = len(buf) if nxt < 0 else nxt
             self._flush_garbage(out)
             self.stats.truncated += 1
-            self.stats.bytes_discarded += left
-            out.append(("truncated", left))
-        else:
-            self._drop(left)
-            self._flush_garbage(out)
-        self._buf.clear()
+            self.stats.bytes_discarded += size
+            out.append(("truncated", size))
+            del buf[:size]
+            out += self.feed(b"")
+        self._flush_garbage(out)
         return out
 
 

@@ -6,6 +6,8 @@ import dataclasses
 import json
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drivers.events import (
     ButtonEvent,
@@ -73,3 +75,47 @@ def test_random_bytes_never_raise(name):
         dec.feed(bytes(rng.randrange(256) for _ in range(rng.randrange(64))), 0)
     dec.flush(0)
     assert dec.stats.bytes_in > 0
+
+
+def _valid_frames(name: str) -> list[bytes]:
+    from drivers.protocols import hatire, native, sgi_dialbox
+    table = {
+        "hatire": [hatire.encode_pose(i, 1.0, 2.0, 3.0) for i in range(3)],
+        "native": [native.encode_pose(i, i, (0, 0, 0), (1, 0, 0, 0)) for i in range(3)],
+        "sgi": [sgi_dialbox.encode_dial(1, 5), sgi_dialbox.encode_button(3, True), b"\x20"],
+    }
+    return table[name]
+
+
+@pytest.mark.parametrize("name", sorted(DECODERS))
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_garbage_and_frames_any_split_same_events(name, data):
+    frames = _valid_frames(name)
+    parts = data.draw(st.lists(st.one_of(st.binary(max_size=12), st.sampled_from(frames)),
+                               max_size=12))
+    stream = b"".join(parts)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    whole = make_decoder(name)
+    expected = whole.feed(stream, 7) + whole.flush(7)
+    split = make_decoder(name)
+    got, prev = [], 0
+    for c in cuts + [len(stream)]:
+        got += split.feed(stream[prev:c], 7)
+        prev = c
+    got += split.flush(7)
+    assert got == expected
+    assert split.stats.as_dict() == whole.stats.as_dict()
+    if name != "sgi":  # framed protocols: every intact frame is found, none invented
+        assert sum(1 for e in expected if e.kind == "pose") == sum(p in frames for p in parts)
+
+
+def test_native_frame_behind_bogus_length_survives_flush():
+    from drivers.protocols import native
+    frame = native.encode_pose(9, 0, (0, 0, 0), (1, 0, 0, 0))
+    dec = make_decoder("native")
+    events = dec.feed(b"\xa5\x5a\x01\x02\xff" + frame, 0)
+    assert events == []  # waiting for the 255-byte text payload
+    tail = dec.flush(0)
+    assert [e.kind for e in tail] == ["status", "pose"] and tail[1].seq == 9
+    assert dec.stats.truncated == 1

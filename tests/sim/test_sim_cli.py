@@ -11,9 +11,10 @@ import pytest
 import serial
 
 from drivers.events import PoseEvent
-from drivers.protocols import make_decoder
+from drivers.protocols import hatire, make_decoder, native
 from sim_devices.cli import build_parser, main
 
+START = {"hatire": hatire.encode_command("start"), "native": native.encode_command("start")}
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
 
 
@@ -39,12 +40,15 @@ def test_bad_settings_exit_2(capsys):
 def test_pty_across_processes(protocol):
     proc = subprocess.Popen(
         [sys.executable, "-m", "sim_devices.cli", "tracker", "--pty", "--protocol", protocol,
-         "--rate", "200", "--seconds", "1", "--seed", "3", "--faults", "burst=0.05,seed=1"],
+         "--rate", "200", "--seconds", "1", "--seed", "3", "--faults", "burst=0.05,seed=1",
+         "--wait-start"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         path = proc.stdout.readline().strip()
         assert path.startswith("/dev/")
+        # opening flushes the input, so the device waits for the start command
         port = serial.serial_for_url(path, timeout=0.05)
+        port.write(START[protocol])
         dec = make_decoder(protocol)
         poses: list[PoseEvent] = []
         deadline = time.monotonic() + 10
