@@ -24,7 +24,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TextIO
 
 from drivers.dialbox_driver import DialBoxDriver
@@ -219,10 +219,23 @@ class DeviceSession:
             self.publisher.close()
 
 
-def _install_signals(stop: threading.Event) -> None:
-    with contextlib.suppress(ValueError):  # not the main thread: leave them alone
+@contextlib.contextmanager
+def stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM set ``stop``; the old handlers come back after.
+
+    Outside the main thread (where handlers cannot be set) it does nothing.
+    """
+    old: dict[int, Any] = {}
+    try:
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.set())
+            old[sig] = signal.signal(sig, lambda *_: stop.set())
+    except ValueError:
+        pass
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -236,9 +249,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except HoloError as exc:
         print(f"holo-devices: {exc}", file=sys.stderr)
         return 2
-    _install_signals(session.stop)
     try:
-        session.run()
+        with stop_on_signals(session.stop):
+            session.run()
     except (KeyboardInterrupt, BrokenPipeError):
         pass
     finally:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import signal
 import sys
 import threading
 from collections.abc import Iterable, Iterator, Sequence
@@ -35,7 +34,7 @@ from typing import Any, TextIO
 
 import serial
 
-from drivers.cli_devices import Listener, dump_listener
+from drivers.cli_devices import Listener, dump_listener, stop_on_signals
 from drivers.events import Event
 from drivers.protocols import DEVICE_OF
 from drivers.publisher import Publisher
@@ -258,11 +257,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except HoloError as exc:
         print(f"holo-replay: {exc}", file=sys.stderr)
         return 2
-    with contextlib.suppress(ValueError):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: session.stop.set())
     try:
-        session.run()
+        with stop_on_signals(session.stop):
+            session.run()
         sys.stdout.flush()
     except (KeyboardInterrupt, BrokenPipeError):
         pass

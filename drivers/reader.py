@@ -441,13 +441,14 @@ class DeviceReader:
         now = self._clock()
         self.counters.opens += 1
         self._last_valid_ns = now
-        details: dict[str, Any] = {"url": self.settings.url}
-        if self._down_since_ns is None:
+        details: dict[str, Any] = {"url": self.settings.url,
+                                   "attempts": self._failures_in_outage + 1}
+        if self._down_since_ns is not None:
+            details["down_s"] = round((now - self._down_since_ns) / 1e9, 6)
+        if self.counters.opens == 1:
             self.emit("info", {"message": "opened", **details}, reset=True)
         else:
             self.counters.reconnects += 1
-            details.update(attempts=self._failures_in_outage + 1,
-                           down_s=round((now - self._down_since_ns) / 1e9, 6))
             self.emit("reconnect", details, reset=True)
         self._down_since_ns = None
         self._failures_in_outage = 0
