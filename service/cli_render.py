@@ -52,6 +52,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--cull", choices=sorted(CULLS), default="modified", help="back-face cull")
     p.add_argument(
+        "--fallback",
+        choices=("frame", "pixel", "off"),
+        default="frame",
+        help="when the run-length depth order proves wrong: redraw the frame with the "
+        "z-buffer (frame, default), z-test just the wrong points (pixel), or keep it (off)",
+    )
+    p.add_argument(
         "--no-fallback",
         action="store_true",
         help="keep a run-length frame even when its depth order proved wrong",
@@ -80,7 +87,7 @@ def run(args: argparse.Namespace) -> dict:
         method=args.method,
         cull=CullSettings(args.cull),
         light=LightSettings(model=args.light, evaluation=args.specular),
-        painter_fallback=not args.no_fallback,
+        painter_fallback="off" if args.no_fallback else args.fallback,
     )
     scene = _load(args.scene)
     warm_up(settings)  # compile or load the numba kernels outside the timings
@@ -101,7 +108,7 @@ def run(args: argparse.Namespace) -> dict:
             "light": args.light,
             "specular": args.specular,
             "cull": args.cull,
-            "painter_fallback": not args.no_fallback,
+            "painter_fallback": "off" if args.no_fallback else args.fallback,
         },
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},

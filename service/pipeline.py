@@ -44,26 +44,35 @@ class RenderSettings:
         Occlusion method.
     cull : CullSettings
     light : LightSettings
-    painter_fallback : bool
-        Redo a run-length frame with the z-buffer when the sort proved inconsistent.
+    painter_fallback : {"frame", "pixel", "off"}
+        What to do when the run-length method proves the average-z order wrong
+        (a point it hid was nearer than what it drew): ``"frame"`` redraws the frame
+        with the z-buffer; ``"pixel"`` draws just those points (a z-test where the
+        sort failed; same picture as the z-buffer, cheaper); ``"off"`` keeps the
+        painter's picture (for study). Every mode reports the count.
     painter_tolerance : int
-        Inconsistent pixels tolerated before falling back (0: any).
+        Inconsistent pixels tolerated before the ``"frame"`` fallback (0: any).
     """
 
     method: str = "zbuffer"
     cull: CullSettings = field(default_factory=CullSettings)
     light: LightSettings = field(default_factory=LightSettings)
-    painter_fallback: bool = True
+    painter_fallback: str = "frame"
     painter_tolerance: int = 0
 
     def __post_init__(self) -> None:
         if self.method not in METHOD_NAMES:
             raise SettingsError(f"method must be one of {METHOD_NAMES}, got {self.method!r}")
+        if self.painter_fallback not in FALLBACKS:
+            raise SettingsError(
+                f"painter_fallback must be one of {FALLBACKS}, got {self.painter_fallback!r}"
+            )
         if self.painter_tolerance < 0:
             raise SettingsError("painter_tolerance must be >= 0")
 
 
 METHOD_NAMES = ("runlength", "zbuffer", "bsp", "raycast")
+FALLBACKS = ("frame", "pixel", "off")
 
 
 class Renderer:
@@ -73,6 +82,7 @@ class Renderer:
         self._bsp = BspCache()
         self._methods: dict[str, OcclusionFn] = {
             "runlength": runlength,
+            "runlength-repair": functools.partial(runlength, repair=True),
             "zbuffer": zbuffer,
             "bsp": functools.partial(bsp, tree=self._bsp),
             "raycast": raycast,
@@ -119,10 +129,13 @@ class Renderer:
                 average_z(arrays.vertices, arrays.polygons, arrays.counts), keep
             )
             order = triangle_order(poly_order, arrays.triangle_polygon)
+        name = settings.method
+        if name == "runlength" and settings.painter_fallback == "pixel":
+            name = "runlength-repair"
         with clock("occlusion"):
-            vis = self._methods[settings.method](arrays, proj, display, order)
+            vis = self._methods[name](arrays, proj, display, order)
         bad = vis.stats.get("inconsistent_pixels", 0)
-        if settings.painter_fallback and bad > settings.painter_tolerance:
+        if settings.painter_fallback == "frame" and bad > settings.painter_tolerance:
             with clock("fallback"):
                 redo = zbuffer(arrays, proj, display, order)
             redo.stats = {**vis.stats, "fallback": "zbuffer"}

@@ -45,7 +45,13 @@ def polygon_map(
 
 
 def measure(
-    scene_name: str, zones: int, angle: float, methods, repeats: int, fallback=True, size=(320, 240)
+    scene_name: str,
+    zones: int,
+    angle: float,
+    methods,
+    repeats: int,
+    fallback="frame",
+    size=(320, 240),
 ):
     """Rows of {scene, zones, angle, method, ms, pct_differ, ...} for one configuration."""
     arrays = builtin_scene(scene_name).flatten()
@@ -90,9 +96,10 @@ def chart_methods(rows: list[dict], path: Path) -> None:
 
     scenes = sorted({r["scene"] for r in rows})
     fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.2), squeeze=False)
-    markers = dict(zip(METHOD_NAMES, "o^sD", strict=True))
+    names = (*METHOD_NAMES, "runlength+frame", "runlength+pixel")
+    markers = dict(zip(names, "o^sDvx", strict=True))
     for ax, scene in zip(axes[0], scenes, strict=True):
-        for method in METHOD_NAMES:
+        for method in names:
             pts = [r for r in rows if r["scene"] == scene and r["method"] == method]
             if not pts:
                 continue
@@ -169,18 +176,19 @@ def main(argv: list[str] | None = None) -> int:
     total = len(scenes) * len(zones)
     for i, (scene, z) in enumerate(((s, z) for s in scenes for z in zones), 1):
         print(f"[{i}/{total}] {scene}, {z} zones", file=sys.stderr, flush=True)
-        rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback=False)
-        rows += [
-            dict(r, method="runlength+fallback")
-            for r in measure(scene, z, 16.0, ["runlength"], reps)
-        ]
+        rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback="off")
+        for mode in ("frame", "pixel"):
+            rows += [
+                dict(r, method=f"runlength+{mode}")
+                for r in measure(scene, z, 16.0, ["runlength"], reps, fallback=mode)
+            ]
     write_rows(rows, out / "render_bench")
-    chart_methods([r for r in rows if r["method"] in METHOD_NAMES], out / "render_bench.png")
+    chart_methods(rows, out / "render_bench.png")
     sweep = []
     for a in ANGLES if not args.quick else (8, 16, 32, 60):
-        sweep += measure("game", 5, float(a), ("runlength", "zbuffer"), reps, fallback=False)
+        sweep += measure("game", 5, float(a), ("runlength", "zbuffer"), reps, fallback="off")
     for z in zones:
-        sweep += measure("game", z, 32.0, ("runlength", "zbuffer"), reps, fallback=False)
+        sweep += measure("game", z, 32.0, ("runlength", "zbuffer"), reps, fallback="off")
     write_rows(sweep, out / "runlength_sweep")
     chart_sweep(
         [r for r in sweep if r["zones"] == 5],

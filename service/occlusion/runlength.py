@@ -151,6 +151,7 @@ def runlength_kernel(
     tri_out: np.ndarray,
     depth_out: np.ndarray,
     inconsistent: np.ndarray,
+    repair: bool,
 ) -> None:
     """Draw triangles nearest first, hiding points with the linerow arrays.
 
@@ -164,6 +165,8 @@ def runlength_kernel(
     depth_out : ndarray, shape (Z, R, C), float32, filled with +inf
     inconsistent : ndarray, shape (Z,), int64
         Out: per zone, occluded points that were nearer than the drawn surface.
+    repair : bool
+        Draw such points anyway (a z-test on just the points the sort got wrong).
     """
     zones, rows, cols = tri_out.shape
     cap = cols + 4
@@ -185,6 +188,9 @@ def runlength_kernel(
                     if hidden:
                         if d < depth_out[z, r, c] - DEPTH_EPS:
                             bad += 1
+                            if repair:
+                                depth_out[z, r, c] = d
+                                tri_out[z, r, c] = t
                     else:
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t
@@ -192,7 +198,11 @@ def runlength_kernel(
 
 
 def runlength(
-    scene: SceneArrays, proj: np.ndarray, display: DisplaySettings, order: np.ndarray
+    scene: SceneArrays,
+    proj: np.ndarray,
+    display: DisplaySettings,
+    order: np.ndarray,
+    repair: bool = False,
 ) -> Visibility:
     """Run-length occlusion for every zone.
 
@@ -203,6 +213,10 @@ def runlength(
     display : DisplaySettings
     order : ndarray, shape (N,), int64
         Triangles nearest first (from the average-z sort).
+    repair : bool
+        Also draw the hidden points that were nearer than what the sort put first,
+        which makes the frame equal to the z-buffer's at the cost of one depth
+        comparison per hidden point.
 
     Returns
     -------
@@ -213,8 +227,10 @@ def runlength(
     vis = Visibility.empty(display.zones, display.rows, display.cols)
     bad = np.zeros(display.zones, np.int64)
     runlength_kernel(
-        proj, scene.triangles, np.ascontiguousarray(order), vis.triangle, vis.depth, bad
+        proj, scene.triangles, np.ascontiguousarray(order), vis.triangle, vis.depth, bad, repair
     )
     vis.stats["inconsistent_pixels"] = int(bad.sum())
     vis.stats["inconsistent_by_zone"] = bad.tolist()
+    if repair and bad.any():
+        vis.stats["fallback"] = "pixel"
     return vis

@@ -16,7 +16,7 @@ from service.scenes import builtin_scene
 SMALL = DisplaySettings(zones=5, angle_deg=16.0, cols=96, rows=72)
 
 
-def polygon_map(scene, display, method, fallback=True):
+def polygon_map(scene, display, method, fallback="frame"):
     arrays = scene.flatten()
     settings = RenderSettings(method=method, painter_fallback=fallback)
     vis, counts, _ = Renderer().visibility(arrays, display, settings)
@@ -28,21 +28,21 @@ def polygon_map(scene, display, method, fallback=True):
 def test_methods_match_ray_casting_on_sphere_and_torus(method):
     scene = builtin_scene("sphere-torus")
     ref, _, _ = polygon_map(scene, SMALL, "raycast")
-    got, _, _ = polygon_map(scene, SMALL, method, fallback=False)
+    got, _, _ = polygon_map(scene, SMALL, method, fallback="off")
     assert np.mean(got == ref) >= 0.999
 
 
 def test_runlength_within_16_degrees_on_the_game_scene():
     scene = builtin_scene("game")
     ref, _, _ = polygon_map(scene, SMALL, "raycast")
-    got, vis, _ = polygon_map(scene, SMALL, "runlength", fallback=False)
+    got, vis, _ = polygon_map(scene, SMALL, "runlength", fallback="off")
     assert np.mean(got == ref) >= 0.995
 
 
 def test_cyclic_overlap_is_detected_and_falls_back_to_the_zbuffer():
     scene = builtin_scene("cyclic")
     ref, _, _ = polygon_map(scene, SMALL, "raycast")
-    wrong, vis_wrong, _ = polygon_map(scene, SMALL, "runlength", fallback=False)
+    wrong, vis_wrong, _ = polygon_map(scene, SMALL, "runlength", fallback="off")
     assert vis_wrong.stats["inconsistent_pixels"] > 0
     assert np.mean(wrong != ref) > 0.001  # painter's order alone shows the wrong picture
     fixed, vis, _ = polygon_map(scene, SMALL, "runlength")
@@ -52,7 +52,7 @@ def test_cyclic_overlap_is_detected_and_falls_back_to_the_zbuffer():
 
 def test_interpenetration_is_detected_too():
     scene = builtin_scene("threaded")
-    _, vis, _ = polygon_map(scene, SMALL, "runlength", fallback=False)
+    _, vis, _ = polygon_map(scene, SMALL, "runlength", fallback="off")
     assert vis.stats["inconsistent_pixels"] > 0
     _, vis, _ = polygon_map(scene, SMALL, "runlength")
     assert vis.stats.get("fallback") == "zbuffer"
@@ -139,3 +139,13 @@ def test_bad_settings_are_clear_errors():
         DisplaySettings(zones=65)
     with pytest.raises(SettingsError, match="angle"):
         DisplaySettings(angle_deg=61)
+
+
+def test_pixel_fallback_equals_the_zbuffer_and_reports_it():
+    for name in ("cyclic", "threaded", "game"):
+        scene = builtin_scene(name)
+        zb, _, _ = polygon_map(scene, SMALL, "zbuffer")
+        got, vis, _ = polygon_map(scene, SMALL, "runlength", fallback="pixel")
+        assert vis.stats["inconsistent_pixels"] > 0, name
+        assert vis.stats["fallback"] == "pixel"
+        assert np.mean(got == zb) >= 0.9995, name
