@@ -26,7 +26,6 @@ import numba as nb
 import numpy as np
 
 from service.galilean.fixed_point import advance, pixel_of
-from service.galilean.poisson import poisson_flag
 
 #: Index of each counter in the ``stats`` array the kernels fill.
 STAT_NAMES = ("propagated", "clashes", "dropped", "cached", "promoted", "expanded", "debris")
@@ -129,7 +128,7 @@ def _target(src: tuple, z: int, r: int, c: int, order: int, fp: int, fm: int) ->
     return qr, qc, x - (qc << fp), y - (qr << fp), depth, (vx, vy, ax, ay)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _place(
     src: tuple, z: int, r: int, c: int, dst: tuple, spill: tuple, cache_on: bool,
     order: int, fp: int, fm: int, stats: np.ndarray, src_idx: np.ndarray, width: int,
@@ -163,6 +162,9 @@ def sweep(
 ) -> None:
     """First sweep: debris arm, galpixel arm, Poisson arm, then cache propagation and promotion.
 
+    The per-pixel work is written out in this one loop (no helper calls on the hot
+    path): numba compiles it about ten times faster that way.
+
     Parameters
     ----------
     old, new : tuple of arrays
@@ -172,7 +174,8 @@ def sweep(
         Old and new obscuration-cache maps (``cnew`` debris all 1); ignored unless
         ``cache_on``.
     flags : ndarray, shape (Z, H, W), uint8
-        Out: Poisson flag map of the old frame (1: source, edge or debris).
+        Out: Poisson flag map of the old frame (1: source, edge or debris); all 1
+        when ``threshold`` < 0 (test off).
     src_idx : ndarray, shape (Z, H, W), int32
         Out: for each new pixel, ``r * W + c`` of the old galpixel that landed
         there, -1 for debris and promoted galpixels.
@@ -182,22 +185,130 @@ def sweep(
     stats : ndarray, shape (7,), int64
         Counters, accumulated (see :data:`STAT_NAMES`).
     """
-    nz, h, w = old[1].shape
+    o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
+    n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
+    nz, h, w = o_dep.shape
+    sh = fm - fp
+    ncol = o_dc.shape[0]
+    n_prop = n_clash = n_drop = 0
     for z in range(nz):
         for r in range(h):
             for c in range(w):
-                if new[6][z, r, c] == 1:
-                    for k in range(3):
-                        new[0][k, z, r, c] = old[0][k, z, r, c]
-                    new[1][z, r, c] = old[1][z, r, c]
-                    new[7][z, r, c] = old[7][z, r, c]
+                if n_deb[z, r, c] == 1:
+                    n_col[0, z, r, c] = o_col[0, z, r, c]
+                    n_col[1, z, r, c] = o_col[1, z, r, c]
+                    n_col[2, z, r, c] = o_col[2, z, r, c]
+                    n_dep[z, r, c] = o_dep[z, r, c]
+                    n_obj[z, r, c] = o_obj[z, r, c]
                     src_idx[z, r, c] = -1
-                flags[z, r, c] = poisson_flag(old[1], old[6], z, r, c, threshold)
-                if old[6][z, r, c] == 0:
-                    stats[0] += 1
-                    _place(old, z, r, c, new, cnew, cache_on, order, fp, fm, stats, src_idx, w)
+                f = 1
+                if threshold >= 0 and 0 < r < h - 1 and 0 < c < w - 1:
+                    if (o_deb[z, r, c] | o_deb[z, r, c - 1] | o_deb[z, r, c + 1]
+                            | o_deb[z, r - 1, c] | o_deb[z, r + 1, c]) == 0:
+                        lap = (o_dep[z, r, c + 1] + o_dep[z, r, c - 1] + o_dep[z, r + 1, c]
+                               + o_dep[z, r - 1, c] - 4.0 * o_dep[z, r, c])
+                        if abs(lap) <= threshold:
+                            f = 0
+                flags[z, r, c] = f
+                if o_deb[z, r, c] == 1:
+                    continue
+                n_prop += 1
+                x = (np.int64(c) << fp) + o_frac[0, z, r, c]
+                y = (np.int64(r) << fp) + o_frac[1, z, r, c]
+                d = o_dep[z, r, c]
+                vx = vy = ax = ay = np.int64(0)
+                if order == 1:
+                    vx, vy = np.int64(o_mot[0, z, r, c]), np.int64(o_mot[1, z, r, c])
+                    x += (vx + (1 << (sh - 1))) >> sh
+                    y += (vy + (1 << (sh - 1))) >> sh
+                    d += o_zm[0, z, r, c]
+                elif order == 2:
+                    vx, vy = np.int64(o_mot[0, z, r, c]), np.int64(o_mot[1, z, r, c])
+                    ax, ay = np.int64(o_mot[2, z, r, c]), np.int64(o_mot[3, z, r, c])
+                    x += (2 * vx + ax + (1 << sh)) >> (sh + 1)
+                    y += (2 * vy + ay + (1 << sh)) >> (sh + 1)
+                    vx += ax
+                    vy += ay
+                    d += o_zm[0, z, r, c] + 0.5 * o_zm[1, z, r, c]
+                elif order == 3:
+                    x, vx, ax = advance(x, np.int64(o_mot[0, z, r, c]), np.int64(o_mot[2, z, r, c]),
+                                        np.int64(o_mot[4, z, r, c]), 3, fp, fm)
+                    y, vy, ay = advance(y, np.int64(o_mot[1, z, r, c]), np.int64(o_mot[3, z, r, c]),
+                                        np.int64(o_mot[5, z, r, c]), 3, fp, fm)
+                    d += o_zm[0, z, r, c] + 0.5 * o_zm[1, z, r, c] + o_zm[2, z, r, c] / 6.0
+                qc = (x + (1 << (fp - 1))) >> fp
+                qr = (y + (1 << (fp - 1))) >> fp
+                if qr < 0 or qc < 0 or qr >= h or qc >= w:
+                    n_drop += 1
+                    continue
+                if n_deb[z, qr, qc] == 0:
+                    n_clash += 1
+                    if d >= n_dep[z, qr, qc]:
+                        if cache_on:
+                            _spill_incoming(old, z, r, c, cnew, qr, qc, x - (qc << fp),
+                                            y - (qr << fp), d, (vx, vy, ax, ay), order, stats)
+                        continue
+                    if cache_on:
+                        _spill_resident(new, cnew, z, qr, qc, stats)
+                n_col[0, z, qr, qc] = o_col[0, z, r, c]
+                n_col[1, z, qr, qc] = o_col[1, z, r, c]
+                n_col[2, z, qr, qc] = o_col[2, z, r, c]
+                if ncol == 4:
+                    da, d2a = o_dc[0, z, r, c], o_dc[3, z, r, c]
+                    db, dc = o_dc[1, z, r, c], o_dc[2, z, r, c]
+                    sa = da + 0.5 * d2a
+                    n_col[0, z, qr, qc] += sa + db
+                    n_col[1, z, qr, qc] += sa - dc
+                    n_col[2, z, qr, qc] += sa - db + dc
+                    n_dc[0, z, qr, qc] = da + d2a
+                    n_dc[1, z, qr, qc] = db
+                    n_dc[2, z, qr, qc] = dc
+                    n_dc[3, z, qr, qc] = d2a
+                n_dep[z, qr, qc] = d
+                n_frac[0, z, qr, qc] = x - (qc << fp)
+                n_frac[1, z, qr, qc] = y - (qr << fp)
+                if order >= 1:
+                    n_mot[0, z, qr, qc] = vx
+                    n_mot[1, z, qr, qc] = vy
+                    n_zm[0, z, qr, qc] = o_zm[0, z, r, c]
+                if order >= 2:
+                    n_mot[2, z, qr, qc] = ax
+                    n_mot[3, z, qr, qc] = ay
+                    n_zm[0, z, qr, qc] += o_zm[1, z, r, c]
+                    n_zm[1, z, qr, qc] = o_zm[1, z, r, c]
+                if order >= 3:
+                    n_mot[4, z, qr, qc] = o_mot[4, z, r, c]
+                    n_mot[5, z, qr, qc] = o_mot[5, z, r, c]
+                    n_zm[0, z, qr, qc] += 0.5 * o_zm[2, z, r, c]
+                    n_zm[1, z, qr, qc] += o_zm[2, z, r, c]
+                    n_zm[2, z, qr, qc] = o_zm[2, z, r, c]
+                n_deb[z, qr, qc] = 0
+                n_obj[z, qr, qc] = o_obj[z, r, c]
+                src_idx[z, qr, qc] = r * w + c
         if cache_on:
             _cache_pass(cold, new, cnew, z, order, fp, fm, stats, src_idx)
+    stats[0] += n_prop
+    stats[1] += n_clash
+    stats[2] += n_drop
+
+
+@nb.njit(cache=True)
+def _spill_incoming(
+    old: tuple, z: int, r: int, c: int, cnew: tuple, qr: int, qc: int, fx: int, fy: int,
+    d: float, mot: tuple, order: int, stats: np.ndarray,
+) -> None:
+    """A clash loser on its way in goes to the cache if nearer than the cache's entry."""
+    if cnew[6][z, qr, qc] == 1 or d < cnew[1][z, qr, qc]:
+        _advance_into(old, z, r, c, cnew, qr, qc, fx, fy, d, mot, order)
+        stats[3] += 1
+
+
+@nb.njit(cache=True)
+def _spill_resident(new: tuple, cnew: tuple, z: int, qr: int, qc: int, stats: np.ndarray) -> None:
+    """The galpixel about to be overwritten goes to the cache if nearer than the cache's entry."""
+    if cnew[6][z, qr, qc] == 1 or new[1][z, qr, qc] < cnew[1][z, qr, qc]:
+        _copy(new, z, qr, qc, cnew, qr, qc)
+        stats[3] += 1
 
 
 @nb.njit(cache=True)
@@ -219,3 +330,31 @@ def _cache_pass(
                 cnew[6][z, r, c] = 1
                 src_idx[z, r, c] = -1
                 stats[4] += 1
+
+
+@nb.njit(cache=True)
+def display_window(
+    colour: np.ndarray, depth: np.ndarray, debris: np.ndarray, margin: int,
+    out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray,
+) -> None:
+    """Copy the displayed window out of a map: colour rounded and clipped to uint8.
+
+    Parameters
+    ----------
+    colour : ndarray, shape (3, Z, H, W), float32
+    depth : ndarray, shape (Z, H, W), float32
+    debris : ndarray, shape (Z, H, W), uint8
+    margin : int
+    out_colour : ndarray, shape (Z, H - 2 margin, W - 2 margin, 3), uint8
+    out_depth : ndarray, shape (Z, H - 2 margin, W - 2 margin), float32
+    out_debris : ndarray, shape (Z, H - 2 margin, W - 2 margin), bool
+    """
+    nz, rows, cols = out_depth.shape
+    for z in range(nz):
+        for r in range(rows):
+            for c in range(cols):
+                for k in range(3):
+                    v = colour[k, z, r + margin, c + margin] + 0.5
+                    out_colour[z, r, c, k] = 0 if v < 0.0 else (255 if v >= 255.0 else np.uint8(v))
+                out_depth[z, r, c] = depth[z, r + margin, c + margin]
+                out_debris[z, r, c] = debris[z, r + margin, c + margin] == 1

@@ -36,7 +36,7 @@ from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import graft
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES, expand
-from service.galilean.propagate import STAT_NAMES, sweep
+from service.galilean.propagate import STAT_NAMES, display_window, sweep
 from service.scene import MotionState
 
 
@@ -244,9 +244,12 @@ class GalileanStage:
             self.age += 1
         for p in due:
             self._graft(p)
-        colour, depth = self.map.window(self.settings.margin)
-        m = self.settings.margin
-        debris = self.map.debris[:, m:self.shape[1] - m, m:self.shape[2] - m].astype(bool)
+        z, r, c = self.display.zones, self.display.rows, self.display.cols
+        colour = np.empty((z, r, c, 3), np.uint8)
+        depth = np.empty((z, r, c), np.float32)
+        debris = np.empty((z, r, c), np.bool_)
+        display_window(self.map.colour, self.map.depth, self.map.debris, self.settings.margin,
+                       colour, depth, debris)
         events, self._events = self._events, []
         flags = {"updated": bool(due), "age": self.age,
                  "past_rating": self.age > self.settings.n_prop, "order": self.order,
