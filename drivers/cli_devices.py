@@ -8,11 +8,12 @@ Examples::
     holo-devices --tracker socket://127.0.0.1:7001 --dump --seconds 10
 
 ``--dump`` prints one JSON object per event per line on stdout (schema in
-``docs/drivers.md``); problems with the links (errors, reconnects) also go to stderr
-as one line each.  Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue
-is drained, the recorder closed (the log is complete) and a JSON summary of each
-device's statistics is printed on stderr.  Exit status: 0, or 2 for bad settings
-(an address that cannot be bound, a log that cannot be created).
+``docs/drivers.md``). With ``--pub`` the first stderr line names the bound address
+(``tcp://127.0.0.1:0`` picks a free port). Problems with the links (errors,
+reconnects) also go to stderr, one line each. Ctrl-C or SIGTERM stops cleanly: readers
+are joined, the queue is drained, the recorder closed (the log is complete) and a JSON
+summary of each device's statistics is printed on stderr. Exit status: 0, or 2 for bad
+settings (an address that cannot be bound, a log that cannot be created).
 """
 
 from __future__ import annotations
@@ -249,6 +250,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except HoloError as exc:
         print(f"holo-devices: {exc}", file=sys.stderr)
         return 2
+    if session.publisher is not None:
+        pub = session.publisher
+        where = pub.address + (f" (poses only: {pub.pose_address})" if pub.pose_address else "")
+        print(f"holo-devices: publishing on {where}", file=sys.stderr, flush=True)
     try:
         with stop_on_signals(session.stop):
             session.run()

@@ -119,7 +119,7 @@ class Control:
         """The JSON body stored in a log record."""
         body = {"event": self.event, "details": dict(self.details),
                 "flush": self.flush, "reset": self.reset}
-        return json.dumps(body, separators=(",", ":"), sort_keys=True).encode()
+        return json.dumps(body, separators=(",", ":")).encode()
 
     @classmethod
     def from_bytes(cls, device: str, t_ns: int, data: bytes) -> Control:

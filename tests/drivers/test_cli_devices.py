@@ -1,0 +1,146 @@
+"""holo-devices against simulated devices in subprocesses; live dump equals replay dump."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from drivers import cli_devices
+from drivers.recording import LogReader
+from drivers.subscriber import DeviceSubscriber
+
+ROOT = Path(__file__).resolve().parents[2]
+posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
+POSE_KEYS = {"t", "device", "kind", "yaw", "pitch", "roll", "x", "y", "z", "seq"}
+KIND_KEYS = {"pose": POSE_KEYS, "dial": {"t", "device", "kind", "index", "delta", "value"},
+             "button": {"t", "device", "kind", "index", "pressed"},
+             "status": {"t", "device", "kind", "event", "details"}}
+
+
+class Proc:
+    """A subprocess whose stdout / stderr lines are collected by threads."""
+
+    def __init__(self, *args: str) -> None:
+        self.p = subprocess.Popen([sys.executable, "-m", *args], cwd=ROOT, text=True,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.out: list[str] = []
+        self.err: list[str] = []
+        self._threads = [threading.Thread(target=self._pump, args=(s, lst), daemon=True)
+                         for s, lst in ((self.p.stdout, self.out), (self.p.stderr, self.err))]
+        for t in self._threads:
+            t.start()
+
+    @staticmethod
+    def _pump(stream, lines: list[str]) -> None:
+        for line in stream:
+            lines.append(line.rstrip("\n"))
+
+    def wait_lines(self, pred: Callable[[], bool], timeout: float = 15.0) -> None:
+        deadline = time.monotonic() + timeout
+        tick = threading.Event()
+        while not pred():
+            if time.monotonic() > deadline or (self.p.poll() is not None and not pred()):
+                raise AssertionError(f"condition not met; rc={self.p.poll()}, "
+                                     f"stderr={self.err[-5:]}")
+            tick.wait(0.01)
+
+    def finish(self, timeout: float = 15.0) -> int:
+        rc = self.p.wait(timeout)
+        for t in self._threads:
+            t.join(timeout)
+        return rc
+
+    def kill(self) -> None:
+        if self.p.poll() is None:
+            self.p.kill()
+            self.p.wait(10)
+
+
+@pytest.fixture
+def procs():
+    started: list[Proc] = []
+
+    def start(*args: str) -> Proc:
+        proc = Proc(*args)
+        started.append(proc)
+        return proc
+
+    try:
+        yield start
+    finally:
+        for proc in started:
+            proc.kill()
+
+
+def kinds(lines: list[str]) -> list[str]:
+    return [json.loads(line)["kind"] for line in lines]
+
+
+@posix_only
+def test_live_dump_equals_replay_dump_and_sigterm_closes_the_log(procs, tmp_path):
+    # a faulty tracker that also drops off and comes back, and a dial box (handshake)
+    log = tmp_path / "session.hlog"
+    tracker = procs("sim_devices.cli", "tracker", "--pty", "--pty-link", str(tmp_path / "trk"),
+                    "--protocol", "native", "--rate", "200", "--faults",
+                    "corrupt=0.03,burst=0.03,split,disconnect=0.01,reconnect_s=0.1,seed=5")
+    dials = procs("sim_devices.cli", "dials", "--pty", "--seed", "3")
+    tracker.wait_lines(lambda: tracker.out)
+    dials.wait_lines(lambda: dials.out)
+    live = procs("drivers.cli_devices", "--tracker", tracker.out[0], "--tracker-protocol",
+                 "native", "--dials", dials.out[0], "--record", str(log), "--dump",
+                 "--pub", "tcp://127.0.0.1:0", "--reset-wait", "0.5")
+    live.wait_lines(lambda: live.err)
+    assert live.err[0].startswith("holo-devices: publishing on tcp://127.0.0.1:")
+    address = live.err[0].split()[-1]
+    with DeviceSubscriber(address) as sub:
+        assert sub.wait_pose(10.0) is not None
+        assert sub.wait_for(lambda s: s.state_known, 10.0)
+    live.wait_lines(lambda: kinds(live.out).count("dial") >= 5
+                    and kinds(live.out).count("pose") >= 100
+                    and any('"event":"reconnect"' in line for line in live.out))
+    live.p.send_signal(signal.SIGTERM)
+    assert live.finish() == 0
+    stats = json.loads(live.err[-1])["stats"]
+    assert stats["tracker"]["crc_errors"] > 0 and stats["dials"]["opens"] == 1
+    assert stats["tracker"]["reconnects"] >= 1
+
+    reader = LogReader(log, warn=False)
+    assert len(list(reader)) > 0 and reader.stats.torn == 0 and reader.stats.corrupt == 0
+    replay = procs("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump")
+    assert replay.finish(30) == 0
+    assert replay.out == live.out  # line by line, same values and times
+
+    records = [json.loads(line) for line in live.out]
+    for rec in records:
+        assert set(rec) >= KIND_KEYS[rec["kind"]] and rec["device"] in ("tracker", "dials")
+    assert {r["kind"] for r in records} >= {"pose", "dial", "status"}
+    events = {r["details"].get("message") for r in records if r["kind"] == "status"}
+    assert {"opened", "init", "reset_ack"} <= events
+    assert any(r["kind"] == "status" and r["event"] in ("crc_error", "resync")
+               for r in records)
+
+
+def test_seconds_limit_and_dump_of_a_quiet_loop_port(capsys):
+    assert cli_devices.main(["--tracker", "loop://", "--dump", "--seconds", "0.2"]) == 0
+    out = capsys.readouterr()
+    first = json.loads(out.out.splitlines()[0])
+    assert first["kind"] == "status" and first["details"]["message"] == "opened"
+    assert json.loads(out.err.splitlines()[-1])["stats"]["tracker"]["opens"] == 1
+
+
+def test_bad_settings_exit_2(tmp_path, capsys):
+    existing = tmp_path / "x.hlog"
+    existing.write_bytes(b"")
+    assert cli_devices.main(["--tracker", "loop://", "--record", str(existing)]) == 2
+    assert "holo-devices:" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        cli_devices.main(["--dump"])
+    assert exc.value.code == 2
