@@ -163,3 +163,90 @@ def galcube_paper(radius: float = 100.0, turn_per_s: float = 0.25, hz: float = 2
 def radius_shown(run: Run) -> np.ndarray:
     """Mean distance (F,) of the displayed sub-pixel points from the origin (square size)."""
     return np.linalg.norm(run.subpixel, axis=-1).mean(axis=-1)
+
+
+def _chain(r: float, th: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x = r sin(theta) and its first three derivatives from theta's (d: (3, N))."""
+    s, c = np.sin(th), np.cos(th)
+    d1, d2, d3 = d
+    der = np.stack([r * c * d1, r * (c * d2 - s * d1**2),
+                    r * (c * d3 - 3 * s * d1 * d2 - c * d1**3)])
+    return r * s, der
+
+
+def tracker_head_turn(
+    estimator: str, frames: int = 240, hz: float = 60.0, noise_deg: float = 0.05,
+    radius: float = 100.0, seed: int = 1,
+) -> tuple[Case, Callable[[float], np.ndarray]]:
+    """A point ``radius`` px from the axis of a head turn, seen through a noisy tracker.
+
+    The head follows :class:`sim_devices.motion.HeadTurn` (yaw); the tracker
+    reports yaw at the refresh rate with Gaussian noise of ``noise_deg``.  The
+    point's apparent x is ``radius * sin(yaw)``.
+
+    Parameters
+    ----------
+    estimator : {"raw", "alpha-beta-gamma", "one-euro", "alpha-beta"}
+        ``raw``: position, velocity, acceleration and jerk by backward
+        differences of the noisy samples (numerical differentiation); otherwise
+        the named filter of :mod:`drivers.filters` gives position, velocity and
+        acceleration (jerk zero).
+
+    Returns
+    -------
+    case : Case
+        Exact motion (for the error).
+    estimate : callable
+        t -> (position (1, 1), derivatives (3, 1, 1)): what an update carries
+        (the render uses the tracked pose and its estimated derivatives).
+    """
+    from drivers.filters import AlphaBetaGammaSettings, run_filter
+    from sim_devices.motion import HeadTurn
+
+    head = HeadTurn(amplitude=60.0, turn_s=1.0, hold_s=0.5)
+    t = np.arange(frames + 4) / hz
+    yaw = np.radians([head.pose(float(x)).yaw for x in t])
+    noisy = yaw + np.radians(noise_deg) * np.random.default_rng(seed).standard_normal(t.size)
+    if estimator == "raw":
+        est = np.zeros((4, t.size))
+        est[0] = noisy
+        for k in range(1, 4):
+            est[k, k:] = np.diff(est[k - 1], 1)[k - 1:]
+    else:
+        samples = np.zeros((t.size, 6))
+        samples[:, 3] = np.degrees(noisy)
+        settings = AlphaBetaGammaSettings.from_theta(0.6) if estimator == "alpha-beta-gamma" \
+            else None
+        p, v, a = run_filter(estimator, t, samples, settings)
+        est = np.radians(np.stack([p[:, 3], v[:, 3] / hz, a[:, 3] / hz**2, 0 * a[:, 3]]))
+
+    def exact(tt: float) -> tuple[np.ndarray, np.ndarray]:
+        th = float(np.interp(tt / hz, t, yaw))
+        return np.array([[radius * np.sin(th)]]), np.zeros((3, 1, 1))
+
+    def estimate(tt: float) -> tuple[np.ndarray, np.ndarray]:
+        k = int(round(tt))
+        pos, der = _chain(radius, est[0, k], est[1:, k])
+        return np.array([[pos]]), der.reshape(3, 1, 1)
+
+    return exact, estimate
+
+
+def run_tracker(estimator: str, order: int, interval: int, frames: int = 240,
+                noise_deg: float = 0.05, seed: int = 1) -> np.ndarray:
+    """Absolute errors (F,) of the head-turn point under ``estimator`` and G(``order``).
+
+    The update paints the estimator's position (the render uses the tracked pose).
+    """
+    exact, estimate = tracker_head_turn(estimator, frames, noise_deg=noise_deg, seed=seed)
+    fixed = FixedPoint.for_order(bit_budget(1024, 16, 16), order)
+    shown = np.zeros(frames)
+    for t0 in range(0, frames, interval):
+        pos, d = estimate(float(t0))
+        x, v, a, j = points_fixed(pos, d, fixed, order, subpixel=True)
+        n = min(interval, frames - t0)
+        path = propagate_points(x, v, a, j, order, fixed.fp, fixed.fm, n - 1)
+        shown[t0:t0 + n] = path[:, 0, 0] / 2.0**fixed.fp
+    truth = np.array([exact(float(k))[0][0, 0] for k in range(frames)])
+    return np.abs(truth - shown)
+
