@@ -5,7 +5,8 @@ Examples::
     holo-replay session.hlog --dump                      # recorded timing, JSON lines
     holo-replay session.hlog --as-fast-as-possible --dump
     holo-replay session.hlog --speed 2 --skip 10 --loop --pub tcp://127.0.0.1:5556
-    holo-replay session.hlog --to-port /dev/pts/7        # a running holo-devices sees it
+    holo-replay session.hlog --to-pty --loop             # holo-devices opens the printed pty
+    holo-replay session.hlog --to-port /dev/ttyUSB1      # out of a null-modem cable
     holo-replay capture.log --protocol hatire --as-fast-as-possible --dump
 
 Records are paced by :class:`drivers.replay_clock.ReplayScheduler` (absolute targets
@@ -15,7 +16,11 @@ same :class:`drivers.reader.DeviceStream` as in ``holo-devices``, and ``t`` is
 ``--dump`` output equals what ``holo-devices --dump`` printed live.  ``--skip S``
 still decodes the first S seconds (decoder state stays right) but prints and
 publishes nothing from them.  ``--to-port URL`` writes one device's bytes
-(``--device``, default the first) into a serial port at the recorded timing.
+(``--device``, default the first) into a serial port at the recorded timing;
+``--to-pty`` makes a pty pair, prints its path on stderr (``holo-replay: device on
+/dev/pts/N``; ``--pty-link`` keeps a stable symlink) and plays the device there for a
+``holo-devices --tracker /dev/pts/N`` (pyserial drops what was written before the
+client opened the port, so ``--loop`` suits it).
 
 A file without the log magic is read as a raw capture (``--protocol`` required):
 chunks of ``--chunk-size`` bytes stamped at the line rate of ``--baud``; time 0 is
@@ -42,6 +47,7 @@ from drivers.reader import CONTROL_PROTOCOL, CONTROL_SUFFIX, Chunk, Control, Dev
 from drivers.recording import MAGIC, LogHeader, LogReader, RawCaptureReader, Record
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
 from service.errors import DeviceError, HoloError, LogFileError, SettingsError
+from sim_devices.endpoints import PtyLink
 
 #: default line rate per protocol for raw captures.
 RAW_BAUD = {"hatire": 115200, "native": 115200, "sgi": 9600}
@@ -69,8 +75,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pub", metavar="ADDR", help="publish events on ZeroMQ (as holo-devices)")
     p.add_argument("--pub-pose", metavar="ADDR", help="pose-only conflating endpoint")
     p.add_argument("--dump", action="store_true", help="print one JSON line per event")
-    p.add_argument("--to-port", metavar="URL", help="write a device's bytes into this port")
-    p.add_argument("--device", metavar="NAME", help="device whose bytes --to-port writes")
+    out = p.add_mutually_exclusive_group()
+    out.add_argument("--to-port", metavar="URL", help="write a device's bytes into this port")
+    out.add_argument("--to-pty", action="store_true",
+                     help="play the device on a new pty pair (its path is printed on stderr)")
+    p.add_argument("--pty-link", metavar="PATH", help="with --to-pty: a symlink to the pty")
+    p.add_argument("--device", metavar="NAME",
+                   help="device whose bytes --to-port / --to-pty write (default: the first)")
     p.add_argument("--protocol", choices=tuple(RAW_BAUD), help="protocol of a raw capture")
     p.add_argument("--baud", type=int, default=None,
                    help="raw capture line rate / --to-port baud (default: per protocol)")
@@ -138,6 +149,25 @@ class Replayer:
         return stream.process(item) if stream is not None else []
 
 
+class _PtyOut:
+    """A pty pair's master side with the few port methods the replay uses."""
+
+    def __init__(self, link: PtyLink) -> None:
+        self.link = link
+        self.path = link.path
+
+    def write(self, data: bytes) -> None:
+        """Write all of ``data`` for the client of the slave side."""
+        self.link.write(data)
+
+    def flush(self) -> None:
+        """Nothing buffered here."""
+
+    def close(self) -> None:
+        """Close the pair (and remove the symlink)."""
+        self.link.close()
+
+
 class ReplaySession:
     """One ``holo-replay`` run: source, scheduler, outputs.
 
@@ -155,7 +185,8 @@ class ReplaySession:
         self.source = open_source(args)
         self.replayer = Replayer(self.source.header)
         settings = ReplaySettings(speed=args.speed, as_fast_as_possible=args.as_fast_as_possible,
-                                  skip_s=args.skip, skip_mode="drop" if args.to_port else "fast",
+                                  skip_s=args.skip,
+                                  skip_mode="drop" if args.to_port or args.to_pty else "fast",
                                   loop=args.loop, max_passes=args.passes)
         self.scheduler: ReplayScheduler[Record] = ReplayScheduler(settings, sleep=self._sleep)
         self.listeners: list[Listener] = []
@@ -180,7 +211,7 @@ class ReplaySession:
             self.listeners.append(lambda item, events: pub.publish_all(events))
         if a.dump:
             self.listeners.append(dump_listener(self.out, t0))
-        if a.to_port:
+        if a.to_port or a.to_pty:
             self._open_port(a)
 
     def _open_port(self, a: argparse.Namespace) -> None:
@@ -188,6 +219,9 @@ class ReplaySession:
         self.port_device = a.device or names[0]
         if self.port_device not in names:
             raise SettingsError(f"--device {self.port_device!r} not in the log: {names}")
+        if a.to_pty:
+            self.port = _PtyOut(PtyLink(a.pty_link))
+            return
         proto = dict(data_devices(self.source.header))[self.port_device]
         baud = a.baud or RAW_BAUD.get(proto, 115200)
         try:
@@ -257,6 +291,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except HoloError as exc:
         print(f"holo-replay: {exc}", file=sys.stderr)
         return 2
+    if isinstance(session.port, _PtyOut):
+        print(f"holo-replay: device on {session.port.path}", file=sys.stderr, flush=True)
     try:
         with stop_on_signals(session.stop):
             session.run()
