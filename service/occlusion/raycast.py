@@ -82,8 +82,27 @@ def _claims_zero_edge(ex: float, ey: float, sign: float) -> bool:
 
 
 @nb.njit(cache=True)
-def _setup(wv: np.ndarray, shears: np.ndarray, half_w: float, half_h: float,
-           s: float, rows: int, cols: int) -> tuple:
+def _box(tri: np.ndarray, t: float, geom: np.ndarray, rows: int, cols: int,
+         out: np.ndarray) -> None:
+    """Pixel bounding box of a triangle (3, 3) in a zone with shear ``t``.
+
+    ``geom`` is ``half_width, half_height, pixel_size``; ``out`` (4,) receives rows
+    ``r0, r1`` and columns ``c0, c1``, inclusive, widened by one pixel, clipped.
+    """
+    x0 = y0 = np.inf
+    x1 = y1 = -np.inf
+    for k in range(3):
+        xs = (tri[k, 0] - tri[k, 2] * t + geom[0]) / geom[2]
+        ys = (geom[1] - tri[k, 1]) / geom[2]
+        x0, x1, y0, y1 = min(x0, xs), max(x1, xs), min(y0, ys), max(y1, ys)
+    out[0] = max(int(np.ceil(y0 - 0.5)) - 1, 0)
+    out[1] = min(int(np.floor(y1 - 0.5)) + 1, rows - 1)
+    out[2] = max(int(np.ceil(x0 - 0.5)) - 1, 0)
+    out[3] = min(int(np.floor(x1 - 0.5)) + 1, cols - 1)
+
+
+@nb.njit(cache=True)
+def _setup(wv: np.ndarray, shears: np.ndarray, geom: np.ndarray, rows: int, cols: int) -> tuple:
     """Per zone and triangle: orientation, edge claims, depth plane, pixel bounding box.
 
     Parameters
@@ -91,13 +110,15 @@ def _setup(wv: np.ndarray, shears: np.ndarray, half_w: float, half_h: float,
     wv : ndarray, shape (N, 3, 3)
         World-space corners of the candidate triangles.
     shears : ndarray, shape (Z,)
+    geom : ndarray, shape (3,)
+        ``half_width, half_height, pixel_size``.
 
     Returns
     -------
     tuple
         ``sign (Z, N)`` (0 for edge-on), ``claim (Z, N, 3)`` bool,
         ``plane (Z, N, 3)`` with hit ``z = p0 + p1 X + p2 Y``, and
-        ``box (Z, N, 4)`` int64 ``r0, r1, c0, c1`` (inclusive, widened by one pixel).
+        ``box (Z, N, 4)`` int64 ``r0, r1, c0, c1`` (see :func:`_box`).
     """
     zones, n = shears.shape[0], wv.shape[0]
     sign = np.zeros((zones, n))
@@ -116,8 +137,7 @@ def _setup(wv: np.ndarray, shears: np.ndarray, half_w: float, half_h: float,
             det = t * nx + nz  # n . d
             if det == 0.0 or not np.isfinite(det):
                 continue
-            sg = 1.0 if det > 0 else -1.0
-            sign[z, i] = sg
+            sign[z, i] = sg = 1.0 if det > 0 else -1.0
             for k in range(3):
                 p, q = wv[i, k], wv[i, (k + 1) % 3]
                 ex = (q[0] - p[0]) - (q[2] - p[2]) * t
@@ -125,16 +145,7 @@ def _setup(wv: np.ndarray, shears: np.ndarray, half_w: float, half_h: float,
             plane[z, i, 0] = (nx * a[0] + ny * a[1] + nz * a[2]) / det
             plane[z, i, 1] = -nx / det
             plane[z, i, 2] = -ny / det
-            x0 = y0 = np.inf
-            x1 = y1 = -np.inf
-            for k in range(3):
-                xs = (wv[i, k, 0] - wv[i, k, 2] * t + half_w) / s
-                ys = (half_h - wv[i, k, 1]) / s
-                x0, x1, y0, y1 = min(x0, xs), max(x1, xs), min(y0, ys), max(y1, ys)
-            box[z, i, 0] = max(int(np.ceil(y0 - 0.5)) - 1, 0)
-            box[z, i, 1] = min(int(np.floor(y1 - 0.5)) + 1, rows - 1)
-            box[z, i, 2] = max(int(np.ceil(x0 - 0.5)) - 1, 0)
-            box[z, i, 3] = min(int(np.floor(x1 - 0.5)) + 1, cols - 1)
+            _box(wv[i], t, geom, rows, cols, box[z, i])
     return sign, claim, plane, box
 
 
@@ -267,12 +278,11 @@ def raycast(
     wv, znear = np.ascontiguousarray(wv[srt]), np.ascontiguousarray(znear[srt])
     rank = np.ascontiguousarray(srt.astype(np.int64))  # tie rank = position in order
     shears = display.shears()
-    half_w, half_h, s = display.width / 2, display.height / 2, display.pixel_size
-    sign, claim, plane, box = _setup(wv, shears, half_w, half_h, s, display.rows, display.cols)
+    geom = np.array([display.width / 2, display.height / 2, display.pixel_size])
+    sign, claim, plane, box = _setup(wv, shears, geom, display.rows, display.cols)
     ty, tx = -(-display.rows // TILE), -(-display.cols // TILE)
     start, items = _bin(sign, box, ty, tx)
     tri_rank = np.full(vis.triangle.shape, -1, np.int32)
-    geom = np.array([half_w, half_h, s])
     _cast(wv, rank, znear, sign, claim, plane, box, start, items, shears, geom,
           tri_rank, vis.depth)
     hit = tri_rank >= 0
