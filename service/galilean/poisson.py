@@ -16,8 +16,10 @@ sweep recorded exactly) had Poisson flag 0: the debris lies inside an expanding
 surface.  It is then filled by replicating that neighbour (``"replicate"``: colour,
 depth, derivatives and all, fraction zeroed) or by averaging the colour and depth
 of all qualifying neighbours (``"average"``; motion from the first).  Otherwise the
-debris stays (a just-unobscured pixel).  Expanded pixels do not qualify others in
-the same sweep.
+debris stays (a just-unobscured pixel).  As in the paper's sequential scan, an
+expanded pixel inherits its neighbour's origin and so can qualify the pixels after
+it (this fills the corners where a row gap meets a column gap); a run of debris
+next to an *edge* galpixel is never started.
 """
 
 from __future__ import annotations
@@ -126,7 +128,7 @@ def expand(
                     dep[z, r, c] = accd / n
                 frac[0, z, r, c] = 0
                 frac[1, z, r, c] = 0
-                src_idx[z, r, c] = -3
+                src_idx[z, r, c] = src_idx[z, first // w, first % w]
                 stats[5] += 1
 
 
