@@ -35,7 +35,7 @@ from service.projection import project
 from service.raster import painter_kernel
 from service.scene import SceneArrays
 
-EPS_REL = 1e-7
+EPS_REL = 1e-9
 """On-plane tolerance as a fraction of the geometry's extent."""
 CANDIDATES = 5
 """Splitting planes tried per node (the seed's "choose five candidates")."""

@@ -95,10 +95,11 @@ def _box(tri: np.ndarray, t: float, geom: np.ndarray, rows: int, cols: int,
         xs = (tri[k, 0] - tri[k, 2] * t + geom[0]) / geom[2]
         ys = (geom[1] - tri[k, 1]) / geom[2]
         x0, x1, y0, y1 = min(x0, xs), max(x1, xs), min(y0, ys), max(y1, ys)
-    out[0] = max(int(np.ceil(y0 - 0.5)) - 1, 0)
-    out[1] = min(int(np.floor(y1 - 0.5)) + 1, rows - 1)
-    out[2] = max(int(np.ceil(x0 - 0.5)) - 1, 0)
-    out[3] = min(int(np.floor(x1 - 0.5)) + 1, cols - 1)
+    # clamp in floating point first so far-off geometry cannot overflow the int cast
+    out[0] = max(int(np.ceil(min(max(y0, -2.0), rows + 2.0) - 0.5)) - 1, 0)
+    out[1] = min(int(np.floor(min(max(y1, -2.0), rows + 2.0) - 0.5)) + 1, rows - 1)
+    out[2] = max(int(np.ceil(min(max(x0, -2.0), cols + 2.0) - 0.5)) - 1, 0)
+    out[3] = min(int(np.floor(min(max(x1, -2.0), cols + 2.0) - 0.5)) + 1, cols - 1)
 
 
 @nb.njit(cache=True)

@@ -122,3 +122,12 @@ def test_matches_brute_force_on_a_random_soup_across_tiles():
     ref = brute_force(tv, d)
     # the two differ only where a centre lies exactly on an edge (measure zero here)
     assert np.mean(vis.triangle == ref) > 0.999
+
+
+def test_geometry_far_off_screen_is_ignored_and_huge_triangles_still_cover():
+    d = DisplaySettings(zones=2, **UNIT)
+    far_off = quad_mesh(1e12, 2e12, 1e12, 2e12, 0.0)
+    huge = quad_mesh(-1e9, 1e9, -1e9, 1e9, -3.0)
+    vis = cast(arrays_of(far_off, huge), d)
+    assert set(np.unique(vis.triangle)) <= {2, 3}
+    assert np.all(vis.depth == 3.0)
