@@ -41,7 +41,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from service.errors import HoloError, SettingsError
+from service.errors import SampleError, SettingsError
 
 #: Number of pose channels: x, y, z, yaw, pitch, roll.
 POSE_DIM = 6
@@ -50,10 +50,6 @@ POSE_NAMES = ("x", "y", "z", "yaw", "pitch", "roll")
 
 
 _Triple = tuple[np.ndarray, np.ndarray, np.ndarray]
-
-
-class SampleError(HoloError, ValueError):
-    """A pose sample or its time is unusable (non-finite, backwards, duplicate)."""
 
 
 @dataclass(frozen=True)

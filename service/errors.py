@@ -55,3 +55,11 @@ class DeviceError(HoloError):
 
 class LogFileError(HoloError):
     """A recorded session log is unreadable or torn."""
+
+
+class PngError(HoloError, ValueError):
+    """An image cannot be written as PNG, or PNG bytes cannot be decoded."""
+
+
+class SampleError(HoloError, ValueError):
+    """A pose sample or its time is unusable (non-finite, backwards, duplicate)."""

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import HoloError
+from service.errors import PngError
 
 _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -25,10 +25,6 @@ _COLOUR_TYPE = {1: 0, 2: 4, 3: 2, 4: 6}
 
 #: PNG colour type -> channels per pixel.
 _CHANNELS = {v: k for k, v in _COLOUR_TYPE.items()}
-
-
-class PngError(HoloError, ValueError):
-    """An image cannot be written as PNG, or PNG bytes cannot be decoded."""
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
