@@ -108,7 +108,8 @@ def view_scene(scene: Scene, viewer: Transform) -> Scene:
 
 
 def scene_at(
-    scene: Scene, dt: float, viewer: Transform | None = None, viewer_motion: MotionState | None = None
+    scene: Scene, dt: float, viewer: Transform | None = None,
+    viewer_motion: MotionState | None = None,
 ) -> Scene:
     """The scene ``dt`` seconds later as the (moving) viewer then sees it."""
     moved = advance_scene(scene, dt)

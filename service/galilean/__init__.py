@@ -9,7 +9,7 @@ motion), :mod:`.stage` (the object the service drives) and :mod:`.experiments`
 """
 
 from service.galilean.fixed_point import BitBudget, FixedPoint, bit_budget
-from service.galilean.galpixmap import Galpixmap, GalileanError
+from service.galilean.galpixmap import GalileanError, Galpixmap
 from service.galilean.stage import GalileanSettings, GalileanStage, Refresh
 
 __all__ = [

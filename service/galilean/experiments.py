@@ -29,8 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.errors import SettingsError
-from service.galilean.fixed_point import FixedPoint, bit_budget, pixel_of, points_fixed, \
-    propagate_points
+from service.galilean.fixed_point import (
+    FixedPoint,
+    bit_budget,
+    pixel_of,
+    points_fixed,
+    propagate_points,
+)
 
 #: A case: t (refreshes) -> (positions (N, K), derivatives (3, N, K)).
 Case = Callable[[float], tuple[np.ndarray, np.ndarray]]
@@ -166,7 +171,7 @@ def radius_shown(run: Run) -> np.ndarray:
 
 
 def _chain(r: float, th: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """x = r sin(theta) and its first three derivatives from theta's (d: (3, N))."""
+    """X = r sin(theta) and its first three derivatives from theta's (d: (3, N))."""
     s, c = np.sin(th), np.cos(th)
     d1, d2, d3 = d
     der = np.stack([r * c * d1, r * (c * d2 - s * d1**2),

@@ -87,7 +87,8 @@ def _apply(
                     dx = (dq[0] - dq[2] * sh) / s
                     dy = -dq[1] / s
                     mx = min(max(motion[2 * k, z, r, c] + np.floor(dx * scale + 0.5), -lim), lim)
-                    my = min(max(motion[2 * k + 1, z, r, c] + np.floor(dy * scale + 0.5), -lim), lim)
+                    my = motion[2 * k + 1, z, r, c] + np.floor(dy * scale + 0.5)
+                    my = min(max(my, -lim), lim)
                     motion[2 * k, z, r, c] = mx
                     motion[2 * k + 1, z, r, c] = my
                     zmotion[k, z, r, c] += -dq[2]

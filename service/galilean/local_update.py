@@ -96,7 +96,8 @@ def obscurers(
             continue
         for j in objects:
             o = boxes.get(j)
-            if o and b[0] <= o[1] and o[0] <= b[1] and b[2] <= o[3] and o[2] <= b[3] and b[4] < o[5]:
+            overlap = o and b[0] <= o[1] and o[0] <= b[1] and b[2] <= o[3] and o[2] <= b[3]
+            if overlap and b[4] < o[5]:
                 out.append(i)
                 break
     return out
@@ -245,7 +246,9 @@ def object_errors(
     return out
 
 
-def priority(errors: np.ndarray, expired_objects: Sequence[int], min_error: float = 0.5) -> list[int]:
+def priority(
+    errors: np.ndarray, expired_objects: Sequence[int], min_error: float = 0.5
+) -> list[int]:
     """Re-render order: expired objects first, then errors above ``min_error`` px, largest first."""
     exp = [int(i) for i in expired_objects]
     rest = [int(i) for i in np.argsort(-errors, kind="stable") if errors[i] > min_error

@@ -27,7 +27,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.frame import Frame
 from service.galilean.galpixmap import RGB_TO_ABC
-from service.light import shade_linear
+from service.light import shade, shade_linear
 from service.occlusion import Visibility
 from service.pipeline import Renderer, RenderSettings
 from service.projection import project
@@ -55,6 +55,10 @@ class RenderedUpdate:
         Object index per pixel (-1 empty).
     viewer_motion : MotionState
         The viewer motion baked into ``derivatives``.
+    points : ndarray, shape (N, 2), optional
+        Control points (projected vertices, all zones) in px at the render time.
+    point_derivs : ndarray, shape (3, N, 2), optional
+        Their apparent velocity, acceleration and jerk per refresh^n.
     """
 
     frame: Frame
@@ -62,6 +66,8 @@ class RenderedUpdate:
     dcolour: np.ndarray | None
     obj: np.ndarray
     viewer_motion: MotionState
+    points: np.ndarray | None = None
+    point_derivs: np.ndarray | None = None
 
 
 def vertex_derivatives(projections: np.ndarray, h: float) -> np.ndarray:
@@ -199,16 +205,19 @@ def render_with_motion(
     arrays = [s.flatten() for s in scenes]
     projs = np.stack([project(a.vertices, display) for a in arrays])
     vis, _, _ = renderer.visibility(arrays[2], display, settings)
-    lin = [shade_linear(a, projs[i], vis, display, scenes[i].lights, scenes[i].ambient,
-                        settings.light) for i, a in ((1, arrays[1]), (2, arrays[2]), (3, arrays[3]))]
-    colour = np.clip(np.rint(lin[1] * 255.0), 0, 255).astype(np.uint8)
+    lin = [shade_linear(arrays[i], projs[i], vis, display, scenes[i].lights, scenes[i].ambient,
+                        settings.light) for i in (1, 2, 3)]
+    colour = shade(arrays[2], projs[2], vis, display, scenes[2].lights, scenes[2].ambient,
+                   settings.light)  # quantised exactly as Renderer.render does
     vd = vertex_derivatives(projs, h)
     der = interpolate(np.ascontiguousarray(vis.triangle, np.int32), arrays[2].triangles,
                       np.ascontiguousarray(projs[2]), np.ascontiguousarray(vd))
     dcol = colour_derivatives(lin, h) if colour_motion else None
     obj = _object_map(vis, arrays[2].triangle_polygon, arrays[2].polygon_object)
     frame = Frame(colour=colour, depth=vis.depth, stats={"t": t})
-    return RenderedUpdate(frame, der, dcol, obj, viewer_motion or MotionState())
+    points = projs[2][..., :2].reshape(-1, 2)
+    pder = vd[..., :2].reshape(3, -1, 2)
+    return RenderedUpdate(frame, der, dcol, obj, viewer_motion or MotionState(), points, pder)
 
 
 def _object_map(vis: Visibility, tri_poly: np.ndarray, poly_obj: np.ndarray) -> np.ndarray:

@@ -24,14 +24,14 @@ numerically differentiated motion falls back to G(2)) and flags it.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean.fixed_point import FixedPoint, bit_budget, propagate_points
-from service.galilean.galpixmap import Galpixmap, GalileanError, build
+from service.galilean.galpixmap import GalileanError, Galpixmap, build
 from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import graft
 from service.galilean.motion_field import RenderedUpdate
@@ -90,13 +90,15 @@ class GalileanSettings:
             "n_recog": isinstance(self.n_recog, int) and self.n_recog >= 1,
             "refresh_hz": np.isfinite(self.refresh_hz) and self.refresh_hz > 0,
             "margin": isinstance(self.margin, int) and 0 <= self.margin <= 4096,
-            "poisson_threshold": np.isfinite(self.poisson_threshold) and self.poisson_threshold >= 0,
+            "poisson_threshold": bool(np.isfinite(self.poisson_threshold))
+            and self.poisson_threshold >= 0,
             "neighbours": self.neighbours in (1, 2, 3, 4),
             "expansion": self.expansion in EXPANSION_MODES,
         }
         for name, ok in checks.items():
             if not ok:
-                raise SettingsError(f"Galilean setting {name} is out of range: {getattr(self, name)!r}")
+                raise SettingsError(
+                    f"Galilean setting {name} is out of range: {getattr(self, name)!r}")
 
 
 @dataclass
@@ -199,7 +201,7 @@ class GalileanStage:
             self._events.append({"kind": "motion_clamped", "count": info["clamped"]})
         self._viewer_baked = rendered.viewer_motion
         return self.submit(buf, rendezvous, objects, complete, unfinished,
-                           getattr(rendered, "points", None), getattr(rendered, "point_derivs", None))
+                           rendered.points, rendered.point_derivs)
 
     def submit(
         self, buffer: Galpixmap, rendezvous: int | None = None,
@@ -306,13 +308,14 @@ class GalileanStage:
         g = self._guard
         if not self.settings.order_guard or p.points is None:
             return
-        if g.last is not None and self.age > 0:
-            errs = prediction_errors(g.last[0], g.last[1], p.points, self.age, self.fixed,
+        steps = self.age + 1  # the propagated refreshes plus this one
+        if g.last is not None:
+            errs = prediction_errors(g.last[0], g.last[1], p.points, steps, self.fixed,
                                      self.settings.order)
-            g.errors = errs if g.seen == 0 else 0.5 * g.errors + 0.5 * errs
+            g.errors = errs if g.seen == 0 else 0.8 * g.errors + 0.2 * errs
             g.seen += 1
             best = int(np.argmin(g.errors + 1e-9 * np.arange(g.errors.size)))
-            self.order = best if g.errors[best] < 0.5 * g.errors[self.settings.order] \
+            self.order = best if g.errors[best] < 0.8 * g.errors[self.settings.order] \
                 else self.settings.order
         g.last = (p.points, p.point_derivs)
 

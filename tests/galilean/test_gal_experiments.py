@@ -3,7 +3,14 @@ import pytest
 
 from service.errors import SettingsError
 from service.galilean.experiments import (
-    falling, galcube, galcube_paper, radius_shown, rotating_square, run_case, run_tracker, uniform,
+    falling,
+    galcube,
+    galcube_paper,
+    radius_shown,
+    rotating_square,
+    run_case,
+    run_tracker,
+    uniform,
 )
 from service.galilean.fixed_point import FixedPoint, bit_budget
 

@@ -3,7 +3,11 @@ import pytest
 
 from service.errors import SettingsError
 from service.galilean.fixed_point import (
-    FixedPoint, bit_budget, pixel_of, points_fixed, propagate_points,
+    FixedPoint,
+    bit_budget,
+    pixel_of,
+    points_fixed,
+    propagate_points,
 )
 
 
@@ -50,7 +54,8 @@ def test_symmetric_rounding_one_sixteenth():
 def test_step_sums_velocity_and_half_acceleration_before_rounding():
     fx = FixedPoint.for_order(bit_budget(1024, 16, 16), 2)
     # v = 3/128 and a/2 = 3/256: each alone rounds to 0 at 1/16 px, the sum 9/256 rounds to 1/16.
-    x, v, a, j = points_fixed(np.zeros((1, 1)), np.array([[[3 / 128]], [[6 / 256]], [[0.0]]]), fx, 2)
+    motion = np.array([[[3 / 128]], [[6 / 256]], [[0.0]]])
+    x, v, a, j = points_fixed(np.zeros((1, 1)), motion, fx, 2)
     path = propagate_points(x, v, a, j, 2, fx.fp, fx.fm, 1)
     assert path[1, 0, 0] == 1  # one 1/16 px step
 

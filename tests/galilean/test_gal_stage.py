@@ -73,7 +73,7 @@ def test_clash_nearest_wins(near_first):
     a = (5, 6, 4, 5, 1.0, (255, 0, 0), (2.0, 0.0), (0, 0))  # lands on column 6
     b = (5, 6, 8, 9, 3.0, (0, 0, 255), (-2.0, 0.0), (0, 0))  # lands on column 6
     if not near_first:
-        a, b = (a[0], a[1], a[2], a[3], 3.0, a[5], a[6], a[7]), (b[0], b[1], b[2], b[3], 1.0, b[5], b[6], b[7])
+        a, b = (*a[:4], 3.0, *a[5:]), (*b[:4], 1.0, *b[5:])
     st = stage(1)
     st.update(scene_update([a, b]), 0)
     st.refresh()
