@@ -1,0 +1,425 @@
+"""Galilean stage benchmark: thought experiments, and the order x interval x motion sweep.
+
+``holo-bench galilean --case NAME --order N --interval K --frames F [--json]``
+    Runs a thought experiment (``falling``, ``uniform``, ``rotating-square``,
+    ``galcube``; see :mod:`service.galilean.experiments`) or a rendered ``scene``
+    (a spinning, drifting cube through the real stage) with an update every K
+    refreshes, and prints per refresh the displayed position and its error
+    against the exact motion (signed px for 1-D cases, the largest absolute px
+    error over the control points otherwise).  ``--json`` prints one object
+    ``{"case", "order", "interval", "errors", "ms_per_refresh"}``.
+
+``holo-bench galilean --sweep --out DIR``
+    For every motion (linear, falling, rotating cube, head turn from a simulated
+    noisy tracker through the alpha-beta-gamma filter) x order (0..3) x update
+    interval (1, 2, 4, 8, 16): PSNR and % of pixels wrong of every *extrapolated*
+    refresh against the true render at that instant, and ms per refresh; the
+    benefit of the out-of-view margin and of the obscuration cache; the thought
+    experiments; and the 640x480 timing of one refresh per order against a render.
+    Writes ``galilean_sweep.json``/``.csv``, ``galilean_timing.json`` and PNG charts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.display import DisplaySettings, parse_size
+from service.galilean.experiments import (
+    CASES,
+    ONE_D,
+    galcube_paper,
+    radius_shown,
+    run_case,
+    run_tracker,
+)
+from service.galilean.fixed_point import (
+    FixedPoint,
+    bit_budget,
+    pixel_of,
+    points_fixed,
+    propagate_points,
+)
+from service.galilean.motion_field import render_with_motion
+from service.galilean.stage import GalileanSettings, GalileanStage
+from service.light import LightSettings
+from service.pipeline import Renderer, RenderSettings, warm_up
+from service.primitives import cube
+from service.scene import (
+    Light,
+    Material,
+    MotionState,
+    Scene,
+    SceneObject,
+    Transform,
+    axis_angle_quaternion,
+)
+from service.scene_motion import advance_scene, control_points, view_scene
+
+ORDERS = (0, 1, 2, 3)
+INTERVALS = (1, 2, 4, 8, 16)
+MOTIONS = ("linear", "falling", "rotating-cube", "head-turn")
+HZ = 60.0
+#: A pixel is "wrong" when some channel differs from the true render by more than this.
+WRONG_LEVELS = 32
+
+
+# ------------------------------------------------------------------ scenes
+def _obj(mesh, pos, colour, ori=None, **motion) -> SceneObject:
+    q = ori if ori is not None else axis_angle_quaternion([1, 1, 0], 0.5)
+    return SceneObject(mesh, Material(colour=colour, ambient=0.35, diffuse=0.8, specular=0.4),
+                       Transform(np.array(pos, float), q), MotionState(**motion))
+
+
+def bench_scene(motion: str) -> Scene:
+    """The sweep's scene for a motion: a moving cube before a far wall (and a near post)."""
+    wall = SceneObject(cube(1.0), Material(colour=(0.35, 0.45, 0.6), ambient=0.6, diffuse=0.5),
+                       Transform(np.array([0.0, 0.0, -3.0]), scale=4.0))
+    kinds = {
+        "linear": dict(pos=[-0.5, 0.1, -0.6], velocity=[0.9, 0.2, 0.0]),
+        "falling": dict(pos=[0.0, 0.45, -0.6], acceleration=[0.0, -3.0, 0.0]),
+        "rotating-cube": dict(pos=[0.0, 0.0, -0.6], angular_velocity=[0.0, 2.5, 0.8]),
+        "head-turn": dict(pos=[0.2, 0.0, -0.4]),
+    }
+    k = dict(kinds[motion])
+    pos = k.pop("pos")
+    mover = _obj(cube(0.5), pos, (0.9, 0.55, 0.2), **k)
+    post = _obj(cube(0.15), [-0.4, -0.2, 0.1], (0.2, 0.8, 0.3))
+    return Scene([wall, mover, post], lights=[Light(vector=np.array([0.4, 0.6, 1.0]))],
+                 ambient=1.0)
+
+
+def head_track(frames: int, noise_deg: float = 0.05, seed: int = 3):
+    """True yaw (rad) per refresh, and filtered (yaw, rate, accel) per refresh, per second."""
+    from drivers.filters import AlphaBetaGammaSettings, run_filter
+    from sim_devices.motion import HeadTurn
+
+    head = HeadTurn(amplitude=25.0, turn_s=1.0, hold_s=0.5)
+    t = 0.25 + np.arange(frames) / HZ
+    yaw = np.array([head.pose(float(x)).yaw for x in t])
+    samples = np.zeros((frames, 6))
+    samples[:, 3] = yaw + noise_deg * np.random.default_rng(seed).standard_normal(frames)
+    p, v, a = run_filter("alpha-beta-gamma", t, samples, AlphaBetaGammaSettings.from_theta(0.5))
+    return np.radians(yaw), np.radians(np.stack([p[:, 3], v[:, 3], a[:, 3]], 1))
+
+
+def _viewer(yaw: float) -> Transform:
+    return Transform(np.zeros(3), axis_angle_quaternion([0, 1, 0], yaw))
+
+
+# ------------------------------------------------------------ measurements
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR in dB of two uint8 images (99 when identical)."""
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 99.0 if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
+
+
+def pct_wrong(a: np.ndarray, b: np.ndarray) -> float:
+    """% of pixels whose largest channel difference exceeds :data:`WRONG_LEVELS`."""
+    d = np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1)
+    return 100.0 * float((d > WRONG_LEVELS).mean())
+
+
+def prepare(motion: str, display: DisplaySettings, frames: int, settings: RenderSettings):
+    """Truth renders (F,) and updates (F,) of a motion: every refresh rendered both ways."""
+    scene, r = bench_scene(motion), Renderer()
+    truth, updates = [], []
+    track = head_track(frames) if motion == "head-turn" else None
+    for k in range(frames):
+        t = k / HZ
+        if track is None:
+            truth.append(r.render(advance_scene(scene, t), display, settings).colour)
+            updates.append(render_with_motion(r, advance_scene(scene, t), display, 0.0, HZ,
+                                              settings))
+            continue
+        yaw, est = track[0][k], track[1][k]
+        truth.append(r.render(view_scene(scene, _viewer(yaw)), display, settings).colour)
+        vm = MotionState(angular_velocity=[0, est[1], 0], angular_acceleration=[0, est[2], 0])
+        updates.append(render_with_motion(r, scene, display, 0.0, HZ, settings,
+                                          viewer=_viewer(yaw), viewer_motion=vm))
+    return truth, updates
+
+
+def run_stage(truth, updates, display, gs: GalileanSettings, interval: int) -> dict:
+    """Drive a stage with updates every ``interval``; score the extrapolated refreshes."""
+    st = GalileanStage(display, gs)
+    ps, wr, ms = [], [], []
+    for k in range(len(truth)):
+        if k % interval == 0:
+            st.update(updates[k], k)
+        t0 = time.perf_counter()
+        out = st.refresh()
+        ms.append((time.perf_counter() - t0) * 1e3)
+        if k % interval:
+            ps.append(psnr(out.colour, truth[k]))
+            wr.append(pct_wrong(out.colour, truth[k]))
+    return {"psnr": float(np.mean(ps)) if ps else None,
+            "pct_wrong": float(np.mean(wr)) if wr else None,
+            "ms_per_refresh": float(np.median(ms)), "scored": len(ps)}
+
+
+def sweep(display: DisplaySettings, frames: int, settings: RenderSettings) -> tuple[list, list]:
+    """All motions x orders x intervals, plus the margin and cache variants."""
+    rows, variants = [], []
+    for motion in MOTIONS:
+        print(f"galilean sweep: {motion}", file=sys.stderr, flush=True)
+        truth, updates = prepare(motion, display, frames, settings)
+        for order in ORDERS:
+            for k in INTERVALS:
+                gs = GalileanSettings(order=order, refresh_hz=HZ)
+                rows.append({"motion": motion, "order": order, "interval": k,
+                             **run_stage(truth, updates, display, gs, k)})
+        for margin, cache in ((0, False), (16, False), (0, True), (16, True)):
+            gs = GalileanSettings(order=2, refresh_hz=HZ, margin=margin, cache=cache)
+            variants.append({"motion": motion, "order": 2, "interval": 8, "margin": margin,
+                             "cache": cache, **run_stage(truth, updates, display, gs, 8)})
+    return rows, variants
+
+
+def timing(size: tuple[int, int], settings: RenderSettings, repeats: int = 15) -> dict:
+    """Milliseconds of one refresh per order (Poisson and expansion on) vs a render, at ``size``."""
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    scene, r = bench_scene("rotating-cube"), Renderer()
+    ms_render = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        r.render(scene, display, settings)
+        ms_render.append((time.perf_counter() - t0) * 1e3)
+    t0 = time.perf_counter()
+    up = render_with_motion(r, scene, display, 0.0, HZ, settings)
+    ms_update = (time.perf_counter() - t0) * 1e3
+    out = {"size": f"{size[0]}x{size[1]}", "render_ms": float(np.median(ms_render)),
+           "render_with_motion_ms": ms_update, "orders": {}}
+    for order in ORDERS:
+        for cm in (True, False):
+            st = GalileanStage(display, GalileanSettings(order=order, refresh_hz=HZ,
+                                                         colour_motion=cm))
+            st.update(up, 0)
+            st.refresh()
+            ms = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                st.refresh()
+                ms.append((time.perf_counter() - t0) * 1e3)
+            key = f"G{order}" + ("" if cm else "-no-colour-motion")
+            med = float(np.median(ms))
+            out["orders"][key] = {"ms_per_refresh": med, "ms_min": float(np.min(ms)),
+                                  "render_ratio": out["render_ms"] / med}
+    return out
+
+
+def thought_experiments() -> dict:
+    """The paper's numbers, for the record and the charts."""
+    fall = {f"G{o}_K{k}": run_case(CASES["falling"](), o, k, 10).errors(True).tolist()
+            for o in (0, 1, 2) for k in (2, 3)}
+    sq = {f"G{o}": radius_shown(run_case(CASES["rotating-square"](), o, 8, 32)).tolist()
+          for o in (1, 2)}
+    cube_err = {f"G{o}": float(run_case(CASES["galcube"](), o, 5, 5, subpixel=True)
+                               .subpixel_errors()[4]) for o in range(3)}
+    tracker = {f"{e}_G{o}": {str(k): float(run_tracker(e, o, k).max()) for k in (4, 8, 16)}
+               for e in ("raw", "alpha-beta-gamma") for o in (2, 3)}
+    return {"falling_errors": fall, "rotating_square_radius": sq,
+            "galcube_measured_t4": cube_err,
+            "galcube_paper": {f"G{k}": v for k, v in galcube_paper().items()},
+            "tracker_max_error": tracker}
+
+
+# ------------------------------------------------------------------ charts
+def chart_sweep(rows: list[dict], path: Path) -> None:
+    """PSNR vs interval (one panel per motion, a line per order) and PSNR vs ms."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(MOTIONS) + 1, figsize=(4.2 * (len(MOTIONS) + 1), 3.8))
+    for ax, motion in zip(axes, MOTIONS, strict=False):
+        for order in ORDERS:
+            pts = [(r["interval"], r["psnr"]) for r in rows
+                   if r["motion"] == motion and r["order"] == order and r["psnr"] is not None]
+            if pts:
+                ax.plot(*zip(*pts, strict=True), marker="o", label=f"G({order})")
+        ax.set_xscale("log", base=2)
+        ax.set(title=motion, xlabel="update interval (refreshes)", ylabel="PSNR dB")
+        ax.legend(fontsize=7)
+    ax = axes[-1]
+    for order in ORDERS:
+        pts = [(r["ms_per_refresh"], r["psnr"]) for r in rows
+               if r["order"] == order and r["psnr"] is not None]
+        ax.scatter(*zip(*pts, strict=True), s=12, label=f"G({order})")
+    ax.set(title="cost vs quality", xlabel="ms per refresh", ylabel="PSNR dB")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def chart_thought(te: dict, path: Path) -> None:
+    """Falling-object errors, rotating-square size, tracker errors."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for key, errs in te["falling_errors"].items():
+        if key.endswith("K3"):
+            axes[0].plot(errs, marker="o", label=key)
+    axes[0].set(title="falling object, update every 3", xlabel="refresh", ylabel="error px")
+    for key, rad in te["rotating_square_radius"].items():
+        axes[1].plot(rad, label=key)
+    axes[1].set(title="rotating square: shown radius (true 100)", xlabel="refresh")
+    for key, d in te["tracker_max_error"].items():
+        axes[2].plot([int(k) for k in d], list(d.values()), marker="o", label=key)
+    axes[2].set(title="head turn via tracker", xlabel="interval", ylabel="max error px",
+                yscale="log")
+    for ax in axes:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_rows(rows: list[dict], path: Path) -> None:
+    """CSV of the sweep rows."""
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+# ------------------------------------------------------------------- cases
+def thought_case(name: str, order: int, interval: int, frames: int) -> dict:
+    """A thought experiment: displayed positions, exact positions and errors per refresh."""
+    run_case(CASES[name](), order, interval, 1)  # compile / load the kernels first
+    t0 = time.perf_counter()
+    run = run_case(CASES[name](), order, interval, frames)
+    ms = (time.perf_counter() - t0) * 1e3 / frames
+    one_d = name in ONE_D
+    return {"case": name, "order": order, "interval": interval,
+            "errors": [float(e) for e in run.errors(one_d)], "ms_per_refresh": ms,
+            "shown": run.shown[:, 0].tolist(), "exact": run.exact[:, 0].tolist(),
+            "updated": run.updated.tolist()}
+
+
+def _vertex_motion(scene: Scene, t: float, display: DisplaySettings, obj: int, h: float = 0.25):
+    """Exact (V, 2) positions of object ``obj``'s vertices and (3, V, 2) derivatives.
+
+    Positions are in pixel-index units (pixel ``c`` is centred on ``c``), as galpixels are.
+    """
+    from service.galilean.motion_field import vertex_derivatives
+
+    projs = [control_points(scene, t + k * h / HZ, display) for k in (-2, -1, 0, 1, 2)]
+    owner = projs[0][1] == obj
+    p = np.stack([pr[0][0, owner, :2] for pr in projs]) - 0.5
+    return p[2], vertex_derivatives(p[:, None], h)[:, 0]
+
+
+def scene_case(order: int, interval: int, frames: int, size=(160, 120)) -> dict:
+    """A drifting, spinning cube rendered and propagated by the real stage.
+
+    Errors are the largest distance between the cube's control points as the
+    galpixel arithmetic displays them and their exact projections; PSNR compares
+    the stage's refreshes with true renders.
+    """
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    scene = bench_scene("rotating-cube")
+    mover = scene.objects[1]
+    scene.objects[1] = SceneObject(mover.mesh, mover.material, mover.transform,
+                                   MotionState(velocity=[0.4, 0.1, 0.0],
+                                               angular_velocity=[0.0, 2.5, 0.8]))
+    settings = RenderSettings(light=LightSettings("blinn"))
+    fixed = FixedPoint.for_order(bit_budget(max(size), 16, 16), order)
+    st, r = GalileanStage(display, GalileanSettings(order=order, refresh_hz=HZ)), Renderer()
+    errors, shown, exact, ps, ms = [], [], [], [], []
+    for k in range(frames):
+        if k % interval == 0:
+            st.update(render_with_motion(r, scene, display, k / HZ, HZ, settings), k)
+            pos, der = _vertex_motion(scene, k / HZ, display, 1)
+            x, v, a, j = points_fixed(pos, der, fixed, order)
+            path = propagate_points(x, v, a, j, order, fixed.fp, fixed.fm, interval)
+        t0 = time.perf_counter()
+        out = st.refresh()
+        ms.append((time.perf_counter() - t0) * 1e3)
+        disp = pixel_of(path[k % interval], fixed.fp).astype(float)
+        true = _vertex_motion(scene, k / HZ, display, 1)[0]
+        errors.append(float(np.abs(true - disp).max()))
+        shown.append(disp[0].tolist())
+        exact.append(true[0].tolist())
+        ps.append(psnr(out.colour, r.render(advance_scene(scene, k / HZ), display,
+                                            settings).colour))
+    return {"case": "scene", "order": order, "interval": interval, "errors": errors,
+            "ms_per_refresh": float(np.median(ms[1:] or ms)), "psnr": ps, "shown": shown,
+            "exact": exact}
+
+
+def print_case(res: dict) -> None:
+    """Per refresh: displayed position, exact position, error."""
+    print(f"case {res['case']}  G({res['order']})  update every {res['interval']} refreshes")
+    print(f"{'refresh':>7}  {'displayed':>18}  {'exact':>22}  {'error px':>9}")
+    for k, (s, e, err) in enumerate(zip(res["shown"], res["exact"], res["errors"], strict=True)):
+        fs = " ".join(f"{v:7.1f}" for v in np.atleast_1d(s))
+        fe = " ".join(f"{v:9.3f}" for v in np.atleast_1d(e))
+        print(f"{k:7d}  {fs:>18}  {fe:>22}  {err:9.3f}")
+    print(f"ms per refresh: {res['ms_per_refresh']:.4f}")
+
+
+# -------------------------------------------------------------------- main
+def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[int, int]) -> None:
+    """Everything ``--sweep`` writes."""
+    out.mkdir(parents=True, exist_ok=True)
+    settings = RenderSettings(light=LightSettings("blinn"))
+    warm_up(settings)
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    rows, variants = sweep(display, frames, settings)
+    te = thought_experiments()
+    print("galilean sweep: timing", file=sys.stderr, flush=True)
+    tm = timing(time_size, settings)
+    doc = {"size": f"{size[0]}x{size[1]}", "frames": frames, "refresh_hz": HZ,
+           "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": variants,
+           "thought_experiments": te}
+    (out / "galilean_sweep.json").write_text(json.dumps(doc, indent=1))
+    (out / "galilean_timing.json").write_text(json.dumps(tm, indent=1))
+    write_rows(rows, out / "galilean_sweep.csv")
+    write_rows(variants, out / "galilean_variants.csv")
+    chart_sweep(rows, out / "galilean_sweep.png")
+    chart_thought(te, out / "galilean_thought.png")
+    print(json.dumps({"timing": tm, "variants": variants}, indent=1))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``holo-bench galilean``; returns the exit status."""
+    p = argparse.ArgumentParser(prog="holo-bench galilean", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--case", choices=[*CASES, "scene"], default="falling")
+    p.add_argument("--order", type=int, default=2, choices=ORDERS)
+    p.add_argument("--interval", type=int, default=2)
+    p.add_argument("--frames", type=int, default=10)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--sweep", action="store_true", help="run the full sweep into --out")
+    p.add_argument("--out", default="bench-out")
+    p.add_argument("--size", default="160x120", help="sweep render size")
+    p.add_argument("--sweep-frames", type=int, default=33)
+    p.add_argument("--time-size", default="640x480", help="size of the timing run")
+    args = p.parse_args(argv)
+    if args.interval < 1 or args.frames < 1:
+        p.error("--interval and --frames must be >= 1")
+    if args.sweep:
+        run_sweep(Path(args.out), parse_size(args.size), args.sweep_frames,
+                  parse_size(args.time_size))
+        return 0
+    res = scene_case(args.order, args.interval, args.frames) if args.case == "scene" else \
+        thought_case(args.case, args.order, args.interval, args.frames)
+    if args.json:
+        keys = ("case", "order", "interval", "errors", "ms_per_refresh")
+        print(json.dumps({k: res[k] for k in keys}))
+    else:
+        print_case(res)
+    return 0
