@@ -303,6 +303,12 @@ class DeviceReader:
         Receive-time clock (:func:`time.monotonic_ns`).
     opener : callable
         Opens a port: ``opener(url, baudrate=..., timeout=..., write_timeout=...)``.
+
+    Attributes
+    ----------
+    crashed : Exception or None
+        Set when the thread ended on an unexpected exception (a bug, not a device
+        fault); an ``error`` status with ``reason: "reader_crashed"`` reports it.
     """
 
     def __init__(self, settings: ReaderSettings, sink: Sink, *,
@@ -325,6 +331,7 @@ class DeviceReader:
         self._last_valid_ns = 0
         self._down_since_ns: int | None = None
         self._failures_in_outage = 0
+        self.crashed: Exception | None = None
 
     # -- life cycle -----------------------------------------------------------------
     def start(self) -> DeviceReader:
@@ -405,6 +412,16 @@ class DeviceReader:
 
     # -- the thread ---------------------------------------------------------------------
     def _run(self) -> None:
+        try:
+            self._loop()
+        except Exception as exc:  # a bug, not a device problem: report it, end the thread
+            self.crashed = exc
+            with contextlib.suppress(Exception):
+                self.emit("error", {"reason": "reader_crashed", "message": repr(exc)})
+        finally:
+            self._close_port()
+
+    def _loop(self) -> None:
         while not self._stop.is_set():
             if self._port is None and not self._open():
                 self._stop.wait(self._next_backoff())
@@ -416,7 +433,6 @@ class DeviceReader:
                 self._lose("disconnected", str(exc))
                 continue
             self._check_watchdog()
-        self._close_port()
 
     def _open(self) -> bool:
         s = self.settings

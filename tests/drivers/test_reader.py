@@ -261,3 +261,26 @@ def test_sgi_init_sequence_order_is_what_the_driver_sends():
     steps = sgi.init_sequence(0.5)
     assert [s.data[0] for s in steps] == [0x20, 0x20, 0x50, 0x71, 0x71]
     assert steps[1].wait_s == 0.5 and os.name  # the driver waits on step 2
+
+
+def test_an_unexpected_exception_is_reported_and_ends_the_thread():
+    class Broken:
+        def on_open(self, reader):
+            pass
+
+        def on_events(self, reader, events):
+            raise RuntimeError("bug")
+
+    link = LoopLink()
+    sink = Collector()
+    reader = DeviceReader(ReaderSettings("loop://", "hatire", poll_s=0.01), sink,
+                          hooks=Broken(), opener=lambda url, **kw: link.port).start()
+    try:
+        link.write(hatire.encode_pose(0, 0, 0, 0))
+        wait_for(lambda: reader.crashed is not None, what="crash report")
+        reader._thread.join(2.0)
+        assert not reader._thread.is_alive() and not reader.connected
+    finally:
+        reader.stop()
+    crash = [e for e in sink.status("error") if e.details["reason"] == "reader_crashed"]
+    assert len(crash) == 1 and "bug" in crash[0].details["message"]
