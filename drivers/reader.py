@@ -116,7 +116,11 @@ class Control:
     reset: bool = False
 
     def to_bytes(self) -> bytes:
-        """The JSON body stored in a log record."""
+        """The JSON body stored in a log record.
+
+        Keys keep their order (no sorting), so the status event rebuilt in replay
+        prints exactly as the live one did.
+        """
         body = {"event": self.event, "details": dict(self.details),
                 "flush": self.flush, "reset": self.reset}
         return json.dumps(body, separators=(",", ":")).encode()
@@ -391,7 +395,10 @@ class DeviceReader:
 
     def emit(self, event: str, details: Mapping[str, Any] | None = None, *,
              flush: bool = False, reset: bool = False) -> list[Event]:
-        """Emit a :class:`Control` item now; returns its events."""
+        """Emit a :class:`Control` item now; returns its events.
+
+        Call it on the reader thread only (from hooks): it drives the decoder.
+        """
         item = Control(self.name, self._clock(), event, MappingProxyType(dict(details or {})),
                        flush, reset)
         events = self.stream.process(item)
