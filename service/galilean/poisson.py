@@ -74,62 +74,46 @@ def poisson_map(depth: np.ndarray, debris: np.ndarray, threshold: float) -> np.n
 
 
 @nb.njit(cache=True)
-def expand(
-    new: tuple, src_idx: np.ndarray, flags: np.ndarray, n_neighbours: int, mode: int,
-    stats: np.ndarray,
-) -> None:
-    """Second sweep: fill debris inside expanding surfaces.
+def expand_pixel(
+    new: tuple, src_idx: np.ndarray, old_depth: np.ndarray, old_debris: np.ndarray,
+    threshold: float, z: int, r: int, c: int, n_neighbours: int, mode: int,
+) -> bool:
+    """Try to expand into debris pixel (z, r, c) of the new map; True if filled.
 
-    Parameters
-    ----------
-    new : tuple of arrays
-        The new main map after the first sweep (see :mod:`.propagate`); changed in place.
-    src_idx : ndarray, shape (Z, H, W), int32
-        Origin ``r * W + c`` in the old map of each propagated galpixel, < 0 otherwise.
-    flags : ndarray, shape (Z, H, W), uint8
-        Poisson flags of the old map.
-    n_neighbours : int
-        1 (left only) to 4 (left, up, right, down).
-    mode : int
-        A value of :data:`EXPANSION_MODES`.
-    stats : ndarray, shape (7,), int64
-        ``stats[5]`` counts expanded pixels.
+    A neighbour qualifies when it is a galpixel (not debris) whose origin ``src_idx``
+    in the old map passes the Poisson test there (flag 0, surface interior); the
+    flag is evaluated on demand from the old map's depth and debris.
     """
-    nz, h, w = src_idx.shape
+    h, w = src_idx.shape[1], src_idx.shape[2]
     col, dep, frac, deb = new[0], new[1], new[2], new[6]
-    for z in range(nz):
-        for r in range(h):
-            for c in range(w):
-                if deb[z, r, c] == 0:
-                    continue
-                first, n = -1, 0
-                acc0 = acc1 = acc2 = accd = 0.0
-                for k in range(n_neighbours):
-                    rr, cc = r + NEIGHBOURS[k, 0], c + NEIGHBOURS[k, 1]
-                    if rr < 0 or cc < 0 or rr >= h or cc >= w or deb[z, rr, cc] == 1:
-                        continue
-                    s = src_idx[z, rr, cc]
-                    if s < 0 or flags[z, s // w, s % w] == 1:
-                        continue
-                    if first < 0:
-                        first = rr * w + cc
-                    n += 1
-                    acc0 += col[0, z, rr, cc]
-                    acc1 += col[1, z, rr, cc]
-                    acc2 += col[2, z, rr, cc]
-                    accd += dep[z, rr, cc]
-                if first < 0:
-                    continue
-                _replicate(new, z, first // w, first % w, r, c)
-                if mode == 1:
-                    col[0, z, r, c] = acc0 / n
-                    col[1, z, r, c] = acc1 / n
-                    col[2, z, r, c] = acc2 / n
-                    dep[z, r, c] = accd / n
-                frac[0, z, r, c] = 0
-                frac[1, z, r, c] = 0
-                src_idx[z, r, c] = src_idx[z, first // w, first % w]
-                stats[5] += 1
+    first, n = -1, 0
+    acc0 = acc1 = acc2 = accd = 0.0
+    for k in range(n_neighbours):
+        rr, cc = r + NEIGHBOURS[k, 0], c + NEIGHBOURS[k, 1]
+        if rr < 0 or cc < 0 or rr >= h or cc >= w or deb[z, rr, cc] == 1:
+            continue
+        s = src_idx[z, rr, cc]
+        if s < 0 or poisson_flag(old_depth, old_debris, z, s // w, s % w, threshold) == 1:
+            continue
+        if first < 0:
+            first = rr * w + cc
+        n += 1
+        acc0 += col[0, z, rr, cc]
+        acc1 += col[1, z, rr, cc]
+        acc2 += col[2, z, rr, cc]
+        accd += dep[z, rr, cc]
+    if first < 0:
+        return False
+    _replicate(new, z, first // w, first % w, r, c)
+    if mode == 1:
+        col[0, z, r, c] = acc0 / n
+        col[1, z, r, c] = acc1 / n
+        col[2, z, r, c] = acc2 / n
+        dep[z, r, c] = accd / n
+    frac[0, z, r, c] = 0
+    frac[1, z, r, c] = 0
+    src_idx[z, r, c] = src_idx[z, first // w, first % w]
+    return True
 
 
 @nb.njit(cache=True, inline="always")

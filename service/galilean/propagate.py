@@ -26,6 +26,7 @@ import numba as nb
 import numpy as np
 
 from service.galilean.fixed_point import advance, pixel_of
+from service.galilean.poisson import expand_pixel
 
 #: Index of each counter in the ``stats`` array the kernels fill.
 STAT_NAMES = ("propagated", "clashes", "dropped", "cached", "promoted", "expanded", "debris")
@@ -157,13 +158,15 @@ def _place(
 
 @nb.njit(cache=True)
 def sweep(
-    old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, flags: np.ndarray,
-    src_idx: np.ndarray, order: int, fp: int, fm: int, threshold: float, stats: np.ndarray,
+    old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, src_idx: np.ndarray,
+    order: int, fp: int, fm: int, track: bool, stats: np.ndarray,
 ) -> None:
-    """First sweep: debris arm, galpixel arm, Poisson arm, then cache propagation and promotion.
+    """First sweep: debris arm and galpixel arm, then cache propagation and promotion.
 
     The per-pixel work is written out in this one loop (no helper calls on the hot
-    path): numba compiles it about ten times faster that way.
+    path): numba compiles it about ten times faster that way.  The Poisson arm is
+    evaluated lazily by the second sweep (:func:`second_sweep`),
+    only for the few old pixels it asks about; the result is the same.
 
     Parameters
     ----------
@@ -173,15 +176,12 @@ def sweep(
     cold, cnew : tuple of arrays
         Old and new obscuration-cache maps (``cnew`` debris all 1); ignored unless
         ``cache_on``.
-    flags : ndarray, shape (Z, H, W), uint8
-        Out: Poisson flag map of the old frame (1: source, edge or debris); all 1
-        when ``threshold`` < 0 (test off).
     src_idx : ndarray, shape (Z, H, W), int32
-        Out: for each new pixel, ``r * W + c`` of the old galpixel that landed
-        there, -1 for debris and promoted galpixels.
+        Out (when ``track``): for each new pixel, ``r * W + c`` of the old galpixel
+        that landed there, -1 for debris and promoted galpixels.
     order, fp, fm : int
-    threshold : float
-        Poisson threshold on ``|laplacian(depth)|``.
+    track : bool
+        Record ``src_idx`` (needed by the expansion sweep).
     stats : ndarray, shape (7,), int64
         Counters, accumulated (see :data:`STAT_NAMES`).
     """
@@ -194,23 +194,9 @@ def sweep(
     for z in range(nz):
         for r in range(h):
             for c in range(w):
-                if n_deb[z, r, c] == 1:
-                    n_col[0, z, r, c] = o_col[0, z, r, c]
-                    n_col[1, z, r, c] = o_col[1, z, r, c]
-                    n_col[2, z, r, c] = o_col[2, z, r, c]
-                    n_dep[z, r, c] = o_dep[z, r, c]
-                    n_obj[z, r, c] = o_obj[z, r, c]
-                    src_idx[z, r, c] = -1
-                f = 1
-                if threshold >= 0 and 0 < r < h - 1 and 0 < c < w - 1:
-                    if (o_deb[z, r, c] | o_deb[z, r, c - 1] | o_deb[z, r, c + 1]
-                            | o_deb[z, r - 1, c] | o_deb[z, r + 1, c]) == 0:
-                        lap = (o_dep[z, r, c + 1] + o_dep[z, r, c - 1] + o_dep[z, r + 1, c]
-                               + o_dep[z, r - 1, c] - 4.0 * o_dep[z, r, c])
-                        if abs(lap) <= threshold:
-                            f = 0
-                flags[z, r, c] = f
                 if o_deb[z, r, c] == 1:
+                    if n_deb[z, r, c] == 1:
+                        _debris_copy(old, new, z, r, c, src_idx, track)
                     continue
                 n_prop += 1
                 x = (np.int64(c) << fp) + o_frac[0, z, r, c]
@@ -238,6 +224,8 @@ def sweep(
                     d += o_zm[0, z, r, c] + 0.5 * o_zm[1, z, r, c] + o_zm[2, z, r, c] / 6.0
                 qc = (x + (1 << (fp - 1))) >> fp
                 qr = (y + (1 << (fp - 1))) >> fp
+                if n_deb[z, r, c] == 1 and (qr != r or qc != c):
+                    _debris_copy(old, new, z, r, c, src_idx, track)  # own place: overwritten
                 if qr < 0 or qc < 0 or qr >= h or qc >= w:
                     n_drop += 1
                     continue
@@ -284,12 +272,25 @@ def sweep(
                     n_zm[2, z, qr, qc] = o_zm[2, z, r, c]
                 n_deb[z, qr, qc] = 0
                 n_obj[z, qr, qc] = o_obj[z, r, c]
-                src_idx[z, qr, qc] = r * w + c
+                if track:
+                    src_idx[z, qr, qc] = r * w + c
         if cache_on:
             _cache_pass(cold, new, cnew, z, order, fp, fm, stats, src_idx)
     stats[0] += n_prop
     stats[1] += n_clash
     stats[2] += n_drop
+
+
+@nb.njit(cache=True, inline="always")
+def _debris_copy(old: tuple, new: tuple, z: int, r: int, c: int, src_idx: np.ndarray,
+                 track: bool) -> None:
+    """The debris arm: the old pixel's colour, depth and object, in place, as debris."""
+    for k in range(3):
+        new[0][k, z, r, c] = old[0][k, z, r, c]
+    new[1][z, r, c] = old[1][z, r, c]
+    new[7][z, r, c] = old[7][z, r, c]
+    if track:
+        src_idx[z, r, c] = -1
 
 
 @nb.njit(cache=True)
@@ -333,28 +334,52 @@ def _cache_pass(
 
 
 @nb.njit(cache=True)
-def display_window(
-    colour: np.ndarray, depth: np.ndarray, debris: np.ndarray, margin: int,
-    out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray,
+def second_sweep(
+    new: tuple, src_idx: np.ndarray, old_depth: np.ndarray, old_debris: np.ndarray,
+    threshold: float, n_neighbours: int, mode: int, margin: int,
+    out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray, stats: np.ndarray,
 ) -> None:
-    """Copy the displayed window out of a map: colour rounded and clipped to uint8.
+    """Second sweep: expansion of debris (when ``threshold`` >= 0) fused with the display copy.
 
     Parameters
     ----------
-    colour : ndarray, shape (3, Z, H, W), float32
-    depth : ndarray, shape (Z, H, W), float32
-    debris : ndarray, shape (Z, H, W), uint8
+    new : tuple of arrays
+        The new main map, changed in place by expansions.
+    src_idx : ndarray, shape (Z, H, W), int32
+        Origins recorded by :func:`sweep`.
+    old_depth, old_debris : ndarray, shape (Z, H, W)
+        The old map, for the Poisson test of origins.
+    threshold : float
+        Poisson threshold; < 0 switches expansion off.
+    n_neighbours, mode : int
+        See :func:`service.galilean.poisson.expand_pixel`.
     margin : int
     out_colour : ndarray, shape (Z, H - 2 margin, W - 2 margin, 3), uint8
+        Out: displayed colour, rounded and clipped.
     out_depth : ndarray, shape (Z, H - 2 margin, W - 2 margin), float32
     out_debris : ndarray, shape (Z, H - 2 margin, W - 2 margin), bool
+    stats : ndarray, shape (7,), int64
+        ``stats[5]`` expanded, ``stats[6]`` debris left (whole map).
     """
-    nz, rows, cols = out_depth.shape
+    col, dep, deb = new[0], new[1], new[6]
+    nz, h, w = dep.shape
+    expanded = left = 0
     for z in range(nz):
-        for r in range(rows):
-            for c in range(cols):
+        for r in range(h):
+            for c in range(w):
+                if deb[z, r, c] == 1:
+                    if threshold >= 0 and expand_pixel(new, src_idx, old_depth, old_debris,
+                                                       threshold, z, r, c, n_neighbours, mode):
+                        expanded += 1
+                    else:
+                        left += 1
+                rr, cc = r - margin, c - margin
+                if rr < 0 or cc < 0 or rr >= h - 2 * margin or cc >= w - 2 * margin:
+                    continue
                 for k in range(3):
-                    v = colour[k, z, r + margin, c + margin] + 0.5
-                    out_colour[z, r, c, k] = 0 if v < 0.0 else (255 if v >= 255.0 else np.uint8(v))
-                out_depth[z, r, c] = depth[z, r + margin, c + margin]
-                out_debris[z, r, c] = debris[z, r + margin, c + margin] == 1
+                    v = col[k, z, r, c] + 0.5
+                    out_colour[z, rr, cc, k] = 0 if v < 0.0 else (255 if v >= 255.0 else np.uint8(v))
+                out_depth[z, rr, cc] = dep[z, r, c]
+                out_debris[z, rr, cc] = deb[z, r, c] == 1
+    stats[5] += expanded
+    stats[6] += left

@@ -35,8 +35,8 @@ from service.galilean.galpixmap import GalileanError, Galpixmap, build
 from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import graft
 from service.galilean.motion_field import RenderedUpdate
-from service.galilean.poisson import EXPANSION_MODES, expand
-from service.galilean.propagate import STAT_NAMES, display_window, sweep
+from service.galilean.poisson import EXPANSION_MODES
+from service.galilean.propagate import STAT_NAMES, second_sweep, sweep
 from service.scene import MotionState
 
 
@@ -162,7 +162,6 @@ class GalileanStage:
         new = lambda: Galpixmap.empty(s.order, self.fixed, self.shape, s.colour_motion)  # noqa: E731
         self.map, self._spare = new(), new()
         self.cache = (new(), new()) if s.cache else None
-        self._flags = np.ones(self.shape, np.uint8)
         self._src = np.full(self.shape, -1, np.int32)
         self.index = 0
         self.age = 0
@@ -241,17 +240,18 @@ class GalileanStage:
                 self.map, self.display, self.settings.margin, self._viewer, self._viewer_next,
                 self.settings.refresh_hz)
             self._viewer, self._viewer_next = self._viewer_next, None
-        if self._started and not any(p.objects is None for p in due):
-            stats.update(self._propagate())
+        z, r, c = self.display.zones, self.display.rows, self.display.cols
+        shown = (np.empty((z, r, c, 3), np.uint8), np.empty((z, r, c), np.float32),
+                 np.empty((z, r, c), np.bool_))
+        propagate = self._started and not any(p.objects is None for p in due)
+        if propagate:
+            stats.update(self._propagate(shown if not due else None))
             self.age += 1
         for p in due:
             self._graft(p)
-        z, r, c = self.display.zones, self.display.rows, self.display.cols
-        colour = np.empty((z, r, c, 3), np.uint8)
-        depth = np.empty((z, r, c), np.float32)
-        debris = np.empty((z, r, c), np.bool_)
-        display_window(self.map.colour, self.map.depth, self.map.debris, self.settings.margin,
-                       colour, depth, debris)
+        if due or not propagate:
+            self._show(shown)
+        colour, depth, debris = shown
         events, self._events = self._events, []
         flags = {"updated": bool(due), "age": self.age,
                  "past_rating": self.age > self.settings.n_prop, "order": self.order,
@@ -261,8 +261,14 @@ class GalileanStage:
         self.index += 1
         return out
 
-    def _propagate(self) -> dict:
-        """One refresh of the whole map (both sweeps); returns the counters."""
+    def _show(self, shown: tuple) -> None:
+        """Copy the displayed window of the map into ``shown`` (no expansion)."""
+        counters = np.zeros(len(STAT_NAMES), np.int64)
+        second_sweep(self.map.arrays(), self._src, self.map.depth, self.map.debris, -1.0, 1, 0,
+                     self.settings.margin, *shown, counters)
+
+    def _propagate(self, shown: tuple | None) -> dict:
+        """One refresh of the whole map (both sweeps); fills ``shown`` unless None."""
         s = self.settings
         new = self._spare
         new.debris.fill(1)
@@ -274,15 +280,20 @@ class GalileanStage:
             cold = cnew = new
         thr = s.poisson_threshold if s.poisson else -1.0
         sweep(self.map.arrays(), new.arrays(), cold.arrays(), cnew.arrays(), self.cache is not None,
-              self._flags, self._src, self.order, self.fixed.fp, self.fixed.fm, thr, counters)
-        if s.poisson:
-            expand(new.arrays(), self._src, self._flags, s.neighbours,
-                   EXPANSION_MODES[s.expansion], counters)
-        counters[6] = int(new.debris.sum())
+              self._src, self.order, self.fixed.fp, self.fixed.fm, s.poisson, counters)
+        if shown is None:  # a local graft follows: show after it
+            shown = self._scratch_shown()
+        second_sweep(new.arrays(), self._src, self.map.depth, self.map.debris, thr,
+                     s.neighbours, EXPANSION_MODES[s.expansion], s.margin, *shown, counters)
         self.map, self._spare = new, self.map
         if self.cache is not None:
             self.cache = (cnew, cold)
         return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
+
+    def _scratch_shown(self) -> tuple:
+        z, r, c = self.display.zones, self.display.rows, self.display.cols
+        return (np.empty((z, r, c, 3), np.uint8), np.empty((z, r, c), np.float32),
+                np.empty((z, r, c), np.bool_))
 
     def _graft(self, p: _Pending) -> None:
         if p.objects is None:
