@@ -8,7 +8,9 @@ Used by the render service and the game::
         sub.dials, sub.buttons                        # absolute state
         for ev in sub.take_events(): ...              # dial / button / status, in order
 
-Nothing here waits forever: :meth:`~DeviceSubscriber.poll` takes a timeout (0 by
+With ``pose_address`` (the publisher's ``--pub-pose`` endpoint) poses come through
+a second, conflating socket, so a slow client never works through a backlog of old
+poses.  Nothing here waits forever: :meth:`~DeviceSubscriber.poll` takes a timeout (0 by
 default), the ``wait_*`` helpers return None / False after theirs.  Malformed
 messages are counted and skipped.  Message layout: ``docs/device-messages.md``.
 """
@@ -30,6 +32,8 @@ from drivers.protocols.sgi_dialbox import NUM_BUTTONS, NUM_DIALS
 from service.errors import ProtocolError
 
 DEFAULT_TOPICS = (b"pose", b"dials", b"status")
+#: Topics taken from the main socket when poses come from the pose-only endpoint.
+NON_POSE_TOPICS = (b"dials", b"status")
 
 
 @dataclass
@@ -67,22 +71,30 @@ class DeviceSubscriber:
     ----------
     address : str
         The publisher's address, e.g. ``tcp://127.0.0.1:5556``.
-    topics : iterable of bytes
-        Topics to subscribe to (default pose, dials, status).
+    topics : iterable of bytes or None
+        Topics to subscribe to (default pose, dials, status; without pose when
+        ``pose_address`` is given).
+    pose_address : str or None
+        The publisher's pose-only endpoint (``--pub-pose``): poses then come through a
+        ``CONFLATE`` socket, so libzmq keeps only the newest one.
     context : zmq.Context or None
     max_events : int
         Dial/button/status events kept for :meth:`take_events` (oldest dropped).
     """
 
-    def __init__(self, address: str, topics: Iterable[bytes] = DEFAULT_TOPICS, *,
-                 context: zmq.Context | None = None, max_events: int = 10_000) -> None:
+    def __init__(self, address: str, topics: Iterable[bytes] | None = None, *,
+                 pose_address: str | None = None, context: zmq.Context | None = None,
+                 max_events: int = 10_000) -> None:
         ctx = context or zmq.Context.instance()
-        self._sock = ctx.socket(zmq.SUB)
-        self._sock.setsockopt(zmq.LINGER, 0)
-        self._sock.setsockopt(zmq.RCVHWM, 100_000)
-        for topic in topics:
-            self._sock.setsockopt(zmq.SUBSCRIBE, topic)
-        self._sock.connect(address)
+        if topics is None:
+            topics = DEFAULT_TOPICS if pose_address is None else NON_POSE_TOPICS
+        self._sock = self._socket(ctx, address, tuple(topics), conflate=False)
+        self._pose_sock = (None if pose_address is None
+                           else self._socket(ctx, pose_address, (b"",), conflate=True))
+        self._poller = zmq.Poller()
+        for sock in (self._sock, self._pose_sock):
+            if sock is not None:
+                self._poller.register(sock, zmq.POLLIN)
         self.address = address
         self.stats = SubscriberStats()
         self.pose: PoseEvent | None = None
@@ -96,6 +108,20 @@ class DeviceSubscriber:
         self._handlers: dict[bytes, Callable[[dict[str, Any]], None]] = {
             b"pose": self._on_pose, b"dials": self._on_dials, b"status": self._on_status,
             b"stats": self._on_stats}
+
+    @staticmethod
+    def _socket(ctx: zmq.Context, address: str, topics: tuple[bytes, ...],
+                conflate: bool) -> zmq.Socket:
+        sock = ctx.socket(zmq.SUB)
+        sock.setsockopt(zmq.LINGER, 0)
+        if conflate:
+            sock.setsockopt(zmq.CONFLATE, 1)  # before connect
+        else:
+            sock.setsockopt(zmq.RCVHWM, 100_000)
+        for topic in topics:
+            sock.setsockopt(zmq.SUBSCRIBE, topic)
+        sock.connect(address)
+        return sock
 
     @property
     def state_known(self) -> bool:
@@ -111,12 +137,19 @@ class DeviceSubscriber:
         int
             Messages processed (0 on timeout).
         """
-        if not self._sock.poll(max(0, round(timeout_s * 1000)), zmq.POLLIN):
+        if not self._poller.poll(max(0, round(timeout_s * 1000))):
             return 0
+        count = self._drain(self._sock, max_messages, multipart=True)
+        if self._pose_sock is not None:
+            count += self._drain(self._pose_sock, max_messages, multipart=False)
+        return count
+
+    def _drain(self, sock: zmq.Socket, max_messages: int, multipart: bool) -> int:
         count = 0
         while count < max_messages:
             try:
-                frames = self._sock.recv_multipart(zmq.NOBLOCK)
+                frames = (sock.recv_multipart(zmq.NOBLOCK) if multipart
+                          else [b"pose", sock.recv(zmq.NOBLOCK)])
             except zmq.Again:
                 break
             count += 1
@@ -213,9 +246,10 @@ class DeviceSubscriber:
             self._events.append(event)
 
     def close(self) -> None:
-        """Close the socket."""
-        if not self._sock.closed:
-            self._sock.close(0)
+        """Close the sockets."""
+        for sock in (self._sock, self._pose_sock):
+            if sock is not None and not sock.closed:
+                sock.close(0)
 
     def __enter__(self) -> DeviceSubscriber:
         return self

@@ -146,6 +146,23 @@ def test_pose_only_endpoint_conflates_to_the_latest_pose():
         p.close()
 
 
+def test_subscriber_takes_poses_from_the_conflating_endpoint():
+    p = Publisher("tcp://127.0.0.1:0", pose_address="tcp://127.0.0.1:0")
+    try:
+        with DeviceSubscriber(p.address, pose_address=p.pose_address) as sub:
+            pump_until(p, sub, lambda s: s.pose is not None and s.state_known,
+                       send=lambda: p.publish(pose(0)))
+            before = sub.stats.messages
+            for n in range(1, 301):
+                p.publish(pose(n))
+            p.publish(DialEvent(9, 1, 4, 4))
+            pump_until(p, sub, lambda s: s.pose.yaw == 300.0 and s.dials[1] == 4)
+            assert sub.stats.messages - before < 300  # old poses were conflated away
+            assert sub.stats.malformed == 0 and sub.stats.gaps == 0
+    finally:
+        p.close()
+
+
 def test_waits_time_out_without_a_publisher():
     ctx = zmq.Context.instance()
     probe = ctx.socket(zmq.PUB)
