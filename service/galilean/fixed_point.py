@@ -177,7 +177,7 @@ class FixedPoint:
         return np.asarray(fixed, np.float64) / 2.0**self.fm
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", error_model="numpy")
 def advance(x: int, v: int, a: int, j: int, order: int, fp: int, fm: int) -> tuple:
     """One refresh of one fixed-point component (equations 12-13 and their G(3) analogue).
 

@@ -36,7 +36,7 @@ from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import graft
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
-from service.galilean.propagate import STAT_NAMES, second_sweep, sweep
+from service.galilean.propagate import STAT_NAMES, flat, second_sweep, sweep
 from service.scene import MotionState
 
 
@@ -279,8 +279,9 @@ class GalileanStage:
         else:
             cold = cnew = new
         thr = s.poisson_threshold if s.poisson else -1.0
-        sweep(self.map.arrays(), new.arrays(), cold.arrays(), cnew.arrays(), self.cache is not None,
-              self._src, self.order, self.fixed.fp, self.fixed.fm, s.poisson, counters)
+        sweep(flat(self.map.arrays()), flat(new.arrays()), flat(cold.arrays()),
+              flat(cnew.arrays()), self.cache is not None, self._src.reshape(-1), self.shape,
+              self.order, self.fixed.fp, self.fixed.fm, s.poisson, counters)
         if shown is None:  # a local graft follows: show after it
             shown = self._scratch_shown()
         second_sweep(new.arrays(), self._src, self.map.depth, self.map.debris, thr,
