@@ -172,21 +172,21 @@ class Publisher:
         d = self._envelope(ev)
         d["n"] = self.counts["pose"]
         body = _dumps(d)
-        self._sock.send_multipart((b"pose", body), copy=False)
+        self._sock.send_multipart((b"pose", body))
         if self._pose_sock is not None:
-            self._pose_sock.send(body, copy=False)
+            self._pose_sock.send(body)
 
     def _dials(self, ev: DialEvent | ButtonEvent) -> None:
         self.state.apply(ev)
         d = self._envelope(ev)
         d.update(self.state.snapshot())
-        self._sock.send_multipart((b"dials", _dumps(d)), copy=False)
+        self._sock.send_multipart((b"dials", _dumps(d)))
 
     def _status(self, ev: StatusEvent) -> None:
         self.counts["status"] += 1
         d = self._envelope(ev)
         d["n"] = self.counts["status"]
-        self._sock.send_multipart((b"status", _dumps(d)), copy=False)
+        self._sock.send_multipart((b"status", _dumps(d)))
         if self.state.apply(ev):
             self._send_state("reset", ev.t_ns, {"reason": ev.event})
 
@@ -200,7 +200,7 @@ class Publisher:
         d = {"t": (t_ns - self.t0_ns) / 1e9, "t_ns": t_ns, "device": "dials", "kind": kind,
              "session": self.session, **(extra or {})}
         d.update(self.state.snapshot())
-        self._sock.send_multipart((b"dials", _dumps(d)), copy=False)
+        self._sock.send_multipart((b"dials", _dumps(d)))
 
     def publish_stats(self, stats: Mapping[str, Any]) -> None:
         """Send reader statistics on ``b"stats"`` (``devices``: name -> counters)."""
@@ -208,7 +208,7 @@ class Publisher:
         now = self._clock()
         d = {"t": (now - self.t0_ns) / 1e9, "t_ns": now, "kind": "stats",
              "session": self.session, "n": self.counts["stats"], "devices": dict(stats)}
-        self._sock.send_multipart((STATS_TOPIC, _dumps(d)), copy=False)
+        self._sock.send_multipart((STATS_TOPIC, _dumps(d)))
 
     def service(self, stats: Callable[[], Mapping[str, Any]] | None = None) -> int:
         """Answer new subscriptions with a snapshot; send the periodic snapshot/stats.
