@@ -149,7 +149,8 @@ def test_to_pty_plays_a_live_device_for_a_reader(tmp_path):
     seqs: list[int] = []
     reader = None
     try:
-        line = proc.stderr.readline()  # the first stderr line names the pty
+        assert select.select([proc.stderr], [], [], 20)[0], "no output from holo-replay"
+        line = proc.stderr.readline()  # the first stderr line names the pty (one write)
         assert line.startswith("holo-replay: device on /dev/"), line
         settings = ReaderSettings(line.split()[-1], "hatire", poll_s=0.01)
         reader = DeviceReader(settings, lambda item, events: seqs.extend(
