@@ -133,7 +133,11 @@ class Publisher:
         self._pose_sock = None
         self.pose_address: str | None = None
         if pose_address:
-            self._pose_sock = self._bind(ctx, zmq.PUB, pose_address, {zmq.CONFLATE: 1})
+            try:
+                self._pose_sock = self._bind(ctx, zmq.PUB, pose_address, {zmq.CONFLATE: 1})
+            except DeviceError:
+                self._sock.close(0)
+                raise
             self.pose_address = self._pose_sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self._send_kind = {"pose": self._pose, "dial": self._dials, "button": self._dials,
                            "status": self._status}

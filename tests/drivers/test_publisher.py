@@ -179,6 +179,8 @@ def test_waits_time_out_without_a_publisher():
 def test_bind_error_is_a_device_error(pub):
     with pytest.raises(DeviceError):
         Publisher(pub.address)
+    with pytest.raises(DeviceError):
+        Publisher("tcp://127.0.0.1:0", pose_address=pub.address)
 
 
 def test_messages_are_topic_plus_json_with_the_dump_fields(pub):
