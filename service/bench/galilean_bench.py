@@ -48,7 +48,7 @@ from service.galilean.fixed_point import (
     propagate_points,
 )
 from service.galilean.motion_field import render_with_motion
-from service.galilean.stage import GalileanSettings, GalileanStage
+from service.galilean.stage import GalileanSettings, GalileanStage, margin_display
 from service.light import LightSettings
 from service.pipeline import Renderer, RenderSettings, warm_up
 from service.primitives import cube
@@ -69,6 +69,8 @@ MOTIONS = ("linear", "falling", "rotating-cube", "head-turn")
 HZ = 60.0
 #: A pixel is "wrong" when some channel differs from the true render by more than this.
 WRONG_LEVELS = 32
+#: Out-of-view margin of the variants, px on every side.
+MARGIN = 16
 
 
 # ------------------------------------------------------------------ scenes
@@ -93,6 +95,22 @@ def bench_scene(motion: str) -> Scene:
     mover = _obj(cube(0.5), pos, (0.9, 0.55, 0.2), **k)
     post = _obj(cube(0.15), [-0.4, -0.2, 0.1], (0.2, 0.8, 0.3))
     return Scene([wall, mover, post], lights=[Light(vector=np.array([0.4, 0.6, 1.0]))],
+                 ambient=1.0)
+
+
+def bar_scene() -> Scene:
+    """A thin near bar sweeping fast across the far wall (what the obscuration cache is for)."""
+    from service.mesh import Mesh
+
+    c = cube(1.0)
+    bar_mesh = Mesh(c.vertices * np.array([0.1, 1.6, 0.1]), c.polygons, c.counts, "bar")
+    wall = bench_scene("head-turn").objects[0]
+    bar = _obj(bar_mesh, [-0.8, 0.0, -0.3], (0.95, 0.9, 0.85), ori=np.array([1.0, 0, 0, 0]),
+               velocity=[2.4, 0.0, 0.0])
+    stripes = [_obj(cube(0.2), [x, y, -1.5], (0.2 + 0.2 * (i % 4), 0.3, 0.9 - 0.2 * (i % 4)))
+               for i, (x, y) in enumerate((x, y) for x in (-0.6, -0.2, 0.2, 0.6)
+                                          for y in (-0.4, 0.0, 0.4))]
+    return Scene([wall, *stripes, bar], lights=[Light(vector=np.array([0.4, 0.6, 1.0]))],
                  ambient=1.0)
 
 
@@ -127,33 +145,47 @@ def pct_wrong(a: np.ndarray, b: np.ndarray) -> float:
     return 100.0 * float((d > WRONG_LEVELS).mean())
 
 
-def prepare(motion: str, display: DisplaySettings, frames: int, settings: RenderSettings):
-    """Truth renders (F,) and updates (F,) of a motion: every refresh rendered both ways."""
-    scene, r = bench_scene(motion), Renderer()
-    truth, updates = [], []
+def prepare(motion: str, display: DisplaySettings, frames: int, settings: RenderSettings,
+            margin: int = 0):
+    """Truth renders (F,) and updates (F,) of a motion: every refresh rendered both ways.
+
+    With ``margin``, updates are rendered ``margin`` px wider on every side (full
+    out-of-view buffering); truth stays the display's size.
+    """
+    scene, r = (bar_scene() if motion == "sweeping-bar" else bench_scene(motion)), Renderer()
+    big = margin_display(display, margin)
+    truth, updates, viewer = [], [], []
     track = head_track(frames) if motion == "head-turn" else None
     for k in range(frames):
         t = k / HZ
         if track is None:
             truth.append(r.render(advance_scene(scene, t), display, settings).colour)
-            updates.append(render_with_motion(r, advance_scene(scene, t), display, 0.0, HZ,
+            updates.append(render_with_motion(r, advance_scene(scene, t), big, 0.0, HZ,
                                               settings))
             continue
         yaw, est = track[0][k], track[1][k]
         truth.append(r.render(view_scene(scene, _viewer(yaw)), display, settings).colour)
         vm = MotionState(angular_velocity=[0, est[1], 0], angular_acceleration=[0, est[2], 0])
-        updates.append(render_with_motion(r, scene, display, 0.0, HZ, settings,
+        viewer.append(vm)
+        updates.append(render_with_motion(r, scene, big, 0.0, HZ, settings,
                                           viewer=_viewer(yaw), viewer_motion=vm))
-    return truth, updates
+    return truth, updates, viewer or None
 
 
-def run_stage(truth, updates, display, gs: GalileanSettings, interval: int) -> dict:
-    """Drive a stage with updates every ``interval``; score the extrapolated refreshes."""
+def run_stage(truth, updates, display, gs: GalileanSettings, interval: int,
+              viewer: list | None = None) -> dict:
+    """Drive a stage with updates every ``interval``; score the extrapolated refreshes.
+
+    ``viewer`` (per refresh) feeds the filtered head motion to the stage at every
+    refresh between updates (the head-motion global update).
+    """
     st = GalileanStage(display, gs)
     ps, wr, ms = [], [], []
     for k in range(len(truth)):
         if k % interval == 0:
             st.update(updates[k], k)
+        elif viewer is not None:
+            st.viewer(viewer[k])
         t0 = time.perf_counter()
         out = st.refresh()
         ms.append((time.perf_counter() - t0) * 1e3)
@@ -165,22 +197,47 @@ def run_stage(truth, updates, display, gs: GalileanSettings, interval: int) -> d
             "ms_per_refresh": float(np.median(ms)), "scored": len(ps)}
 
 
-def sweep(display: DisplaySettings, frames: int, settings: RenderSettings) -> tuple[list, list]:
-    """All motions x orders x intervals, plus the margin and cache variants."""
-    rows, variants = [], []
+def sweep(display: DisplaySettings, frames: int, settings: RenderSettings) -> list[dict]:
+    """All motions x orders x intervals."""
+    rows = []
     for motion in MOTIONS:
         print(f"galilean sweep: {motion}", file=sys.stderr, flush=True)
-        truth, updates = prepare(motion, display, frames, settings)
+        truth, updates, _ = prepare(motion, display, frames, settings)
         for order in ORDERS:
             for k in INTERVALS:
                 gs = GalileanSettings(order=order, refresh_hz=HZ)
                 rows.append({"motion": motion, "order": order, "interval": k,
                              **run_stage(truth, updates, display, gs, k)})
-        for margin, cache in ((0, False), (16, False), (0, True), (16, True)):
+    return rows
+
+
+#: Variants: name -> (margin, margin rendered (full out-of-view buffering), cache,
+#: head-motion update every refresh).
+VARIANTS = {
+    "plain": (0, False, False, False),
+    "margin, cache-only": (MARGIN, False, False, False),
+    "margin, full out-of-view": (MARGIN, True, False, False),
+    "obscuration cache": (0, False, True, False),
+    "head-motion update": (0, False, False, True),
+    "all": (MARGIN, True, True, True),
+}
+
+
+def variants(display: DisplaySettings, frames: int, settings: RenderSettings) -> list[dict]:
+    """The benefit of the out-of-view margin and of the obscuration cache (G(2), interval 8)."""
+    rows = []
+    for motion in ("head-turn", "sweeping-bar", "linear"):
+        print(f"galilean variants: {motion}", file=sys.stderr, flush=True)
+        truth, updates, viewer = prepare(motion, display, frames, settings)
+        wide = prepare(motion, display, frames, settings, MARGIN)[1]
+        for name, (margin, rendered, cache, head) in VARIANTS.items():
+            if head and viewer is None:
+                continue
             gs = GalileanSettings(order=2, refresh_hz=HZ, margin=margin, cache=cache)
-            variants.append({"motion": motion, "order": 2, "interval": 8, "margin": margin,
-                             "cache": cache, **run_stage(truth, updates, display, gs, 8)})
-    return rows, variants
+            ups = wide if rendered else updates
+            rows.append({"motion": motion, "variant": name, "order": 2, "interval": 8,
+                         **run_stage(truth, ups, display, gs, 8, viewer if head else None)})
+    return rows
 
 
 def timing(size: tuple[int, int], settings: RenderSettings, repeats: int = 15) -> dict:
@@ -378,20 +435,21 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
     settings = RenderSettings(light=LightSettings("blinn"))
     warm_up(settings)
     display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
-    rows, variants = sweep(display, frames, settings)
+    rows = sweep(display, frames, settings)
+    var = variants(display, frames, settings)
     te = thought_experiments()
     print("galilean sweep: timing", file=sys.stderr, flush=True)
     tm = timing(time_size, settings)
     doc = {"size": f"{size[0]}x{size[1]}", "frames": frames, "refresh_hz": HZ,
-           "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": variants,
+           "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": var,
            "thought_experiments": te}
     (out / "galilean_sweep.json").write_text(json.dumps(doc, indent=1))
     (out / "galilean_timing.json").write_text(json.dumps(tm, indent=1))
     write_rows(rows, out / "galilean_sweep.csv")
-    write_rows(variants, out / "galilean_variants.csv")
+    write_rows(var, out / "galilean_variants.csv")
     chart_sweep(rows, out / "galilean_sweep.png")
     chart_thought(te, out / "galilean_thought.png")
-    print(json.dumps({"timing": tm, "variants": variants}, indent=1))
+    print(json.dumps({"timing": tm, "variants": var}, indent=1))
 
 
 def main(argv: list[str] | None = None) -> int:

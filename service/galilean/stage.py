@@ -183,16 +183,20 @@ class GalileanStage:
 
         ``objects`` None is a global update (the map is replaced); a tuple makes it
         a local update of those objects (a Flinders Street buffer: pixels of other
-        objects are debris).  Returns False (and records an event) when the
+        objects are debris).  A render of the display's size gets an empty margin
+        (cache-only out-of-view buffering); a render of :func:`margin_display`'s
+        size fills the margin too (full out-of-view buffering).  Returns False (and records an event) when the
         rendezvous has already passed: late renders are never grafted.
         """
         fr = rendered.frame
-        if fr.colour.shape[:3] != (self.display.zones, self.display.rows, self.display.cols):
+        shown = (self.display.zones, self.display.rows, self.display.cols)
+        if fr.colour.shape[:3] not in (shown, self.shape):
             raise GalileanError(f"update colour has shape {fr.colour.shape}, display needs "
-                                f"{(self.display.zones, self.display.rows, self.display.cols, 3)}")
+                                f"{(*shown, 3)} (or {(*self.shape, 3)} with its margin)")
+        pad = self.settings.margin if fr.colour.shape[:3] == shown else 0
         buf, info = build(fr.colour, fr.depth, self.settings.order, self.fixed,
                           rendered.derivatives, rendered.dcolour if self.settings.colour_motion
-                          else None, rendered.obj, self.settings.margin)
+                          else None, rendered.obj, pad)
         if objects is not None:
             keep = np.isin(buf.obj, np.asarray(objects, np.int32))
             buf.debris[~keep] = 1
@@ -247,6 +251,7 @@ class GalileanStage:
         if propagate:
             stats.update(self._propagate(shown if not due else None))
             self.age += 1
+            self._viewer = _advance_motion(self._viewer, 1.0 / self.settings.refresh_hz)
         for p in due:
             self._graft(p)
         if due or not propagate:
@@ -330,6 +335,23 @@ class GalileanStage:
             self.order = best if g.errors[best] < 0.8 * g.errors[self.settings.order] \
                 else self.settings.order
         g.last = (p.points, p.point_derivs)
+
+
+def _advance_motion(m: MotionState, dt: float) -> MotionState:
+    """The viewer motion the map now holds, ``dt`` seconds on (velocities advanced)."""
+    return MotionState(m.velocity + m.acceleration * dt, m.acceleration,
+                       m.angular_velocity + m.angular_acceleration * dt, m.angular_acceleration)
+
+
+def margin_display(display: DisplaySettings, margin: int) -> DisplaySettings:
+    """The display grown by ``margin`` pixels on every side (same pixel size and zones).
+
+    Render into it for full out-of-view buffering: the stage then holds what lies
+    just outside the display, ready to slide in.
+    """
+    cols, rows = display.cols + 2 * margin, display.rows + 2 * margin
+    return DisplaySettings(zones=display.zones, angle_deg=display.angle_deg, cols=cols,
+                           rows=rows, width=display.pixel_size * cols)
 
 
 def _drop_orders(gp: Galpixmap, order: int) -> None:

@@ -231,3 +231,17 @@ def test_head_motion_adds_depth_dependent_motion():
     assert vx[5, 5] == pytest.approx(expect_near, abs=0.01)
     assert vx[13, 5] == pytest.approx(expect_far, abs=0.01)
     assert vx[0, 0] == 0.0  # empty (infinitely far) pixels untouched
+
+
+def test_full_out_of_view_buffering_brings_in_what_was_outside():
+    from service.galilean.stage import margin_display
+    disp = DisplaySettings(zones=1, cols=C, rows=R)
+    big = margin_display(disp, 6)
+    assert (big.cols, big.rows) == (C + 12, R + 12) and big.pixel_size == disp.pixel_size
+    # an object just left of the display (in the margin) moving right into view
+    u = scene_update([(10, 12, 1, 4, 1.0, (200, 100, 0), (1.0, 0.0), (0, 0))], R + 12, C + 12)
+    st = stage(1, margin=6)
+    st.update(u, 0)
+    outs = [st.refresh() for _ in range(6)]
+    assert where(outs[0], (200, 100, 0)) == []
+    assert len(where(outs[5], (200, 100, 0))) > 0
