@@ -191,7 +191,7 @@ def advance(x: int, v: int, a: int, j: int, order: int, fp: int, fm: int) -> tup
         x += (2 * v + a + (1 << s)) >> (s + 1)
         v += a
     elif order == 3:
-        x += (6 * v + 3 * a + j + (3 << s)) // (6 << s)
+        x += ((6 * v + 3 * a + j + (3 << s)) >> s) // 6  # = floor(. / (6 2^s)), no divide
         v += a + ((j + 1) >> 1)
         a += j
     return x, v, a
