@@ -25,7 +25,8 @@ report of that dial (wrapped into -32768..32767); ``value`` is the running sum o
 deltas, so it is unwrapped and unbounded.  Counters are taken as 0 after a reset
 (:meth:`SgiDecoder.reset`), as VRPN does.  A turn is ``counts_per_turn`` counts
 (VRPN: 200).  Note: VRPN's source reads the counter low byte first; this module
-follows the big-endian layout of the issue / xf86Dial.
+follows the big-endian layout of the issue / xf86Dial (the offsets ``_HI`` /
+``_LO`` below; swap them for a low-byte-first box).
 
 Resync: a byte not in 20, 30-37, C0-FF is discarded; each run of discarded bytes is
 reported by one ``resync`` status when the next good packet arrives.  A dial packet
@@ -38,7 +39,13 @@ byte is discarded (``truncated`` status) and the late bytes are parsed afresh.  
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, fields
+from itertools import repeat
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
 
 from drivers.events import ButtonEvent, DecoderStats, DialEvent, Event, StatusEvent
 from service.errors import ProtocolError
@@ -151,6 +158,66 @@ def init_sequence(reset_wait_s: float = 1.0) -> list[InitStep]:
             InitStep(buttons)]
 
 
+#: Chunks at least this long (from where the scan starts) are tokenised with numpy
+#: (:meth:`SgiDecoder._scan_bulk`); shorter ones, the usual case at 9600 baud, go
+#: through the byte loop (:meth:`SgiDecoder._scan`).  Both give the same events.
+BULK_MIN_BYTES = 256
+#: Offsets of the high and low counter byte in a dial packet (big-endian, as
+#: xf86Dial); swap them here if a box proves to send the low byte first (VRPN).
+_HI, _LO = 1, 2
+_KIND_NP = np.frombuffer(_KIND, dtype=np.uint8)
+#: byte -> button index (meaningful for C0-FF).
+_BUTTON = bytes((b & 0x1F) ^ 0x18 for b in range(256))
+_BUTTON_NP = np.frombuffer(_BUTTON, dtype=np.uint8)
+#: Running dial values stay below this in magnitude for the int64 bulk path.
+_BULK_VALUE_LIMIT = 1 << 62
+
+# Events are built with ``object.__new__`` and the slot setters of the (frozen,
+# slotted) event dataclasses: the generated ``__init__`` costs one
+# ``object.__setattr__`` per field and dominated decoding time.  The objects are the
+# same as the constructor's (same class, same field values, compare equal).
+_new = object.__new__
+_consume = deque(maxlen=0).extend
+
+
+def _slot_setters(cls: type, *names: str) -> tuple:
+    if tuple(f.name for f in fields(cls)) != names:
+        raise TypeError(f"{cls.__name__} fields changed; update sgi_dialbox._slot_setters")
+    return tuple(cls.__dict__[name].__set__ for name in names)
+
+
+_DIAL_SET = _slot_setters(DialEvent, "t_ns", "index", "delta", "value")
+_BUTTON_SET = _slot_setters(ButtonEvent, "t_ns", "index", "pressed")
+_STATUS_SET = _slot_setters(StatusEvent, "t_ns", "device", "event", "details")
+
+
+def _status(t_ns: int, event: str, details: dict[str, Any]) -> StatusEvent:
+    """``StatusEvent(t_ns, "dials", event, details)`` for a valid ``event``, faster."""
+    set_t, set_device, set_event, set_details = _STATUS_SET
+    ev = _new(StatusEvent)
+    set_t(ev, t_ns)
+    set_device(ev, "dials")
+    set_event(ev, event)
+    set_details(ev, MappingProxyType(details))
+    return ev
+
+
+def _statuses(t_ns: int, event: str, key: str, values: list[Any]) -> list[StatusEvent]:
+    """``[StatusEvent(t_ns, "dials", event, {key: v}) for v in values]``, faster."""
+    count = len(values)
+    out = list(map(_new, repeat(StatusEvent, count)))
+    set_t, set_device, set_event, set_details = _STATUS_SET
+    _consume(map(set_t, out, repeat(t_ns, count)))
+    _consume(map(set_device, out, repeat("dials", count)))
+    _consume(map(set_event, out, repeat(event, count)))
+    _consume(map(set_details, out, map(MappingProxyType, [{key: v} for v in values])))
+    return out
+
+
+def _reinit(t_ns: int) -> StatusEvent:
+    return _status(t_ns, "error", {"reason": "repeated_garbage", "action": "reinit"})
+
+
 class SgiDecoder:
     """Incremental decoder of the box-to-host stream (see module docstring).
 
@@ -168,8 +235,6 @@ class SgiDecoder:
         self.dial_timeout_ns = dial_timeout_ns
         self.garbage_limit = garbage_limit
         self.stats = DecoderStats()
-        # indexed by _KIND; garbage runs and dial packets are handled inline in _scan
-        self._handlers = (None, self._reset_ack, None, self._press, self._release)
         self.reset()
 
     def reset(self) -> None:
@@ -185,40 +250,26 @@ class SgiDecoder:
         """Decode ``data`` received at ``t_ns``; keep a partial dial packet."""
         self.stats.bytes_in += len(data)
         events: list[Event] = []
-        if self._partial and data and t_ns - self._t_start > self.dial_timeout_ns:
-            self._drop_partial(t_ns, events)
+        if not data:
+            return events
         i = 0
-        if self._partial:
-            i = 3 - len(self._partial)
-            self._partial += data[:i]
-            if len(self._partial) < 3:
-                return events
-            self._dial_done(self._partial, 0, t_ns, events)
-            self._partial.clear()
-        self._scan(data, i, t_ns, events)
-        return events
-
-    def _scan(self, data: bytes, i: int, t_ns: int, events: list[Event]) -> None:
-        """The hot loop: whole dial packets inline, other bytes via the handler table."""
-        n, kind, handlers, dial_done = len(data), _KIND, self._handlers, self._dial_done
-        while i < n:
-            k = kind[data[i]]
-            if k == 2:
-                if i + 3 > n:
-                    self._partial += data[i:]
-                    self._t_start = t_ns
-                    return
-                dial_done(data, i, t_ns, events)
-                i += 3
-            elif k:
-                handlers[k](data[i], t_ns, events)
-                i += 1
+        partial = self._partial
+        if partial:
+            if t_ns - self._t_start > self.dial_timeout_ns:
+                self._drop_partial(t_ns, events)
             else:
-                j = i + 1
-                while j < n and not kind[data[j]]:
-                    j += 1
-                self._garbage_run(j - i, t_ns, events)
-                i = j
+                i = 3 - len(partial)
+                partial += data[:i]
+                if len(partial) < 3:
+                    return events
+                self._dial_done(partial, t_ns, events)
+                partial.clear()
+        if len(data) - i >= BULK_MIN_BYTES and all(
+                -_BULK_VALUE_LIMIT < v < _BULK_VALUE_LIMIT for v in self._values):
+            self._scan_bulk(data, i, t_ns, events)
+        else:
+            self._scan(data, i, t_ns, events)
+        return events
 
     def flush(self, t_ns: int) -> list[Event]:
         """End of input: an unfinished dial packet is truncated; report garbage."""
@@ -228,58 +279,309 @@ class SgiDecoder:
         self._end_garbage(t_ns, events)
         return events
 
+    def _scan(self, data: bytes, i: int, t_ns: int, events: list[Event]) -> None:
+        """Byte loop from ``i``: state in locals, events built inline."""
+        n, kind, button = len(data), _KIND, _BUTTON
+        counters, values, limit = self._counters, self._values, self.garbage_limit
+        garbage, since = self._garbage, self._since_good
+        frames = discarded = resyncs = 0
+        append, new, dial_cls, button_cls = events.append, _new, DialEvent, ButtonEvent
+        d_t, d_index, d_delta, d_value = _DIAL_SET
+        b_t, b_index, b_pressed = _BUTTON_SET
+        while i < n:
+            b = data[i]
+            k = kind[b]
+            if not k:  # a run of garbage
+                j = i + 1
+                while j < n and not kind[data[j]]:
+                    j += 1
+                count = j - i
+                if since < limit <= since + count:
+                    append(_reinit(t_ns))
+                garbage += count
+                since += count
+                discarded += count
+                i = j
+                continue
+            if k == 2 and i + 3 > n:
+                self._partial += data[i:]
+                self._t_start = t_ns
+                break
+            if since:  # a good packet after garbage
+                if garbage:
+                    resyncs += 1
+                    append(_status(t_ns, "resync", {"discarded": garbage}))
+                    garbage = 0
+                since = 0
+            frames += 1
+            if k == 2:
+                index = b - 0x30
+                counter = (data[i + _HI] << 8) | data[i + _LO]
+                delta = ((counter - counters[index] + 0x8000) & 0xFFFF) - 0x8000
+                counters[index] = counter
+                value = values[index] + delta
+                values[index] = value
+                ev = new(dial_cls)
+                d_t(ev, t_ns)
+                d_index(ev, index)
+                d_delta(ev, delta)
+                d_value(ev, value)
+                append(ev)
+                i += 3
+            elif k == 1:
+                append(_status(t_ns, "info", {"message": "reset_ack"}))
+                i += 1
+            else:
+                ev = new(button_cls)
+                b_t(ev, t_ns)
+                b_index(ev, button[b])
+                b_pressed(ev, k == 3)
+                append(ev)
+                i += 1
+        self._garbage, self._since_good = garbage, since
+        stats = self.stats
+        stats.frames += frames
+        stats.bytes_discarded += discarded
+        stats.resyncs += resyncs
+
+    def _scan_bulk(self, data: bytes, i0: int, t_ns: int, events: list[Event]) -> None:
+        """What :meth:`_scan` does, for a long chunk, with numpy.
+
+        Tokenise with numpy, build the events of each kind with C-level ``map``
+        calls, and place them (and the garbage statuses) in stream order through an
+        object array.
+        """
+        arr = np.frombuffer(data, dtype=np.uint8)
+        n = arr.size
+        kinds = _KIND_NP[arr]
+        # Dial headers, minus those swallowed as counter bytes by an earlier header
+        # (only a header within two bytes of the previous one can be).
+        heads = np.flatnonzero(kinds[i0:] == 2)
+        if i0:
+            heads += i0
+        if heads.size > 1:
+            close = np.flatnonzero(heads[1:] - heads[:-1] <= 2) + 1
+            if close.size:
+                hl, swallowed = heads.tolist(), set()
+                for j in close.tolist():
+                    h = hl[j]
+                    if ((j - 1 not in swallowed and h - hl[j - 1] <= 2)
+                            or (j >= 2 and j - 2 not in swallowed and h - hl[j - 2] <= 2)):
+                        swallowed.add(j)
+                if swallowed:
+                    heads = np.delete(heads, list(swallowed))
+        end = n
+        if heads.size and heads[-1] + 3 > n:  # a partial packet at the end
+            end = int(heads[-1])
+            heads = heads[:-1]
+        # Token starts in [i0, end): every byte but the counter bytes of the headers.
+        starts = np.ones(end - i0, dtype=bool)
+        starts[heads + (1 - i0)] = False
+        starts[heads + (2 - i0)] = False
+        pos = np.flatnonzero(starts)
+        if i0:
+            pos += i0
+        tkind = kinds[pos]
+        bad = tkind == 0
+        garbage, since = self._garbage, self._since_good
+        if bad.any():
+            good = ~bad
+            gpos, gkind = pos[good], tkind[good]
+            # runs of garbage tokens (one byte each): length, good tokens before
+            edge = np.diff(bad.view(np.int8), prepend=np.int8(0), append=np.int8(0))
+            run_start = np.flatnonzero(edge == 1)
+            run_len = np.flatnonzero(edge == -1) - run_start
+            run_at = run_start - (np.cumsum(run_len) - run_len)
+        else:
+            gpos, gkind, run_len = pos, tkind, None
+        ngood = gpos.size
+        built = self._build(arr, gpos, gkind, t_ns)
+        if run_len is None and not (garbage and ngood):  # no statuses
+            if len(built) == 1:
+                events.extend(built[0][1])
+            elif built:
+                out = np.empty(ngood, dtype=object)
+                for which, objs in built:
+                    out[which] = np.fromiter(objs, dtype=object, count=len(objs))
+                events.extend(out.tolist())
+            if ngood:
+                self._since_good = 0
+            self._finish(data, end, t_ns, ngood, 0, 0)
+            return
+        # Statuses, each placed before the good event at its ``at``: the resync of
+        # the garbage before it (carried in, or a run), preceded by the re-init
+        # request of that run if it crossed the limit.
+        stat_at: list[int] = []
+        stat_obj: list[Event] = []
+        discarded = 0
+        if run_len is None:  # garbage carried in, then good packets only
+            resync_at, resync_n = [0], [garbage]
+            garbage = since = 0
+        else:
+            discarded = int(run_len.sum())
+            at_l, len_l = run_at.tolist(), run_len.tolist()
+            limit = self.garbage_limit
+            first_len = len_l[0]
+            if at_l[0] == 0:  # continues the garbage carried in
+                len_l[0] += garbage
+                before = since
+            else:
+                before = 0
+            if before < limit <= before + first_len:
+                stat_at.append(at_l[0])
+                stat_obj.append(_reinit(t_ns))
+            if limit > 0:  # later runs follow a good packet
+                for at, count in zip(at_l[1:], len_l[1:], strict=True):
+                    if count >= limit:
+                        stat_at.append(at)
+                        stat_obj.append(_reinit(t_ns))
+            if garbage and at_l[0]:  # the carried-in garbage ends at the first packet
+                resync_at, resync_n = [0], [garbage]
+            else:
+                resync_at, resync_n = [], []
+            if at_l[-1] == ngood:  # the last run goes on into the next chunk
+                garbage = len_l.pop()
+                since = (before if ngood == 0 else 0) + (first_len if ngood == 0 else garbage)
+                at_l.pop()
+            else:
+                garbage = since = 0
+            resync_at += at_l
+            resync_n += len_l
+        nresync = len(resync_at)
+        if nresync:
+            resyncs = _statuses(t_ns, "resync", "discarded", resync_n)
+            if stat_at:  # re-init requests go before the resync at the same place
+                keys = np.array([2 * a for a in stat_at] + [2 * a + 1 for a in resync_at])
+                order = np.argsort(keys, kind="stable")
+                stat_at = (keys[order] >> 1).tolist()
+                merged = stat_obj + resyncs
+                stat_obj = [merged[k] for k in order.tolist()]
+            else:
+                stat_at, stat_obj = resync_at, resyncs
+        self._garbage, self._since_good = garbage, since
+        if ngood or stat_obj:
+            nstat = len(stat_obj)
+            s_at = np.array(stat_at, dtype=np.intp)
+            good_dest = np.arange(ngood)
+            good_dest += np.searchsorted(s_at, good_dest, side="right")
+            out = np.empty(ngood + nstat, dtype=object)
+            out[s_at + np.arange(nstat)] = np.fromiter(stat_obj, dtype=object, count=nstat)
+            for which, objs in built:
+                out[good_dest if which is None else good_dest[which]] = np.fromiter(
+                    objs, dtype=object, count=len(objs))
+            events.extend(out.tolist())
+        self._finish(data, end, t_ns, ngood, discarded, nresync)
+
+    def _finish(self, data: bytes, end: int, t_ns: int, frames: int, discarded: int,
+                resyncs: int) -> None:
+        stats = self.stats
+        stats.frames += frames
+        stats.bytes_discarded += discarded
+        stats.resyncs += resyncs
+        if end < len(data):
+            self._partial += data[end:]
+            self._t_start = t_ns
+
+    def _build(self, arr: np.ndarray, gpos: np.ndarray, gkind: np.ndarray,
+               t_ns: int) -> list[tuple[np.ndarray | None, list[Event]]]:
+        """Events of the good tokens at ``gpos`` (kinds ``gkind``), per kind.
+
+        Returns ``(which, events)`` pairs: ``which`` selects the tokens (a boolean
+        mask, or None for all of them).
+        """
+        ngood = gpos.size
+        if not ngood:
+            return []
+        is_dial = gkind == 2
+        ndial = int(np.count_nonzero(is_dial))
+        out: list[tuple[np.ndarray | None, list[Event]]] = []
+        if ndial:
+            dials = list(map(_new, repeat(DialEvent, ndial)))
+            index, delta, value = self._dial_fields(arr, gpos[is_dial] if ndial < ngood else gpos)
+            d_t, d_index, d_delta, d_value = _DIAL_SET
+            _consume(map(d_t, dials, repeat(t_ns, ndial)))
+            _consume(map(d_index, dials, index))
+            _consume(map(d_delta, dials, delta))
+            _consume(map(d_value, dials, value))
+            out.append((None if ndial == ngood else is_dial, dials))
+            if ndial == ngood:
+                return out
+        is_button = gkind >= 3
+        nbutton = int(np.count_nonzero(is_button))
+        if nbutton:
+            buttons = list(map(_new, repeat(ButtonEvent, nbutton)))
+            b_t, b_index, b_pressed = _BUTTON_SET
+            _consume(map(b_t, buttons, repeat(t_ns, nbutton)))
+            _consume(map(b_index, buttons, _BUTTON_NP[arr[gpos[is_button]]].tolist()))
+            _consume(map(b_pressed, buttons, (gkind[is_button] == 3).tolist()))
+            out.append((None if nbutton == ngood else is_button, buttons))
+        if ndial + nbutton < ngood:
+            is_ack = gkind == 1
+            nack = ngood - ndial - nbutton
+            out.append((None if nack == ngood else is_ack,
+                        _statuses(t_ns, "info", "message", ["reset_ack"] * nack)))
+        return out
+
+    def _dial_fields(self, arr: np.ndarray, dpos: np.ndarray) -> tuple[list, list, list]:
+        """Index, delta and value lists of the dial packets at ``dpos``.
+
+        Updates the per-dial counters and values.
+        """
+        index = arr[dpos].astype(np.int64) - 0x30
+        counter = (arr[dpos + _HI].astype(np.int64) << 8) | arr[dpos + _LO]
+        # group by dial, stream order kept inside each group
+        order = np.argsort(index, kind="stable")
+        s_index, s_counter = index[order], counter[order]
+        first = np.empty(s_index.size, dtype=bool)
+        first[0] = True
+        np.not_equal(s_index[1:], s_index[:-1], out=first[1:])
+        prev = np.empty_like(s_counter)
+        prev[1:] = s_counter[:-1]
+        group_dials = s_index[first]
+        prev[first] = np.array(self._counters, dtype=np.int64)[group_dials]
+        s_delta = ((s_counter - prev + 0x8000) & 0xFFFF) - 0x8000
+        total = np.cumsum(s_delta)
+        group_start = np.flatnonzero(first)
+        offset = np.array(self._values, dtype=np.int64)[group_dials] - (
+            total[group_start] - s_delta[group_start])
+        s_value = total + np.repeat(offset, np.diff(group_start, append=s_index.size))
+        last = np.append(group_start[1:], s_index.size) - 1
+        for d, c, v in zip(group_dials.tolist(), s_counter[last].tolist(),
+                           s_value[last].tolist(), strict=True):
+            self._counters[d] = c
+            self._values[d] = v
+        delta = np.empty_like(s_delta)
+        delta[order] = s_delta
+        value = np.empty_like(s_value)
+        value[order] = s_value
+        return index.tolist(), delta.tolist(), value.tolist()
+
     def _drop_partial(self, t_ns: int, events: list[Event]) -> None:
         self._end_garbage(t_ns, events)
         self.stats.truncated += 1
         self.stats.bytes_discarded += len(self._partial)
-        events.append(StatusEvent(t_ns, "dials", "truncated", {"bytes": len(self._partial),
-                                                                "dial": self._partial[0] - 0x30}))
+        events.append(_status(t_ns, "truncated", {"bytes": len(self._partial),
+                                                  "dial": self._partial[0] - 0x30}))
         self._partial.clear()
 
     def _end_garbage(self, t_ns: int, events: list[Event]) -> None:
         if self._garbage:
             self.stats.resyncs += 1
-            events.append(StatusEvent(t_ns, "dials", "resync", {"discarded": self._garbage}))
+            events.append(_status(t_ns, "resync", {"discarded": self._garbage}))
             self._garbage = 0
 
-    def _good(self, t_ns: int, events: list[Event]) -> None:
+    def _dial_done(self, p: bytes | bytearray, t_ns: int, events: list[Event]) -> None:
+        """A dial packet completed across ``feed`` calls (the scans decode inline)."""
         self._end_garbage(t_ns, events)
         self._since_good = 0
         self.stats.frames += 1
-
-    def _garbage_run(self, count: int, t_ns: int, events: list[Event]) -> None:
-        before = self._since_good
-        self._garbage += count
-        self._since_good += count
-        self.stats.bytes_discarded += count
-        if before < self.garbage_limit <= self._since_good:
-            events.append(StatusEvent(t_ns, "dials", "error",
-                                      {"reason": "repeated_garbage", "action": "reinit"}))
-
-    def _reset_ack(self, b: int, t_ns: int, events: list[Event]) -> None:
-        self._good(t_ns, events)
-        events.append(StatusEvent(t_ns, "dials", "info", {"message": "reset_ack"}))
-
-    def _dial_done(self, p: bytes | bytearray, i: int, t_ns: int, events: list[Event]) -> None:
-        if self._garbage:
-            self._end_garbage(t_ns, events)
-        self._since_good = 0
-        self.stats.frames += 1
-        index = p[i] - 0x30
-        counter = (p[i + 1] << 8) | p[i + 2]
+        index = p[0] - 0x30
+        counter = (p[_HI] << 8) | p[_LO]
         delta = ((counter - self._counters[index] + 0x8000) & 0xFFFF) - 0x8000
         self._counters[index] = counter
         value = self._values[index] + delta
         self._values[index] = value
         events.append(DialEvent(t_ns, index, delta, value))
-
-    def _press(self, b: int, t_ns: int, events: list[Event]) -> None:
-        self._good(t_ns, events)
-        events.append(ButtonEvent(t_ns, button_index(b), True))
-
-    def _release(self, b: int, t_ns: int, events: list[Event]) -> None:
-        self._good(t_ns, events)
-        events.append(ButtonEvent(t_ns, button_index(b), False))
 
 
 class SgiCommandParser:

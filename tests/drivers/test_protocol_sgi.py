@@ -132,3 +132,166 @@ def test_dial_event_schema():
                             "delta": -3, "value": -3}
     assert ev.to_json() == (
         '{"t":1.0,"device":"dials","kind":"dial","index":7,"delta":-3,"value":-3}')
+
+
+class ReferenceSgi:
+    """Byte-at-a-time reading of the documented rules (slow, obviously right)."""
+
+    def __init__(self, dial_timeout_ns: int = 10 * MS, garbage_limit: int = 16) -> None:
+        self.timeout, self.limit = dial_timeout_ns, garbage_limit
+        self.counters, self.values = [0] * 8, [0] * 8
+        self.partial, self.t_start, self.garbage, self.since = b"", 0, 0, 0
+        self.stats = dict.fromkeys(("frames", "bytes_in", "bytes_discarded", "resyncs",
+                                    "truncated"), 0)
+
+    def _status(self, t, event, details, out):
+        out.append(StatusEvent(t, "dials", event, details))
+
+    def _end_garbage(self, t, out):
+        if self.garbage:
+            self.stats["resyncs"] += 1
+            self._status(t, "resync", {"discarded": self.garbage}, out)
+            self.garbage = 0
+
+    def _drop(self, t, out):
+        self._end_garbage(t, out)
+        self.stats["truncated"] += 1
+        self.stats["bytes_discarded"] += len(self.partial)
+        self._status(t, "truncated", {"bytes": len(self.partial), "dial": self.partial[0] - 0x30},
+                     out)
+        self.partial = b""
+
+    def _good(self, t, out):
+        self._end_garbage(t, out)
+        self.since = 0
+        self.stats["frames"] += 1
+
+    def feed(self, data, t):
+        self.stats["bytes_in"] += len(data)
+        out = []
+        for b in data:
+            if self.partial and t - self.t_start > self.timeout:
+                self._drop(t, out)
+            if self.partial:
+                self.partial += bytes((b,))
+                if len(self.partial) == 3:
+                    self._good(t, out)
+                    index, counter = self.partial[0] - 0x30, int.from_bytes(self.partial[1:], "big")
+                    delta = (counter - self.counters[index] + 0x8000) % 0x10000 - 0x8000
+                    self.counters[index] = counter
+                    self.values[index] += delta
+                    out.append(DialEvent(t, index, delta, self.values[index]))
+                    self.partial = b""
+            elif b == 0x20:
+                self._good(t, out)
+                self._status(t, "info", {"message": "reset_ack"}, out)
+            elif 0x30 <= b <= 0x37:
+                self.partial, self.t_start = bytes((b,)), t
+            elif b >= 0xC0:
+                self._good(t, out)
+                out.append(ButtonEvent(t, ((b & 0x1F) ^ 0x18), b < 0xE0))
+            else:
+                self.garbage += 1
+                self.since += 1
+                self.stats["bytes_discarded"] += 1
+                if self.since == self.limit:
+                    self._status(t, "error", {"reason": "repeated_garbage", "action": "reinit"},
+                                 out)
+        return out
+
+    def flush(self, t):
+        out = []
+        if self.partial:
+            self._drop(t, out)
+        self._end_garbage(t, out)
+        return out
+
+
+def _exact(events):
+    """Events as comparable values, with the exact Python types of their fields."""
+    return [(type(e).__name__, e.to_json(), tuple(type(v).__name__ for v in e.payload().values()))
+            for e in events]
+
+
+_PARTS = st.one_of(
+    st.builds(encode_dial, st.integers(0, 7), st.integers(-40000, 40000)),
+    st.builds(encode_button, st.integers(0, 31), st.booleans()),
+    st.just(b"\x20"),
+    st.binary(max_size=40),
+    st.lists(st.sampled_from(b"\x00\x20\x30\x31\x37\x38\x7f\xc0\xdf\xe0\xff"),
+             max_size=12).map(bytes),
+)
+
+
+@pytest.mark.parametrize("bulk_min, value_limit", [(0, None), (10**9, None), (24, None), (0, 300)])
+@settings(max_examples=150, deadline=None)
+@given(data=st.data())
+def test_fast_paths_match_byte_at_a_time_reference(bulk_min, value_limit, data):
+    """Numpy path (bulk_min 0), byte loop (huge), both mixed; same events and stats."""
+    import drivers.protocols.sgi_dialbox as sgi
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sgi, "BULK_MIN_BYTES", bulk_min)
+        if value_limit is not None:  # dials outgrow the int64-safe range: byte loop fallback
+            mp.setattr(sgi, "_BULK_VALUE_LIMIT", value_limit)
+        _check_against_reference(data)
+
+
+def _check_against_reference(data):
+    stream = b"".join(data.draw(st.lists(_PARTS, max_size=40)))
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=10)))
+    steps = data.draw(st.lists(st.sampled_from([0, 1, 5 * MS, 10 * MS, 11 * MS]),
+                               min_size=len(cuts) + 2, max_size=len(cuts) + 2))
+    limit = data.draw(st.integers(0, 20))
+    dec, ref = SgiDecoder(garbage_limit=limit), ReferenceSgi(garbage_limit=limit)
+    got, expected, prev, t = [], [], 0, 0
+    for c, step in zip(cuts + [len(stream)], steps, strict=False):
+        t += step
+        got += dec.feed(stream[prev:c], t)
+        expected += ref.feed(stream[prev:c], t)
+        prev = c
+    t += steps[-1]
+    got += dec.flush(t)
+    expected += ref.flush(t)
+    assert got == expected
+    assert _exact(got) == _exact(expected)
+    assert {k: dec.stats.as_dict()[k] for k in ref.stats} == ref.stats
+
+
+def test_bulk_path_long_chunks_match_reference():
+    import random
+
+    rng = random.Random(3)
+    parts = []
+    for i in range(6000):
+        r = rng.random()
+        parts.append(encode_dial(i % 8, rng.randrange(-70000, 70000)) if r < 0.7 else
+                     encode_button(i % 32, r < 0.8) if r < 0.9 else
+                     bytes(rng.randrange(256) for _ in range(rng.randrange(1, 30))))
+    stream = b"".join(parts)
+    for chunk in (257, 4096, len(stream)):
+        dec, ref = SgiDecoder(), ReferenceSgi()
+        got, expected = [], []
+        for i in range(0, len(stream), chunk):
+            got += dec.feed(stream[i:i + chunk], i)
+            expected += ref.feed(stream[i:i + chunk], i)
+        got += dec.flush(len(stream))
+        expected += ref.flush(len(stream))
+        assert _exact(got) == _exact(expected) and got == expected
+        assert {k: dec.stats.as_dict()[k] for k in ref.stats} == ref.stats
+
+
+@pytest.mark.parametrize("bulk_min", [0, 10**9])
+def test_reinit_counts_garbage_across_a_timed_out_packet(bulk_min):
+    """The truncated status reports the garbage so far; the re-init count goes on."""
+    import drivers.protocols.sgi_dialbox as sgi
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sgi, "BULK_MIN_BYTES", bulk_min)
+        dec = SgiDecoder(garbage_limit=8)
+        assert dec.feed(b"\x01" * 5 + b"\x32", 0) == []
+        late = dec.feed(b"\x01\x01", 20 * MS)
+        assert [(e.event, dict(e.details)) for e in late] == [
+            ("resync", {"discarded": 5}), ("truncated", {"bytes": 1, "dial": 2})]
+        assert [e.needs_reinit for e in dec.feed(b"\x01", 20 * MS)] == [True]
+        assert [e.details["discarded"] for e in dec.flush(20 * MS)] == [3]
