@@ -101,7 +101,7 @@ def bench_scene(motion: str) -> Scene:
 def _studs() -> list[SceneObject]:
     """Small coloured cubes on the wall, so that sliding images have texture."""
     xy = [(x, y) for x in (-1.5, -0.9, -0.3, 0.3, 0.9, 1.5) for y in (-0.5, 0.0, 0.5)]
-    return [_obj(cube(0.2), [x, y, -1.5], (0.2 + 0.2 * (i % 4), 0.3 + 0.15 * (i % 3),
+    return [_obj(cube(0.2), [x, y, -0.92], (0.2 + 0.2 * (i % 4), 0.3 + 0.15 * (i % 3),
                                            0.9 - 0.2 * (i % 4)))
             for i, (x, y) in enumerate(xy)]
 

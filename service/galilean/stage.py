@@ -185,8 +185,9 @@ class GalileanStage:
         a local update of those objects (a Flinders Street buffer: pixels of other
         objects are debris).  A render of the display's size gets an empty margin
         (cache-only out-of-view buffering); a render of :func:`margin_display`'s
-        size fills the margin too (full out-of-view buffering).  Returns False (and records an event) when the
-        rendezvous has already passed: late renders are never grafted.
+        size fills the margin too (full out-of-view buffering).  Returns False (and
+        records an event) when the rendezvous has already passed: late renders are
+        never grafted.
         """
         fr = rendered.frame
         shown = (self.display.zones, self.display.rows, self.display.cols)
