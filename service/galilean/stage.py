@@ -138,6 +138,7 @@ class _Pending:
     unfinished: tuple[int, ...]
     points: np.ndarray | None = None
     point_derivs: np.ndarray | None = None
+    viewer: MotionState | None = None
 
 
 @dataclass
@@ -203,17 +204,20 @@ class GalileanStage:
             buf.debris[~keep] = 1
         if info["clamped"]:
             self._events.append({"kind": "motion_clamped", "count": info["clamped"]})
-        self._viewer_baked = rendered.viewer_motion
         return self.submit(buf, rendezvous, objects, complete, unfinished,
-                           rendered.points, rendered.point_derivs)
+                           rendered.points, rendered.point_derivs, rendered.viewer_motion)
 
     def submit(
         self, buffer: Galpixmap, rendezvous: int | None = None,
         objects: tuple[int, ...] | None = None, complete: bool = True,
         unfinished: tuple[int, ...] = (), points: np.ndarray | None = None,
-        point_derivs: np.ndarray | None = None,
+        point_derivs: np.ndarray | None = None, viewer: MotionState | None = None,
     ) -> bool:
-        """Queue a galpixmap (e.g. a Flinders Street buffer) for grafting; see :meth:`update`."""
+        """Queue a galpixmap (e.g. a Flinders Street buffer) for grafting; see :meth:`update`.
+
+        ``points``/``point_derivs`` feed the order guard; ``viewer`` is the viewer
+        motion baked into the buffer's motion (None: the stage's current one).
+        """
         if buffer.shape != self.shape or buffer.order != self.settings.order:
             raise GalileanError(f"buffer must be a G({self.settings.order}) map of shape "
                                 f"{self.shape}, got G({buffer.order}) {buffer.shape}")
@@ -222,7 +226,7 @@ class GalileanStage:
             self._events.append({"kind": "late_refused", "rendezvous": when, "refresh": self.index})
             return False
         self._pending.append(_Pending(buffer, when, None if objects is None else tuple(objects),
-                                      complete, tuple(unfinished), points, point_derivs))
+                                      complete, tuple(unfinished), points, point_derivs, viewer))
         return True
 
     def viewer(self, motion: MotionState) -> None:
@@ -311,7 +315,7 @@ class GalileanStage:
                 self.cache[0].debris.fill(1)
             self._guard_update(p)
             self.age = 0
-            self._viewer = getattr(self, "_viewer_baked", self._viewer)
+            self._viewer = p.viewer or self._viewer
         else:
             graft(self.map, p.buffer, p.objects)
         if not p.complete:
