@@ -86,10 +86,11 @@ def kinds(lines: list[str]) -> list[str]:
 
 @posix_only
 def test_live_dump_equals_replay_dump_and_sigterm_closes_the_log(procs, tmp_path):
-    # a faulty tracker that also drops off and comes back, and a dial box (handshake)
+    # a faulty tracker that also drops off and comes back, and a dial box on a pty
     log = tmp_path / "session.hlog"
-    tracker = procs("sim_devices.cli", "tracker", "--pty", "--pty-link", str(tmp_path / "trk"),
-                    "--protocol", "native", "--rate", "200", "--faults",
+    # the tracker on TCP (socket:// URL; a reconnect cannot reach a recycled pty number)
+    tracker = procs("sim_devices.cli", "tracker", "--tcp", "0", "--protocol", "native",
+                    "--rate", "200", "--faults",
                     "corrupt=0.03,burst=0.03,split,disconnect=0.01,reconnect_s=0.1,seed=5")
     dials = procs("sim_devices.cli", "dials", "--pty", "--seed", "3")
     tracker.wait_lines(lambda: tracker.out)

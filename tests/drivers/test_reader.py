@@ -66,6 +66,16 @@ class Collector:
         return [e for e in self.snapshot() if isinstance(e, StatusEvent) and e.event == name]
 
 
+def send_until_seen(link, sink: Collector, seq: int, timeout: float = 5.0) -> None:
+    """Write a pose until the reader has it (a reopen in between flushes the input)."""
+    deadline = time.monotonic() + timeout
+    tick = threading.Event()
+    while seq not in sink.seqs():
+        assert time.monotonic() < deadline, f"pose {seq} never arrived"
+        link.write(hatire.encode_pose(seq, 0, 0, 0))
+        tick.wait(0.02)
+
+
 @pytest.mark.parametrize("protocol", ["native", "hatire"])
 def test_every_intact_frame_recovered_through_a_loop_reader(protocol):
     link = LoopLink()
@@ -94,6 +104,27 @@ def test_every_intact_frame_recovered_through_a_loop_reader(protocol):
     assert stats["opens"] == 1 and stats["disconnects"] == 0 and not stats["connected"]
 
 
+@posix_only
+def test_every_intact_frame_recovered_through_a_pty_reader():
+    link = PtyLink()
+    spec = FaultSpec(corrupt=0.05, wrong_baud=0.03, burst=0.05, split=True, seed=22)
+    runner = DeviceRunner(TrackerSim("native", make_motion("walk", seed=3), rate_hz=100),
+                          link, spec, seconds=2.0, realtime=False, pace=False)
+    sink = Collector()
+    reader = DeviceReader(ReaderSettings(link.path, "native", poll_s=0.01), sink).start()
+    try:
+        wait_for(lambda: reader.connected)
+        runner.run()
+        wait_for(lambda: reader.stream.decoder.stats.bytes_in == runner.bytes_sent,
+                 what=f"all bytes read ({runner.bytes_sent} sent; {reader.stats()}, "
+                 f"crashed={reader.crashed!r}, errors={sink.status('error')})")
+    finally:
+        reader.stop()
+        link.close()
+    assert sink.seqs() == runner.ledger.intact and runner.ledger.counts["corrupt"]
+    assert reader.stats()["crc_errors"] == len(sink.status("crc_error")) > 0
+
+
 def test_receive_times_are_monotonic_clock_at_arrival():
     link = LoopLink()
     sink = Collector()
@@ -112,9 +143,23 @@ def test_receive_times_are_monotonic_clock_at_arrival():
     assert (pose.yaw, pose.pitch, pose.roll) == (1.0, 2.0, 3.0)
 
 
+class UnlinkingPtyLink(PtyLink):
+    """A pty link whose symlink disappears while the device is unplugged.
+
+    With the plain link the symlink keeps naming the closed /dev/pts/N during the
+    outage, and a reader retrying it could open whatever pty another process gets
+    with that recycled number.
+    """
+
+    def disconnect(self) -> None:
+        if self.symlink and os.path.lexists(self.symlink):
+            os.unlink(self.symlink)
+        super().disconnect()
+
+
 @posix_only
 def test_pty_closed_and_reopened_resumes_without_restart(tmp_path):
-    link = PtyLink(symlink=str(tmp_path / "tracker"))
+    link = UnlinkingPtyLink(symlink=str(tmp_path / "tracker"))
     spec = FaultSpec(disconnect=0.03, reconnect_s=0.05, seed=2)
     runner = DeviceRunner(TrackerSim("hatire", rate_hz=400), link, spec, seconds=0.6,
                           realtime=True, pace=False)
@@ -130,11 +175,7 @@ def test_pty_closed_and_reopened_resumes_without_restart(tmp_path):
         # a frame written now must arrive through the reopened port
         drops = runner.ledger.counts["disconnect"]
         wait_for(lambda: reader.connected and reader.counters.reconnects >= 1)
-        deadline = time.monotonic() + 5.0
-        while 999 not in sink.seqs() and time.monotonic() < deadline:
-            link.write(hatire.encode_pose(999, 0, 0, 0))
-            threading.Event().wait(0.01)  # poll tick
-        assert 999 in sink.seqs()
+        send_until_seen(link, sink, 999)
     finally:
         runner.stop()
         reader.stop()
@@ -164,12 +205,10 @@ def test_watchdog_reopens_a_silent_port_and_waits_for_a_missing_one(tmp_path):
         assert sink.status("error")[0].details["reason"] == "open_failed"
         link = PtyLink(symlink=path)  # the device appears
         wait_for(lambda: reader.connected, what="first open")
-        link.write(hatire.encode_pose(1, 0, 0, 0))
-        wait_for(lambda: sink.seqs() == [1])
+        send_until_seen(link, sink, 1)
         wait_for(lambda: reader.counters.watchdog_trips >= 1, what="watchdog")
         wait_for(lambda: reader.counters.opens >= 2 and reader.connected, what="reopen")
-        link.write(hatire.encode_pose(2, 0, 0, 0))
-        wait_for(lambda: sink.seqs()[-1:] == [2])
+        send_until_seen(link, sink, 2)
     finally:
         reader.stop()
         if link is not None:
@@ -211,7 +250,7 @@ def test_dial_box_handshake_events_reinit_and_lamps():
                              for e in sink.snapshot()), what="dial 7 report")
         link.write(b"\x00" * 16)  # garbage: the decoder asks for a re-init
         wait_for(lambda: driver.inits == 2, what="re-init")
-        assert box.resets == 4
+        wait_for(lambda: box.resets == 4, what="box saw the second handshake")
         assert driver.set_lamp(1, True) and driver.lamps == 0b111
         wait_for(lambda: box.lamps == 0b111, what="lamp 1")
     finally:
