@@ -66,11 +66,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also publish poses alone (single frame, conflating) here")
     p.add_argument("--record", metavar="FILE", help="record raw bytes to a new session log")
     p.add_argument("--dump", action="store_true", help="print one JSON line per event")
-    p.add_argument("--baud", type=int, default=115200,
+    p.add_argument("--baud", type=int, default=115200, metavar="N",
                    help="tracker baud rate (default: %(default)s)")
-    p.add_argument("--dials-baud", type=int, default=SGI_BAUD,
+    p.add_argument("--dials-baud", type=int, default=SGI_BAUD, metavar="N",
                    help="dial box baud rate (default: %(default)s)")
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=float, default=None, metavar="N",
                    help="stop after N seconds (default: run until Ctrl-C / SIGTERM)")
     p.add_argument("--watchdog", type=float, default=2.0, metavar="S",
                    help="reopen the tracker port after S s without a valid frame "
