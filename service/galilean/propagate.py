@@ -362,12 +362,17 @@ def second_sweep(
     for z in range(nz):
         for r in range(h):
             for c in range(w):
-                if deb[z, r, c] == 1:
-                    if threshold >= 0 and expand_pixel(new, src_idx, old_depth, old_debris,
-                                                       threshold, z, r, c, n_neighbours, mode):
-                        expanded += 1
-                    else:
-                        left += 1
+                if deb[z, r, c] == 0:
+                    continue
+                # cheap pre-check: only debris next to a galpixel can be expanded
+                near = (c > 0 and deb[z, r, c - 1] == 0) or (c < w - 1 and deb[z, r, c + 1] == 0) \
+                    or (r > 0 and deb[z, r - 1, c] == 0) or (r < h - 1 and deb[z, r + 1, c] == 0)
+                if threshold >= 0 and near and expand_pixel(
+                        new, src_idx, old_depth, old_debris, threshold, z, r, c, n_neighbours,
+                        mode):
+                    expanded += 1
+                else:
+                    left += 1
     for z in range(nz):
         for rr in range(h - 2 * margin):
             for cc in range(w - 2 * margin):
