@@ -24,7 +24,12 @@ lint: $(STAMP)
 	$(BIN)/ruff check service drivers game sim_devices tests
 
 bench: $(STAMP)
-	$(BIN)/python -m service.bench.render_bench --out bench-out
+	$(BIN)/holo-bench render --out bench-out/render
+	$(BIN)/holo-bench light --out bench-out/light
+	$(BIN)/holo-bench filters --out bench-out/filters
+	$(BIN)/holo-bench decoders --out bench-out/decoders
+	$(BIN)/holo-bench latency --out bench-out/latency
+	$(BIN)/holo-bench galilean --sweep --out bench-out/galilean
 
 clean:
 	rm -rf $(VENV) demo-out bench-out

@@ -23,6 +23,10 @@ BENCHES = {
         "Galilean stage: thought experiments and the order x interval sweep",
     ),
     "filters": ("drivers.bench_filters", "pose filters: jitter vs lag"),
+    "latency": (
+        "drivers.bench_latency",
+        "device drivers: byte arrival to published event (p50/p99)",
+    ),
     "decoders": ("drivers.bench_decoders", "serial protocol decoders: MB/s"),
 }
 

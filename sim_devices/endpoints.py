@@ -161,7 +161,14 @@ class PtyLink:
             select.select([], [], [], POLL_S)
 
     def disconnect(self) -> None:
-        """Close both ends (a client sees the device vanish)."""
+        """Close both ends (a client sees the device vanish).
+
+        The symlink goes first: while the device is away, a client retrying the link
+        must not open whatever pty the kernel hands the recycled ``/dev/pts/N`` to.
+        """
+        if self.symlink:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.symlink)
         for fd in (self._master, self._slave):
             with contextlib.suppress(OSError):
                 os.close(fd)

@@ -48,7 +48,7 @@ def read_until(port, dec, done: Callable[[list], bool], timeout: float = 5.0,
             # read only what is waiting: pyserial drops the bytes a read() already
             # collected when the port fails mid-call (socket closed, pty hung up)
             events += dec.feed(port.read(max(1, port.in_waiting)), time.monotonic_ns())
-        except serial.SerialException:
+        except OSError:  # SerialException, or EIO from in_waiting's ioctl on a hung-up pty
             if reopen is None:
                 raise
             port.close()
@@ -120,8 +120,16 @@ def test_pty_disconnect_and_reconnect_through_symlink(tmp_path):
     runner = DeviceRunner(sim, link, spec, seconds=0.4, realtime=True, pace=False)
     state = {"inode": os.lstat(link.path).st_ino}
 
+    def inode(path):
+        try:
+            return os.lstat(path).st_ino
+        except FileNotFoundError:  # the device is away: the link is removed meanwhile
+            return None
+
     def reopen():
-        wait_for(lambda: os.lstat(link.path).st_ino != state["inode"])
+        # the device removes its link before it vanishes, so a link that exists
+        # after the client saw the port fail is the new device
+        wait_for(lambda: inode(link.path) is not None)
         state["inode"] = os.lstat(link.path).st_ino
         return serial.serial_for_url(link.path, timeout=0.02)
 
