@@ -20,9 +20,20 @@ from service.errors import SettingsError
 
 @dataclass(frozen=True)
 class CullSettings:
-    """Which cull to run: ``"modified"`` (default), ``"plain"`` or ``"none"``."""
+    """Which cull to run.
+
+    Attributes
+    ----------
+    mode : {"modified", "plain", "none"}
+        The polygon-list cull shared by every zone.
+    per_zone : bool
+        Also skip, in each zone, the polygons of *closed* meshes that face away from
+        that zone (see :func:`zone_mask`). Exact, and it roughly halves the raster
+        work; off reproduces the thesis, which draws every kept polygon in every zone.
+    """
 
     mode: str = "modified"
+    per_zone: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in CULLS:
@@ -67,3 +78,37 @@ def cull(
     keep = CULLS[settings.mode](normals, display) & np.any(normals != 0.0, axis=1)
     kept = int(keep.sum())
     return keep, {"in": int(normals.shape[0]), "culled": int(normals.shape[0] - kept), "kept": kept}
+
+
+def zone_mask(
+    triangle_polygon: np.ndarray,
+    normals: np.ndarray,
+    closed: np.ndarray,
+    display: DisplaySettings,
+    settings: CullSettings | None = None,
+) -> np.ndarray:
+    """Per zone, which triangles may be drawn.
+
+    A polygon of a closed, consistently wound mesh that faces away from a zone
+    (``n . v_k <= 0``) is always hidden there behind the mesh's own front faces, so
+    skipping it changes no pixel (it can only remove errors of a painter's order).
+    Polygons of open meshes are always drawn: their back side may be what is seen.
+
+    Parameters
+    ----------
+    triangle_polygon : ndarray, shape (T,)
+    normals : ndarray, shape (P, 3)
+    closed : ndarray, shape (P,), bool
+    display : DisplaySettings
+    settings : CullSettings, optional
+
+    Returns
+    -------
+    ndarray, shape (Z, T), bool
+    """
+    settings = settings or CullSettings()
+    if not settings.per_zone:
+        return np.ones((display.zones, triangle_polygon.shape[0]), dtype=bool)
+    faces = normals @ display.view_vectors().T > 0.0  # (P, Z)
+    poly_ok = faces | ~closed[:, None]
+    return np.ascontiguousarray(poly_ok[triangle_polygon].T)

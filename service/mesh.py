@@ -81,6 +81,18 @@ class Mesh:
             )
         return self._cache["corner"]
 
+    @property
+    def is_closed(self) -> bool:
+        """Whether the mesh is a closed, consistently wound surface (cached).
+
+        True when every directed edge (a, b) of every polygon appears exactly once
+        and its reverse (b, a) appears exactly once too.  A back face of such a
+        mesh is always hidden by one of its front faces.
+        """
+        if "closed" not in self._cache:
+            self._cache["closed"] = edges_closed(self.polygons, self.counts, self.n_vertices)
+        return self._cache["closed"]
+
     @classmethod
     def from_polygons(cls, vertices: np.ndarray, polys: list, name: str = "mesh") -> Mesh:
         """Build a mesh from a list of vertex-index sequences of any lengths >= 3."""
@@ -131,6 +143,27 @@ def validate(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray, nam
         raise MeshError(
             f"{name}: polygon {int(rows[0])} refers to a vertex outside 0..{vertices.shape[0] - 1}"
         )
+
+
+def edges_closed(polygons: np.ndarray, counts: np.ndarray, n_vertices: int) -> bool:
+    """True if the directed edges of the polygons pair up exactly (a closed surface).
+
+    Parameters
+    ----------
+    polygons : ndarray, shape (P, K)
+    counts : ndarray, shape (P,)
+    n_vertices : int
+    """
+    if polygons.shape[0] == 0:
+        return False
+    k = np.arange(polygons.shape[1])[None, :]
+    used = k < counts[:, None]
+    nxt = np.where(k + 1 < counts[:, None], np.minimum(k + 1, polygons.shape[1] - 1), 0)
+    a = polygons[used].astype(np.int64)
+    b = np.take_along_axis(polygons, nxt, axis=1)[used].astype(np.int64)
+    fwd = np.sort(a * n_vertices + b)
+    rev = np.sort(b * n_vertices + a)
+    return bool(np.all(fwd[1:] != fwd[:-1]) and np.array_equal(fwd, rev))
 
 
 def fan_triangulate(polygons: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.cull import CullSettings, cull
+from service.cull import CullSettings, cull, zone_mask
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
 from service.errors import SettingsError
@@ -73,6 +73,8 @@ class RenderSettings:
 
 METHOD_NAMES = ("runlength", "zbuffer", "bsp", "raycast")
 FALLBACKS = ("frame", "pixel", "off")
+#: Methods that take the per-zone cull mask (BSP and ray casting draw every kept polygon).
+MASKED_METHODS = frozenset({"zbuffer", "runlength", "runlength-repair"})
 
 
 class Renderer:
@@ -124,6 +126,13 @@ class Renderer:
             proj = project(arrays.vertices, display)
         with clock("cull"):
             keep, counts = cull(arrays.normals, display, settings.cull)
+            draw = zone_mask(
+                arrays.triangle_polygon,
+                arrays.normals,
+                arrays.polygon_closed,
+                display,
+                settings.cull,
+            )
         with clock("sort"):
             poly_order = sort_polygons(
                 average_z(arrays.vertices, arrays.polygons, arrays.counts), keep
@@ -132,12 +141,13 @@ class Renderer:
         name = settings.method
         if name == "runlength" and settings.painter_fallback == "pixel":
             name = "runlength-repair"
+        extra = {"draw": draw} if name in MASKED_METHODS else {}
         with clock("occlusion"):
-            vis = self._methods[name](arrays, proj, display, order)
+            vis = self._methods[name](arrays, proj, display, order, **extra)
         bad = vis.stats.get("inconsistent_pixels", 0)
         if settings.painter_fallback == "frame" and bad > settings.painter_tolerance:
             with clock("fallback"):
-                redo = zbuffer(arrays, proj, display, order)
+                redo = zbuffer(arrays, proj, display, order, draw)
             redo.stats = {**vis.stats, "fallback": "zbuffer"}
             vis = redo
         drawn = np.unique(arrays.triangle_polygon[vis.triangle[vis.triangle >= 0]]).size

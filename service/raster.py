@@ -90,6 +90,7 @@ def zbuffer_kernel(
     proj: np.ndarray,
     tris: np.ndarray,
     order: np.ndarray,
+    draw: np.ndarray,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
 ) -> None:
@@ -101,6 +102,9 @@ def zbuffer_kernel(
     tris : ndarray, shape (T, 3)
     order : ndarray, shape (N,)
         Triangles to draw, in drawing order (front to back saves writes).
+    draw : ndarray, shape (Z, T), bool
+        Per zone, whether a triangle may be drawn at all (see
+        :func:`service.cull.zone_mask`).
     tri_out : ndarray, shape (Z, R, C), int32, filled with -1
     depth_out : ndarray, shape (Z, R, C), float32, filled with +inf
     """
@@ -108,6 +112,8 @@ def zbuffer_kernel(
     for z in nb.prange(zones):
         pz = proj[z]
         for t in order:
+            if not draw[z, t]:
+                continue
             st = triangle_setup(pz[tris[t, 0]], pz[tris[t, 1]], pz[tris[t, 2]], rows)
             if not st[0]:
                 continue

@@ -156,9 +156,15 @@ class Scene:
     objects: list[SceneObject] = field(default_factory=list)
     lights: list[Light] = field(default_factory=lambda: [Light()])
     ambient: float = 1.0
+    _static: dict = field(default_factory=dict, repr=False, compare=False)
 
     def flatten(self) -> SceneArrays:
-        """All objects' polygons in one list, in world coordinates."""
+        """All objects' polygons in one list, in world coordinates.
+
+        The parts that do not depend on the objects' placement (polygon lists,
+        triangulation, materials) are kept between calls while the meshes and
+        materials stay the same, so a moving scene re-does only the transforms.
+        """
         return flatten(self)
 
 
@@ -177,10 +183,13 @@ class SceneArrays:
         Index of the object each polygon belongs to.
     normals : ndarray, shape (P, 3), float64
         Unit polygon normals in world coordinates.
-    corner_normals : ndarray, shape (T, 3, 3), float64
-        Smooth normals at triangle corners (for per-vertex and per-point light).
     materials : ndarray, shape (P, 7), float64
         Per polygon: r, g, b, ambient, diffuse, specular, shininess.
+    polygon_closed : ndarray, shape (P,), bool
+        Whether the polygon belongs to a closed mesh (its back faces always hidden).
+    corner_normals : ndarray, shape (T, 3, 3), float64
+        Smooth normals at triangle corners (for per-vertex and per-point light),
+        computed on first use.
     """
 
     vertices: np.ndarray
@@ -190,13 +199,26 @@ class SceneArrays:
     triangle_polygon: np.ndarray
     polygon_object: np.ndarray
     normals: np.ndarray
-    corner_normals: np.ndarray
     materials: np.ndarray
+    polygon_closed: np.ndarray
+    _corners: list = field(default_factory=list, repr=False, compare=False)
+    _lazy: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n_polygons(self) -> int:
         """Number of polygons P."""
         return int(self.polygons.shape[0])
+
+    @property
+    def corner_normals(self) -> np.ndarray:
+        """Smooth corner normals in world coordinates, shape (T, 3, 3) (cached)."""
+        if "corner" not in self._lazy:
+            parts = [
+                (m.corner_normals.reshape(-1, 3) @ rot.T).reshape(-1, 3, 3)
+                for m, rot in self._corners
+            ]
+            self._lazy["corner"] = np.concatenate(parts) if parts else np.zeros((0, 3, 3))
+        return self._lazy["corner"]
 
 
 def quaternion_matrix(q: np.ndarray) -> np.ndarray:
@@ -240,57 +262,85 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
-def flatten(scene: Scene) -> SceneArrays:
-    """Concatenate every object's polygons into one world-space list (thesis 3.2)."""
-    verts, polys, counts, tris, tri_poly, poly_obj, mats = [], [], [], [], [], [], []
-    normals, corners = [], []
+def _static_parts(scene: Scene) -> dict:
+    """Placement-independent arrays of a scene, cached on it while meshes and materials hold.
+
+    Returns
+    -------
+    dict
+        ``polygons`` (P, K), ``counts`` (P,), ``triangles`` (T, 3),
+        ``triangle_polygon`` (T,), ``polygon_object`` (P,), ``materials`` (P, 7),
+        ``polygon_closed`` (P,).
+    """
+    key = tuple((id(o.mesh), o.material) for o in scene.objects)
+    if scene._static.get("key") == key:
+        return scene._static
+    polys, tris, tri_poly, mats = [], [], [], []
     v_off = p_off = 0
     k = max((o.mesh.polygons.shape[1] for o in scene.objects), default=3)
-    for i, obj in enumerate(scene.objects):
+    for obj in scene.objects:
         m = obj.mesh
-        verts.append(obj.transform.apply(m.vertices))
-        rot = quaternion_matrix(obj.transform.orientation)
-        normals.append(m.normals @ rot.T)
-        corners.append((m.corner_normals.reshape(-1, 3) @ rot.T).reshape(-1, 3, 3))
         pad = np.full((m.n_polygons, k), -1, np.int64)
         pad[:, : m.polygons.shape[1]] = np.where(m.polygons >= 0, m.polygons + v_off, -1)
         polys.append(pad)
-        counts.append(m.counts)
         tris.append(m.triangles + v_off)
         tri_poly.append(m.triangle_polygon + p_off)
-        poly_obj.append(np.full(m.n_polygons, i, np.int64))
         mt = obj.material
         row = [*mt.colour, mt.ambient, mt.diffuse, mt.specular, mt.shininess]
         mats.append(np.tile(np.array(row, np.float64), (m.n_polygons, 1)))
         v_off += m.n_vertices
         p_off += m.n_polygons
-    if not scene.objects:
-        z3 = np.zeros((0, 3))
-        zi = np.zeros(0, np.int64)
-        return SceneArrays(
-            z3,
-            np.zeros((0, 3), np.int64),
-            zi,
-            np.zeros((0, 3), np.int64),
-            zi,
-            zi,
-            z3,
-            np.zeros((0, 3, 3)),
-            np.zeros((0, 7)),
-        )
-    vertices = np.concatenate(verts)
-    polygons = np.concatenate(polys)
-    cnt = np.concatenate(counts)
-    triangles = np.concatenate(tris)
-    tp = np.concatenate(tri_poly)
+    counts = [o.mesh.counts for o in scene.objects]
+    objs = [np.full(o.mesh.n_polygons, i, np.int64) for i, o in enumerate(scene.objects)]
+    closed = [np.full(o.mesh.n_polygons, o.mesh.is_closed) for o in scene.objects]
+    scene._static.clear()
+    scene._static.update(
+        key=key,
+        polygons=_cat(polys, (0, k), np.int64),
+        counts=_cat(counts, (0,), np.int64),
+        triangles=_cat(tris, (0, 3), np.int64),
+        triangle_polygon=_cat(tri_poly, (0,), np.int64),
+        polygon_object=_cat(objs, (0,), np.int64),
+        materials=_cat(mats, (0, 7), np.float64),
+        polygon_closed=_cat(closed, (0,), np.bool_),
+    )
+    return scene._static
+
+
+def _cat(parts: list, empty_shape: tuple, dtype: type) -> np.ndarray:
+    """Concatenate, or an empty array of the given shape when there are no parts."""
+    return (
+        np.concatenate(parts).astype(dtype, copy=False) if parts else np.zeros(empty_shape, dtype)
+    )
+
+
+def flatten(scene: Scene) -> SceneArrays:
+    """Concatenate every object's polygons into one world-space list (thesis 3.2).
+
+    Parameters
+    ----------
+    scene : Scene
+
+    Returns
+    -------
+    SceneArrays
+    """
+    static = _static_parts(scene)
+    verts, normals, corners = [], [], []
+    for obj in scene.objects:
+        rot = quaternion_matrix(obj.transform.orientation)
+        verts.append(obj.mesh.vertices @ (rot * obj.transform.scale).T + obj.transform.position)
+        normals.append(obj.mesh.normals @ rot.T)
+        corners.append((obj.mesh, rot))
     return SceneArrays(
-        vertices=vertices,
-        polygons=polygons,
-        counts=cnt,
-        triangles=triangles,
-        triangle_polygon=tp,
-        polygon_object=np.concatenate(poly_obj),
-        normals=np.concatenate(normals),
-        corner_normals=np.concatenate(corners),
-        materials=np.concatenate(mats),
+        vertices=_cat(verts, (0, 3), np.float64),
+        polygons=static["polygons"],
+        counts=static["counts"],
+        triangles=static["triangles"],
+        triangle_polygon=static["triangle_polygon"],
+        polygon_object=static["polygon_object"],
+        normals=_cat(normals, (0, 3), np.float64),
+        materials=static["materials"],
+        polygon_closed=static["polygon_closed"],
+        _corners=corners,
     )

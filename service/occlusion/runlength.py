@@ -148,6 +148,7 @@ def runlength_kernel(
     proj: np.ndarray,
     tris: np.ndarray,
     order: np.ndarray,
+    draw: np.ndarray,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
     inconsistent: np.ndarray,
@@ -161,6 +162,8 @@ def runlength_kernel(
     tris : ndarray, shape (T, 3)
     order : ndarray, shape (N,)
         Nearest first.
+    draw : ndarray, shape (Z, T), bool
+        Per zone, whether a triangle may be drawn at all.
     tri_out : ndarray, shape (Z, R, C), int32, filled with -1
     depth_out : ndarray, shape (Z, R, C), float32, filled with +inf
     inconsistent : ndarray, shape (Z,), int64
@@ -175,6 +178,8 @@ def runlength_kernel(
         pz = proj[z]
         bad = 0
         for t in order:
+            if not draw[z, t]:
+                continue
             st = triangle_setup(pz[tris[t, 0]], pz[tris[t, 1]], pz[tris[t, 2]], rows)
             if not st[0]:
                 continue
@@ -203,6 +208,7 @@ def runlength(
     display: DisplaySettings,
     order: np.ndarray,
     repair: bool = False,
+    draw: np.ndarray | None = None,
 ) -> Visibility:
     """Run-length occlusion for every zone.
 
@@ -217,6 +223,8 @@ def runlength(
         Also draw the hidden points that were nearer than what the sort put first,
         which makes the frame equal to the z-buffer's at the cost of one depth
         comparison per hidden point.
+    draw : ndarray, shape (Z, T), bool, optional
+        Per zone, the triangles that may be drawn (default: all in ``order``).
 
     Returns
     -------
@@ -226,8 +234,17 @@ def runlength(
     """
     vis = Visibility.empty(display.zones, display.rows, display.cols)
     bad = np.zeros(display.zones, np.int64)
+    if draw is None:
+        draw = np.ones((display.zones, scene.triangles.shape[0]), np.bool_)
     runlength_kernel(
-        proj, scene.triangles, np.ascontiguousarray(order), vis.triangle, vis.depth, bad, repair
+        proj,
+        scene.triangles,
+        np.ascontiguousarray(order),
+        draw,
+        vis.triangle,
+        vis.depth,
+        bad,
+        repair,
     )
     vis.stats["inconsistent_pixels"] = int(bad.sum())
     vis.stats["inconsistent_by_zone"] = bad.tolist()

@@ -11,7 +11,11 @@ from service.scene import SceneArrays
 
 
 def zbuffer(
-    scene: SceneArrays, proj: np.ndarray, display: DisplaySettings, order: np.ndarray
+    scene: SceneArrays,
+    proj: np.ndarray,
+    display: DisplaySettings,
+    order: np.ndarray,
+    draw: np.ndarray | None = None,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -23,6 +27,9 @@ def zbuffer(
     display : DisplaySettings
     order : ndarray, shape (N,), int64
         Triangles to draw (culled ones left out); nearest first saves writes.
+    draw : ndarray, shape (Z, T), bool, optional
+        Per zone, the triangles that may be drawn (default: all in ``order``); see
+        :func:`service.cull.zone_mask`.
 
     Returns
     -------
@@ -30,5 +37,8 @@ def zbuffer(
         Ties in depth go to the triangle drawn first.
     """
     vis = Visibility.empty(display.zones, display.rows, display.cols)
-    zbuffer_kernel(proj, scene.triangles, np.ascontiguousarray(order), vis.triangle, vis.depth)
+    if draw is None:
+        draw = np.ones((display.zones, scene.triangles.shape[0]), np.bool_)
+    order = np.ascontiguousarray(order)
+    zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
     return vis

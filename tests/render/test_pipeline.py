@@ -149,3 +149,45 @@ def test_pixel_fallback_equals_the_zbuffer_and_reports_it():
         assert vis.stats["inconsistent_pixels"] > 0, name
         assert vis.stats["fallback"] == "pixel"
         assert np.mean(got == zb) >= 0.9995, name
+
+
+def test_per_zone_cull_changes_no_pixel_of_closed_meshes():
+    scene = builtin_scene("demo")
+    wide = DisplaySettings(zones=9, angle_deg=60.0, cols=96, rows=72)
+    arrays = scene.flatten()
+    assert arrays.polygon_closed.any()
+    for method in ("zbuffer", "runlength"):
+        maps = []
+        for per_zone in (True, False):
+            s = RenderSettings(method=method, cull=CullSettings(per_zone=per_zone))
+            vis, _, _ = Renderer().visibility(arrays, wide, s)
+            maps.append(vis.triangle)
+        assert np.array_equal(maps[0], maps[1]), method
+
+
+def test_open_surfaces_are_drawn_from_behind():
+    # A lone quad facing +x is seen from behind by the zones left of it: an open mesh,
+    # so the per-zone cull must keep it there.
+    quad = Mesh.from_polygons(
+        np.array([[0, -0.5, -0.5], [0, -0.5, 0.5], [0, 0.5, 0.5], [0, 0.5, -0.5]], float),
+        [[0, 1, 2, 3]],
+    )
+    assert not quad.is_closed
+    wide = DisplaySettings(zones=4, angle_deg=60.0, cols=64, rows=48)
+    vis, _, _ = Renderer().visibility(Scene([SceneObject(quad)]).flatten(), wide, RenderSettings())
+    seen = (vis.triangle >= 0).any(axis=(1, 2))
+    assert seen.all()
+
+
+def test_closed_mesh_detection():
+    from service.primitives import cube, sphere, torus
+
+    assert cube(1.0).is_closed and sphere(0.5, 8, 16).is_closed and torus(0.5, 0.2, 12, 8).is_closed
+    c = cube(1.0)
+    open_box = Mesh.from_polygons(c.vertices, [c.polygons[i, : c.counts[i]] for i in range(5)])
+    assert not open_box.is_closed
+    flipped = Mesh.from_polygons(
+        c.vertices,
+        [c.polygons[0, : c.counts[0]][::-1]] + [c.polygons[i, : c.counts[i]] for i in range(1, 6)],
+    )
+    assert not flipped.is_closed
