@@ -63,3 +63,44 @@ class PngError(HoloError, ValueError):
 
 class SampleError(HoloError, ValueError):
     """A pose sample or its time is unusable (non-finite, backwards, duplicate)."""
+
+
+class MessageError(ProtocolError):
+    """A service message broke the protocol (``docs/protocol.md``).
+
+    Parameters
+    ----------
+    code : str
+        The protocol's error code (``bad_json``, ``bad_array``...).
+    message : str
+        What was wrong, in words.
+    """
+
+    def __init__(self, code: str, message: str) -> None:
+        self.code = code
+        self.message = message
+        super().__init__(f"{code}: {message}")
+
+
+class ServiceError(HoloError):
+    """The render service answered a request with an error reply.
+
+    Parameters
+    ----------
+    code : str
+        The error code of the reply.
+    message : str
+        The reply's message.
+    """
+
+    def __init__(self, code: str, message: str) -> None:
+        self.code = code
+        self.message = message
+        super().__init__(f"{code}: {message}")
+
+
+class ServiceUnavailableError(ServiceError):
+    """The render service did not answer within the client's retries."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__("unavailable", message)

@@ -1,0 +1,348 @@
+"""Client library of the render service (``docs/protocol.md``): control and frame stream.
+
+::
+
+    from service.client import ServiceClient, FrameSubscriber
+
+    with ServiceClient("tcp://127.0.0.1:5555") as svc:
+        info = svc.hello()                       # version, session, frames address...
+        svc.load_scene(builtin="game")
+        svc.update_objects([{"name": "player", "position": [0.1, -0.5, 0.1]}])
+        svc.set_display(zones=5, cols=160, rows=120, refresh_hz=60)
+        header, arrays = svc.render_once()       # arrays["colour"] (Z, R, C, 3) uint8
+    with FrameSubscriber(info["frames"]) as frames:
+        got = frames.next(timeout_s=1.0)         # (header, {"colour": ..., ...}) or None
+
+Every call has a deadline.  A request that gets no reply within ``timeout_s`` is
+resent on a fresh socket (the ZeroMQ guide's *Lazy Pirate*), up to ``retries``
+times, then :class:`~service.errors.ServiceUnavailableError` is raised; an error
+reply raises :class:`~service.errors.ServiceError` with the protocol's code.  A
+new ``session`` in a reply to :meth:`ServiceClient.hello` (or in frame headers)
+means the service restarted: ``restarted`` is set so the caller can load its
+scene again.  No pickle anywhere.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zmq
+import zmq.auth
+
+from service import protocol, wire
+from service.errors import MessageError, ServiceError, ServiceUnavailableError
+from service.scene import Scene, SceneObject
+
+LINGER_MS = 0
+
+
+def _curve_client(sock: zmq.Socket, keys_dir: str | Path | None) -> None:
+    """Make ``sock`` a CURVE client with the keys of ``holo-service-keys DIR``."""
+    if keys_dir is None:
+        return
+    d = Path(keys_dir)
+    server_public, _ = zmq.auth.load_certificate(d / "server.key")
+    public, secret = zmq.auth.load_certificate(d / "client.key_secret")
+    sock.curve_serverkey = server_public
+    sock.curve_publickey = public
+    sock.curve_secretkey = secret
+
+
+class ServiceClient:
+    """Request/reply client of the control channel (DEALER, Lazy Pirate retries).
+
+    Parameters
+    ----------
+    address : str
+        The service's control address.
+    timeout_s : float
+        Reply deadline per attempt.
+    retries : int
+        Resends after the first attempt before giving up.
+    curve_keys : str or Path, optional
+        Directory made by ``holo-service-keys`` (CurveZMQ).
+    context : zmq.Context, optional
+    """
+
+    def __init__(
+        self,
+        address: str = "tcp://127.0.0.1:5555",
+        timeout_s: float = 2.5,
+        retries: int = 3,
+        curve_keys: str | Path | None = None,
+        context: zmq.Context | None = None,
+    ) -> None:
+        self.address = address
+        self.timeout_s = float(timeout_s)
+        self.retries = int(retries)
+        self.curve_keys = curve_keys
+        self._ctx = context or zmq.Context.instance()
+        self._ids = itertools.count(1)
+        self._sock: zmq.Socket | None = None
+        self.session: str | None = None
+        self.restarted = False
+        self.reconnects = 0
+        self.last_reply_t = 0.0
+
+    # ------------------------------------------------------------ transport
+    def _open(self) -> zmq.Socket:
+        sock = self._ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, LINGER_MS)
+        sock.setsockopt(zmq.HEARTBEAT_IVL, int(protocol.HEARTBEAT_S * 1000))
+        sock.setsockopt(
+            zmq.HEARTBEAT_TIMEOUT, int(protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS * 1000)
+        )
+        _curve_client(sock, self.curve_keys)
+        sock.connect(self.address)
+        return sock
+
+    def _reset(self) -> None:
+        if self._sock is not None:
+            self._sock.close(LINGER_MS)
+        self._sock = None
+
+    def request(self, msg_type: str, **fields: Any) -> dict[str, Any]:
+        """Send one request and return its reply header (arrays resolved).
+
+        Raises
+        ------
+        ServiceError
+            On an error reply.
+        ServiceUnavailableError
+            When no reply came within ``timeout_s`` after every retry.
+        """
+        rid = next(self._ids)
+        frames = protocol.request(msg_type, rid, fields)
+        for _attempt in range(self.retries + 1):
+            if self._sock is None:
+                self._sock = self._open()
+            if wire.send(self._sock, frames, int(self.timeout_s * 1000)):
+                got = self._await(rid)
+                if got is not None:
+                    return self._check(got)
+            self._reset()  # Lazy Pirate: a fresh socket, then resend
+            self.reconnects += 1
+        raise ServiceUnavailableError(
+            f"no reply from {self.address} to {msg_type!r} after "
+            f"{self.retries + 1} attempts of {self.timeout_s} s"
+        )
+
+    def _await(self, rid: int) -> dict[str, Any] | None:
+        deadline = time.monotonic() + self.timeout_s
+        while (left := deadline - time.monotonic()) > 0:
+            if not self._sock.poll(max(1, int(left * 1000))):
+                return None
+            frames = self._sock.recv_multipart(copy=False)
+            try:
+                header = protocol.parse_reply([f.buffer for f in frames])
+            except MessageError:
+                continue
+            if header.get("id") == rid:
+                self.last_reply_t = time.monotonic()
+                return header
+        return None
+
+    @staticmethod
+    def _check(header: dict[str, Any]) -> dict[str, Any]:
+        if not header.get("ok"):
+            err = header.get("error") or {}
+            raise ServiceError(str(err.get("code", "internal")), str(err.get("message", "")))
+        return header
+
+    # ----------------------------------------------------------- messages
+    def hello(self, name: str = "client") -> dict[str, Any]:
+        """Negotiate the version; notes a service restart (new ``session``)."""
+        got = self.request("hello", versions=list(protocol.SUPPORTED_VERSIONS), client=name)
+        if self.session is not None and got["session"] != self.session:
+            self.restarted = True
+        self.session = got["session"]
+        return got
+
+    def ping(self) -> dict[str, Any]:
+        """One heartbeat round trip."""
+        return self.request("ping")
+
+    def heartbeat(self) -> bool:
+        """Ping when idle for a heartbeat interval; False when the service is gone."""
+        if time.monotonic() - self.last_reply_t < protocol.HEARTBEAT_S:
+            return True
+        try:
+            self.ping()
+        except ServiceUnavailableError:
+            return False
+        return True
+
+    def load_scene(
+        self, builtin: str | None = None, path: str | None = None, scene: Scene | dict | None = None
+    ) -> dict[str, Any]:
+        """Load a built-in scene, a file the service reads, or an inline scene."""
+        if isinstance(scene, Scene):
+            scene = wire.scene_to_wire(scene)
+        fields = {
+            k: v
+            for k, v in (("builtin", builtin), ("path", path), ("scene", scene))
+            if v is not None
+        }
+        return self.request("load_scene", **fields)
+
+    def load_object(
+        self,
+        obj: SceneObject | dict | None = None,
+        path: str | None = None,
+        name: str | None = None,
+    ) -> int:
+        """Add one object (inline or from a file); returns its index."""
+        if isinstance(obj, SceneObject):
+            obj = wire.scene_to_wire(Scene([obj]))["objects"][0]
+        fields: dict[str, Any] = {"object": obj} if obj is not None else {"path": path}
+        if name is not None:
+            fields["name"] = name
+        return int(self.request("load_object", **fields)["index"])
+
+    def update_objects(self, updates: list[dict[str, Any]]) -> int:
+        """Batched object updates (``index`` or ``name`` plus pose/motion fields)."""
+        clean = [
+            {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in u.items()}
+            for u in updates
+        ]
+        return int(self.request("update_objects", objects=clean)["updated"])
+
+    def set_viewer(self, **fields: Any) -> dict[str, Any]:
+        """Viewer pose/motion fields, or ``devices=ADDR`` (``None`` to stop)."""
+        return self.request("set_viewer", **fields)
+
+    def set_display(self, **settings: Any) -> dict[str, Any]:
+        """Display, render and stream settings; returns all settings in force."""
+        return self.request("set_display", **settings)["display"]
+
+    def render_once(
+        self, encodings: list[str] | None = None
+    ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """Render now; returns (reply header, arrays by name)."""
+        fields = {} if encodings is None else {"encodings": encodings}
+        header = self.request("render", **fields)
+        return header, header.pop("arrays", {})
+
+    def stats(self) -> dict[str, Any]:
+        """The service's counters."""
+        return self.request("stats")["stats"]
+
+    def shutdown(self) -> None:
+        """Ask the service to stop (one attempt: a retry could stop a restarted one)."""
+        retries, self.retries = self.retries, 0
+        try:
+            self.request("shutdown")
+        finally:
+            self.retries = retries
+
+    def close(self) -> None:
+        """Close the socket (LINGER 0)."""
+        self._reset()
+
+    def __enter__(self) -> ServiceClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class FrameSubscriber:
+    """Subscriber of the frame stream (SUB, small RCVHWM, reconnects when silent).
+
+    Parameters
+    ----------
+    address : str
+        The service's frame stream address.
+    hwm : int
+        Receive high-water mark in messages.
+    curve_keys : str or Path, optional
+    context : zmq.Context, optional
+    """
+
+    def __init__(
+        self,
+        address: str = "tcp://127.0.0.1:5556",
+        hwm: int = 2,
+        curve_keys: str | Path | None = None,
+        context: zmq.Context | None = None,
+    ) -> None:
+        self.address = address
+        self.hwm = hwm
+        self.curve_keys = curve_keys
+        self._ctx = context or zmq.Context.instance()
+        self._sock = self._open()
+        self.last_heard = time.monotonic()
+        self.session: str | None = None
+        self.restarted = False
+        self.reconnects = 0
+        self.frames = 0
+        self.dropped = 0
+        self._last_seq: int | None = None
+
+    def _open(self) -> zmq.Socket:
+        sock = self._ctx.socket(zmq.SUB)
+        sock.setsockopt(zmq.LINGER, LINGER_MS)
+        sock.setsockopt(zmq.RCVHWM, self.hwm)
+        sock.setsockopt(zmq.SUBSCRIBE, b"")
+        _curve_client(sock, self.curve_keys)
+        sock.connect(self.address)
+        return sock
+
+    @property
+    def alive(self) -> bool:
+        """Heard from the service (frame or heartbeat) within 3 heartbeats."""
+        limit = protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
+        return time.monotonic() - self.last_heard < limit
+
+    def _reconnect(self) -> None:
+        self._sock.close(LINGER_MS)
+        self._sock = self._open()
+        self.last_heard = time.monotonic()
+        self.reconnects += 1
+
+    def next(self, timeout_s: float = 1.0) -> tuple[dict[str, Any], dict[str, np.ndarray]] | None:
+        """The next frame: (header, arrays by name), or None after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while (left := deadline - time.monotonic()) > 0:
+            if not self.alive:
+                self._reconnect()
+            if not self._sock.poll(max(1, min(int(left * 1000), 500))):
+                continue
+            got = self._take(self._sock.recv_multipart(copy=False))
+            if got is not None:
+                return got
+        return None
+
+    def _take(self, frames: list[zmq.Frame]) -> tuple[dict, dict] | None:
+        try:
+            header = protocol.parse_reply([f.buffer for f in frames[1:]])
+        except (MessageError, IndexError):
+            return None
+        self.last_heard = time.monotonic()
+        session = header.get("session")
+        if self.session is not None and session != self.session:
+            self.restarted = True
+            self._last_seq = None
+        self.session = session
+        if header.get("kind") != "frame":
+            return None
+        seq = int(header.get("seq", 0))
+        if self._last_seq is not None and seq > self._last_seq + 1:
+            self.dropped += seq - self._last_seq - 1
+        self._last_seq = seq
+        self.frames += 1
+        return header, header.pop("arrays", {})
+
+    def close(self) -> None:
+        """Close the socket (LINGER 0)."""
+        self._sock.close(LINGER_MS)
+
+    def __enter__(self) -> FrameSubscriber:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,242 @@
+"""The service protocol, version 1 (``docs/protocol.md``): pure functions over frames.
+
+A request arrives at the service's ROUTER as ``[identity, b"", header, *buffers]``
+(the empty delimiter is optional).  :func:`split_envelope` separates the routing
+envelope, :func:`parse_request` checks the rest and raises
+:class:`~service.errors.MessageError` with the protocol's error code;
+:func:`reply` and :func:`error_reply` build the answer frames.  Nothing here does
+I/O, so every rule is testable without sockets.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from service import wire
+from service.errors import MessageError
+
+VERSION = 1
+SUPPORTED_VERSIONS = (1,)
+SERVICE_NAME = "holo-service"
+HEARTBEAT_S = 1.0
+#: a peer not heard from for this many heartbeats is dead.
+HEARTBEAT_LIVENESS = 3
+
+MESSAGE_TYPES = (
+    "hello",
+    "ping",
+    "load_scene",
+    "load_object",
+    "update_objects",
+    "set_viewer",
+    "set_display",
+    "render",
+    "stats",
+    "shutdown",
+)
+ERROR_CODES = (
+    "bad_frames",
+    "bad_json",
+    "bad_version",
+    "unknown_type",
+    "bad_message",
+    "bad_array",
+    "not_finite",
+    "too_large",
+    "not_found",
+    "bad_settings",
+    "render_failed",
+    "no_scene",
+    "internal",
+)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Size caps of version 1 (``docs/protocol.md`` section 1.6)."""
+
+    max_message_bytes: int = 256 << 20
+    max_frames: int = 2 + wire.MAX_ARRAYS
+    max_header_bytes: int = 1 << 20
+    max_string: int = 4096
+    max_id: int = 64
+    max_objects: int = wire.MAX_OBJECTS
+    max_vertices: int = wire.MAX_VERTICES
+    max_polygons: int = wire.MAX_POLYGONS
+    max_dims: int = wire.MAX_DIMS
+
+    def as_dict(self) -> dict[str, int]:
+        """The limits as the ``hello`` reply lists them."""
+        return dict(self.__dict__)
+
+
+@dataclass
+class Request:
+    """A parsed request.
+
+    Attributes
+    ----------
+    envelope : list of bytes
+        Routing frames up to and including the empty delimiter (if any).
+    header : dict
+        The JSON header with array references resolved to read-only ndarrays.
+    """
+
+    envelope: list[bytes]
+    header: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def type(self) -> str:
+        """The message type."""
+        return self.header["type"]
+
+    @property
+    def id(self) -> Any:
+        """The client's request id (echoed in the reply)."""
+        return self.header.get("id")
+
+
+def split_envelope(frames: list[Any]) -> tuple[list[bytes], list[Any]]:
+    """Routing envelope (identity and the empty delimiter, if present) and body.
+
+    ``frames`` is what a ROUTER received: ``[identity, (b""), header, *buffers]``.
+    """
+    ident = [bytes(frames[0])]
+    if len(frames) > 1 and len(frames[1]) == 0:
+        return [*ident, b""], frames[2:]
+    return ident, frames[1:]
+
+
+def _header(frame: Any, limits: Limits) -> dict[str, Any]:
+    raw = bytes(frame)
+    if len(raw) > limits.max_header_bytes:
+        raise MessageError(
+            "too_large", f"header has {len(raw)} bytes (max {limits.max_header_bytes})"
+        )
+    try:
+        header = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise MessageError("bad_json", f"header is not UTF-8 JSON: {exc}") from exc
+    if not isinstance(header, dict):
+        raise MessageError("bad_json", "header must be a JSON object")
+    return header
+
+
+def check_id(value: Any, limits: Limits) -> Any:
+    """The request id if valid (int, or str of <= 64 chars), else None."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int) or (isinstance(value, str) and len(value) <= limits.max_id):
+        return value
+    return None
+
+
+def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, Any]:
+    """Check a request body (header frame plus buffers) and resolve its arrays.
+
+    Parameters
+    ----------
+    body : list of bytes-like
+        The frames after the routing envelope.
+    limits : Limits, optional
+
+    Returns
+    -------
+    dict
+        The header, ``{"$array": i}`` replaced by read-only arrays.
+
+    Raises
+    ------
+    MessageError
+        With the error code of ``docs/protocol.md`` section 1.3.  Its ``partial``
+        attribute holds the ``id``/``type`` read so far (for the error reply).
+    """
+    limits = limits or Limits()
+    if not body or len(body) > limits.max_frames:
+        raise MessageError(
+            "bad_frames",
+            f"a request has 1 to {limits.max_frames} frames after the envelope, got {len(body)}",
+        )
+    header = _header(body[0], limits)
+    partial = {"id": check_id(header.get("id"), limits), "type": header.get("type")}
+    try:
+        if header.get("v") not in SUPPORTED_VERSIONS:
+            raise MessageError(
+                "bad_version",
+                f"v must be one of {list(SUPPORTED_VERSIONS)}, got {header.get('v')!r}",
+            )
+        if header.get("type") not in MESSAGE_TYPES:
+            partial["type"] = None
+            raise MessageError(
+                "unknown_type",
+                f"type must be one of {list(MESSAGE_TYPES)}, got {str(header.get('type'))[:64]!r}",
+            )
+        if "id" in header and partial["id"] is None:
+            raise MessageError("bad_message", "id must be an int or a string of <= 64 chars")
+        arrays = wire.decode_arrays(header.pop("arrays", None), body[1:], limits.max_message_bytes)
+        return wire.resolve(header, arrays)
+    except MessageError as exc:
+        exc.partial = partial  # type: ignore[attr-defined]
+        raise
+
+
+def reply(
+    envelope: list[bytes],
+    request_id: Any,
+    msg_type: str | None,
+    fields: dict[str, Any] | None = None,
+    arrays: list[np.ndarray] | None = None,
+    names: list[str] | None = None,
+) -> list[Any]:
+    """Frames of a success reply (envelope, header, buffers)."""
+    header = {"v": VERSION, "id": request_id, "type": msg_type, "ok": True, **(fields or {})}
+    return [*envelope, *wire.encode(header, arrays or [], names)]
+
+
+def error_reply(
+    envelope: list[bytes], request_id: Any, msg_type: str | None, code: str, message: str
+) -> list[Any]:
+    """Frames of an error reply."""
+    header = {
+        "v": VERSION,
+        "id": request_id,
+        "type": msg_type,
+        "ok": False,
+        "error": {"code": code, "message": message[:4096]},
+    }
+    return [*envelope, *wire.encode(header, [])]
+
+
+def request(msg_type: str, request_id: Any, fields: dict[str, Any] | None = None) -> list[Any]:
+    """Frames of a request (empty delimiter, header, buffers) for a DEALER.
+
+    ndarrays anywhere in ``fields`` travel as buffers (``$array`` references).
+    """
+    body, arrays = wire.extract(fields or {})
+    header = {"v": VERSION, "type": msg_type, "id": request_id, **body}
+    return [b"", *wire.encode(header, arrays)]
+
+
+def parse_reply(frames: list[Any]) -> dict[str, Any]:
+    """A reply's header with arrays resolved (``[b"", header, *buffers]`` or without b"").
+
+    Raises
+    ------
+    MessageError
+        When the reply itself breaks the protocol.
+    """
+    body = frames[1:] if frames and len(frames[0]) == 0 else frames
+    if not body:
+        raise MessageError("bad_frames", "empty reply")
+    header = _header(body[0], Limits())
+    names = [d.get("name") for d in header.get("arrays", []) if isinstance(d, dict)]
+    arrays = wire.decode_arrays(header.pop("arrays", None), body[1:], Limits().max_message_bytes)
+    if names and all(isinstance(n, str) for n in names):
+        header["arrays"] = dict(zip(names, arrays, strict=True))
+    elif arrays:
+        header["arrays"] = arrays
+    return header
