@@ -191,3 +191,16 @@ def test_closed_mesh_detection():
         [c.polygons[0, : c.counts[0]][::-1]] + [c.polygons[i, : c.counts[i]] for i in range(1, 6)],
     )
     assert not flipped.is_closed
+
+
+def test_five_zone_error_grows_with_angle_and_shrinks_with_zones():
+    # A viewer between zone centres sees the nearest zone's image: the wider the
+    # viewing angle, or the fewer the zones, the more pixels show the wrong object.
+    from service.bench.render_bench import continuous_error
+
+    size = (96, 72)
+    by_angle = [continuous_error("game", 5, a, size) for a in (4.0, 16.0, 60.0)]
+    assert by_angle[0] < by_angle[1] < by_angle[2]
+    by_zones = [continuous_error("game", z, 32.0, size) for z in (1, 5, 17)]
+    assert by_zones[0] > by_zones[1] > by_zones[2]
+    assert continuous_error("game", 5, 0.0, size) == 0.0  # no look-around, nothing to miss
