@@ -1,0 +1,202 @@
+"""Input: keyboard, gamepad, dial box and buttons mapped to abstract actions.
+
+Every binding is a lookup table from an input to an action name; nothing below
+branches on which key was pressed.  Discrete actions are the six moves of
+:data:`game.rules.MOVES` plus the game's own commands (:data:`COMMANDS`);
+continuous input (dials, stick axes) becomes a shift of the player's origin.
+
+Dial box (``holo-devices`` PUB stream): dials 0, 1, 2 move the player continuously
+along x, y and z (:data:`DIAL_AXES`, world units per count); buttons 0 to 5 make the
+six discrete moves and button 6 pauses (:data:`BUTTON_BINDINGS`).  The lamps of the
+bound buttons are lit on the device side: :func:`lamp_mask` gives the mask for
+``holo-devices --lamps``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pygame
+
+from drivers.events import ButtonEvent, DialEvent
+
+#: Commands besides the moves.
+COMMANDS = (
+    "pause",
+    "quit",
+    "start",
+    "mode_head",
+    "mode_strip",
+    "mode_zone",
+    "mode_autostereogram",
+    "zone_prev",
+    "zone_next",
+)
+
+KEY_BINDINGS: dict[int, str] = {
+    pygame.K_UP: "moveup",
+    pygame.K_DOWN: "movedown",
+    pygame.K_LEFT: "moveleft",
+    pygame.K_RIGHT: "moveright",
+    pygame.K_w: "moveup",
+    pygame.K_s: "movedown",
+    pygame.K_a: "moveleft",
+    pygame.K_d: "moveright",
+    pygame.K_PAGEUP: "movein",
+    pygame.K_q: "movein",
+    pygame.K_PAGEDOWN: "moveout",
+    pygame.K_e: "moveout",
+    pygame.K_p: "pause",
+    pygame.K_SPACE: "start",
+    pygame.K_RETURN: "start",
+    pygame.K_ESCAPE: "quit",
+    pygame.K_1: "mode_head",
+    pygame.K_2: "mode_strip",
+    pygame.K_3: "mode_zone",
+    pygame.K_4: "mode_autostereogram",
+    pygame.K_LEFTBRACKET: "zone_prev",
+    pygame.K_RIGHTBRACKET: "zone_next",
+}
+
+#: Game-controller buttons (SDL GameController layout).
+PAD_BUTTONS: dict[int, str] = {
+    pygame.CONTROLLER_BUTTON_DPAD_UP: "moveup",
+    pygame.CONTROLLER_BUTTON_DPAD_DOWN: "movedown",
+    pygame.CONTROLLER_BUTTON_DPAD_LEFT: "moveleft",
+    pygame.CONTROLLER_BUTTON_DPAD_RIGHT: "moveright",
+    pygame.CONTROLLER_BUTTON_LEFTSHOULDER: "movein",
+    pygame.CONTROLLER_BUTTON_RIGHTSHOULDER: "moveout",
+    pygame.CONTROLLER_BUTTON_START: "pause",
+    pygame.CONTROLLER_BUTTON_A: "start",
+    pygame.CONTROLLER_BUTTON_BACK: "quit",
+}
+
+#: Joystick hat direction -> move (for pads without the controller mapping).
+HAT_BINDINGS: dict[tuple[int, int], str] = {
+    (0, 1): "moveup",
+    (0, -1): "movedown",
+    (-1, 0): "moveleft",
+    (1, 0): "moveright",
+}
+
+#: Controller axis -> (world axis, sign); analogue sticks nudge continuously.
+PAD_AXES: dict[int, tuple[int, float]] = {
+    pygame.CONTROLLER_AXIS_LEFTX: (0, 1.0),
+    pygame.CONTROLLER_AXIS_LEFTY: (1, -1.0),
+    pygame.CONTROLLER_AXIS_RIGHTY: (2, 1.0),
+}
+
+#: Dial index -> (world axis, world units per count).
+DIAL_AXES: dict[int, tuple[int, float]] = {0: (0, 0.002), 1: (1, 0.002), 2: (2, 0.002)}
+
+#: Dial-box button -> action (pressed edges only).
+BUTTON_BINDINGS: dict[int, str] = {
+    0: "moveleft",
+    1: "moveright",
+    2: "moveup",
+    3: "movedown",
+    4: "movein",
+    5: "moveout",
+    6: "pause",
+}
+
+STICK_DEAD_ZONE = 0.2
+#: Stick speed at full deflection, world units per second.
+STICK_SPEED = 0.8
+
+
+def lamp_mask(bindings: dict[int, str] | None = None) -> int:
+    """Lamp mask lighting every bound dial-box button (for ``holo-devices --lamps``)."""
+    return sum(1 << b for b in (BUTTON_BINDINGS if bindings is None else bindings))
+
+
+@dataclass
+class Input:
+    """What one tick's input asks for.
+
+    Attributes
+    ----------
+    actions : list of str
+        Discrete actions in the order they came.
+    shift : ndarray, shape (3,)
+        Continuous shift of the player's origin (world units).
+    """
+
+    actions: list[str] = field(default_factory=list)
+    shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def merge(self, other: Input) -> Input:
+        """The input ``self`` followed by ``other``."""
+        return Input(self.actions + other.actions, self.shift + other.shift)
+
+
+def _key(ev: pygame.event.Event) -> list[str]:
+    return [KEY_BINDINGS[ev.key]] if ev.key in KEY_BINDINGS else []
+
+
+def _pad_button(ev: pygame.event.Event) -> list[str]:
+    return [PAD_BUTTONS[ev.button]] if ev.button in PAD_BUTTONS else []
+
+
+def _hat(ev: pygame.event.Event) -> list[str]:
+    value = tuple(ev.value)
+    return [HAT_BINDINGS[value]] if value in HAT_BINDINGS else []
+
+
+#: pygame event type -> its discrete actions.
+EVENT_HANDLERS = {
+    pygame.KEYDOWN: _key,
+    pygame.CONTROLLERBUTTONDOWN: _pad_button,
+    pygame.JOYHATMOTION: _hat,
+    pygame.QUIT: lambda ev: ["quit"],
+}
+
+
+def from_pygame(events: Iterable[pygame.event.Event]) -> Input:
+    """Discrete actions from pygame events (keys, pad buttons, hats, window close)."""
+    actions: list[str] = []
+    for ev in events:
+        handler = EVENT_HANDLERS.get(ev.type)
+        if handler is not None:
+            actions.extend(handler(ev))
+    return Input(actions)
+
+
+def stick_shift(axes: dict[int, float], dt: float) -> np.ndarray:
+    """Continuous shift from controller axis values (-1..1) held for ``dt`` seconds."""
+    shift = np.zeros(3)
+    for axis, value in axes.items():
+        if axis in PAD_AXES and abs(value) > STICK_DEAD_ZONE:
+            world, sign = PAD_AXES[axis]
+            shift[world] += sign * value * STICK_SPEED * dt
+    return shift
+
+
+def _dial(ev: DialEvent) -> Input:
+    if ev.index not in DIAL_AXES:
+        return Input()
+    world, gain = DIAL_AXES[ev.index]
+    shift = np.zeros(3)
+    shift[world] = ev.delta * gain
+    return Input(shift=shift)
+
+
+def _button(ev: ButtonEvent) -> Input:
+    bound = ev.pressed and ev.index in BUTTON_BINDINGS
+    return Input([BUTTON_BINDINGS[ev.index]] if bound else [])
+
+
+#: device event class -> its input.
+DEVICE_HANDLERS = {DialEvent: _dial, ButtonEvent: _button}
+
+
+def from_devices(events: Iterable[object]) -> Input:
+    """Input from ``DeviceSubscriber.take_events()`` (dials, buttons; others ignored)."""
+    out = Input()
+    for ev in events:
+        handler = DEVICE_HANDLERS.get(type(ev))
+        if handler is not None:
+            out = out.merge(handler(ev))
+    return out

@@ -1,0 +1,387 @@
+"""Where the game's frames come from: the render service, or an in-process renderer.
+
+Both backends take the same calls, so the game loop does not know which it has:
+
+==================  ===================================================================
+call                what it does
+==================  ===================================================================
+``start(scene)``    load the game's scene (inline) and the display settings
+``update(records)`` per-object states (:func:`game.scene.object_states`)
+``explode(seed)``   game over: fling the player's galpixels (local) or the objects
+                    (service) and leave them to the Galilean stage
+``resume()``        a new game: renders follow the updates again
+``frame(timeout)``  the newest frame not yet taken (a :class:`FrameView`) or None
+``connected``       False while the service is unreachable (the loop shows
+                    "reconnecting" and keeps trying)
+``close()``         stop threads / close sockets
+==================  ===================================================================
+
+:class:`ServiceBackend` talks to ``holo-service`` through :mod:`service.client`
+(``docs/protocol.md``); :class:`LocalRenderer` runs the render pipeline and the
+Galilean stage on two threads of this process (renders as fast as they go,
+refreshes at a fixed rate), so the game also runs with no service (``--local``).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from game.gameover import burst_derivatives, burst_records
+from game.scene import apply_states
+from service.display import DisplaySettings
+from service.galilean import GalileanSettings, GalileanStage
+from service.galilean.motion_field import render_with_motion
+from service.pipeline import Renderer, RenderSettings
+from service.scene import Scene
+
+
+@dataclass
+class FrameView:
+    """One displayed frame, whatever its source.
+
+    Attributes
+    ----------
+    colour : ndarray, shape (Z, R, C, 3), uint8
+    seq : int
+        Frame counter of the source (gaps: frames dropped).
+    render_id : int
+        The render last grafted (-1 before the first).
+    since_render : int
+        Refreshes since that render.
+    zone : int or None
+        The zone the source's tracked viewer is in, if it knows.
+    latency_ms : float or None
+        From the input the shown render was made from (object states or head pose)
+        to this frame.
+    """
+
+    colour: np.ndarray
+    seq: int
+    render_id: int
+    since_render: int
+    zone: int | None = None
+    latency_ms: float | None = None
+
+
+@dataclass(frozen=True)
+class BackendSettings:
+    """Display and render settings shared by both backends.
+
+    Attributes
+    ----------
+    display : DisplaySettings
+    light_model : str
+        ``ambient`` (the game's fast mode, thesis 5.1.1) or ``blinn`` / ``phong``.
+    refresh_hz : float
+    order : int
+        Galpixel order of the Galilean stage.
+    """
+
+    display: DisplaySettings = DisplaySettings(zones=5, angle_deg=16.0, cols=200, rows=150)
+    light_model: str = "ambient"
+    refresh_hz: float = 60.0
+    order: int = 2
+
+
+class LocalRenderer:
+    """Render pipeline + Galilean stage in this process (two threads).
+
+    Parameters
+    ----------
+    settings : BackendSettings
+    """
+
+    def __init__(self, settings: BackendSettings | None = None) -> None:
+        from service.light import LightSettings
+
+        self.settings = s = settings or BackendSettings()
+        self.render_settings = RenderSettings(method="zbuffer", light=LightSettings(s.light_model))
+        self.stage = GalileanStage(
+            s.display, GalileanSettings(order=s.order, refresh_hz=s.refresh_hz, colour_motion=False)
+        )
+        self.connected = True
+        self._renderer = Renderer()
+        self._cv = threading.Condition()
+        self._stage_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._scene: Scene | None = None
+        self._records: list[dict] = []
+        self._records_t = 0.0
+        self._version = 0
+        self._burst: int | None = None
+        self._frozen = False
+        self._latest: FrameView | None = None
+        self._taken = -1
+        self._render_id = -1
+        self._grafted: tuple[int, float] = (-1, 0.0)
+        self._lead = 0.1
+        self._threads: list[threading.Thread] = []
+
+    def start(self, scene: Scene) -> None:
+        """Take the scene and start rendering and refreshing."""
+        self._scene = scene
+        for target in (self._render_loop, self._refresh_loop):
+            t = threading.Thread(target=target, daemon=True, name=f"local-{target.__name__}")
+            t.start()
+            self._threads.append(t)
+
+    def update(self, records: list[dict]) -> None:
+        """New object states; the next render uses them."""
+        with self._cv:
+            self._records = records
+            self._records_t = time.monotonic()
+            self._version += 1
+            self._cv.notify_all()
+
+    def explode(self, seed: int = 0) -> None:
+        """The next render flings the player's galpixels; then renders stop."""
+        with self._cv:
+            self._burst = seed
+            self._version += 1
+            self._cv.notify_all()
+
+    def resume(self) -> None:
+        """Renders follow the updates again (a new game)."""
+        with self._cv:
+            self._frozen = False
+            self._burst = None
+
+    def frame(self, timeout_s: float = 0.0) -> FrameView | None:
+        """The newest refresh not yet taken, waiting up to ``timeout_s``."""
+        with self._cv:
+            self._cv.wait_for(
+                lambda: self._latest is not None and self._latest.seq != self._taken, timeout_s
+            )
+            got = self._latest
+            if got is None or got.seq == self._taken:
+                return None
+            self._taken = got.seq
+            return got
+
+    def close(self) -> None:
+        """Stop both threads."""
+        self._stop.set()
+        with self._cv:
+            self._cv.notify_all()
+        for t in self._threads:
+            t.join(5.0)
+
+    # ------------------------------------------------------------- threads
+    def _next_job(self, seen: int) -> tuple[int, list[dict], float, int | None] | None:
+        with self._cv:
+            self._cv.wait_for(
+                lambda: self._stop.is_set() or (self._version != seen and not self._frozen), 0.2
+            )
+            if self._stop.is_set() or self._version == seen or self._frozen:
+                return None
+            burst, self._burst = self._burst, None
+            self._frozen = burst is not None
+            return self._version, self._records, self._records_t, burst
+
+    def _render_loop(self) -> None:
+        seen = -1
+        while not self._stop.is_set():
+            job = self._next_job(seen)
+            if job is None:
+                continue
+            seen, records, records_t, burst = job
+            t0 = time.monotonic()
+            scene = apply_states(self._scene, records)
+            ru = render_with_motion(
+                self._renderer,
+                scene,
+                self.settings.display,
+                self._lead,
+                self.settings.refresh_hz,
+                self.render_settings,
+                colour_motion=False,
+            )
+            if burst is not None:
+                ru = replace(
+                    ru,
+                    derivatives=burst_derivatives(ru.derivatives, ru.obj, 0, burst),
+                    points=None,
+                    point_derivs=None,
+                )
+            self._lead = 0.8 * self._lead + 0.2 * (time.monotonic() - t0)
+            with self._stage_lock:
+                self._render_id += 1
+                self.stage.update(ru)
+                self._grafted = (self._render_id, records_t)
+
+    def _refresh_loop(self) -> None:
+        period = 1.0 / self.settings.refresh_hz
+        next_t = time.monotonic()
+        graft_index = 0
+        while not self._stop.is_set():
+            with self._stage_lock:
+                out = self.stage.refresh()
+                render_id, records_t = self._grafted
+            if out.flags.get("updated"):
+                graft_index = out.index
+            now = time.monotonic()
+            view = FrameView(
+                colour=out.colour.copy(),
+                seq=out.index,
+                render_id=render_id,
+                since_render=out.index - graft_index,
+                latency_ms=(now - records_t) * 1e3 if records_t else None,
+            )
+            with self._cv:
+                self._latest = view
+                self._cv.notify_all()
+            next_t = max(next_t + period, time.monotonic() - period)
+            self._stop.wait(max(0.0, next_t - time.monotonic()))
+
+
+class ServiceBackend:
+    """``holo-service`` through :mod:`service.client` (``docs/protocol.md``).
+
+    Parameters
+    ----------
+    control : str
+        The service's control address.
+    frames : str or None
+        Its frame stream address (None: the one ``hello`` names).
+    devices : str or None
+        A ``holo-devices`` PUB address the service should take the viewer's pose
+        from.
+    settings : BackendSettings
+    timeout_s : float
+        Reply deadline; short, so a dead service never stalls the game for long.
+    """
+
+    def __init__(
+        self,
+        control: str,
+        frames: str | None = None,
+        devices: str | None = None,
+        settings: BackendSettings | None = None,
+        timeout_s: float = 0.5,
+    ) -> None:
+        from service.client import FrameSubscriber, ServiceClient
+
+        self.settings = settings or BackendSettings()
+        self.devices = devices
+        self.client = ServiceClient(control, timeout_s=timeout_s, retries=0)
+        self._frames_addr = frames
+        self._make_sub = FrameSubscriber
+        self.sub: Any = None
+        self.connected = False
+        self._scene: Scene | None = None
+        self._records: list[dict] = []
+        self._frozen = False
+        self._next_try = 0.0
+        self.reconnects = 0
+
+    def start(self, scene: Scene) -> None:
+        """Load the scene and settings (raises if the service is not there)."""
+        self._scene = scene
+        self._connect()
+
+    def _connect(self) -> None:
+        info = self.client.hello("holo-game")
+        s = self.settings
+        d = s.display
+        self.client.set_display(
+            zones=d.zones,
+            angle_deg=d.angle_deg,
+            cols=d.cols,
+            rows=d.rows,
+            width=d.width,
+            method="zbuffer",
+            light_model=s.light_model,
+            galpixel_order=s.order,
+            refresh_hz=s.refresh_hz,
+            encodings=["colour"],
+        )
+        self.client.load_scene(scene=self._scene)
+        if self.devices:
+            self.client.set_viewer(devices=self.devices)
+        if self._records:
+            self.client.update_objects(self._records)
+        if self.sub is None:
+            self.sub = self._make_sub(self._frames_addr or info["frames"])
+        self.connected = True
+
+    def _call(self, fn: Any, *args: Any) -> None:
+        """Run a request; on failure mark the link down (the loop reconnects)."""
+        from service.errors import ServiceError
+
+        if not self.connected:
+            self._retry()
+            return
+        try:
+            fn(*args)
+        except ServiceError:
+            self.connected = False
+            self._next_try = time.monotonic() + 0.5
+
+    def _retry(self) -> None:
+        from service.errors import ServiceError
+
+        if time.monotonic() < self._next_try:
+            return
+        self._next_try = time.monotonic() + 0.5
+        try:
+            self._connect()
+            self.reconnects += 1
+        except ServiceError:
+            self.connected = False
+
+    def update(self, records: list[dict]) -> None:
+        """Send the object states (kept to resend after a reconnect)."""
+        if self._frozen:
+            return
+        self._records = records
+        self._call(self.client.update_objects, records)
+
+    def explode(self, seed: int = 0) -> None:
+        """Fling every object outward from the player (object-level burst)."""
+        self._frozen = True
+        self._call(self.client.update_objects, burst_records(self._records, seed))
+
+    def resume(self) -> None:
+        """Updates go through again."""
+        self._frozen = False
+
+    def frame(self, timeout_s: float = 0.0) -> FrameView | None:
+        """The next frame from the stream, or None; a restarted service is reloaded."""
+        if not self.connected:
+            self._retry()
+            return None
+        got = self.sub.next(timeout_s) if timeout_s > 0 else self.sub.next(0.001)
+        if self.sub.restarted or self.client.restarted or not self.sub.alive:
+            self.sub.restarted = self.client.restarted = False
+            self.connected = False
+            self._next_try = 0.0
+        if got is None:
+            return None
+        header, arrays = got
+        return _view(header, arrays)
+
+    def close(self) -> None:
+        """Close both sockets."""
+        if self.sub is not None:
+            self.sub.close()
+        self.client.close()
+
+
+def _view(header: dict, arrays: dict) -> FrameView:
+    pose_t = header.get("pose_t_ns")
+    latency = (header["t_ns"] - pose_t) / 1e6 if pose_t else None
+    if latency is None and header.get("t_render_ns"):
+        latency = (header["t_ns"] - header["t_render_ns"]) / 1e6
+    return FrameView(
+        colour=arrays["colour"],
+        seq=int(header.get("seq", 0)),
+        render_id=int(header.get("render_id", -1)),
+        since_render=int(header.get("since_render", 0)),
+        zone=header.get("zone"),
+        latency_ms=latency,
+    )

@@ -1,0 +1,181 @@
+"""``holo-game``: the holo-video dodge game (seed 000, chapter 5) as a service client.
+
+::
+
+    holo-game                                   # service on tcp://127.0.0.1:5555, a window
+    holo-game --local                           # no service: in-process renderer
+    holo-game --devices tcp://127.0.0.1:5557    # dial box, buttons and head tracker
+    holo-game --local --bot --headless --seconds 20 --out demo-out
+
+Keys: arrows / WASD move left, right, up, down; Q / PageUp in, E / PageDown out;
+P pause; 1 head-tracked, 2 strip, 3 fixed zone ([ and ] pick it), 4 autostereogram
+(not available yet); SPACE starts; Esc quits.  The dial box: dials 0-2 move along
+x, y, z; buttons 0-5 make the six moves, 6 pauses (their lamps are lit when
+``holo-devices --lamps`` is given :func:`game.actions.lamp_mask`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from game.actions import lamp_mask
+from game.display import MODES, UNAVAILABLE, has_display, headless_env
+from game.rules import DIFFICULTIES, GameSettings
+from service.display import DisplaySettings, parse_size
+
+DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(
+        prog="holo-game",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--service", default=DEFAULT_SERVICE, help="holo-service control address")
+    p.add_argument("--frames", default=None, help="frame stream address (default: from hello)")
+    p.add_argument("--devices", default=None, help="holo-devices PUB address (input, head)")
+    p.add_argument("--local", action="store_true", help="render in this process, no service")
+    p.add_argument(
+        "--mode",
+        default="head",
+        choices=[*MODES, *UNAVAILABLE],
+        help="display mode (autostereogram: not available yet)",
+    )
+    p.add_argument("--zone", type=int, default=2, help="the fixed zone of --mode zone")
+    p.add_argument("--bot", action="store_true", help="attract mode: the bot plays")
+    p.add_argument(
+        "--bot-gives-up",
+        type=float,
+        default=None,
+        metavar="S",
+        help="attract mode: the bot stops dodging after S game seconds",
+    )
+    p.add_argument("--seconds", type=float, default=None, help="stop after N seconds")
+    p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
+    p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")
+    p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
+    p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES))
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--zones", type=int, default=5, help="view zones (default 5)")
+    p.add_argument("--size", default="200x150", help="pixels per zone, COLSxROWS")
+    p.add_argument("--refresh", type=float, default=60.0, help="refresh rate, Hz")
+    p.add_argument("--attackers", default=None, help="attacker mesh file (.obj, .ply, ...)")
+    p.add_argument("--highscores", default=str(Path.home() / ".holo-game-scores.json"))
+    p.add_argument("--name", default=os.environ.get("USER", "player"))
+    p.add_argument(
+        "--print-lamps",
+        action="store_true",
+        help="print the lamp mask for holo-devices --lamps and exit",
+    )
+    return p
+
+
+def _backend(args: argparse.Namespace, settings: object) -> object:
+    from game.backends import LocalRenderer, ServiceBackend
+
+    if args.local:
+        return LocalRenderer(settings)
+    return ServiceBackend(args.service, args.frames, args.devices, settings)
+
+
+def _setup(args: argparse.Namespace) -> tuple:
+    """Scene, backend, devices, window, high scores and beeper from the arguments."""
+    import pygame
+
+    from game.backends import BackendSettings
+    from game.display import GameWindow
+    from game.gameover import Beeper
+    from game.highscores import HighScores
+    from game.rules import new_game
+    from game.scene import attacker_mesh, game_scene
+    from service.errors import ServiceError
+
+    cols, rows = parse_size(args.size)
+    display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
+    light = "blinn" if args.full_light else "ambient"
+    settings = BackendSettings(display, light, args.refresh)
+    game = GameSettings(seed=args.seed, difficulty=args.difficulty)
+    scene = game_scene(
+        len(new_game(game).attackers),
+        args.full_light,
+        attacker_mesh(args.attackers) if args.attackers else None,
+    )
+    backend = _backend(args, settings)
+    try:
+        backend.start(scene)
+    except ServiceError as exc:
+        print(f"holo-game: service not reachable yet ({exc}); retrying", file=sys.stderr)
+    devices = None
+    if args.devices:
+        from drivers.subscriber import DeviceSubscriber
+
+        devices = DeviceSubscriber(args.devices)
+    pygame.init()
+    window = GameWindow()
+    scores = HighScores.load(args.highscores, recover=True)
+    if scores.recovered_from is not None:
+        print(f"holo-game: {scores.recovered_from}; starting a new table", file=sys.stderr)
+    return game, backend, devices, window, scores, Beeper(muted=args.headless)
+
+
+def run(args: argparse.Namespace) -> dict:
+    """Play (or let the bot play) until quit or ``--seconds``; returns the stats."""
+    import pygame
+
+    from game.capture import Capture
+    from game.client_loop import GameClient, LoopSettings
+
+    game, backend, devices, window, scores, beeper = _setup(args)
+    loop = LoopSettings(
+        game, args.mode, args.zone, args.bot, name=args.name, bot_gives_up=args.bot_gives_up
+    )
+    client = GameClient(backend, window, loop, devices, scores, beeper)
+    client.set_mode(args.mode)
+    signal.signal(signal.SIGTERM, lambda *_: setattr(client, "quit", True))
+    start = time.monotonic()
+    capture = Capture(args.out, start) if args.out else None
+    try:
+        client.run(args.seconds, capture)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stats = client.stats(time.monotonic() - start)
+        backend.close()
+        if devices is not None:
+            devices.close()
+        if capture is not None:
+            stats["files"] = [p.name for p in capture.finish()]
+            (Path(args.out) / "stats.json").write_text(json.dumps(stats, indent=1))
+        pygame.quit()
+    return stats
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``holo-game``; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    if args.print_lamps:
+        print(f"0x{lamp_mask():08x}")
+        return 0
+    if args.headless or not has_display():
+        args.headless = True
+        os.environ.update(headless_env({}))
+    try:
+        stats = run(args)
+    except (ValueError, OSError) as exc:
+        print(f"holo-game: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(stats))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,359 @@
+"""The game loop: input -> rules -> object states to the renderer -> frame in the window.
+
+One :meth:`GameClient.tick` follows the thesis (section 5.3): overyet on the state
+as last rendered; if over, the game-over sequence (three beeps, the spectacular
+display, the score screen); otherwise the player's moves (keys, pad, dial box, or
+the bot in attract mode), then the attackers move, then the new object states go
+to the renderer backend (:mod:`game.backends`: the service or the in-process
+renderer).  The newest frame is drawn in the current display mode with the HUD;
+while the backend is unreachable the window says "reconnecting" and the game is
+paused until the link is back.
+
+Attract mode: the bot plays and games restart by themselves; a key (or a dial-box
+button) hands the game to the player.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import pygame
+
+from game import actions
+from game.bot import Bot
+from game.display import MODES, UNAVAILABLE, GameWindow, Hud, zone_for_head
+from game.gameover import Beeper, GameOverSequence
+from game.highscores import HighScores
+from game.rules import MOVES, GameSettings, GameState, new_game, nudge, tick
+from game.scene import object_states
+
+MAX_DT = 0.1
+
+
+class RateMeter:
+    """Events per second over a sliding window.
+
+    Parameters
+    ----------
+    window_s : float
+    """
+
+    def __init__(self, window_s: float = 2.0) -> None:
+        self.window_s = window_s
+        self._times: deque[float] = deque()
+        self.count = 0
+
+    def add(self, t: float) -> None:
+        """One event at ``t`` seconds."""
+        self._times.append(t)
+        self.count += 1
+
+    def rate(self, now: float) -> float:
+        """Events per second in the last window."""
+        while self._times and self._times[0] < now - self.window_s:
+            self._times.popleft()
+        span = min(self.window_s, max(now - self._times[0], 1e-3)) if self._times else 1.0
+        return len(self._times) / span if len(self._times) > 1 else 0.0
+
+
+@dataclass
+class LoopSettings:
+    """How the loop runs.
+
+    Attributes
+    ----------
+    game : GameSettings
+    mode : str
+        Initial display mode (:data:`game.display.MODES`).
+    zone : int
+        The fixed zone of ``zone`` mode.
+    attract : bool
+        The bot plays until a key is pressed.
+    tick_hz : float
+        Window frames (and game ticks) per second.
+    name : str
+        Name for the high-score table.
+    bot_gives_up : float or None
+        Attract mode: game seconds after which the bot stops dodging.
+    """
+
+    game: GameSettings = field(default_factory=GameSettings)
+    mode: str = "head"
+    zone: int = 2
+    attract: bool = False
+    tick_hz: float = 30.0
+    name: str = "player"
+    bot_gives_up: float | None = None
+
+
+class GameClient:
+    """The game loop over a backend, a window and optional devices.
+
+    Parameters
+    ----------
+    backend : object
+        A started :mod:`game.backends` backend.
+    window : GameWindow
+    settings : LoopSettings
+    devices : drivers.subscriber.DeviceSubscriber, optional
+    highscores : HighScores, optional
+    beeper : Beeper, optional
+    clock : callable
+        Seconds (monotonic).
+    """
+
+    def __init__(
+        self,
+        backend: Any,
+        window: GameWindow,
+        settings: LoopSettings,
+        devices: Any = None,
+        highscores: HighScores | None = None,
+        beeper: Beeper | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.backend, self.window, self.settings = backend, window, settings
+        self.devices, self.highscores = devices, highscores
+        self.beeper = beeper or Beeper(muted=True)
+        self.clock = clock
+        self.attract = settings.attract
+        self.bot = Bot(give_up_after=settings.bot_gives_up)
+        self.mode, self.zone = settings.mode, settings.zone
+        self.head_zone = backend.settings.display.zones // 2
+        self.state: GameState = new_game(settings.game)
+        self.over: GameOverSequence | None = None
+        self.games, self.seed, self.notice = 1, settings.game.seed, ""
+        self.scores: list[int] = []
+        self.modes_shown: set[str] = set()
+        self.colour: np.ndarray | None = None
+        self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
+        self.latencies: deque[float] = deque(maxlen=600)
+        self.dial_events = self.disconnects = 0
+        self.axes: dict[int, float] = {}
+        self.quit = False
+        self._last = clock()
+        self._render_id = -1
+        self._was_connected = True
+        self._commands: dict[str, Callable[[], None]] = {
+            "pause": self._pause,
+            "quit": self._quit,
+            "start": self._start,
+            "zone_prev": lambda: self._step_zone(-1),
+            "zone_next": lambda: self._step_zone(1),
+            **{f"mode_{m}": (lambda m=m: self.set_mode(m)) for m in (*MODES, *UNAVAILABLE)},
+        }
+        backend.update(object_states(self.state))
+
+    # ------------------------------------------------------------- commands
+    def set_mode(self, mode: str) -> None:
+        """Switch the display mode; an unavailable one leaves a notice instead."""
+        if mode in UNAVAILABLE:
+            self.notice = f"{mode}: {UNAVAILABLE[mode]}"
+            return
+        self.mode = mode
+
+    def _pause(self) -> None:
+        self.state.paused = not self.state.paused
+
+    def _quit(self) -> None:
+        self.quit = True
+
+    def _start(self) -> None:
+        if self.over is not None or self.attract:
+            self.attract = False
+            self.new_game()
+
+    def _step_zone(self, step: int) -> None:
+        self.zone = (self.zone + step) % self.backend.settings.display.zones
+
+    def new_game(self) -> None:
+        """A fresh game (the next seed), renders following it again."""
+        self.games += 1
+        self.seed += 1
+        self.state = new_game(replace(self.settings.game, seed=self.seed))
+        self.over = None
+        self.bot = Bot(give_up_after=self.settings.bot_gives_up)
+        self.backend.resume()
+        self.backend.update(object_states(self.state))
+
+    # ---------------------------------------------------------------- input
+    def read_input(self, dt: float) -> tuple[actions.Input, actions.Input]:
+        """Input of one tick: (window keys and pad, dial box); notes the head's zone."""
+        events = pygame.event.get()
+        for ev in events:
+            if ev.type == pygame.CONTROLLERAXISMOTION:
+                self.axes[ev.axis] = ev.value / 32767.0
+        local = actions.from_pygame(events)
+        local.shift = local.shift + actions.stick_shift(self.axes, dt)
+        if self.devices is None:
+            return local, actions.Input()
+        self.devices.poll()
+        taken = self.devices.take_events()
+        self.dial_events += sum(1 for ev in taken if type(ev) in actions.DEVICE_HANDLERS)
+        pose = self.devices.pose
+        if pose is not None:
+            self.head_zone = zone_for_head(pose.x, pose.z, self.backend.settings.display)
+        return local, actions.from_devices(taken)
+
+    def _human_takes_over(self, local: actions.Input) -> bool:
+        """A key or pad button in attract mode (the dial box's script never takes over)."""
+        return self.attract and any(a in MOVES or a == "start" for a in local.actions)
+
+    # ----------------------------------------------------------------- tick
+    def tick(self) -> None:
+        """One iteration: input, rules, backend, window."""
+        now = self.clock()
+        dt = min(max(now - self._last, 0.0), MAX_DT)
+        self._last = now
+        local, dev = self.read_input(dt)
+        if self._human_takes_over(local):
+            self.attract = False
+            self.new_game()
+            local = actions.Input([a for a in local.actions if a not in MOVES and a != "start"])
+        got = local.merge(dev)
+        for name in got.actions:
+            if name in self._commands:
+                self._commands[name]()
+        if self.over is None:
+            self._play(got, dt, now)
+        else:
+            self._game_over(now)
+        self._take_frame(now)
+        self._draw(now)
+
+    def _play(self, got: actions.Input, dt: float, now: float) -> None:
+        if not self.backend.connected:
+            return  # frozen while reconnecting
+        moves = [a for a in got.actions if a in MOVES]
+        if self.attract:
+            moves = self.bot.act(self.state, dt)
+        if np.any(got.shift) and not self.attract:
+            nudge(self.state, got.shift)
+        if tick(self.state, moves, dt):
+            self._begin_game_over(now)
+        self.backend.update(object_states(self.state))
+
+    def _begin_game_over(self, now: float) -> None:
+        self.over = GameOverSequence(now)
+        self.scores.append(self.state.score)
+        if self.highscores is not None:
+            name = "bot" if self.attract else self.settings.name
+            self.highscores.add(
+                name, self.state.score, self.state.t, self.state.settings.difficulty
+            )
+
+    def _game_over(self, now: float) -> None:
+        for step in self.over.due(now):
+            if step == "beep":
+                self.beeper.beep()
+            elif step == "explode":
+                self.backend.explode(self.seed)
+        if self.attract and self.over.finished(now):
+            self.new_game()
+
+    def _take_frame(self, now: float) -> None:
+        period = 1.0 / self.settings.tick_hz
+        wait = max(0.0, period - (self.clock() - now))
+        if not self.backend.connected:
+            wait = 0.0
+        frame = self.backend.frame(wait)
+        if frame is None:
+            return
+        self.colour = frame.colour
+        self.refreshes.add(now)
+        if frame.render_id != self._render_id:
+            self._render_id = frame.render_id
+            self.renders.add(now)
+            if frame.latency_ms is not None:
+                self.latencies.append(frame.latency_ms)
+        if frame.zone is not None and self.devices is None:
+            self.head_zone = int(frame.zone)
+
+    # ----------------------------------------------------------------- draw
+    def shown_zone(self) -> int:
+        """The zone the current mode shows."""
+        return self.head_zone if self.mode == "head" else self.zone
+
+    def hud(self, now: float) -> Hud:
+        """The HUD's contents now."""
+        lines = ["attract mode: press a key to play"] if self.attract else []
+        lines += [self.notice] if self.notice else []
+        lat = float(np.median(self.latencies)) if self.latencies else None
+        return Hud(
+            self.state.score,
+            self.state.t,
+            self.fps.rate(now),
+            self.renders.rate(now),
+            self.refreshes.rate(now),
+            lat,
+            self.mode,
+            self.shown_zone(),
+            lines,
+        )
+
+    def _draw(self, now: float) -> None:
+        self.fps.add(now)
+        self.modes_shown.add(self.mode)
+        self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now))
+        connected = self.backend.connected
+        if not connected:
+            self.window.banner(
+                "reconnecting",
+                ["the render service does not answer", "the game resumes when it is back"],
+            )
+        elif self.over is not None and self.over.phase == "score":
+            self.window.banner("GAME OVER", self._score_lines())
+        elif self.state.paused:
+            self.window.banner("paused", ["press P to go on"])
+        self.disconnects += int(self._was_connected and not connected)
+        self._was_connected = connected
+        self.window.flip()
+
+    def _score_lines(self) -> list[str]:
+        lines = [f"score {self.state.score}   ({self.state.t:.1f} s, {self.state.points} points)"]
+        if self.highscores is not None:
+            lines += ["", "high scores"]
+            lines += [
+                f"{k + 1:2d}. {e['name']:<8s} {e['score']:6d}"
+                for k, e in enumerate(self.highscores.scores[:5])
+            ]
+        lines += ["", "press SPACE to play again" if not self.attract else ""]
+        return lines
+
+    # ------------------------------------------------------------------ run
+    def run(
+        self, seconds: float | None = None, after_tick: Callable[[GameClient], None] | None = None
+    ) -> None:
+        """Tick until quit or ``seconds`` pass; ``after_tick(self)`` after each."""
+        end = None if seconds is None else self.clock() + seconds
+        while not self.quit and (end is None or self.clock() < end):
+            self.tick()
+            if after_tick is not None:
+                after_tick(self)
+
+    def stats(self, elapsed_s: float) -> dict:
+        """What the run did (the demo's ``stats.json``)."""
+        elapsed = max(elapsed_s, 1e-9)
+        return {
+            "refreshes": self.refreshes.count,
+            "renders": self.renders.count,
+            "refresh_hz": round(self.refreshes.count / elapsed, 2),
+            "update_hz": round(self.renders.count / elapsed, 2),
+            "fps": round(self.fps.count / elapsed, 2),
+            "score": max([*self.scores, self.state.score]),
+            "scores": self.scores,
+            "games": self.games,
+            "modes": sorted(self.modes_shown),
+            "modes_unavailable": sorted(UNAVAILABLE),
+            "tracker_events": self.devices.pose_count if self.devices is not None else 0,
+            "dial_events": self.dial_events,
+            "beeps": self.beeper.count,
+            "disconnects": self.disconnects,
+            "latency_ms_p50": float(np.median(self.latencies)) if self.latencies else None,
+            "seconds": round(elapsed_s, 2),
+        }

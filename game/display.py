@@ -1,0 +1,202 @@
+"""The game's pygame-ce window: display modes, HUD, "reconnecting" and score screens.
+
+Modes (:data:`MODES`):
+
+=================  ================================================================
+mode               shows
+=================  ================================================================
+``head``           the zone nearest the tracked head (:func:`zone_for_head`), so the
+                   scene shows parallax as the player leans; the middle zone
+                   without a tracker
+``strip``          every zone side by side, zone 0 (leftmost viewer) leftmost
+``zone``           one fixed zone (``[`` / ``]`` choose it)
+``autostereogram`` not available: the service has no autostereogram encoding yet
+                   (:data:`UNAVAILABLE`); choosing it shows a notice and keeps the
+                   current mode
+=================  ================================================================
+
+The HUD shows the score, the window's frames per second, the update (render) rate
+against the refresh rate, and the latency from the input a render was made from
+to the frame.  Runs headless with SDL's dummy video driver.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pygame
+
+from service.display import DisplaySettings
+from service.frame import view_strip
+
+#: Modes that can be shown, in the order the demo screenshots them.
+MODES = ("head", "strip", "zone")
+#: Modes named by the issue that have no encoding yet -> why.
+UNAVAILABLE = {"autostereogram": "the autostereogram encoding does not exist yet"}
+#: Assumed distance from the head to the display plane when mapping the tracker's
+#: x (mm) to a viewing angle.
+HEAD_DISTANCE_MM = 250.0
+WINDOW = (960, 600)
+HUD_COLOUR = (230, 230, 230)
+BACKGROUND = (8, 8, 16)
+SDL_HEADLESS = {
+    "SDL_VIDEODRIVER": "dummy",
+    "SDL_AUDIODRIVER": "dummy",
+    "SDL_VIDEO_DRIVER": "dummy",
+    "SDL_AUDIO_DRIVER": "dummy",
+}
+
+
+def headless_env(env: dict | None = None) -> dict:
+    """``env`` (default ``os.environ``) with SDL's dummy video and audio drivers set."""
+    out = dict(os.environ if env is None else env)
+    out.update(SDL_HEADLESS)
+    return out
+
+
+def has_display() -> bool:
+    """True when a window can be shown (an X11 or Wayland display, not SDL's dummy)."""
+    dummy = os.environ.get("SDL_VIDEODRIVER") == "dummy"
+    return not dummy and bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def zone_for_head(
+    x_mm: float, z_mm: float, display: DisplaySettings, distance_mm: float = HEAD_DISTANCE_MM
+) -> int:
+    """The view zone whose direction is nearest the head's.
+
+    Parameters
+    ----------
+    x_mm, z_mm : float
+        The tracker's head position (x to the right, z toward the display's viewer
+        side, relative to the rest position).
+    display : DisplaySettings
+    distance_mm : float
+        Rest distance from the display plane.
+    """
+    angle = math.degrees(math.atan2(x_mm, max(distance_mm + z_mm, 1.0)))
+    centres = np.degrees(display.zone_angles)
+    return int(np.argmin(np.abs(centres - angle)))
+
+
+@dataclass
+class Hud:
+    """What the HUD shows.
+
+    Attributes
+    ----------
+    score : int
+    seconds : float
+    fps : float
+        Window frames per second.
+    update_hz, refresh_hz : float
+        Renders and refreshes per second seen in the frame stream.
+    latency_ms : float or None
+    mode : str
+    zone : int
+    lines : list of str
+        Extra lines (pause, notices, attract mode).
+    """
+
+    score: int = 0
+    seconds: float = 0.0
+    fps: float = 0.0
+    update_hz: float = 0.0
+    refresh_hz: float = 0.0
+    latency_ms: float | None = None
+    mode: str = "head"
+    zone: int = 0
+    lines: list[str] = field(default_factory=list)
+
+    def text(self) -> list[str]:
+        """The HUD's lines."""
+        lat = "-" if self.latency_ms is None else f"{self.latency_ms:.0f} ms"
+        return [
+            f"score {self.score}   time {self.seconds:5.1f} s",
+            f"fps {self.fps:4.1f}   updates {self.update_hz:4.1f} Hz / refreshes "
+            f"{self.refresh_hz:4.1f} Hz   latency {lat}",
+            f"mode {self.mode} (zone {self.zone})",
+            *self.lines,
+        ]
+
+
+def _surface(rgb: np.ndarray) -> pygame.Surface:
+    """A surface from an (R, C, 3) uint8 image."""
+    return pygame.surfarray.make_surface(np.ascontiguousarray(rgb.swapaxes(0, 1)))
+
+
+def _fit(size: tuple[int, int], box: pygame.Rect) -> pygame.Rect:
+    """The largest rectangle of ``size``'s aspect centred in ``box``."""
+    scale = min(box.width / size[0], box.height / size[1])
+    rect = pygame.Rect(0, 0, int(size[0] * scale), int(size[1] * scale))
+    rect.center = box.center
+    return rect
+
+
+#: mode -> the image it shows from a frame's colour (Z, R, C, 3) and the zone.
+IMAGES = {
+    "head": lambda colour, zone: colour[zone],
+    "zone": lambda colour, zone: colour[zone],
+    "strip": lambda colour, zone: view_strip(colour, sep=4, sep_value=40),
+}
+
+
+class GameWindow:
+    """The window (or an off-screen surface of the same size when headless).
+
+    Parameters
+    ----------
+    size : tuple of int
+    title : str
+    """
+
+    def __init__(self, size: tuple[int, int] = WINDOW, title: str = "holo-game") -> None:
+        pygame.display.init()
+        pygame.font.init()
+        self.screen = pygame.display.set_mode(size)
+        pygame.display.set_caption(title)
+        self.font = pygame.font.Font(None, 24)
+        self.big = pygame.font.Font(None, 72)
+
+    def draw(self, colour: np.ndarray | None, mode: str, zone: int, hud: Hud) -> None:
+        """The frame in the given mode with the HUD over it."""
+        self.screen.fill(BACKGROUND)
+        if colour is not None:
+            image = _surface(IMAGES[mode](colour, zone))
+            area = self.screen.get_rect().inflate(-20, -90).move(0, 35)
+            rect = _fit(image.get_size(), area)
+            self.screen.blit(pygame.transform.scale(image, rect.size), rect)
+        for k, line in enumerate(hud.text()):
+            self.screen.blit(self.font.render(line, True, HUD_COLOUR), (10, 8 + 20 * k))
+
+    def banner(self, title: str, lines: list[str] = (), dim: bool = True) -> None:
+        """A large centred title with lines under it, over a dimmed picture."""
+        if dim:
+            shade = pygame.Surface(self.screen.get_size(), pygame.SRCALPHA)
+            shade.fill((0, 0, 0, 150))
+            self.screen.blit(shade, (0, 0))
+        centre = self.screen.get_rect().center
+        text = self.big.render(title, True, (255, 220, 90))
+        self.screen.blit(text, text.get_rect(center=(centre[0], centre[1] - 80)))
+        for k, line in enumerate(lines):
+            img = self.font.render(line, True, HUD_COLOUR)
+            self.screen.blit(img, img.get_rect(center=(centre[0], centre[1] - 20 + 24 * k)))
+
+    def flip(self) -> None:
+        """Show what was drawn."""
+        pygame.display.flip()
+
+    def screenshot(self, path: str | Path) -> Path:
+        """Save the window's picture as PNG."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pygame.image.save(self.screen, str(path))
+        return path
+
+    def pixels(self) -> np.ndarray:
+        """The window's picture, (H, W, 3) uint8."""
+        return pygame.surfarray.array3d(self.screen).swapaxes(0, 1).copy()

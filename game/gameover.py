@@ -1,0 +1,178 @@
+"""Game over (thesis 5.2.2): three beeps, "a truly spectacular display", the score.
+
+The sequence is a timetable (:data:`TIMETABLE`) played by :class:`GameOverSequence`:
+three beeps a quarter second apart, then the explosion, then the score screen.
+
+The beep is a short sine tone made with numpy and played through
+``pygame.sndarray``; with ``SDL_AUDIODRIVER=dummy`` (headless) or no mixer the
+:class:`Beeper` is muted and only counts.
+
+The display: the player's galpixels are flung outward (:func:`burst_derivatives`:
+radial velocities, a downward acceleration, a little jitter) and handed to the
+Galilean stage once; no further render comes, so the stage alone carries them,
+leaving streaks of debris where they were.  A backend that cannot set per-galpixel
+motion flings whole objects instead (:func:`burst_records`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pygame
+
+#: seconds after game over -> what happens.
+TIMETABLE: tuple[tuple[float, str], ...] = (
+    (0.0, "beep"),
+    (0.25, "beep"),
+    (0.5, "beep"),
+    (0.8, "explode"),
+    (3.3, "score"),
+)
+#: Seconds the score screen stays before attract mode starts a new game.
+SCORE_SECONDS = 4.0
+BEEP_HZ = 880.0
+BEEP_SECONDS = 0.12
+
+
+def tone(
+    hz: float = BEEP_HZ, seconds: float = BEEP_SECONDS, rate: int = 22050, channels: int = 2
+) -> np.ndarray:
+    """A sine tone with 5 ms fades, int16, shape (n, channels) (or (n,) for 1 channel)."""
+    n = int(rate * seconds)
+    t = np.arange(n) / rate
+    ramp = np.minimum(1.0, np.minimum(t, seconds - t) / 0.005)
+    wave = (0.4 * 32767 * np.sin(2 * np.pi * hz * t) * ramp).astype(np.int16)
+    return wave if channels == 1 else np.repeat(wave[:, None], channels, axis=1)
+
+
+class Beeper:
+    """Plays the beep, or only counts it when muted (headless, no audio device).
+
+    Parameters
+    ----------
+    muted : bool
+        Never touch the audio device.
+    """
+
+    def __init__(self, muted: bool) -> None:
+        self.count = 0
+        self._sound = None if muted else _make_sound()
+
+    @property
+    def muted(self) -> bool:
+        """True when beeps are only counted."""
+        return self._sound is None
+
+    def beep(self) -> None:
+        """One beep."""
+        self.count += 1
+        if self._sound is not None:
+            self._sound.play()
+
+
+def _make_sound() -> pygame.mixer.Sound | None:
+    """The beep as a mixer sound, or None where there is no usable mixer."""
+    try:
+        if not pygame.mixer.get_init():
+            pygame.mixer.init()
+        _, _, channels = pygame.mixer.get_init()
+        return pygame.sndarray.make_sound(tone(channels=channels))
+    except (pygame.error, ValueError, TypeError):
+        return None
+
+
+class GameOverSequence:
+    """Steps through :data:`TIMETABLE` from the moment the game ended.
+
+    Parameters
+    ----------
+    start : float
+        Clock reading (seconds) at game over.
+    """
+
+    def __init__(self, start: float) -> None:
+        self.start = start
+        self._next = 0
+        self.phase = "beeps"
+
+    def due(self, now: float) -> list[str]:
+        """Timetable entries that have come due since the last call, in order."""
+        out = []
+        while self._next < len(TIMETABLE) and now - self.start >= TIMETABLE[self._next][0]:
+            out.append(TIMETABLE[self._next][1])
+            self._next += 1
+        if out and out[-1] in ("explode", "score"):
+            self.phase = out[-1]
+        return out
+
+    def finished(self, now: float) -> bool:
+        """True once the score screen has been up for :data:`SCORE_SECONDS`."""
+        return now - self.start >= TIMETABLE[-1][0] + SCORE_SECONDS
+
+
+def burst_derivatives(
+    derivatives: np.ndarray,
+    obj: np.ndarray,
+    target: int = 0,
+    seed: int = 0,
+    speed: float = 2.5,
+    gravity: float = 0.06,
+) -> np.ndarray:
+    """Per-pixel motion that flings one object's galpixels outward.
+
+    Parameters
+    ----------
+    derivatives : ndarray, shape (3, 3, Z, R, C)
+        A render's per-pixel motion (x, y in px, depth) per refresh^k; a copy is
+        changed.
+    obj : ndarray, shape (Z, R, C)
+        Object index per pixel.
+    target : int
+        The object to fling (the player is 0).
+    seed : int
+    speed : float
+        Mean outward speed, px per refresh.
+    gravity : float
+        Downward acceleration, px per refresh^2 (rows grow downward).
+
+    Returns
+    -------
+    ndarray
+        The changed copy.
+    """
+    out = np.array(derivatives, np.float32, copy=True)
+    rng = np.random.default_rng(seed)
+    for z in range(obj.shape[0]):
+        rows, cols = np.nonzero(obj[z] == target)
+        if rows.size == 0:
+            continue
+        d = np.stack([cols - cols.mean(), rows - rows.mean()]) + rng.normal(0, 0.5, (2, rows.size))
+        d /= np.maximum(np.linalg.norm(d, axis=0), 1e-6)
+        v = d * speed * rng.uniform(0.3, 1.7, rows.size)
+        out[:, :, z, rows, cols] = 0.0
+        out[0, 0, z, rows, cols] = v[0]
+        out[0, 1, z, rows, cols] = v[1]
+        out[1, 1, z, rows, cols] = gravity
+    return out
+
+
+def burst_records(records: list[dict], seed: int = 0, speed: float = 0.8) -> list[dict]:
+    """Object records flung outward from the player's origin (object-level burst).
+
+    Every object gets a velocity away from the player (the player itself a random
+    one), a downward acceleration and a fast spin.
+    """
+    rng = np.random.default_rng(seed)
+    centre = np.array(records[0]["position"], float)
+    out = []
+    for rec in records:
+        away = np.array(rec["position"], float) - centre + rng.normal(0, 0.05, 3)
+        away /= max(float(np.linalg.norm(away)), 1e-6)
+        out.append(
+            {
+                **rec,
+                "velocity": (away * speed).tolist(),
+                "acceleration": [0.0, -0.8, 0.0],
+                "angular_velocity": rng.normal(0, 6.0, 3).tolist(),
+            }
+        )
+    return out
