@@ -243,8 +243,17 @@ def _grow_t(a: np.ndarray, need: int) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def _emit(poly: np.ndarray, k: int, rank: int, pv: np.ndarray, prank: np.ndarray,
-          n_pool: int, out: np.ndarray, n_out: int, eps: float) -> tuple:
+def _emit(
+    poly: np.ndarray,
+    k: int,
+    rank: int,
+    pv: np.ndarray,
+    prank: np.ndarray,
+    n_pool: int,
+    out: np.ndarray,
+    n_out: int,
+    eps: float,
+) -> tuple:
     """Fan a clipped polygon into the pool (dropping zero-area pieces); list them in ``out``.
 
     The pool must have room for ``k - 2`` more fragments.  Returns the new
@@ -262,8 +271,15 @@ def _emit(poly: np.ndarray, k: int, rank: int, pv: np.ndarray, prank: np.ndarray
 
 
 @nb.njit(cache=True)
-def _partition(seg: np.ndarray, pv: np.ndarray, prank: np.ndarray, n_pool: int,
-               n: np.ndarray, d: float, eps: float) -> tuple:
+def _partition(
+    seg: np.ndarray,
+    pv: np.ndarray,
+    prank: np.ndarray,
+    n_pool: int,
+    n: np.ndarray,
+    d: float,
+    eps: float,
+) -> tuple:
     """Classify fragments ``seg`` against a plane, splitting the ones that straddle it.
 
     The pool ``pv (P, 3, 3), prank (P,)`` must have room for ``4 * seg.size`` more
@@ -319,7 +335,7 @@ def _build_kernel(tv: np.ndarray, keep: np.ndarray, eps: float, seed: int) -> tu
     while sp > 0:
         sp -= 1
         lo, ln, ps, dp = stack[4 * sp], stack[4 * sp + 1], stack[4 * sp + 2], stack[4 * sp + 3]
-        seg = buf[lo: lo + ln]
+        seg = buf[lo : lo + ln]
         n, d, _ = _plane(pv[_choose(pv, seg, eps, state)])
         pv, prank = _grow_t(pv, n_pool + 4 * ln), _grow_i(prank, n_pool + 4 * ln)
         on, fr, bk, n_pool, k = _partition(seg, pv, prank, n_pool, n, d, eps)
@@ -329,20 +345,29 @@ def _build_kernel(tv: np.ndarray, keep: np.ndarray, eps: float, seed: int) -> tu
         if ps >= 0:
             kid[ps] = m
         nfrag, nstart = _grow_i(nfrag, n_nf + on.size), _grow_i(nstart, m + 2)
-        nfrag[n_nf: n_nf + on.size] = on
+        nfrag[n_nf : n_nf + on.size] = on
         n_nf += on.size
         nstart[m + 1] = n_nf
         buf = _grow_i(buf, lo + fr.size + bk.size)
-        buf[lo: lo + fr.size] = fr
-        buf[lo + fr.size: lo + fr.size + bk.size] = bk
+        buf[lo : lo + fr.size] = fr
+        buf[lo + fr.size : lo + fr.size + bk.size] = bk
         stack = _grow_i(stack, 4 * sp + 8)
         for side, c_lo, c_len in ((0, lo, fr.size), (1, lo + fr.size, bk.size)):
             if c_len:
-                stack[4 * sp: 4 * sp + 4] = np.array([c_lo, c_len, 2 * m + side, dp + 1])
+                stack[4 * sp : 4 * sp + 4] = np.array([c_lo, c_len, 2 * m + side, dp + 1])
                 sp += 1
         m += 1
-    return (nrm[:m], kid[0: 2 * m: 2].copy(), kid[1: 2 * m: 2].copy(), depth[:m],
-            nfrag[:n_nf], nstart[: m + 1].copy(), pv[:n_pool], prank[:n_pool], splits)
+    return (
+        nrm[:m],
+        kid[0 : 2 * m : 2].copy(),
+        kid[1 : 2 * m : 2].copy(),
+        depth[:m],
+        nfrag[:n_nf],
+        nstart[: m + 1].copy(),
+        pv[:n_pool],
+        prank[:n_pool],
+        splits,
+    )
 
 
 def build_bsp(
@@ -374,14 +399,13 @@ def build_bsp(
     eps = EPS_REL * max(extent, 1e-12)
     area = np.linalg.norm(np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]), axis=1)
     keep = np.nonzero(area > eps * eps)[0].astype(np.int64)
-    nrm, front, back, depth, nfrag, nstart, pv, prank, splits = _build_kernel(
-        tv, keep, eps, seed
-    )
+    nrm, front, back, depth, nfrag, nstart, pv, prank, splits = _build_kernel(tv, keep, eps, seed)
     # within a node paint later-in-order first, so the earliest ends on top
     node_of = np.repeat(np.arange(front.size), np.diff(nstart))
     frags = nfrag[np.lexsort((-prank[nfrag], node_of))]
-    tree = BspTree(key, front, back, nrm, nstart, np.ascontiguousarray(pv[frags]),
-                   ids[prank[frags]])
+    tree = BspTree(
+        key, front, back, nrm, nstart, np.ascontiguousarray(pv[frags]), ids[prank[frags]]
+    )
     tree.stats = {
         "nodes": int(front.size),
         "fragments": int(frags.size),
@@ -489,6 +513,10 @@ def bsp(
     fproj = project(t.frag_vertices.reshape(-1, 3), display)
     tris = np.arange(3 * f, dtype=np.int64).reshape(f, 3)
     painter_kernel(fproj, tris, t.frag_ids, orders, vis.triangle, vis.depth)
-    vis.stats = dict(t.stats, rebuilt=rebuilt, traverse_ms=(t1 - t0) * 1e3,
-                     raster_ms=(time.perf_counter() - t1) * 1e3)
+    vis.stats = dict(
+        t.stats,
+        rebuilt=rebuilt,
+        traverse_ms=(t1 - t0) * 1e3,
+        raster_ms=(time.perf_counter() - t1) * 1e3,
+    )
     return vis

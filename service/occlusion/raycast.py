@@ -54,8 +54,9 @@ TILE = 16
 
 
 @nb.njit(cache=True, inline="always")
-def _edge(ax: float, ay: float, az: float, bx: float, by: float, bz: float,
-          ox: float, oy: float, t: float) -> float:
+def _edge(
+    ax: float, ay: float, az: float, bx: float, by: float, bz: float, ox: float, oy: float, t: float
+) -> float:
     """Triple product ``d . ((a - o) x (b - o))`` for ``d = (t, 0, 1)``, ``o = (ox, oy, 0)``.
 
     Exactly antisymmetric in ``a`` and ``b`` (each term is a difference of two
@@ -82,8 +83,9 @@ def _claims_zero_edge(ex: float, ey: float, sign: float) -> bool:
 
 
 @nb.njit(cache=True)
-def _box(tri: np.ndarray, t: float, geom: np.ndarray, rows: int, cols: int,
-         out: np.ndarray) -> None:
+def _box(
+    tri: np.ndarray, t: float, geom: np.ndarray, rows: int, cols: int, out: np.ndarray
+) -> None:
     """Pixel bounding box of a triangle (3, 3) in a zone with shear ``t``.
 
     ``geom`` is ``half_width, half_height, pixel_size``; ``out`` (4,) receives rows
@@ -174,7 +176,7 @@ def _bin(sign: np.ndarray, box: np.ndarray, ty: int, tx: int) -> tuple:
     start = np.cumsum(counts)
     items = np.empty(start[-1], np.int64)
     for z in range(zones):
-        fill = start[z * nt: (z + 1) * nt].copy()
+        fill = start[z * nt : (z + 1) * nt].copy()
         for i in range(n):
             if sign[z, i] == 0.0 or box[z, i, 0] > box[z, i, 1] or box[z, i, 2] > box[z, i, 3]:
                 continue
@@ -186,8 +188,9 @@ def _bin(sign: np.ndarray, box: np.ndarray, ty: int, tx: int) -> tuple:
 
 
 @nb.njit(cache=True, inline="always")
-def _hit(wv: np.ndarray, i: int, sg: float, claim: np.ndarray, ox: float, oy: float,
-         t: float) -> bool:
+def _hit(
+    wv: np.ndarray, i: int, sg: float, claim: np.ndarray, ox: float, oy: float, t: float
+) -> bool:
     """Whether the ray through ``(ox, oy, 0)`` along ``(t, 0, 1)`` hits triangle ``i``."""
     for k in range(3):
         p, q = wv[i, k], wv[i, (k + 1) % 3]
@@ -198,10 +201,21 @@ def _hit(wv: np.ndarray, i: int, sg: float, claim: np.ndarray, ox: float, oy: fl
 
 
 @nb.njit(cache=True, parallel=True)
-def _cast(wv: np.ndarray, rank: np.ndarray, znear: np.ndarray, sign: np.ndarray,
-          claim: np.ndarray, plane: np.ndarray, box: np.ndarray, start: np.ndarray,
-          items: np.ndarray, shears: np.ndarray, geom: np.ndarray,
-          tri_out: np.ndarray, depth_out: np.ndarray) -> None:
+def _cast(
+    wv: np.ndarray,
+    rank: np.ndarray,
+    znear: np.ndarray,
+    sign: np.ndarray,
+    claim: np.ndarray,
+    plane: np.ndarray,
+    box: np.ndarray,
+    start: np.ndarray,
+    items: np.ndarray,
+    shears: np.ndarray,
+    geom: np.ndarray,
+    tri_out: np.ndarray,
+    depth_out: np.ndarray,
+) -> None:
     """Cast every pixel's ray against its tile's triangles (tiles in parallel).
 
     Parameters
@@ -284,8 +298,7 @@ def raycast(
     ty, tx = -(-display.rows // TILE), -(-display.cols // TILE)
     start, items = _bin(sign, box, ty, tx)
     tri_rank = np.full(vis.triangle.shape, -1, np.int32)
-    _cast(wv, rank, znear, sign, claim, plane, box, start, items, shears, geom,
-          tri_rank, vis.depth)
+    _cast(wv, rank, znear, sign, claim, plane, box, start, items, shears, geom, tri_rank, vis.depth)
     hit = tri_rank >= 0
     vis.triangle[hit] = order[tri_rank[hit]]
     vis.stats = {
