@@ -234,7 +234,9 @@ def parse_reply(frames: list[Any]) -> dict[str, Any]:
         raise MessageError("bad_frames", "empty reply")
     header = _header(body[0], Limits())
     names = [d.get("name") for d in header.get("arrays", []) if isinstance(d, dict)]
-    arrays = wire.decode_arrays(header.pop("arrays", None), body[1:], Limits().max_message_bytes)
+    arrays = wire.decode_arrays(
+        header.pop("arrays", None), body[1:], Limits().max_message_bytes, max_dims=8
+    )
     if names and all(isinstance(n, str) for n in names):
         header["arrays"] = dict(zip(names, arrays, strict=True))
     elif arrays:

@@ -108,17 +108,21 @@ def send(sock: zmq.Socket, frames: list[Any], timeout_ms: int = 1000) -> bool:
     return True
 
 
-def _shape(desc: dict[str, Any], i: int) -> tuple[int, ...]:
+def _shape(desc: dict[str, Any], i: int, max_dims: int) -> tuple[int, ...]:
     shape = desc.get("shape")
-    if not isinstance(shape, list) or len(shape) > MAX_DIMS:
-        raise MessageError("bad_array", f"arrays[{i}].shape must be a list of <= {MAX_DIMS} ints")
+    if not isinstance(shape, list) or len(shape) > max_dims:
+        raise MessageError("bad_array", f"arrays[{i}].shape must be a list of <= {max_dims} ints")
     if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape):
         raise MessageError("bad_array", f"arrays[{i}].shape must hold non-negative ints")
     return tuple(shape)
 
 
-def decode_arrays(descs: object, buffers: list[Any], max_bytes: int) -> list[np.ndarray]:
+def decode_arrays(
+    descs: object, buffers: list[Any], max_bytes: int, max_dims: int = MAX_DIMS
+) -> list[np.ndarray]:
     """Arrays from descriptors and raw buffers (read-only views, no copy).
+
+    ``max_dims`` is 4 for requests; internal traffic (band replies) allows more.
 
     Raises
     ------
@@ -138,7 +142,7 @@ def decode_arrays(descs: object, buffers: list[Any], max_bytes: int) -> list[np.
     for i, (desc, buf) in enumerate(zip(descs, buffers, strict=True)):
         if not isinstance(desc, dict) or desc.get("dtype") not in DTYPES:
             raise MessageError("bad_array", f"arrays[{i}].dtype must be one of {sorted(DTYPES)}")
-        dtype, shape = DTYPES[desc["dtype"]], _shape(desc, i)
+        dtype, shape = DTYPES[desc["dtype"]], _shape(desc, i, max_dims)
         nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
         if nbytes > max_bytes:
             raise MessageError("too_large", f"arrays[{i}] has {nbytes} bytes (max {max_bytes})")

@@ -1,0 +1,217 @@
+"""Least-recently-used broker between the service's render thread and render workers.
+
+The ZeroMQ guide's load-balancing broker: a ROUTER frontend (the render thread's
+DEALER, ``inproc://`` inside the service) and a ROUTER backend (workers' DEALERs,
+``tcp://``, on this machine or others).  A worker announces itself with ``READY``;
+each job goes to the worker idle the longest; its reply makes it ready again.
+Idle workers repeat ``READY`` every heartbeat; one not heard from for three is
+forgotten.  A worker that dies mid-job simply never answers: the requester's
+deadline expires and it resends the job, which goes to another worker
+(:class:`BandClient`).  ``ROUTER_MANDATORY`` makes a send to a vanished worker an
+error, so the broker drops it and tries the next one.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+import zmq
+
+from service import protocol, wire
+from service.worker import READY
+
+
+class Broker:
+    """The LRU broker (run it on a thread with :meth:`run`).
+
+    Parameters
+    ----------
+    context : zmq.Context
+    frontend, backend : str
+        Bind addresses (requesters, workers).
+    secure : callable, optional
+        CurveZMQ server setup applied to the backend before binding.
+    """
+
+    def __init__(
+        self, context: zmq.Context, frontend: str, backend: str, secure: Any = None
+    ) -> None:
+        self.front = context.socket(zmq.ROUTER)
+        self.back = context.socket(zmq.ROUTER)
+        for s in (self.front, self.back):
+            s.setsockopt(zmq.LINGER, 0)
+            s.setsockopt(zmq.ROUTER_MANDATORY, 1)
+            s.setsockopt(zmq.SNDTIMEO, 1000)
+        self.back.setsockopt(zmq.HEARTBEAT_IVL, 1000)
+        self.back.setsockopt(zmq.HEARTBEAT_TIMEOUT, 3000)
+        if secure is not None:
+            secure(self.back)
+        self.front.bind(frontend)
+        self.back.bind(backend)
+        self.backend_address = self.back.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.ready: OrderedDict[bytes, float] = OrderedDict()  # worker -> last heard
+        self.busy: dict[bytes, float] = {}
+        self.pids: dict[bytes, int] = {}
+        self.dispatched = 0
+        self.dropped = 0
+        self._stop = threading.Event()
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return."""
+        self._stop.set()
+
+    def info(self) -> dict[str, Any]:
+        """Worker counts and pids (for the service's stats)."""
+        return {
+            "ready": len(self.ready),
+            "busy": len(self.busy),
+            "dispatched": self.dispatched,
+            "dropped": self.dropped,
+            "workers": [
+                {"pid": self.pids.get(w), "busy": w in self.busy} for w in [*self.ready, *self.busy]
+            ],
+        }
+
+    def run(self) -> None:
+        """Route until :meth:`stop`; closes both sockets on return."""
+        poller = zmq.Poller()
+        poller.register(self.back, zmq.POLLIN)
+        poller.register(self.front, zmq.POLLIN)
+        try:
+            while not self._stop.is_set():
+                events = dict(poller.poll(100))
+                if self.back in events:
+                    self._from_worker(self.back.recv_multipart(copy=False))
+                if self.front in events and self.ready:
+                    self._to_worker(self.front.recv_multipart(copy=False))
+                self._expire()
+        finally:
+            self.front.close(0)
+            self.back.close(0)
+
+    def _from_worker(self, frames: list[zmq.Frame]) -> None:
+        worker = bytes(frames[0].buffer)
+        if len(frames) >= 3 and bytes(frames[2].buffer) == READY:
+            self.busy.pop(worker, None)
+            self.ready[worker] = time.monotonic()
+            self.ready.move_to_end(worker)
+            self._note_pid(worker, frames[3:])
+            return
+        if len(frames) < 5:
+            return
+        self.busy.pop(worker, None)
+        self.ready[worker] = time.monotonic()
+        try:
+            self.front.send_multipart(frames[2:], copy=False)
+        except zmq.ZMQError:
+            self.dropped += 1  # the requester is gone; nothing to do
+
+    def _note_pid(self, worker: bytes, rest: list[zmq.Frame]) -> None:
+        try:
+            self.pids[worker] = int(json.loads(bytes(rest[0].buffer))["pid"])
+        except (IndexError, ValueError, KeyError, TypeError):
+            pass
+
+    def _to_worker(self, frames: list[zmq.Frame]) -> None:
+        while self.ready:
+            worker, _ = self.ready.popitem(last=False)
+            try:
+                self.back.send_multipart([worker, b"", *frames], copy=False)
+            except zmq.ZMQError:
+                self.pids.pop(worker, None)
+                continue  # vanished: try the next one
+            self.busy[worker] = time.monotonic()
+            self.dispatched += 1
+            return
+        self.dropped += 1  # no worker took it: the requester's deadline resends
+
+    def _expire(self) -> None:
+        limit = protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
+        now = time.monotonic()
+        for w in [w for w, t in self.ready.items() if now - t > limit]:
+            del self.ready[w]
+            self.pids.pop(w, None)
+
+
+class BandClient:
+    """Sends one update's bands through the broker and gathers them, resending on timeout.
+
+    Parameters
+    ----------
+    context : zmq.Context
+    address : str
+        The broker's frontend.
+    timeout_s : float
+        Deadline per attempt of each band.
+    retries : int
+        Resends per band before the update fails.
+    """
+
+    def __init__(
+        self, context: zmq.Context, address: str, timeout_s: float = 5.0, retries: int = 3
+    ) -> None:
+        self.sock = context.socket(zmq.DEALER)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.connect(address)
+        self.timeout_s = timeout_s
+        self.retries = retries
+        self.resent = 0
+
+    def run(
+        self, job: dict[str, Any], scene_arrays: list[np.ndarray], bands: list[tuple[int, int]]
+    ) -> list[dict[str, np.ndarray]] | None:
+        """Render every band; their arrays in band order, or None when one failed."""
+        got: dict[int, dict[str, np.ndarray]] = {}
+        attempts = dict.fromkeys(range(len(bands)), 0)
+        sent_at: dict[int, float] = {}
+        for b in range(len(bands)):
+            sent_at[b] = self._send(job, scene_arrays, bands, b, 0)
+        while len(got) < len(bands):
+            now = time.monotonic()
+            for b in [b for b in range(len(bands)) if b not in got]:
+                if now - sent_at[b] > self.timeout_s:
+                    if attempts[b] >= self.retries:
+                        return None
+                    attempts[b] += 1
+                    self.resent += 1
+                    sent_at[b] = self._send(job, scene_arrays, bands, b, attempts[b])
+            if self.sock.poll(50):
+                self._take(self.sock.recv_multipart(copy=False), job["job"], got)
+        return [got[b] for b in range(len(bands))]
+
+    def _send(
+        self,
+        job: dict[str, Any],
+        arrays: list[np.ndarray],
+        bands: list[tuple[int, int]],
+        band: int,
+        attempt: int,
+    ) -> float:
+        head = {**job, "band": band, "attempt": attempt, "rows": list(bands[band])}
+        wire.send(self.sock, [b"", *wire.encode(head, arrays)], 1000)
+        return time.monotonic()
+
+    @staticmethod
+    def _take(frames: list[zmq.Frame], job_id: int, got: dict) -> None:
+        try:
+            head = protocol.parse_reply([f.buffer for f in frames])
+        except Exception:  # noqa: BLE001 - a garbled reply counts as no reply
+            return
+        if head.get("ok") and head.get("job") == job_id and isinstance(head.get("arrays"), dict):
+            got.setdefault(int(head["band"]), head["arrays"])
+
+    def close(self) -> None:
+        """Close the socket (LINGER 0)."""
+        self.sock.close(0)
+
+
+def split_rows(rows: int, n: int) -> list[tuple[int, int]]:
+    """``n`` bands of hololines covering ``rows`` (nearly equal, none empty)."""
+    n = max(1, min(n, rows))
+    edges = np.linspace(0, rows, n + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]

@@ -1,0 +1,132 @@
+"""``holo-service``: the render service (``docs/service.md``, ``docs/protocol.md``).
+
+::
+
+    holo-service [--control ADDR] [--frames ADDR] [--devices ADDR] [--workers N]
+                 [--refresh HZ] [--curve-keys DIR] [--scene NAME] ...
+    holo-service --make-keys DIR        (same as holo-service-keys DIR)
+
+The first stderr line names the bound addresses; the service runs until a
+``shutdown`` request, SIGINT or SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Sequence
+
+from service.display import DisplaySettings
+from service.errors import HoloError
+from service.keys import make_keys
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line."""
+    ap = argparse.ArgumentParser(prog="holo-service", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--control", default="tcp://127.0.0.1:5555", help="control ROUTER address")
+    ap.add_argument("--frames", default="tcp://127.0.0.1:5556", help="frame PUB address")
+    ap.add_argument("--devices", default=None, help="holo-devices PUB address for the pose")
+    ap.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="render worker processes behind the LRU broker (0: render in process)",
+    )
+    ap.add_argument(
+        "--worker-address",
+        default="tcp://127.0.0.1:5557",
+        help="broker backend address workers connect to",
+    )
+    ap.add_argument("--refresh", type=float, default=60.0, help="refresh rate, Hz")
+    ap.add_argument("--curve-keys", default=None, help="CurveZMQ key directory")
+    ap.add_argument("--make-keys", default=None, metavar="DIR", help="make keys in DIR and exit")
+    ap.add_argument("--scene", default=None, help="built-in scene to load at start")
+    ap.add_argument("--zones", type=int, default=5)
+    ap.add_argument("--cols", type=int, default=160)
+    ap.add_argument("--rows", type=int, default=120)
+    ap.add_argument("--angle", type=float, default=16.0)
+    ap.add_argument(
+        "--max-update-hz",
+        type=float,
+        default=0.0,
+        help="cap on renders per second (0: as fast as possible)",
+    )
+    ap.add_argument(
+        "--render-timeout",
+        type=float,
+        default=5.0,
+        help="seconds before a band is resent to another worker",
+    )
+    ap.add_argument(
+        "--pose-scale", type=float, default=0.001, help="world units per tracker position unit"
+    )
+    return ap
+
+
+def _stop_on_signals(service: object) -> None:
+    def stop(signum: int, frame: object) -> None:
+        service._stop.set()  # type: ignore[attr-defined]
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, stop)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``holo-service``."""
+    args = build_parser().parse_args(argv)
+    if args.make_keys:
+        return _print_keys(args.make_keys)
+    from service.server import Service, ServiceConfig
+
+    try:
+        config = ServiceConfig(
+            control=args.control,
+            frames=args.frames,
+            devices=args.devices,
+            workers=max(0, args.workers),
+            worker_address=args.worker_address,
+            refresh_hz=args.refresh,
+            curve_keys=args.curve_keys,
+            render_timeout_s=args.render_timeout,
+            max_update_hz=args.max_update_hz,
+            scene=args.scene,
+            display=DisplaySettings(args.zones, args.angle, args.cols, args.rows),
+            pose_scale=args.pose_scale,
+        )
+        service = Service(config)
+    except (HoloError, OSError) as exc:
+        print(f"holo-service: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # zmq.ZMQError: address in use...
+        print(f"holo-service: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"holo-service: control {service.control_address} frames {service.stream.address} "
+        f"session {service.session}",
+        file=sys.stderr,
+        flush=True,
+    )
+    _stop_on_signals(service)
+    service.run()
+    return 0
+
+
+def _print_keys(directory: str) -> int:
+    for name, path in make_keys(directory).items():
+        print(f"{name}: {path}")
+    return 0
+
+
+def keys_main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``holo-service-keys DIR``."""
+    ap = argparse.ArgumentParser(
+        prog="holo-service-keys", description="Make CurveZMQ keys for holo-service."
+    )
+    ap.add_argument("directory")
+    return _print_keys(ap.parse_args(argv).directory)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,995 @@
+"""The render service: control ROUTER, render thread, refresh loop (``docs/service.md``).
+
+Three loops share one :class:`State` under a lock:
+
+* the **control loop** (the caller's thread, :meth:`Service.run`) answers requests
+  on the ROUTER socket with a handler per message type (``docs/protocol.md``);
+* the **render thread** renders the scene as fast as it can (or at most
+  ``max_update_hz``) for a rendezvous a little in the future, in process or through
+  the LRU broker to worker processes (bands of hololines), and builds the
+  galpixmap;
+* the **refresh thread** ticks at the refresh rate on an absolute schedule, hands
+  finished updates to the Galilean stage, takes the viewer's pose from the devices'
+  stream, refreshes and publishes the frame.  It never waits for a render; a render
+  that misses its rendezvous is counted (``incomplete_updates``).
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import secrets
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zmq
+
+from service import protocol, wire
+from service.broker import BandClient, Broker, split_rows
+from service.display import DisplaySettings
+from service.errors import HoloError, MeshFileError, MessageError, SettingsError
+from service.frame_stream import FrameStream
+from service.galilean import GalileanSettings, GalileanStage
+from service.galilean.galpixmap import build
+from service.keys import curve_server, is_local, start_authenticator
+from service.pipeline import Renderer
+from service.scene import MotionState, Scene, Transform, euler_quaternion
+from service.scene_motion import advance_scene
+from service.worker import render_band, stitch
+
+ENCODINGS = ("colour", "depth", "debris")
+METHODS = ("zbuffer", "runlength", "bsp", "raycast")
+
+
+@dataclass
+class ServiceConfig:
+    """Command-line settings of ``holo-service`` (see :mod:`service.cli_service`)."""
+
+    control: str = "tcp://127.0.0.1:5555"
+    frames: str = "tcp://127.0.0.1:5556"
+    devices: str | None = None
+    workers: int = 0
+    worker_address: str = "tcp://127.0.0.1:5557"
+    refresh_hz: float = 60.0
+    curve_keys: str | None = None
+    render_timeout_s: float = 5.0
+    max_update_hz: float = 0.0
+    scene: str | None = None
+    display: DisplaySettings = field(
+        default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
+    )
+    pose_scale: float = 0.001
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What ``set_display`` changes (``generation`` counts changes)."""
+
+    display: DisplaySettings
+    method: str = "zbuffer"
+    light_model: str = "blinn"
+    specular: str = "polygon"
+    galpixel_order: int = 2
+    encodings: tuple[str, ...] = ("colour", "depth")
+    refresh_hz: float = 60.0
+    generation: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        """The settings as ``set_display`` replies them."""
+        d = self.display
+        return {
+            "zones": d.zones,
+            "angle_deg": d.angle_deg,
+            "cols": d.cols,
+            "rows": d.rows,
+            "width": d.width,
+            "method": self.method,
+            "light_model": self.light_model,
+            "specular": self.specular,
+            "galpixel_order": self.galpixel_order,
+            "encodings": list(self.encodings),
+            "refresh_hz": self.refresh_hz,
+        }
+
+
+@dataclass
+class State:
+    """Everything the three loops share (guard with ``lock``)."""
+
+    settings: Settings
+    scene: Scene | None = None
+    scene_t: float = 0.0
+    scene_version: int = 0
+    devices: str | None = None
+    viewer: ViewerTracker = field(default_factory=lambda: ViewerTracker())
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+@dataclass
+class Ready:
+    """A finished update waiting for the refresh thread."""
+
+    render_id: int
+    generation: int
+    rendezvous: int
+    buffer: Any
+    rendered: Any
+    t_render_ns: int
+
+
+class Counters:
+    """Service statistics (thread-safe enough: ints and deques)."""
+
+    def __init__(self) -> None:
+        self.n: dict[str, int] = dict.fromkeys(
+            (
+                "updates",
+                "renders",
+                "refreshes",
+                "incomplete_updates",
+                "late_refused",
+                "render_failures",
+                "requests",
+                "errors",
+                "refresh_overruns",
+            ),
+            0,
+        )
+        self.render_ms: deque[float] = deque(maxlen=200)
+        self.refresh_ms: deque[float] = deque(maxlen=600)
+        self.update_t: deque[float] = deque(maxlen=1000)
+        self.refresh_t: deque[float] = deque(maxlen=2000)
+
+    @staticmethod
+    def rate(times: deque[float], window: float = 5.0) -> float:
+        """Events per second over the last ``window`` seconds."""
+        now = time.monotonic()
+        recent = [t for t in list(times) if now - t <= window]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Counters, rates and medians."""
+        med = lambda d: float(np.median(list(d))) if d else None  # noqa: E731
+        return {
+            **self.n,
+            "updates_per_s": self.rate(self.update_t),
+            "refreshes_per_s": self.rate(self.refresh_t),
+            "render_ms_p50": med(self.render_ms),
+            "refresh_ms_p50": med(self.refresh_ms),
+        }
+
+
+class Service:
+    """The render service; see the module notes.
+
+    Parameters
+    ----------
+    config : ServiceConfig
+    """
+
+    def __init__(self, config: ServiceConfig) -> None:
+        self.config = config
+        self.session = secrets.token_hex(4)
+        self.ctx = zmq.Context()
+        self.limits = protocol.Limits()
+        self.counters = Counters()
+        self.state = State(
+            Settings(config.display, refresh_hz=config.refresh_hz), devices=config.devices
+        )
+        self.state.viewer.scale = config.pose_scale
+        self._stop = threading.Event()
+        self._ready: deque[Ready] = deque(maxlen=4)
+        self._render_results: queue.Queue = queue.Queue()
+        self._waiting: list[tuple[list[bytes], Any, float, tuple]] = []
+        # (next refresh index, its time, settings generation, stage fixed-point, order)
+        self._clock: tuple = (0, time.monotonic(), -1, None, 2)
+        self.band_retries = 0
+        self.last_render_error = ""
+        self.clients: dict[bytes, float] = {}
+        self._threads: list[threading.Thread] = []
+        self.workers: list[subprocess.Popen] = []
+        self.broker: Broker | None = None
+        self._auth = None
+        self._open_sockets()
+        if config.scene:
+            self.state.scene = _builtin(config.scene)
+            self.state.scene_t = time.monotonic()
+        self.handlers: dict[str, Callable[[dict[str, Any]], tuple | None]] = {
+            "hello": self._hello,
+            "ping": self._ping,
+            "load_scene": self._load_scene,
+            "load_object": self._load_object,
+            "update_objects": self._update_objects,
+            "set_viewer": self._set_viewer,
+            "set_display": self._set_display,
+            "render": self._render,
+            "stats": self._stats,
+            "shutdown": self._shutdown,
+        }
+
+    # ---------------------------------------------------------------- set-up
+    def _secure(self, address: str) -> Callable[[zmq.Socket], None] | None:
+        keys = self.config.curve_keys
+        if keys is None:
+            if not is_local(address):
+                raise SettingsError(
+                    f"binding {address} (not loopback) needs --curve-keys DIR "
+                    "(make them with holo-service-keys DIR)"
+                )
+            return None
+        if self._auth is None:
+            self._auth = start_authenticator(self.ctx, keys)
+        return curve_server(keys)
+
+    def _open_sockets(self) -> None:
+        c = self.config
+        self.router = self.ctx.socket(zmq.ROUTER)
+        self.router.setsockopt(zmq.LINGER, 0)
+        self.router.setsockopt(zmq.MAXMSGSIZE, self.limits.max_message_bytes)
+        self.router.setsockopt(zmq.ROUTER_MANDATORY, 1)
+        self.router.setsockopt(zmq.SNDTIMEO, 1000)
+        self.router.setsockopt(zmq.HEARTBEAT_IVL, int(protocol.HEARTBEAT_S * 1000))
+        self.router.setsockopt(
+            zmq.HEARTBEAT_TIMEOUT, int(protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS * 1000)
+        )
+        secure = self._secure(c.control)
+        if secure:
+            secure(self.router)
+        try:
+            self.router.bind(c.control)
+            self.control_address = self.router.getsockopt_string(zmq.LAST_ENDPOINT)
+            self.stream = FrameStream(self.ctx, c.frames, self.session, self._secure(c.frames))
+            if c.workers > 0:
+                self._start_broker()
+        except (zmq.ZMQError, SettingsError):
+            self.close()
+            raise
+
+    def _start_broker(self) -> None:
+        c = self.config
+        self.broker = Broker(
+            self.ctx, "inproc://holo-broker", c.worker_address, self._secure(c.worker_address)
+        )
+        t = threading.Thread(target=self.broker.run, name="broker", daemon=True)
+        t.start()
+        self._threads.append(t)
+        cmd = [
+            sys.executable,
+            "-m",
+            "service.worker",
+            "--connect",
+            self.broker.backend_address,
+            "--warm-up",
+            "--parent",
+            str(_pid()),
+        ]
+        if c.curve_keys:
+            cmd += ["--curve-keys", str(c.curve_keys)]
+        self.workers = [subprocess.Popen(cmd, stdin=subprocess.DEVNULL) for _ in range(c.workers)]
+
+    # ------------------------------------------------------------- control
+    def run(self, deadline_s: float | None = None) -> None:
+        """Serve until ``shutdown`` (or ``deadline_s``); starts and joins the threads."""
+        for name, target in (("render", self._render_loop), ("refresh", self._refresh_loop)):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+        end = None if deadline_s is None else time.monotonic() + deadline_s
+        try:
+            while not self._stop.is_set() and (end is None or time.monotonic() < end):
+                if self.router.poll(5):
+                    self._serve_one(self.router.recv_multipart(copy=False))
+                self._answer_renders()
+                self._forget_clients()
+        finally:
+            self.close()
+
+    def _serve_one(self, frames: list[zmq.Frame]) -> None:
+        envelope, body = protocol.split_envelope([f.buffer for f in frames])
+        self.counters.n["requests"] += 1
+        self.clients[envelope[0]] = time.monotonic()
+        rid = mtype = None
+        try:
+            req = protocol.parse_request(body, self.limits)
+            rid, mtype = req.get("id"), req["type"]
+            out = self.handlers[mtype](req)
+            if out is None:  # answered later (render)
+                self._waiting.append((envelope, rid, time.monotonic(), ()))
+                return
+            frames_out = protocol.reply(envelope, rid, mtype, *out)
+        except MessageError as exc:
+            partial = getattr(exc, "partial", {"id": rid, "type": mtype})
+            frames_out = self._error(
+                envelope, partial["id"], partial["type"], exc.code, exc.message
+            )
+        except Exception as exc:  # noqa: BLE001 - every request gets a reply
+            code = _error_code(exc)
+            frames_out = self._error(envelope, rid, mtype, code, f"{type(exc).__name__}: {exc}")
+        self._send(frames_out)
+
+    def _error(
+        self, envelope: list[bytes], rid: Any, mtype: str | None, code: str, message: str
+    ) -> list[Any]:
+        self.counters.n["errors"] += 1
+        return protocol.error_reply(envelope, rid, mtype, code, message)
+
+    def _send(self, frames: list[Any]) -> None:
+        try:
+            wire.send(self.router, frames, 1000)
+        except zmq.ZMQError:
+            pass  # the client is gone (ROUTER_MANDATORY); nothing to answer
+
+    def _forget_clients(self) -> None:
+        limit = protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
+        now = time.monotonic()
+        for ident in [i for i, t in self.clients.items() if now - t > limit]:
+            del self.clients[ident]
+
+    # ------------------------------------------------------------ handlers
+    def _hello(self, req: dict[str, Any]) -> tuple:
+        versions = req.get("versions", [protocol.VERSION])
+        if not isinstance(versions, list):
+            raise MessageError("bad_message", "versions must be a list of ints")
+        common = [v for v in protocol.SUPPORTED_VERSIONS if v in versions]
+        if not common:
+            raise MessageError(
+                "bad_version",
+                f"no common version; the service speaks {list(protocol.SUPPORTED_VERSIONS)}",
+            )
+        return (
+            {
+                "version": max(common),
+                "versions": list(protocol.SUPPORTED_VERSIONS),
+                "service": protocol.SERVICE_NAME,
+                "session": self.session,
+                "heartbeat_s": protocol.HEARTBEAT_S,
+                "frames": self.stream.address,
+                "limits": self.limits.as_dict(),
+            },
+        )
+
+    def _ping(self, req: dict[str, Any]) -> tuple:
+        return ({"t_ns": time.monotonic_ns()},)
+
+    def _load_scene(self, req: dict[str, Any]) -> tuple:
+        sources = [k for k in ("builtin", "path", "scene") if k in req]
+        if len(sources) != 1:
+            raise MessageError("bad_message", "give exactly one of builtin, path, scene")
+        loaders = {
+            "builtin": lambda v: _builtin(wire.string(v, "builtin", 64)),
+            "path": lambda v: _load_path(wire.string(v, "path")),
+            "scene": wire.scene_from_wire,
+        }
+        scene = loaders[sources[0]](req[sources[0]])
+        with self.state.lock:
+            self.state.scene, self.state.scene_t = scene, time.monotonic()
+            self.state.scene_version += 1
+        return (
+            {
+                "objects": [o.name for o in scene.objects],
+                "polygons": int(sum(o.mesh.n_polygons for o in scene.objects)),
+            },
+        )
+
+    def _load_object(self, req: dict[str, Any]) -> tuple:
+        if "path" in req:
+            from service.scene import SceneObject
+
+            mesh_scene = _load_path(wire.string(req["path"], "path"))
+            obj = mesh_scene.objects[0]
+            if "name" in req:
+                obj = SceneObject(
+                    obj.mesh,
+                    obj.material,
+                    obj.transform,
+                    obj.motion,
+                    wire.string(req["name"], "name", 256),
+                )
+        else:
+            obj = wire.object_from_wire(req.get("object"), "object")
+        with self.state.lock:
+            scene = self.state.scene or Scene()
+            if len(scene.objects) >= self.limits.max_objects:
+                raise MessageError(
+                    "too_large", f"a scene holds at most {self.limits.max_objects} objects"
+                )
+            self._advance_locked(time.monotonic())
+            scene = self.state.scene or Scene()
+            self.state.scene = Scene([*scene.objects, obj], scene.lights, scene.ambient)
+            self.state.scene_version += 1
+            return ({"index": len(self.state.scene.objects) - 1},)
+
+    def _advance_locked(self, now: float) -> None:
+        """Move the scene's state to ``now`` (so updates start from the present)."""
+        s = self.state
+        if s.scene is not None and s.scene.objects:
+            s.scene = advance_scene(s.scene, now - s.scene_t)
+        s.scene_t = now
+
+    def _update_objects(self, req: dict[str, Any]) -> tuple:
+        ups = req.get("objects")
+        if not isinstance(ups, list):
+            raise MessageError("bad_message", "objects must be a list")
+        if len(ups) > self.limits.max_objects:
+            raise MessageError("too_large", f"at most {self.limits.max_objects} updates")
+        with self.state.lock:
+            if self.state.scene is None:
+                raise MessageError("no_scene", "load a scene first")
+            objs = list(self.state.scene.objects)
+            todo = [(_object_index(u, objs, i), u) for i, u in enumerate(ups)]
+            changed = [
+                (k, wire.apply_fields(objs[k], u, f"objects[{i}]")) for i, (k, u) in enumerate(todo)
+            ]
+            self._advance_locked(time.monotonic())
+            objs = list(self.state.scene.objects)
+            for k, new in changed:
+                objs[k] = replace(new, transform=new.transform, motion=new.motion)
+            sc = self.state.scene
+            self.state.scene = Scene(objs, sc.lights, sc.ambient)
+            self.state.scene_version += 1
+        return ({"updated": len(changed)},)
+
+    def _set_viewer(self, req: dict[str, Any]) -> tuple:
+        with self.state.lock:
+            if "devices" in req:
+                dev = req["devices"]
+                self.state.devices = None if dev is None else wire.string(dev, "devices", 256)
+            self.state.viewer.set_fields(req)
+            return ({"viewer": self.state.viewer.as_dict(), "devices": self.state.devices},)
+
+    def _set_display(self, req: dict[str, Any]) -> tuple:
+        with self.state.lock:
+            new = _apply_display(self.state.settings, req)
+            self.state.settings = new
+        return ({"display": new.as_dict()},)
+
+    def _render(self, req: dict[str, Any]) -> None:
+        if "encodings" in req:
+            _encodings(req["encodings"])
+        with self.state.lock:
+            if self.state.scene is None:
+                raise MessageError("no_scene", "load a scene first")
+        return None
+
+    def _stats(self, req: dict[str, Any]) -> tuple:
+        s = self.counters.as_dict()
+        s.update(
+            frames_published=self.stream.published,
+            clients=len(self.clients),
+            pose_count=self.state.viewer.poses,
+            zone=self.state.viewer.zone,
+            workers=self.broker.info() if self.broker else None,
+            worker_pids=[p.pid for p in self.workers],
+            band_retries=self.band_retries,
+            last_render_error=self.last_render_error,
+            session=self.session,
+        )
+        return ({"stats": s},)
+
+    def _shutdown(self, req: dict[str, Any]) -> tuple:
+        self._stop.set()
+        return ({},)
+
+    # ------------------------------------------------------- render replies
+    def _answer_renders(self) -> None:
+        """Answer waiting ``render`` requests with the newest finished render."""
+        done = None
+        while True:
+            try:
+                done = self._render_results.get_nowait()
+            except queue.Empty:
+                break
+            waiting, self._waiting = self._waiting, []
+            for envelope, rid, _t, _ in waiting:
+                self._send(_render_reply(envelope, rid, done))
+        limit = self.config.render_timeout_s * 4 + 5
+        now = time.monotonic()
+        for item in [w for w in self._waiting if now - w[2] > limit]:
+            self._waiting.remove(item)
+            self._send(
+                self._error(
+                    item[0], item[1], "render", "render_failed", "no render finished in time"
+                )
+            )
+
+    # -------------------------------------------------------- render thread
+    def _render_loop(self) -> None:
+        renderer = Renderer()
+        bands = None
+        if self.broker is not None:
+            bands = BandClient(self.ctx, "inproc://holo-broker", self.config.render_timeout_s)
+        render_id = 0
+        last_start = 0.0
+        try:
+            while not self._stop.is_set():
+                if self.config.max_update_hz > 0:
+                    wait = last_start + 1.0 / self.config.max_update_hz - time.monotonic()
+                    if wait > 0 and self._stop.wait(wait):
+                        break
+                last_start = time.monotonic()
+                if self._render_once(renderer, bands, render_id):
+                    render_id += 1
+                elif self._stop.wait(0.02):
+                    break
+        finally:
+            if bands is not None:
+                bands.close()
+
+    def _render_once(self, renderer: Renderer, bands: BandClient | None, render_id: int) -> bool:
+        with self.state.lock:
+            scene, scene_t, settings = self.state.scene, self.state.scene_t, self.state.settings
+            viewer = self.state.viewer.render_spec()
+        if scene is None or not scene.objects:
+            return False
+        index, t_index, gen, fixed, order = self._clock
+        if gen != settings.generation:
+            return False
+        hz = settings.refresh_hz
+        lead = _lead_s(self.counters.render_ms)
+        rendezvous = index + math.ceil(lead * hz) + 1
+        t_target = t_index + (rendezvous - index) / hz
+        t0 = time.monotonic_ns()
+        job = {
+            "job": render_id,
+            "t": t_target - scene_t,
+            "refresh_hz": hz,
+            "display": settings.as_dict(),
+            "render": settings.as_dict(),
+            "viewer": viewer,
+        }
+        rendered = self._run_job(renderer, bands, job, scene, settings)
+        self.counters.render_ms.append((time.monotonic_ns() - t0) / 1e6)
+        if rendered is None:
+            self.counters.n["render_failures"] += 1
+            return False
+        buf, _info = build(
+            rendered.frame.colour,
+            rendered.frame.depth,
+            order,
+            fixed,
+            rendered.derivatives,
+            rendered.dcolour,
+            rendered.obj,
+            0,
+        )
+        self.counters.n["renders"] += 1
+        self._ready.append(Ready(render_id, settings.generation, rendezvous, buf, rendered, t0))
+        self._render_results.put((render_id, t0, rendered.frame))
+        return True
+
+    def _run_job(
+        self,
+        renderer: Renderer,
+        bands: BandClient | None,
+        job: dict,
+        scene: Scene,
+        settings: Settings,
+    ) -> Any:
+        motion = MotionState(
+            **{
+                k: np.asarray(v)
+                for k, v in (job["viewer"] or {}).items()
+                if k in wire.MOTION_FIELDS
+            }
+        )
+        try:
+            if bands is None:
+                job["rows"] = [0, settings.display.rows]
+                return stitch([render_band(renderer, job, scene)], motion)
+            spec, arrays = wire.extract(wire.scene_to_wire(scene))
+            n = max(1, len(self.broker.ready) + len(self.broker.busy), self.config.workers)
+            got = bands.run({**job, "scene": spec}, arrays, split_rows(settings.display.rows, n))
+            self.band_retries = bands.resent
+            return None if got is None else stitch(got, motion)
+        except (HoloError, ValueError) as exc:
+            self.last_render_error = str(exc)
+            return None
+
+    # ------------------------------------------------------- refresh thread
+    def _refresh_loop(self) -> None:
+        RefreshLoop(self).run()
+
+    # ------------------------------------------------------------- closing
+    def close(self) -> None:
+        """Stop the threads and workers; close every socket (LINGER 0)."""
+        self._stop.set()
+        for t in self._threads:
+            if t is not threading.current_thread():
+                t.join(5.0)
+        if self.broker is not None:
+            self.broker.stop()
+        for p in self.workers:
+            _end_process(p)
+        for sock in (
+            getattr(self, "router", None),
+            getattr(getattr(self, "stream", None), "sock", None),
+        ):
+            if sock is not None:
+                sock.close(0)
+        if self._auth is not None:
+            self._auth.stop()
+        self.ctx.term()
+
+
+# ------------------------------------------------------------------ helpers
+def _pid() -> int:
+    import os
+
+    return os.getpid()
+
+
+def _end_process(p: subprocess.Popen) -> None:
+    if p.poll() is None:
+        p.terminate()
+        try:
+            p.wait(3.0)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(3.0)
+
+
+def _lead_s(render_ms: deque[float]) -> float:
+    """How far ahead to aim a render: its 90th percentile time plus a little."""
+    if not render_ms:
+        return 0.5
+    return float(np.percentile(list(render_ms)[-50:], 90)) / 1e3 * 1.2 + 0.01
+
+
+def _builtin(name: str) -> Scene:
+    from service.scenes import builtin_scene
+
+    try:
+        return builtin_scene(name)
+    except SettingsError as exc:
+        raise MessageError("not_found", str(exc)) from exc
+
+
+def _load_path(path: str) -> Scene:
+    from service.loaders import load_scene
+
+    if not Path(path).is_file():
+        raise MessageError("not_found", f"no such file: {path}")
+    try:
+        return load_scene(path)
+    except MeshFileError as exc:
+        raise MessageError("not_found", str(exc)) from exc
+
+
+def _object_index(u: Any, objs: list, i: int) -> int:
+    if not isinstance(u, dict):
+        raise MessageError("bad_message", f"objects[{i}] must be an object")
+    if "index" in u:
+        return (
+            wire.integer(u["index"], f"objects[{i}].index", 0, len(objs) - 1)
+            if objs
+            else _missing(i)
+        )
+    name = wire.string(u.get("name"), f"objects[{i}].name", 256) if "name" in u else None
+    for k, o in enumerate(objs):
+        if name is not None and o.name == name:
+            return k
+    raise MessageError("not_found", f"objects[{i}]: no object {name!r}")
+
+
+def _missing(i: int) -> int:
+    raise MessageError("not_found", f"objects[{i}]: the scene has no objects")
+
+
+def _encodings(v: Any) -> tuple[str, ...]:
+    if not isinstance(v, list) or not v or not all(e in ENCODINGS for e in v):
+        raise MessageError("bad_message", f"encodings must be a non-empty list from {ENCODINGS}")
+    return tuple(dict.fromkeys(v))
+
+
+def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
+    d = s.display
+    disp = {
+        "zones": wire.integer(req.get("zones", d.zones), "zones", 1, 64),
+        "angle_deg": wire.number(req.get("angle_deg", d.angle_deg), "angle_deg", 0, 60),
+        "cols": wire.integer(req.get("cols", d.cols), "cols", 1, 8192),
+        "rows": wire.integer(req.get("rows", d.rows), "rows", 1, 8192),
+        "width": wire.number(req.get("width", d.width), "width", 1e-6, 1e6),
+    }
+    choices = {
+        "method": METHODS,
+        "light_model": ("ambient", "phong", "blinn"),
+        "specular": ("polygon", "vertex", "point"),
+    }
+    kw: dict[str, Any] = {}
+    for key, allowed in choices.items():
+        if key in req:
+            if req[key] not in allowed:
+                raise MessageError("bad_settings", f"{key} must be one of {list(allowed)}")
+            kw[key] = req[key]
+    if "galpixel_order" in req:
+        kw["galpixel_order"] = wire.integer(req["galpixel_order"], "galpixel_order", 0, 3)
+    if "encodings" in req:
+        kw["encodings"] = _encodings(req["encodings"])
+    if "refresh_hz" in req:
+        kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
+        raise MessageError("too_large", "display has more than 64 Mi pixels")
+    return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
+
+
+def _render_reply(envelope: list[bytes], rid: Any, done: tuple) -> list[Any]:
+    render_id, t0, frame = done
+    return protocol.reply(
+        envelope,
+        rid,
+        "render",
+        {"render_id": render_id, "t_ns": t0, "stats": {}},
+        [frame.colour, frame.depth],
+        ["colour", "depth"],
+    )
+
+
+def _error_code(exc: Exception) -> str:
+    codes: dict[type, str] = {
+        SettingsError: "bad_settings",
+        MeshFileError: "not_found",
+        HoloError: "bad_message",
+    }
+    for cls, code in codes.items():
+        if isinstance(exc, cls):
+            return code
+    return "internal"
+
+
+def transform_of(position: np.ndarray, orientation: np.ndarray) -> Transform:
+    """A viewer transform (helper for tests and the viewer tracker)."""
+    return Transform(np.asarray(position, float), np.asarray(orientation, float))
+
+
+class ViewerTracker:
+    """The viewer's pose and motion: set by ``set_viewer`` or tracked from the devices.
+
+    Tracked poses (device units, degrees) go through an alpha-beta filter for
+    velocity and acceleration; positions are scaled by ``scale`` (default 0.001:
+    millimetres to world units).  Renders see the viewer relative to the first
+    tracked pose (the nominal viewing position); the zone is picked from the
+    absolute position's angle ``atan2(x, z)`` across the viewing angle.
+    """
+
+    def __init__(self, scale: float = 0.001) -> None:
+        from drivers.filters import AlphaBetaSettings, make_filter
+
+        self.scale = scale
+        self.position = np.zeros(3)
+        self.orientation = np.array([1.0, 0.0, 0.0, 0.0])
+        self.motion = MotionState()
+        self.active = False
+        self.poses = 0
+        self.zone: int | None = None
+        self.pose_info: dict[str, Any] = {"pose_n": None, "pose_t_ns": None, "pose_seq": None}
+        self._origin: np.ndarray | None = None
+        self._absolute = np.zeros(3)
+        self._filter = make_filter("alpha-beta", AlphaBetaSettings(on_bad="skip"))
+
+    def set_fields(self, req: dict[str, Any]) -> None:
+        """Apply ``set_viewer`` fields (validated)."""
+        keys = ("position", "orientation", *wire.MOTION_FIELDS)
+        if not any(k in req for k in keys):
+            return
+        probe = wire.apply_fields(_probe_object(), req, "viewer")
+        self.position = probe.transform.position
+        self.orientation = probe.transform.orientation
+        self.motion = probe.motion
+        self._absolute = self.position
+        self.active = True
+
+    def on_pose(self, pose: Any, n: int) -> bool:
+        """Take a tracker :class:`~drivers.events.PoseEvent`; True when it was usable."""
+        sample = np.array([pose.x, pose.y, pose.z, pose.yaw, pose.pitch, pose.roll], float)
+        if not np.all(np.isfinite(sample)):
+            return False
+        try:
+            st = self._filter.update_ns(int(pose.t_ns), sample)
+        except HoloError:
+            return False
+        if self._origin is None:
+            self._origin = sample[:3] * self.scale
+        yaw, pitch, roll = np.radians(st.position[3:6])
+        self._absolute = sample[:3] * self.scale  # the zone follows the newest sample
+        self.position = st.position[:3] * self.scale - self._origin
+        self.orientation = euler_quaternion(yaw, pitch, roll)
+        rates = np.radians(st.velocity[3:6])
+        self.motion = MotionState(
+            st.velocity[:3] * self.scale,
+            st.acceleration[:3] * self.scale,
+            np.array([rates[1], rates[0], rates[2]]),
+        )
+        self.active = True
+        self.poses += 1
+        self.pose_info = {"pose_n": int(n), "pose_t_ns": int(pose.t_ns), "pose_seq": pose.seq}
+        return True
+
+    def pick_zone(self, display: DisplaySettings, distance: float = 0.6) -> int | None:
+        """The view zone the viewer's eye is in, or None without a viewer."""
+        if not self.active:
+            return None
+        x, z = float(self._absolute[0]), float(self._absolute[2])
+        theta = math.atan2(x, z if z > 1e-6 else distance)
+        span = math.radians(display.angle_deg) or 1e-9
+        self.zone = int(
+            min(display.zones - 1, max(0, math.floor((theta / span + 0.5) * display.zones)))
+        )
+        return self.zone
+
+    def render_spec(self) -> dict[str, Any] | None:
+        """The viewer as a render job carries it (None: no viewer)."""
+        if not self.active:
+            return None
+        return {
+            "position": self.position.tolist(),
+            "orientation": self.orientation.tolist(),
+            **{k: getattr(self.motion, k).tolist() for k in wire.MOTION_FIELDS},
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        """The pose in use (for the ``set_viewer`` reply)."""
+        return self.render_spec() or {"position": None}
+
+
+def _probe_object() -> Any:
+    from service.mesh import Mesh
+    from service.scene import SceneObject
+
+    return SceneObject(Mesh.from_triangles(np.eye(3), [[0, 1, 2]]))
+
+
+class RefreshLoop:
+    """The refresh thread: stage, devices, publishing, at a fixed rate."""
+
+    def __init__(self, svc: Service) -> None:
+        self.svc = svc
+        self.stage: GalileanStage | None = None
+        self.generation = -1
+        self.sub = None
+        self.sub_address: str | None = None
+        self.due: dict[int, tuple[int, int]] = {}  # rendezvous -> (render id, t_render_ns)
+        self.render_id = -1
+        self.t_render_ns = 0
+        self.since = 0
+
+    def _restart(self, settings: Settings) -> None:
+        self.stage = GalileanStage(
+            settings.display,
+            GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz),
+        )
+        self.generation = settings.generation
+        self.due.clear()
+        self.render_id, self.since = -1, 0
+
+    def run(self) -> None:
+        """Tick until the service stops."""
+        svc = self.svc
+        next_t = time.monotonic()
+        try:
+            while not svc._stop.is_set():
+                settings = svc.state.settings
+                if settings.generation != self.generation:
+                    self._restart(settings)
+                period = 1.0 / settings.refresh_hz
+                svc._clock = (
+                    self.stage.index,
+                    next_t,
+                    self.generation,
+                    self.stage.fixed,
+                    settings.galpixel_order,
+                )
+                self._tick(settings)
+                next_t = self._wait(next_t + period, period)
+        finally:
+            if self.sub is not None:
+                self.sub.close()
+
+    def _wait(self, next_t: float, period: float) -> float:
+        now = time.monotonic()
+        if now > next_t:
+            missed = math.floor((now - next_t) / period) + 1
+            self.svc.counters.n["refresh_overruns"] += missed
+            return next_t + missed * period if missed > 1 else next_t
+        self.svc._stop.wait(next_t - now)
+        return next_t
+
+    def _tick(self, settings: Settings) -> None:
+        svc, stage = self.svc, self.stage
+        t0 = time.perf_counter()
+        self._devices(settings)
+        self._submit()
+        r = stage.refresh()
+        c = svc.counters
+        c.n["refreshes"] += 1
+        c.refresh_t.append(time.monotonic())
+        if r.flags["updated"] and r.index in self.due:
+            self.render_id, self.t_render_ns = self.due.pop(r.index)
+            self.since = 0
+            c.n["updates"] += 1
+            c.update_t.append(time.monotonic())
+        else:
+            self.since += 1
+        c.n["incomplete_updates"] += sum(
+            e.get("kind") == "incomplete_update" for e in r.flags["events"]
+        )
+        self._devices(settings)  # late latch: the newest pose picks the zone
+        c.refresh_ms.append((time.perf_counter() - t0) * 1e3)
+        if self.render_id < 0:
+            svc.stream.heartbeat()
+            return
+        self._publish(r, settings, (time.perf_counter() - t0) * 1e3)
+
+    def _submit(self) -> None:
+        svc = self.svc
+        while svc._ready:
+            up = svc._ready.popleft()
+            if up.generation != self.generation:
+                continue
+            rd = up.rendered
+            ok = self.stage.submit(
+                up.buffer,
+                up.rendezvous,
+                None,
+                True,
+                (),
+                rd.points,
+                rd.point_derivs,
+                rd.viewer_motion,
+            )
+            if ok:
+                self.due[up.rendezvous] = (up.render_id, up.t_render_ns)
+            else:
+                svc.counters.n["late_refused"] += 1
+                svc.counters.n["incomplete_updates"] += 1
+
+    def _devices(self, settings: Settings) -> None:
+        state = self.svc.state
+        if state.devices != self.sub_address:
+            self._connect(state.devices)
+        if self.sub is None:
+            state.viewer.pick_zone(settings.display)
+            return
+        self.sub.poll(0)
+        pose = self.sub.pose
+        with state.lock:
+            if pose is not None and self.sub.pose_count != state.viewer.pose_info["pose_n"]:
+                if state.viewer.on_pose(pose, self.sub.pose_count):
+                    self.stage.viewer(state.viewer.motion)
+            state.viewer.pick_zone(settings.display)
+
+    def _connect(self, address: str | None) -> None:
+        from drivers.subscriber import DeviceSubscriber
+
+        if self.sub is not None:
+            self.sub.close()
+        self.sub = None if address is None else DeviceSubscriber(address, context=self.svc.ctx)
+        self.sub_address = address
+
+    def _publish(self, r: Any, settings: Settings, ms: float) -> None:
+        arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris}
+        names = list(settings.encodings)
+        viewer = self.svc.state.viewer
+        header = {
+            "refresh": r.index,
+            "render_id": self.render_id,
+            "since_render": self.since,
+            "updated": bool(r.flags["updated"]),
+            "t_render_ns": self.t_render_ns,
+            "refresh_hz": settings.refresh_hz,
+            "zone": viewer.zone,
+            **viewer.pose_info,
+            "events": r.flags["events"],
+            "age": r.flags["age"],
+            "ms": ms,
+        }
+        self.svc.stream.publish(header, [arrays[n] for n in names], names)

@@ -1,0 +1,285 @@
+"""Render workers: one band of hololines of one update, in its own process.
+
+A worker connects a DEALER to the broker's backend (``service/broker.py``), says
+``READY`` (and again every heartbeat while idle, so the broker can forget dead
+ones), and answers each job with the band's arrays.  A job is a JSON header plus
+the scene's buffers (``docs/protocol.md`` array rules, no pickle)::
+
+    {"job": 12, "band": 1, "attempt": 0, "rows": [60, 120], "t": 0.25,
+     "refresh_hz": 60, "display": {...}, "render": {...}, "viewer": {...} | null,
+     "scene": {...inline scene with $array references...}}
+
+Bands: rows ``r0:r1`` of a display render as a display ``r1 - r0`` rows high with
+the scene moved up by ``r0 * s + (h' - h) / 2`` (``s`` the pixel size, ``h`` and
+``h'`` the heights), which puts exactly those hololines on it: the projection is
+parallel, so a translation moves the picture without changing it.  With a viewer
+pose the viewer is moved down instead (exact unless the viewer rotates between
+the difference steps).
+
+Run: ``python -m service.worker --connect tcp://HOST:5557 [--curve-keys DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from typing import Any
+
+import numpy as np
+import zmq
+
+from service import protocol, wire
+from service.display import DisplaySettings
+from service.galilean.motion_field import RenderedUpdate, render_with_motion
+from service.light import LightSettings
+from service.pipeline import Renderer, RenderSettings
+from service.scene import (
+    Light,
+    MotionState,
+    Scene,
+    SceneObject,
+    Transform,
+    quaternion_matrix,
+)
+
+#: the arrays of a band reply, and the row axis of each (for stitching).
+BAND_ARRAYS = {"colour": 1, "depth": 1, "derivatives": 3, "dcolour": 2, "obj": 1}
+POINT_ARRAYS = ("points", "point_derivs")
+READY = b"READY"
+
+
+def display_from(d: dict[str, Any]) -> DisplaySettings:
+    """DisplaySettings from its dict form."""
+    return DisplaySettings(
+        int(d["zones"]), float(d["angle_deg"]), int(d["cols"]), int(d["rows"]), float(d["width"])
+    )
+
+
+def render_settings_from(d: dict[str, Any]) -> RenderSettings:
+    """RenderSettings from ``{"method", "light_model", "specular"}``."""
+    return RenderSettings(
+        method=d["method"], light=LightSettings(model=d["light_model"], evaluation=d["specular"])
+    )
+
+
+def _shift_scene(scene: Scene, dy: float) -> Scene:
+    shift = np.array([0.0, dy, 0.0])
+    objects = [
+        SceneObject(
+            o.mesh,
+            o.material,
+            Transform(o.transform.position + shift, o.transform.orientation, o.transform.scale),
+            o.motion,
+            o.name,
+        )
+        for o in scene.objects
+    ]
+    lights = [
+        Light(
+            lt.kind, lt.vector + shift if lt.kind == "point" else lt.vector, lt.colour, lt.intensity
+        )
+        for lt in scene.lights
+    ]
+    return Scene(objects, lights, scene.ambient)
+
+
+def band_setup(
+    scene: Scene, display: DisplaySettings, rows: tuple[int, int], viewer: Transform | None
+) -> tuple[Scene, DisplaySettings, Transform | None]:
+    """The scene, display and viewer that render hololines ``rows[0]:rows[1]``."""
+    r0, r1 = rows
+    if (r0, r1) == (0, display.rows):
+        return scene, display, viewer
+    band = DisplaySettings(display.zones, display.angle_deg, display.cols, r1 - r0, display.width)
+    dy = r0 * display.pixel_size + (band.height - display.height) / 2
+    if viewer is None:
+        return _shift_scene(scene, dy), band, None
+    down = quaternion_matrix(viewer.orientation) @ np.array([0.0, dy, 0.0])
+    return scene, band, Transform(viewer.position - down, viewer.orientation, viewer.scale)
+
+
+def viewer_from(spec: dict[str, Any] | None) -> tuple[Transform | None, MotionState | None]:
+    """Viewer pose and motion from ``{"position", "orientation", "velocity", ...}``."""
+    if spec is None:
+        return None, None
+    pose = Transform(np.asarray(spec["position"], float), np.asarray(spec["orientation"], float))
+    motion = MotionState(**{k: np.asarray(spec[k], float) for k in wire.MOTION_FIELDS})
+    return pose, motion
+
+
+def render_band(renderer: Renderer, job: dict[str, Any], scene: Scene) -> dict[str, np.ndarray]:
+    """Render one job's band; returns the arrays of :data:`BAND_ARRAYS` (+ points for band 0).
+
+    Returns
+    -------
+    dict of ndarray
+        ``colour`` (Z, r, C, 3) uint8, ``depth`` (Z, r, C) float32, ``derivatives``
+        (3, 3, Z, r, C) float32, ``dcolour`` (4, Z, r, C) float32, ``obj`` (Z, r, C)
+        int32; band 0 also ``points`` (N, 2) and ``point_derivs`` (3, N, 2).
+    """
+    display = display_from(job["display"])
+    viewer, motion = viewer_from(job.get("viewer"))
+    rows = (int(job["rows"][0]), int(job["rows"][1]))
+    scene, band, viewer = band_setup(scene, display, rows, viewer)
+    up = render_with_motion(
+        renderer,
+        scene,
+        band,
+        float(job["t"]),
+        float(job["refresh_hz"]),
+        render_settings_from(job["render"]),
+        viewer,
+        motion,
+    )
+    out = {
+        "colour": up.frame.colour,
+        "depth": up.frame.depth,
+        "derivatives": up.derivatives.astype(np.float32, copy=False),
+        "dcolour": (
+            up.dcolour if up.dcolour is not None else np.zeros((4, *up.obj.shape), np.float32)
+        ),
+        "obj": up.obj.astype(np.int32, copy=False),
+    }
+    if rows[0] == 0 and up.points is not None:
+        out["points"] = up.points
+        out["point_derivs"] = up.point_derivs
+    return out
+
+
+def stitch(bands: list[dict[str, np.ndarray]], viewer_motion: MotionState) -> RenderedUpdate:
+    """Join band replies (in row order) into one :class:`RenderedUpdate`."""
+    from service.frame import Frame
+
+    joined = {
+        k: np.concatenate([b[k] for b in bands], axis=ax) if len(bands) > 1 else bands[0][k]
+        for k, ax in BAND_ARRAYS.items()
+    }
+    first = bands[0]
+    return RenderedUpdate(
+        Frame(joined["colour"], joined["depth"]),
+        joined["derivatives"],
+        joined["dcolour"],
+        joined["obj"],
+        viewer_motion,
+        first.get("points"),
+        first.get("point_derivs"),
+    )
+
+
+def handle_job(renderer: Renderer, body: list[Any]) -> list[Any]:
+    """Job frames (header, buffers) -> reply frames (header, buffers)."""
+    try:
+        job = protocol.parse_reply(body)
+        arrays = job.pop("arrays", [])
+        spec = wire.resolve(job.pop("scene"), arrays if isinstance(arrays, list) else [])
+        out = render_band(renderer, job, wire.scene_from_wire(spec))
+        names = list(out)
+        head = {
+            "job": job["job"],
+            "band": job["band"],
+            "attempt": job.get("attempt", 0),
+            "ok": True,
+            "pid": os.getpid(),
+        }
+        return wire.encode(head, [out[n] for n in names], names)
+    except Exception as exc:  # noqa: BLE001 - a bad job must not kill the worker
+        head = {"job": None, "ok": False, "error": f"{type(exc).__name__}: {exc}"}
+        try:
+            head["job"], head["band"] = json.loads(bytes(body[0]))["job"], None
+        except (ValueError, KeyError, IndexError, TypeError):
+            pass
+        return wire.encode(head, [])
+
+
+class Worker:
+    """The worker loop: READY, then jobs, until stopped or the deadline.
+
+    Parameters
+    ----------
+    address : str
+        The broker's backend address.
+    curve_keys : str, optional
+        ``holo-service-keys`` directory (CurveZMQ client).
+    """
+
+    def __init__(self, address: str, curve_keys: str | None = None) -> None:
+        from service.client import _curve_client
+
+        self.ctx = zmq.Context()
+        self.sock = self.ctx.socket(zmq.DEALER)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.HEARTBEAT_IVL, 1000)
+        self.sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 3000)
+        _curve_client(self.sock, curve_keys)
+        self.sock.connect(address)
+        self.renderer = Renderer()
+        self.jobs = 0
+
+    def _ready(self) -> None:
+        info = json.dumps({"pid": os.getpid(), "jobs": self.jobs}).encode()
+        wire.send(self.sock, [b"", READY, info], 1000)
+
+    def run(self, stop_after_s: float | None = None, parent: int | None = None) -> None:
+        """Serve jobs; sends READY every heartbeat while idle.
+
+        Stops after ``stop_after_s`` or when process ``parent`` is no longer its parent.
+        """
+        end = None if stop_after_s is None else time.monotonic() + stop_after_s
+        self._ready()
+        last = time.monotonic()
+        while (end is None or time.monotonic() < end) and (
+            parent is None or os.getppid() == parent
+        ):
+            if not self.sock.poll(200):
+                if time.monotonic() - last >= protocol.HEARTBEAT_S:
+                    self._ready()
+                    last = time.monotonic()
+                continue
+            frames = self.sock.recv_multipart(copy=False)
+            envelope, body = split_job(frames)
+            if body is None:
+                continue
+            reply = handle_job(self.renderer, body)
+            self.jobs += 1
+            wire.send(self.sock, [b"", *envelope, *reply], 5000)
+            last = time.monotonic()
+
+    def close(self) -> None:
+        """Close the socket and the context."""
+        self.sock.close(0)
+        self.ctx.term()
+
+
+def split_job(frames: list[Any]) -> tuple[list[bytes], list[Any] | None]:
+    """``[b"", client, b"", header, *buffers]`` -> (``[client, b""]``, body)."""
+    if len(frames) < 4 or len(frames[0]) or len(frames[2]):
+        return [], None
+    return [bytes(frames[1]), b""], [f.buffer for f in frames[3:]]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m service.worker``."""
+    ap = argparse.ArgumentParser(prog="holo-service-worker")
+    ap.add_argument("--connect", default="tcp://127.0.0.1:5557")
+    ap.add_argument("--curve-keys", default=None)
+    ap.add_argument("--warm-up", action="store_true", help="compile the kernels before READY")
+    ap.add_argument("--parent", type=int, default=None, help="exit when this process is gone")
+    args = ap.parse_args(argv)
+    worker = Worker(args.connect, args.curve_keys)
+    if args.warm_up:
+        from service.pipeline import warm_up
+
+        warm_up()
+    try:
+        worker.run(parent=args.parent)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        worker.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
