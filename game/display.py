@@ -79,7 +79,7 @@ def zone_for_head(
         Rest distance from the display plane.
     """
     angle = math.degrees(math.atan2(x_mm, max(distance_mm + z_mm, 1.0)))
-    centres = np.degrees(display.zone_angles)
+    centres = np.degrees(display.zone_angles())
     return int(np.argmin(np.abs(centres - angle)))
 
 
