@@ -36,11 +36,16 @@ class Broker:
         Bind addresses (requesters, workers).
     secure : callable, optional
         CurveZMQ server setup applied to the backend before binding.
+    busy_limit_s : float
+        A worker busy this long without answering is forgotten (it died mid-job; if
+        it was only slow, its late reply makes it ready again).
     """
 
     def __init__(
-        self, context: zmq.Context, frontend: str, backend: str, secure: Any = None
+        self, context: zmq.Context, frontend: str, backend: str, secure: Any = None,
+        busy_limit_s: float = 10.0,
     ) -> None:
+        self.busy_limit_s = busy_limit_s
         self.front = context.socket(zmq.ROUTER)
         self.back = context.socket(zmq.ROUTER)
         for s in (self.front, self.back):
@@ -135,6 +140,9 @@ class Broker:
         now = time.monotonic()
         for w in [w for w, t in self.ready.items() if now - t > limit]:
             del self.ready[w]
+            self.pids.pop(w, None)
+        for w in [w for w, t in self.busy.items() if now - t > self.busy_limit_s]:
+            del self.busy[w]
             self.pids.pop(w, None)
 
 

@@ -1,0 +1,40 @@
+"""Scale-out workers: a worker killed mid-render, the band is resent, nothing hangs."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+from conftest import wait_until
+
+from service.client import FrameSubscriber, ServiceClient
+
+
+def _busy_pid(c: ServiceClient, known: list[int]) -> int | None:
+    info = c.stats()["workers"] or {}
+    for w in info.get("workers", []):
+        if w["busy"] and w["pid"] in known:
+            return w["pid"]
+    return None
+
+
+def test_worker_killed_mid_render(service_factory):
+    svc = service_factory("--scene", "game", "--zones", "5", "--cols", "160", "--rows", "120",
+                          "--workers", "2", "--render-timeout", "1.5", "--refresh", "30")
+    with ServiceClient(svc.control, timeout_s=5) as c, FrameSubscriber(svc.frames) as frames:
+        pids = c.stats()["worker_pids"]
+        assert len(pids) == 2
+        assert wait_until(lambda: c.stats()["updates"] >= 2, 90), "workers never rendered"
+        victim = wait_until(lambda: _busy_pid(c, pids), 20, 0.005)
+        assert victim, "no worker was seen mid-render"
+        before = c.stats()["updates"]
+        os.kill(victim, signal.SIGKILL)
+        header, arrays = c.render_once()  # answered by the surviving worker
+        assert arrays["colour"].shape == (5, 120, 160, 3)
+        assert wait_until(lambda: c.stats()["band_retries"] >= 1, 20), "band never resent"
+        assert wait_until(lambda: c.stats()["updates"] >= before + 3, 30), "updates stopped"
+        live = lambda: [w["pid"] for w in c.stats()["workers"]["workers"]]  # noqa: E731
+        assert wait_until(lambda: victim not in live(), 10), "the dead worker is still listed"
+        assert c.stats()["workers"]["ready"] + c.stats()["workers"]["busy"] == 1
+        got = frames.next(5.0)
+        assert got is not None and got[0]["render_id"] >= header["render_id"] - 1
