@@ -42,7 +42,11 @@ class Broker:
     """
 
     def __init__(
-        self, context: zmq.Context, frontend: str, backend: str, secure: Any = None,
+        self,
+        context: zmq.Context,
+        frontend: str,
+        backend: str,
+        secure: Any = None,
         busy_limit_s: float = 10.0,
     ) -> None:
         self.busy_limit_s = busy_limit_s

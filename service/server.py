@@ -258,7 +258,10 @@ class Service:
     def _start_broker(self) -> None:
         c = self.config
         self.broker = Broker(
-            self.ctx, "inproc://holo-broker", c.worker_address, self._secure(c.worker_address),
+            self.ctx,
+            "inproc://holo-broker",
+            c.worker_address,
+            self._secure(c.worker_address),
             busy_limit_s=2 * c.render_timeout_s,
         )
         t = threading.Thread(target=self.broker.run, name="broker", daemon=True)

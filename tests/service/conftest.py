@@ -44,8 +44,13 @@ def rss_kb(pid: int) -> int:
     return 0
 
 
-def raw_request(address: str, header: dict, buffers: tuple = (), timeout_ms: int = 5000,
-                ctx: zmq.Context | None = None) -> dict | None:
+def raw_request(
+    address: str,
+    header: dict,
+    buffers: tuple = (),
+    timeout_ms: int = 5000,
+    ctx: zmq.Context | None = None,
+) -> dict | None:
     """One request with a fresh DEALER (raw pyzmq, protocol doc layout); reply header."""
     s = (ctx or zmq.Context.instance()).socket(zmq.DEALER)
     s.setsockopt(zmq.LINGER, 0)
@@ -79,20 +84,32 @@ class ServiceProcess:
                 self.proc.wait(5)
 
 
-def start_service(*args: str, ports: tuple[int, int, int] | None = None,
-                  ready_timeout_s: float = 60.0) -> ServiceProcess:
+def start_service(
+    *args: str, ports: tuple[int, int, int] | None = None, ready_timeout_s: float = 60.0
+) -> ServiceProcess:
     """Start ``holo-service`` on free loopback ports and wait until it answers hello."""
     ports = ports or (free_port(), free_port(), free_port())
     control, frames = f"tcp://127.0.0.1:{ports[0]}", f"tcp://127.0.0.1:{ports[1]}"
-    cmd = [sys.executable, "-m", "service.cli_service", "--control", control, "--frames",
-           frames, "--worker-address", f"tcp://127.0.0.1:{ports[2]}", *args]
+    cmd = [
+        sys.executable,
+        "-m",
+        "service.cli_service",
+        "--control",
+        control,
+        "--frames",
+        frames,
+        "--worker-address",
+        f"tcp://127.0.0.1:{ports[2]}",
+        *args,
+    ]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdin=subprocess.DEVNULL)
     svc = ServiceProcess(proc, control, frames, ports)
     try:
         hello = {"v": 1, "type": "hello", "id": 0, "versions": [1]}
-        ok = wait_until(lambda: proc.poll() is not None or raw_request(control, hello, (), 500),
-                        ready_timeout_s)
+        ok = wait_until(
+            lambda: proc.poll() is not None or raw_request(control, hello, (), 500), ready_timeout_s
+        )
         if not ok or proc.poll() is not None:
             raise RuntimeError(f"holo-service did not start (rc {proc.poll()})")
     except BaseException:
@@ -121,5 +138,17 @@ def service_factory() -> Iterator[Callable[..., ServiceProcess]]:
 @pytest.fixture
 def small_service(service_factory) -> ServiceProcess:
     """A service rendering the game scene on a tiny display, in process."""
-    return service_factory("--scene", "game", "--zones", "2", "--cols", "32", "--rows", "24",
-                           "--workers", "0", "--refresh", "30")
+    return service_factory(
+        "--scene",
+        "game",
+        "--zones",
+        "2",
+        "--cols",
+        "32",
+        "--rows",
+        "24",
+        "--workers",
+        "0",
+        "--refresh",
+        "30",
+    )

@@ -15,8 +15,20 @@ HELLO = {"v": 1, "type": "hello", "id": 1, "versions": [1]}
 @pytest.fixture(scope="module")
 def shared_service():
     """One service for every case of this module (each case checks it still serves)."""
-    svc = start_service("--scene", "game", "--zones", "2", "--cols", "32", "--rows", "24",
-                        "--workers", "0", "--refresh", "30")
+    svc = start_service(
+        "--scene",
+        "game",
+        "--zones",
+        "2",
+        "--cols",
+        "32",
+        "--rows",
+        "24",
+        "--workers",
+        "0",
+        "--refresh",
+        "30",
+    )
     try:
         yield svc
     finally:
@@ -41,9 +53,12 @@ def _j(obj: dict) -> bytes:
 
 
 def _obj() -> dict:
-    return {"v": 1, "type": "load_object", "id": 9,
-            "object": {"name": "x", "mesh": {"vertices": {"$array": 0},
-                                             "triangles": {"$array": 1}}}}
+    return {
+        "v": 1,
+        "type": "load_object",
+        "id": 9,
+        "object": {"name": "x", "mesh": {"vertices": {"$array": 0}, "triangles": {"$array": 1}}},
+    }
 
 
 TRI = np.array([[0, 1, 2]], np.int32).tobytes()
@@ -62,50 +77,116 @@ CASES = {
     "garbage_no_delimiter": ([b"\x89PNG\r\n"], "bad_json"),
     "empty_body": ([], "bad_frames"),
     "buffers_without_descriptors": ([_j(HELLO), b"abc", b"def"], "bad_frames"),
-    "missing_buffer": ([_j({**_obj(), "arrays": _arrays(("float32", (3, 3)),
-                                                          ("int32", (1, 3)))}),
-                        V3.tobytes()], "bad_frames"),
+    "missing_buffer": (
+        [_j({**_obj(), "arrays": _arrays(("float32", (3, 3)), ("int32", (1, 3)))}), V3.tobytes()],
+        "bad_frames",
+    ),
     "bad_json": ([b'{"v": 1, "type": "hello",'], "bad_json"),
     "json_not_object": ([b"[1, 2, 3]"], "bad_json"),
     "unknown_type": ([_j({"v": 1, "type": "explode", "id": 2})], "unknown_type"),
     "missing_version": ([_j({"type": "hello", "id": 2})], "bad_version"),
-    "wrong_dtype_name": ([_j({**_obj(), "arrays": _arrays(("float16", (3, 3)),
-                                                             ("int32", (1, 3)))}),
-                          V3.astype(np.float16).tobytes(), TRI], "bad_array"),
-    "int_vertices": ([_j({**_obj(), "arrays": _arrays(("int32", (3, 3)), ("int32", (1, 3)))}),
-                      V3.astype(np.int32).tobytes(), TRI], "bad_array"),
-    "wrong_shape": ([_j({**_obj(), "arrays": _arrays(("float32", (3, 2)),
-                                                        ("int32", (1, 3)))}),
-                     V3[:, :2].copy().tobytes(), TRI], "bad_array"),
-    "byte_count": ([_j({**_obj(), "arrays": _arrays(("float32", (3, 3)),
-                                                       ("int32", (1, 3)))}),
-                    V3.tobytes()[:-4], TRI], "bad_array"),
-    "nan_in_array": ([_j({**_obj(), "arrays": _arrays(("float32", (3, 3)),
-                                                         ("int32", (1, 3)))}),
-                      NAN_V.tobytes(), TRI], "not_finite"),
-    "nan_in_json": ([b'{"v": 1, "type": "update_objects", "id": 4, '
-                     b'"objects": [{"index": 0, "position": [NaN, 0, 0]}]}'], "not_finite"),
-    "infinity_in_json": ([b'{"v": 1, "type": "set_viewer", "id": 4, '
-                          b'"velocity": [Infinity, 0, 0]}'], "not_finite"),
-    "wrong_field_type": ([_j({"v": 1, "type": "update_objects", "id": 5, "objects": "all"})],
-                         "bad_message"),
-    "bad_index": ([_j({"v": 1, "type": "update_objects", "id": 5,
-                       "objects": [{"index": 999, "position": [0, 0, 0]}]})], "bad_message"),
-    "unknown_name": ([_j({"v": 1, "type": "update_objects", "id": 5,
-                          "objects": [{"name": "nobody"}]})], "not_found"),
-    "bad_settings": ([_j({"v": 1, "type": "set_display", "id": 6, "method": "magic"})],
-                     "bad_settings"),
-    "oversize_header": ([_j({"v": 1, "type": "hello", "id": 7, "pad": "x" * (1 << 20)})],
-                        "too_large"),
-    "oversize_string": ([_j({"v": 1, "type": "load_scene", "id": 8, "path": "p" * 5000})],
-                        "too_large"),
-    "oversize_array": ([_j({**_obj(), "arrays": _arrays(("float64", (1 << 20, 1 << 20, 3)),
-                                                           ("int32", (1, 3)))}),
-                        b"", TRI], "too_large"),
-    "too_many_updates": ([_j({"v": 1, "type": "update_objects", "id": 5,
-                              "objects": [{"index": 0}] * 5000})], "too_large"),
-    "missing_file": ([_j({"v": 1, "type": "load_scene", "id": 8, "path": "/nonexistent.obj"})],
-                     "not_found"),
+    "wrong_dtype_name": (
+        [
+            _j({**_obj(), "arrays": _arrays(("float16", (3, 3)), ("int32", (1, 3)))}),
+            V3.astype(np.float16).tobytes(),
+            TRI,
+        ],
+        "bad_array",
+    ),
+    "int_vertices": (
+        [
+            _j({**_obj(), "arrays": _arrays(("int32", (3, 3)), ("int32", (1, 3)))}),
+            V3.astype(np.int32).tobytes(),
+            TRI,
+        ],
+        "bad_array",
+    ),
+    "wrong_shape": (
+        [
+            _j({**_obj(), "arrays": _arrays(("float32", (3, 2)), ("int32", (1, 3)))}),
+            V3[:, :2].copy().tobytes(),
+            TRI,
+        ],
+        "bad_array",
+    ),
+    "byte_count": (
+        [
+            _j({**_obj(), "arrays": _arrays(("float32", (3, 3)), ("int32", (1, 3)))}),
+            V3.tobytes()[:-4],
+            TRI,
+        ],
+        "bad_array",
+    ),
+    "nan_in_array": (
+        [
+            _j({**_obj(), "arrays": _arrays(("float32", (3, 3)), ("int32", (1, 3)))}),
+            NAN_V.tobytes(),
+            TRI,
+        ],
+        "not_finite",
+    ),
+    "nan_in_json": (
+        [
+            b'{"v": 1, "type": "update_objects", "id": 4, '
+            b'"objects": [{"index": 0, "position": [NaN, 0, 0]}]}'
+        ],
+        "not_finite",
+    ),
+    "infinity_in_json": (
+        [b'{"v": 1, "type": "set_viewer", "id": 4, "velocity": [Infinity, 0, 0]}'],
+        "not_finite",
+    ),
+    "wrong_field_type": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": "all"})],
+        "bad_message",
+    ),
+    "bad_index": (
+        [
+            _j(
+                {
+                    "v": 1,
+                    "type": "update_objects",
+                    "id": 5,
+                    "objects": [{"index": 999, "position": [0, 0, 0]}],
+                }
+            )
+        ],
+        "bad_message",
+    ),
+    "unknown_name": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"name": "nobody"}]})],
+        "not_found",
+    ),
+    "bad_settings": (
+        [_j({"v": 1, "type": "set_display", "id": 6, "method": "magic"})],
+        "bad_settings",
+    ),
+    "oversize_header": (
+        [_j({"v": 1, "type": "hello", "id": 7, "pad": "x" * (1 << 20)})],
+        "too_large",
+    ),
+    "oversize_string": (
+        [_j({"v": 1, "type": "load_scene", "id": 8, "path": "p" * 5000})],
+        "too_large",
+    ),
+    "oversize_array": (
+        [
+            _j(
+                {**_obj(), "arrays": _arrays(("float64", (1 << 20, 1 << 20, 3)), ("int32", (1, 3)))}
+            ),
+            b"",
+            TRI,
+        ],
+        "too_large",
+    ),
+    "too_many_updates": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"index": 0}] * 5000})],
+        "too_large",
+    ),
+    "missing_file": (
+        [_j({"v": 1, "type": "load_scene", "id": 8, "path": "/nonexistent.obj"})],
+        "not_found",
+    ),
 }
 
 

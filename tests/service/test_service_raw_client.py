@@ -37,8 +37,9 @@ class RawClient:
 
 
 def test_raw_client_full_session(service_factory):
-    svc = service_factory("--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0",
-                          "--refresh", "30")
+    svc = service_factory(
+        "--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0", "--refresh", "30"
+    )
     c = RawClient(svc.control)
     sub = zmq.Context.instance().socket(zmq.SUB)
     sub.setsockopt(zmq.LINGER, 0)
@@ -54,16 +55,33 @@ def test_raw_client_full_session(service_factory):
         assert r["ok"] and "player" in r["objects"]
         verts = np.array([[-0.2, -0.2, 0.0], [0.2, -0.2, 0.0], [0.0, 0.2, 0.05]], np.float32)
         tris = np.array([[0, 1, 2]], np.int32)
-        r, _ = c.ask("load_object", arrays=(verts, tris), object={
-            "name": "tri", "mesh": {"vertices": {"$array": 0}, "triangles": {"$array": 1}},
-            "position": [0.3, 0.3, 0.0], "velocity": [0.1, 0.0, 0.0]})
+        r, _ = c.ask(
+            "load_object",
+            arrays=(verts, tris),
+            object={
+                "name": "tri",
+                "mesh": {"vertices": {"$array": 0}, "triangles": {"$array": 1}},
+                "position": [0.3, 0.3, 0.0],
+                "velocity": [0.1, 0.0, 0.0],
+            },
+        )
         assert r["ok"] and r["index"] == 7
-        r, _ = c.ask("update_objects", objects=[
-            {"name": "player", "position": [0.1, -0.5, 0.1], "velocity": [0.2, 0, 0]},
-            {"index": 7, "orientation": [1, 0, 0, 0]}])
+        r, _ = c.ask(
+            "update_objects",
+            objects=[
+                {"name": "player", "position": [0.1, -0.5, 0.1], "velocity": [0.2, 0, 0]},
+                {"index": 7, "orientation": [1, 0, 0, 0]},
+            ],
+        )
         assert r["ok"] and r["updated"] == 2
-        r, _ = c.ask("set_display", zones=3, cols=40, rows=30, galpixel_order=2,
-                     encodings=["colour", "depth", "debris"])
+        r, _ = c.ask(
+            "set_display",
+            zones=3,
+            cols=40,
+            rows=30,
+            galpixel_order=2,
+            encodings=["colour", "depth", "debris"],
+        )
         assert r["ok"] and r["display"]["zones"] == 3 and r["display"]["rows"] == 30
         r, bufs = c.ask("render")
         assert r["ok"], r

@@ -13,8 +13,22 @@ FRAME_BYTES = 5 * 120 * 160 * 3 + 5 * 120 * 160 * 4  # colour + depth, 672 kB
 
 
 def test_slow_subscriber_memory_flat(service_factory):
-    svc = service_factory("--scene", "game", "--zones", "5", "--cols", "160", "--rows", "120",
-                          "--workers", "0", "--refresh", "60", "--max-update-hz", "2")
+    svc = service_factory(
+        "--scene",
+        "game",
+        "--zones",
+        "5",
+        "--cols",
+        "160",
+        "--rows",
+        "120",
+        "--workers",
+        "0",
+        "--refresh",
+        "60",
+        "--max-update-hz",
+        "2",
+    )
     slow = zmq.Context.instance().socket(zmq.SUB)
     slow.setsockopt(zmq.LINGER, 0)
     slow.setsockopt(zmq.RCVHWM, 1)

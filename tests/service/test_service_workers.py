@@ -19,8 +19,22 @@ def _busy_pid(c: ServiceClient, known: list[int]) -> int | None:
 
 
 def test_worker_killed_mid_render(service_factory):
-    svc = service_factory("--scene", "game", "--zones", "5", "--cols", "160", "--rows", "120",
-                          "--workers", "2", "--render-timeout", "1.5", "--refresh", "30")
+    svc = service_factory(
+        "--scene",
+        "game",
+        "--zones",
+        "5",
+        "--cols",
+        "160",
+        "--rows",
+        "120",
+        "--workers",
+        "2",
+        "--render-timeout",
+        "1.5",
+        "--refresh",
+        "30",
+    )
     with ServiceClient(svc.control, timeout_s=5) as c, FrameSubscriber(svc.frames) as frames:
         pids = c.stats()["worker_pids"]
         assert len(pids) == 2
