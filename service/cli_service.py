@@ -31,8 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--workers",
         type=int,
-        default=0,
-        help="render worker processes behind the LRU broker (0: render in process)",
+        default=1,
+        help="render worker processes behind the LRU broker (0: render in the service's "
+        "own process, where numba kernels hold the GIL and delay refreshes)",
     )
     ap.add_argument(
         "--worker-address",

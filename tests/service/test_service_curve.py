@@ -1,0 +1,89 @@
+"""CurveZMQ: documented key command, keyed clients served, keyless ones not, no open bind."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from conftest import ROOT, free_port, raw_request, wait_until
+
+from service.client import FrameSubscriber, ServiceClient
+
+
+def test_make_keys_and_curve_service(tmp_path):
+    keys = tmp_path / "keys"
+    out = subprocess.run(
+        [sys.executable, "-m", "service.cli_service", "--make-keys", str(keys)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+    for name in (
+        "server.key",
+        "server.key_secret",
+        "client.key",
+        "client.key_secret",
+        "authorized/client.key",
+    ):
+        assert (keys / name).is_file()
+    ports = (free_port(), free_port(), free_port())
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "service.cli_service",
+            "--curve-keys",
+            str(keys),
+            "--scene",
+            "game",
+            "--zones",
+            "2",
+            "--cols",
+            "32",
+            "--rows",
+            "24",
+            "--workers",
+            "0",
+            "--control",
+            f"tcp://127.0.0.1:{ports[0]}",
+            "--frames",
+            f"tcp://127.0.0.1:{ports[1]}",
+        ],
+        cwd=ROOT,
+        stdin=subprocess.DEVNULL,
+    )
+    try:
+        with ServiceClient(
+            f"tcp://127.0.0.1:{ports[0]}", timeout_s=1.0, retries=30, curve_keys=keys
+        ) as c:
+            assert c.hello()["version"] == 1
+            plain = raw_request(
+                f"tcp://127.0.0.1:{ports[0]}", {"v": 1, "type": "ping", "id": 1}, (), 1000
+            )
+            assert plain is None, "a client without keys must not be served"
+            with FrameSubscriber(f"tcp://127.0.0.1:{ports[1]}", curve_keys=keys) as frames:
+                assert wait_until(lambda: frames.next(0.5), 30), "no encrypted frames"
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_non_loopback_bind_needs_keys():
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "service.cli_service",
+            "--control",
+            f"tcp://0.0.0.0:{free_port()}",
+            "--workers",
+            "0",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2 and "--curve-keys" in out.stderr

@@ -1,0 +1,139 @@
+"""Pure protocol and wire functions: frames <-> dicts and arrays, every check."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from service import protocol, wire
+from service.errors import MessageError
+from service.scenes import builtin_scene
+
+
+def _body(frames: list) -> list[bytes]:
+    return [bytes(f) for f in frames[1:]]  # drop the empty delimiter
+
+
+def test_request_round_trip_with_arrays():
+    a = np.arange(12, dtype=np.float32).reshape(4, 3)
+    b = np.array([[0, 1, 2]], np.int64)
+    frames = protocol.request(
+        "load_object", 5, {"object": {"mesh": {"vertices": a, "triangles": b}}}
+    )
+    req = protocol.parse_request(_body(frames))
+    got = req["object"]["mesh"]
+    assert req["id"] == 5 and req["type"] == "load_object"
+    np.testing.assert_array_equal(got["vertices"], a)
+    np.testing.assert_array_equal(got["triangles"], b)
+    assert not got["vertices"].flags.writeable  # a view on the frame, no copy
+
+
+def test_scene_round_trip_shares_meshes():
+    scene = builtin_scene("game")
+    spec, arrays = wire.extract(wire.scene_to_wire(scene))
+    assert sum("mesh_ref" in o for o in spec["objects"]) == 5  # six attackers, one mesh
+    back = wire.scene_from_wire(wire.resolve(json.loads(json.dumps(spec)), arrays))
+    assert [o.name for o in back.objects] == [o.name for o in scene.objects]
+    assert back.objects[2].mesh is back.objects[3].mesh
+    np.testing.assert_allclose(
+        back.objects[1].transform.position, scene.objects[1].transform.position
+    )
+    np.testing.assert_allclose(
+        back.objects[1].motion.angular_velocity, scene.objects[1].motion.angular_velocity
+    )
+
+
+@pytest.mark.parametrize(
+    ("body", "code"),
+    [
+        ([], "bad_frames"),
+        ([b"\xff\xfe"], "bad_json"),
+        ([b"1"], "bad_json"),
+        ([b'{"type": "ping"}'], "bad_version"),
+        ([b'{"v": 1, "type": "nope"}'], "unknown_type"),
+        ([b'{"v": 1, "type": "ping", "id": true}'], "bad_message"),
+        (
+            [b'{"v": 1, "type": "ping", "arrays": [{"dtype": "f8", "shape": [1]}]}', b"\0" * 8],
+            "bad_array",
+        ),
+        (
+            [
+                b'{"v": 1, "type": "ping", "arrays": [{"dtype": "float64", "shape": [2]}]}',
+                b"\0" * 8,
+            ],
+            "bad_array",
+        ),
+        (
+            [
+                b'{"v": 1, "type": "ping", "arrays": [{"dtype": "float64", "shape": [1,1,1,1,1]}]}',
+                b"\0" * 8,
+            ],
+            "bad_array",
+        ),
+        (
+            [
+                b'{"v": 1, "type": "ping", "arrays": [{"dtype": "float64", "shape": [1]}]}',
+                b"\0" * 8,
+            ],
+            "bad_message",
+        ),  # a buffer nobody refers to
+        ([b'{"v": 1, "type": "ping", "x": {"$array": 3}}'], "bad_message"),
+    ],
+)
+def test_parse_errors(body, code):
+    with pytest.raises(MessageError) as info:
+        protocol.parse_request(body)
+    assert info.value.code == code
+
+
+def test_error_reply_keeps_id_and_type():
+    with pytest.raises(MessageError) as info:
+        protocol.parse_request([b'{"v": 7, "type": "ping", "id": "r1"}'])
+    assert info.value.partial == {"id": "r1", "type": "ping"}
+    frames = protocol.error_reply([b"peer", b""], "r1", "ping", "bad_version", "v 7")
+    header = json.loads(frames[2])
+    assert frames[:2] == [b"peer", b""]
+    assert header == {
+        "v": 1,
+        "id": "r1",
+        "type": "ping",
+        "ok": False,
+        "error": {"code": "bad_version", "message": "v 7"},
+    }
+
+
+@pytest.mark.parametrize(
+    ("value", "code"),
+    [
+        ([1.0, float("nan"), 0.0], "not_finite"),
+        ([1.0, 2.0], "bad_message"),
+        (["a", 1, 2], "bad_message"),
+        (np.array([1, 2, 3], np.int32), "bad_array"),
+        (np.array([1.0, np.inf, 3.0]), "not_finite"),
+    ],
+)
+def test_vector_checks(value, code):
+    with pytest.raises(MessageError) as info:
+        wire.vector(value, "v", 3)
+    assert info.value.code == code
+
+
+def test_big_buffers_are_sent_without_copy():
+    import zmq
+
+    ctx = zmq.Context()
+    a, b = ctx.socket(zmq.PAIR), ctx.socket(zmq.PAIR)
+    try:
+        a.bind("inproc://wire-test")
+        b.connect("inproc://wire-test")
+        big = np.random.default_rng(1).random((300, 300)).astype(np.float32)  # 360 kB
+        assert wire.send(a, wire.encode({"k": 1}, [big], ["big"]), 1000)
+        assert b.poll(1000)
+        header = protocol.parse_reply(b.recv_multipart())
+        np.testing.assert_array_equal(header["arrays"]["big"], big)
+    finally:
+        a.close(0)
+        b.close(0)
+        ctx.term()
