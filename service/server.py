@@ -38,7 +38,6 @@ from service.display import DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
-from service.galilean.galpixmap import build
 from service.keys import curve_server, is_local, start_authenticator
 from service.pipeline import Renderer
 from service.scene import MotionState, Scene, Transform, euler_quaternion
@@ -308,7 +307,9 @@ class Service:
             rid, mtype = req.get("id"), req["type"]
             out = self.handlers[mtype](req)
             if out is None:  # answered later (render)
-                self._waiting.append((envelope, rid, time.monotonic(), ()))
+                self._waiting.append(
+                    (envelope, rid, time.monotonic(), (time.monotonic_ns(), self._scene_mark()))
+                )
                 return
             frames_out = protocol.reply(envelope, rid, mtype, *out)
         except MessageError as exc:
@@ -485,6 +486,11 @@ class Service:
         return ({},)
 
     # ------------------------------------------------------- render replies
+    def _scene_mark(self) -> tuple[int, int]:
+        """(settings generation, scene version): what a render request must see."""
+        with self.state.lock:
+            return (self.state.settings.generation, self.state.scene_version)
+
     def _answer_renders(self) -> None:
         """Answer waiting ``render`` requests with the newest finished render."""
         done = None
@@ -493,9 +499,11 @@ class Service:
                 done = self._render_results.get_nowait()
             except queue.Empty:
                 break
-            waiting, self._waiting = self._waiting, []
-            for envelope, rid, _t, _ in waiting:
-                self._send(_render_reply(envelope, rid, done))
+            # a render started after the request, with its settings and scene, answers it
+            fresh = [w for w in self._waiting if done[1] >= w[3][0] and done[3] >= w[3][1]]
+            self._waiting = [w for w in self._waiting if w not in fresh]
+            for envelope, rid, _t, _mark in fresh:
+                self._send(_render_reply(envelope, rid, done[:3]))
         limit = self.config.render_timeout_s * 4 + 5
         now = time.monotonic()
         for item in [w for w in self._waiting if now - w[2] > limit]:
@@ -533,6 +541,7 @@ class Service:
         with self.state.lock:
             scene, scene_t, settings = self.state.scene, self.state.scene_t, self.state.settings
             viewer = self.state.viewer.render_spec()
+            mark = (settings.generation, self.state.scene_version)
         if scene is None or not scene.objects:
             return False
         index, t_index, gen, fixed, order = self._clock
@@ -551,24 +560,15 @@ class Service:
             "render": settings.as_dict(),
             "viewer": viewer,
         }
-        rendered = self._run_job(renderer, bands, job, scene, settings)
+        got = self._run_job(renderer, bands, {**job, "order": order}, scene, settings, fixed)
         self.counters.render_ms.append((time.monotonic_ns() - t0) / 1e6)
-        if rendered is None:
+        if got is None:
             self.counters.n["render_failures"] += 1
             return False
-        buf, _info = build(
-            rendered.frame.colour,
-            rendered.frame.depth,
-            order,
-            fixed,
-            rendered.derivatives,
-            rendered.dcolour,
-            rendered.obj,
-            0,
-        )
+        rendered, buf = got
         self.counters.n["renders"] += 1
         self._ready.append(Ready(render_id, settings.generation, rendezvous, buf, rendered, t0))
-        self._render_results.put((render_id, t0, rendered.frame))
+        self._render_results.put((render_id, t0, rendered.frame, mark))
         return True
 
     def _run_job(
@@ -578,6 +578,7 @@ class Service:
         job: dict,
         scene: Scene,
         settings: Settings,
+        fixed: Any,
     ) -> Any:
         motion = MotionState(
             **{
@@ -589,12 +590,12 @@ class Service:
         try:
             if bands is None:
                 job["rows"] = [0, settings.display.rows]
-                return stitch([render_band(renderer, job, scene)], motion)
+                return stitch([render_band(renderer, job, scene)], motion, fixed, job["order"])
             spec, arrays = wire.extract(wire.scene_to_wire(scene))
             n = max(1, len(self.broker.ready) + len(self.broker.busy), self.config.workers)
             got = bands.run({**job, "scene": spec}, arrays, split_rows(settings.display.rows, n))
             self.band_retries = bands.resent
-            return None if got is None else stitch(got, motion)
+            return None if got is None else stitch(got, motion, fixed, job["order"])
         except (HoloError, ValueError) as exc:
             self.last_render_error = str(exc)
             return None

@@ -27,6 +27,7 @@ ZERO_COPY_BYTES = 65536
 DTYPES: dict[str, np.dtype] = {
     "uint8": np.dtype("<u1"),
     "bool": np.dtype("|b1"),
+    "int16": np.dtype("<i2"),
     "int32": np.dtype("<i4"),
     "int64": np.dtype("<i8"),
     "float32": np.dtype("<f4"),

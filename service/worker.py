@@ -32,6 +32,8 @@ import zmq
 
 from service import protocol, wire
 from service.display import DisplaySettings
+from service.galilean.fixed_point import FixedPoint, bit_budget
+from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.light import LightSettings
 from service.pipeline import Renderer, RenderSettings
@@ -44,9 +46,8 @@ from service.scene import (
     quaternion_matrix,
 )
 
-#: the arrays of a band reply, and the row axis of each (for stitching).
-BAND_ARRAYS = {"colour": 1, "depth": 1, "derivatives": 3, "dcolour": 2, "obj": 1}
-POINT_ARRAYS = ("points", "point_derivs")
+#: galpixmap fields a band reply carries (as ``gp_<field>``), joined along axis -2.
+GALPIXMAP_FIELDS = ("colour", "depth", "frac", "motion", "zmotion", "dcolour", "debris", "obj")
 READY = b"READY"
 
 
@@ -110,14 +111,17 @@ def viewer_from(spec: dict[str, Any] | None) -> tuple[Transform | None, MotionSt
 
 
 def render_band(renderer: Renderer, job: dict[str, Any], scene: Scene) -> dict[str, np.ndarray]:
-    """Render one job's band; returns the arrays of :data:`BAND_ARRAYS` (+ points for band 0).
+    """Render one job's band and build its galpixmap (order ``job["order"]``).
 
     Returns
     -------
     dict of ndarray
-        ``colour`` (Z, r, C, 3) uint8, ``depth`` (Z, r, C) float32, ``derivatives``
-        (3, 3, Z, r, C) float32, ``dcolour`` (4, Z, r, C) float32, ``obj`` (Z, r, C)
-        int32; band 0 also ``points`` (N, 2) and ``point_derivs`` (3, N, 2).
+        ``colour`` (Z, r, C, 3) uint8 and ``depth`` (Z, r, C) float32 of the render;
+        ``gp_colour`` (3, Z, r, C) float32, ``gp_depth`` (Z, r, C), ``gp_frac``
+        (2, Z, r, C) int16, ``gp_motion`` (2n, Z, r, C) int32, ``gp_zmotion``
+        (n, Z, r, C), ``gp_dcolour`` (4 or 0, Z, r, C), ``gp_debris`` (Z, r, C) uint8,
+        ``gp_obj`` (Z, r, C) int32; band 0 also ``points`` (N, 2) and
+        ``point_derivs`` (3, N, 2).
     """
     display = display_from(job["display"])
     viewer, motion = viewer_from(job.get("viewer"))
@@ -133,39 +137,45 @@ def render_band(renderer: Renderer, job: dict[str, Any], scene: Scene) -> dict[s
         viewer,
         motion,
     )
-    out = {
-        "colour": up.frame.colour,
-        "depth": up.frame.depth,
-        "derivatives": up.derivatives.astype(np.float32, copy=False),
-        "dcolour": (
-            up.dcolour if up.dcolour is not None else np.zeros((4, *up.obj.shape), np.float32)
-        ),
-        "obj": up.obj.astype(np.int32, copy=False),
-    }
+    out = {"colour": up.frame.colour, "depth": up.frame.depth}
+    gp = _galpixmap(up, display, int(job.get("order", 2)))
+    out.update({f"gp_{k}": getattr(gp, k) for k in GALPIXMAP_FIELDS})
     if rows[0] == 0 and up.points is not None:
         out["points"] = up.points
         out["point_derivs"] = up.point_derivs
     return out
 
 
-def stitch(bands: list[dict[str, np.ndarray]], viewer_motion: MotionState) -> RenderedUpdate:
-    """Join band replies (in row order) into one :class:`RenderedUpdate`."""
+def _galpixmap(up: RenderedUpdate, display: DisplaySettings, order: int) -> Galpixmap:
+    """The band's galpixmap, with the fixed-point format of the whole display's stage."""
+    fixed = FixedPoint.for_order(bit_budget(max(display.cols, display.rows), 16, 16), order)
+    gp, _info = build(
+        up.frame.colour, up.frame.depth, order, fixed, up.derivatives, up.dcolour, up.obj, 0
+    )
+    return gp
+
+
+def stitch(
+    bands: list[dict[str, np.ndarray]], viewer_motion: MotionState, fixed: FixedPoint, order: int
+) -> tuple[RenderedUpdate, Galpixmap]:
+    """Join band replies (in row order): the render (frame, control points) and its galpixmap.
+
+    Every array is joined along its row axis (-2 for the galpixmap fields, 1 for the
+    frame's colour and depth).
+    """
     from service.frame import Frame
 
-    joined = {
-        k: np.concatenate([b[k] for b in bands], axis=ax) if len(bands) > 1 else bands[0][k]
-        for k, ax in BAND_ARRAYS.items()
-    }
+    def join(key: str, axis: int) -> np.ndarray:
+        parts = [b[key] for b in bands]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=axis)
+
     first = bands[0]
-    return RenderedUpdate(
-        Frame(joined["colour"], joined["depth"]),
-        joined["derivatives"],
-        joined["dcolour"],
-        joined["obj"],
-        viewer_motion,
-        first.get("points"),
-        first.get("point_derivs"),
+    frame = Frame(join("colour", 1), join("depth", 1))
+    rendered = RenderedUpdate(
+        frame, None, None, None, viewer_motion, first.get("points"), first.get("point_derivs")
     )
+    fields = {k: np.array(join(f"gp_{k}", -2)) for k in GALPIXMAP_FIELDS}
+    return rendered, Galpixmap(order, fixed, **fields)
 
 
 def handle_job(renderer: Renderer, body: list[Any]) -> list[Any]:

@@ -1,0 +1,493 @@
+"""Benchmark of the render service (``holo-bench service``).
+
+Usage::
+
+    python -m service.bench.service_bench --out DIR [--quick] [--seconds S]
+
+Parts (each a real socket on 127.0.0.1; services are real ``holo-service``
+subprocesses, killed at the end):
+
+``transport``
+    One frame (colour + depth of the default display, 5 x 120 x 160) published and
+    received in lockstep, ours (:class:`~service.frame_stream.FrameStream` +
+    :func:`~service.protocol.parse_reply`) against raw pyzmq zero-copy
+    ``send_multipart`` of the same buffers.  Target: ours / raw <= 1.5 (p50).
+``round_trip``
+    ``ping`` and a 7-object ``update_objects`` through :class:`ServiceClient`, p50 / p99.
+``game``
+    Updates/s and refreshes/s with the game scene on the default display.
+``workers``
+    Updates/s against the worker count (0 = render in process, 1, 2, 3).
+``motion_to_photon``
+    A tracker pose written into a pty (native protocol) -> the device driver path
+    (reader, publisher) -> the service (``--devices``) -> the first frame a
+    subscriber receives whose header carries that pose, with renders capped at
+    15 Hz.  Target: p95 <= 20 ms.
+
+Writes ``service.json`` and ``service.png`` into ``--out`` and prints a summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zmq
+
+from service import protocol
+from service.client import FrameSubscriber, ServiceClient
+from service.frame_stream import FrameStream
+
+TRANSPORT_TARGET = 1.5
+MTP_TARGET_MS = 20.0
+SHAPE = (5, 120, 160)
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _pct(samples: list[float]) -> dict[str, float]:
+    a = np.asarray(samples, float)
+    if a.size == 0:
+        return {"n": 0}
+    return {
+        "n": int(a.size),
+        "p50": float(np.percentile(a, 50)),
+        "p95": float(np.percentile(a, 95)),
+        "p99": float(np.percentile(a, 99)),
+        "mean": float(a.mean()),
+        "max": float(a.max()),
+    }
+
+
+# ---------------------------------------------------------------- transport
+def _lockstep(send, sub: zmq.Socket, receive, n: int) -> list[float]:
+    """Milliseconds per frame, one in flight: send, then receive it."""
+    out = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        send()
+        if not sub.poll(2000):
+            raise RuntimeError("a frame was lost in the transport benchmark")
+        receive(sub.recv_multipart(copy=False))
+        out.append((time.perf_counter() - t0) * 1e3)
+    return out
+
+
+def _sub(ctx: zmq.Context, address: str) -> zmq.Socket:
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(address)
+    return sub
+
+
+def _connected(send, sub: zmq.Socket) -> None:
+    """Publish until the subscription is through (PUB drops before it)."""
+    for _ in range(500):
+        send()
+        if sub.poll(20):
+            while sub.poll(50):
+                sub.recv_multipart()
+            return
+    raise RuntimeError("subscriber never connected")
+
+
+def bench_transport(n: int) -> dict[str, Any]:
+    """Ours against raw zero-copy pyzmq, same buffers, same sockets kind."""
+    ctx = zmq.Context()
+    rng = np.random.default_rng(0)
+    colour = rng.integers(0, 255, (*SHAPE, 3), np.uint8)
+    depth = rng.random(SHAPE).astype(np.float32)
+    header = json.dumps(
+        {
+            "seq": 1,
+            "arrays": [
+                {"dtype": "uint8", "shape": list(colour.shape)},
+                {"dtype": "float32", "shape": list(SHAPE)},
+            ],
+        }
+    )
+    raw_pub = ctx.socket(zmq.PUB)
+    raw_pub.setsockopt(zmq.LINGER, 0)
+    raw_pub.bind("tcp://127.0.0.1:0")
+    raw_sub = _sub(ctx, raw_pub.getsockopt_string(zmq.LAST_ENDPOINT))
+    ours = FrameStream(ctx, "tcp://127.0.0.1:0", "bench")
+    our_sub = _sub(ctx, ours.address)
+
+    def raw_send() -> None:
+        raw_pub.send_multipart([b"frame", header.encode(), colour, depth], copy=False)
+
+    def raw_recv(frames: list) -> None:
+        json.loads(frames[1].bytes)
+        np.frombuffer(frames[2].buffer, np.uint8).reshape(*SHAPE, 3)
+        np.frombuffer(frames[3].buffer, np.float32).reshape(SHAPE)
+
+    def our_send() -> None:
+        ours.publish({"refresh": 1, "render_id": 1}, [colour, depth], ["colour", "depth"])
+
+    def our_recv(frames: list) -> None:
+        protocol.parse_reply([f.buffer for f in frames[1:]])
+
+    try:
+        _connected(raw_send, raw_sub)
+        _connected(our_send, our_sub)
+        raw, mine = [], []
+        for _ in range(5):  # interleaved rounds: both see the same machine state
+            raw += _lockstep(raw_send, raw_sub, raw_recv, n // 5)
+            mine += _lockstep(our_send, our_sub, our_recv, n // 5)
+    finally:
+        for s in (raw_pub, raw_sub, our_sub):
+            s.close(0)
+        ours.close()
+        ctx.term()
+    r, m = _pct(raw), _pct(mine)
+    return {
+        "frame_bytes": int(colour.nbytes + depth.nbytes),
+        "raw_ms": r,
+        "ours_ms": m,
+        "ratio_p50": m["p50"] / r["p50"],
+        "ratio_mean": m["mean"] / r["mean"],
+        "target": TRANSPORT_TARGET,
+        "target_met": m["p50"] / r["p50"] <= TRANSPORT_TARGET,
+    }
+
+
+# ------------------------------------------------------------ real services
+class Running:
+    """A ``holo-service`` subprocess on free ports (killed on exit)."""
+
+    def __init__(self, *args: str) -> None:
+        self.control, self.frames = f"tcp://127.0.0.1:{_port()}", f"tcp://127.0.0.1:{_port()}"
+        cmd = [
+            sys.executable,
+            "-m",
+            "service.cli_service",
+            "--control",
+            self.control,
+            "--frames",
+            self.frames,
+            "--worker-address",
+            f"tcp://127.0.0.1:{_port()}",
+            *args,
+        ]
+        self.proc = subprocess.Popen(
+            cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        self.client = ServiceClient(self.control, timeout_s=2.0, retries=30)
+
+    def __enter__(self) -> Running:
+        try:
+            self.client.hello()
+        except BaseException:
+            self.__exit__()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.client.close()
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+
+    def wait_updates(self, n: int, timeout_s: float) -> bool:
+        """Poll stats until ``n`` updates were grafted."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if self.client.stats()["updates"] >= n:
+                return True
+            threading.Event().wait(0.1)
+        return False
+
+
+def bench_round_trip(n: int) -> dict[str, Any]:
+    """Round trips (ms) of ping and update_objects against a service with the game scene."""
+    with Running("--scene", "game", "--workers", "1", "--max-update-hz", "10") as svc:
+        c = svc.client
+        ping, update = [], []
+        ups = [
+            {"index": i, "position": [0.1 * i, 0.0, 0.0], "velocity": [0.0, 0.1, 0.0]}
+            for i in range(7)
+        ]
+        for _ in range(n):
+            t0 = time.perf_counter()
+            c.ping()
+            t1 = time.perf_counter()
+            c.update_objects(ups)
+            t2 = time.perf_counter()
+            ping.append((t1 - t0) * 1e3)
+            update.append((t2 - t1) * 1e3)
+    return {"ping_ms": _pct(ping), "update_objects_ms": _pct(update), "ping_samples": ping}
+
+
+def _rates(svc: Running, seconds: float) -> dict[str, float]:
+    s0, t0 = svc.client.stats(), time.monotonic()
+    threading.Event().wait(seconds)
+    s1, t1 = svc.client.stats(), time.monotonic()
+    dt = t1 - t0
+    return {
+        "updates_per_s": (s1["updates"] - s0["updates"]) / dt,
+        "refreshes_per_s": (s1["refreshes"] - s0["refreshes"]) / dt,
+        "incomplete_per_s": (s1["incomplete_updates"] - s0["incomplete_updates"]) / dt,
+        "render_ms_p50": s1["render_ms_p50"],
+        "refresh_ms_p50": s1["refresh_ms_p50"],
+        "refresh_overruns": s1["refresh_overruns"] - s0["refresh_overruns"],
+    }
+
+
+def bench_workers(counts: list[int], seconds: float) -> list[dict[str, Any]]:
+    """Updates/s and refreshes/s with the game scene per worker count."""
+    out = []
+    for n in counts:
+        with Running("--scene", "game", "--workers", str(n)) as svc:
+            if not svc.wait_updates(3, 120):
+                out.append({"workers": n, "error": "no updates"})
+                continue
+            out.append({"workers": n, **_rates(svc, seconds)})
+    return out
+
+
+# --------------------------------------------------------- motion to photon
+class FrameStamps(threading.Thread):
+    """Receives frames on a thread; keeps (receive ns, pose_seq) of each."""
+
+    def __init__(self, address: str) -> None:
+        super().__init__(name="mtp-frames", daemon=True)
+        self.sub = FrameSubscriber(address, hwm=1000)
+        self.stamps: list[tuple[int, int | None]] = []
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        """Take frames until stopped."""
+        try:
+            while not self.stop.is_set():
+                got = self.sub.next(0.1)
+                if got is not None:
+                    self.stamps.append((time.monotonic_ns(), got[0].get("pose_seq")))
+        finally:
+            self.sub.close()
+
+
+def _devices(pub: str) -> tuple[subprocess.Popen, int]:
+    """``holo-devices`` reading the slave side of a fresh pty; returns (proc, master fd)."""
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    cmd = [
+        sys.executable,
+        "-m",
+        "drivers.cli_devices",
+        "--tracker",
+        os.ttyname(slave),
+        "--tracker-protocol",
+        "native",
+        "--pub",
+        pub,
+        "--watchdog",
+        "0",
+    ]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(slave)
+    return proc, master
+
+
+def _first_reflecting(stamps: list[tuple[int, int | None]], seq: int, after_ns: int) -> int | None:
+    for t, s in stamps:
+        if t >= after_ns and s is not None and s >= seq:
+            return t
+    return None
+
+
+def bench_motion_to_photon(n: int, rate_hz: float = 20.0) -> dict[str, Any]:
+    """Pose written into the tracker's pty -> first received frame carrying it (ms)."""
+    from drivers.protocols import native
+
+    pub = f"tcp://127.0.0.1:{_port()}"
+    devices, master = _devices(pub)
+    sent: list[tuple[int, int]] = []
+    try:
+        with Running(
+            "--scene", "game", "--workers", "1", "--max-update-hz", "15", "--devices", pub
+        ) as svc:
+            frames = FrameStamps(svc.frames)
+            frames.start()
+            try:
+                svc.wait_updates(3, 120)
+                k, start = 1, time.monotonic()
+                while time.monotonic() - start < 30 and not any(s for _, s in frames.stamps):
+                    os.write(
+                        master,
+                        native.encode_pose(k, k * 1000, (0.0, 0.0, 600.0), (1.0, 0.0, 0.0, 0.0)),
+                    )
+                    k += 1
+                    threading.Event().wait(0.05)
+                stats = _send_poses(master, k + 10, n, rate_hz, sent)
+                threading.Event().wait(0.5)
+            finally:
+                frames.stop.set()
+                frames.join(5)
+            svc_stats = svc.client.stats()
+    finally:
+        devices.terminate()
+        try:
+            devices.wait(5)
+        except subprocess.TimeoutExpired:
+            devices.kill()
+        os.close(master)
+    lat = [
+        (t - t0) / 1e6
+        for seq, t0 in sent
+        if (t := _first_reflecting(frames.stamps, seq, t0)) is not None
+    ]
+    res = _pct(lat)
+    return {
+        "ms": res,
+        "samples": lat,
+        "lost": len(sent) - len(lat),
+        "pose_rate_hz": rate_hz,
+        "write_jitter_ms": stats,
+        "target_ms": MTP_TARGET_MS,
+        "target_met": bool(res.get("p95", 1e9) <= MTP_TARGET_MS),
+        "service_updates_per_s": svc_stats["updates_per_s"],
+        "service_refreshes_per_s": svc_stats["refreshes_per_s"],
+    }
+
+
+def _send_poses(master: int, k0: int, n: int, rate_hz: float, sent: list[tuple[int, int]]) -> float:
+    """Write ``n`` poses on an absolute schedule; returns the mean lateness (ms)."""
+    from drivers.protocols import native
+
+    period, start, late = 1.0 / rate_hz, time.monotonic(), []
+    tick = threading.Event()
+    for i in range(n):
+        target = start + i * period
+        while (now := time.monotonic()) < target:
+            tick.wait(target - now)
+        k = k0 + i
+        x = 50.0 * np.sin(i / 10.0)  # the head sways: each pose differs
+        frame = native.encode_pose(k, k * 1000, (x, 0.0, 600.0), (1.0, 0.0, 0.0, 0.0))
+        sent.append((k, time.monotonic_ns()))
+        os.write(master, frame)
+        late.append((time.monotonic() - target) * 1e3)
+    return float(np.mean(late))
+
+
+# --------------------------------------------------------------- reporting
+def plot(res: dict[str, Any], path: Path) -> None:
+    """Four panels: transport, round trip, workers, motion-to-photon CDF."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 2, figsize=(11, 8))
+    t = res["transport"]
+    ax[0, 0].bar(["raw pyzmq", "holo frame stream"], [t["raw_ms"]["p50"], t["ours_ms"]["p50"]])
+    ax[0, 0].set(
+        title=f"frame transport p50 ({t['frame_bytes'] / 1e3:.0f} kB), "
+        f"ratio {t['ratio_p50']:.2f} (target <= {TRANSPORT_TARGET})",
+        ylabel="ms",
+    )
+    rt = res["round_trip"]
+    ax[0, 1].hist(rt["ping_samples"], bins=40)
+    ax[0, 1].set(
+        title=f"ping round trip p50 {rt['ping_ms']['p50']:.2f} ms, "
+        f"p99 {rt['ping_ms']['p99']:.2f} ms",
+        xlabel="ms",
+    )
+    w = [x for x in res["workers"] if "updates_per_s" in x]
+    ax[1, 0].plot(
+        [x["workers"] for x in w], [x["updates_per_s"] for x in w], "o-", label="updates/s"
+    )
+    ax[1, 0].plot(
+        [x["workers"] for x in w],
+        [x["refreshes_per_s"] / 10 for x in w],
+        "s--",
+        label="refreshes/s / 10",
+    )
+    ax[1, 0].set(title="game scene, 5 x 160 x 120 (0 = in process)", xlabel="workers")
+    ax[1, 0].legend()
+    m = np.sort(res["motion_to_photon"]["samples"])
+    if m.size:
+        ax[1, 1].plot(m, np.arange(1, m.size + 1) / m.size)
+    ax[1, 1].axvline(MTP_TARGET_MS, color="r", ls=":", label="target p95")
+    ax[1, 1].set(title="motion to photon (pty -> frame received)", xlabel="ms", ylabel="CDF")
+    ax[1, 1].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``holo-bench service``; returns the exit status."""
+    p = argparse.ArgumentParser(
+        prog="holo-bench service",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--out", default="bench-out")
+    p.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
+    p.add_argument("--seconds", type=float, default=8.0, help="measuring time per worker count")
+    p.add_argument("--workers", default="0,1,2,3", help="worker counts to compare")
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    q = args.quick
+    counts = [int(x) for x in args.workers.split(",") if x.strip()]
+    res: dict[str, Any] = {
+        "host": {
+            "machine": platform.machine(),
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "pyzmq": zmq.__version__,
+            "libzmq": zmq.zmq_version(),
+        }
+    }
+    res["transport"] = bench_transport(50 if q else 500)
+    res["round_trip"] = bench_round_trip(100 if q else 1000)
+    res["workers"] = bench_workers(counts[:2] if q else counts, 3.0 if q else args.seconds)
+    res["game"] = next((w for w in res["workers"] if w.get("workers") == 1), res["workers"][0])
+    res["motion_to_photon"] = bench_motion_to_photon(60 if q else 400)
+    (out / "service.json").write_text(json.dumps(res, indent=1))
+    plot(res, out / "service.png")
+    print(summary(res))
+    return 0
+
+
+def summary(res: dict[str, Any]) -> str:
+    """One paragraph of the headline figures."""
+    t, rt, m = res["transport"], res["round_trip"], res["motion_to_photon"]
+    w = ", ".join(f"{x['workers']}: {x.get('updates_per_s', 0):.1f}" for x in res["workers"])
+    return (
+        f"transport p50 ours/raw {t['ratio_p50']:.2f} (target <= {TRANSPORT_TARGET}); "
+        f"ping p50 {rt['ping_ms']['p50']:.2f} ms p99 {rt['ping_ms']['p99']:.2f} ms; "
+        f"update_objects p50 {rt['update_objects_ms']['p50']:.2f} ms "
+        f"p99 {rt['update_objects_ms']['p99']:.2f} ms; updates/s by workers {w}; "
+        f"game (1 worker) refreshes/s {res['game'].get('refreshes_per_s', 0):.1f}; "
+        f"motion-to-photon p50 {m['ms'].get('p50', float('nan')):.1f} ms "
+        f"p95 {m['ms'].get('p95', float('nan')):.1f} ms (target <= {MTP_TARGET_MS}), "
+        f"lost {m['lost']}"
+    )
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
