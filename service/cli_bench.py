@@ -22,6 +22,10 @@ BENCHES = {
         "service.bench.galilean_bench",
         "Galilean stage: thought experiments and the order x interval sweep",
     ),
+    "service": (
+        "service.bench.service_bench",
+        "render service: transport overhead, round trip, workers, motion-to-photon",
+    ),
     "filters": ("drivers.bench_filters", "pose filters: jitter vs lag"),
     "latency": (
         "drivers.bench_latency",
