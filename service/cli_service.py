@@ -110,6 +110,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         flush=True,
     )
     _stop_on_signals(service)
+    # The refresh thread must get the GIL soon after its tick: a 1 ms switch interval
+    # (default 5 ms) bounds how long a busy thread holds it against a waiting one.
+    sys.setswitchinterval(0.001)
     service.run()
     return 0
 

@@ -74,6 +74,9 @@ class Limits:
         return dict(self.__dict__)
 
 
+DEFAULT_LIMITS = Limits()
+
+
 @dataclass
 class Request:
     """A parsed request.
@@ -232,10 +235,10 @@ def parse_reply(frames: list[Any]) -> dict[str, Any]:
     body = frames[1:] if frames and len(frames[0]) == 0 else frames
     if not body:
         raise MessageError("bad_frames", "empty reply")
-    header = _header(body[0], Limits())
+    header = _header(body[0], DEFAULT_LIMITS)
     names = [d.get("name") for d in header.get("arrays", []) if isinstance(d, dict)]
     arrays = wire.decode_arrays(
-        header.pop("arrays", None), body[1:], Limits().max_message_bytes, max_dims=8
+        header.pop("arrays", None), body[1:], DEFAULT_LIMITS.max_message_bytes, max_dims=8
     )
     if names and all(isinstance(n, str) for n in names):
         header["arrays"] = dict(zip(names, arrays, strict=True))

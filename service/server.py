@@ -146,6 +146,7 @@ class Counters:
         self.refresh_ms: deque[float] = deque(maxlen=600)
         self.update_t: deque[float] = deque(maxlen=1000)
         self.refresh_t: deque[float] = deque(maxlen=2000)
+        self.tick_late_ms: deque[float] = deque(maxlen=2000)
 
     @staticmethod
     def rate(times: deque[float], window: float = 5.0) -> float:
@@ -165,6 +166,10 @@ class Counters:
             "refreshes_per_s": self.rate(self.refresh_t),
             "render_ms_p50": med(self.render_ms),
             "refresh_ms_p50": med(self.refresh_ms),
+            "tick_late_ms_p50": med(self.tick_late_ms),
+            "tick_late_ms_p95": (
+                float(np.percentile(list(self.tick_late_ms), 95)) if self.tick_late_ms else None
+            ),
         }
 
 
@@ -866,6 +871,7 @@ class RefreshLoop:
         self.render_id = -1
         self.t_render_ns = 0
         self.since = 0
+        self.prepared: tuple[Any, dict[str, Any]] | None = None
 
     def _restart(self, settings: Settings) -> None:
         self.stage = GalileanStage(
@@ -875,6 +881,7 @@ class RefreshLoop:
         self.generation = settings.generation
         self.due.clear()
         self.render_id, self.since = -1, 0
+        self.prepared = None
 
     def run(self) -> None:
         """Tick until the service stops."""
@@ -886,9 +893,9 @@ class RefreshLoop:
                 if settings.generation != self.generation:
                     self._restart(settings)
                 period = 1.0 / settings.refresh_hz
-                svc._clock = (
+                svc._clock = (  # the refresh computed now is shown at the next tick
                     self.stage.index,
-                    next_t,
+                    next_t + period,
                     self.generation,
                     self.stage.fixed,
                     settings.galpixel_order,
@@ -900,21 +907,34 @@ class RefreshLoop:
                 self.sub.close()
 
     def _wait(self, next_t: float, period: float) -> float:
+        """Sleep until ``next_t``; past a whole period late, skip the missed ticks."""
         now = time.monotonic()
-        if now > next_t:
-            missed = math.floor((now - next_t) / period) + 1
+        if now - next_t > period:
+            missed = math.floor((now - next_t) / period)
             self.svc.counters.n["refresh_overruns"] += missed
-            return next_t + missed * period if missed > 1 else next_t
-        self.svc._stop.wait(next_t - now)
+            next_t += missed * period
+        if next_t > now:
+            self.svc._stop.wait(next_t - now)
+        self.svc.counters.tick_late_ms.append((time.monotonic() - next_t) * 1e3)
         return next_t
 
     def _tick(self, settings: Settings) -> None:
-        svc, stage = self.svc, self.stage
+        """Publish the frame prepared last tick, then prepare the next one.
+
+        The pose is latched at the start of the tick and the frame goes out at once
+        (as a display scans out at vsync what was computed before it); the refresh
+        for the next tick is computed afterwards, so its cost and jitter do not sit
+        between the newest pose and the published frame.
+        """
+        svc, c = self.svc, self.svc.counters
+        self._devices(settings)  # latch: the newest pose picks the zone
+        if self.prepared is not None:
+            self._publish(*self.prepared, settings)
+        else:
+            svc.stream.heartbeat()
         t0 = time.perf_counter()
-        self._devices(settings)
         self._submit()
-        r = stage.refresh()
-        c = svc.counters
+        r = self.stage.refresh()
         c.n["refreshes"] += 1
         c.refresh_t.append(time.monotonic())
         if r.flags["updated"] and r.index in self.due:
@@ -927,12 +947,18 @@ class RefreshLoop:
         c.n["incomplete_updates"] += sum(
             e.get("kind") == "incomplete_update" for e in r.flags["events"]
         )
-        self._devices(settings)  # late latch: the newest pose picks the zone
-        c.refresh_ms.append((time.perf_counter() - t0) * 1e3)
-        if self.render_id < 0:
-            svc.stream.heartbeat()
-            return
-        self._publish(r, settings, (time.perf_counter() - t0) * 1e3)
+        ms = (time.perf_counter() - t0) * 1e3
+        c.refresh_ms.append(ms)
+        if self.render_id >= 0:
+            self.prepared = (
+                r,
+                {
+                    "render_id": self.render_id,
+                    "since_render": self.since,
+                    "t_render_ns": self.t_render_ns,
+                    "ms": ms,
+                },
+            )
 
     def _submit(self) -> None:
         svc = self.svc
@@ -980,21 +1006,18 @@ class RefreshLoop:
         self.sub = None if address is None else DeviceSubscriber(address, context=self.svc.ctx)
         self.sub_address = address
 
-    def _publish(self, r: Any, settings: Settings, ms: float) -> None:
+    def _publish(self, r: Any, made: dict[str, Any], settings: Settings) -> None:
         arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris}
         names = list(settings.encodings)
         viewer = self.svc.state.viewer
         header = {
             "refresh": r.index,
-            "render_id": self.render_id,
-            "since_render": self.since,
+            **made,
             "updated": bool(r.flags["updated"]),
-            "t_render_ns": self.t_render_ns,
             "refresh_hz": settings.refresh_hz,
             "zone": viewer.zone,
             **viewer.pose_info,
             "events": r.flags["events"],
             "age": r.flags["age"],
-            "ms": ms,
         }
         self.svc.stream.publish(header, [arrays[n] for n in names], names)

@@ -12,6 +12,7 @@ Scenes are encoded inline with the same mechanism (:func:`scene_to_wire`,
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import numpy as np
@@ -95,15 +96,18 @@ def send(sock: zmq.Socket, frames: list[Any], timeout_ms: int = 1000) -> bool:
     """Send a multipart message, buffers above 64 KiB zero-copy.
 
     Returns False (nothing sent) when the socket would block past ``timeout_ms``
-    (``SNDTIMEO`` semantics via polling).
+    (0: never block, as for a PUB socket, which drops past its HWM anyway).  The
+    poll also makes libzmq process its pending commands (a reader's "write
+    again" after a full pipe), so a PUB socket does not drop a message needlessly.
     """
     if not sock.poll(timeout_ms, zmq.POLLOUT):
         return False
     last = len(frames) - 1
+    more, done = zmq.SNDMORE | zmq.NOBLOCK, zmq.NOBLOCK
     try:
         for i, f in enumerate(frames):
             big = isinstance(f, memoryview) and f.nbytes >= ZERO_COPY_BYTES
-            sock.send(f, zmq.SNDMORE if i < last else 0, copy=not big)
+            sock.send(f, more if i < last else done, copy=not big)
     except zmq.Again:
         return False
     return True
@@ -144,7 +148,7 @@ def decode_arrays(
         if not isinstance(desc, dict) or desc.get("dtype") not in DTYPES:
             raise MessageError("bad_array", f"arrays[{i}].dtype must be one of {sorted(DTYPES)}")
         dtype, shape = DTYPES[desc["dtype"]], _shape(desc, i, max_dims)
-        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        nbytes = math.prod(shape) * dtype.itemsize
         if nbytes > max_bytes:
             raise MessageError("too_large", f"arrays[{i}] has {nbytes} bytes (max {max_bytes})")
         data = memoryview(buf)

@@ -276,7 +276,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--curve-keys", default=None)
     ap.add_argument("--warm-up", action="store_true", help="compile the kernels before READY")
     ap.add_argument("--parent", type=int, default=None, help="exit when this process is gone")
+    ap.add_argument(
+        "--nice",
+        type=int,
+        default=5,
+        help="lower the worker's CPU priority: renders are elastic, refreshes are "
+        "not (the service's refresh thread and the device drivers come first)",
+    )
     args = ap.parse_args(argv)
+    if args.nice > 0:
+        os.nice(args.nice)
     worker = Worker(args.connect, args.curve_keys)
     if args.warm_up:
         from service.pipeline import warm_up
