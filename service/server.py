@@ -872,6 +872,7 @@ class RefreshLoop:
         self.t_render_ns = 0
         self.since = 0
         self.prepared: tuple[Any, dict[str, Any]] | None = None
+        self.input: dict[str, Any] | None = None
 
     def _restart(self, settings: Settings) -> None:
         self.stage = GalileanStage(
@@ -992,6 +993,12 @@ class RefreshLoop:
             return
         self.sub.poll(0)
         pose = self.sub.pose
+        if self.sub.state_known:
+            self.input = {
+                "seq": self.sub.seq,
+                "dials": list(self.sub.dials),
+                "buttons": list(self.sub.buttons),
+            }
         with state.lock:
             if pose is not None and self.sub.pose_count != state.viewer.pose_info["pose_n"]:
                 if state.viewer.on_pose(pose, self.sub.pose_count):
@@ -1005,6 +1012,7 @@ class RefreshLoop:
             self.sub.close()
         self.sub = None if address is None else DeviceSubscriber(address, context=self.svc.ctx)
         self.sub_address = address
+        self.input = None
 
     def _publish(self, r: Any, made: dict[str, Any], settings: Settings) -> None:
         arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris}
@@ -1017,6 +1025,7 @@ class RefreshLoop:
             "refresh_hz": settings.refresh_hz,
             "zone": viewer.zone,
             **viewer.pose_info,
+            "input": self.input,
             "events": r.flags["events"],
             "age": r.flags["age"],
         }

@@ -1,0 +1,45 @@
+"""The client library against a real service: files, inline scenes, errors as exceptions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.client import ServiceClient
+from service.errors import ServiceError
+from service.loaders.obj import save_obj
+from service.mesh import Mesh
+from service.scene import MotionState, Scene, SceneObject, Transform
+
+
+def test_library_calls(service_factory, tmp_path):
+    svc = service_factory("--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0")
+    mesh = Mesh.from_triangles([[-0.3, -0.3, 0], [0.3, -0.3, 0], [0, 0.3, 0.1]], [[0, 1, 2]])
+    path = tmp_path / "tri.obj"
+    save_obj(path, mesh)
+    with ServiceClient(svc.control, timeout_s=10) as c:
+        assert c.hello()["version"] == 1
+        assert c.load_scene(path=str(path))["polygons"] == 1
+        assert c.load_object(path=str(path), name="second") == 1
+        ship = SceneObject(
+            mesh,
+            transform=Transform(np.array([0.0, 0.2, 0.0])),
+            motion=MotionState(velocity=np.array([0.1, 0, 0])),
+            name="ship",
+        )
+        assert c.load_object(ship) == 2
+        assert c.update_objects([{"name": "ship", "position": np.array([0.1, 0.1, 0.0])}]) == 1
+        header, arrays = c.render_once()
+        assert arrays["colour"].shape == (2, 24, 32, 3) and arrays["colour"].any()
+        assert c.load_scene(scene=Scene([ship, ship]))["objects"] == ["ship", "ship"]
+        shown = c.set_display(zones=3, light_model="phong", specular="vertex", refresh_hz=30)
+        assert shown["zones"] == 3 and shown["specular"] == "vertex"
+        with pytest.raises(ServiceError) as info:
+            c.set_display(galpixel_order=7)
+        assert info.value.code == "bad_message"
+        with pytest.raises(ServiceError) as info:
+            c.load_scene(builtin="nothing")
+        assert info.value.code == "not_found"
+        assert c.heartbeat()
+        c.shutdown()
+    assert svc.proc.wait(15) == 0
