@@ -611,13 +611,17 @@ class Service:
 
     # ------------------------------------------------------------- closing
     def close(self) -> None:
-        """Stop the threads and workers; close every socket (LINGER 0)."""
+        """Stop the threads and workers; close every socket (LINGER 0).
+
+        Threads get 5 s each to finish; the context is then destroyed (every socket
+        still open closed with LINGER 0), so closing never waits forever.
+        """
         self._stop.set()
+        if self.broker is not None:
+            self.broker.stop()
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(5.0)
-        if self.broker is not None:
-            self.broker.stop()
         for p in self.workers:
             _end_process(p)
         for sock in (
@@ -628,7 +632,7 @@ class Service:
                 sock.close(0)
         if self._auth is not None:
             self._auth.stop()
-        self.ctx.term()
+        self.ctx.destroy(linger=0)
 
 
 # ------------------------------------------------------------------ helpers
