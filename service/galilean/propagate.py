@@ -63,7 +63,14 @@ def _copy(src: tuple, p: int, dst: tuple, q: int) -> None:
 
 @nb.njit(cache=True, inline="always")
 def _advance_into(
-    src: tuple, p: int, dst: tuple, q: int, fx: int, fy: int, depth: float, mot: tuple,
+    src: tuple,
+    p: int,
+    dst: tuple,
+    q: int,
+    fx: int,
+    fy: int,
+    depth: float,
+    mot: tuple,
     order: int,
 ) -> None:
     """Write galpixel ``p`` of ``src``, advanced one refresh, at ``q`` of ``dst``.
@@ -134,10 +141,8 @@ def _target(src: tuple, p: int, r: int, c: int, order: int, fp: int, fm: int) ->
         vy += ay
         d += zm[0, p] + 0.5 * zm[1, p]
     elif order == 3:
-        x, vx, ax = advance(x, np.int64(m[0, p]), np.int64(m[2, p]), np.int64(m[4, p]), 3,
-                            fp, fm)
-        y, vy, ay = advance(y, np.int64(m[1, p]), np.int64(m[3, p]), np.int64(m[5, p]), 3,
-                            fp, fm)
+        x, vx, ax = advance(x, np.int64(m[0, p]), np.int64(m[2, p]), np.int64(m[4, p]), 3, fp, fm)
+        y, vy, ay = advance(y, np.int64(m[1, p]), np.int64(m[3, p]), np.int64(m[5, p]), 3, fp, fm)
         d += zm[0, p] + 0.5 * zm[1, p] + zm[2, p] / 6.0
     qc = (x + (1 << (fp - 1))) >> fp
     qr = (y + (1 << (fp - 1))) >> fp
@@ -146,8 +151,18 @@ def _target(src: tuple, p: int, r: int, c: int, order: int, fp: int, fm: int) ->
 
 @nb.njit(cache=True, error_model="numpy")
 def sweep(
-    old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, src_idx: np.ndarray,
-    shape: tuple, order: int, fp: int, fm: int, track: bool, stats: np.ndarray,
+    old: tuple,
+    new: tuple,
+    cold: tuple,
+    cnew: tuple,
+    cache_on: bool,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    track: bool,
+    stats: np.ndarray,
 ) -> None:
     """First sweep: debris arm and galpixel arm, then cache propagation and promotion.
 
@@ -206,10 +221,24 @@ def sweep(
                         vy += ay
                         d += o_zm[0, p] + 0.5 * o_zm[1, p]
                     elif order == 3:
-                        x, vx, ax = advance(x, np.int64(o_mot[0, p]), np.int64(o_mot[2, p]),
-                                            np.int64(o_mot[4, p]), 3, fp, fm)
-                        y, vy, ay = advance(y, np.int64(o_mot[1, p]), np.int64(o_mot[3, p]),
-                                            np.int64(o_mot[5, p]), 3, fp, fm)
+                        x, vx, ax = advance(
+                            x,
+                            np.int64(o_mot[0, p]),
+                            np.int64(o_mot[2, p]),
+                            np.int64(o_mot[4, p]),
+                            3,
+                            fp,
+                            fm,
+                        )
+                        y, vy, ay = advance(
+                            y,
+                            np.int64(o_mot[1, p]),
+                            np.int64(o_mot[3, p]),
+                            np.int64(o_mot[5, p]),
+                            3,
+                            fp,
+                            fm,
+                        )
                         d += o_zm[0, p] + 0.5 * o_zm[1, p] + o_zm[2, p] / 6.0
                     qc = (x + half) >> fp
                     qr = (y + half) >> fp
@@ -233,8 +262,9 @@ def sweep(
                     n_clash += 1
                     if d >= n_dep[q]:
                         if cache_on:
-                            _spill_incoming(old, p, cnew, q, fx, fy, d, (vx, vy, ax, ay),
-                                            order, stats)
+                            _spill_incoming(
+                                old, p, cnew, q, fx, fy, d, (vx, vy, ax, ay), order, stats
+                            )
                         continue
                     if cache_on:
                         _spill_resident(new, cnew, q, stats)
@@ -282,8 +312,16 @@ def sweep(
 
 @nb.njit(cache=True)
 def _spill_incoming(
-    old: tuple, p: int, cnew: tuple, q: int, fx: int, fy: int, d: float, mot: tuple,
-    order: int, stats: np.ndarray,
+    old: tuple,
+    p: int,
+    cnew: tuple,
+    q: int,
+    fx: int,
+    fy: int,
+    d: float,
+    mot: tuple,
+    order: int,
+    stats: np.ndarray,
 ) -> None:
     """A clash loser on its way in goes to the cache if nearer than the cache's entry."""
     if cnew[6][q] == 1 or d < cnew[1][q]:
@@ -301,8 +339,17 @@ def _spill_resident(new: tuple, cnew: tuple, q: int, stats: np.ndarray) -> None:
 
 @nb.njit(cache=True)
 def _cache_pass(
-    cold: tuple, new: tuple, cnew: tuple, z: int, h: int, w: int, order: int, fp: int,
-    fm: int, stats: np.ndarray, src_idx: np.ndarray,
+    cold: tuple,
+    new: tuple,
+    cnew: tuple,
+    z: int,
+    h: int,
+    w: int,
+    order: int,
+    fp: int,
+    fm: int,
+    stats: np.ndarray,
+    src_idx: np.ndarray,
 ) -> None:
     """Propagate zone ``z`` of the old cache into the new one, then promote.
 
@@ -330,9 +377,18 @@ def _cache_pass(
 
 @nb.njit(cache=True)
 def second_sweep(
-    new: tuple, src_idx: np.ndarray, old_depth: np.ndarray, old_debris: np.ndarray,
-    threshold: float, n_neighbours: int, mode: int, margin: int,
-    out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray, stats: np.ndarray,
+    new: tuple,
+    src_idx: np.ndarray,
+    old_depth: np.ndarray,
+    old_debris: np.ndarray,
+    threshold: float,
+    n_neighbours: int,
+    mode: int,
+    margin: int,
+    out_colour: np.ndarray,
+    out_depth: np.ndarray,
+    out_debris: np.ndarray,
+    stats: np.ndarray,
 ) -> None:
     """Second sweep: expansion of debris (when ``threshold`` >= 0), then the display copy.
 
@@ -365,11 +421,19 @@ def second_sweep(
                 if deb[z, r, c] == 0:
                     continue
                 # cheap pre-check: only debris next to a galpixel can be expanded
-                near = (c > 0 and deb[z, r, c - 1] == 0) or (c < w - 1 and deb[z, r, c + 1] == 0) \
-                    or (r > 0 and deb[z, r - 1, c] == 0) or (r < h - 1 and deb[z, r + 1, c] == 0)
-                if threshold >= 0 and near and expand_pixel(
-                        new, src_idx, old_depth, old_debris, threshold, z, r, c, n_neighbours,
-                        mode):
+                near = (
+                    (c > 0 and deb[z, r, c - 1] == 0)
+                    or (c < w - 1 and deb[z, r, c + 1] == 0)
+                    or (r > 0 and deb[z, r - 1, c] == 0)
+                    or (r < h - 1 and deb[z, r + 1, c] == 0)
+                )
+                if (
+                    threshold >= 0
+                    and near
+                    and expand_pixel(
+                        new, src_idx, old_depth, old_debris, threshold, z, r, c, n_neighbours, mode
+                    )
+                ):
                     expanded += 1
                 else:
                     left += 1
@@ -382,5 +446,675 @@ def second_sweep(
                 out_colour[z, rr, cc, 2] = np.uint8(min(max(col[2, z, r, c] + 0.5, 0.0), 255.0))
                 out_depth[z, rr, cc] = dep[z, r, c]
                 out_debris[z, rr, cc] = deb[z, r, c] == 1
+    stats[5] += expanded
+    stats[6] += left
+
+
+# ------------------------------------------------------------------ fast path
+# The stage runs ``scatter_runs`` (or ``scatter`` when the obscuration cache is on)
+# and then ``finish``; together they do what ``sweep`` + ``second_sweep`` do, bit
+# for bit (tests/galilean/test_gal_speed_equivalence.py).  ``sweep`` and
+# ``second_sweep`` stay as the straightforward reference.  The debris arm is
+# deferred to ``finish`` (its result only survives where no galpixel landed, and,
+# as in ``sweep``, only for old galpixels), which also does the expansion and the
+# display copy of each row in one go.  Fast-path indices are unsigned (see ``_u``).
+
+
+@nb.njit(cache=True, error_model="numpy")
+def scatter(
+    old: tuple,
+    new: tuple,
+    cold: tuple,
+    cnew: tuple,
+    cache_on: bool,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    track: bool,
+    stats: np.ndarray,
+) -> None:
+    """First sweep without its debris arm (:func:`finish` does it); see :func:`sweep`.
+
+    Same parameters and the same arithmetic, operation for operation.  Afterwards
+    a new pixel whose debris flag is still set holds stale fields until
+    :func:`finish` runs the debris arm there.
+
+    Written for the machine: flat indices are unsigned (numba cannot prove a signed
+    one non-negative and adds a negative-index wraparound to every access), and
+    each galpixel is read whole into registers before anything is stored (stores
+    to the new map would otherwise force reloads, and page-aligned planes alias
+    the loads that follow them in the store buffer).
+    """
+    nz, h, w = shape
+    o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
+    n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
+    ncol = o_dc.shape[0]
+    sh = fm - fp
+    half = np.int64(1) << (fp - 1)
+    n_prop = n_clash = n_drop = 0
+    f0 = np.float32(0.0)
+    for z in range(nz):
+        for r in range(h):
+            base = (z * h + r) * w
+            y0 = np.int64(r) << fp
+            for c in range(w):
+                p = np.uint64(base + c)
+                if o_deb[p] != 0:
+                    continue
+                x = (np.int64(c) << fp) + o_frac[0, p]
+                y = y0 + o_frac[1, p]
+                d = np.float64(o_dep[p])
+                vx = vy = ax = ay = jx = jy = np.int64(0)
+                z0 = z1 = z2 = f0
+                if order == 1:
+                    vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
+                    z0 = o_zm[0, p]
+                    x += (vx + (1 << (sh - 1))) >> sh
+                    y += (vy + (1 << (sh - 1))) >> sh
+                    d = np.float64(o_dep[p] + z0)  # float32 sum, as in sweep
+                elif order == 2:
+                    vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
+                    ax, ay = np.int64(o_mot[2, p]), np.int64(o_mot[3, p])
+                    z0, z1 = o_zm[0, p], o_zm[1, p]
+                    x += (2 * vx + ax + (1 << sh)) >> (sh + 1)
+                    y += (2 * vy + ay + (1 << sh)) >> (sh + 1)
+                    vx += ax
+                    vy += ay
+                    d += z0 + 0.5 * z1
+                elif order == 3:
+                    jx, jy = np.int64(o_mot[4, p]), np.int64(o_mot[5, p])
+                    z0, z1, z2 = o_zm[0, p], o_zm[1, p], o_zm[2, p]
+                    x, vx, ax = advance(
+                        x, np.int64(o_mot[0, p]), np.int64(o_mot[2, p]), jx, 3, fp, fm
+                    )
+                    y, vy, ay = advance(
+                        y, np.int64(o_mot[1, p]), np.int64(o_mot[3, p]), jy, 3, fp, fm
+                    )
+                    d += z0 + 0.5 * z1 + z2 / 6.0
+                qc = (x + half) >> fp
+                qr = (y + half) >> fp
+                n_prop += 1
+                if qr < 0 or qc < 0 or qr >= h or qc >= w:
+                    n_drop += 1
+                    continue
+                q = np.uint64((z * h + qr) * w + qc)
+                fx, fy = x - (qc << fp), y - (qr << fp)
+                if n_deb[q] == 0:
+                    n_clash += 1
+                    if d >= n_dep[q]:
+                        if cache_on:
+                            _spill_incoming(
+                                old,
+                                np.int64(p),
+                                cnew,
+                                np.int64(q),
+                                fx,
+                                fy,
+                                d,
+                                (vx, vy, ax, ay),
+                                order,
+                                stats,
+                            )
+                        continue
+                    if cache_on:
+                        _spill_resident(new, cnew, np.int64(q), stats)
+                c0, c1, c2 = o_col[0, p], o_col[1, p], o_col[2, p]
+                ob = o_obj[p]
+                if ncol == 4:
+                    da, db, dc, d2a = o_dc[0, p], o_dc[1, p], o_dc[2, p], o_dc[3, p]
+                    sa = da + 0.5 * d2a
+                    n_col[0, q] = c0 + (sa + db)
+                    n_col[1, q] = c1 + (sa - dc)
+                    n_col[2, q] = c2 + (sa - db + dc)
+                    n_dc[0, q] = da + d2a
+                    n_dc[1, q] = db
+                    n_dc[2, q] = dc
+                    n_dc[3, q] = d2a
+                else:
+                    n_col[0, q] = c0
+                    n_col[1, q] = c1
+                    n_col[2, q] = c2
+                n_dep[q] = d
+                n_frac[0, q] = fx
+                n_frac[1, q] = fy
+                if order == 1:
+                    n_mot[0, q] = vx
+                    n_mot[1, q] = vy
+                    n_zm[0, q] = z0
+                elif order == 2:
+                    n_mot[0, q] = vx
+                    n_mot[1, q] = vy
+                    n_mot[2, q] = ax
+                    n_mot[3, q] = ay
+                    n_zm[0, q] = z0 + z1
+                    n_zm[1, q] = z1
+                elif order == 3:
+                    n_mot[0, q] = vx
+                    n_mot[1, q] = vy
+                    n_mot[2, q] = ax
+                    n_mot[3, q] = ay
+                    n_mot[4, q] = jx
+                    n_mot[5, q] = jy
+                    n_zm[0, q] = np.float32(z0 + z1) + 0.5 * z2
+                    n_zm[1, q] = z1 + z2
+                    n_zm[2, q] = z2
+                n_deb[q] = 0
+                n_obj[q] = ob
+                if track:
+                    src_idx[q] = r * w + c
+        if cache_on:
+            _cache_pass(cold, new, cnew, z, h, w, order, fp, fm, stats, src_idx)
+    stats[0] += n_prop
+    stats[1] += n_clash
+    stats[2] += n_drop
+
+
+def planes(arrays: tuple) -> tuple:
+    """A map's array tuple as flat planes, the form the fast kernels take.
+
+    ``(colour, depth, frac, motion, zmotion, dcolour, debris, obj)`` with every
+    multi-plane field a tuple of fixed length (3, 2, 6, 3, 4) of 1-D C-contiguous
+    (N,) planes, planes a map lacks filled in by empty arrays (never touched: the
+    kernels know the order and the colour planes).  Fixed lengths give one compiled
+    kernel for all orders; 1-D contiguous planes give numba unit-stride addressing.
+    """
+    n = arrays[1].size
+
+    def group(a: np.ndarray, k: int) -> tuple:
+        return tuple(a[i].reshape(n) if i < a.shape[0] else np.empty(0, a.dtype) for i in range(k))
+
+    col, dep, frac, mot, zm, dc, deb, obj = arrays
+    return (
+        group(col, 3),
+        dep.reshape(n),
+        group(frac, 2),
+        group(mot, 6),
+        group(zm, 3),
+        group(dc, 4),
+        deb.reshape(n),
+        obj.reshape(n),
+    )
+
+
+@nb.njit(cache=True, inline="always")
+def _u(i: int) -> np.uint64:
+    """An index as unsigned: numba then skips its negative-index wraparound code."""
+    return np.uint64(i)
+
+
+@nb.njit(cache=True, inline="always")
+def _landing(x: int, y: int, debris: int, z: int, h: int, w: int, half: int, fp: int) -> int:
+    """Flat landing pixel of a galpixel at fixed-point (x, y): -1 debris, -2 off the map."""
+    qc = (x + half) >> fp
+    qr = (y + half) >> fp
+    inside = (qr >= 0) & (qc >= 0) & (qr < h) & (qc < w)
+    return -1 if debris != 0 else ((z * h + qr) * w + qc if inside else -2)
+
+
+#: Pixels per batch of rows :func:`scatter_runs` advances before it copies.
+BATCH = 4096
+
+
+@nb.njit(cache=True, error_model="numpy")
+def scatter_runs(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    stats: np.ndarray,
+) -> None:
+    """First sweep without its debris arm or cache, by batches of rows, plane by plane.
+
+    Same result as :func:`sweep` (without cache) followed by the debris arm of
+    :func:`finish`.  Maps are :func:`planes`; ``new``'s debris all 1 on entry.
+
+    Each batch of old rows (about :data:`BATCH` pixels) is done in three steps:
+
+    1. *advance* (plain element-wise loops, SIMD): every galpixel's landing pixel,
+       new fraction, motion and depth into batch buffers;
+    2. *z-test* (the only sequential part, in scan order like the paper's scan):
+       each landing galpixel against the new map's debris flag and depth, which it
+       writes when it wins; winners from consecutive old pixels that land on
+       consecutive new pixels are gathered into runs;
+    3. *copy*: each field, plane by plane, run by run (contiguous, SIMD).
+
+    Within every plane the writes keep scan order, so a pixel that two winners
+    land on ends up with the later one, as in the one-pass scan; the z-test only
+    reads the flags and depths that step 2 keeps current.
+    """
+    nz, h, w = shape
+    o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
+    n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
+    sh = fm - fp
+    half = np.int64(1) << (fp - 1)
+    rows = max(1, min(h, BATCH // w))
+    size = rows * w
+    qb = np.empty(size, np.int64)  # landing pixel; -1 debris, -2 off the map
+    db = np.empty(size, np.float64)  # new depth
+    fxb = np.empty(size, np.int16)
+    fyb = np.empty(size, np.int16)
+    vxb = np.empty(size, np.int32)
+    vyb = np.empty(size, np.int32)
+    axb = np.empty(size, np.int32)
+    ayb = np.empty(size, np.int32)
+    run_i = np.empty(size, np.int64)  # first batch index of a run
+    run_q = np.empty(size, np.int64)  # its landing pixel
+    run_n = np.empty(size, np.int64)  # its length
+    n_prop = n_clash = n_drop = 0
+    for z in range(nz):
+        zb = z * h * w
+        for r0 in range(0, h, rows):
+            nr = min(rows, h - r0)
+            b0 = zb + r0 * w  # flat index of the batch's first pixel
+            # 1. advance (one loop per order: a loop-invariant branch inside
+            #    would keep LLVM from vectorising it)
+            for rr in range(nr):
+                r = r0 + rr
+                p0 = zb + r * w
+                i0 = rr * w
+                y0 = np.int64(r) << fp
+                if order == 0:
+                    for c in range(w):
+                        p, i = _u(p0 + c), _u(i0 + c)
+                        x = (np.int64(c) << fp) + o_frac[0][p]
+                        y = y0 + o_frac[1][p]
+                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                        fxb[i] = x - (((x + half) >> fp) << fp)
+                        fyb[i] = y - (((y + half) >> fp) << fp)
+                        db[i] = o_dep[p]
+                elif order == 1:
+                    for c in range(w):
+                        p, i = _u(p0 + c), _u(i0 + c)
+                        vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                        x = (np.int64(c) << fp) + o_frac[0][p] + ((vx + (1 << (sh - 1))) >> sh)
+                        y = y0 + o_frac[1][p] + ((vy + (1 << (sh - 1))) >> sh)
+                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                        fxb[i] = x - (((x + half) >> fp) << fp)
+                        fyb[i] = y - (((y + half) >> fp) << fp)
+                        db[i] = o_dep[p] + o_zm[0][p]  # a float32 sum, as in sweep
+                        vxb[i] = vx
+                        vyb[i] = vy
+                elif order == 2:
+                    for c in range(w):
+                        p, i = _u(p0 + c), _u(i0 + c)
+                        vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                        ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                        x = (
+                            (np.int64(c) << fp)
+                            + o_frac[0][p]
+                            + ((2 * vx + ax + (1 << sh)) >> (sh + 1))
+                        )
+                        y = y0 + o_frac[1][p] + ((2 * vy + ay + (1 << sh)) >> (sh + 1))
+                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                        fxb[i] = x - (((x + half) >> fp) << fp)
+                        fyb[i] = y - (((y + half) >> fp) << fp)
+                        db[i] = np.float64(o_dep[p]) + (o_zm[0][p] + 0.5 * o_zm[1][p])
+                        vxb[i] = vx + ax
+                        vyb[i] = vy + ay
+                        axb[i] = ax
+                        ayb[i] = ay
+                else:
+                    for c in range(w):
+                        p, i = _u(p0 + c), _u(i0 + c)
+                        x, vx, ax = advance(
+                            (np.int64(c) << fp) + o_frac[0][p],
+                            np.int64(o_mot[0][p]),
+                            np.int64(o_mot[2][p]),
+                            np.int64(o_mot[4][p]),
+                            3,
+                            fp,
+                            fm,
+                        )
+                        y, vy, ay = advance(
+                            y0 + o_frac[1][p],
+                            np.int64(o_mot[1][p]),
+                            np.int64(o_mot[3][p]),
+                            np.int64(o_mot[5][p]),
+                            3,
+                            fp,
+                            fm,
+                        )
+                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                        fxb[i] = x - (((x + half) >> fp) << fp)
+                        fyb[i] = y - (((y + half) >> fp) << fp)
+                        db[i] = np.float64(o_dep[p]) + (
+                            o_zm[0][p] + 0.5 * o_zm[1][p] + o_zm[2][p] / 6.0
+                        )
+                        vxb[i] = vx
+                        vyb[i] = vy
+                        axb[i] = ax
+                        ayb[i] = ay
+            # 2. z-test in scan order; the open run is kept in registers
+            runs = 0
+            ri = rq = rn = np.int64(0)
+            for i in range(nr * w):
+                q = qb[i]
+                if q < 0:
+                    if q == -2:
+                        n_prop += 1
+                        n_drop += 1
+                    if rn:
+                        run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                        runs += 1
+                        rn = 0
+                    continue
+                n_prop += 1
+                d = db[i]
+                if n_deb[_u(q)] == 0:
+                    n_clash += 1
+                    if d >= n_dep[_u(q)]:
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                n_dep[_u(q)] = d
+                n_deb[_u(q)] = 0
+                if rn and q == rq + rn:
+                    rn += 1
+                else:
+                    if rn:
+                        run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                        runs += 1
+                    ri, rq, rn = i, q, 1
+            if rn:
+                run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                runs += 1
+            # 3. copy, plane by plane, run by run
+            for k in range(runs):
+                i0, q0, m = run_i[k], run_q[k], run_n[k]
+                s0 = b0 + i0
+                if ncol == 4:
+                    for j in range(m):
+                        p, q = _u(s0 + j), _u(q0 + j)
+                        da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
+                        sa = da + 0.5 * d2a
+                        n_col[0][q] = o_col[0][p] + (sa + dbb)
+                        n_col[1][q] = o_col[1][p] + (sa - dcc)
+                        n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
+                        n_dc[0][q] = da + d2a
+                        n_dc[1][q] = dbb
+                        n_dc[2][q] = dcc
+                        n_dc[3][q] = d2a
+                else:
+                    for j in range(m):
+                        p, q = _u(s0 + j), _u(q0 + j)
+                        n_col[0][q] = o_col[0][p]
+                        n_col[1][q] = o_col[1][p]
+                        n_col[2][q] = o_col[2][p]
+                for j in range(m):
+                    b, q = _u(i0 + j), _u(q0 + j)
+                    n_frac[0][q] = fxb[b]
+                    n_frac[1][q] = fyb[b]
+                for j in range(m):
+                    n_obj[_u(q0 + j)] = o_obj[_u(s0 + j)]
+                if track:
+                    for j in range(m):
+                        src_idx[_u(q0 + j)] = s0 - zb + j
+                if order >= 1:
+                    for j in range(m):
+                        b, q = _u(i0 + j), _u(q0 + j)
+                        n_mot[0][q] = vxb[b]
+                        n_mot[1][q] = vyb[b]
+                if order >= 2:
+                    for j in range(m):
+                        b, q = _u(i0 + j), _u(q0 + j)
+                        n_mot[2][q] = axb[b]
+                        n_mot[3][q] = ayb[b]
+                if order == 3:
+                    for j in range(m):
+                        p, q = _u(s0 + j), _u(q0 + j)
+                        n_mot[4][q] = o_mot[4][p]
+                        n_mot[5][q] = o_mot[5][p]
+                if order == 1:
+                    for j in range(m):
+                        n_zm[0][_u(q0 + j)] = o_zm[0][_u(s0 + j)]
+                elif order == 2:
+                    for j in range(m):
+                        p, q = _u(s0 + j), _u(q0 + j)
+                        n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
+                        n_zm[1][q] = o_zm[1][p]
+                elif order == 3:
+                    for j in range(m):
+                        p, q = _u(s0 + j), _u(q0 + j)
+                        z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
+                        n_zm[0][q] = np.float32(z0 + z1) + 0.5 * z2
+                        n_zm[1][q] = z1 + z2
+                        n_zm[2][q] = z2
+    stats[0] += n_prop
+    stats[1] += n_clash
+    stats[2] += n_drop
+
+
+@nb.njit(cache=True, inline="always")
+def _show_row(
+    c0: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    dep: np.ndarray,
+    deb: np.ndarray,
+    p0: int,
+    n: int,
+    out_colour: np.ndarray,
+    out_depth: np.ndarray,
+    out_debris: np.ndarray,
+    o0: int,
+) -> None:
+    """Display copy of ``n`` pixels from flat index ``p0`` to output pixel ``o0``."""
+    for i in range(n):
+        p, o, o3 = _u(p0 + i), _u(o0 + i), _u(3 * (o0 + i))
+        out_colour[o3] = np.uint8(min(max(c0[p] + 0.5, 0.0), 255.0))
+        out_colour[o3 + np.uint64(1)] = np.uint8(min(max(c1[p] + 0.5, 0.0), 255.0))
+        out_colour[o3 + np.uint64(2)] = np.uint8(min(max(c2[p] + 0.5, 0.0), 255.0))
+        out_depth[o] = dep[p]
+        out_debris[o] = deb[p] == 1
+
+
+@nb.njit(cache=True)
+def show(
+    m: tuple,
+    shape: tuple,
+    margin: int,
+    out_colour: np.ndarray,
+    out_depth: np.ndarray,
+    out_debris: np.ndarray,
+) -> None:
+    """Display copy of a map (:func:`planes`, no expansion); outputs flattened too."""
+    nz, h, w = shape
+    ww = w - 2 * margin
+    (c0, c1, c2), dep, deb = m[0], m[1], m[6]
+    for z in range(nz):
+        for r in range(margin, h - margin):
+            o0 = (z * (h - 2 * margin) + r - margin) * ww
+            _show_row(
+                c0,
+                c1,
+                c2,
+                dep,
+                deb,
+                (z * h + r) * w + margin,
+                ww,
+                out_colour,
+                out_depth,
+                out_debris,
+                o0,
+            )
+
+
+@nb.njit(cache=True)
+def finish(
+    new: tuple,
+    old: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    n_mot: int,
+    n_zm: int,
+    ncol: int,
+    threshold: float,
+    n_neighbours: int,
+    mode: int,
+    margin: int,
+    out_colour: np.ndarray,
+    out_depth: np.ndarray,
+    out_debris: np.ndarray,
+    write_out: bool,
+    track: bool,
+    stats: np.ndarray,
+) -> None:
+    """Second pass after :func:`scatter_runs`: debris arm, expansion and display copy.
+
+    A pixel is only written when this scan reaches it (the debris arm, or an
+    expansion that reads neighbours but writes the pixel itself), so each row is
+    final once scanned and is copied to the display straight away, while cached.
+
+    Parameters
+    ----------
+    new, old : tuple
+        New map (changed in place) and old map, as :func:`planes`.
+    src_idx : ndarray, shape (N,), int32
+        Origins recorded by the first sweep.
+    shape : tuple
+        (Z, H, W).
+    n_mot, n_zm, ncol : int
+        The map's motion, z-motion and colour-derivative planes (an expansion
+        replicates them all).
+    threshold, n_neighbours, mode, margin
+        As :func:`second_sweep`.
+    out_colour, out_depth, out_debris : ndarray
+        Flattened outputs, (Z R C 3,), (Z R C,), (Z R C,); written when ``write_out``.
+    track : bool
+        Whether the first sweep recorded origins (the debris arm then stores -1).
+    stats : ndarray, shape (7,), int64
+    """
+    nz, h, w = shape
+    # every plane in a local of its own, once: taking arrays out of tuples inside
+    # the loop costs a reference-count pair each time (~1 us per expansion)
+    (c0, c1, c2), dep, (f0, f1), mot, zm, dc, deb, obj = new
+    m0, m1, m2, m3, m4, m5 = mot
+    z0, z1, z2 = zm
+    d0, d1, d2, d3 = dc
+    (o0, o1, o2), o_dep, o_deb, o_obj = old[0], old[1], old[6], old[7]
+    ww = w - 2 * margin
+    expanded = left = 0
+    for z in range(nz):
+        zb = z * h * w
+        for r in range(h):
+            base = zb + r * w
+            for c in range(w):
+                p = _u(base + c)
+                if deb[p] == 0:
+                    continue
+                near = (
+                    (c > 0 and deb[_u(base + c - 1)] == 0)
+                    or (c < w - 1 and deb[_u(base + c + 1)] == 0)
+                    or (r > 0 and deb[_u(base + c - w)] == 0)
+                    or (r < h - 1 and deb[_u(base + c + w)] == 0)
+                )
+                if threshold >= 0 and near:
+                    # expansion (poisson.expand_pixel, same arithmetic)
+                    first = np.int64(-1)
+                    n = 0
+                    acc0 = acc1 = acc2 = accd = 0.0
+                    for k in range(n_neighbours):
+                        if k == 0:
+                            ok, qi = c > 0, base + c - 1
+                        elif k == 1:
+                            ok, qi = r > 0, base + c - w
+                        elif k == 2:
+                            ok, qi = c < w - 1, base + c + 1
+                        else:
+                            ok, qi = r < h - 1, base + c + w
+                        if not ok or deb[_u(qi)] == 1:
+                            continue
+                        sq = np.int64(src_idx[_u(qi)])
+                        if sq < 0:
+                            continue
+                        # Poisson flag of the origin (poisson.poisson_flag, same arithmetic)
+                        sr, sc = sq // w, sq % w
+                        if sr == 0 or sc == 0 or sr == h - 1 or sc == w - 1:
+                            continue
+                        pc, pl, pr = _u(zb + sq), _u(zb + sq - 1), _u(zb + sq + 1)
+                        pu, pd = _u(zb + sq - w), _u(zb + sq + w)
+                        if o_deb[pc] | o_deb[pl] | o_deb[pr] | o_deb[pu] | o_deb[pd]:
+                            continue
+                        lap = o_dep[pr] + o_dep[pl] + o_dep[pd] + o_dep[pu] - 4.0 * o_dep[pc]
+                        if not np.isfinite(lap) or abs(lap) > threshold:
+                            continue
+                        if first < 0:
+                            first = qi
+                        n += 1
+                        acc0 += c0[_u(qi)]
+                        acc1 += c1[_u(qi)]
+                        acc2 += c2[_u(qi)]
+                        accd += dep[_u(qi)]
+                    if first >= 0:
+                        q = _u(first)
+                        c0[p] = c0[q]
+                        c1[p] = c1[q]
+                        c2[p] = c2[q]
+                        dep[p] = dep[q]
+                        if n_mot >= 2:
+                            m0[p] = m0[q]
+                            m1[p] = m1[q]
+                        if n_mot >= 4:
+                            m2[p] = m2[q]
+                            m3[p] = m3[q]
+                        if n_mot >= 6:
+                            m4[p] = m4[q]
+                            m5[p] = m5[q]
+                        if n_zm >= 1:
+                            z0[p] = z0[q]
+                        if n_zm >= 2:
+                            z1[p] = z1[q]
+                        if n_zm >= 3:
+                            z2[p] = z2[q]
+                        if ncol == 4:
+                            d0[p] = d0[q]
+                            d1[p] = d1[q]
+                            d2[p] = d2[q]
+                            d3[p] = d3[q]
+                        deb[p] = 0
+                        obj[p] = obj[q]
+                        if mode == 1:
+                            c0[p] = acc0 / n
+                            c1[p] = acc1 / n
+                            c2[p] = acc2 / n
+                            dep[p] = accd / n
+                        f0[p] = 0
+                        f1[p] = 0
+                        src_idx[p] = src_idx[q]
+                        expanded += 1
+                        continue
+                left += 1
+                if o_deb[p] == 1:  # as in sweep: the debris arm runs for galpixels only
+                    continue
+                c0[p] = o0[p]
+                c1[p] = o1[p]
+                c2[p] = o2[p]
+                dep[p] = o_dep[p]
+                obj[p] = o_obj[p]
+                if track:
+                    src_idx[p] = -1
+            if write_out and margin <= r < h - margin:
+                _show_row(
+                    c0,
+                    c1,
+                    c2,
+                    dep,
+                    deb,
+                    base + margin,
+                    ww,
+                    out_colour,
+                    out_depth,
+                    out_debris,
+                    (z * (h - 2 * margin) + r - margin) * ww,
+                )
     stats[5] += expanded
     stats[6] += left

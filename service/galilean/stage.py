@@ -36,7 +36,15 @@ from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import graft
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
-from service.galilean.propagate import STAT_NAMES, flat, second_sweep, sweep
+from service.galilean.propagate import (
+    STAT_NAMES,
+    finish,
+    flat,
+    planes,
+    scatter,
+    scatter_runs,
+    show,
+)
 from service.scene import MotionState
 
 
@@ -98,7 +106,8 @@ class GalileanSettings:
         for name, ok in checks.items():
             if not ok:
                 raise SettingsError(
-                    f"Galilean setting {name} is out of range: {getattr(self, name)!r}")
+                    f"Galilean setting {name} is out of range: {getattr(self, name)!r}"
+                )
 
 
 @dataclass
@@ -164,6 +173,8 @@ class GalileanStage:
         self.map, self._spare = new(), new()
         self.cache = (new(), new()) if s.cache else None
         self._src = np.full(self.shape, -1, np.int32)
+        #: placeholder outputs for a propagation whose display copy is skipped
+        self._no_show = (np.empty(0, np.uint8), np.empty(0, np.float32), np.empty(0, np.bool_))
         self.index = 0
         self.age = 0
         self.order = s.order
@@ -176,8 +187,11 @@ class GalileanStage:
 
     # ----------------------------------------------------------------- inputs
     def update(
-        self, rendered: RenderedUpdate, rendezvous: int | None = None,
-        objects: tuple[int, ...] | None = None, complete: bool = True,
+        self,
+        rendered: RenderedUpdate,
+        rendezvous: int | None = None,
+        objects: tuple[int, ...] | None = None,
+        complete: bool = True,
         unfinished: tuple[int, ...] = (),
     ) -> bool:
         """Hand in a render to graft at refresh ``rendezvous`` (default: the next one).
@@ -193,25 +207,47 @@ class GalileanStage:
         fr = rendered.frame
         shown = (self.display.zones, self.display.rows, self.display.cols)
         if fr.colour.shape[:3] not in (shown, self.shape):
-            raise GalileanError(f"update colour has shape {fr.colour.shape}, display needs "
-                                f"{(*shown, 3)} (or {(*self.shape, 3)} with its margin)")
+            raise GalileanError(
+                f"update colour has shape {fr.colour.shape}, display needs "
+                f"{(*shown, 3)} (or {(*self.shape, 3)} with its margin)"
+            )
         pad = self.settings.margin if fr.colour.shape[:3] == shown else 0
-        buf, info = build(fr.colour, fr.depth, self.settings.order, self.fixed,
-                          rendered.derivatives, rendered.dcolour if self.settings.colour_motion
-                          else None, rendered.obj, pad)
+        buf, info = build(
+            fr.colour,
+            fr.depth,
+            self.settings.order,
+            self.fixed,
+            rendered.derivatives,
+            rendered.dcolour if self.settings.colour_motion else None,
+            rendered.obj,
+            pad,
+        )
         if objects is not None:
             keep = np.isin(buf.obj, np.asarray(objects, np.int32))
             buf.debris[~keep] = 1
         if info["clamped"]:
             self._events.append({"kind": "motion_clamped", "count": info["clamped"]})
-        return self.submit(buf, rendezvous, objects, complete, unfinished,
-                           rendered.points, rendered.point_derivs, rendered.viewer_motion)
+        return self.submit(
+            buf,
+            rendezvous,
+            objects,
+            complete,
+            unfinished,
+            rendered.points,
+            rendered.point_derivs,
+            rendered.viewer_motion,
+        )
 
     def submit(
-        self, buffer: Galpixmap, rendezvous: int | None = None,
-        objects: tuple[int, ...] | None = None, complete: bool = True,
-        unfinished: tuple[int, ...] = (), points: np.ndarray | None = None,
-        point_derivs: np.ndarray | None = None, viewer: MotionState | None = None,
+        self,
+        buffer: Galpixmap,
+        rendezvous: int | None = None,
+        objects: tuple[int, ...] | None = None,
+        complete: bool = True,
+        unfinished: tuple[int, ...] = (),
+        points: np.ndarray | None = None,
+        point_derivs: np.ndarray | None = None,
+        viewer: MotionState | None = None,
     ) -> bool:
         """Queue a galpixmap (e.g. a Flinders Street buffer) for grafting; see :meth:`update`.
 
@@ -219,14 +255,26 @@ class GalileanStage:
         motion baked into the buffer's motion (None: the stage's current one).
         """
         if buffer.shape != self.shape or buffer.order != self.settings.order:
-            raise GalileanError(f"buffer must be a G({self.settings.order}) map of shape "
-                                f"{self.shape}, got G({buffer.order}) {buffer.shape}")
+            raise GalileanError(
+                f"buffer must be a G({self.settings.order}) map of shape "
+                f"{self.shape}, got G({buffer.order}) {buffer.shape}"
+            )
         when = self.index if rendezvous is None else int(rendezvous)
         if when < self.index:
             self._events.append({"kind": "late_refused", "rendezvous": when, "refresh": self.index})
             return False
-        self._pending.append(_Pending(buffer, when, None if objects is None else tuple(objects),
-                                      complete, tuple(unfinished), points, point_derivs, viewer))
+        self._pending.append(
+            _Pending(
+                buffer,
+                when,
+                None if objects is None else tuple(objects),
+                complete,
+                tuple(unfinished),
+                points,
+                point_derivs,
+                viewer,
+            )
+        )
         return True
 
     def viewer(self, motion: MotionState) -> None:
@@ -246,12 +294,20 @@ class GalileanStage:
         self._pending = [p for p in self._pending if p.rendezvous > self.index]
         if self._viewer_next is not None:
             stats["viewer_updated"] = apply_viewer_motion(
-                self.map, self.display, self.settings.margin, self._viewer, self._viewer_next,
-                self.settings.refresh_hz)
+                self.map,
+                self.display,
+                self.settings.margin,
+                self._viewer,
+                self._viewer_next,
+                self.settings.refresh_hz,
+            )
             self._viewer, self._viewer_next = self._viewer_next, None
         z, r, c = self.display.zones, self.display.rows, self.display.cols
-        shown = (np.empty((z, r, c, 3), np.uint8), np.empty((z, r, c), np.float32),
-                 np.empty((z, r, c), np.bool_))
+        shown = (
+            np.empty((z, r, c, 3), np.uint8),
+            np.empty((z, r, c), np.float32),
+            np.empty((z, r, c), np.bool_),
+        )
         propagate = self._started and not any(p.objects is None for p in due)
         if propagate:
             stats.update(self._propagate(shown if not due else None))
@@ -263,9 +319,14 @@ class GalileanStage:
             self._show(shown)
         colour, depth, debris = shown
         events, self._events = self._events, []
-        flags = {"updated": bool(due), "age": self.age,
-                 "past_rating": self.age > self.settings.n_prop, "order": self.order,
-                 "order_fallback": self.order < self.settings.order, "events": events}
+        flags = {
+            "updated": bool(due),
+            "age": self.age,
+            "past_rating": self.age > self.settings.n_prop,
+            "order": self.order,
+            "order_fallback": self.order < self.settings.order,
+            "events": events,
+        }
         stats["ms"] = (time.perf_counter() - t0) * 1e3
         out = Refresh(self.index, colour, depth, debris, flags, stats)
         self.index += 1
@@ -273,9 +334,12 @@ class GalileanStage:
 
     def _show(self, shown: tuple) -> None:
         """Copy the displayed window of the map into ``shown`` (no expansion)."""
-        counters = np.zeros(len(STAT_NAMES), np.int64)
-        second_sweep(self.map.arrays(), self._src, self.map.depth, self.map.debris, -1.0, 1, 0,
-                     self.settings.margin, *shown, counters)
+        show(
+            planes(self.map.arrays()),
+            self.shape,
+            self.settings.margin,
+            *(a.reshape(-1) for a in shown),
+        )
 
     def _propagate(self, shown: tuple | None) -> dict:
         """One refresh of the whole map (both sweeps); fills ``shown`` unless None."""
@@ -289,27 +353,67 @@ class GalileanStage:
         else:
             cold = cnew = new
         thr = s.poisson_threshold if s.poisson else -1.0
-        sweep(flat(self.map.arrays()), flat(new.arrays()), flat(cold.arrays()),
-              flat(cnew.arrays()), self.cache is not None, self._src.reshape(-1), self.shape,
-              self.order, self.fixed.fp, self.fixed.fm, s.poisson, counters)
-        if shown is None:  # a local graft follows: show after it
-            shown = self._scratch_shown()
-        second_sweep(new.arrays(), self._src, self.map.depth, self.map.debris, thr,
-                     s.neighbours, EXPANSION_MODES[s.expansion], s.margin, *shown, counters)
+        src = self._src.reshape(-1)
+        old_p, new_p = planes(self.map.arrays()), planes(new.arrays())
+        ncol = self.map.colour_planes
+        if self.cache is None:
+            scatter_runs(
+                old_p,
+                new_p,
+                src,
+                self.shape,
+                self.order,
+                self.fixed.fp,
+                self.fixed.fm,
+                ncol,
+                s.poisson,
+                counters,
+            )
+        else:
+            scatter(
+                flat(self.map.arrays()),
+                flat(new.arrays()),
+                flat(cold.arrays()),
+                flat(cnew.arrays()),
+                True,
+                src,
+                self.shape,
+                self.order,
+                self.fixed.fp,
+                self.fixed.fm,
+                s.poisson,
+                counters,
+            )
+        out = shown if shown is not None else self._no_show
+        finish(
+            new_p,
+            old_p,
+            src,
+            self.shape,
+            new.motion.shape[0],
+            new.zmotion.shape[0],
+            ncol,
+            thr,
+            s.neighbours,
+            EXPANSION_MODES[s.expansion],
+            s.margin,
+            *(a.reshape(-1) for a in out),
+            shown is not None,
+            s.poisson,
+            counters,
+        )
         self.map, self._spare = new, self.map
         if self.cache is not None:
             self.cache = (cnew, cold)
         return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
 
-    def _scratch_shown(self) -> tuple:
-        z, r, c = self.display.zones, self.display.rows, self.display.cols
-        return (np.empty((z, r, c, 3), np.uint8), np.empty((z, r, c), np.float32),
-                np.empty((z, r, c), np.bool_))
-
     def _graft(self, p: _Pending) -> None:
         if p.objects is None:
-            for name, arr in zip(("colour", "depth", "frac", "motion", "zmotion", "dcolour",
-                                  "debris", "obj"), p.buffer.arrays(), strict=True):
+            for name, arr in zip(
+                ("colour", "depth", "frac", "motion", "zmotion", "dcolour", "debris", "obj"),
+                p.buffer.arrays(),
+                strict=True,
+            ):
                 np.copyto(getattr(self.map, name), arr)
             if self.cache is not None:
                 self.cache[0].debris.fill(1)
@@ -319,8 +423,13 @@ class GalileanStage:
         else:
             graft(self.map, p.buffer, p.objects)
         if not p.complete:
-            self._events.append({"kind": "incomplete_update", "refresh": self.index,
-                                 "unfinished": list(p.unfinished)})
+            self._events.append(
+                {
+                    "kind": "incomplete_update",
+                    "refresh": self.index,
+                    "unfinished": list(p.unfinished),
+                }
+            )
         self._started = True
         if self.order < self.settings.order:
             _drop_orders(self.map, self.order)
@@ -332,20 +441,28 @@ class GalileanStage:
             return
         steps = self.age + 1  # the propagated refreshes plus this one
         if g.last is not None:
-            errs = prediction_errors(g.last[0], g.last[1], p.points, steps, self.fixed,
-                                     self.settings.order)
+            errs = prediction_errors(
+                g.last[0], g.last[1], p.points, steps, self.fixed, self.settings.order
+            )
             g.errors = errs if g.seen == 0 else 0.8 * g.errors + 0.2 * errs
             g.seen += 1
             best = int(np.argmin(g.errors + 1e-9 * np.arange(g.errors.size)))
-            self.order = best if g.errors[best] < 0.8 * g.errors[self.settings.order] \
+            self.order = (
+                best
+                if g.errors[best] < 0.8 * g.errors[self.settings.order]
                 else self.settings.order
+            )
         g.last = (p.points, p.point_derivs)
 
 
 def _advance_motion(m: MotionState, dt: float) -> MotionState:
     """The viewer motion the map now holds, ``dt`` seconds on (velocities advanced)."""
-    return MotionState(m.velocity + m.acceleration * dt, m.acceleration,
-                       m.angular_velocity + m.angular_acceleration * dt, m.angular_acceleration)
+    return MotionState(
+        m.velocity + m.acceleration * dt,
+        m.acceleration,
+        m.angular_velocity + m.angular_acceleration * dt,
+        m.angular_acceleration,
+    )
 
 
 def margin_display(display: DisplaySettings, margin: int) -> DisplaySettings:
@@ -355,18 +472,27 @@ def margin_display(display: DisplaySettings, margin: int) -> DisplaySettings:
     just outside the display, ready to slide in.
     """
     cols, rows = display.cols + 2 * margin, display.rows + 2 * margin
-    return DisplaySettings(zones=display.zones, angle_deg=display.angle_deg, cols=cols,
-                           rows=rows, width=display.pixel_size * cols)
+    return DisplaySettings(
+        zones=display.zones,
+        angle_deg=display.angle_deg,
+        cols=cols,
+        rows=rows,
+        width=display.pixel_size * cols,
+    )
 
 
 def _drop_orders(gp: Galpixmap, order: int) -> None:
     """Zero the motion planes above ``order`` (a lower-order fallback)."""
-    gp.motion[2 * order:] = 0
+    gp.motion[2 * order :] = 0
     gp.zmotion[order:] = 0
 
 
 def prediction_errors(
-    points: np.ndarray, derivs: np.ndarray, actual: np.ndarray, steps: int, fixed: FixedPoint,
+    points: np.ndarray,
+    derivs: np.ndarray,
+    actual: np.ndarray,
+    steps: int,
+    fixed: FixedPoint,
     order: int,
 ) -> np.ndarray:
     """How far each order 0..``order`` would have displayed control points after ``steps``.
