@@ -165,8 +165,14 @@ class BandClient:
     """
 
     def __init__(
-        self, context: zmq.Context, address: str, timeout_s: float = 5.0, retries: int = 3
+        self,
+        context: zmq.Context,
+        address: str,
+        timeout_s: float = 5.0,
+        retries: int = 3,
+        stop: threading.Event | None = None,
     ) -> None:
+        self.stop = stop or threading.Event()
         self.sock = context.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.connect(address)
@@ -184,6 +190,8 @@ class BandClient:
         for b in range(len(bands)):
             sent_at[b] = self._send(job, scene_arrays, bands, b, 0)
         while len(got) < len(bands):
+            if self.stop.is_set():
+                return None
             now = time.monotonic()
             for b in [b for b in range(len(bands)) if b not in got]:
                 if now - sent_at[b] > self.timeout_s:

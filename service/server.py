@@ -524,7 +524,9 @@ class Service:
         renderer = Renderer()
         bands = None
         if self.broker is not None:
-            bands = BandClient(self.ctx, "inproc://holo-broker", self.config.render_timeout_s)
+            bands = BandClient(
+                self.ctx, "inproc://holo-broker", self.config.render_timeout_s, stop=self._stop
+            )
         render_id = 0
         last_start = 0.0
         try:
