@@ -63,6 +63,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--pose-scale", type=float, default=0.001, help="world units per tracker position unit"
     )
+    ap.add_argument(
+        "--scene-dir",
+        action="append",
+        default=None,
+        metavar="DIR",
+        help="directory load_scene/load_object paths must lie in (repeatable; "
+        "default: any file the service can read)",
+    )
     return ap
 
 
@@ -95,6 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scene=args.scene,
             display=DisplaySettings(args.zones, args.angle, args.cols, args.rows),
             pose_scale=args.pose_scale,
+            scene_dirs=tuple(args.scene_dir or ()),
         )
         service = Service(config)
     except (HoloError, OSError) as exc:

@@ -66,6 +66,8 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
+    #: directories ``path`` requests may read from (empty: any file the service can read).
+    scene_dirs: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -377,7 +379,7 @@ class Service:
             raise MessageError("bad_message", "give exactly one of builtin, path, scene")
         loaders = {
             "builtin": lambda v: _builtin(wire.string(v, "builtin", 64)),
-            "path": lambda v: _load_path(wire.string(v, "path")),
+            "path": lambda v: _load_path(wire.string(v, "path"), self.config.scene_dirs),
             "scene": wire.scene_from_wire,
         }
         scene = loaders[sources[0]](req[sources[0]])
@@ -395,7 +397,7 @@ class Service:
         if "path" in req:
             from service.scene import SceneObject
 
-            mesh_scene = _load_path(wire.string(req["path"], "path"))
+            mesh_scene = _load_path(wire.string(req["path"], "path"), self.config.scene_dirs)
             obj = mesh_scene.objects[0]
             if "name" in req:
                 obj = SceneObject(
@@ -670,9 +672,14 @@ def _builtin(name: str) -> Scene:
         raise MessageError("not_found", str(exc)) from exc
 
 
-def _load_path(path: str) -> Scene:
+def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
+    """Load a scene or mesh file; with ``roots``, only from inside those directories."""
     from service.loaders import load_scene
 
+    if roots:
+        real = Path(path).resolve()
+        if not any(real.is_relative_to(Path(r).resolve()) for r in roots):
+            raise MessageError("not_found", f"{path} is outside the service's scene directories")
     if not Path(path).is_file():
         raise MessageError("not_found", f"no such file: {path}")
     try:

@@ -43,3 +43,21 @@ def test_library_calls(service_factory, tmp_path):
         assert c.heartbeat()
         c.shutdown()
     assert svc.proc.wait(15) == 0
+
+
+def test_paths_limited_to_scene_dirs(service_factory, tmp_path):
+    inside, outside = tmp_path / "scenes", tmp_path / "elsewhere"
+    inside.mkdir()
+    outside.mkdir()
+    mesh = Mesh.from_triangles([[-0.3, -0.3, 0], [0.3, -0.3, 0], [0, 0.3, 0.1]], [[0, 1, 2]])
+    save_obj(inside / "ok.obj", mesh)
+    save_obj(outside / "no.obj", mesh)
+    svc = service_factory(
+        "--workers", "0", "--zones", "1", "--cols", "16", "--rows", "12", "--scene-dir", str(inside)
+    )
+    with ServiceClient(svc.control, timeout_s=10) as c:
+        assert c.load_scene(path=str(inside / "ok.obj"))["polygons"] == 1
+        for bad in (outside / "no.obj", inside / ".." / "elsewhere" / "no.obj"):
+            with pytest.raises(ServiceError) as info:
+                c.load_scene(path=str(bad))
+            assert info.value.code == "not_found" and "outside" in info.value.message
