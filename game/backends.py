@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from game.gameover import burst_derivatives, burst_records
+from game.gameover import burst_derivatives, burst_records, explosion_scene
 from game.scene import apply_states
 from service.display import DisplaySettings
 from service.galilean import GalileanSettings, GalileanStage
@@ -254,6 +254,10 @@ class ServiceBackend:
     settings : BackendSettings
     timeout_s : float
         Reply deadline; short, so a dead service never stalls the game for long.
+    shatter : bool
+        Game over loads the player in flying pieces (a scene with another vertex
+        count; off by default: the service's order guard cannot take a scene whose
+        vertex count changed, see docs/game.md).
     """
 
     def __init__(
@@ -263,11 +267,13 @@ class ServiceBackend:
         devices: str | None = None,
         settings: BackendSettings | None = None,
         timeout_s: float = 0.5,
+        shatter: bool = False,
     ) -> None:
         from service.client import FrameSubscriber, ServiceClient
 
         self.settings = settings or BackendSettings()
         self.devices = devices
+        self.shatter = shatter
         self.client = ServiceClient(control, timeout_s=timeout_s, retries=0)
         self._frames_addr = frames
         self._make_sub = FrameSubscriber
@@ -342,12 +348,24 @@ class ServiceBackend:
         self._call(self.client.update_objects, records)
 
     def explode(self, seed: int = 0) -> None:
-        """Fling every object outward from the player (object-level burst)."""
+        """Fling the objects outward (:func:`game.gameover.burst_records`).
+
+        With ``shatter`` the player's mesh is loaded in pieces that fly apart
+        (:func:`game.gameover.explosion_scene`) instead.
+        """
         self._frozen = True
-        self._call(self.client.update_objects, burst_records(self._records, seed))
+        if self.shatter:
+            self._call(self._load, explosion_scene(self._scene, self._records, seed))
+        else:
+            self._call(self.client.update_objects, burst_records(self._records, seed))
+
+    def _load(self, scene: Scene) -> None:
+        self.client.load_scene(scene=scene)
 
     def resume(self) -> None:
-        """Updates go through again."""
+        """A new game: updates go through again (the game's scene again after a shatter)."""
+        if self._frozen and self.shatter:
+            self._call(self._load, self._scene)
         self._frozen = False
 
     def frame(self, timeout_s: float = 0.0) -> FrameView | None:

@@ -72,6 +72,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--highscores", default=str(Path.home() / ".holo-game-scores.json"))
     p.add_argument("--name", default=os.environ.get("USER", "player"))
     p.add_argument(
+        "--shatter",
+        action="store_true",
+        help="service: game over loads the player in flying pieces",
+    )
+    p.add_argument(
         "--print-lamps",
         action="store_true",
         help="print the lamp mask for holo-devices --lamps and exit",
@@ -84,7 +89,7 @@ def _backend(args: argparse.Namespace, settings: object) -> object:
 
     if args.local:
         return LocalRenderer(settings)
-    return ServiceBackend(args.service, args.frames, args.devices, settings)
+    return ServiceBackend(args.service, args.frames, args.devices, settings, shatter=args.shatter)
 
 
 def _setup(args: argparse.Namespace) -> tuple:

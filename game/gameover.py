@@ -11,13 +11,20 @@ The display: the player's galpixels are flung outward (:func:`burst_derivatives`
 radial velocities, a downward acceleration, a little jitter) and handed to the
 Galilean stage once; no further render comes, so the stage alone carries them,
 leaving streaks of debris where they were.  A backend that cannot set per-galpixel
-motion flings whole objects instead (:func:`burst_records`).
+motion (the service) shatters the player's mesh into pieces instead and flings
+them outward with velocities, a downward acceleration and spins
+(:func:`explosion_scene`); :func:`burst_records` is the same for whole objects.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pygame
+
+from service.mesh import Mesh
+from service.scene import MotionState, Scene, Transform
 
 #: seconds after game over -> what happens.
 TIMETABLE: tuple[tuple[float, str], ...] = (
@@ -155,7 +162,7 @@ def burst_derivatives(
     return out
 
 
-def burst_records(records: list[dict], seed: int = 0, speed: float = 0.8) -> list[dict]:
+def burst_records(records: list[dict], seed: int = 0, speed: float = 0.35) -> list[dict]:
     """Object records flung outward from the player's origin (object-level burst).
 
     Every object gets a velocity away from the player (the player itself a random
@@ -176,3 +183,67 @@ def burst_records(records: list[dict], seed: int = 0, speed: float = 0.8) -> lis
             }
         )
     return out
+
+
+def shatter(mesh: Mesh, pieces: int = 16, seed: int = 0) -> list[tuple[Mesh, np.ndarray]]:
+    """Split a mesh into pieces by the direction of each polygon from the centre.
+
+    Returns
+    -------
+    list of (Mesh, ndarray)
+        Each non-empty piece (the mesh's vertices, a subset of its polygons) and
+        its unit outward direction.
+    """
+    rng = np.random.default_rng(seed)
+    dirs = rng.normal(size=(pieces, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    centre = mesh.vertices.mean(axis=0)
+    safe = np.where(mesh.polygons >= 0, mesh.polygons, 0)
+    mask = (mesh.polygons >= 0)[..., None]
+    centroids = (mesh.vertices[safe] * mask).sum(1) / mesh.counts[:, None] - centre
+    group = np.argmax(centroids @ dirs.T, axis=1)
+    out = []
+    for k in range(pieces):
+        sel = group == k
+        if np.any(sel):
+            piece = Mesh(mesh.vertices, mesh.polygons[sel], mesh.counts[sel], f"shard{k}")
+            out.append((piece, dirs[k]))
+    return out
+
+
+def explosion_scene(
+    scene: Scene,
+    records: list[dict],
+    seed: int = 0,
+    speed: float = 0.5,
+    gravity: float = 0.5,
+    pieces: int = 16,
+) -> Scene:
+    """The scene at game over with the player (object 0) shattered and flying apart.
+
+    The attackers keep their places and stop; each piece of the player starts at the
+    player's origin with an outward velocity, ``gravity`` downward and a spin.
+    """
+    rng = np.random.default_rng(seed)
+    ship = scene.objects[0]
+    origin = Transform(np.array(records[0]["position"], float), scale=ship.transform.scale)
+    shards = []
+    for mesh, direction in shatter(ship.mesh, pieces, seed):
+        motion = MotionState(
+            velocity=direction * speed * rng.uniform(0.5, 1.5),
+            acceleration=np.array([0.0, -gravity, 0.0]),
+            angular_velocity=rng.normal(0.0, 4.0, 3),
+        )
+        shards.append(replace(ship, mesh=mesh, transform=origin, motion=motion, name=mesh.name))
+    by_name = {r["name"]: r for r in records}
+    still = [
+        replace(
+            o,
+            transform=Transform(
+                np.array(by_name[o.name]["position"]), np.array(by_name[o.name]["orientation"])
+            ),
+        )
+        for o in scene.objects[1:]
+        if o.name in by_name
+    ]
+    return Scene([*shards, *still], scene.lights, scene.ambient)
