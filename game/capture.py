@@ -64,7 +64,7 @@ class Capture:
         now = client.clock()
         self._tour(client, now)
         over = client.over
-        if over is not None and over.phase == "explode" and now - over.start > 3.0:
+        if over is not None and over.phase == "explode" and now - over.start > 2.0:
             self._once(client, "gameover")
         if over is not None and over.phase == "score":
             self._once(client, "score")

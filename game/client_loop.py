@@ -215,7 +215,7 @@ class GameClient:
             self.attract = False
             self.new_game()
             local = actions.Input([a for a in local.actions if a not in MOVES and a != "start"])
-        got = local.merge(dev)
+        got = local if self.attract else local.merge(dev)  # the bot ignores the dial box
         for name in got.actions:
             if name in self._commands:
                 self._commands[name]()
