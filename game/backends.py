@@ -283,6 +283,7 @@ class ServiceBackend:
         self._records: list[dict] = []
         self._frozen = False
         self._next_try = 0.0
+        self.session: str | None = None
         self.reconnects = 0
 
     def start(self, scene: Scene) -> None:
@@ -292,6 +293,7 @@ class ServiceBackend:
 
     def _connect(self) -> None:
         info = self.client.hello("holo-game")
+        self.session = info["session"]
         s = self.settings
         d = s.display
         self.client.set_display(
@@ -340,6 +342,11 @@ class ServiceBackend:
         except ServiceError:
             self.connected = False
 
+    def _lost(self) -> None:
+        """The service went away or restarted: reconnect at the next chance."""
+        self.connected = False
+        self._next_try = 0.0
+
     def update(self, records: list[dict]) -> None:
         """Send the object states (kept to resend after a reconnect)."""
         if self._frozen:
@@ -373,14 +380,15 @@ class ServiceBackend:
         if not self.connected:
             self._retry()
             return None
-        got = self.sub.next(timeout_s) if timeout_s > 0 else self.sub.next(0.001)
-        if self.sub.restarted or self.client.restarted or not self.sub.alive:
-            self.sub.restarted = self.client.restarted = False
-            self.connected = False
-            self._next_try = 0.0
+        got = self.sub.next(max(timeout_s, 0.001))
+        if not self.sub.alive:
+            self._lost()
         if got is None:
             return None
         header, arrays = got
+        if header.get("session") != self.session:
+            self._lost()  # a restarted service: load the scene again
+            return None
         return _view(header, arrays)
 
     def close(self) -> None:

@@ -29,6 +29,7 @@ from game.actions import lamp_mask
 from game.display import MODES, UNAVAILABLE, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
 from service.display import DisplaySettings, parse_size
+from service.errors import HoloError
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
 
@@ -175,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.environ.update(headless_env({}))
     try:
         stats = run(args)
-    except (ValueError, OSError) as exc:
+    except (HoloError, ValueError, OSError) as exc:
         print(f"holo-game: {exc}", file=sys.stderr)
         return 2
     print(json.dumps(stats))

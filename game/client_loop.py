@@ -138,7 +138,7 @@ class GameClient:
         self.quit = False
         self._last = clock()
         self._render_id = -1
-        self._was_connected = True
+        self._was_connected = backend.connected
         self._commands: dict[str, Callable[[], None]] = {
             "pause": self._pause,
             "quit": self._quit,

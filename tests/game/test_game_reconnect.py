@@ -1,0 +1,104 @@
+"""The service killed mid-game: the game shows "reconnecting" and resumes when it is back."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from game.backends import BackendSettings, ServiceBackend
+from game.client_loop import GameClient, LoopSettings
+from game.display import GameWindow
+from game.rules import GameSettings
+from game.scene import game_scene
+from service.display import DisplaySettings
+from service.errors import ServiceError
+
+BANNER = (255, 220, 90)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_service(control: str, frames: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "service.cli_service",
+            "--control",
+            control,
+            "--frames",
+            frames,
+            "--worker-address",
+            f"tcp://127.0.0.1:{free_port()}",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+def tick_until(client: GameClient, pred, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not pred():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        client.tick()
+
+
+def shows_banner(client: GameClient) -> bool:
+    return bool(np.any(np.all(client.window.pixels() == BANNER, axis=-1)))
+
+
+@pytest.mark.timeout(90)
+def test_service_killed_mid_game_reconnecting_then_resumes(pygame_headless):
+    control = f"tcp://127.0.0.1:{free_port()}"
+    frames = f"tcp://127.0.0.1:{free_port()}"
+    procs = [start_service(control, frames)]
+    backend = None
+    try:
+        settings = BackendSettings(DisplaySettings(zones=3, cols=80, rows=60))
+        backend = ServiceBackend(control, frames, settings=settings, timeout_s=0.5)
+        try:
+            backend.start(game_scene(6))
+        except ServiceError:
+            pass  # not up yet: the loop keeps trying
+        client = GameClient(
+            backend,
+            GameWindow((320, 240)),
+            LoopSettings(GameSettings(difficulty="easy"), attract=True),
+        )
+        tick_until(client, lambda: client.renders.count >= 2, 30, "frames")
+        assert not shows_banner(client)
+        procs[0].kill()
+        procs[0].wait(10)
+        tick_until(client, lambda: not backend.connected, 15, "the link to drop")
+        client.tick()
+        assert shows_banner(client)  # "reconnecting"
+        paused_at = client.state.t
+        client.tick()
+        assert client.state.t == paused_at  # the game waits
+        procs.append(start_service(control, frames))
+        renders = client.renders.count
+        tick_until(
+            client,
+            lambda: backend.connected and client.renders.count > renders + 1,
+            40,
+            "frames from the new service",
+        )
+        assert client.disconnects == 1 and backend.reconnects >= 1
+        tick_until(client, lambda: client.state.t > paused_at + 0.2, 10, "the game to go on")
+        assert not shows_banner(client)
+    finally:
+        if backend is not None:
+            backend.close()
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait(10)
