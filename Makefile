@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo lint bench clean
+.PHONY: venv test demo render-demo lint bench clean
 
 venv: $(STAMP)
 
@@ -18,6 +18,9 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 demo: $(STAMP)
+	$(BIN)/python -m game.full_demo --out demo-out
+
+render-demo: $(STAMP)
 	$(BIN)/python -m service.demo --out demo-out
 
 lint: $(STAMP)
