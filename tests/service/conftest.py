@@ -7,6 +7,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -28,11 +29,12 @@ def free_port() -> int:
 def wait_until(predicate: Callable[[], object], timeout_s: float, step_s: float = 0.02) -> object:
     """Poll ``predicate`` until it returns something truthy or the deadline passes."""
     deadline = time.monotonic() + timeout_s
+    tick = threading.Event()  # never set: wait() is the poll interval
     while time.monotonic() < deadline:
         got = predicate()
         if got:
             return got
-        time.sleep(step_s)
+        tick.wait(step_s)
     return predicate()
 
 
