@@ -21,11 +21,10 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, TextIO
 
 from drivers.dialbox_driver import DialBoxDriver
@@ -43,6 +42,7 @@ from drivers.reader import (
 )
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from service.errors import HoloError
+from service.signals import stop_on_signals
 
 Listener = Callable[[Item, list[Event]], None]
 #: status events echoed on stderr.
@@ -218,25 +218,6 @@ class DeviceSession:
             self.writer.close()
         if self.publisher is not None:
             self.publisher.close()
-
-
-@contextlib.contextmanager
-def stop_on_signals(stop: threading.Event) -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM set ``stop``; the old handlers come back after.
-
-    Outside the main thread (where handlers cannot be set) it does nothing.
-    """
-    old: dict[int, Any] = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            old[sig] = signal.signal(sig, lambda *_: stop.set())
-    except ValueError:
-        pass
-    try:
-        yield
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

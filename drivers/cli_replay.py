@@ -39,7 +39,7 @@ from typing import Any, TextIO
 
 import serial
 
-from drivers.cli_devices import Listener, dump_listener, stop_on_signals
+from drivers.cli_devices import Listener, dump_listener
 from drivers.events import Event
 from drivers.protocols import DEVICE_OF
 from drivers.publisher import Publisher
@@ -47,6 +47,7 @@ from drivers.reader import CONTROL_PROTOCOL, CONTROL_SUFFIX, Chunk, Control, Dev
 from drivers.recording import MAGIC, LogHeader, LogReader, RawCaptureReader, Record
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
 from service.errors import DeviceError, HoloError, LogFileError, SettingsError
+from service.signals import stop_on_signals
 from sim_devices.endpoints import PtyLink
 
 #: default line rate per protocol for raw captures.
@@ -220,7 +221,7 @@ class ReplaySession:
         if self.port_device not in names:
             raise SettingsError(f"--device {self.port_device!r} not in the log: {names}")
         if a.to_pty:
-            self.port = _PtyOut(PtyLink(a.pty_link))
+            self.port = _PtyOut(PtyLink(a.pty_link, stop=self.stop))
             return
         proto = dict(data_devices(self.source.header))[self.port_device]
         baud = a.baud or RAW_BAUD.get(proto, 115200)

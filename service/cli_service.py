@@ -13,13 +13,13 @@ The first stderr line names the bound addresses; the service runs until a
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from collections.abc import Sequence
 
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.keys import make_keys
+from service.signals import stop_on_signals
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,14 +74,6 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _stop_on_signals(service: object) -> None:
-    def stop(signum: int, frame: object) -> None:
-        service._stop.set()  # type: ignore[attr-defined]
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, stop)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``holo-service``."""
     args = build_parser().parse_args(argv)
@@ -118,11 +110,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         file=sys.stderr,
         flush=True,
     )
-    _stop_on_signals(service)
     # The refresh thread must get the GIL soon after its tick: a 1 ms switch interval
     # (default 5 ms) bounds how long a busy thread holds it against a waiting one.
     sys.setswitchinterval(0.001)
-    service.run()
+    with stop_on_signals(service.stop_event):
+        service.run()
     return 0
 
 

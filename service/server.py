@@ -614,6 +614,11 @@ class Service:
         RefreshLoop(self).run()
 
     # ------------------------------------------------------------- closing
+    @property
+    def stop_event(self) -> threading.Event:
+        """Set it (from any thread) to make :meth:`run` return and close the service."""
+        return self._stop
+
     def close(self) -> None:
         """Stop the threads and workers; close every socket (LINGER 0).
 

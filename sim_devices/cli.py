@@ -20,6 +20,7 @@ import sys
 from collections.abc import Sequence
 
 from service.errors import HoloError
+from service.signals import stop_on_signals
 from sim_devices.dialbox import DialBoxSim, demo_script
 from sim_devices.endpoints import DeviceRunner, PtyLink, TcpLink
 from sim_devices.faults import FaultSpec
@@ -97,9 +98,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"holo-sim: {exc}", file=sys.stderr)
         return 2
     print(getattr(link, "path", link.name), flush=True)
-    signal.signal(signal.SIGTERM, lambda *_: runner.stop_event.set())
     try:
-        runner.run()
+        if isinstance(link, PtyLink):
+            link.stop = runner.stop_event
+        with stop_on_signals(runner.stop_event, (signal.SIGTERM,)):
+            runner.run()
     except KeyboardInterrupt:
         pass
     except HoloError as exc:

@@ -96,10 +96,14 @@ class PtyLink:
     ----------
     symlink : str or None
         A path kept pointing at the current slave device (replaced atomically).
+    stop : threading.Event or None
+        When set, a write blocked on a full pty gives up (see :meth:`write`).
     """
 
-    def __init__(self, symlink: str | None = None) -> None:
+    def __init__(self, symlink: str | None = None,
+                 stop: threading.Event | None = None) -> None:
         self.symlink = symlink
+        self.stop = stop
         self._master = self._slave = -1
         self.name = ""
         self._open()
@@ -124,9 +128,13 @@ class PtyLink:
         return self.symlink or self.name
 
     def write(self, data: bytes) -> None:
-        """Write all of ``data`` (waits while the pty buffer is full)."""
+        """Write all of ``data`` (waits while the pty buffer is full).
+
+        If ``stop`` is set while it waits (nobody reads the slave side), the rest of
+        ``data`` is dropped so the program can exit.
+        """
         view = memoryview(data)
-        while view:
+        while view and not (self.stop is not None and self.stop.is_set()):
             try:
                 n = os.write(self._master, view)
             except BlockingIOError:
