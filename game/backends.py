@@ -256,8 +256,7 @@ class ServiceBackend:
         Reply deadline; short, so a dead service never stalls the game for long.
     shatter : bool
         Game over loads the player in flying pieces (a scene with another vertex
-        count; off by default: the service's order guard cannot take a scene whose
-        vertex count changed, see docs/game.md).
+        count); False flings the whole objects through ``update_objects``.
     """
 
     def __init__(
@@ -267,7 +266,7 @@ class ServiceBackend:
         devices: str | None = None,
         settings: BackendSettings | None = None,
         timeout_s: float = 0.5,
-        shatter: bool = False,
+        shatter: bool = True,
     ) -> None:
         from service.client import FrameSubscriber, ServiceClient
 

@@ -74,8 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default=os.environ.get("USER", "player"))
     p.add_argument(
         "--shatter",
-        action="store_true",
-        help="service: game over loads the player in flying pieces",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="service: game over loads the player in flying pieces (default on; "
+        "--no-shatter flings the whole objects instead)",
     )
     p.add_argument(
         "--print-lamps",

@@ -124,6 +124,7 @@ class Ready:
     buffer: Any
     rendered: Any
     t_render_ns: int
+    scene_version: int = 0
 
 
 class Counters:
@@ -138,6 +139,7 @@ class Counters:
                 "incomplete_updates",
                 "late_refused",
                 "render_failures",
+                "refresh_errors",
                 "requests",
                 "errors",
                 "refresh_overruns",
@@ -201,6 +203,7 @@ class Service:
         self._clock: tuple = (0, time.monotonic(), -1, None, 2)
         self.band_retries = 0
         self.last_render_error = ""
+        self.last_refresh_error = ""
         self.clients: dict[bytes, float] = {}
         self._threads: list[threading.Thread] = []
         self.workers: list[subprocess.Popen] = []
@@ -484,6 +487,7 @@ class Service:
             worker_pids=[p.pid for p in self.workers],
             band_retries=self.band_retries,
             last_render_error=self.last_render_error,
+            last_refresh_error=self.last_refresh_error,
             session=self.session,
         )
         return ({"stats": s},)
@@ -576,7 +580,9 @@ class Service:
             return False
         rendered, buf = got
         self.counters.n["renders"] += 1
-        self._ready.append(Ready(render_id, settings.generation, rendezvous, buf, rendered, t0))
+        self._ready.append(
+            Ready(render_id, settings.generation, rendezvous, buf, rendered, t0, mark[1])
+        )
         self._render_results.put((render_id, t0, rendered.frame, mark))
         return True
 
@@ -883,6 +889,7 @@ class RefreshLoop:
         self.svc = svc
         self.stage: GalileanStage | None = None
         self.generation = -1
+        self.scene_version = -1
         self.sub = None
         self.sub_address: str | None = None
         self.due: dict[int, tuple[int, int]] = {}  # rendezvous -> (render id, t_render_ns)
@@ -919,7 +926,12 @@ class RefreshLoop:
                     self.stage.fixed,
                     settings.galpixel_order,
                 )
-                self._tick(settings)
+                try:
+                    self._tick(settings)
+                except Exception as exc:  # a bug must not stop the display: log, restart
+                    svc.counters.n["refresh_errors"] += 1
+                    svc.last_refresh_error = f"{type(exc).__name__}: {exc}"
+                    self._restart(settings)
                 next_t = self._wait(next_t + period, period)
         finally:
             if self.sub is not None:
@@ -986,6 +998,9 @@ class RefreshLoop:
             if up.generation != self.generation:
                 continue
             rd = up.rendered
+            if up.scene_version != self.scene_version:
+                self.stage.reset_guard()  # a new scene: the old points predict nothing
+                self.scene_version = up.scene_version
             ok = self.stage.submit(
                 up.buffer,
                 up.rendezvous,

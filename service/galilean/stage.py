@@ -434,11 +434,24 @@ class GalileanStage:
         if self.order < self.settings.order:
             _drop_orders(self.map, self.order)
 
+    def reset_guard(self) -> None:
+        """Forget the order guard's history (call it when a new scene is loaded).
+
+        The guard compares the control points of one update with the prediction
+        from the previous one; across two scenes that comparison means nothing, and
+        when the point counts differ it cannot be made at all.
+        """
+        self._guard = _Guard(np.zeros(self.settings.order + 1))
+        self.order = self.settings.order
+
     def _guard_update(self, p: _Pending) -> None:
         """Order guard: score each order's prediction of the new control points."""
-        g = self._guard
         if not self.settings.order_guard or p.points is None:
             return
+        last = self._guard.last
+        if last is not None and last[0].shape != p.points.shape:
+            self.reset_guard()  # another scene: its points predict nothing of this one
+        g = self._guard
         steps = self.age + 1  # the propagated refreshes plus this one
         if g.last is not None:
             errs = prediction_errors(
