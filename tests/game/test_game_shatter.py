@@ -1,4 +1,4 @@
-"""Game over against a real service: the player shatters (a scene of another size) and play resumes."""
+"""Game over against a real service: the player shatters (a new scene) and play resumes."""
 
 from __future__ import annotations
 
