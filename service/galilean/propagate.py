@@ -893,6 +893,277 @@ def scatter_runs(
     stats[2] += n_drop
 
 
+@nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def scatter_bands(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    reach: int,
+    bands: int,
+    stats: np.ndarray,
+    reach_out: np.ndarray,
+) -> None:
+    """:func:`scatter_runs` with the new map's rows split into bands run in parallel.
+
+    Bit for bit the result of :func:`scatter_runs` (and so of :func:`sweep` without
+    cache, the debris arm left to :func:`finish`).  Band ``b`` owns the new rows
+    ``[b H / bands, (b + 1) H / bands)`` of every zone: it advances, in scan order,
+    the old rows a galpixel landing there can come from (its own rows and
+    ``reach`` rows either side) and runs the z-test and the copy only for the
+    galpixels that land in its rows.  Each new pixel thus sees its candidates in
+    the one-pass scan's order, from one thread; no two bands write one pixel.
+
+    Parameters
+    ----------
+    old, new, src_idx, shape, order, fp, fm, ncol, track
+        As :func:`scatter_runs`.
+    reach : int
+        A bound on the rows any galpixel of ``old`` moves this refresh
+        (:func:`map_reach`, or :func:`reach_of` of the previous call's
+        ``reach_out``).  A galpixel moving farther could be missed: callers must
+        pass a true bound (``H`` is always one).
+    bands : int
+        Number of bands (1: :func:`scatter_runs` exactly).
+    stats : ndarray, shape (bands, 3), int64
+        Accumulated per band: propagated, clashes, dropped (of its own old rows).
+    reach_out : ndarray, shape (bands, 3), int64
+        Out: per band the largest ``|vy|``, ``|ay|``, ``|jy|`` it wrote.
+    """
+    nz, h, w = shape
+    o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
+    n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
+    sh = fm - fp
+    half = np.int64(1) << (fp - 1)
+    rows = max(1, min(h, BATCH // w))
+    size = rows * w
+    # batch buffers, one row per band (allocated outside the parallel loop)
+    qb_all = np.empty((bands, size), np.int64)  # landing pixel; -1 debris, -2 off the map
+    db_all = np.empty((bands, size), np.float64)  # new depth
+    fxb_all = np.empty((bands, size), np.int16)
+    fyb_all = np.empty((bands, size), np.int16)
+    vxb_all = np.empty((bands, size), np.int32)
+    vyb_all = np.empty((bands, size), np.int32)
+    axb_all = np.empty((bands, size), np.int32)
+    ayb_all = np.empty((bands, size), np.int32)
+    run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
+    run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
+    run_n_all = np.empty((bands, size), np.int64)  # its length
+    for band in nb.prange(bands):
+        lo, hi = band * h // bands, (band + 1) * h // bands
+        r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
+        qb = qb_all[band]
+        db = db_all[band]
+        fxb = fxb_all[band]
+        fyb = fyb_all[band]
+        vxb = vxb_all[band]
+        vyb = vyb_all[band]
+        axb = axb_all[band]
+        ayb = ayb_all[band]
+        run_i = run_i_all[band]
+        run_q = run_q_all[band]
+        run_n = run_n_all[band]
+        n_prop = n_clash = n_drop = np.int64(0)
+        mvy = may = mjy = np.int64(0)
+        for z in range(nz):
+            zb = z * h * w
+            q_lo, q_hi = zb + lo * w, zb + hi * w  # this band's new pixels
+            for r0 in range(r_lo, r_hi, rows):
+                nr = min(rows, r_hi - r0)
+                b0 = zb + r0 * w  # flat index of the batch's first pixel
+                own_lo, own_hi = (lo - r0) * w, (hi - r0) * w  # batch indices of own rows
+                # 1. advance (one loop per order: a loop-invariant branch inside
+                #    would keep LLVM from vectorising it)
+                for rr in range(nr):
+                    r = r0 + rr
+                    p0 = zb + r * w
+                    i0 = rr * w
+                    y0 = np.int64(r) << fp
+                    if order == 0:
+                        for c in range(w):
+                            p, i = _u(p0 + c), _u(i0 + c)
+                            x = (np.int64(c) << fp) + o_frac[0][p]
+                            y = y0 + o_frac[1][p]
+                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                            fxb[i] = x - (((x + half) >> fp) << fp)
+                            fyb[i] = y - (((y + half) >> fp) << fp)
+                            db[i] = o_dep[p]
+                    elif order == 1:
+                        for c in range(w):
+                            p, i = _u(p0 + c), _u(i0 + c)
+                            vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                            x = (np.int64(c) << fp) + o_frac[0][p] + ((vx + (1 << (sh - 1))) >> sh)
+                            y = y0 + o_frac[1][p] + ((vy + (1 << (sh - 1))) >> sh)
+                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                            fxb[i] = x - (((x + half) >> fp) << fp)
+                            fyb[i] = y - (((y + half) >> fp) << fp)
+                            db[i] = o_dep[p] + o_zm[0][p]  # a float32 sum, as in sweep
+                            vxb[i] = vx
+                            vyb[i] = vy
+                    elif order == 2:
+                        for c in range(w):
+                            p, i = _u(p0 + c), _u(i0 + c)
+                            vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                            ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                            x = (
+                                (np.int64(c) << fp)
+                                + o_frac[0][p]
+                                + ((2 * vx + ax + (1 << sh)) >> (sh + 1))
+                            )
+                            y = y0 + o_frac[1][p] + ((2 * vy + ay + (1 << sh)) >> (sh + 1))
+                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                            fxb[i] = x - (((x + half) >> fp) << fp)
+                            fyb[i] = y - (((y + half) >> fp) << fp)
+                            db[i] = np.float64(o_dep[p]) + (o_zm[0][p] + 0.5 * o_zm[1][p])
+                            vxb[i] = vx + ax
+                            vyb[i] = vy + ay
+                            axb[i] = ax
+                            ayb[i] = ay
+                    else:
+                        for c in range(w):
+                            p, i = _u(p0 + c), _u(i0 + c)
+                            x, vx, ax = advance(
+                                (np.int64(c) << fp) + o_frac[0][p],
+                                np.int64(o_mot[0][p]),
+                                np.int64(o_mot[2][p]),
+                                np.int64(o_mot[4][p]),
+                                3,
+                                fp,
+                                fm,
+                            )
+                            y, vy, ay = advance(
+                                y0 + o_frac[1][p],
+                                np.int64(o_mot[1][p]),
+                                np.int64(o_mot[3][p]),
+                                np.int64(o_mot[5][p]),
+                                3,
+                                fp,
+                                fm,
+                            )
+                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                            fxb[i] = x - (((x + half) >> fp) << fp)
+                            fyb[i] = y - (((y + half) >> fp) << fp)
+                            db[i] = np.float64(o_dep[p]) + (
+                                o_zm[0][p] + 0.5 * o_zm[1][p] + o_zm[2][p] / 6.0
+                            )
+                            vxb[i] = vx
+                            vyb[i] = vy
+                            axb[i] = ax
+                            ayb[i] = ay
+                # 2. z-test in scan order; the open run is kept in registers
+                runs = 0
+                ri = rq = rn = np.int64(0)
+                for i in range(nr * w):
+                    q = qb[i]
+                    own = own_lo <= i < own_hi
+                    if q < 0 or q < q_lo or q >= q_hi:
+                        if q != -1 and own:
+                            n_prop += 1
+                            n_drop += q == -2
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                    n_prop += own
+                    d = db[i]
+                    if n_deb[_u(q)] == 0:
+                        n_clash += 1
+                        if d >= n_dep[_u(q)]:
+                            if rn:
+                                run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                                runs += 1
+                                rn = 0
+                            continue
+                    n_dep[_u(q)] = d
+                    n_deb[_u(q)] = 0
+                    if rn and q == rq + rn:
+                        rn += 1
+                    else:
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                        ri, rq, rn = i, q, 1
+                if rn:
+                    run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                    runs += 1
+                # 3. copy, plane by plane, run by run
+                for k in range(runs):
+                    i0, q0, m = run_i[k], run_q[k], run_n[k]
+                    s0 = b0 + i0
+                    if ncol == 4:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
+                            sa = da + 0.5 * d2a
+                            n_col[0][q] = o_col[0][p] + (sa + dbb)
+                            n_col[1][q] = o_col[1][p] + (sa - dcc)
+                            n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
+                            n_dc[0][q] = da + d2a
+                            n_dc[1][q] = dbb
+                            n_dc[2][q] = dcc
+                            n_dc[3][q] = d2a
+                    else:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            n_col[0][q] = o_col[0][p]
+                            n_col[1][q] = o_col[1][p]
+                            n_col[2][q] = o_col[2][p]
+                    for j in range(m):
+                        b, q = _u(i0 + j), _u(q0 + j)
+                        n_frac[0][q] = fxb[b]
+                        n_frac[1][q] = fyb[b]
+                    for j in range(m):
+                        n_obj[_u(q0 + j)] = o_obj[_u(s0 + j)]
+                    if track:
+                        for j in range(m):
+                            src_idx[_u(q0 + j)] = s0 - zb + j
+                    if order >= 1:
+                        for j in range(m):
+                            b, q = _u(i0 + j), _u(q0 + j)
+                            n_mot[0][q] = vxb[b]
+                            n_mot[1][q] = vyb[b]
+                            mvy = max(mvy, abs(np.int64(vyb[b])))
+                    if order >= 2:
+                        for j in range(m):
+                            b, q = _u(i0 + j), _u(q0 + j)
+                            n_mot[2][q] = axb[b]
+                            n_mot[3][q] = ayb[b]
+                            may = max(may, abs(np.int64(ayb[b])))
+                    if order == 3:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            n_mot[4][q] = o_mot[4][p]
+                            n_mot[5][q] = o_mot[5][p]
+                            mjy = max(mjy, abs(np.int64(o_mot[5][p])))
+                    if order == 1:
+                        for j in range(m):
+                            n_zm[0][_u(q0 + j)] = o_zm[0][_u(s0 + j)]
+                    elif order == 2:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
+                            n_zm[1][q] = o_zm[1][p]
+                    elif order == 3:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
+                            n_zm[0][q] = np.float32(z0 + z1) + 0.5 * z2
+                            n_zm[1][q] = z1 + z2
+                            n_zm[2][q] = z2
+        stats[band, 0] += n_prop
+        stats[band, 1] += n_clash
+        stats[band, 2] += n_drop
+        reach_out[band, 0] = mvy
+        reach_out[band, 1] = may
+        reach_out[band, 2] = mjy
+
+
 @nb.njit(cache=True, inline="always")
 def _show_row(
     c0: np.ndarray,
@@ -1118,3 +1389,23 @@ def finish(
                 )
     stats[5] += expanded
     stats[6] += left
+
+
+def reach_of(vy: int, ay: int, jy: int, fm: int) -> int:
+    """Bound on the rows a galpixel with ``|vy|``, ``|ay|``, ``|jy|`` moves in a refresh.
+
+    Motion in units of 2^-fm px/refresh^n.
+
+    One refresh moves ``v + a/2 (+ j/6)`` rounded, at most ``|v| + |a| + |j|``;
+    the fraction and both roundings add under two rows.
+    """
+    return int((int(vy) + int(ay) + int(jy)) >> fm) + 2
+
+
+def map_reach(motion: np.ndarray, fm: int) -> int:
+    """:func:`reach_of` of a whole map's motion planes ``(2n, Z, H, W)`` int32."""
+    if motion.shape[0] == 0:
+        return 2
+    m = [max(int(motion[k].max()), -int(motion[k].min())) for k in range(1, motion.shape[0], 2)]
+    m += [0] * (3 - len(m))
+    return reach_of(m[0], m[1], m[2], fm)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
@@ -40,9 +41,11 @@ from service.galilean.propagate import (
     STAT_NAMES,
     finish,
     flat,
+    map_reach,
     planes,
+    reach_of,
     scatter,
-    scatter_runs,
+    scatter_bands,
     show,
 )
 from service.scene import MotionState
@@ -184,6 +187,8 @@ class GalileanStage:
         self._viewer_next: MotionState | None = None
         self._guard = _Guard(np.zeros(s.order + 1))
         self._started = False
+        #: rows a galpixel of ``self.map`` can move in one refresh (None: unknown)
+        self._reach: int | None = None
 
     # ----------------------------------------------------------------- inputs
     def update(
@@ -302,6 +307,7 @@ class GalileanStage:
                 self.settings.refresh_hz,
             )
             self._viewer, self._viewer_next = self._viewer_next, None
+            self._reach = None
         z, r, c = self.display.zones, self.display.rows, self.display.cols
         shown = (
             np.empty((z, r, c, 3), np.uint8),
@@ -357,7 +363,12 @@ class GalileanStage:
         old_p, new_p = planes(self.map.arrays()), planes(new.arrays())
         ncol = self.map.colour_planes
         if self.cache is None:
-            scatter_runs(
+            if self._reach is None:
+                self._reach = map_reach(self.map.motion, self.fixed.fm)
+            bands = max(1, min(nb.get_num_threads(), self.shape[1] // 8))
+            band_stats = np.zeros((bands, 3), np.int64)
+            reach = np.zeros((bands, 3), np.int64)
+            scatter_bands(
                 old_p,
                 new_p,
                 src,
@@ -367,8 +378,14 @@ class GalileanStage:
                 self.fixed.fm,
                 ncol,
                 s.poisson,
-                counters,
+                self._reach,
+                bands,
+                band_stats,
+                reach,
             )
+            counters[:3] += band_stats.sum(axis=0)
+            top = reach.max(axis=0)
+            next_reach = reach_of(top[0], top[1], top[2], self.fixed.fm)
         else:
             scatter(
                 flat(self.map.arrays()),
@@ -384,6 +401,7 @@ class GalileanStage:
                 s.poisson,
                 counters,
             )
+            next_reach = None
         out = shown if shown is not None else self._no_show
         finish(
             new_p,
@@ -403,11 +421,13 @@ class GalileanStage:
             counters,
         )
         self.map, self._spare = new, self.map
+        self._reach = next_reach
         if self.cache is not None:
             self.cache = (cnew, cold)
         return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
 
     def _graft(self, p: _Pending) -> None:
+        self._reach = None
         if p.objects is None:
             for name, arr in zip(
                 ("colour", "depth", "frac", "motion", "zmotion", "dcolour", "debris", "obj"),
