@@ -1219,11 +1219,48 @@ def show(
             )
 
 
-@nb.njit(cache=True)
+def debris_words(debris: np.ndarray) -> np.ndarray:
+    """A (Z, H, W) uint8 debris plane's first ``8 (N // 8)`` bytes as uint64 words (a view)."""
+    flat_ = debris.reshape(-1)
+    return flat_[: flat_.size // 8 * 8].view(np.uint64)
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def show_bands(
+    m: tuple,
+    shape: tuple,
+    margin: int,
+    out_colour: np.ndarray,
+    out_depth: np.ndarray,
+    out_debris: np.ndarray,
+) -> None:
+    """:func:`show` with the displayed rows split between threads (``nb.prange``)."""
+    nz, h, w = shape
+    hh, ww = h - 2 * margin, w - 2 * margin
+    (c0, c1, c2), dep, deb = m[0], m[1], m[6]
+    for k in nb.prange(nz * hh):
+        z, rr = k // hh, k % hh
+        _show_row(
+            c0,
+            c1,
+            c2,
+            dep,
+            deb,
+            (z * h + rr + margin) * w + margin,
+            ww,
+            out_colour,
+            out_depth,
+            out_debris,
+            k * ww,
+        )
+
+
+@nb.njit(cache=True, nogil=True)
 def finish(
     new: tuple,
     old: tuple,
     src_idx: np.ndarray,
+    deb64: np.ndarray,
     shape: tuple,
     n_mot: int,
     n_zm: int,
@@ -1251,6 +1288,9 @@ def finish(
         New map (changed in place) and old map, as :func:`planes`.
     src_idx : ndarray, shape (N,), int32
         Origins recorded by the first sweep.
+    deb64 : ndarray, shape (N // 8,), uint64
+        The new map's debris plane seen as words (:func:`debris_words`): eight
+        galpixels in a row are skipped with one test.
     shape : tuple
         (Z, H, W).
     n_mot, n_zm, ncol : int
@@ -1274,12 +1314,18 @@ def finish(
     (o0, o1, o2), o_dep, o_deb, o_obj = old[0], old[1], old[6], old[7]
     ww = w - 2 * margin
     expanded = left = 0
+    n8 = 8 * deb64.size
     for z in range(nz):
         zb = z * h * w
         for r in range(h):
             base = zb + r * w
-            for c in range(w):
+            c = np.int64(-1)
+            while c < w - 1:
+                c += 1
                 p = _u(base + c)
+                if (p & 7) == 0 and c + 8 <= w and p + 8 <= n8 and deb64[p >> 3] == 0:
+                    c += 7  # eight galpixels: nothing to do
+                    continue
                 if deb[p] == 0:
                     continue
                 near = (

@@ -39,6 +39,7 @@ from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
 from service.galilean.propagate import (
     STAT_NAMES,
+    debris_words,
     finish,
     flat,
     map_reach,
@@ -46,7 +47,7 @@ from service.galilean.propagate import (
     reach_of,
     scatter,
     scatter_bands,
-    show,
+    show_bands,
 )
 from service.scene import MotionState
 
@@ -340,7 +341,7 @@ class GalileanStage:
 
     def _show(self, shown: tuple) -> None:
         """Copy the displayed window of the map into ``shown`` (no expansion)."""
-        show(
+        show_bands(
             planes(self.map.arrays()),
             self.shape,
             self.settings.margin,
@@ -402,11 +403,13 @@ class GalileanStage:
                 counters,
             )
             next_reach = None
-        out = shown if shown is not None else self._no_show
+        # expansion and debris arm (sequential: an expansion feeds the next), then
+        # the display copy in parallel bands
         finish(
             new_p,
             old_p,
             src,
+            debris_words(new.debris),
             self.shape,
             new.motion.shape[0],
             new.zmotion.shape[0],
@@ -415,11 +418,13 @@ class GalileanStage:
             s.neighbours,
             EXPANSION_MODES[s.expansion],
             s.margin,
-            *(a.reshape(-1) for a in out),
-            shown is not None,
+            *self._no_show,
+            False,
             s.poisson,
             counters,
         )
+        if shown is not None:
+            show_bands(new_p, self.shape, s.margin, *(a.reshape(-1) for a in shown))
         self.map, self._spare = new, self.map
         self._reach = next_reach
         if self.cache is not None:
