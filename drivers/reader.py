@@ -10,11 +10,17 @@ What a reader does:
 
 * opens its port by pyserial URL (:func:`serial.serial_for_url`: ``/dev/ttyUSB0``,
   ``loop://``, ``socket://host:port``, ``rfc2217://...``) with a short read timeout;
-* reads without blocking longer than ``poll_s``: one byte with the timeout, then
-  whatever is already waiting, as one chunk stamped with :func:`time.monotonic_ns`
-  the moment the first byte came back;
+* waits for bytes without a fixed sleep and never longer than ``poll_s``: a port with
+  a file descriptor (a tty, a pty: pyserial's POSIX ports) is waited on with
+  :func:`select.select` and read with one :func:`os.read` of up to
+  :data:`MAX_CHUNK` bytes; any other port (``loop://``, ``socket://``, Windows) with
+  a one-byte read under the port's timeout, then whatever is already waiting.  The
+  chunk is stamped with :func:`time.monotonic_ns` the moment the first read returned
+  bytes;
 * feeds the chunk to the decoder (:class:`DeviceStream`) and hands the chunk (for
-  the recorder) and its events (for everyone else) to the sink;
+  the recorder) and its events (for everyone else) to the sink at once, on the
+  reader thread (:meth:`drivers.publisher.Publisher.sink` publishes there, before
+  queueing the item for the slower listeners);
 * keeps statistics (:meth:`DeviceReader.stats`): the decoder's counters (frames,
   bytes discarded, resyncs, counter gaps, CRC errors...) and its own (chunks,
   opens, reconnects, disconnects, watchdog trips, open failures);
@@ -34,8 +40,11 @@ to the live one.
 from __future__ import annotations
 
 import contextlib
+import io
 import json
+import os
 import queue
+import select
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -328,6 +337,7 @@ class DeviceReader:
         self._clock = clock_ns
         self._opener = opener
         self._port: Any = None
+        self._fd: int | None = None
         self._port_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -450,7 +460,7 @@ class DeviceReader:
             self._open_failed(exc)
             return False
         with self._port_lock:
-            self._port = port
+            self._port, self._fd = port, _select_fd(port)
         self._opened()
         try:
             self._hooks.on_open(self)
@@ -491,14 +501,19 @@ class DeviceReader:
         return wait
 
     def _read_once(self) -> list[Event]:
-        port = self._port
+        port, fd = self._port, self._fd
         if port is None:
             raise serial.SerialException("port closed")
-        data = port.read(1)
+        if fd is not None:
+            data = self._read_fd(fd)
+            t_ns = self._clock()
+        else:
+            data = port.read(1)
+            t_ns = self._clock()
+            if data:
+                data += self._drain(port)
         if not data:
             return []
-        t_ns = self._clock()
-        data += self._drain(port)
         self.counters.chunks += 1
         item = Chunk(self.name, t_ns, data)
         frames = self.stream.decoder.stats.frames
@@ -509,6 +524,27 @@ class DeviceReader:
             self._backoff = self.settings.backoff_s
         self._hooks.on_events(self, events)
         return events
+
+    def _read_fd(self, fd: int) -> bytes:
+        """Wait up to ``poll_s`` for bytes on ``fd``; all that is there, or ``b""``.
+
+        One ``select`` and one ``read`` system call (pyserial's ``read(1)`` plus a
+        drain take two of each and an ``ioctl``).  Errors as pyserial reports them.
+        """
+        try:
+            ready, _, _ = select.select((fd,), (), (), self.settings.poll_s)
+            if not ready:
+                return b""
+            data = os.read(fd, MAX_CHUNK)
+        except BlockingIOError:  # ready, then nothing after all (non-blocking fd)
+            return b""
+        except (OSError, ValueError) as exc:
+            raise serial.SerialException(f"read failed: {exc}") from exc
+        if not data:
+            raise serial.SerialException(
+                "device reports readiness to read but returned no data "
+                "(device disconnected or multiple access on port?)")
+        return data
 
     @staticmethod
     def _drain(port: Any) -> bytes:
@@ -539,10 +575,25 @@ class DeviceReader:
 
     def _close_port(self) -> None:
         with self._port_lock:
-            port, self._port = self._port, None
+            port, self._port, self._fd = self._port, None, None
         if port is not None:
             with contextlib.suppress(Exception):
                 port.close()
+
+
+def _select_fd(port: Any) -> int | None:
+    """The file descriptor to wait on for ``port``, or None to use ``port.read``.
+
+    Only pyserial's POSIX ports qualify: they read the descriptor directly, with no
+    buffer of their own that an :func:`os.read` would bypass.
+    """
+    posix = getattr(serial, "serialposix", None)  # absent on Windows
+    if posix is None or not isinstance(port, posix.Serial):
+        return None
+    try:
+        return int(port.fileno())
+    except (AttributeError, io.UnsupportedOperation, serial.SerialException, OSError):
+        return None
 
 
 class EventHub:

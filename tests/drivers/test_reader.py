@@ -323,3 +323,41 @@ def test_an_unexpected_exception_is_reported_and_ends_the_thread():
         reader.stop()
     crash = [e for e in sink.status("error") if e.details["reason"] == "reader_crashed"]
     assert len(crash) == 1 and "bug" in crash[0].details["message"]
+
+
+@posix_only
+def test_a_pty_is_read_through_its_descriptor_and_a_frame_may_span_two_reads():
+    link = PtyLink()
+    sink = Collector()
+    reader = DeviceReader(ReaderSettings(link.path, "hatire", poll_s=0.01), sink).start()
+    frame = hatire.encode_pose(5, 1.0, 2.0, 3.0)
+    try:
+        wait_for(lambda: reader.connected)
+        assert reader._fd is not None  # select + os.read, not pyserial's read(1)
+        link.write(frame[:7])
+        wait_for(lambda: reader.counters.chunks == 1, what="first half read")
+        assert sink.seqs() == []
+        before = time.monotonic_ns()
+        link.write(frame[7:])
+        wait_for(lambda: sink.seqs() == [5], what="pose from the second half")
+    finally:
+        reader.stop()
+        link.close()
+    assert reader._fd is None and not reader.connected
+    pose = [e for e in sink.snapshot() if isinstance(e, PoseEvent)][0]
+    assert pose.t_ns >= before  # stamped when the bytes that completed it came
+    assert b"".join(i.data for i in sink.items if isinstance(i, Chunk)) == frame
+
+
+def test_a_loop_port_has_no_descriptor_and_is_read_through_pyserial():
+    link = LoopLink()
+    sink = Collector()
+    reader = DeviceReader(ReaderSettings("loop://", "hatire", poll_s=0.01), sink,
+                          opener=lambda url, **kw: link.port).start()
+    try:
+        wait_for(lambda: reader.connected)
+        assert reader._fd is None
+        link.write(hatire.encode_pose(3, 0.0, 0.0, 0.0))
+        wait_for(lambda: sink.seqs() == [3])
+    finally:
+        reader.stop()
