@@ -26,22 +26,30 @@ that wants libzmq to keep only the newest pose connects to the optional pose-onl
 endpoint (``pose_address``): a PUB socket sending single-frame pose JSON with
 ``CONFLATE`` set on the sending side too.
 
-A :class:`Publisher` is used from one thread only (the hub's consumer).
+A :class:`Publisher` is thread-safe: one lock serialises its sockets, so the readers
+publish on their own threads (:meth:`Publisher.sink`, no hand-off to another thread
+between a byte's arrival and its event's send) while the hub's consumer thread calls
+:meth:`Publisher.service`.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import secrets
+import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zmq
 
-from drivers.events import ButtonEvent, DialEvent, Event, PoseEvent, StatusEvent
+from drivers.events import NS_PER_S, ButtonEvent, DialEvent, Event, PoseEvent, StatusEvent
 from drivers.protocols.sgi_dialbox import NUM_BUTTONS, NUM_DIALS
 from service.errors import DeviceError
+
+if TYPE_CHECKING:
+    from drivers.reader import Item, Sink
 
 #: event kind -> topic frame.
 TOPICS = {"pose": b"pose", "dial": b"dials", "button": b"dials", "status": b"status"}
@@ -51,8 +59,41 @@ SNDHWM = 100_000
 LINGER_MS = 500
 
 
+#: One compact encoder for every message (json.dumps would build one per call).
+_ENCODER = json.JSONEncoder(separators=(",", ":"))
+
+
 def _dumps(obj: Mapping[str, Any]) -> bytes:
-    return json.dumps(obj, separators=(",", ":")).encode()
+    return _ENCODER.encode(obj).encode()
+
+
+def pose_json(ev: PoseEvent, t0_ns: int, session: str, n: int) -> bytes | None:
+    """The pose message body, formatted directly; None when only ``json`` can write it.
+
+    Byte for byte what ``json`` writes for the envelope (the dump fields in the dump's
+    order, then ``t_ns``, ``session``, ``n``): finite floats in ``repr`` form, ints as
+    digits.  About half the CPU time of building the dict and encoding it, which
+    matters on the path from a byte's arrival to its pose's send.  Values that are
+    not plain finite floats / ints (NaN, numpy scalars) or a session name that would
+    need escaping return None; the caller then uses the ``json`` path.
+    """
+    vals = (ev.yaw, ev.pitch, ev.roll, ev.x, ev.y, ev.z, *(ev.quat or ()))
+    extra = ev.device_t_us
+    if (any(type(v) is not float or not math.isfinite(v) for v in vals)
+            or type(ev.seq) is not int or not (extra is None or type(extra) is int)
+            or type(ev.t_ns) is not int or (ev.quat is not None and len(ev.quat) != 4)
+            or not (session.isascii() and session.isalnum())):
+        return None
+    r = float.__repr__
+    parts = [f'{{"t":{r((ev.t_ns - t0_ns) / NS_PER_S)},"device":"tracker","kind":"pose",'
+             f'"yaw":{r(vals[0])},"pitch":{r(vals[1])},"roll":{r(vals[2])},'
+             f'"x":{r(vals[3])},"y":{r(vals[4])},"z":{r(vals[5])},"seq":{ev.seq}']
+    if ev.quat is not None:
+        parts.append(f',"quat":[{r(vals[6])},{r(vals[7])},{r(vals[8])},{r(vals[9])}]')
+    if extra is not None:
+        parts.append(f',"device_t_us":{extra}')
+    parts.append(f',"t_ns":{ev.t_ns},"session":"{session}","n":{n}}}')
+    return "".join(parts).encode()
 
 
 class DialState:
@@ -127,6 +168,7 @@ class Publisher:
         self.counts = {"pose": 0, "status": 0, "stats": 0}
         self._clock = clock_ns
         self._last_snapshot = clock_ns()
+        self._lock = threading.Lock()
         ctx = context or zmq.Context.instance()
         self._sock = self._bind(ctx, zmq.XPUB, address, {zmq.XPUB_VERBOSE: 1})
         self.address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -163,20 +205,53 @@ class Publisher:
         return d
 
     def publish(self, event: Event) -> None:
-        """Publish one event on its topic."""
-        self._send_kind[event.kind](event)
+        """Publish one event on its topic (any thread)."""
+        with self._lock:
+            self._send_kind[event.kind](event)
 
     def publish_all(self, events: list[Event]) -> None:
-        """Publish events in order."""
-        for ev in events:
-            self._send_kind[ev.kind](ev)
+        """Publish events in order (any thread; the batch is not interleaved)."""
+        with self._lock:
+            for ev in events:
+                self._send_kind[ev.kind](ev)
+
+    def sink(self, then: Sink | None = None) -> Sink:
+        """A reader sink that publishes an item's events at once, then calls ``then``.
+
+        Give it to a :class:`~drivers.reader.DeviceReader` so events go out on the
+        reader's thread the moment they are decoded, with ``then`` (usually
+        :meth:`~drivers.reader.EventHub.put`) passing the item on to the slower
+        listeners (recorder, dump).
+
+        Parameters
+        ----------
+        then : callable (item, events) -> None, optional
+            Called after the events were sent.
+
+        Returns
+        -------
+        callable (item, events) -> None
+        """
+        publish_all = self.publish_all
+
+        def sink(item: Item, events: list[Event]) -> None:
+            if events:
+                publish_all(events)
+            if then is not None:
+                then(item, events)
+
+        return sink
 
     def _pose(self, ev: PoseEvent) -> None:
-        self.counts["pose"] += 1
-        d = self._envelope(ev)
-        d["n"] = self.counts["pose"]
-        body = _dumps(d)
-        self._sock.send_multipart((b"pose", body))
+        n = self.counts["pose"] = self.counts["pose"] + 1
+        body = pose_json(ev, self.t0_ns, self.session, n)
+        if body is None:
+            d = self._envelope(ev)
+            d["n"] = n
+            body = _dumps(d)
+        sock = self._sock
+        sock.send(b"pose", zmq.SNDMORE)
+        sock.send(body)
         if self._pose_sock is not None:
             self._pose_sock.send(body)
 
@@ -195,7 +270,11 @@ class Publisher:
             self._send_state("reset", ev.t_ns, {"reason": ev.event})
 
     def publish_state(self) -> None:
-        """Send a ``state`` snapshot on ``b"dials"`` (seq unchanged)."""
+        """Send a ``state`` snapshot on ``b"dials"`` (seq unchanged; any thread)."""
+        with self._lock:
+            self._snapshot()
+
+    def _snapshot(self) -> None:
         now = self._clock()
         self._send_state("state", now)
         self._last_snapshot = now
@@ -208,6 +287,10 @@ class Publisher:
 
     def publish_stats(self, stats: Mapping[str, Any]) -> None:
         """Send reader statistics on ``b"stats"`` (``devices``: name -> counters)."""
+        with self._lock:
+            self._stats(stats)
+
+    def _stats(self, stats: Mapping[str, Any]) -> None:
         self.counts["stats"] += 1
         now = self._clock()
         d = {"t": (now - self.t0_ns) / 1e9, "t_ns": now, "kind": "stats",
@@ -217,28 +300,32 @@ class Publisher:
     def service(self, stats: Callable[[], Mapping[str, Any]] | None = None) -> int:
         """Answer new subscriptions with a snapshot; send the periodic snapshot/stats.
 
-        Call it often from the publishing thread (it never blocks).  Returns the
-        number of subscription messages seen.
+        Call it often from one thread (the hub's consumer; it never blocks, and holds
+        the lock only while it touches the socket).  Returns the number of
+        subscription messages seen.
         """
-        seen = 0
-        while True:
-            try:
-                msg = self._sock.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                break
-            seen += bool(msg[:1] == b"\x01")
         due = self._clock() - self._last_snapshot >= self.snapshot_s * 1e9
-        if seen or due:
-            self.publish_state()
-        if due and stats is not None:
-            self.publish_stats(stats())
+        figures = stats() if due and stats is not None else None
+        seen = 0
+        with self._lock:
+            while True:
+                try:
+                    msg = self._sock.recv(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                seen += bool(msg[:1] == b"\x01")
+            if seen or due:
+                self._snapshot()
+            if figures is not None:
+                self._stats(figures)
         return seen
 
     def close(self) -> None:
         """Close the sockets (pending messages get ``LINGER_MS`` to go out)."""
-        for sock in (self._sock, self._pose_sock):
-            if sock is not None and not sock.closed:
-                sock.close()
+        with self._lock:
+            for sock in (self._sock, self._pose_sock):
+                if sock is not None and not sock.closed:
+                    sock.close()
 
     def __enter__(self) -> Publisher:
         return self

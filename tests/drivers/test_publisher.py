@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import json
+import math
+import threading
 import time
 
 import pytest
 import zmq
+from hypothesis import given
+from hypothesis import strategies as st
 
 from drivers.events import ButtonEvent, DialEvent, PoseEvent, StatusEvent
-from drivers.publisher import Publisher
+from drivers.publisher import Publisher, _dumps, pose_json
 from drivers.subscriber import DeviceSubscriber
 from service.errors import DeviceError
 
@@ -202,3 +206,70 @@ def test_messages_are_topic_plus_json_with_the_dump_fields(pub):
     body = json.loads(frames[1])
     extra = {k: body.pop(k) for k in ("t_ns", "session", "n")}
     assert body == pose(7).to_dict(1_000) and extra["t_ns"] == 1_007
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@given(t_ns=st.integers(0, 2**63), t0_ns=st.integers(0, 2**40),
+       vals=st.tuples(*[finite] * 6), seq=st.integers(0, 2**32 - 1),
+       quat=st.none() | st.tuples(*[finite] * 4),
+       device_t_us=st.none() | st.integers(0, 2**63), n=st.integers(1, 2**40))
+def test_pose_body_is_byte_for_byte_what_json_writes(t_ns, t0_ns, vals, seq, quat,
+                                                     device_t_us, n):
+    ev = PoseEvent(t_ns, *vals, seq, quat, device_t_us)
+    envelope = {**ev.to_dict(t0_ns), "t_ns": t_ns, "session": "0a1b2c3d", "n": n}
+    assert pose_json(ev, t0_ns, "0a1b2c3d", n) == _dumps(envelope)
+
+
+def test_pose_body_falls_back_to_json_for_what_it_cannot_format(pub):
+    nan_pose = PoseEvent(1_500, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 1)
+    assert pose_json(nan_pose, 0, "0a1b2c3d", 1) is None
+    assert pose_json(pose(1), 0, 'a"b', 1) is None
+    with DeviceSubscriber(pub.address) as sub:
+        pump_until(pub, sub, lambda s: s.pose is not None and s.pose.seq == 1,
+                   send=lambda: pub.publish(nan_pose))
+        assert math.isnan(sub.pose.yaw)
+
+
+def test_sink_publishes_the_events_then_passes_the_item_on(pub):
+    passed: list = []
+    sink = pub.sink(lambda item, events: passed.append((item, events)))
+    with DeviceSubscriber(pub.address) as sub:
+        pump_until(pub, sub, lambda s: s.pose is not None,
+                   send=lambda: sink("chunk", [pose(1)]))
+        sink("quiet", [])
+        sink("turn", [DialEvent(5_000, 2, 3, 3)])
+        got: list = []
+        pump_until(pub, sub, lambda s: got.extend(s.take_events()) or got)
+    assert got == [DialEvent(5_000, 2, 3, 3)] and sub.dials[2] == 3
+    assert passed[-2:] == [("quiet", []), ("turn", [DialEvent(5_000, 2, 3, 3)])]
+    assert pub.sink()("no next sink", []) is None
+
+
+def test_threads_publishing_at_once_keep_the_dial_stream_whole(pub):
+    per_thread = 300
+    with DeviceSubscriber(pub.address) as sub:
+        pump_until(pub, sub, lambda s: s.state_known)
+        start = threading.Barrier(3)
+
+        def turn(index: int) -> None:
+            start.wait(5.0)
+            for k in range(per_thread):
+                pub.publish_all([DialEvent(k, index, 1, k + 1), pose(k)])
+
+        threads = [threading.Thread(target=turn, args=(i,)) for i in (0, 1)]
+        for t in threads:
+            t.start()
+        start.wait(5.0)
+        while any(t.is_alive() for t in threads):
+            pub.service()  # the consumer thread's part, at the same time
+            sub.poll(0.001)
+        for t in threads:
+            t.join(5.0)
+        got: list = []
+        pump_until(pub, sub, lambda s: got.extend(s.take_events())
+                   or sum(isinstance(e, DialEvent) for e in got) == 2 * per_thread)
+    assert sub.stats.gaps == 0 and sub.stats.malformed == 0 and sub.stats.stale == 0
+    assert tuple(sub.dials[:2]) == (per_thread, per_thread) and sub.seq == 2 * per_thread
+    assert pub.counts["pose"] == 2 * per_thread
