@@ -160,7 +160,6 @@ class DeviceSession:
                                 extra={"program": "holo-devices",
                                        "t0": "start_monotonic_ns"})
         self.t0_ns = self.header.start_monotonic_ns
-        self.readers = [DeviceReader(s, self.hub.put, hooks=h) for s, h in specs]
         self.writer: LogWriter | None = None
         self.publisher: Publisher | None = None
         self.listeners: list[Listener] = []
@@ -169,6 +168,10 @@ class DeviceSession:
         except HoloError:
             self._close_outputs()
             raise
+        # events are published on the reader threads the moment they are decoded;
+        # the hub carries the items on to the recorder, the dump and stderr
+        sink = self.hub.put if self.publisher is None else self.publisher.sink(self.hub.put)
+        self.readers = [DeviceReader(s, sink, hooks=h) for s, h in specs]
 
     def _open_outputs(self, err: TextIO) -> None:
         a = self.args
@@ -177,8 +180,6 @@ class DeviceSession:
             self.listeners.append(recorder_listener(self.writer))
         if a.pub:
             self.publisher = Publisher(a.pub, self.t0_ns, pose_address=a.pub_pose)
-            pub = self.publisher
-            self.listeners.append(lambda item, events: pub.publish_all(events))
         if a.dump:
             self.listeners.append(dump_listener(self.out, self.t0_ns))
         self.listeners.append(stderr_listener(err, self.t0_ns))
