@@ -32,6 +32,7 @@ from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, points_fixed, propagate_points
 from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
+from service.galilean.shadow import shadow_depth, shadow_into
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 from service.scene_motion import rotation_angle
@@ -149,13 +150,22 @@ def render_local(
     t: float, refresh_hz: float, order: int, fixed: FixedPoint, budget_ms: float = np.inf,
     settings: RenderSettings | None = None, margin: int = 0,
     clock: Callable[[], float] | None = None, control: tuple | None = None,
+    shadow: str = "depth",
 ) -> LocalRender:
     """Render ``objects`` (in the given priority order) into a Flinders Street buffer.
 
     Each object is rendered with its obscurers shadow-rendered; objects not started
     before ``budget_ms`` has elapsed (by ``clock``, milliseconds) are left unfinished.
     ``control`` is ``(proj, vertex_object)`` at time ``t`` for the obscurer test.
+    ``shadow="depth"`` renders the object alone and its obscurers depth only
+    (:mod:`.shadow`); ``"full"`` renders them together through the full renderer
+    (colour, light and motion of the obscurers computed and thrown away).  The
+    grafted pixels are the same; on an exact depth tie between the object and an
+    obscurer the depth path gives the pixel to the object, the full render to the
+    triangle it draws first.
     """
+    if shadow not in ("depth", "full"):
+        raise ValueError(f"shadow must be 'depth' or 'full', got {shadow!r}")
     clock = clock or (lambda: time.perf_counter() * 1e3)
     start = clock()
     buffers, finished, unfinished, shadowed = [], [], [], set()
@@ -165,9 +175,13 @@ def render_local(
             continue
         second = obscurers(scene, [i], *control) if control is not None else \
             [k for k in range(len(scene.objects)) if k != i]
-        keep = sorted({int(i), *second})
+        keep = sorted({int(i), *second}) if shadow == "full" else [int(i)]
         sub = render_with_motion(renderer, _subscene(scene, keep), display, t, refresh_hz, settings)
         sub.obj = np.where(sub.obj >= 0, np.asarray(keep, np.int32)[np.maximum(sub.obj, 0)], -1)
+        if shadow == "depth" and second:
+            cs = (settings or RenderSettings()).cull
+            sd, so = shadow_depth(scene, second, display, t, cs)
+            shadow_into(sub.frame.colour, sub.frame.depth, sub.obj, sd, so)
         buffers.append(flinders_buffer(sub, [i], order, fixed, margin))
         finished.append(int(i))
         shadowed.update(second)
