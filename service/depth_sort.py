@@ -14,7 +14,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def average_z(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Average z of each polygon's vertices.
 
@@ -75,7 +75,7 @@ def triangle_order(polygon_order: np.ndarray, triangle_polygon: np.ndarray) -> n
     )
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _triangle_order(polygon_order: np.ndarray, triangle_polygon: np.ndarray) -> np.ndarray:
     """Numba body of :func:`triangle_order`."""
     n_poly = triangle_polygon.max() + 1 if triangle_polygon.size else 0

@@ -175,7 +175,7 @@ def pack_lights(lights: list[Light]) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return lvec, lpoint, lrgb
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _power(base: float, n: float) -> float:
     """``base ** n``; whole exponents up to 4096 use integer powering (10x faster)."""
     if n <= 4096.0 and n == np.floor(n):
@@ -183,7 +183,7 @@ def _power(base: float, n: float) -> float:
     return base**n
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _light_rgb(
     px: float,
     py: float,
@@ -240,14 +240,14 @@ def _light_rgb(
     return min(max(cr, 0.0), 1.0), min(max(cg, 0.0), 1.0), min(max(cb, 0.0), 1.0)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _facing(normals: np.ndarray, p: int, v: np.ndarray) -> float:
     """+1 if face normal ``normals[p]`` faces the view vector ``v`` (3,), else -1."""
     d = normals[p, 0] * v[0] + normals[p, 1] * v[1] + normals[p, 2] * v[2]
     return 1.0 if d >= 0.0 else -1.0
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _store(
     out: np.ndarray, z: int, r: int, c: int, rgb: tuple, scale: float, offset: float
 ) -> None:
@@ -256,7 +256,7 @@ def _store(
         out[z, r, c, ch] = np.float64(np.float32(rgb[ch])) * scale + offset
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _mark(tri_map: np.ndarray, item: np.ndarray, n_items: int) -> np.ndarray:
     """Which items each zone shows: (Z, n_items) bool, ``item`` (T,) maps triangles."""
     zones, rows, cols = tri_map.shape
@@ -270,7 +270,7 @@ def _mark(tri_map: np.ndarray, item: np.ndarray, n_items: int) -> np.ndarray:
     return needed
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _polygon_table(
     vertices: np.ndarray,
     polygons: np.ndarray,
@@ -310,7 +310,7 @@ def _polygon_table(
             out[z, p, ch] = rgb[ch]
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _corner_table(
     vertices: np.ndarray,
     triangles: np.ndarray,
@@ -349,7 +349,7 @@ def _corner_table(
                 out[z, t, k, ch] = rgb[ch]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _barycentric(pz: np.ndarray, a: int, b: int, c: int, x: float, y: float) -> tuple:
     """Barycentric weights of (x, y) in the projected triangle of vertices a, b, c.
 
@@ -370,7 +370,7 @@ def _barycentric(pz: np.ndarray, a: int, b: int, c: int, x: float, y: float) -> 
     return w0 / tot, w1 / tot, w2 / tot
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _gather(
     tri_map: np.ndarray,
     tri_poly: np.ndarray,
@@ -399,7 +399,7 @@ def _gather(
                 _store(out, z, r, c, rgb, scale, offset)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _gouraud_pixels(
     tri_map: np.ndarray,
     proj: np.ndarray,
@@ -430,7 +430,7 @@ def _gouraud_pixels(
             _store(out, z, r, c, rgb, scale, offset)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _point_pixels(
     tri_map: np.ndarray,
     depth: np.ndarray,

@@ -6,7 +6,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def corner_normals_kernel(
     vertices: np.ndarray,
     triangles: np.ndarray,

@@ -14,7 +14,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def triangle_setup(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, rows: int) -> tuple:
     """Prepare a projected triangle for :func:`row_span`.
 
@@ -54,13 +54,13 @@ def triangle_setup(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, rows: int) ->
     return (True, r_first, r_last, ax, ay, bx, by, cx, cy, dz0, dzdx, dzdy)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _edge_x(x0: float, y0: float, x1: float, y1: float, y: float) -> float:
     """X where the edge (x0, y0)-(x1, y1) (with y0 < y1) crosses the line at y."""
     return x0 + (x1 - x0) * (y - y0) / (y1 - y0)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def row_span(
     ax: float, ay: float, bx: float, by: float, cx: float, cy: float, r: int, cols: int
 ) -> tuple:
@@ -85,7 +85,7 @@ def row_span(
     return c_first, c_last
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def zbuffer_kernel(
     proj: np.ndarray,
     tris: np.ndarray,
@@ -127,7 +127,7 @@ def zbuffer_kernel(
                         tri_out[z, r, c] = t
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def painter_kernel(
     proj: np.ndarray,
     tris: np.ndarray,

@@ -120,7 +120,7 @@ def fingerprint(vertices: np.ndarray, triangles: np.ndarray, tri_ids: np.ndarray
     return h.digest()
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _rand(state: np.ndarray, n: int) -> int:
     """Next xorshift64 draw in ``0..n-1``; ``state`` (1,) uint64 is advanced."""
     x = state[0]
@@ -131,7 +131,7 @@ def _rand(state: np.ndarray, n: int) -> int:
     return int(x % np.uint64(n))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _plane(t: np.ndarray) -> tuple:
     """Unit normal (3,), offset and twice the area of a triangle (3, 3)."""
     e1x, e1y, e1z = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
@@ -144,7 +144,7 @@ def _plane(t: np.ndarray) -> tuple:
     return n, n[0] * t[0, 0] + n[1] * t[0, 1] + n[2] * t[0, 2], length
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _side(t: np.ndarray, n: np.ndarray, d: float, eps: float) -> int:
     """0 on the plane, 1 in front, 2 behind, 3 straddling (a corner each side)."""
     pos = neg = False
@@ -155,7 +155,7 @@ def _side(t: np.ndarray, n: np.ndarray, d: float, eps: float) -> int:
     return (1 if pos else 0) + (2 if neg else 0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _choose(pv: np.ndarray, seg: np.ndarray, eps: float, state: np.ndarray) -> int:
     """Splitter among a few random fragments of ``seg``: fewest splits, then balance."""
     m = seg.size
@@ -175,7 +175,7 @@ def _choose(pv: np.ndarray, seg: np.ndarray, eps: float, state: np.ndarray) -> i
     return best
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _clip(t: np.ndarray, n: np.ndarray, d: float, eps: float) -> tuple:
     """Split a triangle (3, 3) by a plane into front and back convex polygons.
 
@@ -207,7 +207,7 @@ def _clip(t: np.ndarray, n: np.ndarray, d: float, eps: float) -> tuple:
     return fr, nf, bk, nb_
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _grow_i(a: np.ndarray, need: int) -> np.ndarray:
     """Int array (n,) with room for ``need`` entries (capacity doubles)."""
     if need <= a.shape[0]:
@@ -218,7 +218,7 @@ def _grow_i(a: np.ndarray, need: int) -> np.ndarray:
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _grow_f(a: np.ndarray, need: int) -> np.ndarray:
     """Float array (n, 3) with room for ``need`` rows (capacity doubles)."""
     if need <= a.shape[0]:
@@ -230,7 +230,7 @@ def _grow_f(a: np.ndarray, need: int) -> np.ndarray:
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _grow_t(a: np.ndarray, need: int) -> np.ndarray:
     """Float array (n, 3, 3) with room for ``need`` rows (capacity doubles)."""
     if need <= a.shape[0]:
@@ -242,7 +242,7 @@ def _grow_t(a: np.ndarray, need: int) -> np.ndarray:
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _emit(
     poly: np.ndarray,
     k: int,
@@ -270,7 +270,7 @@ def _emit(
     return n_pool, n_out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _partition(
     seg: np.ndarray,
     pv: np.ndarray,
@@ -309,7 +309,7 @@ def _partition(
     return on[:n_on], fr[:n_fr], bk[:n_bk], n_pool, splits
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _build_kernel(tv: np.ndarray, keep: np.ndarray, eps: float, seed: int) -> tuple:
     """Build the tree depth first with an explicit stack (no recursion limit).
 
@@ -416,7 +416,7 @@ def build_bsp(
     return tree
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def traverse_kernel(
     front: np.ndarray,
     back: np.ndarray,

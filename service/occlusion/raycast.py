@@ -53,7 +53,7 @@ TILE = 16
 """Side of a binning tile in pixels."""
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _edge(
     ax: float, ay: float, az: float, bx: float, by: float, bz: float, ox: float, oy: float, t: float
 ) -> float:
@@ -67,7 +67,7 @@ def _edge(
     return t * (uy * bz - az * vy) + (ux * vy - uy * vx)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _claims_zero_edge(ex: float, ey: float, sign: float) -> bool:
     """Whether a triangle claims pixel centres lying exactly on one of its edges.
 
@@ -82,7 +82,7 @@ def _claims_zero_edge(ex: float, ey: float, sign: float) -> bool:
     return -sign * ex > 0.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _box(
     tri: np.ndarray, t: float, geom: np.ndarray, rows: int, cols: int, out: np.ndarray
 ) -> None:
@@ -104,7 +104,7 @@ def _box(
     out[3] = min(int(np.floor(min(max(x1, -2.0), cols + 2.0) - 0.5)) + 1, cols - 1)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _setup(wv: np.ndarray, shears: np.ndarray, geom: np.ndarray, rows: int, cols: int) -> tuple:
     """Per zone and triangle: orientation, edge claims, depth plane, pixel bounding box.
 
@@ -152,7 +152,7 @@ def _setup(wv: np.ndarray, shears: np.ndarray, geom: np.ndarray, rows: int, cols
     return sign, claim, plane, box
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _bin(sign: np.ndarray, box: np.ndarray, ty: int, tx: int) -> tuple:
     """Bin triangles into tiles per zone, keeping their input order within each tile.
 
@@ -187,7 +187,7 @@ def _bin(sign: np.ndarray, box: np.ndarray, ty: int, tx: int) -> tuple:
     return start, items
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _hit(
     wv: np.ndarray, i: int, sg: float, claim: np.ndarray, ox: float, oy: float, t: float
 ) -> bool:
@@ -200,7 +200,7 @@ def _hit(
     return True
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _cast(
     wv: np.ndarray,
     rank: np.ndarray,

@@ -97,7 +97,7 @@ def occluded(row: list[int], step: int, stepspace: int = 1, tracker: int = 0) ->
     return False, ref2 + 1
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _occluded(row: np.ndarray, step: int, tracker: int) -> tuple[bool, int]:
     """Numba twin of :func:`occluded` with stepspace 1; ``row`` shape (cap,)."""
     if row[0] == SENTINEL:
@@ -143,7 +143,7 @@ def _occluded(row: np.ndarray, step: int, tracker: int) -> tuple[bool, int]:
     return False, ref2 + 1
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def runlength_kernel(
     proj: np.ndarray,
     tris: np.ndarray,
