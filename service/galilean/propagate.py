@@ -242,7 +242,9 @@ def sweep(
                         d += o_zm[0, p] + 0.5 * o_zm[1, p] + o_zm[2, p] / 6.0
                     qc = (x + half) >> fp
                     qr = (y + half) >> fp
-                if n_deb[p] == 1 and (qr != r or qc != c):  # debris arm (own place free)
+                # debris arm (own place free): for an old galpixel that moved away,
+                # and for old debris, which keeps the colour it last showed
+                if n_deb[p] == 1 and (not galpixel or qr != r or qc != c):
                     n_col[0, p] = o_col[0, p]
                     n_col[1, p] = o_col[1, p]
                     n_col[2, p] = o_col[2, p]
@@ -1410,8 +1412,7 @@ def finish(
                         expanded += 1
                         continue
                 left += 1
-                if o_deb[p] == 1:  # as in sweep: the debris arm runs for galpixels only
-                    continue
+                # debris arm (also for old debris: it keeps the colour it last showed)
                 c0[p] = o0[p]
                 c1[p] = o1[p]
                 c2[p] = o2[p]

@@ -245,3 +245,28 @@ def test_full_out_of_view_buffering_brings_in_what_was_outside():
     outs = [st.refresh() for _ in range(6)]
     assert where(outs[0], (200, 100, 0)) == []
     assert len(where(outs[5], (200, 100, 0))) > 0
+
+
+def test_debris_keeps_the_colour_it_last_showed_not_the_spare_buffers():
+    """Old debris stays debris with its last displayed colour (G(0) fallback), never
+    whatever the spare buffer held from two refreshes before."""
+    disp = DisplaySettings(zones=1, cols=8, rows=6)
+    st = GalileanStage(disp, GalileanSettings(order=2, poisson=False))
+    red = st.map.copy()
+    red.colour[0] = 255.0
+    red.depth[:] = 1.0
+    red.debris[:] = 0
+    red.obj[:] = 0
+    assert st.submit(red, 0)
+    st.refresh()
+    st.refresh()  # the spare buffer now holds the red map
+    blue = red.copy()
+    blue.colour[:] = 0.0
+    blue.colour[2] = 255.0
+    blue.debris[0, 2, 3] = 1  # debris that shows blue
+    assert st.submit(blue, 2)
+    out = st.refresh()
+    assert tuple(out.colour[0, 2, 3]) == (0, 0, 255) and out.debris[0, 2, 3]
+    for _ in range(3):
+        out = st.refresh()
+        assert tuple(out.colour[0, 2, 3]) == (0, 0, 255) and out.debris[0, 2, 3]
