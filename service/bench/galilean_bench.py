@@ -47,7 +47,9 @@ from service.galilean.fixed_point import (
     points_fixed,
     propagate_points,
 )
+from service.galilean.local_update import obscurers, render_local
 from service.galilean.motion_field import render_with_motion
+from service.galilean.shadow import shadow_depth
 from service.galilean.stage import GalileanSettings, GalileanStage, margin_display
 from service.light import LightSettings
 from service.pipeline import Renderer, RenderSettings, warm_up
@@ -280,6 +282,86 @@ def timing(size: tuple[int, int], settings: RenderSettings, repeats: int = 15) -
     return out
 
 
+def shadow_timing(size: tuple[int, int], settings: RenderSettings, repeats: int = 7) -> dict:
+    """Milliseconds of a local update's shadow render, depth only against the full renderer.
+
+    Scene: the sweeping bar in front of the studded wall at ``size``; the local
+    update re-renders the wall (object 0), whose obscurers (bar and studs) are
+    shadow-rendered.  Interleaved, median of ``repeats``:
+
+    * ``shadow_depth_ms``: :func:`service.galilean.shadow.shadow_depth` of the obscurers;
+    * ``render_ms``: a full :meth:`Renderer.render` of the same obscurers;
+    * ``render_with_motion_ms``: what the full path computed for them (colour,
+      light, motion);
+    * ``local_depth_ms`` / ``local_full_ms``: the whole ``render_local`` both ways.
+    """
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    scene, r = bar_scene(), Renderer()
+    fixed = FixedPoint.for_order(bit_budget(max(size), 16, 16), 2)
+    ctl = control_points(scene, 0.0, display)
+    second = obscurers(scene, [0], *ctl)
+    sub = Scene([scene.objects[i] for i in second], list(scene.lights), scene.ambient)
+    jobs = {
+        "shadow_depth_ms": lambda: shadow_depth(scene, second, display, 0.0, settings.cull),
+        "render_ms": lambda: r.render(sub, display, settings),
+        "render_with_motion_ms": lambda: render_with_motion(r, sub, display, 0.0, HZ, settings),
+        "local_depth_ms": lambda: render_local(r, scene, display, [0], 0.0, HZ, 2, fixed,
+                                               settings=settings, control=ctl, shadow="depth"),
+        "local_full_ms": lambda: render_local(r, scene, display, [0], 0.0, HZ, 2, fixed,
+                                              settings=settings, control=ctl, shadow="full"),
+    }
+    times: dict[str, list[float]] = {k: [] for k in jobs}
+    for f in jobs.values():
+        f()
+    for _ in range(repeats):
+        for k, f in jobs.items():
+            t0 = time.perf_counter()
+            f()
+            times[k].append((time.perf_counter() - t0) * 1e3)
+    out = {"size": f"{size[0]}x{size[1]}", "obscurers": len(second)}
+    out.update({k: float(np.median(v)) for k, v in times.items()})
+    out["render_over_shadow"] = out["render_ms"] / out["shadow_depth_ms"]
+    out["render_with_motion_over_shadow"] = out["render_with_motion_ms"] / out["shadow_depth_ms"]
+    return out
+
+
+def chart_timing(tm: dict, path: Path) -> None:
+    """Bar chart: ms per refresh per order against the render of the same frame."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(tm["orders"])
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.bar(keys, [tm["orders"][k]["ms_per_refresh"] for k in keys], label="refresh (median)")
+    ren = float(np.median([tm["orders"][k]["render_ms"] for k in keys]))
+    ax.axhline(ren, color="C3", label=f"render of the frame ({ren:.1f} ms)")
+    ax.axhline(ren / 10, color="C3", ls="--", label="render / 10")
+    if "shadow" in tm:
+        ax.axhline(tm["shadow"]["shadow_depth_ms"], color="C2", ls=":",
+                   label="depth-only shadow render of the obscurers")
+    ax.set_ylabel(f"ms at {tm['size']}")
+    ax.tick_params(axis="x", labelrotation=30)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def run_timing(out: Path, time_size: tuple[int, int]) -> dict:
+    """``--timing``: refresh vs render and shadow vs full render; JSON, CSV and PNG."""
+    out.mkdir(parents=True, exist_ok=True)
+    settings = RenderSettings(light=LightSettings("blinn"))
+    warm_up(settings)
+    tm = timing(time_size, settings)
+    tm["shadow"] = shadow_timing(time_size, settings)
+    (out / "galilean_timing.json").write_text(json.dumps(tm, indent=1))
+    write_rows([{"key": k, **v} for k, v in tm["orders"].items()], out / "galilean_timing.csv")
+    chart_timing(tm, out / "galilean_timing.png")
+    return tm
+
+
 def thought_experiments() -> dict:
     """The paper's numbers, for the record and the charts."""
     fall = {f"G{o}_K{k}": run_case(CASES["falling"](), o, k, 10).errors(True).tolist()
@@ -448,12 +530,11 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
     var = variants(display, frames, settings)
     te = thought_experiments()
     print("galilean sweep: timing", file=sys.stderr, flush=True)
-    tm = timing(time_size, settings)
+    tm = run_timing(out, time_size)
     doc = {"size": f"{size[0]}x{size[1]}", "frames": frames, "refresh_hz": HZ,
            "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": var,
            "thought_experiments": te}
     (out / "galilean_sweep.json").write_text(json.dumps(doc, indent=1))
-    (out / "galilean_timing.json").write_text(json.dumps(tm, indent=1))
     write_rows(rows, out / "galilean_sweep.csv")
     write_rows(var, out / "galilean_variants.csv")
     chart_sweep(rows, out / "galilean_sweep.png")
@@ -471,6 +552,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=10)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--sweep", action="store_true", help="run the full sweep into --out")
+    p.add_argument("--timing", action="store_true",
+                   help="only the --time-size timing (refresh, render, shadow) into --out")
     p.add_argument("--out", default="bench-out")
     p.add_argument("--size", default="160x120", help="sweep render size")
     p.add_argument("--sweep-frames", type=int, default=33)
@@ -478,6 +561,9 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.interval < 1 or args.frames < 1:
         p.error("--interval and --frames must be >= 1")
+    if args.timing:
+        print(json.dumps(run_timing(Path(args.out), parse_size(args.time_size)), indent=1))
+        return 0
     if args.sweep:
         run_sweep(Path(args.out), parse_size(args.size), args.sweep_frames,
                   parse_size(args.time_size))

@@ -72,7 +72,8 @@ def shadow_depth(
     if not keep_obj:
         return depth, tri
     sub = Scene([scene.objects[i] for i in keep_obj], list(scene.lights), scene.ambient)
-    arrays = scene_at(sub, t, viewer, viewer_motion).flatten()
+    moved = sub if t == 0.0 and viewer is None else scene_at(sub, t, viewer, viewer_motion)
+    arrays = moved.flatten()
     if arrays.triangles.shape[0] == 0:
         return depth, tri
     proj = project(arrays.vertices, display)
@@ -86,8 +87,8 @@ def shadow_depth(
     )
     zbuffer_kernel(proj, arrays.triangles, np.ascontiguousarray(order), draw, tri, depth)
     owner = np.asarray(keep_obj, np.int32)[arrays.polygon_object[arrays.triangle_polygon]]
-    obj = np.where(tri >= 0, owner[np.maximum(tri, 0)], -1).astype(np.int32)
-    return depth, obj
+    # one gather: triangle -1 (empty) reads the appended -1
+    return depth, np.append(owner, np.int32(-1))[tri]
 
 
 def shadow_into(
