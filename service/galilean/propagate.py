@@ -124,7 +124,7 @@ def _target(src: tuple, p: int, r: int, c: int, order: int, fp: int, fm: int) ->
     m, zm = src[3], src[4]
     x = (np.int64(c) << fp) + src[2][0, p]
     y = (np.int64(r) << fp) + src[2][1, p]
-    d = src[1][p]
+    d = np.float64(src[1][p])
     sh = fm - fp
     vx = vy = ax = ay = np.int64(0)
     if order == 1:
@@ -205,7 +205,7 @@ def sweep(
                 if galpixel:
                     x = (np.int64(c) << fp) + o_frac[0, p]
                     y = (np.int64(r) << fp) + o_frac[1, p]
-                    d = o_dep[p]
+                    d = np.float64(o_dep[p])  # every order sums depth in float64
                     vx = vy = ax = ay = np.int64(0)
                     if order == 1:
                         vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
@@ -515,7 +515,7 @@ def scatter(
                     z0 = o_zm[0, p]
                     x += (vx + (1 << (sh - 1))) >> sh
                     y += (vy + (1 << (sh - 1))) >> sh
-                    d = np.float64(o_dep[p] + z0)  # float32 sum, as in sweep
+                    d += z0  # in float64, as every order (G(1) once summed in float32)
                 elif order == 2:
                     vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
                     ax, ay = np.int64(o_mot[2, p]), np.int64(o_mot[3, p])
@@ -740,7 +740,7 @@ def scatter_runs(
                         qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                         fxb[i] = x - (((x + half) >> fp) << fp)
                         fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = o_dep[p] + o_zm[0][p]  # a float32 sum, as in sweep
+                        db[i] = np.float64(o_dep[p]) + o_zm[0][p]  # float64, as in sweep
                         vxb[i] = vx
                         vyb[i] = vy
                 elif order == 2:
@@ -1004,7 +1004,7 @@ def scatter_bands(
                             qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                             fxb[i] = x - (((x + half) >> fp) << fp)
                             fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = o_dep[p] + o_zm[0][p]  # a float32 sum, as in sweep
+                            db[i] = np.float64(o_dep[p]) + o_zm[0][p]  # float64, as in sweep
                             vxb[i] = vx
                             vyb[i] = vy
                     elif order == 2:

@@ -13,7 +13,16 @@ import pytest
 from service.display import DisplaySettings
 from service.galilean.galpixmap import Galpixmap
 from service.galilean.poisson import EXPANSION_MODES
-from service.galilean.propagate import STAT_NAMES, flat, second_sweep, sweep
+from service.galilean.propagate import (
+    STAT_NAMES,
+    flat,
+    map_reach,
+    planes,
+    reach_of,
+    scatter_bands,
+    second_sweep,
+    sweep,
+)
 from service.galilean.stage import GalileanSettings, GalileanStage
 from service.scene import MotionState
 
@@ -191,3 +200,32 @@ def test_fast_refresh_is_bit_identical_at_page_sized_planes() -> None:
             st.submit(gp.copy(), 0)
         for k in range(4):
             assert_identical(fast, ref, k)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None:
+    """scatter_bands: any band count with a motion bound gives the one-band result."""
+    display = DisplaySettings(zones=2, cols=40, rows=30)
+    st = GalileanStage(display, GalileanSettings(order=order))
+    old = random_map(st, np.random.default_rng(7 + order))
+    reach = map_reach(old.motion, st.fixed.fm)
+    results = []
+    for bands, r in [(1, st.shape[1]), (2, reach), (3, reach), (5, reach)]:
+        new = Galpixmap.empty(order, st.fixed, st.shape, True)
+        src = np.full(new.depth.size, -7, np.int32)
+        stats, out = np.zeros((bands, 3), np.int64), np.zeros((bands, 3), np.int64)
+        scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
+                      st.fixed.fp, st.fixed.fm, 4, True, r, bands, stats, out)
+        results.append((new, src, stats.sum(0), out.max(0)))
+    first = results[0]
+    for new, src, stats, top in results[1:]:
+        for u, v in zip(new.arrays(), first[0].arrays(), strict=True):
+            assert same(u, v)
+        assert same(src, first[1]) and (stats == first[2]).all() and (top == first[3]).all()
+    # the bound tracked for the next refresh is that of the motion written
+    new = first[0]
+    written = np.abs(new.motion[1::2][:, new.debris == 0].astype(np.int64)).max(axis=1)
+    assert (first[3][:order] == written).all()
+    assert reach_of(*first[3], st.fixed.fm) == map_reach(
+        np.where(new.debris == 0, new.motion, 0), st.fixed.fm
+    )
