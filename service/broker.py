@@ -7,7 +7,8 @@ each job goes to the worker idle the longest; its reply makes it ready again.
 Idle workers repeat ``READY`` every heartbeat; one not heard from for three is
 forgotten.  A worker that dies mid-job simply never answers: the requester's
 deadline expires and it resends the job, which goes to another worker
-(:class:`BandClient`).  ``ROUTER_MANDATORY`` makes a send to a vanished worker an
+(:class:`FramePipe` for whole-frame jobs, the default; :class:`BandClient` for
+bands of one update).  ``ROUTER_MANDATORY`` makes a send to a vanished worker an
 error, so the broker drops it and tries the next one.
 """
 
@@ -17,6 +18,7 @@ import json
 import threading
 import time
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -223,7 +225,84 @@ class BandClient:
         except Exception:  # noqa: BLE001 - a garbled reply counts as no reply
             return
         if head.get("ok") and head.get("job") == job_id and isinstance(head.get("arrays"), dict):
-            got.setdefault(int(head["band"]), head["arrays"])
+            got.setdefault(int(head["band"]), {**head["arrays"], "_stats": head.get("stats", {})})
+
+    def close(self) -> None:
+        """Close the socket (LINGER 0)."""
+        self.sock.close(0)
+
+
+@dataclass
+class Flight:
+    """A whole-frame job sent through the broker and not answered yet."""
+
+    job: dict[str, Any]
+    arrays: list[np.ndarray]
+    meta: Any
+    sent_at: float
+    attempt: int = 0
+
+
+class FramePipe:
+    """Whole-frame jobs through the broker, several in flight (pipelining).
+
+    Each job renders one update (all hololines) for its own rendezvous; with N
+    workers the render thread keeps up to N in flight, so N renders overlap instead
+    of N bands of one render each repeating the whole-scene work.  Replies are
+    matched on ``(job, attempt)``; a reply to an attempt that was given up on is
+    dropped (its rendezvous was re-aimed, so the late render is never grafted).
+
+    Parameters
+    ----------
+    context : zmq.Context
+    address : str
+        The broker's frontend.
+    timeout_s : float
+        Deadline of one attempt; past it the job is handed back by :meth:`expired`.
+    """
+
+    def __init__(self, context: zmq.Context, address: str, timeout_s: float = 5.0) -> None:
+        self.sock = context.socket(zmq.DEALER)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.connect(address)
+        self.timeout_s = timeout_s
+        self.flights: dict[int, Flight] = {}
+        self.max_in_flight = 0
+
+    def send(
+        self, job: dict[str, Any], arrays: list[np.ndarray], meta: Any, attempt: int = 0
+    ) -> None:
+        """Send one job (``job["job"]`` is its id) for all rows; ``meta`` comes back with it."""
+        head = {**job, "band": 0, "attempt": attempt}
+        wire.send(self.sock, [b"", *wire.encode(head, arrays)], 1000)
+        self.flights[int(job["job"])] = Flight(job, arrays, meta, time.monotonic(), attempt)
+        self.max_in_flight = max(self.max_in_flight, len(self.flights))
+
+    def poll(self, timeout_ms: int) -> list[tuple[Flight, dict[str, Any]]]:
+        """Replies that arrived within ``timeout_ms``: (its flight, reply header with arrays)."""
+        done = []
+        wait = timeout_ms
+        while self.sock.poll(wait):
+            wait = 0
+            frames = self.sock.recv_multipart(copy=False)
+            try:
+                head = protocol.parse_reply([f.buffer for f in frames])
+            except Exception:  # noqa: BLE001 - a garbled reply counts as no reply
+                continue
+            flight = self.flights.get(head.get("job")) if isinstance(head.get("job"), int) else None
+            if flight is None or head.get("attempt") != flight.attempt:
+                continue  # a reply to an attempt already given up on
+            del self.flights[head["job"]]
+            done.append((flight, head))
+        return done
+
+    def expired(self) -> list[Flight]:
+        """Jobs past their deadline (removed: the caller resends or gives up)."""
+        now = time.monotonic()
+        late = [f for f in self.flights.values() if now - f.sent_at > self.timeout_s]
+        for f in late:
+            del self.flights[int(f.job["job"])]
+        return late
 
     def close(self) -> None:
         """Close the socket (LINGER 0)."""

@@ -36,6 +36,13 @@ def build_parser() -> argparse.ArgumentParser:
         "own process, where numba kernels hold the GIL and delay refreshes)",
     )
     ap.add_argument(
+        "--split",
+        choices=("frames", "bands"),
+        default="frames",
+        help="with workers: each renders whole updates for successive rendezvous, several "
+        "in flight (frames), or every worker a band of hololines of each update (bands)",
+    )
+    ap.add_argument(
         "--worker-address",
         default="tcp://127.0.0.1:5557",
         help="broker backend address workers connect to",
@@ -91,6 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             refresh_hz=args.refresh,
             curve_keys=args.curve_keys,
             render_timeout_s=args.render_timeout,
+            split=args.split,
             max_update_hz=args.max_update_hz,
             scene=args.scene,
             display=DisplaySettings(args.zones, args.angle, args.cols, args.rows),

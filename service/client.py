@@ -25,6 +25,7 @@ scene again.  No pickle anywhere.
 from __future__ import annotations
 
 import itertools
+import secrets
 import time
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,15 @@ from service.errors import MessageError, ServiceError, ServiceUnavailableError
 from service.scene import Scene, SceneObject
 
 LINGER_MS = 0
+
+
+class RequestTooLargeError(ServiceError):
+    """A request breaks a size cap of the service; it was not sent.
+
+    Raised before sending, so a request the service would refuse, or one past
+    ``ZMQ_MAXMSGSIZE`` that libzmq would answer by dropping the connection, never
+    leaves the client.  Its ``code`` is ``too_large``.
+    """
 
 
 def _curve_client(sock: zmq.Socket, keys_dir: str | Path | None) -> None:
@@ -87,6 +97,11 @@ class ServiceClient:
         self.restarted = False
         self.reconnects = 0
         self.last_reply_t = 0.0
+        #: random per client; with the request ``id`` it lets the service answer a
+        #: resend from its reply cache instead of applying the request twice.
+        self.client_id = secrets.token_hex(8)
+        #: the service's size caps (from ``hello``; version 1 defaults before it).
+        self.limits = protocol.DEFAULT_LIMITS
 
     # ------------------------------------------------------------ transport
     def _open(self) -> zmq.Socket:
@@ -114,9 +129,15 @@ class ServiceClient:
             On an error reply.
         ServiceUnavailableError
             When no reply came within ``timeout_s`` after every retry.
+        RequestTooLargeError
+            When the request breaks a size cap (nothing is sent).
         """
         rid = next(self._ids)
-        frames = protocol.request(msg_type, rid, fields)
+        frames = protocol.request(msg_type, rid, {**fields, "client_id": self.client_id})
+        try:
+            protocol.check_request_size(frames, self.limits)
+        except MessageError as exc:
+            raise RequestTooLargeError(exc.code, f"{msg_type}: {exc.message}; not sent") from exc
         for _attempt in range(self.retries + 1):
             if self._sock is None:
                 self._sock = self._open()
@@ -160,6 +181,8 @@ class ServiceClient:
         if self.session is not None and got["session"] != self.session:
             self.restarted = True
         self.session = got["session"]
+        if isinstance(got.get("limits"), dict):
+            self.limits = protocol.Limits.from_dict(got["limits"])
         return got
 
     def ping(self) -> dict[str, Any]:

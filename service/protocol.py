@@ -38,6 +38,13 @@ MESSAGE_TYPES = (
     "stats",
     "shutdown",
 )
+#: requests that change the service's state: a resend of one (same ``client_id``
+#: and ``id``) is answered from the reply cache instead of being applied again.
+MUTATING_TYPES = ("load_scene", "load_object", "update_objects", "set_viewer", "set_display")
+#: replies remembered for resends: at most this many, for this many seconds.
+REPLY_CACHE_SIZE = 1024
+REPLY_CACHE_S = 60.0
+
 ERROR_CODES = (
     "bad_frames",
     "bad_json",
@@ -57,9 +64,18 @@ ERROR_CODES = (
 
 @dataclass(frozen=True)
 class Limits:
-    """Size caps of version 1 (``docs/protocol.md`` section 1.6)."""
+    """Size caps of version 1 (``docs/protocol.md`` section 1.6).
+
+    ``max_message_bytes`` is the control socket's ``ZMQ_MAXMSGSIZE``: libzmq
+    closes the connection of a peer that sends a frame bigger than that, before
+    the service sees the message, so no reply is possible.  Every cap the service
+    answers with a ``too_large`` reply (``max_header_bytes``, ``max_array_bytes``,
+    ``max_request_bytes``) is well below it.
+    """
 
     max_message_bytes: int = 256 << 20
+    max_array_bytes: int = 128 << 20
+    max_request_bytes: int = 160 << 20
     max_frames: int = 2 + wire.MAX_ARRAYS
     max_header_bytes: int = 1 << 20
     max_string: int = 4096
@@ -72,6 +88,12 @@ class Limits:
     def as_dict(self) -> dict[str, int]:
         """The limits as the ``hello`` reply lists them."""
         return dict(self.__dict__)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Limits:
+        """Limits from a ``hello`` reply (unknown keys ignored, missing ones default)."""
+        known = {k: int(v) for k, v in d.items() if k in cls.__dataclass_fields__}
+        return cls(**known)
 
 
 DEFAULT_LIMITS = Limits()
@@ -180,7 +202,13 @@ def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, An
             )
         if "id" in header and partial["id"] is None:
             raise MessageError("bad_message", "id must be an int or a string of <= 64 chars")
-        arrays = wire.decode_arrays(header.pop("arrays", None), body[1:], limits.max_message_bytes)
+        total = sum(memoryview(b).nbytes for b in body)
+        if total > limits.max_request_bytes:
+            raise MessageError(
+                "too_large",
+                f"request has {total} bytes (max {limits.max_request_bytes} in all frames)",
+            )
+        arrays = wire.decode_arrays(header.pop("arrays", None), body[1:], limits.max_array_bytes)
         return wire.resolve(header, arrays)
     except MessageError as exc:
         exc.partial = partial  # type: ignore[attr-defined]
@@ -222,6 +250,33 @@ def request(msg_type: str, request_id: Any, fields: dict[str, Any] | None = None
     body, arrays = wire.extract(fields or {})
     header = {"v": VERSION, "type": msg_type, "id": request_id, **body}
     return [b"", *wire.encode(header, arrays)]
+
+
+def check_request_size(frames: list[Any], limits: Limits | None = None) -> None:
+    """Raise ``MessageError("too_large")`` when request frames break a size cap.
+
+    ``frames`` as :func:`request` makes them (empty delimiter, header, buffers).
+    Clients call it before sending, so a request the service would refuse (or
+    libzmq would drop with the connection, past ``ZMQ_MAXMSGSIZE``) never leaves.
+    """
+    limits = limits or DEFAULT_LIMITS
+    body = frames[1:] if frames and len(frames[0]) == 0 else frames
+    sizes = [memoryview(f).nbytes for f in body]
+    if len(body) > limits.max_frames:
+        raise MessageError("too_large", f"{len(body)} frames (max {limits.max_frames})")
+    if sizes and sizes[0] > limits.max_header_bytes:
+        raise MessageError(
+            "too_large", f"header has {sizes[0]} bytes (max {limits.max_header_bytes})"
+        )
+    for i, n in enumerate(sizes[1:]):
+        if n > limits.max_array_bytes:
+            raise MessageError(
+                "too_large", f"arrays[{i}] has {n} bytes (max {limits.max_array_bytes})"
+            )
+    if sum(sizes) > limits.max_request_bytes:
+        raise MessageError(
+            "too_large", f"request has {sum(sizes)} bytes (max {limits.max_request_bytes})"
+        )
 
 
 def parse_reply(frames: list[Any]) -> dict[str, Any]:

@@ -23,7 +23,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -33,7 +33,7 @@ import numpy as np
 import zmq
 
 from service import protocol, wire
-from service.broker import BandClient, Broker, split_rows
+from service.broker import BandClient, Broker, Flight, FramePipe, split_rows
 from service.display import DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
@@ -42,7 +42,7 @@ from service.keys import curve_server, is_local, start_authenticator
 from service.pipeline import Renderer
 from service.scene import MotionState, Scene, Transform, euler_quaternion
 from service.scene_motion import advance_scene
-from service.worker import render_band, stitch
+from service.worker import StatsRenderer, render_job, stitch
 
 ENCODINGS = ("colour", "depth", "debris")
 METHODS = ("zbuffer", "runlength", "bsp", "raycast")
@@ -68,6 +68,9 @@ class ServiceConfig:
     pose_scale: float = 0.001
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
+    #: with workers: ``frames`` (each worker renders whole updates for successive
+    #: rendezvous, several in flight) or ``bands`` (every worker a band of each update).
+    split: str = "frames"
 
 
 @dataclass(frozen=True)
@@ -127,6 +130,68 @@ class Ready:
     scene_version: int = 0
 
 
+class ReplyCache:
+    """Replies to recent mutating requests, so that a resend is not applied twice.
+
+    The key is ``(client_id, id)`` when the request carries a ``client_id`` (the
+    library sends a random one per :class:`~service.client.ServiceClient`, so a Lazy
+    Pirate resend on a fresh socket still matches), else ``(ROUTER identity, id)``
+    (a resend on the same connection only).  Requests without an ``id`` and
+    non-mutating types are not cached.  At most ``size`` replies, each for
+    ``ttl_s`` seconds (``docs/protocol.md`` 1.7).
+    """
+
+    def __init__(
+        self, size: int = protocol.REPLY_CACHE_SIZE, ttl_s: float = protocol.REPLY_CACHE_S
+    ) -> None:
+        self.size, self.ttl_s = size, ttl_s
+        self._items: OrderedDict[tuple, tuple[float, list[Any]]] = OrderedDict()
+
+    @staticmethod
+    def key(envelope: list[bytes], req: dict[str, Any]) -> tuple | None:
+        """The cache key of a parsed request, or None when it is not cached."""
+        if req["type"] not in protocol.MUTATING_TYPES or req.get("id") is None:
+            return None
+        cid = req.get("client_id")
+        if isinstance(cid, str) and 0 < len(cid) <= 64:
+            return ("client", cid, req["type"], req["id"])
+        return ("conn", envelope[0], req["type"], req["id"])
+
+    def get(self, key: tuple | None) -> list[Any] | None:
+        """The remembered reply frames (without the envelope), or None."""
+        if key is None:
+            return None
+        self._expire()
+        got = self._items.get(key)
+        return None if got is None else got[1]
+
+    def put(self, key: tuple, frames: list[Any]) -> None:
+        """Remember a reply (header and buffers, without the routing envelope)."""
+        self._items[key] = (time.monotonic(), [bytes(f) for f in frames])
+        self._items.move_to_end(key)
+        while len(self._items) > self.size:
+            self._items.popitem(last=False)
+
+    def _expire(self) -> None:
+        now = time.monotonic()
+        while self._items and now - next(iter(self._items.values()))[0] > self.ttl_s:
+            self._items.popitem(last=False)
+
+
+@dataclass
+class Aim:
+    """A render about to be made: its job, the snapshot it renders and its rendezvous."""
+
+    render_id: int
+    job: dict[str, Any]
+    scene: Scene
+    settings: Settings
+    scene_version: int
+    rendezvous: int
+    fixed: Any
+    t0: int
+
+
 class Counters:
     """Service statistics (thread-safe enough: ints and deques)."""
 
@@ -143,6 +208,7 @@ class Counters:
                 "requests",
                 "errors",
                 "refresh_overruns",
+                "resends_answered",
             ),
             0,
         )
@@ -202,9 +268,12 @@ class Service:
         # (next refresh index, its time, settings generation, stage fixed-point, order)
         self._clock: tuple = (0, time.monotonic(), -1, None, 2)
         self.band_retries = 0
+        self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
+        self._pipe: FramePipe | None = None
         self.last_render_error = ""
         self.last_refresh_error = ""
         self.clients: dict[bytes, float] = {}
+        self.replies = ReplyCache()
         self._threads: list[threading.Thread] = []
         self.workers: list[subprocess.Popen] = []
         self.broker: Broker | None = None
@@ -312,9 +381,16 @@ class Service:
         self.counters.n["requests"] += 1
         self.clients[envelope[0]] = time.monotonic()
         rid = mtype = None
+        key = None
         try:
             req = protocol.parse_request(body, self.limits)
             rid, mtype = req.get("id"), req["type"]
+            key = self.replies.key(envelope, req)
+            cached = self.replies.get(key)
+            if cached is not None:  # a resend (Lazy Pirate): the same answer, not applied twice
+                self.counters.n["resends_answered"] += 1
+                self._send([*envelope, *cached])
+                return
             out = self.handlers[mtype](req)
             if out is None:  # answered later (render)
                 self._waiting.append(
@@ -330,6 +406,8 @@ class Service:
         except Exception as exc:  # noqa: BLE001 - every request gets a reply
             code = _error_code(exc)
             frames_out = self._error(envelope, rid, mtype, code, f"{type(exc).__name__}: {exc}")
+        if key is not None:
+            self.replies.put(key, frames_out[len(envelope) :])
         self._send(frames_out)
 
     def _error(
@@ -486,6 +564,9 @@ class Service:
             workers=self.broker.info() if self.broker else None,
             worker_pids=[p.pid for p in self.workers],
             band_retries=self.band_retries,
+            render_retries=self.band_retries,
+            split=self.config.split if self.broker is not None else "in_process",
+            max_in_flight=self._pipe.max_in_flight if self._pipe is not None else None,
             last_render_error=self.last_render_error,
             last_refresh_error=self.last_refresh_error,
             session=self.session,
@@ -514,7 +595,7 @@ class Service:
             fresh = [w for w in self._waiting if done[1] >= w[3][0] and done[3] >= w[3][1]]
             self._waiting = [w for w in self._waiting if w not in fresh]
             for envelope, rid, _t, _mark in fresh:
-                self._send(_render_reply(envelope, rid, done[:3]))
+                self._send(_render_reply(envelope, rid, done))
         limit = self.config.render_timeout_s * 4 + 5
         now = time.monotonic()
         for item in [w for w in self._waiting if now - w[2] > limit]:
@@ -527,7 +608,10 @@ class Service:
 
     # -------------------------------------------------------- render thread
     def _render_loop(self) -> None:
-        renderer = Renderer()
+        if self.broker is not None and self.config.split == "frames":
+            self._pipeline_loop()
+            return
+        renderer = StatsRenderer()
         bands = None
         if self.broker is not None:
             bands = BandClient(
@@ -550,21 +634,24 @@ class Service:
             if bands is not None:
                 bands.close()
 
-    def _render_once(self, renderer: Renderer, bands: BandClient | None, render_id: int) -> bool:
+    def _aim(self, render_id: int) -> Aim | None:
+        """Snapshot the scene and aim a render at a rendezvous after every earlier one."""
         with self.state.lock:
             scene, scene_t, settings = self.state.scene, self.state.scene_t, self.state.settings
             viewer = self.state.viewer.render_spec()
-            mark = (settings.generation, self.state.scene_version)
+            version = self.state.scene_version
         if scene is None or not scene.objects:
-            return False
+            return None
         index, t_index, gen, fixed, order = self._clock
         if gen != settings.generation:
-            return False
+            return None
         hz = settings.refresh_hz
         lead = _lead_s(self.counters.render_ms)
         rendezvous = index + math.ceil(lead * hz) + 1
+        if gen == self._last_aim[0]:
+            rendezvous = max(rendezvous, self._last_aim[1] + 1)  # one render per rendezvous
+        self._last_aim = (gen, rendezvous)
         t_target = t_index + (rendezvous - index) / hz
-        t0 = time.monotonic_ns()
         job = {
             "job": render_id,
             "t": t_target - scene_t,
@@ -572,48 +659,141 @@ class Service:
             "display": settings.as_dict(),
             "render": settings.as_dict(),
             "viewer": viewer,
+            "order": order,
         }
-        got = self._run_job(renderer, bands, {**job, "order": order}, scene, settings, fixed)
-        self.counters.render_ms.append((time.monotonic_ns() - t0) / 1e6)
+        return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns())
+
+    def _render_once(self, renderer: Renderer, bands: BandClient | None, render_id: int) -> bool:
+        aim = self._aim(render_id)
+        if aim is None:
+            return False
+        got = self._run_job(renderer, bands, aim)
         if got is None:
+            self.counters.render_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
             self.counters.n["render_failures"] += 1
             return False
-        rendered, buf = got
-        self.counters.n["renders"] += 1
-        self._ready.append(
-            Ready(render_id, settings.generation, rendezvous, buf, rendered, t0, mark[1])
-        )
-        self._render_results.put((render_id, t0, rendered.frame, mark))
+        self._finish(aim, *got)
         return True
 
-    def _run_job(
-        self,
-        renderer: Renderer,
-        bands: BandClient | None,
-        job: dict,
-        scene: Scene,
-        settings: Settings,
-        fixed: Any,
-    ) -> Any:
-        motion = MotionState(
-            **{
-                k: np.asarray(v)
-                for k, v in (job["viewer"] or {}).items()
-                if k in wire.MOTION_FIELDS
-            }
+    def _finish(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict[str, Any]) -> None:
+        """Stitch a finished render, hand it to the refresh thread and to render requests."""
+        t_stitch = time.perf_counter()
+        rendered, buf = stitch(parts, _viewer_motion(aim.job), aim.fixed, aim.job["order"])
+        wall = (time.monotonic_ns() - aim.t0) / 1e6
+        self.counters.render_ms.append(wall)
+        stats = {
+            **stats,
+            "wall_ms": round(wall, 3),
+            "stitch_ms": round((time.perf_counter() - t_stitch) * 1e3, 3),
+            "rendezvous": aim.rendezvous,
+        }
+        self.counters.n["renders"] += 1
+        self._ready.append(
+            Ready(
+                aim.render_id,
+                aim.settings.generation,
+                aim.rendezvous,
+                buf,
+                rendered,
+                aim.t0,
+                aim.scene_version,
+            )
         )
+        mark = (aim.settings.generation, aim.scene_version)
+        self._render_results.put((aim.render_id, aim.t0, rendered.frame, mark, stats))
+
+    def _run_job(
+        self, renderer: Renderer, bands: BandClient | None, aim: Aim
+    ) -> tuple[list[dict[str, np.ndarray]], dict[str, Any]] | None:
+        """Render in process or as bands through the broker: (parts, stats) or None."""
+        job, settings = aim.job, aim.settings
         try:
             if bands is None:
                 job["rows"] = [0, settings.display.rows]
-                return stitch([render_band(renderer, job, scene)], motion, fixed, job["order"])
-            spec, arrays = wire.extract(wire.scene_to_wire(scene))
+                out, stats = render_job(renderer, job, aim.scene)
+                return [out], {**stats, "mode": "in_process"}
+            spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
             n = max(1, len(self.broker.ready) + len(self.broker.busy), self.config.workers)
             got = bands.run({**job, "scene": spec}, arrays, split_rows(settings.display.rows, n))
             self.band_retries = bands.resent
-            return None if got is None else stitch(got, motion, fixed, job["order"])
+            if got is None:
+                return None
+            per_band = [g.pop("_stats", {}) for g in got]
+            return got, {"mode": "bands", "method": settings.method, "bands": per_band}
         except (HoloError, ValueError) as exc:
             self.last_render_error = str(exc)
             return None
+
+    # ------------------------------------------------- pipelined whole frames
+    def _capacity(self) -> int:
+        """Renders to keep in flight: one per worker the broker knows (at least one)."""
+        b = self.broker
+        return max(1, len(b.ready) + len(b.busy)) if b is not None else 1
+
+    def _spacing_s(self, capacity: int) -> float:
+        """Time between dispatches: a render's time over the workers (and the cap)."""
+        cap = 1.0 / self.config.max_update_hz if self.config.max_update_hz > 0 else 0.0
+        recent = list(self.counters.render_ms)[-20:]
+        spread = float(np.median(recent)) / 1e3 / capacity if recent else 0.0
+        return max(cap, spread)
+
+    def _pipeline_loop(self) -> None:
+        """Whole-frame renders for successive rendezvous, one in flight per worker."""
+        pipe = FramePipe(self.ctx, "inproc://holo-broker", self.config.render_timeout_s)
+        self._pipe = pipe
+        render_id, next_start = 0, 0.0
+        try:
+            while not self._stop.is_set():
+                capacity = self._capacity()
+                now = time.monotonic()
+                if len(pipe.flights) < capacity and now >= next_start:
+                    aim = self._aim(render_id)
+                    if aim is None:
+                        next_start = now + 0.02
+                    else:
+                        self._dispatch(pipe, aim, 0)
+                        render_id += 1
+                        next_start = now + self._spacing_s(capacity)
+                full = len(pipe.flights) >= capacity
+                wait = 50 if full else min(50, max(0, int((next_start - now) * 1000)))
+                for flight, head in pipe.poll(wait):
+                    self._landed(flight, head)
+                for flight in pipe.expired():
+                    self._retry(pipe, flight)
+        finally:
+            pipe.close()
+
+    def _dispatch(self, pipe: FramePipe, aim: Aim, attempt: int) -> None:
+        spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
+        job = {**aim.job, "rows": [0, aim.settings.display.rows], "scene": spec}
+        pipe.send(job, arrays, aim, attempt)
+
+    def _landed(self, flight: Flight, head: dict[str, Any]) -> None:
+        """A worker's whole-frame reply: stitch and hand it on (or count the failure)."""
+        if not head.get("ok") or not isinstance(head.get("arrays"), dict):
+            self.counters.n["render_failures"] += 1
+            self.last_render_error = str(head.get("error", "bad worker reply"))
+            return
+        stats = {**(head.get("stats") or {}), "mode": "frames", "attempt": flight.attempt}
+        try:
+            self._finish(flight.meta, [head["arrays"]], stats)
+        except (HoloError, ValueError, KeyError) as exc:
+            self.counters.n["render_failures"] += 1
+            self.last_render_error = f"{type(exc).__name__}: {exc}"
+
+    def _retry(self, pipe: FramePipe, flight: Flight) -> None:
+        """A job past its deadline (its worker died or stalled): re-aim it and resend.
+
+        The resend is aimed at a new rendezvous from the present, so the render is
+        never grafted late; after 3 resends the render counts as failed.
+        """
+        self.band_retries += 1
+        aim = self._aim(flight.meta.render_id) if flight.attempt < 3 else None
+        if aim is None:
+            self.counters.n["render_failures"] += 1
+            self.last_render_error = f"render {flight.meta.render_id}: no worker answered"
+            return
+        self._dispatch(pipe, aim, flight.attempt + 1)
 
     # ------------------------------------------------------- refresh thread
     def _refresh_loop(self) -> None:
@@ -756,13 +936,19 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
     return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
 
 
+def _viewer_motion(job: dict[str, Any]) -> MotionState:
+    """The viewer's motion a job was rendered with (for the Galilean stage)."""
+    spec = job.get("viewer") or {}
+    return MotionState(**{k: np.asarray(v) for k, v in spec.items() if k in wire.MOTION_FIELDS})
+
+
 def _render_reply(envelope: list[bytes], rid: Any, done: tuple) -> list[Any]:
-    render_id, t0, frame = done
+    render_id, t0, frame, _mark, stats = done
     return protocol.reply(
         envelope,
         rid,
         "render",
-        {"render_id": render_id, "t_ns": t0, "stats": {}},
+        {"render_id": render_id, "t_ns": t0, "stats": stats},
         [frame.colour, frame.depth],
         ["colour", "depth"],
     )

@@ -1,8 +1,9 @@
-"""Render workers: one band of hololines of one update, in its own process.
+"""Render workers: one update (a whole frame, or a band of its hololines), in its own process.
 
 A worker connects a DEALER to the broker's backend (``service/broker.py``), says
 ``READY`` (and again every heartbeat while idle, so the broker can forget dead
-ones), and answers each job with the band's arrays.  A job is a JSON header plus
+ones), and answers each job with the arrays of its rows (all of them for a
+whole-frame job, the default) and the render's stats.  A job is a JSON header plus
 the scene's buffers (``docs/protocol.md`` array rules, no pickle)::
 
     {"job": 12, "band": 1, "attempt": 0, "rows": [60, 120], "t": 0.25,
@@ -36,7 +37,7 @@ from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.light import LightSettings
-from service.pipeline import Renderer, RenderSettings
+from service.pipeline import Renderer, RenderSettings, StageClock
 from service.scene import (
     Light,
     MotionState,
@@ -110,8 +111,42 @@ def viewer_from(spec: dict[str, Any] | None) -> tuple[Transform | None, MotionSt
     return pose, motion
 
 
+class StatsRenderer(Renderer):
+    """A :class:`Renderer` that keeps its last visibility pass's timings and counts.
+
+    ``render_with_motion`` runs one visibility pass per render; its per-stage
+    milliseconds and polygon counts go into the render reply's stats.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.last_ms: dict[str, float] = {}
+        self.last_counts: dict[str, int] = {}
+
+    def visibility(self, arrays, display, settings, clock=None):  # noqa: ANN001, ANN201
+        """As :meth:`Renderer.visibility`, noting per-stage ms and polygon counts."""
+        ms: dict[str, float] = {}
+        out = super().visibility(arrays, display, settings, clock or StageClock(ms))
+        self.last_ms = ms
+        self.last_counts = {k: int(v) for k, v in out[1].items()}
+        return out
+
+
 def render_band(renderer: Renderer, job: dict[str, Any], scene: Scene) -> dict[str, np.ndarray]:
-    """Render one job's band and build its galpixmap (order ``job["order"]``).
+    """Render one job's band and build its galpixmap (see :func:`render_job`)."""
+    return render_job(renderer, job, scene)[0]
+
+
+def render_job(
+    renderer: Renderer, job: dict[str, Any], scene: Scene
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Render one job's rows (a band, or the whole frame) and build its galpixmap.
+
+    The galpixmap uses order ``job["order"]``.  The stats are those of the render
+    reply (``docs/protocol.md`` 1.5): ``ms`` per stage (``project``, ``cull``,
+    ``sort``, ``occlusion`` of the visibility pass; ``motion``: the whole render
+    with its four difference renders; ``galpixmap``; ``total``), ``polygons``
+    (``in``, ``culled``, ``kept``, ``drawn``), ``method`` and ``rows``.
 
     Returns
     -------
@@ -127,6 +162,7 @@ def render_band(renderer: Renderer, job: dict[str, Any], scene: Scene) -> dict[s
     viewer, motion = viewer_from(job.get("viewer"))
     rows = (int(job["rows"][0]), int(job["rows"][1]))
     scene, band, viewer = band_setup(scene, display, rows, viewer)
+    t0 = time.perf_counter()
     up = render_with_motion(
         renderer,
         scene,
@@ -137,13 +173,23 @@ def render_band(renderer: Renderer, job: dict[str, Any], scene: Scene) -> dict[s
         viewer,
         motion,
     )
+    t1 = time.perf_counter()
     out = {"colour": up.frame.colour, "depth": up.frame.depth}
     gp = _galpixmap(up, display, int(job.get("order", 2)))
     out.update({f"gp_{k}": getattr(gp, k) for k in GALPIXMAP_FIELDS})
     if rows[0] == 0 and up.points is not None:
         out["points"] = up.points
         out["point_derivs"] = up.point_derivs
-    return out
+    t2 = time.perf_counter()
+    ms = dict(getattr(renderer, "last_ms", {}))
+    ms.update(motion=(t1 - t0) * 1e3, galpixmap=(t2 - t1) * 1e3, total=(t2 - t0) * 1e3)
+    stats = {
+        "ms": {k: round(v, 3) for k, v in ms.items()},
+        "polygons": dict(getattr(renderer, "last_counts", {})),
+        "method": job["render"]["method"],
+        "rows": list(rows),
+    }
+    return out, stats
 
 
 def _galpixmap(up: RenderedUpdate, display: DisplaySettings, order: int) -> Galpixmap:
@@ -184,14 +230,15 @@ def handle_job(renderer: Renderer, body: list[Any]) -> list[Any]:
         job = protocol.parse_reply(body)
         arrays = job.pop("arrays", [])
         spec = wire.resolve(job.pop("scene"), arrays if isinstance(arrays, list) else [])
-        out = render_band(renderer, job, wire.scene_from_wire(spec))
+        out, stats = render_job(renderer, job, wire.scene_from_wire(spec))
         names = list(out)
         head = {
             "job": job["job"],
-            "band": job["band"],
+            "band": job.get("band", 0),
             "attempt": job.get("attempt", 0),
             "ok": True,
             "pid": os.getpid(),
+            "stats": {**stats, "pid": os.getpid()},
         }
         return wire.encode(head, [out[n] for n in names], names)
     except Exception as exc:  # noqa: BLE001 - a bad job must not kill the worker
@@ -224,7 +271,7 @@ class Worker:
         self.sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 3000)
         _curve_client(self.sock, curve_keys)
         self.sock.connect(address)
-        self.renderer = Renderer()
+        self.renderer = StatsRenderer()
         self.jobs = 0
 
     def _ready(self) -> None:

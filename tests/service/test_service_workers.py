@@ -56,3 +56,22 @@ def test_worker_killed_mid_render(service_factory):
             return got is not None and got[0]["render_id"] >= header["render_id"]
 
         assert wait_until(fresh_frame, 20), "frames stopped after the worker died"
+
+
+def test_workers_render_whole_frames_in_flight_together(service_factory):
+    """Two workers keep two whole-frame renders in flight (pipelining), not two bands."""
+    svc = service_factory(
+        "--scene", "game", "--zones", "2", "--cols", "64", "--rows", "48",
+        "--workers", "2", "--refresh", "30",
+    )  # fmt: skip
+    with ServiceClient(svc.control, timeout_s=5) as c:
+        assert wait_until(lambda: c.stats()["updates"] >= 4, 90), "workers never rendered"
+        assert wait_until(lambda: (c.stats()["max_in_flight"] or 0) >= 2, 60), "never 2 in flight"
+        st = c.stats()
+        assert st["split"] == "frames"
+        # one job per render (bands would dispatch two per render)
+        assert st["workers"]["dispatched"] <= st["renders"] + st["render_retries"] + 2
+        header, arrays = c.render_once()
+        assert header["stats"]["mode"] == "frames" and header["stats"]["rows"] == [0, 48]
+        assert header["stats"]["polygons"]["in"] > 0
+        assert arrays["colour"].shape == (2, 48, 64, 3)
