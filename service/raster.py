@@ -163,3 +163,153 @@ def painter_kernel(
                 for c in range(c0, c1 + 1):
                     depth_out[z, r, c] = st[9] + st[10] * (c + 0.5) + st[11] * y
                     tri_out[z, r, c] = ids[t]
+
+
+@nb.njit(cache=True, nogil=True)
+def shared_rows(proj: np.ndarray, tris: np.ndarray, order: np.ndarray, rows: int) -> tuple:
+    """Rows each triangle may cover, the same in every zone (zones differ only in x).
+
+    Parameters
+    ----------
+    proj : ndarray, shape (Z, V, 3)
+        Row coordinates ``proj[:, :, 1]`` equal in every zone; zone 0's are read.
+    tris : ndarray, shape (T, 3)
+    order : ndarray, shape (N,)
+    rows : int
+
+    Returns
+    -------
+    r_first, r_last : ndarray, shape (N,), int64
+        For ``order[i]``, the rows :func:`triangle_setup` gives in every zone
+        (``r_first > r_last`` when none; non-finite rows give none, as the setup
+        rejects such a triangle).
+    """
+    n = order.shape[0]
+    r_first = np.empty(n, np.int64)
+    r_last = np.empty(n, np.int64)
+    p0 = proj[0]
+    for i in range(n):
+        t = order[i]
+        y0, y1, y2 = p0[tris[t, 0], 1], p0[tris[t, 1], 1], p0[tris[t, 2], 1]
+        lo = min(y0, min(y1, y2))
+        hi = max(y0, max(y1, y2))
+        if np.isfinite(lo) and np.isfinite(hi):
+            r_first[i] = max(int(np.ceil(lo - 0.5)), 0)
+            r_last[i] = min(int(np.ceil(hi - 0.5)) - 1, rows - 1)
+        else:
+            r_first[i] = 0
+            r_last[i] = -1
+    return r_first, r_last
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _zbuffer_band(
+    proj: np.ndarray,
+    tris: np.ndarray,
+    order: np.ndarray,
+    draw_t: np.ndarray,
+    extent: tuple,
+    lo: int,
+    hi: int,
+    tri_out: np.ndarray,
+    depth_out: np.ndarray,
+) -> None:
+    """Clear rows ``lo..hi`` of every zone and z-buffer the triangles that reach them."""
+    zones, rows, cols = tri_out.shape
+    r_first, r_last = extent
+    for z in range(zones):
+        for r in range(lo, hi + 1):
+            for c in range(cols):
+                tri_out[z, r, c] = -1
+                depth_out[z, r, c] = np.inf
+    for i in range(order.shape[0]):
+        if r_last[i] < lo or r_first[i] > hi:
+            continue  # the y-extent is shared: skip the triangle in every zone at once
+        t = order[i]
+        for z in range(zones):
+            if not draw_t[t, z]:
+                continue
+            pz = proj[z]
+            st = triangle_setup(pz[tris[t, 0]], pz[tris[t, 1]], pz[tris[t, 2]], rows)
+            if not st[0]:
+                continue
+            for r in range(max(st[1], lo), min(st[2], hi) + 1):
+                c0, c1 = row_span(st[3], st[4], st[5], st[6], st[7], st[8], r, cols)
+                y = r + 0.5
+                for c in range(c0, c1 + 1):
+                    d = st[9] + st[10] * (c + 0.5) + st[11] * y
+                    if d < depth_out[z, r, c]:
+                        depth_out[z, r, c] = d
+                        tri_out[z, r, c] = t
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def zbuffer_zones_kernel(
+    proj: np.ndarray,
+    tris: np.ndarray,
+    order: np.ndarray,
+    draw_t: np.ndarray,
+    bands: np.ndarray,
+    tri_out: np.ndarray,
+    depth_out: np.ndarray,
+) -> None:
+    """Z-buffer every zone in one pass over the triangles, bands of rows in parallel.
+
+    Zones are sheared parallel projections that differ only in x, so a triangle
+    covers the same rows (hololines) in every zone: its row extent is found once
+    (:func:`shared_rows`) and each band of rows draws it into every zone.  Per zone
+    and triangle the arithmetic is :func:`zbuffer_kernel`'s, in the same order, so
+    the buffers are bit-identical to it.
+
+    Parameters
+    ----------
+    proj : ndarray, shape (Z, V, 3)
+        ``proj[:, :, 1]`` must be equal in every zone.
+    tris : ndarray, shape (T, 3)
+    order : ndarray, shape (N,)
+        Triangles to draw, in drawing order.
+    draw_t : ndarray, shape (T, Z), bool
+        Per triangle, the zones it may be drawn in (the transpose of
+        :func:`service.cull.zone_mask`).
+    bands : ndarray, shape (B, 2), int64
+        First and last row of each band; together they cover every row once.  Bands
+        run in parallel in the order given (interleave them to share the work).
+    tri_out : ndarray, shape (Z, R, C), int32
+        Out; need not be initialised (-1 where empty).
+    depth_out : ndarray, shape (Z, R, C), float32
+        Out; need not be initialised (+inf where empty).
+    """
+    extent = shared_rows(proj, tris, order, tri_out.shape[1])
+    for b in nb.prange(bands.shape[0]):
+        _zbuffer_band(
+            proj, tris, order, draw_t, extent, bands[b, 0], bands[b, 1], tri_out, depth_out
+        )
+
+
+def row_bands(rows: int, threads: int, per_thread: int = 4) -> np.ndarray:
+    """Bands of rows for :func:`zbuffer_zones_kernel`, interleaved across threads.
+
+    Numba hands each thread a contiguous run of loop iterations, so band ``i`` of
+    the result is chosen to give each thread every ``threads``-th band of the
+    screen: a scene crowded in one part of the screen still loads all threads.
+
+    Parameters
+    ----------
+    rows : int
+    threads : int
+        Threads the kernel will use (>= 1).
+    per_thread : int
+        Bands per thread; more balance the load better, fewer set up triangles
+        that cross a band edge fewer times.
+
+    Returns
+    -------
+    ndarray, shape (B, 2), int64
+        ``[first_row, last_row]`` of each band.
+    """
+    n = max(1, min(rows, threads * per_thread))
+    edges = np.linspace(0, rows, n + 1).astype(np.int64)
+    bands = np.stack([edges[:-1], edges[1:] - 1], axis=1)
+    bands = bands[bands[:, 0] <= bands[:, 1]]
+    perm = np.concatenate([np.arange(k, bands.shape[0], threads) for k in range(threads)])
+    return np.ascontiguousarray(bands[perm])

@@ -1,13 +1,26 @@
-"""Occlusion by a z-buffer per view zone (numba kernel, zones in parallel)."""
+"""Occlusion by a z-buffer per view zone (numba kernels).
+
+The default path draws every zone in one pass over the triangles
+(:func:`service.raster.zbuffer_zones_kernel`, bands of rows in parallel): a triangle's
+rows are the same in every zone, so that work is shared.  A projection whose rows
+differ between zones (not one :func:`service.projection.project` makes) takes the
+per-zone kernel; both give bit-identical buffers.
+"""
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
 from service.occlusion import Visibility
-from service.raster import zbuffer_kernel
+from service.raster import row_bands, zbuffer_kernel, zbuffer_zones_kernel
 from service.scene import SceneArrays
+
+
+def rows_shared(proj: np.ndarray) -> bool:
+    """Whether every zone of ``proj`` (Z, V, 3) puts each vertex on the same row."""
+    return bool(np.array_equal(proj[:, :, 1], np.broadcast_to(proj[:1, :, 1], proj.shape[:2])))
 
 
 def zbuffer(
@@ -16,6 +29,7 @@ def zbuffer(
     display: DisplaySettings,
     order: np.ndarray,
     draw: np.ndarray | None = None,
+    shared: bool = True,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -30,15 +44,26 @@ def zbuffer(
     draw : ndarray, shape (Z, T), bool, optional
         Per zone, the triangles that may be drawn (default: all in ``order``); see
         :func:`service.cull.zone_mask`.
+    shared : bool
+        Draw all zones in one pass (default); False runs the per-zone kernel (the
+        reference the one-pass kernel is tested against).
 
     Returns
     -------
     Visibility
         Ties in depth go to the triangle drawn first.
     """
-    vis = Visibility.empty(display.zones, display.rows, display.cols)
+    zrc = (display.zones, display.rows, display.cols)
+    order = np.ascontiguousarray(order)
     if draw is None:
         draw = np.ones((display.zones, scene.triangles.shape[0]), np.bool_)
-    order = np.ascontiguousarray(order)
-    zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
+    if not (shared and rows_shared(proj)):
+        vis = Visibility.empty(*zrc)
+        zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
+        return vis
+    vis = Visibility(np.empty(zrc, np.int32), np.empty(zrc, np.float32))
+    bands = row_bands(display.rows, nb.get_num_threads())
+    zbuffer_zones_kernel(
+        proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle, vis.depth
+    )
     return vis

@@ -1,0 +1,97 @@
+"""The one-pass multi-zone z-buffer equals the per-zone kernel bit for bit."""
+
+import numpy as np
+import pytest
+
+from service.cull import CullSettings, cull, zone_mask
+from service.depth_sort import average_z, sort_polygons, triangle_order
+from service.display import DisplaySettings
+from service.occlusion.zbuffer import rows_shared, zbuffer
+from service.projection import project
+from service.raster import row_bands, shared_rows, triangle_setup
+from service.scenes import builtin_scene
+
+
+def inputs(name: str, display: DisplaySettings, per_zone: bool = True):
+    arrays = builtin_scene(name).flatten()
+    proj = project(arrays.vertices, display)
+    settings = CullSettings(per_zone=per_zone)
+    keep, _ = cull(arrays.normals, display, settings)
+    order = triangle_order(
+        sort_polygons(average_z(arrays.vertices, arrays.polygons, arrays.counts), keep),
+        arrays.triangle_polygon,
+    )
+    draw = zone_mask(
+        arrays.triangle_polygon, arrays.normals, arrays.polygon_closed, display, settings
+    )
+    return arrays, proj, order, draw
+
+
+def assert_same(a, b):
+    assert np.array_equal(a.triangle, b.triangle)
+    assert np.array_equal(a.depth, b.depth)  # +inf == +inf; no NaN is ever stored
+
+
+@pytest.mark.parametrize("name", ["game", "cyclic", "threaded", "sphere-torus", "demo"])
+@pytest.mark.parametrize(
+    ("zones", "angle"), [(1, 0.0), (2, 16.0), (5, 16.0), (5, 60.0), (9, 32.0), (16, 60.0)]
+)
+def test_one_pass_equals_per_zone(name, zones, angle):
+    d = DisplaySettings(zones=zones, angle_deg=angle, cols=160, rows=120)
+    arrays, proj, order, draw = inputs(name, d)
+    one = zbuffer(arrays, proj, d, order, draw)
+    per_zone = zbuffer(arrays, proj, d, order, draw, shared=False)
+    assert (one.triangle >= 0).any()
+    assert_same(one, per_zone)
+
+
+@pytest.mark.parametrize("rows", [1, 7, 240])
+def test_one_pass_at_full_size_and_odd_heights(rows):
+    d = DisplaySettings(zones=5, angle_deg=16.0, cols=320, rows=rows)
+    arrays, proj, order, draw = inputs("game", d, per_zone=False)
+    assert_same(
+        zbuffer(arrays, proj, d, order, draw), zbuffer(arrays, proj, d, order, draw, shared=False)
+    )
+
+
+def test_rows_that_differ_between_zones_take_the_per_zone_kernel():
+    d = DisplaySettings(zones=3, angle_deg=16.0, cols=80, rows=60)
+    arrays, proj, order, draw = inputs("threaded", d)
+    assert rows_shared(proj)
+    proj = proj.copy()
+    proj[1, :, 1] += 3.0  # not a projection project() makes: zone 1 shifted down 3 rows
+    assert not rows_shared(proj)
+    got = zbuffer(arrays, proj, d, order, draw)
+    want = zbuffer(arrays, proj, d, order, draw, shared=False)
+    assert_same(got, want)
+    assert not np.array_equal(got.triangle[1], got.triangle[0])
+
+
+def test_shared_rows_match_the_setup_of_every_zone():
+    d = DisplaySettings(zones=5, angle_deg=60.0, cols=160, rows=120)
+    arrays, proj, order, _ = inputs("game", d)
+    r_first, r_last = shared_rows(proj, arrays.triangles, order, d.rows)
+    for z in range(d.zones):
+        for i in range(0, order.size, 7):
+            t = order[i]
+            st = triangle_setup(*(proj[z, arrays.triangles[t, k]] for k in range(3)), d.rows)
+            if st[0]:
+                assert (st[1], st[2]) == (r_first[i], r_last[i])
+
+
+def test_non_finite_vertices_are_skipped_as_the_setup_skips_them():
+    d = DisplaySettings(zones=5, angle_deg=16.0, cols=80, rows=60)
+    arrays, proj, order, draw = inputs("threaded", d)
+    proj = proj.copy()
+    proj[:, arrays.triangles[order[0], 0], :] = np.nan
+    proj[:, arrays.triangles[order[1], 1], 1] = np.inf
+    assert_same(
+        zbuffer(arrays, proj, d, order, draw), zbuffer(arrays, proj, d, order, draw, shared=False)
+    )
+
+
+@pytest.mark.parametrize(("rows", "threads"), [(1, 1), (1, 4), (7, 2), (120, 1), (240, 2)])
+def test_row_bands_cover_every_row_once(rows, threads):
+    bands = row_bands(rows, threads)
+    covered = np.concatenate([np.arange(a, b + 1) for a, b in bands])
+    assert np.array_equal(np.sort(covered), np.arange(rows))
