@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
@@ -40,8 +41,31 @@ class CullSettings:
             raise SettingsError(f"cull must be one of {sorted(CULLS)}, got {self.mode!r}")
 
 
+@nb.njit(cache=True, nogil=True)
+def _rows_any(a: np.ndarray) -> np.ndarray:
+    """``np.any(a, axis=1)`` for a (N, K) bool array (numpy's is slow for small K)."""
+    out = np.zeros(a.shape[0], np.bool_)
+    for i in range(a.shape[0]):
+        for k in range(a.shape[1]):
+            if a[i, k]:
+                out[i] = True
+                break
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _zone_mask_kernel(
+    triangle_polygon: np.ndarray, faces: np.ndarray, closed: np.ndarray, out: np.ndarray
+) -> None:
+    """``out[z, t] = faces[p, z] or not closed[p]`` with ``p = triangle_polygon[t]``."""
+    for t in range(triangle_polygon.shape[0]):
+        p = triangle_polygon[t]
+        for z in range(out.shape[0]):
+            out[z, t] = faces[p, z] or not closed[p]
+
+
 def _modified(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
-    return np.any(normals @ display.view_vectors().T > 0.0, axis=1)
+    return _rows_any(normals @ display.view_vectors().T > 0.0)
 
 
 def _plain(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
@@ -75,7 +99,7 @@ def cull(
         ``{"in": P, "culled": ..., "kept": ...}``.
     """
     settings = settings or CullSettings()
-    keep = CULLS[settings.mode](normals, display) & np.any(normals != 0.0, axis=1)
+    keep = CULLS[settings.mode](normals, display) & _rows_any(normals != 0.0)
     kept = int(keep.sum())
     return keep, {"in": int(normals.shape[0]), "culled": int(normals.shape[0] - kept), "kept": kept}
 
@@ -110,5 +134,11 @@ def zone_mask(
     if not settings.per_zone:
         return np.ones((display.zones, triangle_polygon.shape[0]), dtype=bool)
     faces = normals @ display.view_vectors().T > 0.0  # (P, Z)
-    poly_ok = faces | ~closed[:, None]
-    return np.ascontiguousarray(poly_ok[triangle_polygon].T)
+    out = np.empty((display.zones, triangle_polygon.shape[0]), np.bool_)
+    _zone_mask_kernel(
+        np.ascontiguousarray(triangle_polygon),
+        faces,
+        np.ascontiguousarray(closed, np.bool_),
+        out,
+    )
+    return out

@@ -131,8 +131,9 @@ class _Packed:
         Model code from :data:`MODELS`.
     background : ndarray, shape (3,), float64
         Background colour in [0, 1].
-    affine : ndarray, shape (Z, 4, 3)
-        :func:`_unproject_affine` of the display.
+    affine : ndarray, shape (Z, 4, 3), or None
+        :func:`_unproject_affine` of the display (only the ``point`` evaluation
+        uses it; None otherwise).
     scale, offset : float
         Output value = float32(colour) * scale + offset: (255, 0.5) into uint8
         (the store truncates, so this rounds), (1, 0) into float32.
@@ -143,7 +144,7 @@ class _Packed:
     ambient: float
     code: int
     background: np.ndarray
-    affine: np.ndarray
+    affine: np.ndarray | None
     scale: float
     offset: float
 
@@ -257,8 +258,21 @@ def _store(
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def _mark(tri_map: np.ndarray, item: np.ndarray, n_items: int) -> np.ndarray:
-    """Which items each zone shows: (Z, n_items) bool, ``item`` (T,) maps triangles."""
+def mark_shown(tri_map: np.ndarray, item: np.ndarray, n_items: int) -> np.ndarray:
+    """Which items each zone shows.
+
+    Parameters
+    ----------
+    tri_map : ndarray, shape (Z, R, C), int32
+        Triangle seen at each pixel (-1 where empty), as ``Visibility.triangle``.
+    item : ndarray, shape (T,)
+        Item of each triangle (e.g. ``SceneArrays.triangle_polygon``), < ``n_items``.
+    n_items : int
+
+    Returns
+    -------
+    ndarray, shape (Z, n_items), bool
+    """
     zones, rows, cols = tri_map.shape
     needed = np.zeros((zones, n_items), np.bool_)
     for i in nb.prange(zones * rows):
@@ -282,32 +296,41 @@ def _polygon_table(
     lights: tuple,
     ambient: float,
     code: int,
+    quant: tuple,
     out: np.ndarray,
 ) -> None:
-    """Flat colour of every needed polygon in every zone into ``out`` (Z, P, 3) float32.
+    """Flat colour of every needed polygon in every zone into ``out`` (Z, P, 3).
 
-    Light is evaluated at the polygon's centroid (mean of its vertices) with its face
-    normal.  ``polygons`` (P, K) padded, ``counts`` (P,), ``normals`` (P, 3),
-    ``materials`` (P, 7), ``views`` (Z, 3), ``needed`` (Z, P) bool.
+    Light is evaluated at the polygon's centroid (mean of its vertices, found once
+    for all zones) with its face normal.  ``polygons`` (P, K) padded, ``counts``
+    (P,), ``normals`` (P, 3), ``materials`` (P, 7), ``views`` (Z, 3), ``needed``
+    (Z, P) bool.  ``out`` holds the output values (uint8 or float32), already
+    through :func:`_store` with ``quant = (scale, offset)``.
     """
     n = normals.shape[0]
-    for i in nb.prange(views.shape[0] * n):
-        z, p = i // n, i % n
-        if not needed[z, p]:
+    zones = views.shape[0]
+    for p in nb.prange(n):
+        shown = False
+        for z in range(zones):
+            shown |= needed[z, p]
+        if not shown:
             continue
+        mat = materials[p]
         cx = cy = cz = 0.0
         for k in range(counts[p]):
             cx += vertices[polygons[p, k], 0]
             cy += vertices[polygons[p, k], 1]
             cz += vertices[polygons[p, k], 2]
-        s = _facing(normals, p, views[z])
-        rgb = _light_rgb(
-            cx / counts[p], cy / counts[p], cz / counts[p],
-            s * normals[p, 0], s * normals[p, 1], s * normals[p, 2],
-            materials[p], views[z], lights, ambient, code,
-        )
-        for ch in range(3):
-            out[z, p, ch] = rgb[ch]
+        for z in range(zones):
+            if not needed[z, p]:
+                continue
+            s = _facing(normals, p, views[z])
+            rgb = _light_rgb(
+                cx / counts[p], cy / counts[p], cz / counts[p],
+                s * normals[p, 0], s * normals[p, 1], s * normals[p, 2],
+                mat, views[z], lights, ambient, code,
+            )
+            _store(out, 0, z, p, rgb, quant[0], quant[1])
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -372,31 +395,33 @@ def _barycentric(pz: np.ndarray, a: int, b: int, c: int, x: float, y: float) -> 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _gather(
-    tri_map: np.ndarray,
-    tri_poly: np.ndarray,
-    table: np.ndarray,
-    bg: np.ndarray,
-    scale: float,
-    offset: float,
-    out: np.ndarray,
+    tri_map: np.ndarray, tri_poly: np.ndarray, table: np.ndarray, bg: np.ndarray, out: np.ndarray
 ) -> None:
     """``out[z, r, c] = table[z, tri_poly[tri_map[z, r, c]]]`` (``bg`` where empty).
 
-    ``tri_map`` (Z, R, C) int32, ``table`` (Z, P, 3) float32, ``out`` (Z, R, C, 3);
-    values go through :func:`_store`.
+    ``tri_map`` (Z, R, C) int32, ``table`` (Z, P, 3) and ``bg`` (3,) hold output
+    values (same dtype as ``out`` (Z, R, C, 3)): this is a copy.
     """
     zones, rows, cols = tri_map.shape
     for i in nb.prange(zones * rows):
         z, r = i // rows, i % rows
         for c in range(cols):
             t = tri_map[z, r, c]
-            if t < 0:
-                _store(out, z, r, c, (bg[0], bg[1], bg[2]), scale, offset)
+            if t < 0:  # scalar indexing: a view per pixel would cost a refcount each
+                out[z, r, c, 0] = bg[0]
+                out[z, r, c, 1] = bg[1]
+                out[z, r, c, 2] = bg[2]
             else:
                 p = tri_poly[t]
-                rgb = (np.float64(table[z, p, 0]), np.float64(table[z, p, 1]),
-                       np.float64(table[z, p, 2]))
-                _store(out, z, r, c, rgb, scale, offset)
+                out[z, r, c, 0] = table[z, p, 0]
+                out[z, r, c, 1] = table[z, p, 1]
+                out[z, r, c, 2] = table[z, p, 2]
+
+
+@nb.njit(cache=True, nogil=True)
+def _store_background(bg: np.ndarray, scale: float, offset: float, out: np.ndarray) -> None:
+    """``out`` (1, 1, 1, 3) = ``bg`` (3,) in [0, 1] through :func:`_store`."""
+    _store(out, 0, 0, 0, (bg[0], bg[1], bg[2]), scale, offset)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -511,14 +536,20 @@ def _unproject_affine(display: DisplaySettings) -> np.ndarray:
 def _eval_polygon(
     scene: SceneArrays, proj: np.ndarray, vis: Visibility, k: _Packed, out: np.ndarray
 ) -> None:
-    """Flat light: a (Z, P, 3) table for the polygons each zone shows, gathered per pixel."""
-    needed = _mark(vis.triangle, scene.triangle_polygon, scene.n_polygons)
-    table = np.zeros((k.views.shape[0], scene.n_polygons, 3), np.float32)
+    """Flat light: a (Z, P, 3) table for the polygons each zone shows, gathered per pixel.
+
+    The table and the background are quantised once (:func:`_store`), so the pixel
+    pass only copies values.
+    """
+    needed = mark_shown(vis.triangle, scene.triangle_polygon, scene.n_polygons)
+    table = np.zeros((1, k.views.shape[0], scene.n_polygons, 3), out.dtype)
     _polygon_table(
         scene.vertices, scene.polygons, scene.counts, scene.normals, scene.materials,
-        k.views, needed, k.lights, k.ambient, k.code, table,
+        k.views, needed, k.lights, k.ambient, k.code, (k.scale, k.offset), table,
     )
-    _gather(vis.triangle, scene.triangle_polygon, table, k.background, k.scale, k.offset, out)
+    bg = np.empty((1, 1, 1, 3), out.dtype)
+    _store_background(k.background, k.scale, k.offset, bg)
+    _gather(vis.triangle, scene.triangle_polygon, table[0], bg[0, 0, 0], out)
 
 
 def _eval_vertex(
@@ -526,7 +557,7 @@ def _eval_vertex(
 ) -> None:
     """Gouraud light: corner colours of the triangles each zone shows, interpolated."""
     n_tri = scene.triangles.shape[0]
-    needed = _mark(vis.triangle, np.arange(n_tri), n_tri)
+    needed = mark_shown(vis.triangle, np.arange(n_tri), n_tri)
     corner = np.zeros((k.views.shape[0], n_tri, 3, 3), np.float32)
     _corner_table(
         scene.vertices, scene.triangles, scene.triangle_polygon, scene.normals,
@@ -582,7 +613,7 @@ def _render(
         ambient=float(ambient_level),
         code=MODELS[settings.model],
         background=np.asarray(settings.background, np.float64) / 255.0,
-        affine=_unproject_affine(display),
+        affine=_unproject_affine(display) if settings.evaluation == "point" else None,
         scale=255.0 if quantise else 1.0,
         offset=0.5 if quantise else 0.0,
     )

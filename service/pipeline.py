@@ -22,7 +22,7 @@ from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.frame import Frame
-from service.light import LightSettings, shade
+from service.light import LightSettings, mark_shown, shade
 from service.occlusion import Visibility
 from service.occlusion.bsp import BspCache, bsp
 from service.occlusion.raycast import raycast
@@ -150,8 +150,9 @@ class Renderer:
                 redo = zbuffer(arrays, proj, display, order, draw)
             redo.stats = {**vis.stats, "fallback": "zbuffer"}
             vis = redo
-        drawn = np.unique(arrays.triangle_polygon[vis.triangle[vis.triangle >= 0]]).size
-        counts["drawn"] = int(drawn)
+        with clock("occlusion"):  # the count of polygons seen is part of the stage's cost
+            shown = mark_shown(vis.triangle, arrays.triangle_polygon, arrays.n_polygons)
+            counts["drawn"] = int(shown.any(axis=0).sum())
         return vis, counts, proj
 
 

@@ -5,6 +5,7 @@ See :mod:`service.display` for the projection each zone uses.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
@@ -25,14 +26,39 @@ def project(vertices: np.ndarray, display: DisplaySettings) -> np.ndarray:
         ``[..., 0]`` column coordinate sx, ``[..., 1]`` row coordinate sy (pixel
         centres at integer + 0.5), ``[..., 2]`` depth = -z.
     """
-    s = display.pixel_size
-    shear = display.shears()[:, None]  # (Z, 1)
-    x, y, z = vertices[:, 0], vertices[:, 1], vertices[:, 2]
     out = np.empty((display.zones, vertices.shape[0], 3))
-    out[:, :, 0] = (x[None, :] - z[None, :] * shear + display.width / 2) / s
-    out[:, :, 1] = (display.height / 2 - y)[None, :] / s
-    out[:, :, 2] = -z[None, :]
+    _project_kernel(
+        np.ascontiguousarray(vertices, np.float64),
+        display.shears(),
+        display.pixel_size,
+        display.width / 2,
+        display.height / 2,
+        out,
+    )
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _project_kernel(
+    vertices: np.ndarray,
+    shears: np.ndarray,
+    s: float,
+    half_width: float,
+    half_height: float,
+    out: np.ndarray,
+) -> None:
+    """Fill ``out`` (Z, V, 3) from ``vertices`` (V, 3) and ``shears`` (Z,) (see :func:`project`).
+
+    Written out per element with numpy's evaluation order, so the values equal
+    ``((x - z * shear) + half_width) / s`` etc. bit for bit.
+    """
+    for v in range(vertices.shape[0]):
+        x, y, z = vertices[v, 0], vertices[v, 1], vertices[v, 2]
+        sy = (half_height - y) / s
+        for k in range(shears.shape[0]):
+            out[k, v, 0] = (x - z * shears[k] + half_width) / s
+            out[k, v, 1] = sy
+            out[k, v, 2] = -z
 
 
 def unproject(
