@@ -541,7 +541,9 @@ def _eval_polygon(
     The table and the background are quantised once (:func:`_store`), so the pixel
     pass only copies values.
     """
-    needed = mark_shown(vis.triangle, scene.triangle_polygon, scene.n_polygons)
+    needed = vis.shown
+    if needed is None or needed.shape != (k.views.shape[0], scene.n_polygons):
+        needed = mark_shown(vis.triangle, scene.triangle_polygon, scene.n_polygons)
     table = np.zeros((1, k.views.shape[0], scene.n_polygons, 3), out.dtype)
     _polygon_table(
         scene.vertices, scene.polygons, scene.counts, scene.normals, scene.materials,
@@ -618,7 +620,9 @@ def _render(
         offset=0.5 if quantise else 0.0,
     )
     vis = Visibility(
-        np.ascontiguousarray(vis.triangle, np.int32), np.ascontiguousarray(vis.depth, np.float32)
+        np.ascontiguousarray(vis.triangle, np.int32),
+        np.ascontiguousarray(vis.depth, np.float32),
+        shown=vis.shown,
     )
     out = np.empty((*vis.triangle.shape, 3), np.uint8 if quantise else np.float32)
     proj = np.ascontiguousarray(proj, np.float64)

@@ -151,8 +151,8 @@ class Renderer:
             redo.stats = {**vis.stats, "fallback": "zbuffer"}
             vis = redo
         with clock("occlusion"):  # the count of polygons seen is part of the stage's cost
-            shown = mark_shown(vis.triangle, arrays.triangle_polygon, arrays.n_polygons)
-            counts["drawn"] = int(shown.any(axis=0).sum())
+            vis.shown = mark_shown(vis.triangle, arrays.triangle_polygon, arrays.n_polygons)
+            counts["drawn"] = int(vis.shown.any(axis=0).sum())
         return vis, counts, proj
 
 

@@ -33,10 +33,18 @@ def triangle_setup(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, rows: int) ->
         (inclusive) may hold pixels; a, b, c are the vertices sorted by row
         coordinate; depth at (x, y) is ``dz0 + dzdx * x + dzdy * y``.
     """
+    return setup_xyz(p0[0], p0[1], p0[2], p1[0], p1[1], p1[2], p2[0], p2[1], p2[2], rows)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def setup_xyz(
+    ax: float, ay: float, az: float,
+    bx: float, by: float, bz: float,
+    cx: float, cy: float, cz: float,
+    rows: int,
+) -> tuple:
+    """:func:`triangle_setup` from the nine coordinates (no array views in hot loops)."""
     # sort by y (then x) so a shared edge is always evaluated from the same end
-    ax, ay, az = p0[0], p0[1], p0[2]
-    bx, by, bz = p1[0], p1[1], p1[2]
-    cx, cy, cz = p2[0], p2[1], p2[2]
     if by < ay or (by == ay and bx < ax):
         ax, ay, az, bx, by, bz = bx, by, bz, ax, ay, az
     if cy < by or (cy == by and cx < bx):
@@ -218,10 +226,8 @@ def _zbuffer_band(
     zones, rows, cols = tri_out.shape
     r_first, r_last = extent
     for z in range(zones):
-        for r in range(lo, hi + 1):
-            for c in range(cols):
-                tri_out[z, r, c] = -1
-                depth_out[z, r, c] = np.inf
+        tri_out[z, lo : hi + 1] = -1
+        depth_out[z, lo : hi + 1] = np.inf
     for i in range(order.shape[0]):
         if r_last[i] < lo or r_first[i] > hi:
             continue  # the y-extent is shared: skip the triangle in every zone at once
@@ -229,8 +235,13 @@ def _zbuffer_band(
         for z in range(zones):
             if not draw_t[t, z]:
                 continue
-            pz = proj[z]
-            st = triangle_setup(pz[tris[t, 0]], pz[tris[t, 1]], pz[tris[t, 2]], rows)
+            i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
+            st = setup_xyz(
+                proj[z, i0, 0], proj[z, i0, 1], proj[z, i0, 2],
+                proj[z, i1, 0], proj[z, i1, 1], proj[z, i1, 2],
+                proj[z, i2, 0], proj[z, i2, 1], proj[z, i2, 2],
+                rows,
+            )
             if not st[0]:
                 continue
             for r in range(max(st[1], lo), min(st[2], hi) + 1):
@@ -286,7 +297,7 @@ def zbuffer_zones_kernel(
         )
 
 
-def row_bands(rows: int, threads: int, per_thread: int = 4) -> np.ndarray:
+def row_bands(rows: int, threads: int, per_thread: int = 3) -> np.ndarray:
     """Bands of rows for :func:`zbuffer_zones_kernel`, interleaved across threads.
 
     Numba hands each thread a contiguous run of loop iterations, so band ``i`` of

@@ -25,11 +25,16 @@ class Visibility:
         Depth (-z) of that surface, +inf where empty.
     stats : dict
         Method-specific counters (e.g. ``{"inconsistent_pixels": 0}``).
+    shown : ndarray, shape (Z, P), bool, optional
+        Which polygons each zone shows, when the pipeline has already found them
+        (:func:`service.light.mark_shown`); the light stage then skips that pass.
+        None otherwise.
     """
 
     triangle: np.ndarray
     depth: np.ndarray
     stats: dict = field(default_factory=dict)
+    shown: np.ndarray | None = None
 
     @classmethod
     def empty(cls, zones: int, rows: int, cols: int) -> Visibility:
