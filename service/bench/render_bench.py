@@ -5,8 +5,10 @@ whole update (median of several) and compare the polygon seen at every pixel of
 every zone with the ray-cast reference.  A second sweep measures how the
 run-length method's error (with its z-buffer fallback switched off) grows with the
 viewing angle and the zone count, both at the zone centres and for a viewer anywhere
-in the viewing angle (who is shown the image of the zone they stand in).  Writes
-``render_bench.json``, ``.csv`` and PNG charts to the output folder.
+in the viewing angle (who is shown the image of the zone they stand in).  A third
+measures what extra zones cost a whole render (flatten to light: z-buffer, Blinn per
+polygon) on the game scene, stage by stage.  Writes ``render_bench.json``, ``.csv``,
+``zone_cost.json``, ``.csv`` and PNG charts to the output folder.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import argparse
 import csv
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +89,91 @@ def measure(
             }
         )
     return rows
+
+
+ZONE_COST_ZONES = (1, 2, 5, 9)
+STAGES = ("flatten", "project", "cull", "sort", "occlusion", "light")
+
+
+def zone_cost(
+    scene_name: str = "game",
+    zones=ZONE_COST_ZONES,
+    repeats: int = 9,
+    rounds: int = 5,
+    size=(320, 240),
+) -> list[dict]:
+    """Whole-render milliseconds per zone count, as ratios to one zone.
+
+    Each round renders ``repeats`` frames at every zone count in turn (so a noisy
+    machine slows all counts alike) and keeps each count's median; the rows hold
+    the best round's medians.  ``ms`` is wall time around
+    :meth:`service.pipeline.Renderer.render`; ``ms_<stage>`` are its stage clocks.
+
+    Returns
+    -------
+    list of dict
+        One row per zone count: ``scene, zones, ms, ratio, ms_flatten, ...``.
+    """
+    scene = builtin_scene(scene_name)
+    renderer = Renderer()
+    displays = {z: DisplaySettings(zones=z, cols=size[0], rows=size[1]) for z in zones}
+    best: dict[int, dict] = {}
+    for _ in range(rounds):
+        for z, display in displays.items():
+            walls, stages = [], []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                frame = renderer.render(scene, display)
+                walls.append((time.perf_counter() - t0) * 1e3)
+                stages.append(frame.stats["ms"])
+            row = {"ms": float(np.median(walls))}
+            row |= {f"ms_{k}": float(np.median([m.get(k, 0.0) for m in stages])) for k in STAGES}
+            if z not in best or row["ms"] < best[z]["ms"]:
+                best[z] = row
+    base = best[zones[0]]["ms"]
+    return [
+        {
+            "scene": scene_name,
+            "zones": z,
+            **{k: round(v, 3) for k, v in best[z].items()},
+            "ratio": round(best[z]["ms"] / base, 3),
+        }
+        for z in zones
+    ]
+
+
+def chart_zone_cost(rows: list[dict], path: Path) -> None:
+    """Stacked bars: milliseconds per stage against the zone count."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    x = np.arange(len(rows))
+    bottom = np.zeros(len(rows))
+    for stage in STAGES:
+        h = np.array([r[f"ms_{stage}"] for r in rows])
+        ax.bar(x, h, bottom=bottom, label=stage)
+        bottom += h
+    ax.plot(x, [r["ms"] for r in rows], "ko-", label="wall")
+    for xi, r in zip(x, rows, strict=True):
+        ax.annotate(
+            f"x{r['ratio']:.2f}",
+            (xi, r["ms"]),
+            textcoords="offset points",
+            xytext=(0, 5),
+            ha="center",
+            fontsize=8,
+        )
+    ax.set_xticks(x, [str(r["zones"]) for r in rows])
+    ax.set_xlabel("view zones")
+    ax.set_ylabel("ms per render (labels: ratio to 1 zone)")
+    ax.set_title(f"{rows[0]['scene']} scene: cost of extra zones")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 FINE_ZONES = 64  # directions sampled across the viewing angle for the continuous error
@@ -201,9 +289,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="bench-out", help="output folder")
     p.add_argument("--quick", action="store_true", help="zones 1 and 5 only, fewer repeats")
     p.add_argument("--scenes", default=",".join(SCENE_NAMES), help="comma-separated scene names")
+    p.add_argument(
+        "--zone-cost", action="store_true", help="only the cost of extra zones (a few seconds)"
+    )
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    warm_up(RenderSettings())
+    cost = zone_cost()
+    write_rows(cost, out / "zone_cost")
+    chart_zone_cost(cost, out / "zone_cost.png")
+    print_zone_cost(cost)
+    if args.zone_cost:
+        return 0
     zones = (1, 5) if args.quick else ZONES
     reps = 3 if args.quick else 7
     for m in METHOD_NAMES:
@@ -243,6 +341,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     print_summary(rows)
     return 0
+
+
+def print_zone_cost(rows: list[dict]) -> None:
+    """One line per zone count: wall ms, ratio to one zone, stage ms."""
+    print(f"{rows[0]['scene']}: whole render (z-buffer, Blinn per polygon)")
+    for r in rows:
+        stages = " ".join(f"{k} {r[f'ms_{k}']:.2f}" for k in STAGES)
+        print(f"  {r['zones']:3d} zones {r['ms']:7.2f} ms  x{r['ratio']:5.2f}   ({stages})")
 
 
 def print_summary(rows: list[dict]) -> None:

@@ -204,3 +204,17 @@ def test_five_zone_error_grows_with_angle_and_shrinks_with_zones():
     by_zones = [continuous_error("game", z, 32.0, size) for z in (1, 5, 17)]
     assert by_zones[0] > by_zones[1] > by_zones[2]
     assert continuous_error("game", 5, 0.0, size) == 0.0  # no look-around, nothing to miss
+
+
+def test_zone_cost_rows_and_chart(tmp_path):
+    from service.bench.render_bench import STAGES, chart_zone_cost, zone_cost
+
+    rows = zone_cost("sphere-torus", zones=(1, 3), repeats=1, rounds=2, size=(48, 36))
+    assert [r["zones"] for r in rows] == [1, 3]
+    assert rows[0]["ratio"] == 1.0
+    assert rows[1]["ratio"] == round(rows[1]["ms"] / rows[0]["ms"], 3)
+    for r in rows:
+        assert all(r[f"ms_{k}"] > 0.0 for k in STAGES)
+        assert r["ms"] >= sum(r[f"ms_{k}"] for k in STAGES) * 0.5
+    chart_zone_cost(rows, tmp_path / "z.png")
+    assert (tmp_path / "z.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
