@@ -11,6 +11,7 @@ picture.
 from __future__ import annotations
 
 import functools
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -89,6 +90,19 @@ class Renderer:
             "bsp": functools.partial(bsp, tree=self._bsp),
             "raycast": raycast,
         }
+        self._scratch = threading.local()
+
+    def _triangle_buffer(self, shape: tuple[int, int, int]) -> np.ndarray:
+        """Reusable (Z, R, C) int32 triangle map of the calling thread for :meth:`render`.
+
+        The map never leaves :meth:`render` (a frame keeps colour and depth), so one
+        buffer per thread serves every frame of that shape, without the page faults
+        a fresh multi-megabyte array costs each frame.
+        """
+        buf = getattr(self._scratch, "triangle", None)
+        if buf is None or buf.shape != shape:
+            buf = self._scratch.triangle = np.empty(shape, np.int32)
+        return buf
 
     def render(
         self, scene: Scene, display: DisplaySettings, settings: RenderSettings | None = None
@@ -106,7 +120,13 @@ class Renderer:
         clock = StageClock(ms)
         with clock("flatten"):
             arrays = scene.flatten()
-        vis, counts, proj = self.visibility(arrays, display, settings, clock)
+        # visibility() keeps its signature (subclasses override it): the buffer goes
+        # through this thread's slot, set only while render() is inside it
+        self._scratch.active = self._triangle_buffer((display.zones, display.rows, display.cols))
+        try:
+            vis, counts, proj = self.visibility(arrays, display, settings, clock)
+        finally:
+            self._scratch.active = None
         with clock("light"):
             colour = shade(arrays, proj, vis, display, scene.lights, scene.ambient, settings.light)
         stats = {"polygons": counts, "ms": ms, "occlusion": vis.stats, "method": settings.method}
@@ -120,8 +140,13 @@ class Renderer:
         settings: RenderSettings,
         clock: StageClock | None = None,
     ) -> tuple[Visibility, dict, np.ndarray]:
-        """Stages 1-4: project, cull, sort, occlusion (with the painter fallback)."""
+        """Stages 1-4: project, cull, sort, occlusion (with the painter fallback).
+
+        Called by :meth:`render`, the z-buffer's triangle map is this thread's reused
+        buffer; called directly, it is a fresh array the caller may keep.
+        """
         clock = clock or StageClock({})
+        scratch = getattr(self._scratch, "active", None)
         with clock("project"):
             proj = project(arrays.vertices, display)
         with clock("cull"):
@@ -142,12 +167,14 @@ class Renderer:
         if name == "runlength" and settings.painter_fallback == "pixel":
             name = "runlength-repair"
         extra = {"draw": draw} if name in MASKED_METHODS else {}
+        if name == "zbuffer":
+            extra["tri_out"] = scratch
         with clock("occlusion"):
             vis = self._methods[name](arrays, proj, display, order, **extra)
         bad = vis.stats.get("inconsistent_pixels", 0)
         if settings.painter_fallback == "frame" and bad > settings.painter_tolerance:
             with clock("fallback"):
-                redo = zbuffer(arrays, proj, display, order, draw)
+                redo = zbuffer(arrays, proj, display, order, draw, tri_out=scratch)
             redo.stats = {**vis.stats, "fallback": "zbuffer"}
             vis = redo
         with clock("occlusion"):  # the count of polygons seen is part of the stage's cost

@@ -30,6 +30,7 @@ def zbuffer(
     order: np.ndarray,
     draw: np.ndarray | None = None,
     shared: bool = True,
+    tri_out: np.ndarray | None = None,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -47,6 +48,9 @@ def zbuffer(
     shared : bool
         Draw all zones in one pass (default); False runs the per-zone kernel (the
         reference the one-pass kernel is tested against).
+    tri_out : ndarray, shape (Z, R, C), int32, optional
+        Buffer to reuse for ``Visibility.triangle`` (contents ignored): a renderer
+        that keeps it between frames saves the page faults of a fresh one.
 
     Returns
     -------
@@ -57,11 +61,14 @@ def zbuffer(
     order = np.ascontiguousarray(order)
     if draw is None:
         draw = np.ones((display.zones, scene.triangles.shape[0]), np.bool_)
+    usable = tri_out is not None and tri_out.shape == zrc and tri_out.dtype == np.int32
+    tri = tri_out if usable and tri_out.flags.c_contiguous else np.empty(zrc, np.int32)
     if not (shared and rows_shared(proj)):
-        vis = Visibility.empty(*zrc)
+        vis = Visibility(tri, np.full(zrc, np.inf, np.float32))
+        vis.triangle.fill(-1)
         zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
         return vis
-    vis = Visibility(np.empty(zrc, np.int32), np.empty(zrc, np.float32))
+    vis = Visibility(tri, np.empty(zrc, np.float32))
     bands = row_bands(display.rows, nb.get_num_threads())
     zbuffer_zones_kernel(
         proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle, vis.depth

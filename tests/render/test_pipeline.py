@@ -218,3 +218,37 @@ def test_zone_cost_rows_and_chart(tmp_path):
         assert r["ms"] >= sum(r[f"ms_{k}"] for k in STAGES) * 0.5
     chart_zone_cost(rows, tmp_path / "z.png")
     assert (tmp_path / "z.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_render_reuses_its_triangle_map_and_visibility_returns_fresh_ones():
+    from service.scenes import builtin_scene
+
+    scene = builtin_scene("threaded")
+    d = DisplaySettings(zones=3, cols=64, rows=48)
+    r = Renderer()
+    first = r.render(scene, d)
+    a, _, _ = r.visibility(scene.flatten(), d, RenderSettings())
+    second = r.render(scene, d)
+    b, _, _ = r.visibility(scene.flatten(), d, RenderSettings())
+    assert not np.shares_memory(a.triangle, b.triangle)
+    assert np.array_equal(a.triangle, b.triangle)
+    assert not np.shares_memory(first.depth, second.depth)
+    assert np.array_equal(first.colour, second.colour)
+    assert np.array_equal(first.depth, second.depth)
+
+
+def test_subclass_with_the_old_visibility_signature_renders():
+    from service.scenes import builtin_scene
+
+    class Counting(Renderer):
+        calls = 0
+
+        def visibility(self, arrays, display, settings, clock=None):
+            self.calls += 1
+            return super().visibility(arrays, display, settings, clock)
+
+    d = DisplaySettings(zones=2, cols=48, rows=32)
+    r = Counting()
+    frame = r.render(builtin_scene("cyclic"), d)
+    assert r.calls == 1
+    assert np.array_equal(frame.colour, Renderer().render(builtin_scene("cyclic"), d).colour)
