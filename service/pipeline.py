@@ -76,6 +76,8 @@ METHOD_NAMES = ("runlength", "zbuffer", "bsp", "raycast")
 FALLBACKS = ("frame", "pixel", "off")
 #: Methods that take the per-zone cull mask (BSP and ray casting draw every kept polygon).
 MASKED_METHODS = frozenset({"zbuffer", "runlength", "runlength-repair"})
+#: Display shapes whose triangle map each thread of a Renderer keeps for reuse.
+SCRATCH_SHAPES = 4
 
 
 class Renderer:
@@ -96,12 +98,18 @@ class Renderer:
         """Reusable (Z, R, C) int32 triangle map of the calling thread for :meth:`render`.
 
         The map never leaves :meth:`render` (a frame keeps colour and depth), so one
-        buffer per thread serves every frame of that shape, without the page faults
-        a fresh multi-megabyte array costs each frame.
+        buffer per thread and shape (the last :data:`SCRATCH_SHAPES` shapes) serves
+        every frame, without the page faults a fresh multi-megabyte array costs.
         """
-        buf = getattr(self._scratch, "triangle", None)
-        if buf is None or buf.shape != shape:
-            buf = self._scratch.triangle = np.empty(shape, np.int32)
+        pool = getattr(self._scratch, "triangle", None)
+        if pool is None:
+            pool = self._scratch.triangle = {}
+        buf = pool.pop(shape, None)
+        if buf is None:
+            buf = np.empty(shape, np.int32)
+        pool[shape] = buf  # most recently used last
+        while len(pool) > SCRATCH_SHAPES:
+            del pool[next(iter(pool))]
         return buf
 
     def render(

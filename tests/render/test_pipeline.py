@@ -252,3 +252,15 @@ def test_subclass_with_the_old_visibility_signature_renders():
     frame = r.render(builtin_scene("cyclic"), d)
     assert r.calls == 1
     assert np.array_equal(frame.colour, Renderer().render(builtin_scene("cyclic"), d).colour)
+
+
+def test_triangle_buffers_are_kept_per_shape_up_to_the_limit():
+    from service.pipeline import SCRATCH_SHAPES
+
+    r = Renderer()
+    shapes = [(z, 8, 8) for z in range(1, SCRATCH_SHAPES + 2)]
+    first = {s: r._triangle_buffer(s) for s in shapes[:SCRATCH_SHAPES]}
+    assert all(r._triangle_buffer(s) is b for s, b in first.items())
+    r._triangle_buffer(shapes[-1])  # one shape too many: the least recently used goes
+    assert r._triangle_buffer(shapes[0]) is not first[shapes[0]]
+    assert r._triangle_buffer(shapes[-1]).shape == shapes[-1]
