@@ -310,15 +310,16 @@ def row_bands(rows: int, threads: int, per_thread: int = 3) -> np.ndarray:
     threads : int
         Threads the kernel will use (>= 1).
     per_thread : int
-        Bands per thread; more balance the load better, fewer set up triangles
-        that cross a band edge fewer times.
+        Bands per thread when there are several; more balance the load better,
+        fewer set up triangles that cross a band edge fewer times.  One thread gets
+        one band.
 
     Returns
     -------
     ndarray, shape (B, 2), int64
         ``[first_row, last_row]`` of each band.
     """
-    n = max(1, min(rows, threads * per_thread))
+    n = 1 if threads <= 1 else min(rows, threads * per_thread)  # one thread: no band edges
     edges = np.linspace(0, rows, n + 1).astype(np.int64)
     bands = np.stack([edges[:-1], edges[1:] - 1], axis=1)
     bands = bands[bands[:, 0] <= bands[:, 1]]
