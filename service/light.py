@@ -58,11 +58,14 @@ silhouette are never flipped piecemeal.
 Cost
 ----
 One pass marks which polygons (``polygon``) or triangles (``vertex``) each zone
-actually shows, light is evaluated only for those, and one pass writes the pixels
-(straight to uint8 for :func:`shade`, to float32 for :func:`shade_linear`); every
-pass is a numba kernel, parallel over zones x rows.  ``point`` evaluates light once
-per covered pixel.  Whole shininess exponents use integer powering.  Numbers:
-``holo-bench light`` (:mod:`service.bench.light_bench`).
+actually shows (``polygon`` reuses ``Visibility.shown`` when the pipeline has it),
+light is evaluated only for those, and one pass writes the pixels (straight to
+uint8 for :func:`shade`, to float32 for :func:`shade_linear`; for ``polygon`` the
+table is quantised first, so that pass only copies); every pass is a numba kernel,
+parallel over zones x rows (the flat table over polygons, each polygon's centroid
+found once for all zones).  ``point`` evaluates light once per covered pixel.
+Whole shininess exponents use integer powering.  Numbers: ``holo-bench light``
+(:mod:`service.bench.light_bench`).
 """
 
 from __future__ import annotations
