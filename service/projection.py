@@ -52,12 +52,11 @@ def _project_kernel(
     Written out per element with numpy's evaluation order, so the values equal
     ``((x - z * shear) + half_width) / s`` etc. bit for bit.
     """
-    for v in range(vertices.shape[0]):
-        x, y, z = vertices[v, 0], vertices[v, 1], vertices[v, 2]
-        sy = (half_height - y) / s
-        for k in range(shears.shape[0]):
+    for k in range(shears.shape[0]):
+        for v in range(vertices.shape[0]):
+            x, y, z = vertices[v, 0], vertices[v, 1], vertices[v, 2]
             out[k, v, 0] = (x - z * shears[k] + half_width) / s
-            out[k, v, 1] = sy
+            out[k, v, 1] = (half_height - y) / s
             out[k, v, 2] = -z
 
 

@@ -264,3 +264,22 @@ def test_triangle_buffers_are_kept_per_shape_up_to_the_limit():
     r._triangle_buffer(shapes[-1])  # one shape too many: the least recently used goes
     assert r._triangle_buffer(shapes[0]) is not first[shapes[0]]
     assert r._triangle_buffer(shapes[-1]).shape == shapes[-1]
+
+
+@pytest.mark.parametrize(("zones", "angle"), [(1, 0.0), (5, 16.0), (17, 60.0)])
+def test_project_equals_the_array_formula_bit_for_bit(zones, angle):
+    from service.projection import project
+
+    d = DisplaySettings(zones=zones, angle_deg=angle)
+    rng = np.random.default_rng(zones)
+    v = rng.normal(size=(500, 3)) * rng.choice([1e-3, 1.0, 1e3], size=(500, 1))
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    want = np.stack(
+        np.broadcast_arrays(
+            (x[None] - z[None] * d.shears()[:, None] + d.width / 2) / d.pixel_size,
+            ((d.height / 2 - y) / d.pixel_size)[None],
+            -z[None],
+        ),
+        axis=-1,
+    )
+    assert np.array_equal(project(v, d), want)
