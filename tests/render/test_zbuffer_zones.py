@@ -8,7 +8,7 @@ from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
 from service.occlusion.zbuffer import rows_shared, zbuffer
 from service.projection import project
-from service.raster import row_bands, shared_rows, triangle_setup
+from service.raster import row_bands, shared_rows, triangle_setup, zbuffer_zones_kernel
 from service.scenes import builtin_scene
 
 
@@ -95,3 +95,18 @@ def test_row_bands_cover_every_row_once(rows, threads):
     bands = row_bands(rows, threads)
     covered = np.concatenate([np.arange(a, b + 1) for a, b in bands])
     assert np.array_equal(np.sort(covered), np.arange(rows))
+
+
+@pytest.mark.parametrize(("threads", "per_thread"), [(1, 3), (2, 1), (3, 5), (4, 60)])
+def test_any_banding_gives_the_same_buffers(threads, per_thread):
+    d = DisplaySettings(zones=5, angle_deg=45.0, cols=160, rows=120)
+    arrays, proj, order, draw = inputs("game", d)
+    want = zbuffer(arrays, proj, d, order, draw, shared=False)
+    tri = np.empty((d.zones, d.rows, d.cols), np.int32)
+    depth = np.empty((d.zones, d.rows, d.cols), np.float32)
+    bands = row_bands(d.rows, threads, per_thread)
+    zbuffer_zones_kernel(
+        proj, arrays.triangles, order, np.ascontiguousarray(draw.T), bands, tri, depth
+    )
+    assert np.array_equal(tri, want.triangle)
+    assert np.array_equal(depth, want.depth)
