@@ -34,6 +34,18 @@ to ``fp`` bits (the paper's "add 0.00001000 and truncate"), then ``v += a + j/2`
 A position is shown at the pixel ``floor(x + 1/2)`` (symmetric rounding): the
 fraction lives in ``[-1/2, 1/2)``, so a galpixel at 1/16 px/refresh moving right
 jumps at refresh 8 and moving left at refresh 9.
+
+Depth
+-----
+Depth is fixed point too: an int32 in units of ``2^-fz`` depth units (``fz`` =
+:data:`Z_FRAC_BITS`, 16: steps of 1.5e-5, depths to +-32767), :data:`Z_EMPTY` for
+"nothing there" (+inf in a render).  The paper gives z no fractional bits of its
+own (it is not matricised); it asks for enough bits that the finest z motion
+propagates over N_prop, and suggests "the same motional structure as x and y".
+So z motion carries the same extra ``fm - fp`` fractional bits below the depth's
+that x and y motion carry below the position's (units ``2^-(fz + fm - fp)``), and
+one refresh advances z with exactly the position's arithmetic and rounding
+(:func:`advance` with the same ``fp``, ``fm``).
 """
 
 from __future__ import annotations
@@ -45,6 +57,13 @@ import numba as nb
 import numpy as np
 
 from service.errors import SettingsError
+
+#: Fractional bits of depth (units of 2^-16 depth units).
+Z_FRAC_BITS = 16
+#: Depth of an empty pixel (+inf in a render); never moves (its z motion is 0).
+Z_EMPTY = np.int32(2**31 - 1)
+#: Largest finite depth magnitude the format holds, in fixed-point units.
+Z_LIMIT = 2**31 - 2
 
 
 def _log2_ceil(n: float, name: str) -> int:
@@ -131,6 +150,8 @@ class FixedPoint:
     v_max, a_max, j_max : float
         Largest magnitudes (px per refresh^n) the integral bits hold; larger
         values are clamped and flagged.
+    fz : int
+        Fractional bits of depth; z motion has ``fz + fm - fp``.
     """
 
     fp: int
@@ -138,6 +159,7 @@ class FixedPoint:
     v_max: float
     a_max: float
     j_max: float
+    fz: int = Z_FRAC_BITS
 
     @classmethod
     def for_order(cls, budget: BitBudget, order: int) -> FixedPoint:
@@ -175,6 +197,48 @@ class FixedPoint:
     def to_float(self, fixed: np.ndarray) -> np.ndarray:
         """Fixed-point motion back to px per refresh^n (float64)."""
         return np.asarray(fixed, np.float64) / 2.0**self.fm
+
+    @property
+    def fzm(self) -> int:
+        """Fractional bits of z motion: ``fz + fm - fp``."""
+        return self.fz + self.fm - self.fp
+
+    def depth_fixed(self, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Depths (depth units) to int32 fixed point, round half up.
+
+        Parameters
+        ----------
+        depth : ndarray, any shape, float
+            +inf and NaN are empty (:data:`Z_EMPTY`); -inf and finite values beyond
+            the format are clamped and flagged.
+
+        Returns
+        -------
+        fixed : ndarray, same shape, int32
+        bad : ndarray, same shape, bool
+        """
+        d = np.asarray(depth, np.float64)
+        empty = np.isnan(d) | (d == np.inf)
+        q = np.floor(np.where(empty, 0.0, d) * 2.0**self.fz + 0.5)
+        bad = ~empty & (np.abs(q) > Z_LIMIT)
+        q = np.clip(q, -Z_LIMIT, Z_LIMIT)
+        return np.where(empty, Z_EMPTY, q).astype(np.int32), bad
+
+    def depth_float(self, fixed: np.ndarray) -> np.ndarray:
+        """Fixed-point depths back to float32 depth units (+inf where empty)."""
+        f = np.asarray(fixed)
+        return np.where(f == Z_EMPTY, np.inf, f / 2.0**self.fz).astype(np.float32)
+
+    def zmotion_fixed(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Z motion (depth units per refresh^n) to int32 fixed point, round half up.
+
+        Non-finite values become 0, values beyond the format are clamped; both flagged.
+        """
+        v = np.asarray(values, np.float64)
+        lim = Z_LIMIT / 2.0**self.fzm
+        bad = ~np.isfinite(v) | (np.abs(v) > lim)
+        v = np.clip(np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0), -lim, lim)
+        return np.floor(v * 2.0**self.fzm + 0.5).astype(np.int32), bad
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")

@@ -9,11 +9,11 @@ which may include an out-of-view margin around the display (see ``stage``).
 field      shape, dtype                 meaning
 =========  ===========================  =====================================================
 colour     (3, Z, H, W) float32         r, g, b in 0..255 (unclipped while propagating)
-depth      (Z, H, W) float32            -z, smaller is nearer; +inf where empty
+depth      (Z, H, W) int32              -z in units 2^-fz, smaller is nearer; Z_EMPTY empty
 frac       (2, Z, H, W) int16           fractional x, y position, units 2^-fp px,
                                         in [-2^(fp-1), 2^(fp-1))
 motion     (2n, Z, H, W) int32          vx, vy, ax, ay, jx, jy (first 2n), units 2^-fm
-zmotion    (n, Z, H, W) float32         vz, az, jz (first n), depth units per refresh^k
+zmotion    (n, Z, H, W) int32           vz, az, jz (first n), units 2^-(fz + fm - fp)
 dcolour    (4 or 0, Z, H, W) float32    dA/dt, dB/dt, dC/dt, d2A/dt2 per refresh
                                         (equations 17-18); 0 planes when switched off
 debris     (Z, H, W) uint8              1: debris (no motion, never overrides a galpixel)
@@ -29,7 +29,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from service.errors import HoloError
-from service.galilean.fixed_point import FixedPoint
+from service.galilean.fixed_point import Z_EMPTY, FixedPoint
 
 #: Highest galpixmap order implemented.
 MAX_ORDER = 3
@@ -47,10 +47,10 @@ class GalileanError(HoloError, ValueError):
 #: field name -> (dtype, leading planes as a function of (order, colour planes)).
 _LAYOUT = {
     "colour": (np.float32, lambda n, k: 3),
-    "depth": (np.float32, None),
+    "depth": (np.int32, None),
     "frac": (np.int16, lambda n, k: 2),
     "motion": (np.int32, lambda n, k: 2 * n),
-    "zmotion": (np.float32, lambda n, k: n),
+    "zmotion": (np.int32, lambda n, k: n),
     "dcolour": (np.float32, lambda n, k: k),
     "debris": (np.uint8, None),
     "obj": (np.int32, None),
@@ -114,12 +114,12 @@ class Galpixmap:
     def empty(
         cls, order: int, fixed: FixedPoint, shape: tuple[int, int, int], colour_motion: bool = True
     ) -> Galpixmap:
-        """An all-debris map ("clear-frame debris": black, depth +inf, no object)."""
+        """An all-debris map ("clear-frame debris": black, empty depth, no object)."""
         k = 4 if colour_motion else 0
         arrays = {}
         for name, (dtype, planes) in _LAYOUT.items():
             arrays[name] = _alloc(tuple(shape), dtype, None if planes is None else planes(order, k))
-        arrays["depth"][:] = np.inf
+        arrays["depth"][:] = Z_EMPTY
         arrays["debris"][:] = 1
         arrays["obj"][:] = -1
         return cls(order=order, fixed=fixed, **arrays)
@@ -139,7 +139,7 @@ class Galpixmap:
         z, h, w = self.shape
         sl = (slice(None), slice(margin, h - margin), slice(margin, w - margin))
         col = np.clip(np.rint(self.colour[(slice(None), *sl)]), 0, 255).astype(np.uint8)
-        return np.ascontiguousarray(np.moveaxis(col, 0, -1)), self.depth[sl].copy()
+        return np.ascontiguousarray(np.moveaxis(col, 0, -1)), self.fixed.depth_float(self.depth[sl])
 
 
 #: Bytes per cache line, and lines per page (the L1 sets a page spans).
@@ -255,22 +255,20 @@ def build(
     ob = _check("obj", obj, dep.shape)
     gp = Galpixmap.empty(order, fixed, tuple(dep.shape), dcol is not None)
     gp.colour[:] = np.moveaxis(col, -1, 0)
-    gp.depth[:] = np.where(np.isnan(dep), np.inf, dep)
+    gp.depth[:], zclamped = fixed.depth_fixed(dep)
     gp.debris[:] = 0
     if ob is not None:
         gp.obj[:] = ob
     if dcol is not None:
         gp.dcolour[:] = np.nan_to_num(dcol, nan=0.0, posinf=0.0, neginf=0.0)
-    clamped = 0
+    clamped = int(zclamped.sum())
     if der is not None and order > 0:
-        finite = np.isfinite(gp.depth)
+        finite = gp.depth != Z_EMPTY
         limits = (fixed.v_max, fixed.a_max, fixed.j_max)
         for k in range(order):
             q, bad = fixed.quantise(np.where(finite, der[k, :2], 0.0), limits[k])
             gp.motion[2 * k : 2 * k + 2] = q
-            zk = np.where(finite, der[k, 2], 0.0)
-            zbad = ~np.isfinite(zk) | (np.abs(zk) > 1e6)
-            gp.zmotion[k] = np.where(zbad, 0.0, zk)
+            gp.zmotion[k], zbad = fixed.zmotion_fixed(np.where(finite, der[k, 2], 0.0))
             clamped += int(bad.sum() + zbad.sum())
     if margin:
         gp = _padded(gp, margin)
@@ -279,6 +277,6 @@ def build(
 
 def _padded(gp: Galpixmap, margin: int) -> Galpixmap:
     """``gp`` with an out-of-view margin of debris (depth +inf, obj -1) around it."""
-    fill = {"depth": np.inf, "debris": 1, "obj": -1}
+    fill = {"depth": Z_EMPTY, "debris": 1, "obj": -1}
     kw = {n: _pad(getattr(gp, n), margin, fill.get(n, 0)) for n in _LAYOUT}
     return Galpixmap(order=gp.order, fixed=gp.fixed, **kw)

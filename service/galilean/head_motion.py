@@ -23,6 +23,7 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
+from service.galilean.fixed_point import Z_EMPTY
 from service.galilean.galpixmap import Galpixmap
 from service.scene import MotionState
 
@@ -57,7 +58,7 @@ def _induced(m: np.ndarray, q0: float, q1: float, q2: float) -> tuple:
 def _apply(
     frac: np.ndarray, depth: np.ndarray, debris: np.ndarray, motion: np.ndarray,
     zmotion: np.ndarray, old: np.ndarray, new: np.ndarray, geo: np.ndarray, shears: np.ndarray,
-    fp: int, fm: int, vmax: float, order: int,
+    fp: int, fm: int, vmax: float, order: int, fz: int, fzm: int,
 ) -> int:
     """Add the induced-motion difference to every galpixel; returns how many changed.
 
@@ -71,9 +72,9 @@ def _apply(
         sh = shears[z]
         for r in range(h):
             for c in range(w):
-                d = depth[z, r, c]
-                if debris[z, r, c] == 1 or not np.isfinite(d):
+                if debris[z, r, c] == 1 or depth[z, r, c] == Z_EMPTY:
                     continue
+                d = depth[z, r, c] / 2.0**fz
                 sx = c - margin + 0.5 + frac[0, z, r, c] / 2.0**fp
                 sy = r - margin + 0.5 + frac[1, z, r, c] / 2.0**fp
                 qz = -d
@@ -91,7 +92,7 @@ def _apply(
                     my = min(max(my, -lim), lim)
                     motion[2 * k, z, r, c] = mx
                     motion[2 * k + 1, z, r, c] = my
-                    zmotion[k, z, r, c] += -dq[2]
+                    zmotion[k, z, r, c] += np.floor(-dq[2] * 2.0**fzm + 0.5)
                 count += 1
     return count
 
@@ -122,4 +123,5 @@ def apply_viewer_motion(
     geo = np.array([display.pixel_size, display.width, display.height, margin], np.float64)
     return int(_apply(gp.frac, gp.depth, gp.debris, gp.motion, gp.zmotion,
                       _per_refresh(old, refresh_hz), _per_refresh(new, refresh_hz), geo,
-                      display.shears(), gp.fixed.fp, gp.fixed.fm, gp.fixed.v_max, gp.order))
+                      display.shears(), gp.fixed.fp, gp.fixed.fm, gp.fixed.v_max, gp.order,
+                      gp.fixed.fz, gp.fixed.fzm))

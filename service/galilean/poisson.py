@@ -27,6 +27,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.galilean.fixed_point import Z_EMPTY
+
 #: Expansion mode name -> kernel code.
 EXPANSION_MODES: dict[str, int] = {"replicate": 0, "average": 1}
 
@@ -44,9 +46,12 @@ def poisson_flag(depth: np.ndarray, debris: np.ndarray, z: int, r: int, c: int,
     if (debris[z, r, c] | debris[z, r, c - 1] | debris[z, r, c + 1]
             | debris[z, r - 1, c] | debris[z, r + 1, c]):
         return 1
-    lap = (depth[z, r, c + 1] + depth[z, r, c - 1] + depth[z, r + 1, c] + depth[z, r - 1, c]
-           - 4.0 * depth[z, r, c])
-    if not np.isfinite(lap) or abs(lap) > threshold:
+    d0, d1, d2 = depth[z, r, c], depth[z, r, c + 1], depth[z, r, c - 1]
+    d3, d4 = depth[z, r + 1, c], depth[z, r - 1, c]
+    if d0 == Z_EMPTY or d1 == Z_EMPTY or d2 == Z_EMPTY or d3 == Z_EMPTY or d4 == Z_EMPTY:
+        return 1  # fixed-point depth: empty
+    lap = d1 + d2 + d3 + d4 - 4 * d0  # int64 for a fixed-point map (exact)
+    if not np.isfinite(np.float64(lap)) or abs(lap) > threshold:
         return 1
     return 0
 
@@ -101,7 +106,7 @@ def expand_pixel(
         acc0 += col[0, z, rr, cc]
         acc1 += col[1, z, rr, cc]
         acc2 += col[2, z, rr, cc]
-        accd += dep[z, rr, cc]
+        accd += np.float64(dep[z, rr, cc])
     if first < 0:
         return False
     _replicate(new, z, first // w, first % w, r, c)
@@ -109,7 +114,7 @@ def expand_pixel(
         col[0, z, r, c] = acc0 / n
         col[1, z, r, c] = acc1 / n
         col[2, z, r, c] = acc2 / n
-        dep[z, r, c] = accd / n
+        dep[z, r, c] = np.floor(accd / n + 0.5)  # round half up (fixed-point depth)
     frac[0, z, r, c] = 0
     frac[1, z, r, c] = 0
     src_idx[z, r, c] = src_idx[z, first // w, first % w]

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from service.galilean.fixed_point import advance
+from service.galilean.fixed_point import Z_EMPTY, advance
 from service.galilean.poisson import expand_pixel
 
 #: Index of each counter in the ``stats`` array the kernels fill.
@@ -75,8 +75,8 @@ def _advance_into(
 ) -> None:
     """Write galpixel ``p`` of ``src``, advanced one refresh, at ``q`` of ``dst``.
 
-    ``mot`` is ``(vx, vy, ax, ay)`` after the step (from :func:`advance`), ``depth``
-    the new depth, ``fx``, ``fy`` the new fraction.
+    ``mot`` is ``(vx, vy, ax, ay, vz, az)`` after the step (from :func:`advance`),
+    ``depth`` the new depth, ``fx``, ``fy`` the new fraction.
     """
     s_col, s_mot, s_zm, s_dc = src[0], src[3], src[4], src[5]
     d_col, d_mot, d_zm, d_dc = dst[0], dst[3], dst[4], dst[5]
@@ -99,39 +99,44 @@ def _advance_into(
     if order >= 1:
         d_mot[0, q] = mot[0]
         d_mot[1, q] = mot[1]
-        d_zm[0, q] = s_zm[0, p]
+        d_zm[0, q] = mot[4]
     if order >= 2:
         d_mot[2, q] = mot[2]
         d_mot[3, q] = mot[3]
-        d_zm[0, q] += s_zm[1, p]
-        d_zm[1, q] = s_zm[1, p]
+        d_zm[1, q] = mot[5]
     if order >= 3:
         d_mot[4, q] = s_mot[4, p]
         d_mot[5, q] = s_mot[5, p]
-        d_zm[0, q] += 0.5 * s_zm[2, p]
-        d_zm[1, q] += s_zm[2, p]
         d_zm[2, q] = s_zm[2, p]
     dst[6][q] = 0
     dst[7][q] = src[7][p]
 
 
 @nb.njit(cache=True, inline="always")
+def _zplanes(zm: tuple, p: int, order: int) -> tuple:
+    """Galpixel ``p``'s z motion ``(vz, az, jz)`` as int64, 0 beyond ``order``."""
+    z0 = np.int64(zm[0, p]) if order >= 1 else np.int64(0)
+    z1 = np.int64(zm[1, p]) if order >= 2 else np.int64(0)
+    z2 = np.int64(zm[2, p]) if order >= 3 else np.int64(0)
+    return z0, z1, z2
+
+
+@nb.njit(cache=True, inline="always")
 def _target(src: tuple, p: int, r: int, c: int, order: int, fp: int, fm: int) -> tuple:
     """Where galpixel ``p`` (at row r, column c) lands: (qr, qc, fx, fy, depth, motion).
 
-    ``motion`` is ``(vx, vy, ax, ay)`` after the step.
+    ``motion`` is ``(vx, vy, ax, ay, vz, az)`` after the step.
     """
     m, zm = src[3], src[4]
     x = (np.int64(c) << fp) + src[2][0, p]
     y = (np.int64(r) << fp) + src[2][1, p]
-    d = np.float64(src[1][p])
+    d = np.int64(src[1][p])
     sh = fm - fp
     vx = vy = ax = ay = np.int64(0)
     if order == 1:
         vx, vy = np.int64(m[0, p]), np.int64(m[1, p])
         x += (vx + (1 << (sh - 1))) >> sh
         y += (vy + (1 << (sh - 1))) >> sh
-        d += zm[0, p]
     elif order == 2:
         vx, vy = np.int64(m[0, p]), np.int64(m[1, p])
         ax, ay = np.int64(m[2, p]), np.int64(m[3, p])
@@ -139,14 +144,14 @@ def _target(src: tuple, p: int, r: int, c: int, order: int, fp: int, fm: int) ->
         y += (2 * vy + ay + (1 << sh)) >> (sh + 1)
         vx += ax
         vy += ay
-        d += zm[0, p] + 0.5 * zm[1, p]
     elif order == 3:
         x, vx, ax = advance(x, np.int64(m[0, p]), np.int64(m[2, p]), np.int64(m[4, p]), 3, fp, fm)
         y, vy, ay = advance(y, np.int64(m[1, p]), np.int64(m[3, p]), np.int64(m[5, p]), 3, fp, fm)
-        d += zm[0, p] + 0.5 * zm[1, p] + zm[2, p] / 6.0
+    z0, z1, z2 = _zplanes(zm, p, order)
+    d, vz, az = advance(d, z0, z1, z2, order, fp, fm)
     qc = (x + (1 << (fp - 1))) >> fp
     qr = (y + (1 << (fp - 1))) >> fp
-    return qr, qc, x - (qc << fp), y - (qr << fp), d, (vx, vy, ax, ay)
+    return qr, qc, x - (qc << fp), y - (qr << fp), d, (vx, vy, ax, ay, vz, az)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -205,13 +210,12 @@ def sweep(
                 if galpixel:
                     x = (np.int64(c) << fp) + o_frac[0, p]
                     y = (np.int64(r) << fp) + o_frac[1, p]
-                    d = np.float64(o_dep[p])  # every order sums depth in float64
+                    d = np.int64(o_dep[p])
                     vx = vy = ax = ay = np.int64(0)
                     if order == 1:
                         vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
                         x += (vx + (1 << (sh - 1))) >> sh
                         y += (vy + (1 << (sh - 1))) >> sh
-                        d += o_zm[0, p]
                     elif order == 2:
                         vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
                         ax, ay = np.int64(o_mot[2, p]), np.int64(o_mot[3, p])
@@ -219,7 +223,6 @@ def sweep(
                         y += (2 * vy + ay + (1 << sh)) >> (sh + 1)
                         vx += ax
                         vy += ay
-                        d += o_zm[0, p] + 0.5 * o_zm[1, p]
                     elif order == 3:
                         x, vx, ax = advance(
                             x,
@@ -239,7 +242,8 @@ def sweep(
                             fp,
                             fm,
                         )
-                        d += o_zm[0, p] + 0.5 * o_zm[1, p] + o_zm[2, p] / 6.0
+                    z0, z1, z2 = _zplanes(o_zm, p, order)
+                    d, vz, az = advance(d, z0, z1, z2, order, fp, fm)
                     qc = (x + half) >> fp
                     qr = (y + half) >> fp
                 # debris arm (own place free): for an old galpixel that moved away,
@@ -265,7 +269,7 @@ def sweep(
                     if d >= n_dep[q]:
                         if cache_on:
                             _spill_incoming(
-                                old, p, cnew, q, fx, fy, d, (vx, vy, ax, ay), order, stats
+                                old, p, cnew, q, fx, fy, d, (vx, vy, ax, ay, vz, az), order, stats
                             )
                         continue
                     if cache_on:
@@ -289,17 +293,14 @@ def sweep(
                 if order >= 1:
                     n_mot[0, q] = vx
                     n_mot[1, q] = vy
-                    n_zm[0, q] = o_zm[0, p]
+                    n_zm[0, q] = vz
                 if order >= 2:
                     n_mot[2, q] = ax
                     n_mot[3, q] = ay
-                    n_zm[0, q] += o_zm[1, p]
-                    n_zm[1, q] = o_zm[1, p]
+                    n_zm[1, q] = az
                 if order >= 3:
                     n_mot[4, q] = o_mot[4, p]
                     n_mot[5, q] = o_mot[5, p]
-                    n_zm[0, q] += 0.5 * o_zm[2, p]
-                    n_zm[1, q] += o_zm[2, p]
                     n_zm[2, q] = o_zm[2, p]
                 n_deb[q] = 0
                 n_obj[q] = o_obj[p]
@@ -391,6 +392,7 @@ def second_sweep(
     out_depth: np.ndarray,
     out_debris: np.ndarray,
     stats: np.ndarray,
+    zs: float = 1.0,
 ) -> None:
     """Second sweep: expansion of debris (when ``threshold`` >= 0), then the display copy.
 
@@ -446,7 +448,8 @@ def second_sweep(
                 out_colour[z, rr, cc, 0] = np.uint8(min(max(col[0, z, r, c] + 0.5, 0.0), 255.0))
                 out_colour[z, rr, cc, 1] = np.uint8(min(max(col[1, z, r, c] + 0.5, 0.0), 255.0))
                 out_colour[z, rr, cc, 2] = np.uint8(min(max(col[2, z, r, c] + 0.5, 0.0), 255.0))
-                out_depth[z, rr, cc] = dep[z, r, c]
+                d = dep[z, r, c]
+                out_depth[z, rr, cc] = np.inf if d == Z_EMPTY else d * zs
                 out_debris[z, rr, cc] = deb[z, r, c] == 1
     stats[5] += expanded
     stats[6] += left
@@ -496,7 +499,6 @@ def scatter(
     sh = fm - fp
     half = np.int64(1) << (fp - 1)
     n_prop = n_clash = n_drop = 0
-    f0 = np.float32(0.0)
     for z in range(nz):
         for r in range(h):
             base = (z * h + r) * w
@@ -507,34 +509,29 @@ def scatter(
                     continue
                 x = (np.int64(c) << fp) + o_frac[0, p]
                 y = y0 + o_frac[1, p]
-                d = np.float64(o_dep[p])
+                d = np.int64(o_dep[p])
                 vx = vy = ax = ay = jx = jy = np.int64(0)
-                z0 = z1 = z2 = f0
                 if order == 1:
                     vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
-                    z0 = o_zm[0, p]
                     x += (vx + (1 << (sh - 1))) >> sh
                     y += (vy + (1 << (sh - 1))) >> sh
-                    d += z0  # in float64, as every order (G(1) once summed in float32)
                 elif order == 2:
                     vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
                     ax, ay = np.int64(o_mot[2, p]), np.int64(o_mot[3, p])
-                    z0, z1 = o_zm[0, p], o_zm[1, p]
                     x += (2 * vx + ax + (1 << sh)) >> (sh + 1)
                     y += (2 * vy + ay + (1 << sh)) >> (sh + 1)
                     vx += ax
                     vy += ay
-                    d += z0 + 0.5 * z1
                 elif order == 3:
                     jx, jy = np.int64(o_mot[4, p]), np.int64(o_mot[5, p])
-                    z0, z1, z2 = o_zm[0, p], o_zm[1, p], o_zm[2, p]
                     x, vx, ax = advance(
                         x, np.int64(o_mot[0, p]), np.int64(o_mot[2, p]), jx, 3, fp, fm
                     )
                     y, vy, ay = advance(
                         y, np.int64(o_mot[1, p]), np.int64(o_mot[3, p]), jy, 3, fp, fm
                     )
-                    d += z0 + 0.5 * z1 + z2 / 6.0
+                z0, z1, z2 = _zplanes(o_zm, p, order)
+                d, vz, az = advance(d, z0, z1, z2, order, fp, fm)
                 qc = (x + half) >> fp
                 qr = (y + half) >> fp
                 n_prop += 1
@@ -555,7 +552,7 @@ def scatter(
                                 fx,
                                 fy,
                                 d,
-                                (vx, vy, ax, ay),
+                                (vx, vy, ax, ay, vz, az),
                                 order,
                                 stats,
                             )
@@ -584,14 +581,14 @@ def scatter(
                 if order == 1:
                     n_mot[0, q] = vx
                     n_mot[1, q] = vy
-                    n_zm[0, q] = z0
+                    n_zm[0, q] = vz
                 elif order == 2:
                     n_mot[0, q] = vx
                     n_mot[1, q] = vy
                     n_mot[2, q] = ax
                     n_mot[3, q] = ay
-                    n_zm[0, q] = z0 + z1
-                    n_zm[1, q] = z1
+                    n_zm[0, q] = vz
+                    n_zm[1, q] = az
                 elif order == 3:
                     n_mot[0, q] = vx
                     n_mot[1, q] = vy
@@ -599,8 +596,8 @@ def scatter(
                     n_mot[3, q] = ay
                     n_mot[4, q] = jx
                     n_mot[5, q] = jy
-                    n_zm[0, q] = np.float32(z0 + z1) + 0.5 * z2
-                    n_zm[1, q] = z1 + z2
+                    n_zm[0, q] = vz
+                    n_zm[1, q] = az
                     n_zm[2, q] = z2
                 n_deb[q] = 0
                 n_obj[q] = ob
@@ -699,7 +696,7 @@ def scatter_runs(
     rows = max(1, min(h, BATCH // w))
     size = rows * w
     qb = np.empty(size, np.int64)  # landing pixel; -1 debris, -2 off the map
-    db = np.empty(size, np.float64)  # new depth
+    db = np.empty(size, np.int64)  # new depth
     fxb = np.empty(size, np.int16)
     fyb = np.empty(size, np.int16)
     vxb = np.empty(size, np.int32)
@@ -740,7 +737,7 @@ def scatter_runs(
                         qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                         fxb[i] = x - (((x + half) >> fp) << fp)
                         fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = np.float64(o_dep[p]) + o_zm[0][p]  # float64, as in sweep
+                        db[i] = o_dep[p] + ((np.int64(o_zm[0][p]) + (1 << (sh - 1))) >> sh)
                         vxb[i] = vx
                         vyb[i] = vy
                 elif order == 2:
@@ -757,7 +754,9 @@ def scatter_runs(
                         qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                         fxb[i] = x - (((x + half) >> fp) << fp)
                         fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = np.float64(o_dep[p]) + (o_zm[0][p] + 0.5 * o_zm[1][p])
+                        db[i] = o_dep[p] + (
+                            (2 * np.int64(o_zm[0][p]) + o_zm[1][p] + (1 << sh)) >> (sh + 1)
+                        )
                         vxb[i] = vx + ax
                         vyb[i] = vy + ay
                         axb[i] = ax
@@ -786,9 +785,15 @@ def scatter_runs(
                         qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                         fxb[i] = x - (((x + half) >> fp) << fp)
                         fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = np.float64(o_dep[p]) + (
-                            o_zm[0][p] + 0.5 * o_zm[1][p] + o_zm[2][p] / 6.0
-                        )
+                        db[i] = advance(
+                            np.int64(o_dep[p]),
+                            np.int64(o_zm[0][p]),
+                            np.int64(o_zm[1][p]),
+                            np.int64(o_zm[2][p]),
+                            3,
+                            fp,
+                            fm,
+                        )[0]
                         vxb[i] = vx
                         vyb[i] = vy
                         axb[i] = ax
@@ -887,7 +892,7 @@ def scatter_runs(
                     for j in range(m):
                         p, q = _u(s0 + j), _u(q0 + j)
                         z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
-                        n_zm[0][q] = np.float32(z0 + z1) + 0.5 * z2
+                        n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
                         n_zm[1][q] = z1 + z2
                         n_zm[2][q] = z2
     stats[0] += n_prop
@@ -946,7 +951,7 @@ def scatter_bands(
     size = rows * w
     # batch buffers, one row per band (allocated outside the parallel loop)
     qb_all = np.empty((bands, size), np.int64)  # landing pixel; -1 debris, -2 off the map
-    db_all = np.empty((bands, size), np.float64)  # new depth
+    db_all = np.empty((bands, size), np.int64)  # new depth
     fxb_all = np.empty((bands, size), np.int16)
     fyb_all = np.empty((bands, size), np.int16)
     vxb_all = np.empty((bands, size), np.int32)
@@ -1004,7 +1009,7 @@ def scatter_bands(
                             qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                             fxb[i] = x - (((x + half) >> fp) << fp)
                             fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = np.float64(o_dep[p]) + o_zm[0][p]  # float64, as in sweep
+                            db[i] = o_dep[p] + ((np.int64(o_zm[0][p]) + (1 << (sh - 1))) >> sh)
                             vxb[i] = vx
                             vyb[i] = vy
                     elif order == 2:
@@ -1021,7 +1026,9 @@ def scatter_bands(
                             qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                             fxb[i] = x - (((x + half) >> fp) << fp)
                             fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = np.float64(o_dep[p]) + (o_zm[0][p] + 0.5 * o_zm[1][p])
+                            db[i] = o_dep[p] + (
+                                (2 * np.int64(o_zm[0][p]) + o_zm[1][p] + (1 << sh)) >> (sh + 1)
+                            )
                             vxb[i] = vx + ax
                             vyb[i] = vy + ay
                             axb[i] = ax
@@ -1050,9 +1057,15 @@ def scatter_bands(
                             qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
                             fxb[i] = x - (((x + half) >> fp) << fp)
                             fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = np.float64(o_dep[p]) + (
-                                o_zm[0][p] + 0.5 * o_zm[1][p] + o_zm[2][p] / 6.0
-                            )
+                            db[i] = advance(
+                                np.int64(o_dep[p]),
+                                np.int64(o_zm[0][p]),
+                                np.int64(o_zm[1][p]),
+                                np.int64(o_zm[2][p]),
+                                3,
+                                fp,
+                                fm,
+                            )[0]
                             vxb[i] = vx
                             vyb[i] = vy
                             axb[i] = ax
@@ -1155,7 +1168,7 @@ def scatter_bands(
                         for j in range(m):
                             p, q = _u(s0 + j), _u(q0 + j)
                             z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
-                            n_zm[0][q] = np.float32(z0 + z1) + 0.5 * z2
+                            n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
                             n_zm[1][q] = z1 + z2
                             n_zm[2][q] = z2
         stats[band, 0] += n_prop
@@ -1179,14 +1192,18 @@ def _show_row(
     out_depth: np.ndarray,
     out_debris: np.ndarray,
     o0: int,
+    zs: float,
 ) -> None:
-    """Display copy of ``n`` pixels from flat index ``p0`` to output pixel ``o0``."""
+    """Display copy of ``n`` pixels from flat index ``p0`` to output pixel ``o0``.
+
+    Depth goes out as float32 depth units (``zs`` = 2^-fz per fixed-point unit).
+    """
     for i in range(n):
         p, o, o3 = _u(p0 + i), _u(o0 + i), _u(3 * (o0 + i))
         out_colour[o3] = np.uint8(min(max(c0[p] + 0.5, 0.0), 255.0))
         out_colour[o3 + np.uint64(1)] = np.uint8(min(max(c1[p] + 0.5, 0.0), 255.0))
         out_colour[o3 + np.uint64(2)] = np.uint8(min(max(c2[p] + 0.5, 0.0), 255.0))
-        out_depth[o] = dep[p]
+        out_depth[o] = np.inf if dep[p] == Z_EMPTY else dep[p] * zs
         out_debris[o] = deb[p] == 1
 
 
@@ -1198,8 +1215,12 @@ def show(
     out_colour: np.ndarray,
     out_depth: np.ndarray,
     out_debris: np.ndarray,
+    zs: float,
 ) -> None:
-    """Display copy of a map (:func:`planes`, no expansion); outputs flattened too."""
+    """Display copy of a map (:func:`planes`, no expansion); outputs flattened too.
+
+    ``zs`` is the depth unit (2^-fz) the displayed float32 depth is scaled by.
+    """
     nz, h, w = shape
     ww = w - 2 * margin
     (c0, c1, c2), dep, deb = m[0], m[1], m[6]
@@ -1218,6 +1239,7 @@ def show(
                 out_depth,
                 out_debris,
                 o0,
+                zs,
             )
 
 
@@ -1235,6 +1257,7 @@ def show_bands(
     out_colour: np.ndarray,
     out_depth: np.ndarray,
     out_debris: np.ndarray,
+    zs: float,
 ) -> None:
     """:func:`show` with the displayed rows split between threads (``nb.prange``)."""
     nz, h, w = shape
@@ -1254,6 +1277,7 @@ def show_bands(
             out_depth,
             out_debris,
             k * ww,
+            zs,
         )
 
 
@@ -1277,6 +1301,7 @@ def finish(
     write_out: bool,
     track: bool,
     stats: np.ndarray,
+    zs: float = 1.0,
 ) -> None:
     """Second pass after :func:`scatter_runs`: debris arm, expansion and display copy.
 
@@ -1363,8 +1388,13 @@ def finish(
                         pu, pd = _u(zb + sq - w), _u(zb + sq + w)
                         if o_deb[pc] | o_deb[pl] | o_deb[pr] | o_deb[pu] | o_deb[pd]:
                             continue
-                        lap = o_dep[pr] + o_dep[pl] + o_dep[pd] + o_dep[pu] - 4.0 * o_dep[pc]
-                        if not np.isfinite(lap) or abs(lap) > threshold:
+                        e0, e1, e2 = o_dep[pc], o_dep[pr], o_dep[pl]
+                        e3, e4 = o_dep[pd], o_dep[pu]
+                        if (e0 == Z_EMPTY or e1 == Z_EMPTY or e2 == Z_EMPTY or e3 == Z_EMPTY
+                                or e4 == Z_EMPTY):
+                            continue
+                        lap = e1 + e2 + e3 + e4 - 4 * e0
+                        if not np.isfinite(np.float64(lap)) or abs(lap) > threshold:
                             continue
                         if first < 0:
                             first = qi
@@ -1372,7 +1402,7 @@ def finish(
                         acc0 += c0[_u(qi)]
                         acc1 += c1[_u(qi)]
                         acc2 += c2[_u(qi)]
-                        accd += dep[_u(qi)]
+                        accd += np.float64(dep[_u(qi)])
                     if first >= 0:
                         q = _u(first)
                         c0[p] = c0[q]
@@ -1405,7 +1435,7 @@ def finish(
                             c0[p] = acc0 / n
                             c1[p] = acc1 / n
                             c2[p] = acc2 / n
-                            dep[p] = accd / n
+                            dep[p] = np.floor(accd / n + 0.5)
                         f0[p] = 0
                         f1[p] = 0
                         src_idx[p] = src_idx[q]
@@ -1433,6 +1463,7 @@ def finish(
                     out_depth,
                     out_debris,
                     (z * (h - 2 * margin) + r - margin) * ww,
+                    zs,
                 )
     stats[5] += expanded
     stats[6] += left

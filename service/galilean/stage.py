@@ -80,6 +80,10 @@ class GalileanSettings:
         Carry colour derivatives dA, dB, dC, d2A.
     order_guard : bool
         Fall back to a lower order when it predicted the control points better.
+    threads : int
+        Threads a refresh may use (row bands of the scatter and of the display
+        copy); 0: numba's thread count.  1 is serial, which is faster on a machine
+        whose cores are all busy (a parallel region waits for its slowest thread).
     """
 
     order: int = 2
@@ -94,6 +98,7 @@ class GalileanSettings:
     expansion: str = "average"
     colour_motion: bool = True
     order_guard: bool = True
+    threads: int = 0
 
     def __post_init__(self) -> None:
         checks = {
@@ -106,6 +111,7 @@ class GalileanSettings:
             and self.poisson_threshold >= 0,
             "neighbours": self.neighbours in (1, 2, 3, 4),
             "expansion": self.expansion in EXPANSION_MODES,
+            "threads": isinstance(self.threads, int) and 0 <= self.threads <= 1024,
         }
         for name, ok in checks.items():
             if not ok:
@@ -346,10 +352,22 @@ class GalileanStage:
             self.shape,
             self.settings.margin,
             *(a.reshape(-1) for a in shown),
+            2.0**-self.fixed.fz,
         )
 
     def _propagate(self, shown: tuple | None) -> dict:
         """One refresh of the whole map (both sweeps); fills ``shown`` unless None."""
+        threads = self.settings.threads
+        if not threads:
+            return self._propagate_bands(shown)
+        before = nb.get_num_threads()  # per calling thread in numba
+        nb.set_num_threads(min(threads, nb.config.NUMBA_NUM_THREADS))
+        try:
+            return self._propagate_bands(shown)
+        finally:
+            nb.set_num_threads(before)
+
+    def _propagate_bands(self, shown: tuple | None) -> dict:
         s = self.settings
         new = self._spare
         new.debris.fill(1)
@@ -359,7 +377,8 @@ class GalileanStage:
             cnew.debris.fill(1)
         else:
             cold = cnew = new
-        thr = s.poisson_threshold if s.poisson else -1.0
+        # the Poisson threshold in fixed-point depth units
+        thr = s.poisson_threshold * 2.0**self.fixed.fz if s.poisson else -1.0
         src = self._src.reshape(-1)
         old_p, new_p = planes(self.map.arrays()), planes(new.arrays())
         ncol = self.map.colour_planes
@@ -424,7 +443,8 @@ class GalileanStage:
             counters,
         )
         if shown is not None:
-            show_bands(new_p, self.shape, s.margin, *(a.reshape(-1) for a in shown))
+            zs = 2.0**-self.fixed.fz
+            show_bands(new_p, self.shape, s.margin, *(a.reshape(-1) for a in shown), zs)
         self.map, self._spare = new, self.map
         self._reach = next_reach
         if self.cache is not None:

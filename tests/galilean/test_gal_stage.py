@@ -254,7 +254,7 @@ def test_debris_keeps_the_colour_it_last_showed_not_the_spare_buffers():
     st = GalileanStage(disp, GalileanSettings(order=2, poisson=False))
     red = st.map.copy()
     red.colour[0] = 255.0
-    red.depth[:] = 1.0
+    red.depth[:] = 1 << st.fixed.fz  # 1.0 depth units
     red.debris[:] = 0
     red.obj[:] = 0
     assert st.submit(red, 0)
