@@ -43,6 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
         "in flight (frames), or every worker a band of hololines of each update (bands)",
     )
     ap.add_argument(
+        "--io-threads",
+        type=int,
+        default=2,
+        help="libzmq I/O threads (2: the frame stream gets one of its own, so frames do "
+        "not queue behind workers' multi-MB replies)",
+    )
+    ap.add_argument(
         "--worker-address",
         default="tcp://127.0.0.1:5557",
         help="broker backend address workers connect to",
@@ -99,6 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             curve_keys=args.curve_keys,
             render_timeout_s=args.render_timeout,
             split=args.split,
+            io_threads=args.io_threads,
             max_update_hz=args.max_update_hz,
             scene=args.scene,
             display=DisplaySettings(args.zones, args.angle, args.cols, args.rows),

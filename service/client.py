@@ -36,6 +36,7 @@ import zmq.auth
 
 from service import protocol, wire
 from service.errors import MessageError, ServiceError, ServiceUnavailableError
+from service.frame_stream import SOCKET_BUFFER
 from service.scene import Scene, SceneObject
 
 LINGER_MS = 0
@@ -284,6 +285,9 @@ class FrameSubscriber:
         Receive high-water mark in messages.
     curve_keys : str or Path, optional
     context : zmq.Context, optional
+        Without one the subscriber makes its own context (one I/O thread of its
+        own, closed with it), so frames are not received behind other sockets'
+        traffic in a shared context.
     """
 
     def __init__(
@@ -296,7 +300,8 @@ class FrameSubscriber:
         self.address = address
         self.hwm = hwm
         self.curve_keys = curve_keys
-        self._ctx = context or zmq.Context.instance()
+        self._own_ctx = context is None
+        self._ctx = zmq.Context() if context is None else context
         self._sock = self._open()
         self.last_heard = time.monotonic()
         self.session: str | None = None
@@ -304,12 +309,14 @@ class FrameSubscriber:
         self.reconnects = 0
         self.frames = 0
         self.dropped = 0
+        self.skipped = 0
         self._last_seq: int | None = None
 
     def _open(self) -> zmq.Socket:
         sock = self._ctx.socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, LINGER_MS)
         sock.setsockopt(zmq.RCVHWM, self.hwm)
+        sock.setsockopt(zmq.RCVBUF, SOCKET_BUFFER)
         sock.setsockopt(zmq.SUBSCRIBE, b"")
         _curve_client(sock, self.curve_keys)
         sock.connect(self.address)
@@ -360,9 +367,25 @@ class FrameSubscriber:
         self.frames += 1
         return header, header.pop("arrays", {})
 
+    def latest(self, timeout_s: float = 1.0) -> tuple[dict[str, Any], dict[str, np.ndarray]] | None:
+        """The newest frame: waits like :meth:`next`, then drops any older queued frames.
+
+        For a display that shows only the newest frame: a frame that waited in the
+        receive queue behind another is never returned (counted in ``skipped``).
+        """
+        got = self.next(timeout_s)
+        while got is not None and self._sock.poll(0):
+            newer = self._take(self._sock.recv_multipart(copy=False))
+            if newer is not None:
+                self.skipped += 1
+                got = newer
+        return got
+
     def close(self) -> None:
-        """Close the socket (LINGER 0)."""
+        """Close the socket (LINGER 0) and the subscriber's own context."""
         self._sock.close(LINGER_MS)
+        if self._own_ctx:
+            self._ctx.term()
 
     def __enter__(self) -> FrameSubscriber:
         return self

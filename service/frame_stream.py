@@ -19,6 +19,12 @@ import zmq
 from service import protocol, wire
 
 SNDHWM = 2
+#: kernel socket buffers of the frame stream (both ends): a whole 672 kB frame fits,
+#: so a send is not paced by the receiver's window.
+SOCKET_BUFFER = 4 << 20
+#: the PUB socket's I/O thread (bit mask): the second of the service's two, apart
+#: from the control, broker and device sockets (all on the first).
+PUB_AFFINITY = 0b10
 
 
 class FrameStream:
@@ -42,6 +48,9 @@ class FrameStream:
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SNDHWM, SNDHWM)
         self.sock.setsockopt(zmq.SNDTIMEO, 0)
+        self.sock.setsockopt(zmq.SNDBUF, SOCKET_BUFFER)
+        if context.get(zmq.IO_THREADS) > 1:
+            self.sock.setsockopt(zmq.AFFINITY, PUB_AFFINITY)
         self.sock.setsockopt(zmq.HEARTBEAT_IVL, int(protocol.HEARTBEAT_S * 1000))
         self.sock.setsockopt(
             zmq.HEARTBEAT_TIMEOUT, int(protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS * 1000)

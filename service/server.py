@@ -17,6 +17,7 @@ Three loops share one :class:`State` under a lock:
 from __future__ import annotations
 
 import math
+import os
 import queue
 import secrets
 import subprocess
@@ -71,6 +72,8 @@ class ServiceConfig:
     #: with workers: ``frames`` (each worker renders whole updates for successive
     #: rendezvous, several in flight) or ``bands`` (every worker a band of each update).
     split: str = "frames"
+    #: libzmq I/O threads; with 2 the frame PUB has one to itself.
+    io_threads: int = 2
 
 
 @dataclass(frozen=True)
@@ -254,7 +257,9 @@ class Service:
     def __init__(self, config: ServiceConfig) -> None:
         self.config = config
         self.session = secrets.token_hex(4)
-        self.ctx = zmq.Context()
+        # two I/O threads: the frame PUB gets one of its own (FrameStream sets the
+        # affinity), so a worker's multi-MB reply never queues a frame behind it
+        self.ctx = zmq.Context(io_threads=max(1, config.io_threads))
         self.limits = protocol.Limits()
         self.counters = Counters()
         self.state = State(
@@ -357,7 +362,10 @@ class Service:
         ]
         if c.curve_keys:
             cmd += ["--curve-keys", str(c.curve_keys)]
-        self.workers = [subprocess.Popen(cmd, stdin=subprocess.DEVNULL) for _ in range(c.workers)]
+        env = _worker_env(c.workers)
+        self.workers = [
+            subprocess.Popen(cmd, stdin=subprocess.DEVNULL, env=env) for _ in range(c.workers)
+        ]
 
     # ------------------------------------------------------------- control
     def run(self, deadline_s: float | None = None) -> None:
@@ -835,6 +843,19 @@ def _pid() -> int:
     import os
 
     return os.getpid()
+
+
+def _worker_env(workers: int) -> dict[str, str]:
+    """Environment of local workers: their numba thread pools share the cores.
+
+    Each worker renders whole frames with parallel kernels; N workers with a pool
+    of every core each would oversubscribe the machine N times, so each gets
+    ``cores // N`` threads (at least one) unless ``NUMBA_NUM_THREADS`` is set.
+    """
+    env = dict(os.environ)
+    if "NUMBA_NUM_THREADS" not in env and workers > 0:
+        env["NUMBA_NUM_THREADS"] = str(max(1, (os.cpu_count() or 1) // workers))
+    return env
 
 
 def _end_process(p: subprocess.Popen) -> None:

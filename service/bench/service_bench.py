@@ -24,7 +24,8 @@ subprocesses, killed at the end):
     subscriber receives whose header carries that pose, with renders capped at
     15 Hz.  Target: p95 <= 20 ms.
 
-Writes ``service.json`` and ``service.png`` into ``--out`` and prints a summary.
+Writes ``service.json``, ``service_workers.csv`` and ``service.png`` into ``--out``
+and prints a summary.
 """
 
 from __future__ import annotations
@@ -260,16 +261,60 @@ def _rates(svc: Running, seconds: float) -> dict[str, float]:
     }
 
 
-def bench_workers(counts: list[int], seconds: float) -> list[dict[str, Any]]:
-    """Updates/s and refreshes/s with the game scene per worker count."""
+def bench_workers(
+    counts: list[int],
+    seconds: float,
+    splits: tuple[str, ...] = ("frames", "bands"),
+    rounds: int = 1,
+) -> list[dict[str, Any]]:
+    """Updates/s and refreshes/s with the game scene per worker count and split.
+
+    ``frames``: each worker renders whole updates for successive rendezvous (the
+    default); ``bands``: every worker a band of each update.  0 workers renders in
+    the service process (listed once, as ``in_process``).  With ``rounds`` > 1
+    every configuration is measured once per round, in turn, so a load that comes
+    and goes on a shared machine hits all of them; one row per round
+    (``round``), and :func:`median_rows` summarises.
+    """
+    configs = [(n, sp) for n in counts for sp in (splits if n > 0 else ("in_process",))]
     out = []
-    for n in counts:
-        with Running("--scene", "game", "--workers", str(n)) as svc:
-            if not svc.wait_updates(3, 120):
-                out.append({"workers": n, "error": "no updates"})
-                continue
-            out.append({"workers": n, **_rates(svc, seconds)})
+    for r in range(rounds):
+        for n, split in configs:
+            args = ["--scene", "game", "--workers", str(n)]
+            if n > 0:
+                args += ["--split", split]
+            with Running(*args) as svc:
+                row = {"workers": n, "split": split, "round": r}
+                if not svc.wait_updates(3, 120):
+                    out.append({**row, "error": "no updates"})
+                    continue
+                out.append({**row, **_rates(svc, seconds)})
     return out
+
+
+def median_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (workers, split): the median of each rate over the rounds."""
+    keys = ("updates_per_s", "refreshes_per_s", "incomplete_per_s", "render_ms_p50",
+            "refresh_ms_p50", "refresh_overruns")  # fmt: skip
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        if "updates_per_s" in r:
+            groups.setdefault((r["workers"], r["split"]), []).append(r)
+    return [
+        {"workers": n, "split": sp, "rounds": len(g),
+         **{k: float(np.median([x[k] for x in g if x.get(k) is not None] or [np.nan]))
+            for k in keys}}
+        for (n, sp), g in groups.items()
+    ]  # fmt: skip
+
+
+def write_csv(rows: list[dict[str, Any]], path: Path) -> None:
+    """The workers table as CSV (one row per worker count and split)."""
+    keys = ["workers", "split", "round", "updates_per_s", "refreshes_per_s", "incomplete_per_s",
+            "render_ms_p50", "refresh_ms_p50", "refresh_overruns"]  # fmt: skip
+    lines = [",".join(keys)]
+    lines += [",".join("" if r.get(k) is None else str(r.get(k)) for k in keys) for r in rows]
+    path.write_text("\n".join(lines) + "\n")
 
 
 # --------------------------------------------------------- motion to photon
@@ -327,7 +372,7 @@ def _first_reflecting(stamps: list[tuple[int, int | None]], seq: int, after_ns: 
     return None
 
 
-def bench_motion_to_photon(n: int, rate_hz: float = 20.0) -> dict[str, Any]:
+def bench_motion_to_photon(n: int, rate_hz: float = 20.0, io_threads: int = 2) -> dict[str, Any]:
     """Pose written into the tracker's pty -> first frame carrying it (ms).
 
     ``published_ms``: to the service's publication of that frame (its header's
@@ -339,7 +384,16 @@ def bench_motion_to_photon(n: int, rate_hz: float = 20.0) -> dict[str, Any]:
     sent: list[tuple[int, int]] = []
     try:
         with Running(
-            "--scene", "game", "--workers", "1", "--max-update-hz", "15", "--devices", pub
+            "--scene",
+            "game",
+            "--workers",
+            "1",
+            "--max-update-hz",
+            "15",
+            "--devices",
+            pub,
+            "--io-threads",
+            str(io_threads),
         ) as svc:
             frames = FrameStamps(svc.frames)
             frames.start()
@@ -483,15 +537,15 @@ def plot(res: dict[str, Any], path: Path) -> None:
         xlabel="ms",
     )
     w = [x for x in res["workers"] if "updates_per_s" in x]
-    ax[1, 0].plot(
-        [x["workers"] for x in w], [x["updates_per_s"] for x in w], "o-", label="updates/s"
-    )
-    ax[1, 0].plot(
-        [x["workers"] for x in w],
-        [x["refreshes_per_s"] / 10 for x in w],
-        "s--",
-        label="refreshes/s / 10",
-    )
+    base = [x for x in w if x["workers"] == 0]
+    for i, split in enumerate(("frames", "bands")):
+        pts = base + [x for x in w if x.get("split") == split]
+        if len(pts) > len(base):
+            xs = [x["workers"] for x in pts]
+            ax[1, 0].plot(xs, [x["updates_per_s"] for x in pts], "o-", color=f"C{i}",
+                          label=f"updates/s ({split})")  # fmt: skip
+            ax[1, 0].plot(xs, [x["refreshes_per_s"] / 10 for x in pts], "s--", color=f"C{i}",
+                          label=f"refreshes/s / 10 ({split})")  # fmt: skip
     ax[1, 0].set(title="game scene, 5 x 160 x 120 (0 = in process)", xlabel="workers")
     ax[1, 0].legend()
     mtp = res["motion_to_photon"]
@@ -521,6 +575,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
     p.add_argument("--seconds", type=float, default=8.0, help="measuring time per worker count")
     p.add_argument("--workers", default="0,1,2,3", help="worker counts to compare")
+    p.add_argument("--rounds", type=int, default=2, help="rounds of the worker comparison")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -537,10 +592,16 @@ def main(argv: list[str] | None = None) -> int:
     }
     res["transport"] = bench_transport(50 if q else 500)
     res["round_trip"] = bench_round_trip(100 if q else 1000)
-    res["workers"] = bench_workers(counts[:2] if q else counts, 3.0 if q else args.seconds)
+    res["workers_rounds"] = bench_workers(
+        counts[:2] if q else counts, 3.0 if q else args.seconds, rounds=1 if q else args.rounds
+    )
+    res["workers"] = median_rows(res["workers_rounds"])
     res["game"] = next((w for w in res["workers"] if w.get("workers") == 1), res["workers"][0])
     res["motion_to_photon"] = bench_motion_to_photon(60 if q else 400)
+    if not q:  # the same with one libzmq I/O thread (frames share it with worker replies)
+        res["motion_to_photon_1io"] = bench_motion_to_photon(400, io_threads=1)
     (out / "service.json").write_text(json.dumps(res, indent=1))
+    write_csv(res["workers_rounds"], out / "service_workers.csv")
     plot(res, out / "service.png")
     print(summary(res))
     return 0
@@ -550,7 +611,9 @@ def summary(res: dict[str, Any]) -> str:
     """One paragraph of the headline figures."""
     t, rt, m = res["transport"], res["round_trip"], res["motion_to_photon"]
     nan = float("nan")
-    w = ", ".join(f"{x['workers']}: {x.get('updates_per_s', 0):.1f}" for x in res["workers"])
+    w = ", ".join(
+        f"{x['workers']} {x.get('split')}: {x.get('updates_per_s', 0):.1f}" for x in res["workers"]
+    )
     return (
         f"transport p50 ours/raw {t['ratio_p50']:.2f} (target <= {TRANSPORT_TARGET}); "
         f"ping p50 {rt['ping_ms']['p50']:.2f} ms p99 {rt['ping_ms']['p99']:.2f} ms; "
