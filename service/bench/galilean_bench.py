@@ -260,7 +260,7 @@ def timing(size: tuple[int, int], settings: RenderSettings, repeats: int = 15) -
     up = render_with_motion(r, scene, display, 0.0, HZ, settings)
     ms_update = (time.perf_counter() - t0) * 1e3
     out = {"size": f"{size[0]}x{size[1]}", "render_with_motion_ms": ms_update, "orders": {}}
-    runs = [(order, cm, 0) for order in ORDERS for cm in (True, False)] + [(2, True, 1)]
+    runs = [(order, cm, 1) for order in ORDERS for cm in (True, False)] + [(2, True, 0)]
     for order, cm, threads in runs:
         st = GalileanStage(display, GalileanSettings(order=order, refresh_hz=HZ,
                                                      colour_motion=cm, threads=threads))
@@ -275,7 +275,7 @@ def timing(size: tuple[int, int], settings: RenderSettings, repeats: int = 15) -
             ms.append((t1 - t0) * 1e3)
             mr.append((time.perf_counter() - t1) * 1e3)
         key = f"G{order}" + ("" if cm else "-no-colour-motion") + \
-            ("-1-thread" if threads == 1 else "")
+            ("-all-threads" if threads == 0 else "")
         med, rmed = float(np.median(ms)), float(np.median(mr))
         out["orders"][key] = {"ms_per_refresh": med, "ms_min": float(np.min(ms)),
                               "render_ms": rmed, "render_ratio": rmed / med,

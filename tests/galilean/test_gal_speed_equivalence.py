@@ -235,7 +235,7 @@ def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None
 
 
 def test_serial_refresh_matches_the_parallel_one() -> None:
-    """threads=1 (serial bands) and the default give the same refreshes, byte for byte."""
+    """threads=1 (serial) and threads=0 (all of numba's threads) give the same refreshes."""
     display = DisplaySettings(zones=1, cols=64, rows=48)
     one, many = (GalileanStage(display, GalileanSettings(order=2, threads=t)) for t in (1, 0))
     gp = random_map(one, np.random.default_rng(11))
