@@ -71,7 +71,7 @@ def shadow_depth(
     tri = np.full(shape, -1, np.int32)
     if not keep_obj:
         return depth, tri
-    sub = Scene([scene.objects[i] for i in keep_obj], list(scene.lights), scene.ambient)
+    sub = _subscene(scene, keep_obj)
     moved = sub if t == 0.0 and viewer is None else scene_at(sub, t, viewer, viewer_motion)
     arrays = moved.flatten()
     if arrays.triangles.shape[0] == 0:
@@ -89,6 +89,29 @@ def shadow_depth(
     owner = np.asarray(keep_obj, np.int32)[arrays.polygon_object[arrays.triangle_polygon]]
     # one gather: triangle -1 (empty) reads the appended -1
     return depth, np.append(owner, np.int32(-1))[tri]
+
+
+#: Sub-scenes by (id of the scene's object list, object indices), so that their
+#: flattening keeps its static parts (triangulation, polygon lists) between calls.
+_SUBSCENES: dict[tuple, Scene] = {}
+
+
+def _subscene(scene: Scene, keep: list[int]) -> Scene:
+    """A scene of ``keep``'s objects, reused between calls (static parts cached).
+
+    The objects are set afresh every call; the flattening's own key (meshes and
+    materials) decides whether its cached static parts still hold.
+    """
+    key = (id(scene.objects), tuple(keep))
+    sub = _SUBSCENES.get(key)
+    if sub is None:
+        if len(_SUBSCENES) >= 16:
+            _SUBSCENES.pop(next(iter(_SUBSCENES)))
+        sub = _SUBSCENES[key] = Scene([], [], scene.ambient)
+    sub.objects = [scene.objects[i] for i in keep]
+    sub.lights = list(scene.lights)
+    sub.ambient = scene.ambient
+    return sub
 
 
 def shadow_into(
