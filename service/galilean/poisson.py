@@ -7,7 +7,7 @@ Laplacian vanishes; where two surfaces abut it has a source.  On the pixel grid
 
 and the **Poisson flag** of a pixel is 1 ("yes, a source": an edge) when
 ``|lap z| > threshold``, when any of the five pixels is debris or empty (depth
-+inf), and on the map's border; 0 inside a surface.
+``Z_EMPTY``, or +inf in a float map), and on the map's border; 0 inside a surface.
 
 The **second sweep** scans the new map for debris.  A debris pixel is *expanded*
 when a neighbour (left; optionally also up, right, down) is a galpixel propagated
@@ -62,9 +62,10 @@ def poisson_map(depth: np.ndarray, debris: np.ndarray, threshold: float) -> np.n
 
     Parameters
     ----------
-    depth : ndarray, shape (Z, H, W), float32
+    depth : ndarray, shape (Z, H, W), int32 (fixed point, ``Z_EMPTY`` empty) or float
     debris : ndarray, shape (Z, H, W), uint8
     threshold : float
+        In the depth array's units (``poisson_threshold * 2^fz`` for a galpixmap).
 
     Returns
     -------
