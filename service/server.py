@@ -6,8 +6,8 @@ Three loops share one :class:`State` under a lock:
   on the ROUTER socket with a handler per message type (``docs/protocol.md``);
 * the **render thread** renders the scene as fast as it can (or at most
   ``max_update_hz``) for a rendezvous a little in the future, in process or through
-  the LRU broker to worker processes (bands of hololines), and builds the
-  galpixmap;
+  the LRU broker to worker processes (whole frames, one in flight per worker, each
+  for its own rendezvous; or bands of hololines), and builds the galpixmap;
 * the **refresh thread** ticks at the refresh rate on an absolute schedule, hands
   finished updates to the Galilean stage, takes the viewer's pose from the devices'
   stream, refreshes and publishes the frame.  It never waits for a render; a render
