@@ -318,6 +318,7 @@ def split_job(frames: list[Any]) -> tuple[list[bytes], list[Any] | None]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m service.worker``."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.cli_service.main
     ap = argparse.ArgumentParser(prog="holo-service-worker")
     ap.add_argument("--connect", default="tcp://127.0.0.1:5557")
     ap.add_argument("--curve-keys", default=None)
