@@ -456,7 +456,7 @@ def second_sweep(
 
 
 # ------------------------------------------------------------------ fast path
-# The stage runs ``scatter_runs`` (or ``scatter`` when the obscuration cache is on)
+# The stage runs ``scatter_bands`` (or ``scatter`` when the obscuration cache is on)
 # and then ``finish``; together they do what ``sweep`` + ``second_sweep`` do, bit
 # for bit (tests/galilean/test_gal_speed_equivalence.py).  ``sweep`` and
 # ``second_sweep`` stay as the straightforward reference.  The debris arm is
@@ -652,252 +652,8 @@ def _landing(x: int, y: int, debris: int, z: int, h: int, w: int, half: int, fp:
     return -1 if debris != 0 else ((z * h + qr) * w + qc if inside else -2)
 
 
-#: Pixels per batch of rows :func:`scatter_runs` advances before it copies.
+#: Pixels per batch of rows :func:`scatter_bands` advances before it copies.
 BATCH = 4096
-
-
-@nb.njit(cache=True, error_model="numpy")
-def scatter_runs(
-    old: tuple,
-    new: tuple,
-    src_idx: np.ndarray,
-    shape: tuple,
-    order: int,
-    fp: int,
-    fm: int,
-    ncol: int,
-    track: bool,
-    stats: np.ndarray,
-) -> None:
-    """First sweep without its debris arm or cache, by batches of rows, plane by plane.
-
-    Same result as :func:`sweep` (without cache) followed by the debris arm of
-    :func:`finish`.  Maps are :func:`planes`; ``new``'s debris all 1 on entry.
-
-    Each batch of old rows (about :data:`BATCH` pixels) is done in three steps:
-
-    1. *advance* (plain element-wise loops, SIMD): every galpixel's landing pixel,
-       new fraction, motion and depth into batch buffers;
-    2. *z-test* (the only sequential part, in scan order like the paper's scan):
-       each landing galpixel against the new map's debris flag and depth, which it
-       writes when it wins; winners from consecutive old pixels that land on
-       consecutive new pixels are gathered into runs;
-    3. *copy*: each field, plane by plane, run by run (contiguous, SIMD).
-
-    Within every plane the writes keep scan order, so a pixel that two winners
-    land on ends up with the later one, as in the one-pass scan; the z-test only
-    reads the flags and depths that step 2 keeps current.
-    """
-    nz, h, w = shape
-    o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
-    n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
-    sh = fm - fp
-    half = np.int64(1) << (fp - 1)
-    rows = max(1, min(h, BATCH // w))
-    size = rows * w
-    qb = np.empty(size, np.int64)  # landing pixel; -1 debris, -2 off the map
-    db = np.empty(size, np.int64)  # new depth
-    fxb = np.empty(size, np.int16)
-    fyb = np.empty(size, np.int16)
-    vxb = np.empty(size, np.int32)
-    vyb = np.empty(size, np.int32)
-    axb = np.empty(size, np.int32)
-    ayb = np.empty(size, np.int32)
-    run_i = np.empty(size, np.int64)  # first batch index of a run
-    run_q = np.empty(size, np.int64)  # its landing pixel
-    run_n = np.empty(size, np.int64)  # its length
-    n_prop = n_clash = n_drop = 0
-    for z in range(nz):
-        zb = z * h * w
-        for r0 in range(0, h, rows):
-            nr = min(rows, h - r0)
-            b0 = zb + r0 * w  # flat index of the batch's first pixel
-            # 1. advance (one loop per order: a loop-invariant branch inside
-            #    would keep LLVM from vectorising it)
-            for rr in range(nr):
-                r = r0 + rr
-                p0 = zb + r * w
-                i0 = rr * w
-                y0 = np.int64(r) << fp
-                if order == 0:
-                    for c in range(w):
-                        p, i = _u(p0 + c), _u(i0 + c)
-                        x = (np.int64(c) << fp) + o_frac[0][p]
-                        y = y0 + o_frac[1][p]
-                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                        fxb[i] = x - (((x + half) >> fp) << fp)
-                        fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = o_dep[p]
-                elif order == 1:
-                    for c in range(w):
-                        p, i = _u(p0 + c), _u(i0 + c)
-                        vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                        x = (np.int64(c) << fp) + o_frac[0][p] + ((vx + (1 << (sh - 1))) >> sh)
-                        y = y0 + o_frac[1][p] + ((vy + (1 << (sh - 1))) >> sh)
-                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                        fxb[i] = x - (((x + half) >> fp) << fp)
-                        fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = o_dep[p] + ((np.int64(o_zm[0][p]) + (1 << (sh - 1))) >> sh)
-                        vxb[i] = vx
-                        vyb[i] = vy
-                elif order == 2:
-                    for c in range(w):
-                        p, i = _u(p0 + c), _u(i0 + c)
-                        vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                        ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
-                        x = (
-                            (np.int64(c) << fp)
-                            + o_frac[0][p]
-                            + ((2 * vx + ax + (1 << sh)) >> (sh + 1))
-                        )
-                        y = y0 + o_frac[1][p] + ((2 * vy + ay + (1 << sh)) >> (sh + 1))
-                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                        fxb[i] = x - (((x + half) >> fp) << fp)
-                        fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = o_dep[p] + (
-                            (2 * np.int64(o_zm[0][p]) + o_zm[1][p] + (1 << sh)) >> (sh + 1)
-                        )
-                        vxb[i] = vx + ax
-                        vyb[i] = vy + ay
-                        axb[i] = ax
-                        ayb[i] = ay
-                else:
-                    for c in range(w):
-                        p, i = _u(p0 + c), _u(i0 + c)
-                        x, vx, ax = advance(
-                            (np.int64(c) << fp) + o_frac[0][p],
-                            np.int64(o_mot[0][p]),
-                            np.int64(o_mot[2][p]),
-                            np.int64(o_mot[4][p]),
-                            3,
-                            fp,
-                            fm,
-                        )
-                        y, vy, ay = advance(
-                            y0 + o_frac[1][p],
-                            np.int64(o_mot[1][p]),
-                            np.int64(o_mot[3][p]),
-                            np.int64(o_mot[5][p]),
-                            3,
-                            fp,
-                            fm,
-                        )
-                        qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                        fxb[i] = x - (((x + half) >> fp) << fp)
-                        fyb[i] = y - (((y + half) >> fp) << fp)
-                        db[i] = advance(
-                            np.int64(o_dep[p]),
-                            np.int64(o_zm[0][p]),
-                            np.int64(o_zm[1][p]),
-                            np.int64(o_zm[2][p]),
-                            3,
-                            fp,
-                            fm,
-                        )[0]
-                        vxb[i] = vx
-                        vyb[i] = vy
-                        axb[i] = ax
-                        ayb[i] = ay
-            # 2. z-test in scan order; the open run is kept in registers
-            runs = 0
-            ri = rq = rn = np.int64(0)
-            for i in range(nr * w):
-                q = qb[i]
-                if q < 0:
-                    if q == -2:
-                        n_prop += 1
-                        n_drop += 1
-                    if rn:
-                        run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                        runs += 1
-                        rn = 0
-                    continue
-                n_prop += 1
-                d = db[i]
-                if n_deb[_u(q)] == 0:
-                    n_clash += 1
-                    if d >= n_dep[_u(q)]:
-                        if rn:
-                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                            runs += 1
-                            rn = 0
-                        continue
-                n_dep[_u(q)] = d
-                n_deb[_u(q)] = 0
-                if rn and q == rq + rn:
-                    rn += 1
-                else:
-                    if rn:
-                        run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                        runs += 1
-                    ri, rq, rn = i, q, 1
-            if rn:
-                run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                runs += 1
-            # 3. copy, plane by plane, run by run
-            for k in range(runs):
-                i0, q0, m = run_i[k], run_q[k], run_n[k]
-                s0 = b0 + i0
-                if ncol == 4:
-                    for j in range(m):
-                        p, q = _u(s0 + j), _u(q0 + j)
-                        da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
-                        sa = da + 0.5 * d2a
-                        n_col[0][q] = o_col[0][p] + (sa + dbb)
-                        n_col[1][q] = o_col[1][p] + (sa - dcc)
-                        n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
-                        n_dc[0][q] = da + d2a
-                        n_dc[1][q] = dbb
-                        n_dc[2][q] = dcc
-                        n_dc[3][q] = d2a
-                else:
-                    for j in range(m):
-                        p, q = _u(s0 + j), _u(q0 + j)
-                        n_col[0][q] = o_col[0][p]
-                        n_col[1][q] = o_col[1][p]
-                        n_col[2][q] = o_col[2][p]
-                for j in range(m):
-                    b, q = _u(i0 + j), _u(q0 + j)
-                    n_frac[0][q] = fxb[b]
-                    n_frac[1][q] = fyb[b]
-                for j in range(m):
-                    n_obj[_u(q0 + j)] = o_obj[_u(s0 + j)]
-                if track:
-                    for j in range(m):
-                        src_idx[_u(q0 + j)] = s0 - zb + j
-                if order >= 1:
-                    for j in range(m):
-                        b, q = _u(i0 + j), _u(q0 + j)
-                        n_mot[0][q] = vxb[b]
-                        n_mot[1][q] = vyb[b]
-                if order >= 2:
-                    for j in range(m):
-                        b, q = _u(i0 + j), _u(q0 + j)
-                        n_mot[2][q] = axb[b]
-                        n_mot[3][q] = ayb[b]
-                if order == 3:
-                    for j in range(m):
-                        p, q = _u(s0 + j), _u(q0 + j)
-                        n_mot[4][q] = o_mot[4][p]
-                        n_mot[5][q] = o_mot[5][p]
-                if order == 1:
-                    for j in range(m):
-                        n_zm[0][_u(q0 + j)] = o_zm[0][_u(s0 + j)]
-                elif order == 2:
-                    for j in range(m):
-                        p, q = _u(s0 + j), _u(q0 + j)
-                        n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
-                        n_zm[1][q] = o_zm[1][p]
-                elif order == 3:
-                    for j in range(m):
-                        p, q = _u(s0 + j), _u(q0 + j)
-                        z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
-                        n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
-                        n_zm[1][q] = z1 + z2
-                        n_zm[2][q] = z2
-    stats[0] += n_prop
-    stats[1] += n_clash
-    stats[2] += n_drop
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -916,10 +672,26 @@ def scatter_bands(
     stats: np.ndarray,
     reach_out: np.ndarray,
 ) -> None:
-    """:func:`scatter_runs` with the new map's rows split into bands run in parallel.
+    """First sweep without its debris arm or cache, the new rows in parallel bands.
 
-    Bit for bit the result of :func:`scatter_runs` (and so of :func:`sweep` without
-    cache, the debris arm left to :func:`finish`).  Band ``b`` owns the new rows
+    Bit for bit the result of :func:`sweep` without cache, the debris arm left to
+    :func:`finish`.  Maps are :func:`planes`; ``new``'s debris all 1 on entry.
+
+    Each batch of old rows (about :data:`BATCH` pixels) is done in three steps:
+
+    1. *advance* (plain element-wise loops, SIMD): every galpixel's landing pixel,
+       new fraction, motion and depth into batch buffers;
+    2. *z-test* (the only sequential part, in scan order like the paper's scan):
+       each landing galpixel against the new map's debris flag and depth, which it
+       writes when it wins; winners from consecutive old pixels that land on
+       consecutive new pixels are gathered into runs;
+    3. *copy*: each field, plane by plane, run by run (contiguous, SIMD).
+
+    Within every plane the writes keep scan order, so a pixel that two winners
+    land on ends up with the later one, as in the one-pass scan; the z-test only
+    reads the flags and depths that step 2 keeps current.
+
+    Band ``b`` owns the new rows
     ``[b H / bands, (b + 1) H / bands)`` of every zone: it advances, in scan order,
     the old rows a galpixel landing there can come from (its own rows and
     ``reach`` rows either side) and runs the z-test and the copy only for the
@@ -928,15 +700,26 @@ def scatter_bands(
 
     Parameters
     ----------
-    old, new, src_idx, shape, order, fp, fm, ncol, track
-        As :func:`scatter_runs`.
+    old, new : tuple
+        The old and new maps as :func:`planes`.
+    src_idx : ndarray, shape (N,), int32
+        Out (when ``track``): for each new pixel, ``r * W + c`` of the old galpixel
+        that landed there (pixels nothing lands on are left as they were).
+    shape : tuple
+        (Z, H, W).
+    order, fp, fm : int
+        Galpixel order; fractional bits of position and of motion.
+    ncol : int
+        Colour-derivative planes the map holds (:attr:`Galpixmap.colour_planes`: 4 or 0).
+    track : bool
+        Record ``src_idx`` (needed by the expansion sweep).
     reach : int
         A bound on the rows any galpixel of ``old`` moves this refresh
         (:func:`map_reach`, or :func:`reach_of` of the previous call's
         ``reach_out``).  A galpixel moving farther could be missed: callers must
         pass a true bound (``H`` is always one).
     bands : int
-        Number of bands (1: :func:`scatter_runs` exactly).
+        Number of bands (any count gives the same result).
     stats : ndarray, shape (bands, 3), int64
         Accumulated per band: propagated, clashes, dropped (of its own old rows).
     reach_out : ndarray, shape (bands, 3), int64
@@ -1303,7 +1086,7 @@ def finish(
     stats: np.ndarray,
     zs: float = 1.0,
 ) -> None:
-    """Second pass after :func:`scatter_runs`: debris arm, expansion and display copy.
+    """Second pass after :func:`scatter_bands`: debris arm, expansion and display copy.
 
     A pixel is only written when this scan reaches it (the debris arm, or an
     expansion that reads neighbours but writes the pixel itself), so each row is
