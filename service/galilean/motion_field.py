@@ -92,11 +92,16 @@ def vertex_derivatives(projections: np.ndarray, h: float) -> np.ndarray:
     return np.stack([d1, d2, d3])
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def interpolate(
     tri_map: np.ndarray, triangles: np.ndarray, proj: np.ndarray, vd: np.ndarray
 ) -> np.ndarray:
     """Per-pixel derivatives by barycentric interpolation of vertex derivatives.
+
+    Along a row a triangle's barycentrics, and so each interpolated derivative,
+    are affine in the column: ``A + B x`` (``x`` the pixel centre).  A row sets up
+    ``A`` and ``B`` for its nine derivatives where the triangle changes, and a pixel
+    then costs nine multiply-adds.  Rows run in parallel.
 
     Parameters
     ----------
@@ -111,38 +116,81 @@ def interpolate(
     Returns
     -------
     ndarray, shape (3, 3, Z, R, C), float32
-        Zero where empty.
+        Zero where empty; a degenerate (zero-area) triangle gets its vertices' mean.
     """
     nz, nr, nc = tri_map.shape
-    out = np.zeros((3, 3, nz, nr, nc), np.float32)
-    for z in range(nz):
-        for r in range(nr):
-            for c in range(nc):
-                t = tri_map[z, r, c]
-                if t < 0:
-                    continue
-                i0, i1, i2 = triangles[t, 0], triangles[t, 1], triangles[t, 2]
-                ax, ay = proj[z, i0, 0], proj[z, i0, 1]
-                bx, by = proj[z, i1, 0], proj[z, i1, 1]
-                cx, cy = proj[z, i2, 0], proj[z, i2, 1]
-                det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
-                w1 = w2 = 1.0 / 3.0
-                if det != 0.0:
-                    x, y = c + 0.5, r + 0.5
-                    w1 = ((x - ax) * (cy - ay) - (cx - ax) * (y - ay)) / det
-                    w2 = ((bx - ax) * (y - ay) - (x - ax) * (by - ay)) / det
-                w0 = 1.0 - w1 - w2
-                for k in range(3):
-                    for d in range(3):
-                        out[k, d, z, r, c] = (w0 * vd[k, z, i0, d] + w1 * vd[k, z, i1, d]
-                                              + w2 * vd[k, z, i2, d])
+    out = np.empty((3, 3, nz, nr, nc), np.float32)
+    flat = out.reshape(9, nz * nr * nc)
+    for zr in nb.prange(nz * nr):
+        z, r = zr // nr, zr % nr
+        y, base = r + 0.5, zr * nc
+        coef = np.empty((2, 9))  # A, B per derivative (k, d)
+        last = -1
+        for c in range(nc):
+            t = tri_map[z, r, c]
+            if t < 0:
+                for j in range(9):
+                    flat[j, base + c] = 0.0
+                continue
+            if t != last:
+                last = t
+                _row_setup(triangles[t], proj[z], vd[:, z], y, coef)
+            x = c + 0.5
+            for j in range(9):
+                flat[j, base + c] = coef[0, j] + coef[1, j] * x
     return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_setup(tri: np.ndarray, proj: np.ndarray, vd: np.ndarray, y: float,
+               coef: np.ndarray) -> None:
+    """``coef`` (2, 9): A and B of ``A + B x`` for each derivative, along row ``y``."""
+    i0, i1, i2 = tri[0], tri[1], tri[2]
+    ax, ay = proj[i0, 0], proj[i0, 1]
+    ex, ey = proj[i1, 0] - ax, proj[i1, 1] - ay  # b - a
+    fx, fy = proj[i2, 0] - ax, proj[i2, 1] - ay  # c - a
+    det = ex * fy - fx * ey
+    # w1 = u1 + s1 x, w2 = u2 + s2 x on this row
+    u1 = u2 = 1.0 / 3.0
+    s1 = s2 = 0.0
+    if det != 0.0:
+        py = y - ay
+        s1, u1 = fy / det, (-ax * fy - fx * py) / det
+        s2, u2 = -ey / det, (ex * py + ax * ey) / det
+    for k in range(3):
+        for d in range(3):
+            v0 = vd[k, i0, d]
+            d1, d2 = vd[k, i1, d] - v0, vd[k, i2, d] - v0
+            coef[0, 3 * k + d] = v0 + u1 * d1 + u2 * d2
+            coef[1, 3 * k + d] = s1 * d1 + s2 * d2
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _colour_derivatives(
+    m: np.ndarray, c0: np.ndarray, p: np.ndarray, h: float, weights: np.ndarray, out: np.ndarray
+) -> None:
+    """:func:`colour_derivatives` on flat (N, 3) frames into ``out`` (4, N)."""
+    s1, s2 = 255.0 / (2.0 * h), 255.0 / (h * h)
+    for i in nb.prange(m.shape[0]):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += weights[j, k] * (np.float64(p[i, k]) - np.float64(m[i, k]))
+            out[j, i] = acc * s1
+        acc = 0.0
+        for k in range(3):
+            acc += weights[0, k] * (np.float64(p[i, k]) - 2.0 * np.float64(c0[i, k])
+                                    + np.float64(m[i, k]))
+        out[3, i] = acc * s2
 
 
 def colour_derivatives(
     frames: list[np.ndarray], h: float
 ) -> np.ndarray:
     """dA, dB, dC, d2A per refresh from linear colour at ``t - h, t, t + h``.
+
+    Central differences (equations 17-18's A, B, C of the colour's first
+    derivative, and A of its second), in float64, one pass over the pixels.
 
     Parameters
     ----------
@@ -155,12 +203,14 @@ def colour_derivatives(
     ndarray, shape (4, Z, R, C), float32
         In 0..255 units.
     """
-    m, c0, p = (np.asarray(f, np.float64) * 255.0 for f in frames)
-    d1 = (p - m) / (2 * h)
-    d2 = (p - 2 * c0 + m) / h**2
-    abc = d1 @ RGB_TO_ABC.T
-    d2a = d2 @ RGB_TO_ABC[0]
-    return np.concatenate([np.moveaxis(abc, -1, 0), d2a[None]]).astype(np.float32)
+    shape = np.shape(frames[1])[:-1]
+    if len(frames) != 3 or any(np.shape(f) != (*shape, 3) for f in frames):
+        raise ValueError(f"colour_derivatives needs 3 frames of one (..., 3) shape, got "
+                         f"{[np.shape(f) for f in frames]}")
+    flat = [np.ascontiguousarray(f).reshape(-1, 3) for f in frames]
+    out = np.empty((4, *shape), np.float32)
+    _colour_derivatives(*flat, float(h), RGB_TO_ABC, out.reshape(4, -1))
+    return out
 
 
 def render_with_motion(
