@@ -7,6 +7,7 @@ README's "Benchmarks" section for how to read them.
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 BENCHES = {
@@ -55,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv[0] not in BENCHES:
         print(f"holo-bench: unknown benchmark {argv[0]!r}\n\n{usage()}", file=sys.stderr)
         return 2
+    # as holo-service does: OpenMP threads that spin while waiting steal the core
+    # the measured code needs (see service.cli_service.main); set before numba loads
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     module = importlib.import_module(BENCHES[argv[0]][0])
     return int(module.main(argv[1:]) or 0)
 

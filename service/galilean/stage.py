@@ -82,11 +82,12 @@ class GalileanSettings:
         Fall back to a lower order when it predicted the control points better.
     threads : int
         Threads a refresh may use (row bands of the scatter and of the display
-        copy); 0: numba's thread count.  The default, 1 (serial), is the robust
-        choice where the renderer or anything else keeps the cores busy: a
-        parallel region waits for its slowest thread, and on this 2-core machine
-        under load a 2-thread refresh took twice as long as a serial one (while
-        idle it is about 1.4x faster).
+        copy); 0, the default: numba's thread count; 1: serial.  With OpenMP
+        threads that sleep while waiting (``OMP_WAIT_POLICY=PASSIVE``, which
+        ``holo-service`` and ``holo-bench`` set) two threads were 1.2-1.5x faster
+        than one on this 2-core machine when idle and no slower beside a busy
+        render process; with spinning threads a busy neighbour made both 2.5x
+        slower.
     """
 
     order: int = 2
@@ -101,7 +102,7 @@ class GalileanSettings:
     expansion: str = "average"
     colour_motion: bool = True
     order_guard: bool = True
-    threads: int = 1
+    threads: int = 0
 
     def __post_init__(self) -> None:
         checks = {
