@@ -174,7 +174,9 @@ class FixedPoint:
         """``fm - fp``: bits dropped when a motion step becomes a position step."""
         return self.fm - self.fp
 
-    def quantise(self, values: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray]:
+    def quantise(
+        self, values: np.ndarray, limit: float, where: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Motion values (px per refresh^n) to int32 fixed point, round half up.
 
         Parameters
@@ -182,6 +184,9 @@ class FixedPoint:
         values : ndarray, any shape, float
         limit : float
             Magnitude bound; NaN, +-inf and values beyond it are clamped (NaN to 0).
+        where : ndarray of bool, optional
+            Shaped as the trailing axes of ``values``: where False the value is
+            taken as 0 (e.g. pixels with nothing drawn).
 
         Returns
         -------
@@ -189,10 +194,7 @@ class FixedPoint:
         bad : ndarray, same shape, bool
             Where a value was non-finite or clamped.
         """
-        v = np.asarray(values, np.float64)
-        bad = ~np.isfinite(v) | (np.abs(v) > limit)
-        v = np.clip(np.nan_to_num(v, nan=0.0, posinf=limit, neginf=-limit), -limit, limit)
-        return np.floor(v * 2.0**self.fm + 0.5).astype(np.int32), bad
+        return _to_fixed(values, 2.0**self.fm, float(limit), True, where)
 
     def to_float(self, fixed: np.ndarray) -> np.ndarray:
         """Fixed-point motion back to px per refresh^n (float64)."""
@@ -217,28 +219,29 @@ class FixedPoint:
         fixed : ndarray, same shape, int32
         bad : ndarray, same shape, bool
         """
-        d = np.asarray(depth, np.float64)
-        empty = np.isnan(d) | (d == np.inf)
-        q = np.floor(np.where(empty, 0.0, d) * 2.0**self.fz + 0.5)
-        bad = ~empty & (np.abs(q) > Z_LIMIT)
-        q = np.clip(q, -Z_LIMIT, Z_LIMIT)
-        return np.where(empty, Z_EMPTY, q).astype(np.int32), bad
+        d = np.asarray(depth)
+        if d.dtype.kind != "f":
+            d = d.astype(np.float64)
+        flat = np.ascontiguousarray(d).reshape(-1)
+        out = np.empty(flat.shape, np.int32)
+        bad = np.empty(flat.shape, np.bool_)
+        _depth_kernel(flat, 2.0**self.fz, out, bad)
+        return out.reshape(d.shape), bad.reshape(d.shape)
 
     def depth_float(self, fixed: np.ndarray) -> np.ndarray:
         """Fixed-point depths back to float32 depth units (+inf where empty)."""
         f = np.asarray(fixed)
         return np.where(f == Z_EMPTY, np.inf, f / 2.0**self.fz).astype(np.float32)
 
-    def zmotion_fixed(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def zmotion_fixed(
+        self, values: np.ndarray, where: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Z motion (depth units per refresh^n) to int32 fixed point, round half up.
 
-        Non-finite values become 0, values beyond the format are clamped; both flagged.
+        Non-finite values become 0, values beyond the format are clamped; both
+        flagged.  ``where`` as in :meth:`quantise`.
         """
-        v = np.asarray(values, np.float64)
-        lim = Z_LIMIT / 2.0**self.fzm
-        bad = ~np.isfinite(v) | (np.abs(v) > lim)
-        v = np.clip(np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0), -lim, lim)
-        return np.floor(v * 2.0**self.fzm + 0.5).astype(np.int32), bad
+        return _to_fixed(values, 2.0**self.fzm, Z_LIMIT / 2.0**self.fzm, False, where)
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
@@ -334,3 +337,74 @@ def points_fixed(
         q = fixed.quantise(motion[n], lims[n])[0].astype(np.int64)
         out.append(q if n < order else np.zeros_like(q))
     return (x, *out)
+
+
+def _to_fixed(
+    values: np.ndarray, scale: float, limit: float, inf_to_limit: bool,
+    where: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``floor(clip(v) * scale + 1/2)`` as int32, and where ``v`` was non-finite or clamped.
+
+    NaN becomes 0; +-inf becomes +-``limit`` when ``inf_to_limit``, else 0.  Where
+    ``where`` (the trailing axes of ``values``) is False, 0 and not flagged.
+    """
+    v = np.asarray(values)
+    if v.dtype.kind != "f":
+        v = v.astype(np.float64)
+    mask = np.ones(1, np.bool_) if where is None else np.asarray(where, np.bool_)
+    if where is not None and mask.shape != v.shape[v.ndim - mask.ndim:]:
+        raise ValueError(f"where has shape {mask.shape}, values {v.shape}")
+    flat = np.ascontiguousarray(v).reshape(-1)
+    out = np.empty(flat.shape, np.int32)
+    bad = np.empty(flat.shape, np.bool_)
+    _fixed_kernel(flat, np.ascontiguousarray(mask).reshape(-1), scale, limit, inf_to_limit,
+                  out, bad)
+    return out.reshape(v.shape), bad.reshape(v.shape)
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _fixed_kernel(
+    v: np.ndarray, mask: np.ndarray, scale: float, limit: float, inf_to_limit: bool,
+    out: np.ndarray, bad: np.ndarray,
+) -> None:
+    """:func:`_to_fixed` on flat (N,) arrays, in float64 as numpy would.
+
+    ``mask`` (M,) repeats along ``v`` (M divides N; M = 1 with True: no mask).
+    """
+    m = mask.size
+    if m == 1:  # one flag for every value
+        for i in nb.prange(v.size):
+            out[i], bad[i] = _fixed_value(np.float64(v[i]) if mask[0] else 0.0, scale, limit,
+                                          inf_to_limit)
+        return
+    for rep in range(v.size // m):  # one contiguous run of m values per repeat
+        vr, o, b = v[rep * m : (rep + 1) * m], out[rep * m : (rep + 1) * m], bad[rep * m :]
+        for j in nb.prange(m):
+            x = np.float64(vr[j])
+            o[j], b[j] = _fixed_value(x if mask[j] else 0.0, scale, limit, inf_to_limit)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _fixed_value(x: float, scale: float, limit: float, inf_to_limit: bool) -> tuple:
+    """One value of :func:`_to_fixed`: (int32 fixed point, flagged)."""
+    b = False
+    if np.isnan(x):
+        x, b = 0.0, True
+    elif np.isinf(x):
+        x, b = (limit if x > 0 else -limit) if inf_to_limit else 0.0, True
+    elif abs(x) > limit:
+        x, b = min(max(x, -limit), limit), True
+    return np.int32(np.floor(x * scale + 0.5)), b
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _depth_kernel(d: np.ndarray, scale: float, out: np.ndarray, bad: np.ndarray) -> None:
+    """:meth:`FixedPoint.depth_fixed` on flat (N,) arrays."""
+    for i in nb.prange(d.size):
+        x = np.float64(d[i])
+        if np.isnan(x) or x == np.inf:
+            out[i], bad[i] = Z_EMPTY, False
+            continue
+        q = np.floor(x * scale + 0.5)
+        bad[i] = abs(q) > Z_LIMIT
+        out[i] = np.int32(min(max(q, -Z_LIMIT), Z_LIMIT))

@@ -260,15 +260,16 @@ def build(
     if ob is not None:
         gp.obj[:] = ob
     if dcol is not None:
-        gp.dcolour[:] = np.nan_to_num(dcol, nan=0.0, posinf=0.0, neginf=0.0)
+        gp.dcolour[:] = dcol
+        gp.dcolour[~np.isfinite(gp.dcolour)] = 0.0
     clamped = int(zclamped.sum())
     if der is not None and order > 0:
         finite = gp.depth != Z_EMPTY
         limits = (fixed.v_max, fixed.a_max, fixed.j_max)
         for k in range(order):
-            q, bad = fixed.quantise(np.where(finite, der[k, :2], 0.0), limits[k])
+            q, bad = fixed.quantise(der[k, :2], limits[k], finite)
             gp.motion[2 * k : 2 * k + 2] = q
-            gp.zmotion[k], zbad = fixed.zmotion_fixed(np.where(finite, der[k, 2], 0.0))
+            gp.zmotion[k], zbad = fixed.zmotion_fixed(der[k, 2], finite)
             clamped += int(bad.sum() + zbad.sum())
     if margin:
         gp = _padded(gp, margin)

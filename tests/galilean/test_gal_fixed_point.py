@@ -3,6 +3,8 @@ import pytest
 
 from service.errors import SettingsError
 from service.galilean.fixed_point import (
+    Z_EMPTY,
+    Z_LIMIT,
     FixedPoint,
     bit_budget,
     pixel_of,
@@ -66,3 +68,61 @@ def test_quantise_clamps_and_flags_bad_values():
     assert bad.tolist() == [True, True, True, False]
     assert q[0] == 0 and q[1] == int(fx.v_max * 2**fx.fm) and q[2] == -q[1]
     assert q[3] == 2 ** (fx.fm - 1)
+
+
+def _awkward_values(rng, scale, limit):
+    """Random values with NaN, +-inf, values past the limit and exact half steps."""
+    v = rng.normal(0, limit / 4, 4000)
+    v[:200] = (rng.integers(-1000, 1000, 200) + 0.5) / scale  # ties round half up
+    v[200:260] = np.nan
+    v[260:300] = np.inf
+    v[300:340] = -np.inf
+    v[340:400] = rng.choice([-1, 1], 60) * limit * rng.uniform(1.0, 10.0, 60)
+    v[400:420] = [limit, -limit] * 10
+    return rng.permutation(v).reshape(40, 100)
+
+
+def test_fixed_point_conversions_match_their_numpy_definitions():
+    fx = FixedPoint.for_order(bit_budget(640, 16, 16), 2)
+    rng = np.random.default_rng(8)
+    # motion: NaN -> 0, +-inf -> +-limit, clamped, all flagged
+    v = _awkward_values(rng, 2.0**fx.fm, fx.v_max)
+    want_bad = ~np.isfinite(v) | (np.abs(v) > fx.v_max)
+    for values in (v, v.astype(np.float32).astype(np.float64)):
+        q, bad = fx.quantise(values, fx.v_max)
+        w = np.clip(np.nan_to_num(values, nan=0.0, posinf=fx.v_max, neginf=-fx.v_max),
+                    -fx.v_max, fx.v_max)
+        assert q.dtype == np.int32 and q.shape == v.shape
+        assert (q == np.floor(w * 2.0**fx.fm + 0.5).astype(np.int32)).all()
+        assert (bad == want_bad).all()
+    assert (fx.quantise(v.astype(np.float32), fx.v_max)[0]
+            == fx.quantise(v.astype(np.float32).astype(np.float64), fx.v_max)[0]).all()
+    # z motion: non-finite -> 0
+    lim = Z_LIMIT / 2.0**fx.fzm
+    z = _awkward_values(rng, 2.0**fx.fzm, lim)
+    q, bad = fx.zmotion_fixed(z)
+    w = np.clip(np.nan_to_num(z, nan=0.0, posinf=0.0, neginf=0.0), -lim, lim)
+    assert (q == np.floor(w * 2.0**fx.fzm + 0.5).astype(np.int32)).all()
+    assert (bad == (~np.isfinite(z) | (np.abs(z) > lim))).all()
+    # depth: NaN and +inf empty (not flagged); -inf and beyond the format clamped, flagged
+    d = _awkward_values(rng, 2.0**fx.fz, Z_LIMIT / 2.0**fx.fz)
+    q, bad = fx.depth_fixed(d)
+    empty = np.isnan(d) | (d == np.inf)
+    f = np.floor(np.where(empty, 0.0, d) * 2.0**fx.fz + 0.5)
+    assert (q == np.where(empty, Z_EMPTY, np.clip(f, -Z_LIMIT, Z_LIMIT)).astype(np.int32)).all()
+    assert (bad == (~empty & (np.abs(f) > Z_LIMIT))).all()
+    assert (q[empty] == Z_EMPTY).all() and bad[d == -np.inf].all()
+
+
+def test_quantise_where_masks_pixels_to_zero_unflagged():
+    fx = FixedPoint.for_order(bit_budget(640, 16, 16), 2)
+    v = np.array([[[1.0, np.nan], [np.inf, 0.25]], [[-1.0, 2.0], [np.nan, -0.25]]])
+    where = np.array([[True, False], [False, True]])
+    q, bad = fx.quantise(v, fx.v_max, where)
+    assert q[:, ~where].tolist() == [[0, 0], [0, 0]] and not bad[:, ~where].any()
+    assert (q[:, where] == fx.quantise(v[:, where], fx.v_max)[0]).all()
+    z, zbad = fx.zmotion_fixed(v, where)
+    assert (z[:, ~where] == 0).all() and zbad.tolist() == [[[False, False], [False, False]],
+                                                           [[False, False], [False, False]]]
+    with pytest.raises(ValueError, match="where has shape"):
+        fx.quantise(v, fx.v_max, where[:1])
