@@ -30,6 +30,7 @@ from game.display import MODES, UNAVAILABLE, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
 from service.display import DisplaySettings, parse_size
 from service.errors import HoloError
+from service.heap import keep_freed_memory
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
 
@@ -170,6 +171,7 @@ def run(args: argparse.Namespace) -> dict:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``holo-game``; returns the exit status."""
     args = build_parser().parse_args(argv)
+    keep_freed_memory()  # every frame arrives in fresh buffers (service.heap)
     if args.print_lamps:
         print(f"0x{lamp_mask():08x}")
         return 0

@@ -10,6 +10,8 @@ import importlib
 import os
 import sys
 
+from service.heap import keep_freed_memory
+
 BENCHES = {
     "render": (
         "service.bench.render_bench",
@@ -59,6 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     # as holo-service does: OpenMP threads that spin while waiting steal the core
     # the measured code needs (see service.cli_service.main); set before numba loads
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    keep_freed_memory()  # as the service does (service.heap)
     module = importlib.import_module(BENCHES[argv[0]][0])
     return int(module.main(argv[1:]) or 0)
 

@@ -17,6 +17,7 @@ from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings, parse_size
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
+from service.heap import keep_freed_memory
 from service.light import LightSettings
 from service.loaders import load_scene
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
@@ -120,6 +121,7 @@ def run(args: argparse.Namespace) -> dict:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
+    keep_freed_memory()  # see service.heap
     try:
         report = run(args)
     except HoloError as exc:

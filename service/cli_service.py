@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 from service.display import DisplaySettings
 from service.errors import HoloError
+from service.heap import keep_freed_memory
 from service.keys import make_keys
 from service.signals import stop_on_signals
 
@@ -99,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # 16 ms spinning against 12 ms passive (unloaded, passive is ~1.2x slower).  Set
     # before the first parallel kernel loads libgomp; workers inherit it.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    keep_freed_memory()  # frame-sized arrays reuse freed pages (service.heap)
     from service.server import Service, ServiceConfig
 
     try:

@@ -36,6 +36,7 @@ from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
+from service.heap import keep_freed_memory
 from service.light import LightSettings
 from service.pipeline import Renderer, RenderSettings, StageClock
 from service.scene import (
@@ -319,6 +320,7 @@ def split_job(frames: list[Any]) -> tuple[list[bytes], list[Any] | None]:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m service.worker``."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.cli_service.main
+    keep_freed_memory()  # see service.heap
     ap = argparse.ArgumentParser(prog="holo-service-worker")
     ap.add_argument("--connect", default="tcp://127.0.0.1:5557")
     ap.add_argument("--curve-keys", default=None)
