@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import zmq
-from conftest import raw_request, start_service
+from service_helpers import raw_request, start_service
 
 HELLO = {"v": 1, "type": "hello", "id": 1, "versions": [1]}
 

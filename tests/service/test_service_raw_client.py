@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import zmq
-from conftest import raw_request, wait_until
+from service_helpers import raw_request, wait_until
 
 
 class RawClient:

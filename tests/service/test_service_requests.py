@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 import zmq
-from conftest import start_service
+from service_helpers import start_service
 
 from service import protocol
 from service.client import RequestTooLargeError, ServiceClient

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import signal
 
-from conftest import free_port, start_service, wait_until
+from service_helpers import free_port, start_service, wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

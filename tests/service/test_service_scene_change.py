@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from conftest import wait_until
+from service_helpers import wait_until
 
 from service.client import ServiceClient
 
