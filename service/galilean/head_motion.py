@@ -23,7 +23,7 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
-from service.galilean.fixed_point import Z_EMPTY
+from service.galilean.fixed_point import Z_EMPTY, Z_LIMIT
 from service.galilean.galpixmap import Galpixmap
 from service.scene import MotionState
 
@@ -58,15 +58,19 @@ def _induced(m: np.ndarray, q0: float, q1: float, q2: float) -> tuple:
 def _apply(
     frac: np.ndarray, depth: np.ndarray, debris: np.ndarray, motion: np.ndarray,
     zmotion: np.ndarray, old: np.ndarray, new: np.ndarray, geo: np.ndarray, shears: np.ndarray,
-    fp: int, fm: int, vmax: float, order: int, fz: int, fzm: int,
-) -> int:
-    """Add the induced-motion difference to every galpixel; returns how many changed.
+    fp: int, fm: int, limits: np.ndarray, order: int, fz: int, fzm: int,
+) -> tuple:
+    """Add the induced-motion difference to every galpixel.
 
-    ``geo`` is (pixel size, width, height, margin).
+    ``geo`` is (pixel size, width, height, margin); ``limits`` (2,) the velocity and
+    acceleration bounds in px per refresh^n.  Returns (galpixels changed, values
+    clamped): sums beyond the bounds, or z motion beyond the depth format, are
+    clamped there rather than wrapped.
     """
     s, width, height, margin = geo[0], geo[1], geo[2], geo[3]
-    scale, lim = 2.0**fm, vmax * 2.0**fm
-    count = 0
+    scale = 2.0**fm
+    zlim = np.float64(Z_LIMIT)
+    count = clamped = 0
     nz, h, w = depth.shape
     for z in range(nz):
         sh = shears[z]
@@ -87,14 +91,16 @@ def _apply(
                         (n2[0] - o2[0], n2[1] - o2[1], n2[2] - o2[2])
                     dx = (dq[0] - dq[2] * sh) / s
                     dy = -dq[1] / s
-                    mx = min(max(motion[2 * k, z, r, c] + np.floor(dx * scale + 0.5), -lim), lim)
+                    lim = limits[k] * scale
+                    mx = motion[2 * k, z, r, c] + np.floor(dx * scale + 0.5)
                     my = motion[2 * k + 1, z, r, c] + np.floor(dy * scale + 0.5)
-                    my = min(max(my, -lim), lim)
-                    motion[2 * k, z, r, c] = mx
-                    motion[2 * k + 1, z, r, c] = my
-                    zmotion[k, z, r, c] += np.floor(-dq[2] * 2.0**fzm + 0.5)
+                    mz = zmotion[k, z, r, c] + np.floor(-dq[2] * 2.0**fzm + 0.5)
+                    clamped += (abs(mx) > lim) + (abs(my) > lim) + (abs(mz) > zlim)
+                    motion[2 * k, z, r, c] = min(max(mx, -lim), lim)
+                    motion[2 * k + 1, z, r, c] = min(max(my, -lim), lim)
+                    zmotion[k, z, r, c] = min(max(mz, -zlim), zlim)
                 count += 1
-    return count
+    return count, clamped
 
 
 def apply_viewer_motion(
@@ -115,13 +121,18 @@ def apply_viewer_motion(
 
     Returns
     -------
-    int
+    changed : int
         Galpixels changed (0 for a G(0) map, which has no motion).
+    clamped : int
+        Motion values that went past the format's velocity, acceleration or z
+        bounds and were clamped there (an absurd viewer motion never wraps).
     """
     if gp.order == 0:
-        return 0
+        return 0, 0
     geo = np.array([display.pixel_size, display.width, display.height, margin], np.float64)
-    return int(_apply(gp.frac, gp.depth, gp.debris, gp.motion, gp.zmotion,
-                      _per_refresh(old, refresh_hz), _per_refresh(new, refresh_hz), geo,
-                      display.shears(), gp.fixed.fp, gp.fixed.fm, gp.fixed.v_max, gp.order,
-                      gp.fixed.fz, gp.fixed.fzm))
+    limits = np.array([gp.fixed.v_max, gp.fixed.a_max], np.float64)
+    changed, clamped = _apply(gp.frac, gp.depth, gp.debris, gp.motion, gp.zmotion,
+                              _per_refresh(old, refresh_hz), _per_refresh(new, refresh_hz), geo,
+                              display.shears(), gp.fixed.fp, gp.fixed.fm, limits, gp.order,
+                              gp.fixed.fz, gp.fixed.fzm)
+    return int(changed), int(clamped)

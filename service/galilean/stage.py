@@ -309,7 +309,7 @@ class GalileanStage:
         due = [p for p in self._pending if p.rendezvous == self.index]
         self._pending = [p for p in self._pending if p.rendezvous > self.index]
         if self._viewer_next is not None:
-            stats["viewer_updated"] = apply_viewer_motion(
+            stats["viewer_updated"], clamped = apply_viewer_motion(
                 self.map,
                 self.display,
                 self.settings.margin,
@@ -317,6 +317,9 @@ class GalileanStage:
                 self._viewer_next,
                 self.settings.refresh_hz,
             )
+            if clamped:
+                self._events.append({"kind": "motion_clamped", "count": clamped,
+                                     "source": "viewer"})
             self._viewer, self._viewer_next = self._viewer_next, None
             self._reach = None
         z, r, c = self.display.zones, self.display.rows, self.display.cols

@@ -3,7 +3,7 @@ import pytest
 
 from service.display import DisplaySettings
 from service.frame import Frame
-from service.galilean.fixed_point import pixel_of, points_fixed, propagate_points
+from service.galilean.fixed_point import Z_EMPTY, pixel_of, points_fixed, propagate_points
 from service.galilean.galpixmap import GalileanError, build
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import poisson_map
@@ -231,6 +231,32 @@ def test_head_motion_adds_depth_dependent_motion():
     assert vx[5, 5] == pytest.approx(expect_near, abs=0.01)
     assert vx[13, 5] == pytest.approx(expect_far, abs=0.01)
     assert vx[0, 0] == 0.0  # empty (infinitely far) pixels untouched
+
+
+def test_absurd_viewer_motion_is_clamped_and_flagged_never_wrapped():
+    near = (4, 8, 4, 8, 1.0, (9, 9, 9), (0.0, 0.0), (0, 0))
+    for v, a in (([0.0, 0.0, 1e30], [0.0, 0.0, 0.0]), ([0.0, 0.0, -1e30], [0.0, 0.0, 0.0]),
+                 ([0.0, 0.0, 0.0], [0.0, -1e9, 0.0])):
+        st = stage(2, refresh_hz=60.0)
+        st.update(scene_update([near]), 0)
+        st.refresh()
+        st.viewer(MotionState(velocity=v, acceleration=a))
+        out = st.refresh()
+        events = [e for e in out.flags["events"] if e["kind"] == "motion_clamped"]
+        assert events and events[0]["source"] == "viewer" and events[0]["count"] > 0
+        live = (st.map.debris[0] == 0) & (st.map.depth[0] != Z_EMPTY)
+        assert live.sum() > 4
+        vel, acc = (st.fixed.to_float(st.map.motion[k:k + 2, 0][:, live]) for k in (0, 2))
+        # velocity within v_max, acceleration within a_max (not v_max), nothing wrapped
+        assert np.abs(vel).max() <= st.fixed.v_max and np.abs(acc).max() <= st.fixed.a_max
+        if a[1]:
+            assert np.abs(acc[1]).max() == pytest.approx(st.fixed.a_max)
+        if v[2]:
+            # a viewer receding fast along z: every galpixel's z motion saturates with
+            # the sign of the motion, where int32 arithmetic would have wrapped it
+            vz = st.map.zmotion[0, 0][live].astype(np.int64)
+            assert (np.sign(vz) == np.sign(v[2])).all() and (np.abs(vz) > 2**30).all()
+        assert np.isfinite(out.depth).any()
 
 
 def test_full_out_of_view_buffering_brings_in_what_was_outside():
