@@ -101,7 +101,13 @@ class MotionState:
 
     def __post_init__(self) -> None:
         for name in ("velocity", "acceleration", "angular_velocity", "angular_acceleration"):
-            v = np.asarray(getattr(self, name), dtype=np.float64).reshape(3)
+            try:
+                v = np.asarray(getattr(self, name), dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise SettingsError(f"motion {name} must be 3 numbers: {exc}") from None
+            if v.size != 3:
+                raise SettingsError(f"motion {name} must be 3 numbers, got shape {v.shape}")
+            v = v.reshape(3)
             if not np.all(np.isfinite(v)):
                 raise SettingsError(f"motion {name} must be finite")
             object.__setattr__(self, name, v)

@@ -30,7 +30,7 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, points_fixed, propagate_points
-from service.galilean.galpixmap import Galpixmap, build
+from service.galilean.galpixmap import GalileanError, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.galilean.shadow import shadow_depth, shadow_into
 from service.pipeline import Renderer, RenderSettings
@@ -251,7 +251,17 @@ def object_errors(
     -------
     ndarray, shape (n_objects,)
         Largest displayed-vs-true distance per object in px (0 without points).
+
+    Raises
+    ------
+    GalileanError
+        If an array's shape does not fit ``points`` (the message names it).
     """
+    check_points(points, derivs)
+    n = len(points)
+    for name, arr, shape in (("truth", truth, np.shape(points)), ("owner", owner, (n,))):
+        if np.shape(arr) != shape:
+            raise GalileanError(f"{name} must have shape {shape}, got {np.shape(arr)}")
     x, v, a, j = points_fixed(points, derivs, fixed, order)
     shown = propagate_points(x, v, a, j, order, fixed.fp, fixed.fm, steps)[-1] / 2.0**fixed.fp
     dist = np.linalg.norm(shown - truth, axis=-1)
@@ -268,3 +278,14 @@ def priority(
     rest = [int(i) for i in np.argsort(-errors, kind="stable") if errors[i] > min_error
             and int(i) not in exp]
     return exp + rest
+
+
+def check_points(points: np.ndarray | None, derivs: np.ndarray | None) -> None:
+    """Raise :class:`GalileanError` unless points are (N, D) and derivs (3, N, D), D 1 or 2."""
+    if points is None and derivs is None:
+        return
+    p, d = np.shape(points), np.shape(derivs)
+    if len(p) != 2 or p[1] not in (1, 2):
+        raise GalileanError(f"points must have shape (N, 2) (or (N, 1)), got {p}")
+    if d != (3, *p):
+        raise GalileanError(f"point_derivs must have shape {(3, *p)}, got {d}")

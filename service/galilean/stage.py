@@ -34,7 +34,7 @@ from service.errors import SettingsError
 from service.galilean.fixed_point import FixedPoint, bit_budget, propagate_points
 from service.galilean.galpixmap import GalileanError, Galpixmap, build
 from service.galilean.head_motion import apply_viewer_motion
-from service.galilean.local_update import graft
+from service.galilean.local_update import check_points, graft
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
 from service.galilean.propagate import (
@@ -270,6 +270,7 @@ class GalileanStage:
         ``points``/``point_derivs`` feed the order guard; ``viewer`` is the viewer
         motion baked into the buffer's motion (None: the stage's current one).
         """
+        check_points(points, point_derivs)
         if buffer.shape != self.shape or buffer.order != self.settings.order:
             raise GalileanError(
                 f"buffer must be a G({self.settings.order}) map of shape "

@@ -3,6 +3,7 @@ import pytest
 
 from service.display import DisplaySettings
 from service.galilean.fixed_point import Z_EMPTY, FixedPoint, bit_budget
+from service.galilean.galpixmap import GalileanError
 from service.galilean.local_update import (
     expired,
     graft,
@@ -156,6 +157,12 @@ def test_error_estimate_orders_re_renders():
     err = object_errors(pts, der, truth, np.array([0, 1, 2]), 4, fixed, 2, 3)
     np.testing.assert_allclose(err, [0.0, 6.0, 0.0], atol=0.15)
     assert priority(err, expired_objects=[2]) == [2, 1]
+    owner = np.array([0, 1, 2])
+    for args, field in (((pts, der[:, :2], truth, owner), "point_derivs"),
+                        ((pts, der, truth[:2], owner), "truth"),
+                        ((pts, der, truth, owner[:2]), "owner")):
+        with pytest.raises(GalileanError, match=field):
+            object_errors(*args, 4, fixed, 2, 3)
 
 
 def test_order_guard_falls_back_from_noisy_g3():

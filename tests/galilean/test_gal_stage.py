@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from service.display import DisplaySettings
+from service.errors import SettingsError
 from service.frame import Frame
 from service.galilean.fixed_point import Z_EMPTY, pixel_of, points_fixed, propagate_points
 from service.galilean.galpixmap import GalileanError, build
@@ -215,6 +216,20 @@ def test_mismatched_shapes_raise_value_error_naming_the_field():
         build(u.frame.colour, u.frame.depth, 2, st.fixed, dcolour=np.zeros((3, 1, R, C)))
     with pytest.raises(GalileanError, match="update colour"):
         stage(2, cols=16).update(u)
+    # control points and their derivatives (the order guard's input) must agree
+    pts = np.zeros((4, 2))
+    for derivs, field in ((np.zeros((3, 5, 2)), "point_derivs"), (np.zeros((3, 4, 3)),
+                                                                  "point_derivs")):
+        bad = RenderedUpdate(u.frame, u.derivatives, None, u.obj, MotionState(), pts, derivs)
+        with pytest.raises(GalileanError, match=field):
+            st.update(bad)
+    with pytest.raises(GalileanError, match="points"):
+        st.update(RenderedUpdate(u.frame, u.derivatives, None, u.obj, MotionState(),
+                                 np.zeros((4, 3)), np.zeros((3, 4, 3))))
+    with pytest.raises(SettingsError, match="velocity must be 3 numbers"):
+        MotionState(velocity=[1.0, 2.0])
+    with pytest.raises(SettingsError, match="angular_velocity must be 3 numbers"):
+        MotionState(angular_velocity=[[1.0, 2.0, 3.0], [0, 0, 0]])
 
 
 def test_head_motion_adds_depth_dependent_motion():
