@@ -46,6 +46,8 @@ from service.scene_motion import advance_scene
 from service.worker import StatsRenderer, render_job, stitch
 
 ENCODINGS = ("colour", "depth", "debris")
+#: the largest object index a request may name (an int64); past the scene's end: not_found.
+MAX_INDEX = 2**63 - 1
 METHODS = ("zbuffer", "runlength", "bsp", "raycast")
 
 
@@ -901,23 +903,31 @@ def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
 
 
 def _object_index(u: Any, objs: list, i: int) -> int:
+    """The scene index an ``update_objects`` entry names (by ``index`` or ``name``).
+
+    Raises
+    ------
+    MessageError
+        ``bad_message`` for a malformed entry (not an object, neither key, an index
+        that is not a non-negative integer); ``not_found`` for a well-formed index or
+        name that names no object of the scene.
+    """
     if not isinstance(u, dict):
         raise MessageError("bad_message", f"objects[{i}] must be an object")
     if "index" in u:
-        return (
-            wire.integer(u["index"], f"objects[{i}].index", 0, len(objs) - 1)
-            if objs
-            else _missing(i)
-        )
-    name = wire.string(u.get("name"), f"objects[{i}].name", 256) if "name" in u else None
+        k = wire.integer(u["index"], f"objects[{i}].index", 0, MAX_INDEX)
+        if k >= len(objs):
+            raise MessageError(
+                "not_found", f"objects[{i}]: no object {k} (the scene has {len(objs)})"
+            )
+        return k
+    if "name" not in u:
+        raise MessageError("bad_message", f"objects[{i}] needs an index or a name")
+    name = wire.string(u["name"], f"objects[{i}].name", 256)
     for k, o in enumerate(objs):
-        if name is not None and o.name == name:
+        if o.name == name:
             return k
     raise MessageError("not_found", f"objects[{i}]: no object {name!r}")
-
-
-def _missing(i: int) -> int:
-    raise MessageError("not_found", f"objects[{i}]: the scene has no objects")
 
 
 def _encodings(v: Any) -> tuple[str, ...]:

@@ -140,17 +140,30 @@ CASES = {
         [_j({"v": 1, "type": "update_objects", "id": 5, "objects": "all"})],
         "bad_message",
     ),
-    "bad_index": (
-        [
-            _j(
-                {
-                    "v": 1,
-                    "type": "update_objects",
-                    "id": 5,
-                    "objects": [{"index": 999, "position": [0, 0, 0]}],
-                }
-            )
-        ],
+    # an index is malformed (bad_message) unless it is a non-negative integer; a
+    # well-formed one past the scene's end names no object (not_found)
+    "unknown_index": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"index": 999}]})],
+        "not_found",
+    ),
+    "negative_index": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"index": -1}]})],
+        "bad_message",
+    ),
+    "float_index": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"index": 1.5}]})],
+        "bad_message",
+    ),
+    "string_index": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"index": "0"}]})],
+        "bad_message",
+    ),
+    "bool_index": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"index": True}]})],
+        "bad_message",
+    ),
+    "neither_index_nor_name": (
+        [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"position": [0, 0, 0]}]})],
         "bad_message",
     ),
     "unknown_name": (
