@@ -1,7 +1,7 @@
 """Arrays and scenes on the wire: JSON headers plus raw buffers (``docs/protocol.md`` 1.4).
 
 An array travels as one raw little-endian buffer frame, described in the header's
-``arrays`` list (``{"dtype", "shape"}``) and referred to from the JSON with
+``arrays`` list (``{"dtype", "shape", "encoding": "raw"}``) and referred to from the JSON with
 ``{"$array": i}``.  Buffers above :data:`ZERO_COPY_BYTES` are sent without a copy.
 No pickle: the only serialisations are JSON and raw buffers.
 
@@ -37,11 +37,13 @@ DTYPES: dict[str, np.dtype] = {
 NAMES = {v: k for k, v in DTYPES.items()}
 MAX_DIMS = 4
 MAX_ARRAYS = 1024
+#: buffer encodings of version 1: ``raw`` only (C order, little endian, uncompressed).
+ENCODINGS = ("raw",)
 
 
 def describe(arr: np.ndarray, name: str | None = None) -> dict[str, Any]:
-    """The descriptor of one array (``dtype``, ``shape``, optional ``name``)."""
-    desc: dict[str, Any] = {"dtype": NAMES[arr.dtype], "shape": list(arr.shape)}
+    """The descriptor of one array (``dtype``, ``shape``, ``encoding``, optional ``name``)."""
+    desc: dict[str, Any] = {"dtype": NAMES[arr.dtype], "shape": list(arr.shape), "encoding": "raw"}
     if name is not None:
         desc["name"] = name
     return desc
@@ -122,6 +124,15 @@ def _shape(desc: dict[str, Any], i: int, max_dims: int) -> tuple[int, ...]:
     return tuple(shape)
 
 
+def _encoding(desc: dict[str, Any], i: int) -> None:
+    """Check a descriptor's optional ``encoding`` (absent means ``raw``)."""
+    enc = desc.get("encoding", "raw")
+    if enc not in ENCODINGS:
+        raise MessageError(
+            "bad_message", f"arrays[{i}].encoding must be one of {list(ENCODINGS)}, got {enc!r}"
+        )
+
+
 def decode_arrays(
     descs: object, buffers: list[Any], max_bytes: int, max_dims: int = MAX_DIMS
 ) -> list[np.ndarray]:
@@ -133,7 +144,8 @@ def decode_arrays(
     ------
     MessageError
         ``bad_frames`` when the counts differ, ``bad_array`` for a bad dtype, shape
-        or byte count, ``too_large`` past ``max_bytes`` per array.
+        or byte count, ``bad_message`` for an ``encoding`` other than ``raw``,
+        ``too_large`` past ``max_bytes`` per array.
     """
     if descs is None:
         descs = []
@@ -147,6 +159,7 @@ def decode_arrays(
     for i, (desc, buf) in enumerate(zip(descs, buffers, strict=True)):
         if not isinstance(desc, dict) or desc.get("dtype") not in DTYPES:
             raise MessageError("bad_array", f"arrays[{i}].dtype must be one of {sorted(DTYPES)}")
+        _encoding(desc, i)
         dtype, shape = DTYPES[desc["dtype"]], _shape(desc, i, max_dims)
         nbytes = math.prod(shape) * dtype.itemsize
         if nbytes > max_bytes:

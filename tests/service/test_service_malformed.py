@@ -166,6 +166,22 @@ CASES = {
         [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"position": [0, 0, 0]}]})],
         "bad_message",
     ),
+    "unknown_encoding": (
+        [
+            _j(
+                {
+                    **_obj(),
+                    "arrays": [
+                        {"dtype": "float32", "shape": [3, 3], "encoding": "zlib"},
+                        {"dtype": "int32", "shape": [1, 3], "encoding": "raw"},
+                    ],
+                }
+            ),
+            V3.tobytes(),
+            TRI,
+        ],
+        "bad_message",
+    ),
     "unknown_name": (
         [_j({"v": 1, "type": "update_objects", "id": 5, "objects": [{"name": "nobody"}]})],
         "not_found",

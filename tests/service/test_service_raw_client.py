@@ -23,7 +23,9 @@ class RawClient:
         self.n += 1
         header = {"v": 1, "type": msg_type, "id": self.n, **fields}
         if arrays:
-            header["arrays"] = [{"dtype": str(a.dtype), "shape": list(a.shape)} for a in arrays]
+            header["arrays"] = [
+                {"dtype": str(a.dtype), "shape": list(a.shape), "encoding": "raw"} for a in arrays
+            ]
         self.s.send_multipart([b"", json.dumps(header).encode(), *[a.tobytes() for a in arrays]])
         assert self.s.poll(20000), f"no reply to {msg_type}"
         frames = self.s.recv_multipart()
@@ -89,9 +91,11 @@ def test_raw_client_full_session(service_factory):
         colour = np.frombuffer(bufs[0], descs["colour"]["dtype"]).reshape(descs["colour"]["shape"])
         assert colour.shape == (3, 30, 40, 3) and colour.any()
         assert descs["depth"]["dtype"] == "float32" and len(bufs) == 2
+        assert all(d["encoding"] == "raw" for d in r["arrays"])  # protocol.md 1.4 and 2
         got = _frame(sub, lambda h: h["kind"] == "frame" and len(h["arrays"]) == 3)
         header, bufs = got
         assert [d["name"] for d in header["arrays"]] == ["colour", "depth", "debris"]
+        assert [d["encoding"] for d in header["arrays"]] == ["raw"] * 3
         assert header["arrays"][0]["shape"] == [3, 30, 40, 3]
         assert len(bufs[0]) == 3 * 30 * 40 * 3 and header["session"] == hello["session"]
         r, _ = c.ask("set_viewer", position=[0.0, 0.0, 0.0], velocity=[0.05, 0, 0])

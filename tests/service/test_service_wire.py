@@ -88,6 +88,40 @@ def test_parse_errors(body, code):
     assert info.value.code == code
 
 
+def test_every_descriptor_says_raw_encoding():
+    """protocol.md 1.4 / 2: each array descriptor carries ``"encoding": "raw"``."""
+    a = np.zeros((2, 3), np.float32)
+    assert wire.describe(a, "depth") == {
+        "dtype": "float32",
+        "shape": [2, 3],
+        "encoding": "raw",
+        "name": "depth",
+    }
+    head = json.loads(protocol.reply([], 1, "render", {}, [a, a.astype(np.uint8)], ["d", "c"])[0])
+    assert [d["encoding"] for d in head["arrays"]] == ["raw", "raw"]
+    head = json.loads(protocol.request("load_object", 1, {"x": a})[1])
+    assert head["arrays"][0]["encoding"] == "raw"
+
+
+@pytest.mark.parametrize("encoding", [None, "raw"])
+def test_raw_or_absent_encoding_is_accepted(encoding):
+    desc = {"dtype": "float64", "shape": [1]}
+    if encoding is not None:
+        desc["encoding"] = encoding
+    head = {"v": 1, "type": "ping", "x": {"$array": 0}, "arrays": [desc]}
+    req = protocol.parse_request([json.dumps(head).encode(), np.ones(1).tobytes()])
+    np.testing.assert_array_equal(req["x"], [1.0])
+
+
+@pytest.mark.parametrize("encoding", ["zlib", "", 1, None])
+def test_unknown_encoding_is_bad_message(encoding):
+    desc = {"dtype": "float64", "shape": [1], "encoding": encoding}
+    head = {"v": 1, "type": "ping", "x": {"$array": 0}, "arrays": [desc]}
+    with pytest.raises(MessageError) as info:
+        protocol.parse_request([json.dumps(head).encode(), np.ones(1).tobytes()])
+    assert info.value.code == "bad_message" and "encoding" in info.value.message
+
+
 def test_error_reply_keeps_id_and_type():
     with pytest.raises(MessageError) as info:
         protocol.parse_request([b'{"v": 7, "type": "ping", "id": "r1"}'])
