@@ -24,15 +24,74 @@ from service.keys import make_keys
 from service.signals import stop_on_signals
 
 
+class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` with every default; an option whose default is None says so in words."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The command line."""
-    ap = argparse.ArgumentParser(prog="holo-service", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--control", default="tcp://127.0.0.1:5555", help="control ROUTER address")
-    ap.add_argument("--frames", default="tcp://127.0.0.1:5556", help="frame PUB address")
-    ap.add_argument("--devices", default=None, help="holo-devices PUB address for the pose")
+    """The command line (``--help`` shows every default)."""
+    ap = argparse.ArgumentParser(
+        prog="holo-service", description=__doc__.split("\n\n")[0], formatter_class=_DefaultsHelp
+    )
+    _add_addresses(ap)
+    _add_rendering(ap)
+    _add_display(ap)
+    return ap
+
+
+def _add_addresses(ap: argparse.ArgumentParser) -> None:
+    """Sockets, devices and keys."""
+    ap.add_argument(
+        "--control", default="tcp://127.0.0.1:5555", metavar="ADDR", help="control ROUTER address"
+    )
+    ap.add_argument(
+        "--frames", default="tcp://127.0.0.1:5556", metavar="ADDR", help="frame PUB address"
+    )
+    ap.add_argument(
+        "--devices",
+        default=None,
+        metavar="ADDR",
+        help="holo-devices PUB address for the viewer's pose and input (default: none)",
+    )
+    ap.add_argument(
+        "--io-threads",
+        type=int,
+        metavar="N",
+        default=2,
+        help="libzmq I/O threads (2: the frame stream gets one of its own, so frames do "
+        "not queue behind workers' multi-MB replies)",
+    )
+    ap.add_argument(
+        "--worker-address",
+        default="tcp://127.0.0.1:5557",
+        metavar="ADDR",
+        help="broker backend address workers connect to",
+    )
+    ap.add_argument(
+        "--curve-keys",
+        default=None,
+        metavar="DIR",
+        help="CurveZMQ key directory (default: none; required for a non-loopback address)",
+    )
+    ap.add_argument(
+        "--make-keys",
+        default=None,
+        metavar="DIR",
+        help="make CurveZMQ keys in DIR and exit (default: none, run the service)",
+    )
+
+
+def _add_rendering(ap: argparse.ArgumentParser) -> None:
+    """Workers, rates and timeouts."""
     ap.add_argument(
         "--workers",
         type=int,
+        metavar="N",
         default=1,
         help="render worker processes behind the LRU broker (0: render in the service's "
         "own process, where numba kernels hold the GIL and delay refreshes)",
@@ -44,40 +103,31 @@ def build_parser() -> argparse.ArgumentParser:
         help="with workers: each renders whole updates for successive rendezvous, several "
         "in flight (frames), or every worker a band of hololines of each update (bands)",
     )
-    ap.add_argument(
-        "--io-threads",
-        type=int,
-        default=2,
-        help="libzmq I/O threads (2: the frame stream gets one of its own, so frames do "
-        "not queue behind workers' multi-MB replies)",
-    )
-    ap.add_argument(
-        "--worker-address",
-        default="tcp://127.0.0.1:5557",
-        help="broker backend address workers connect to",
-    )
-    ap.add_argument("--refresh", type=float, default=60.0, help="refresh rate, Hz")
-    ap.add_argument("--curve-keys", default=None, help="CurveZMQ key directory")
-    ap.add_argument("--make-keys", default=None, metavar="DIR", help="make keys in DIR and exit")
-    ap.add_argument("--scene", default=None, help="built-in scene to load at start")
-    ap.add_argument("--zones", type=int, default=5)
-    ap.add_argument("--cols", type=int, default=160)
-    ap.add_argument("--rows", type=int, default=120)
-    ap.add_argument("--angle", type=float, default=16.0)
+    ap.add_argument("--refresh", type=float, default=60.0, metavar="HZ", help="refresh rate, Hz")
     ap.add_argument(
         "--max-update-hz",
         type=float,
+        metavar="HZ",
         default=0.0,
         help="cap on renders per second (0: as fast as possible)",
     )
     ap.add_argument(
         "--render-timeout",
         type=float,
+        metavar="S",
         default=5.0,
-        help="seconds before a band is resent to another worker",
+        help="seconds before a render job is resent to another worker",
     )
+
+
+def _add_display(ap: argparse.ArgumentParser) -> None:
+    """Scene and display at start, pose scale."""
     ap.add_argument(
-        "--pose-scale", type=float, default=0.001, help="world units per tracker position unit"
+        "--scene",
+        default=None,
+        metavar="NAME",
+        help="built-in scene to load at start: game, demo, sphere_torus, cyclic or threaded "
+        "(default: none)",
     )
     ap.add_argument(
         "--scene-dir",
@@ -85,9 +135,17 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="DIR",
         help="directory load_scene/load_object paths must lie in (repeatable; "
-        "default: any file the service can read)",
+        "default: none, so any file the service can read)",
     )
-    return ap
+    ap.add_argument("--zones", type=int, default=5, help="view zones")
+    ap.add_argument("--cols", type=int, default=160, help="galpixel columns per zone")
+    ap.add_argument("--rows", type=int, default=120, help="hololines (rows) per zone")
+    ap.add_argument(
+        "--angle", type=float, default=16.0, help="view angle across the zones, degrees"
+    )
+    ap.add_argument(
+        "--pose-scale", type=float, default=0.001, help="world units per tracker position unit"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,47 @@
+"""``holo-service --help``: every option's default is shown."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+from service_helpers import ROOT
+
+from service.cli_service import build_parser
+
+
+def _help_entries() -> dict[str, str]:
+    """``holo-service --help`` run as a command: option -> its entry, lines joined."""
+    script = Path(sys.executable).with_name("holo-service")
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "service.cli_service"]
+    out = subprocess.run(
+        [*cmd, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60, check=True
+    ).stdout
+    entries: dict[str, str] = {}
+    current = None
+    for line in out.split("options:", 1)[1].splitlines():
+        if line.startswith("  -"):
+            current = line.split()[0].rstrip(",")
+            entries[current] = ""
+        if current is not None:
+            entries[current] += " " + " ".join(line.split())
+    return entries
+
+
+def test_help_shows_the_default_addresses_and_refresh_rate():
+    entries = _help_entries()
+    assert "(default: tcp://127.0.0.1:5555)" in entries["--control"]
+    assert "(default: tcp://127.0.0.1:5556)" in entries["--frames"]
+    assert "(default: 60" in entries["--refresh"]
+
+
+def test_help_shows_every_default():
+    entries = _help_entries()
+    for action in build_parser()._actions:
+        if action.default is argparse.SUPPRESS:
+            continue  # --help itself
+        option = action.option_strings[0]
+        shown = "default: none" if action.default is None else f"default: {action.default}"
+        assert shown in entries[option], f"{option}: {shown!r} not in {entries[option]!r}"
