@@ -2,7 +2,9 @@
 
 :class:`Capture` is called after every tick.  It first tours the display modes
 (:data:`game.display.MODES`; each shown for ``dwell_s`` and screenshotted as
-``mode-<name>.png``), then returns to the mode the run asked for.  It also saves
+``mode-<name>.png``), then returns to the mode the run asked for.  The tour starts
+with the first frame: a service that starts slowly (a loaded machine) would
+otherwise leave the first modes without a picture to screenshot.  It also saves
 ``gameover.png`` during the spectacular display, ``score.png`` on the score
 screen and ``reconnecting.png`` when the service drops, and keeps a small frame
 every ``film_every_s`` for ``film.png`` (a grid of frames) and ``demo.gif``.
@@ -56,6 +58,7 @@ class Capture:
         self.files: list[Path] = []
         self.film: list[np.ndarray] = []
         self._home: str | None = None
+        self._tour_start: float | None = None
         self._next_film = start
         self._taken: set[str] = set()
 
@@ -78,10 +81,14 @@ class Capture:
     def _tour(self, client: Any, now: float) -> None:
         if self._home is None:
             self._home = client.mode
-        k = int((now - self.start) // self.dwell_s)
+        if self._tour_start is None:
+            if client.colour is None:
+                return  # no frame yet: nothing to show in any mode
+            self._tour_start = now
+        k = int((now - self._tour_start) // self.dwell_s)
         if k < len(self.plan):
             client.set_mode(self.plan[k])
-            if now - self.start - k * self.dwell_s > 0.75 * self.dwell_s:
+            if now - self._tour_start - k * self.dwell_s > 0.75 * self.dwell_s:
                 self._once(client, f"mode-{self.plan[k]}")
         elif self.plan:
             client.set_mode(self._home)

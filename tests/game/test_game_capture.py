@@ -1,0 +1,40 @@
+"""--out: the tour of the display modes waits for the first frame."""
+
+from __future__ import annotations
+
+from game_fakes import RecordingBackend
+
+from game.capture import Capture
+from game.client_loop import GameClient, LoopSettings
+from game.display import MODES, GameWindow
+from game.rules import GameSettings
+
+
+class SlowBackend(RecordingBackend):
+    """No frame until ``first`` calls have passed (a service still starting)."""
+
+    def __init__(self, first: int) -> None:
+        super().__init__()
+        self.first, self.calls = first, 0
+
+    def frame(self, timeout_s: float = 0.0):
+        self.calls += 1
+        return None if self.calls <= self.first else super().frame(timeout_s)
+
+
+def test_mode_tour_starts_with_the_first_frame(pygame_headless, tmp_path):
+    clock = [0.0]
+    client = GameClient(
+        SlowBackend(first=100),  # 5 s of clock without a frame
+        GameWindow((320, 200)),
+        LoopSettings(GameSettings(), mode="zone"),
+        clock=lambda: clock[0],
+    )
+    capture = Capture(tmp_path, 0.0, dwell_s=1.0)
+    for _ in range(100 + 20 * (len(MODES) + 1)):
+        clock[0] += 0.05
+        client.tick()
+        capture(client)
+    names = {p.name for p in capture.files}
+    assert {f"mode-{m}.png" for m in MODES} <= names
+    assert client.mode == "zone"  # back to the mode the run asked for
