@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from game.actions import lamp_mask
-from game.display import MODES, UNAVAILABLE, has_display, headless_env
+from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
 from service.display import DisplaySettings, parse_size
 from service.errors import HoloError
@@ -50,9 +50,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--mode",
         default="head",
         choices=[*MODES, *UNAVAILABLE],
-        help="display mode (autostereogram: not available yet)",
+        help="display mode (autostereogram: not available yet, shows head)",
     )
-    p.add_argument("--zone", type=int, default=2, help="the fixed zone of --mode zone")
+    p.add_argument(
+        "--zone",
+        type=int,
+        default=None,
+        help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
+    )
     p.add_argument("--bot", action="store_true", help="attract mode: the bot plays")
     p.add_argument(
         "--bot-gives-up",
@@ -86,6 +91,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="print the lamp mask for holo-devices --lamps and exit",
     )
     return p
+
+
+def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Check the arguments against each other; a bad one exits as argparse does (2).
+
+    Fills in ``args.zone`` (the middle zone) when it was not given.
+    """
+    if args.zones < 1:
+        parser.error(f"--zones {args.zones}: the display needs at least one zone")
+    if args.zone is None:
+        args.zone = args.zones // 2
+    elif not 0 <= args.zone < args.zones:
+        parser.error(
+            f"--zone {args.zone}: the display has {args.zones} zones, 0 to {args.zones - 1}"
+        )
 
 
 def _backend(args: argparse.Namespace, settings: object) -> object:
@@ -148,7 +168,6 @@ def run(args: argparse.Namespace) -> dict:
         game, args.mode, args.zone, args.bot, name=args.name, bot_gives_up=args.bot_gives_up
     )
     client = GameClient(backend, window, loop, devices, scores, beeper)
-    client.set_mode(args.mode)
     signal.signal(signal.SIGTERM, lambda *_: setattr(client, "quit", True))
     start = time.monotonic()
     capture = Capture(args.out, start) if args.out else None
@@ -170,7 +189,12 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``holo-game``; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    check_args(parser, args)
+    args.mode, notice = choose_mode(args.mode)
+    if notice:
+        print(f"holo-game: {notice}", file=sys.stderr)
     keep_freed_memory()  # every frame arrives in fresh buffers (service.heap)
     if args.print_lamps:
         print(f"0x{lamp_mask():08x}")

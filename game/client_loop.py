@@ -26,7 +26,7 @@ import pygame
 
 from game import actions
 from game.bot import Bot
-from game.display import MODES, UNAVAILABLE, GameWindow, Hud, zone_for_head
+from game.display import MODES, UNAVAILABLE, GameWindow, Hud, choose_mode, zone_for_head
 from game.gameover import Beeper, GameOverSequence
 from game.highscores import HighScores
 from game.rules import MOVES, GameSettings, GameState, new_game, nudge, tick
@@ -69,9 +69,10 @@ class LoopSettings:
     ----------
     game : GameSettings
     mode : str
-        Initial display mode (:data:`game.display.MODES`).
+        Initial display mode (:data:`game.display.MODES`); an unavailable one
+        (:data:`game.display.UNAVAILABLE`) shows ``head`` with a notice in the HUD.
     zone : int
-        The fixed zone of ``zone`` mode.
+        The fixed zone of ``zone`` mode, 0 to the display's zones - 1.
     attract : bool
         The bot plays until a key is pressed.
     tick_hz : float
@@ -123,11 +124,16 @@ class GameClient:
         self.clock = clock
         self.attract = settings.attract
         self.bot = Bot(give_up_after=settings.bot_gives_up)
-        self.mode, self.zone = settings.mode, settings.zone
-        self.head_zone = backend.settings.display.zones // 2
+        zones = backend.settings.display.zones
+        if not 0 <= settings.zone < zones:
+            raise ValueError(
+                f"zone {settings.zone} is not one of the display's {zones} zones (0 to {zones - 1})"
+            )
+        self.mode, self.notice = choose_mode(settings.mode)
+        self.zone, self.head_zone = settings.zone, zones // 2
         self.state: GameState = new_game(settings.game)
         self.over: GameOverSequence | None = None
-        self.games, self.seed, self.notice = 1, settings.game.seed, ""
+        self.games, self.seed = 1, settings.game.seed
         self.scores: list[int] = []
         self.modes_shown: set[str] = set()
         self.colour: np.ndarray | None = None
@@ -151,11 +157,12 @@ class GameClient:
 
     # ------------------------------------------------------------- commands
     def set_mode(self, mode: str) -> None:
-        """Switch the display mode; an unavailable one leaves a notice instead."""
-        if mode in UNAVAILABLE:
-            self.notice = f"{mode}: {UNAVAILABLE[mode]}"
-            return
-        self.mode = mode
+        """Switch the display mode; an unavailable one keeps the current mode.
+
+        The HUD then says the mode is not available, until a mode that can be shown
+        is chosen.
+        """
+        self.mode, self.notice = choose_mode(mode, self.mode)
 
     def _pause(self) -> None:
         self.state.paused = not self.state.paused

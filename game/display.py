@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +44,10 @@ HEAD_DISTANCE_MM = 250.0
 WINDOW = (960, 600)
 HUD_COLOUR = (230, 230, 230)
 BACKGROUND = (8, 8, 16)
+#: SDL video drivers that show no window.
+HEADLESS_DRIVERS = frozenset({"dummy", "offscreen"})
+#: The environment variables naming SDL's video driver: SDL2's name and SDL3's.
+VIDEO_DRIVER_VARS = ("SDL_VIDEODRIVER", "SDL_VIDEO_DRIVER")
 SDL_HEADLESS = {
     "SDL_VIDEODRIVER": "dummy",
     "SDL_AUDIODRIVER": "dummy",
@@ -58,10 +63,43 @@ def headless_env(env: dict | None = None) -> dict:
     return out
 
 
-def has_display() -> bool:
-    """True when a window can be shown (an X11 or Wayland display, not SDL's dummy)."""
-    dummy = os.environ.get("SDL_VIDEODRIVER") == "dummy"
-    return not dummy and bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+def has_display(env: Mapping[str, str] | None = None) -> bool:
+    """True when a window can be shown: an X11 or Wayland display, SDL not told otherwise.
+
+    Parameters
+    ----------
+    env : mapping, optional
+        The environment (default ``os.environ``).  Either of SDL2's ``SDL_VIDEODRIVER``
+        and SDL3's ``SDL_VIDEO_DRIVER`` naming ``dummy`` (or ``offscreen``) means none.
+    """
+    env = os.environ if env is None else env
+    drivers = {env.get(name, "").strip().lower() for name in VIDEO_DRIVER_VARS}
+    if drivers & HEADLESS_DRIVERS:
+        return False
+    return bool(env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"))
+
+
+def choose_mode(mode: str, current: str = MODES[0]) -> tuple[str, str]:
+    """The mode to show when ``mode`` is asked for, and a notice saying why not.
+
+    Parameters
+    ----------
+    mode : str
+        The mode asked for.
+    current : str
+        What to keep showing when ``mode`` cannot be shown (an entry of :data:`MODES`).
+
+    Returns
+    -------
+    mode : str
+        ``mode`` when it is one of :data:`MODES`, else ``current``.
+    notice : str
+        ``""`` when ``mode`` is shown, else a line for the HUD or the command line.
+    """
+    if mode in MODES:
+        return mode, ""
+    why = UNAVAILABLE.get(mode, "there is no such display mode")
+    return current, f"{mode} mode is not available ({why}); showing {current}"
 
 
 def zone_for_head(

@@ -3,7 +3,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from game.display import IMAGES, MODES, UNAVAILABLE, GameWindow, Hud, zone_for_head
+from game.display import (
+    IMAGES,
+    MODES,
+    UNAVAILABLE,
+    GameWindow,
+    Hud,
+    choose_mode,
+    has_display,
+    zone_for_head,
+)
 from service.display import DisplaySettings
 
 
@@ -33,3 +42,30 @@ def test_autostereogram_is_listed_unavailable_and_hud_text():
     assert "autostereogram" in UNAVAILABLE and "autostereogram" not in IMAGES
     text = Hud(score=5, latency_ms=None).text()
     assert text[0].startswith("score 5") and "latency -" in text[1]
+
+
+@pytest.mark.parametrize("name", ["SDL_VIDEODRIVER", "SDL_VIDEO_DRIVER"])
+@pytest.mark.parametrize("driver", ["dummy", "DUMMY", "offscreen"])
+def test_has_display_sees_the_sdl2_and_the_sdl3_driver_variable(name, driver):
+    x11 = {"DISPLAY": ":0"}
+    assert has_display(x11) and has_display({"WAYLAND_DISPLAY": "wayland-0"})
+    assert has_display(x11 | {name: "x11"})
+    assert not has_display(x11 | {name: driver})
+    assert not has_display({}) and not has_display({name: "x11"})
+
+
+def test_has_display_reads_os_environ(monkeypatch):
+    for name in ("SDL_VIDEODRIVER", "SDL_VIDEO_DRIVER"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("DISPLAY", ":0")
+    assert has_display()
+    monkeypatch.setenv("SDL_VIDEO_DRIVER", "dummy")
+    assert not has_display()
+
+
+def test_choose_mode_keeps_the_current_mode_for_an_unavailable_one():
+    assert choose_mode("strip", "zone") == ("strip", "")
+    for mode in (*UNAVAILABLE, "no-such-mode"):
+        shown, notice = choose_mode(mode, "zone")
+        assert shown == "zone" and "not available" in notice and mode in notice
+    assert choose_mode("autostereogram")[0] == MODES[0]
