@@ -189,7 +189,8 @@ def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, An
     header = _header(body[0], limits)
     partial = {"id": check_id(header.get("id"), limits), "type": header.get("type")}
     try:
-        if header.get("v") not in SUPPORTED_VERSIONS:
+        v = header.get("v")
+        if isinstance(v, bool) or not isinstance(v, int) or v not in SUPPORTED_VERSIONS:
             raise MessageError(
                 "bad_version",
                 f"v must be one of {list(SUPPORTED_VERSIONS)}, got {header.get('v')!r}",

@@ -85,6 +85,10 @@ CASES = {
     "json_not_object": ([b"[1, 2, 3]"], "bad_json"),
     "unknown_type": ([_j({"v": 1, "type": "explode", "id": 2})], "unknown_type"),
     "missing_version": ([_j({"type": "hello", "id": 2})], "bad_version"),
+    "unknown_version": ([_j({"v": 2, "type": "ping", "id": 2})], "bad_version"),
+    "string_version": ([_j({"v": "1", "type": "ping", "id": 2})], "bad_version"),
+    "float_version": ([_j({"v": 1.0, "type": "ping", "id": 2})], "bad_version"),
+    "bool_version": ([_j({"v": True, "type": "ping", "id": 2})], "bad_version"),
     "wrong_dtype_name": (
         [
             _j({**_obj(), "arrays": _arrays(("float16", (3, 3)), ("int32", (1, 3)))}),
@@ -247,3 +251,18 @@ def test_bad_clients_do_not_stop_good_ones(shared_service):
         assert stats["stats"]["errors"] >= 20
     finally:
         good.close(0)
+
+
+def test_unknown_version_reply_is_version_1_and_echoes_the_request(shared_service):
+    """protocol.md 1.2: a request in a version the service does not speak gets a
+    version-1 bad_version reply naming the versions it does speak; nothing is done."""
+    before = raw_request(shared_service.control, {"v": 1, "type": "stats", "id": 1})["stats"]
+    req = {"v": 2, "type": "shutdown", "id": "next-gen"}
+    reply = raw_request(shared_service.control, req)
+    assert reply["v"] == 1 and reply["ok"] is False
+    assert reply["id"] == "next-gen" and reply["type"] == "shutdown"
+    assert reply["error"]["code"] == "bad_version" and "[1]" in reply["error"]["message"]
+    hello = raw_request(shared_service.control, {**HELLO, "versions": [2, 1]})
+    assert hello["ok"] and hello["version"] == 1 and hello["versions"] == [1]
+    after = raw_request(shared_service.control, {"v": 1, "type": "stats", "id": 2})["stats"]
+    assert after["session"] == before["session"]  # the v=2 shutdown was not acted on
