@@ -5,11 +5,17 @@ per-polygon light) and a fan triangulation of them (for rasterising).  Polygons 
 stored padded: ``polygons[p, :counts[p]]`` are the vertex indices of polygon ``p``
 in counter-clockwise order seen from the side its normal points to (right-handed,
 as OBJ and PLY store them).
+
+The fan triangulation is only right for planar, convex polygons, so building a
+mesh checks every polygon of four or more vertices (:func:`polygon_shape_faults`)
+and refuses a non-planar, concave or self-intersecting one; the rule and its
+tolerance are in ``docs/file-formats.md``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -122,7 +128,11 @@ class Mesh:
 
 
 def validate(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray, name: str) -> None:
-    """Check shapes, dtypes, finiteness and index ranges; raise :class:`MeshError`."""
+    """Check shapes, finiteness, index ranges and polygon shapes; raise :class:`MeshError`.
+
+    Polygons of four or more vertices must be planar and convex within
+    :func:`shape_tolerance` (see :func:`polygon_shape_faults`).
+    """
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise MeshError(f"{name}: vertices must have shape (V, 3), got {vertices.shape}")
     if not np.all(np.isfinite(vertices)):
@@ -143,6 +153,205 @@ def validate(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray, nam
         raise MeshError(
             f"{name}: polygon {int(rows[0])} refers to a vertex outside 0..{vertices.shape[0] - 1}"
         )
+    faults = polygon_shape_faults(vertices, polygons, counts)
+    if faults.polygon.size:
+        raise MeshError(f"{name}: {describe_fault(faults)}")
+
+
+SHAPE_TOL = 1e-5
+"""Planarity and convexity tolerance, as a fraction of the mesh's extent.
+
+Mesh-relative rather than polygon-relative: the noise it must absorb (coordinates
+stored as float32, or written with six decimals or six significant digits) and what
+a deviation does on screen (1e-5 of an object 640 px wide is 0.006 px) both scale
+with the mesh, and it stays the same when a mesh is moved or scaled as a whole.
+"""
+
+SHAPE_CHUNK = 1 << 18
+"""Polygons times corners squared per vectorised step (bounds the temporaries)."""
+
+PLANAR, CONVEX = 1, 2
+"""Fault kinds in :class:`ShapeFaults`: off its plane, or outside one of its edges."""
+
+
+class ShapeFaults(NamedTuple):
+    """Polygons that break the planar-and-convex rule, in polygon order.
+
+    Attributes
+    ----------
+    polygon : ndarray, shape (F,), int64
+        Index of each bad polygon.
+    kind : ndarray, shape (F,), int64
+        ``PLANAR`` (a corner is off the polygon's plane) or ``CONVEX`` (a corner is
+        outside the line of one of its edges: concave or self-intersecting).
+    corner : ndarray, shape (F,), int64
+        Position (0-based, within the polygon) of the corner that deviates most.
+    edge : ndarray, shape (F, 2), int64
+        For ``CONVEX``, the corners at the ends of the edge it is outside of
+        (``-1`` for ``PLANAR``).
+    deviation : ndarray, shape (F,), float64
+        How far off, in mesh units.
+    tolerance : float
+        The tolerance used (``SHAPE_TOL`` times the mesh's extent).
+    """
+
+    polygon: np.ndarray
+    kind: np.ndarray
+    corner: np.ndarray
+    edge: np.ndarray
+    deviation: np.ndarray
+    tolerance: float
+
+
+def shape_tolerance(vertices: np.ndarray) -> float:
+    """``SHAPE_TOL`` times the mesh's extent (largest side of its bounding box).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+    """
+    if vertices.shape[0] == 0:
+        return 0.0
+    return SHAPE_TOL * float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` (shape (..., 3)) scaled to length 1; zero rows stay zero."""
+    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
+
+
+def _reference_normals(q: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each polygon's plane normal, and whether it is degenerate (a line or a point).
+
+    Parameters
+    ----------
+    q : ndarray, shape (n, k, 3)
+        Corners of ``n`` polygons of ``k`` corners each, centred on their mean.
+    tol : float
+
+    Returns
+    -------
+    normal : ndarray, shape (n, 3)
+        The Newell normal (unit); where that is much shorter than any convex polygon
+        of the same diameter and width would give (a bow-tie's net area is zero), the
+        normal of the plane through its diameter and its farthest corner instead.
+    degenerate : ndarray, shape (n,), bool
+        Every corner within ``tol`` of the line through its two farthest-apart corners.
+    """
+    n, k, _ = q.shape
+    ar = np.arange(n)
+    d = q[:, None, :, :] - q[:, :, None, :]  # d[:, j, i] = corner i - corner j
+    j, i = np.divmod(np.einsum("njix,njix->nji", d, d).reshape(n, -1).argmax(axis=1), k)
+    diam = np.linalg.norm(d[ar, j, i], axis=1)
+    off = np.cross(d[ar, j], _unit(d[ar, j, i])[:, None, :])  # (n, k, 3) off that line
+    width = np.linalg.norm(off, axis=2)
+    far = width.argmax(axis=1)
+    newell = np.cross(q, np.roll(q, -1, axis=1)).sum(axis=1)
+    fallback = np.cross(d[ar, j, i], d[ar, j, far])
+    use_newell = np.linalg.norm(newell, axis=1) >= 0.5 * diam * width[ar, far]
+    return _unit(np.where(use_newell[:, None], newell, fallback)), width[ar, far] <= tol
+
+
+def _chunk_faults(pts: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
+    """Planarity and convexity deviations of polygons with the same corner count.
+
+    Parameters
+    ----------
+    pts : ndarray, shape (n, k, 3)
+        Corner positions, in polygon order.
+    tol : float
+
+    Returns
+    -------
+    kind, corner : ndarray, shape (n,), int64
+        ``kind`` is 0 (fine, or degenerate), ``PLANAR`` or ``CONVEX``.
+    edge : ndarray, shape (n, 2), int64
+    deviation : ndarray, shape (n,), float64
+    """
+    n, k, _ = pts.shape
+    ar = np.arange(n)
+    q = pts - pts.mean(axis=1, keepdims=True)
+    normal, degenerate = _reference_normals(q, tol)
+    height = np.abs(np.einsum("nkx,nx->nk", q, normal))
+    # an in-plane frame (a, b) with a x b = normal, so counter-clockwise turns are positive
+    a = _unit(np.cross(normal, np.eye(3)[np.abs(normal).argmin(axis=1)]))
+    x, y = np.einsum("nkx,nx->nk", q, a), np.einsum("nkx,nx->nk", q, np.cross(normal, a))
+    ex, ey = np.roll(x, -1, axis=1) - x, np.roll(y, -1, axis=1) - y
+    left = ex[:, :, None] * (y[:, None, :] - y[:, :, None]) - ey[:, :, None] * (
+        x[:, None, :] - x[:, :, None]
+    )  # left[:, j, i]: corner i's side of edge j, times the edge's length
+    length = np.hypot(ex, ey)[:, :, None]
+    outside = np.divide(-left, length, out=np.zeros_like(left), where=length > 0)
+    edge, corner = np.divmod(outside.reshape(n, -1).argmax(axis=1), k)
+    convex_dev = outside[ar, edge, corner]
+    planar_corner = height.argmax(axis=1)
+    planar_dev = height[ar, planar_corner]
+    kind = np.where(planar_dev > tol, PLANAR, np.where(convex_dev > tol, CONVEX, 0))
+    kind = np.where(degenerate, 0, kind)
+    planar = kind == PLANAR
+    ends = np.where(planar[:, None], -1, np.stack([edge, (edge + 1) % k], axis=1))
+    return (kind, np.where(planar, planar_corner, corner), ends,
+            np.where(planar, planar_dev, convex_dev))
+
+
+def polygon_shape_faults(
+    vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray, tol: float | None = None
+) -> ShapeFaults:
+    """Polygons of 4 or more corners that are not planar, or not convex, within ``tol``.
+
+    A polygon is planar when every corner is within ``tol`` of the plane through the
+    corners' mean with the polygon's Newell normal.  It is convex when no corner lies
+    more than ``tol`` outside (right of, seen from the normal) the line of any of its
+    edges; that also refuses self-intersecting orders (a bow-tie, a pentagram) and
+    outlines that double back, and allows collinear corners and repeated corners.
+    Degenerate polygons (all corners within ``tol`` of one line) are not faults:
+    they cover no area.  Triangles are always planar and convex.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3), finite
+    polygons : ndarray, shape (P, K), indices in range, padded with -1
+    counts : ndarray, shape (P,)
+    tol : float, optional
+        Default :func:`shape_tolerance` of ``vertices``.
+
+    Returns
+    -------
+    ShapeFaults
+    """
+    tol = shape_tolerance(vertices) if tol is None else tol
+    parts = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+              np.zeros((0, 2), np.int64), np.zeros(0))]
+    for k in np.unique(counts[counts >= 4]).tolist():
+        rows = np.nonzero(counts == k)[0]
+        step = max(1, SHAPE_CHUNK // (k * k))
+        for start in range(0, rows.size, step):
+            idx = rows[start : start + step]
+            found = _chunk_faults(vertices[polygons[idx, :k]], tol)
+            bad = found[0] > 0
+            parts.append((idx[bad], *(f[bad] for f in found)))
+    cols = [np.concatenate([p[c] for p in parts]) for c in range(5)]
+    order = np.argsort(cols[0], kind="stable")
+    return ShapeFaults(*(c[order] for c in cols), tol)
+
+
+def describe_fault(faults: ShapeFaults, i: int = 0) -> str:
+    """Words for fault ``i``: the polygon, what is wrong, and how many more there are."""
+    p, corner, dev = int(faults.polygon[i]), int(faults.corner[i]), float(faults.deviation[i])
+    limit = f"tolerance {faults.tolerance:.3g} = {SHAPE_TOL:g} of the mesh's extent"
+    if faults.kind[i] == PLANAR:
+        what = f"is not planar: its corner {corner} is {dev:.3g} off the polygon's plane"
+    else:
+        e0, e1 = (int(c) for c in faults.edge[i])
+        what = (
+            f"is not convex (concave or self-intersecting): its corner {corner} is {dev:.3g}"
+            f" outside the line through its corners {e0} and {e1}"
+        )
+    more = faults.polygon.size - 1
+    tail = f"; {more} more polygon(s) break this rule" if more > 0 else ""
+    return (f"polygon {p} {what} ({limit}); polygons must be planar and convex "
+            f"(split it into triangles){tail}")
 
 
 def edges_closed(polygons: np.ndarray, counts: np.ndarray, n_vertices: int) -> bool:

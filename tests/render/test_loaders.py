@@ -146,7 +146,8 @@ def ply_bytes(fmt: str, vertex_props: list, vertex_rows: list, face_rows: list,
 
 
 VPROPS = [("float", "x"), ("uchar", "red"), ("double", "y"), ("short", "nx"), ("float", "z")]
-VROWS = [[0.0, 1, 0.0, 3, 0.0], [1.0, 2, 0.0, 3, 0.0], [1.0, 3, 1.0, 3, 0.0], [0.0, 4, 1.0, 3, 0.5]]
+# z = y / 2, so the quad face [0, 1, 2, 3] is planar
+VROWS = [[0.0, 1, 0.0, 3, 0.0], [1.0, 2, 0.0, 3, 0.0], [1.0, 3, 1.0, 3, 0.5], [0.0, 4, 1.0, 3, 0.5]]
 
 
 @pytest.mark.parametrize("fmt", PLY_FORMATS)
