@@ -10,6 +10,10 @@ along x, y and z (:data:`DIAL_AXES`, world units per count); buttons 0 to 5 make
 six discrete moves and button 6 pauses (:data:`BUTTON_BINDINGS`).  The lamps of the
 bound buttons are lit on the device side: :func:`lamp_mask` gives the mask for
 ``holo-devices --lamps``.
+
+Gamepad: buttons and sticks are bound by their SDL game-controller names
+(:data:`PAD_BUTTONS`, :data:`PAD_AXES`), hats by direction (:data:`HAT_BINDINGS`);
+:class:`game.pads.Pads` opens the pads and turns their raw numbers into those names.
 """
 
 from __future__ import annotations
@@ -60,20 +64,21 @@ KEY_BINDINGS: dict[int, str] = {
     pygame.K_RIGHTBRACKET: "zone_next",
 }
 
-#: Game-controller buttons (SDL GameController layout).
-PAD_BUTTONS: dict[int, str] = {
-    pygame.CONTROLLER_BUTTON_DPAD_UP: "moveup",
-    pygame.CONTROLLER_BUTTON_DPAD_DOWN: "movedown",
-    pygame.CONTROLLER_BUTTON_DPAD_LEFT: "moveleft",
-    pygame.CONTROLLER_BUTTON_DPAD_RIGHT: "moveright",
-    pygame.CONTROLLER_BUTTON_LEFTSHOULDER: "movein",
-    pygame.CONTROLLER_BUTTON_RIGHTSHOULDER: "moveout",
-    pygame.CONTROLLER_BUTTON_START: "pause",
-    pygame.CONTROLLER_BUTTON_A: "start",
-    pygame.CONTROLLER_BUTTON_BACK: "quit",
+#: Gamepad button (SDL game-controller name; :mod:`game.pads` maps the pad's raw
+#: button numbers to these names) -> action.
+PAD_BUTTONS: dict[str, str] = {
+    "dpup": "moveup",
+    "dpdown": "movedown",
+    "dpleft": "moveleft",
+    "dpright": "moveright",
+    "leftshoulder": "movein",
+    "rightshoulder": "moveout",
+    "start": "pause",
+    "a": "start",
+    "back": "quit",
 }
 
-#: Joystick hat direction -> move (for pads without the controller mapping).
+#: Joystick hat direction -> move (d-pads that SDL reports as a hat).
 HAT_BINDINGS: dict[tuple[int, int], str] = {
     (0, 1): "moveup",
     (0, -1): "movedown",
@@ -81,11 +86,12 @@ HAT_BINDINGS: dict[tuple[int, int], str] = {
     (1, 0): "moveright",
 }
 
-#: Controller axis -> (world axis, sign); analogue sticks nudge continuously.
-PAD_AXES: dict[int, tuple[int, float]] = {
-    pygame.CONTROLLER_AXIS_LEFTX: (0, 1.0),
-    pygame.CONTROLLER_AXIS_LEFTY: (1, -1.0),
-    pygame.CONTROLLER_AXIS_RIGHTY: (2, 1.0),
+#: Stick axis (SDL game-controller name) -> (world axis, sign); sticks nudge
+#: continuously.
+PAD_AXES: dict[str, tuple[int, float]] = {
+    "leftx": (0, 1.0),
+    "lefty": (1, -1.0),
+    "righty": (2, 1.0),
 }
 
 #: Dial index -> (world axis, world units per count).
@@ -136,26 +142,15 @@ def _key(ev: pygame.event.Event) -> list[str]:
     return [KEY_BINDINGS[ev.key]] if ev.key in KEY_BINDINGS else []
 
 
-def _pad_button(ev: pygame.event.Event) -> list[str]:
-    return [PAD_BUTTONS[ev.button]] if ev.button in PAD_BUTTONS else []
-
-
-def _hat(ev: pygame.event.Event) -> list[str]:
-    value = tuple(ev.value)
-    return [HAT_BINDINGS[value]] if value in HAT_BINDINGS else []
-
-
-#: pygame event type -> its discrete actions.
+#: pygame event type -> its discrete actions (pads: :class:`game.pads.Pads`).
 EVENT_HANDLERS = {
     pygame.KEYDOWN: _key,
-    pygame.CONTROLLERBUTTONDOWN: _pad_button,
-    pygame.JOYHATMOTION: _hat,
     pygame.QUIT: lambda ev: ["quit"],
 }
 
 
 def from_pygame(events: Iterable[pygame.event.Event]) -> Input:
-    """Discrete actions from pygame events (keys, pad buttons, hats, window close)."""
+    """Discrete actions from pygame events (keys, window close)."""
     actions: list[str] = []
     for ev in events:
         handler = EVENT_HANDLERS.get(ev.type)
@@ -164,10 +159,18 @@ def from_pygame(events: Iterable[pygame.event.Event]) -> Input:
     return Input(actions)
 
 
-def stick_shift(axes: dict[int, float], dt: float) -> np.ndarray:
-    """Continuous shift from controller axis values (-1..1) held for ``dt`` seconds."""
+def stick_shift(axes: Iterable[tuple[str, float]], dt: float) -> np.ndarray:
+    """Continuous shift from stick positions held for ``dt`` seconds.
+
+    Parameters
+    ----------
+    axes : iterable of (str, float)
+        (SDL axis name, value from -1 to 1); names not in :data:`PAD_AXES` and values
+        inside :data:`STICK_DEAD_ZONE` do nothing.
+    dt : float
+    """
     shift = np.zeros(3)
-    for axis, value in axes.items():
+    for axis, value in axes:
         if axis in PAD_AXES and abs(value) > STICK_DEAD_ZONE:
             world, sign = PAD_AXES[axis]
             shift[world] += sign * value * STICK_SPEED * dt

@@ -29,6 +29,7 @@ from game.bot import Bot
 from game.display import MODES, UNAVAILABLE, GameWindow, Hud, choose_mode, zone_for_head
 from game.gameover import Beeper, GameOverSequence
 from game.highscores import HighScores
+from game.pads import Pads
 from game.rules import MOVES, GameSettings, GameState, new_game, nudge, tick
 from game.scene import object_states
 
@@ -140,7 +141,8 @@ class GameClient:
         self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
         self.latencies: deque[float] = deque(maxlen=600)
         self.dial_events = self.disconnects = 0
-        self.axes: dict[int, float] = {}
+        self.pads = Pads()
+        self.pads.open_all()
         self.quit = False
         self._last = clock()
         self._render_id = -1
@@ -192,11 +194,7 @@ class GameClient:
     def read_input(self, dt: float) -> tuple[actions.Input, actions.Input]:
         """Input of one tick: (window keys and pad, dial box); notes the head's zone."""
         events = pygame.event.get()
-        for ev in events:
-            if ev.type == pygame.CONTROLLERAXISMOTION:
-                self.axes[ev.axis] = ev.value / 32767.0
-        local = actions.from_pygame(events)
-        local.shift = local.shift + actions.stick_shift(self.axes, dt)
+        local = actions.from_pygame(events).merge(self.pads.read(events, dt))
         if self.devices is None:
             return local, actions.Input()
         self.devices.poll()
