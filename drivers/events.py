@@ -15,7 +15,10 @@ pose      ``yaw, pitch, roll`` (degrees), ``x, y, z`` (device units, mm for
           the native protocol), ``seq`` (frame counter); optional ``quat``
           ``[w, x, y, z]`` and ``device_t_us`` when the protocol sends them
 dial      ``index`` (0-7), ``delta`` (counts since the last report),
-          ``value`` (absolute counts, unwrapped across the 16-bit wrap)
+          ``value`` (absolute counts, unwrapped across the 16-bit wrap),
+          ``turns`` (``value`` / counts per turn; the count per turn is a
+          setting of whoever prints or publishes, default
+          :data:`DEFAULT_COUNTS_PER_TURN`)
 button    ``index`` (0-31), ``pressed`` (true / false)
 status    ``event`` (one of :data:`STATUS_EVENTS`), ``details`` (an object)
 ========  ===============================================================
@@ -41,6 +44,8 @@ STATUS_EVENTS = frozenset(
 #: Allowed device names.
 DEVICES = frozenset({"tracker", "dials"})
 NS_PER_S = 1_000_000_000
+#: Dial counts per turn of the SGI box (VRPN's value).
+DEFAULT_COUNTS_PER_TURN = 200
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +122,12 @@ class DialEvent:
     value : int
         Absolute count since the last reset, unwrapped (unbounded int).
 
+    Notes
+    -----
+    The dump and the published message add ``turns``, ``value`` divided by the
+    counts per turn that the program was given (``--dial-counts-per-turn``); the
+    event itself stays a count, so the decoder needs no setting.
+
     Attributes
     ----------
     device : str
@@ -130,21 +141,27 @@ class DialEvent:
     device = "dials"
     kind = "dial"
 
-    def payload(self) -> dict[str, Any]:
-        """Kind-specific fields of the dump schema."""
-        return {"index": self.index, "delta": self.delta, "value": self.value}
+    def payload(self, counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> dict[str, Any]:
+        """Kind-specific fields of the dump schema (``turns`` per ``counts_per_turn``)."""
+        return {"index": self.index, "delta": self.delta, "value": self.value,
+                "turns": self.turns(counts_per_turn)}
 
-    def turns(self, counts_per_turn: int = 200) -> float:
+    def turns(self, counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> float:
         """Absolute value in turns (VRPN uses 200 counts per turn)."""
         return self.value / counts_per_turn
 
-    def to_dict(self, t0_ns: int = 0) -> dict[str, Any]:
+    def to_dict(self, t0_ns: int = 0,
+                counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> dict[str, Any]:
         """Dump-schema dict; ``t`` is seconds since ``t0_ns``."""
-        return _envelope(self, t0_ns)
+        out: dict[str, Any] = {"t": (self.t_ns - t0_ns) / NS_PER_S, "device": self.device,
+                               "kind": self.kind}
+        out.update(self.payload(counts_per_turn))
+        return out
 
-    def to_json(self, t0_ns: int = 0) -> str:
+    def to_json(self, t0_ns: int = 0,
+                counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> str:
         """Dump-schema JSON text (one line)."""
-        return json.dumps(self.to_dict(t0_ns), separators=(",", ":"))
+        return json.dumps(self.to_dict(t0_ns, counts_per_turn), separators=(",", ":"))
 
 
 @dataclass(frozen=True, slots=True)

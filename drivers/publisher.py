@@ -44,9 +44,17 @@ from typing import TYPE_CHECKING, Any
 
 import zmq
 
-from drivers.events import NS_PER_S, ButtonEvent, DialEvent, Event, PoseEvent, StatusEvent
+from drivers.events import (
+    DEFAULT_COUNTS_PER_TURN,
+    NS_PER_S,
+    ButtonEvent,
+    DialEvent,
+    Event,
+    PoseEvent,
+    StatusEvent,
+)
 from drivers.protocols.sgi_dialbox import NUM_BUTTONS, NUM_DIALS
-from service.errors import DeviceError
+from service.errors import DeviceError, SettingsError
 
 if TYPE_CHECKING:
     from drivers.reader import Item, Sink
@@ -151,17 +159,25 @@ class Publisher:
         Defaults to the process-wide instance.
     clock_ns : callable
         For the snapshot period.
+    counts_per_turn : int
+        Dial counts per turn, for the ``turns`` key of ``dial`` messages.
 
     Raises
     ------
     DeviceError
         The address cannot be bound.
+    SettingsError
+        ``counts_per_turn`` is not positive.
     """
 
     def __init__(self, address: str, t0_ns: int = 0, *, pose_address: str | None = None,
                  snapshot_s: float = 1.0, context: zmq.Context | None = None,
-                 clock_ns: Callable[[], int] = time.monotonic_ns) -> None:
+                 clock_ns: Callable[[], int] = time.monotonic_ns,
+                 counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> None:
+        if counts_per_turn <= 0:
+            raise SettingsError(f"counts_per_turn must be > 0, not {counts_per_turn}")
         self.t0_ns = t0_ns
+        self.counts_per_turn = counts_per_turn
         self.session = secrets.token_hex(4)
         self.state = DialState()
         self.snapshot_s = snapshot_s
@@ -199,7 +215,10 @@ class Publisher:
         return sock
 
     def _envelope(self, ev: Event) -> dict[str, Any]:
-        d = ev.to_dict(self.t0_ns)
+        if isinstance(ev, DialEvent):
+            d = ev.to_dict(self.t0_ns, self.counts_per_turn)
+        else:
+            d = ev.to_dict(self.t0_ns)
         d["t_ns"] = ev.t_ns
         d["session"] = self.session
         return d

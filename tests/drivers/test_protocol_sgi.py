@@ -129,9 +129,13 @@ def test_host_commands_encode_and_parse():
 def test_dial_event_schema():
     ev = SgiDecoder().feed(encode_dial(7, -3), 1_000_000_000)[0]
     assert ev.to_dict() == {"t": 1.0, "device": "dials", "kind": "dial", "index": 7,
-                            "delta": -3, "value": -3}
+                            "delta": -3, "value": -3, "turns": -3 / 200}
     assert ev.to_json() == (
-        '{"t":1.0,"device":"dials","kind":"dial","index":7,"delta":-3,"value":-3}')
+        '{"t":1.0,"device":"dials","kind":"dial","index":7,"delta":-3,"value":-3,'
+        '"turns":-0.015}')
+    # turns follow the configured counts per turn; the event itself stays a count
+    assert ev.to_dict(0, counts_per_turn=4)["turns"] == -0.75
+    assert ev.to_json(0, 4).endswith('"value":-3,"turns":-0.75}')
 
 
 class ReferenceSgi:

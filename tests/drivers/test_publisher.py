@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from drivers.events import ButtonEvent, DialEvent, PoseEvent, StatusEvent
 from drivers.publisher import Publisher, _dumps, pose_json
 from drivers.subscriber import DeviceSubscriber
-from service.errors import DeviceError
+from service.errors import DeviceError, SettingsError
 
 
 def pose(n: int, t_ns: int = 1_000) -> PoseEvent:
@@ -58,6 +58,30 @@ def test_poses_dials_buttons_and_status_reach_a_subscriber(pub):
         assert got[0] == DialEvent(5_000, 3, 7, 7)
         assert got[2].details == {"discarded": 3}
         assert sub.stats.gaps == 0 and sub.stats.malformed == 0
+
+
+def test_dial_messages_carry_turns_per_the_configured_counts_per_turn():
+    p = Publisher("tcp://127.0.0.1:0", counts_per_turn=50)
+    raw = zmq.Context.instance().socket(zmq.SUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    raw.setsockopt(zmq.SUBSCRIBE, b"dials")
+    raw.connect(p.address)
+    try:
+        body: dict = {}
+        deadline = time.monotonic() + 5
+        while body.get("kind") != "dial":  # snapshots first, then the turn
+            assert time.monotonic() < deadline, "no dial message"
+            p.publish(DialEvent(5_000, 1, -75, -75))
+            p.service()
+            if raw.poll(10):
+                body = json.loads(raw.recv_multipart()[1])
+        assert (body["value"], body["turns"]) == (-75, -1.5)
+        assert {"index", "delta", "value", "turns", "seq", "dials", "buttons"} <= set(body)
+    finally:
+        raw.close()
+        p.close()
+    with pytest.raises(SettingsError):
+        Publisher("tcp://127.0.0.1:0", counts_per_turn=0)
 
 
 def test_late_joiner_sees_the_absolute_dial_and_button_state(pub):
