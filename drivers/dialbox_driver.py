@@ -66,6 +66,9 @@ class DialBoxDriver:
         reader.emit("info", {"message": "reinit"}, reset=True)
         self.initialise(reader)
 
+    def on_stop(self, reader: DeviceReader) -> None:
+        """Nothing to say on a clean stop (the box keeps no session)."""
+
     def initialise(self, reader: DeviceReader) -> bool:
         """VRPN's init handshake, then the lamps; returns whether the box answered.
 

@@ -27,7 +27,13 @@ What a reader does:
 * watchdog: no valid frame for ``watchdog_s`` seconds (or a read error: a device
   unplugged, a pty hung up) closes the port and reopens it with exponential backoff
   (``backoff_s`` doubling up to ``backoff_max_s``; reset by the next valid frame), so
-  a device unplugged and plugged back in resumes without restarting the program.
+  a device unplugged and plugged back in resumes without restarting the program;
+  the hooks' ``on_open`` runs on every open (the dial box handshake, the tracker's
+  start command);
+* clean stop (:meth:`DeviceReader.stop`): the hooks' ``on_stop`` (the tracker's stop
+  command) while the port is still open, then an ``info`` status
+  (``message: "closed"``) that flushes the decoder, so a torn last frame shows as
+  ``truncated``.
 
 Things the reader itself says (port opened, lost, reopened; a device's init
 handshake) are :class:`Control` items: they go to the sink like chunks, are recorded
@@ -184,6 +190,15 @@ class DeviceStream:
         """Events that ``item`` gives (decoded bytes, or the control's status)."""
         return self._apply[type(item)](item)
 
+    def flush(self, t_ns: int) -> list[Event]:
+        """End of input (the end of a replay): the decoder's leftovers at ``t_ns``.
+
+        A torn last frame becomes a ``truncated`` status, pending garbage a
+        ``resync``; the live reader does the same on a clean stop (the ``closed``
+        control item).
+        """
+        return self.decoder.flush(t_ns)
+
     def _chunk(self, item: Chunk) -> list[Event]:
         return self.decoder.feed(item.data, item.t_ns)
 
@@ -293,6 +308,10 @@ class DeviceHooks(Protocol):
         """Events were decoded (e.g. react to a re-init request)."""
         ...
 
+    def on_stop(self, reader: DeviceReader) -> None:
+        """Clean stop, port still open: say goodbye (optional; errors are ignored)."""
+        ...
+
 
 class _NoHooks:
     def on_open(self, reader: DeviceReader) -> None:
@@ -300,6 +319,9 @@ class _NoHooks:
 
     def on_events(self, reader: DeviceReader, events: list[Event]) -> None:
         """Nothing to react to."""
+
+    def on_stop(self, reader: DeviceReader) -> None:
+        """Nothing to say."""
 
 
 class DeviceReader:
@@ -431,6 +453,7 @@ class DeviceReader:
     def _run(self) -> None:
         try:
             self._loop()
+            self._shutdown()
         except Exception as exc:  # a bug, not a device problem: report it, end the thread
             self.crashed = exc
             with contextlib.suppress(Exception):
@@ -450,6 +473,19 @@ class DeviceReader:
                 self._lose("disconnected", str(exc))
                 continue
             self._check_watchdog()
+
+    def _shutdown(self) -> None:
+        """Clean stop: the hooks' goodbye, then a ``closed`` status that flushes.
+
+        ``on_stop`` (the tracker's stop command) runs while the port is still open;
+        the ``info`` status ``message: "closed"`` flushes the decoder first, so a torn
+        last frame is reported as ``truncated``, as ``holo-replay`` does at its end.
+        """
+        on_stop = getattr(self._hooks, "on_stop", None)
+        if self._port is not None and on_stop is not None:
+            with contextlib.suppress(serial.SerialException, OSError):
+                on_stop(self)
+        self.emit("info", {"message": "closed"}, flush=True)
 
     def _open(self) -> bool:
         s = self.settings

@@ -8,17 +8,20 @@ Examples::
     holo-sim dials --pty --seconds 20            # answers the init handshake, then plays
 
 The first stdout line is the path or URL a client opens (flushed at once).  When the
-run ends a JSON summary (bytes sent, faults applied) is printed on stdout.
+run ends a JSON summary (bytes sent, faults applied; for a tracker, the host
+commands it received) is printed on stdout.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import sys
 from collections.abc import Sequence
 
+from drivers.tracker_driver import add_command_options, commands_from_args
 from service.errors import HoloError
 from service.signals import stop_on_signals
 from sim_devices.dialbox import DialBoxSim, demo_script
@@ -59,7 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--byte-order", choices=("little", "big"), default="little",
                    help="Hatire byte order (default: %(default)s)")
     p.add_argument("--wait-start", action="store_true",
-                   help="tracker waits for the host's start command before streaming")
+                   help="tracker waits for the host's start command before streaming "
+                   "(again after each simulated unplug)")
+    add_command_options(p)
     p.add_argument("--enabled", action="store_true",
                    help="dial box reports without waiting for the init handshake")
     p.add_argument("--faults", default="", help=FAULT_HELP)
@@ -81,6 +86,7 @@ def _device(args: argparse.Namespace) -> TrackerSim | DialBoxSim:
     if args.device == "tracker":
         motion = make_motion(args.motion, args.seed, args.noise, 2.5 * args.noise)
         return TrackerSim(args.protocol, motion, args.rate, args.byte_order,
+                          commands_from_args(args),
                           autostart=not args.wait_start)
     return DialBoxSim(demo_script(args.seed, args.seconds or 30.0), enabled=args.enabled)
 
@@ -109,11 +115,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"holo-sim: {exc}", file=sys.stderr)
         return 2
     finally:
+        with contextlib.suppress(HoloError, OSError):
+            runner.poll_host()  # count host commands that came in at the very end
         link.drain()
         link.close()
     led = runner.ledger
-    print(json.dumps({"bytes_sent": runner.bytes_sent, "frames": led.frames,
-                      "intact": len(led.intact), "faults": dict(led.counts)}), flush=True)
+    summary = {"bytes_sent": runner.bytes_sent, "frames": led.frames,
+               "intact": len(led.intact), "faults": dict(led.counts)}
+    if isinstance(device, TrackerSim):
+        summary["commands"] = dict(device.received)
+    print(json.dumps(summary), flush=True)
     return 0
 
 

@@ -19,7 +19,8 @@ Links (all offer ``name``, ``write``, ``read_available``, ``disconnect``,
 possible, pacing writes to the baud rate (10 bits per byte, 8N1) unless ``pace`` is
 off, and answers host commands (``device.receive``) between frames.  It waits while
 ``device.streaming`` is false (before the dial box's init handshake, after a
-tracker's stop command).
+tracker's stop command).  A ``disconnect`` fault also power-cycles a device that
+has ``power_cycle()`` (a tracker waiting for its start command waits again).
 """
 
 from __future__ import annotations
@@ -390,6 +391,9 @@ class DeviceRunner:
 
     def _disconnect(self, action: Disconnect) -> None:
         self.link.disconnect()
+        power_cycle = getattr(self.device, "power_cycle", None)
+        if power_cycle is not None:  # unplugged: back in its power-on state
+            power_cycle()
         self.stop_event.wait(action.seconds)
         self._offset += action.seconds
         if not self.stop_event.is_set():

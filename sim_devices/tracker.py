@@ -6,7 +6,9 @@ answers host commands (:meth:`TrackerSim.receive`): Hatire single characters
 (start / stop / reset, configurable) or native command frames.  A reset restarts the
 counter and sends an ``init`` text frame (Hatire code 3000, native info text);
 a start sends a ``start`` text frame (Hatire 5000).  ``streaming`` is what an
-endpoint runner checks before sending the next frame.
+endpoint runner checks before sending the next frame; ``received`` counts the
+commands acted on.  :meth:`TrackerSim.power_cycle` is what a device unplugged and
+plugged back in does: one that waits for a start command waits again.
 """
 
 from __future__ import annotations
@@ -55,7 +57,9 @@ class TrackerSim:
         self.rate_hz = rate_hz
         self.byte_order = byte_order
         self.commands = commands or hatire.HatireCommands()
+        self.autostart = autostart
         self.streaming = autostart
+        self.received = dict.fromkeys(("start", "stop", "reset"), 0)
         self.seq = 0
         self._framer = native.NativeFramer()
         self._hatire_cmds = {self.commands.start: "start", self.commands.stop: "stop",
@@ -97,7 +101,19 @@ class TrackerSim:
         else:
             names = [native.MSG_TYPES[f.type][0] for f in self._framer.feed(data)
                      if isinstance(f, native.Frame)]
-        return b"".join(self._on_command[n](t) for n in names if n in self._on_command)
+        replies = []
+        for name in names:
+            if name in self._on_command:
+                self.received[name] += 1
+                replies.append(self._on_command[name](t))
+        return b"".join(replies)
+
+    def power_cycle(self) -> None:
+        """Back to the power-on state: streaming only if ``autostart``.
+
+        The frame counter goes on, so a fault ledger's sequence numbers stay unique.
+        """
+        self.streaming = self.autostart
 
     def _text(self, code: int, text: str, t: float) -> bytes:
         if self.protocol == "hatire":

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from service.errors import MeshError, MeshFileError
-from service.mesh import Mesh
+from service.mesh import Mesh, describe_fault, polygon_shape_faults
 
 
 def read_bytes(path: str | Path) -> bytes:
@@ -109,10 +110,41 @@ def twice_areas(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray) 
     return np.linalg.norm(total, axis=1)
 
 
+def by_polygon(p: int) -> str:
+    """The default place of polygon ``p`` in messages (``"polygon 3"``)."""
+    return f"polygon {p}"
+
+
+def check_shapes(
+    path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+    where: Callable[[int], str] = by_polygon,
+) -> None:
+    """Refuse a non-planar or non-convex polygon, naming its place in the file.
+
+    Parameters
+    ----------
+    path : str or Path
+    vertices : ndarray, shape (V, 3), finite
+    polygons : ndarray, shape (P, K), indices in range, padded with -1
+    counts : ndarray, shape (P,)
+    where : callable
+        Polygon index (file order, from 0) to its place: ``"line 12"``, ``"face 7"``.
+
+    Raises
+    ------
+    MeshFileError
+        For the first bad polygon (see :func:`service.mesh.polygon_shape_faults`).
+    """
+    faults = polygon_shape_faults(vertices, polygons, counts)
+    if faults.polygon.size:
+        raise MeshFileError(str(path), where(int(faults.polygon[0])), describe_fault(faults))
+
+
 def finish_mesh(
-    path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray
+    path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+    where: Callable[[int], str] = by_polygon,
 ) -> Mesh:
-    """Drop zero-area polygons (with a warning naming the file) and build the mesh.
+    """Check polygon shapes, drop zero-area polygons (with a warning), build the mesh.
 
     Parameters
     ----------
@@ -121,11 +153,14 @@ def finish_mesh(
     vertices : ndarray, shape (V, 3), finite
     polygons : ndarray, shape (P, K), indices checked in range, padded with -1
     counts : ndarray, shape (P,), each >= 3
+    where : callable
+        Polygon index (file order) to its place in the file, for messages.
 
     Raises
     ------
     MeshFileError
-        If there are no polygons, or none with a non-zero area.
+        If there are no polygons, none with a non-zero area, or a polygon is not
+        planar and convex.
 
     Returns
     -------
@@ -134,6 +169,7 @@ def finish_mesh(
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     if counts.size == 0:
         raise MeshFileError(str(path), "", "the file has no polygons")
+    check_shapes(path, vertices, polygons, counts, where)
     centred = vertices - vertices.mean(axis=0)
     scale = float(np.abs(centred).max())
     keep = twice_areas(centred, polygons, counts) > 1e-12 * scale * scale

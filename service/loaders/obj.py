@@ -74,7 +74,8 @@ def load_obj(path: str | Path) -> Mesh:
     Raises
     ------
     MeshFileError
-        Naming the line at fault.
+        Naming the line at fault; a polygon that is not planar and convex is
+        reported at its ``f`` line.
     """
     path = Path(path)
     verts: list[list[float]] = []
@@ -98,7 +99,8 @@ def load_obj(path: str | Path) -> Mesh:
             f"vertex index {flat[bad[0]] + 1} is beyond the {len(verts)} vertices",
         )
     vertices = np.array(verts, np.float64).reshape(-1, 3)
-    return finish_mesh(path, vertices, pad_flat(flat, counts), counts)
+    polygons = pad_flat(flat, counts)
+    return finish_mesh(path, vertices, polygons, counts, lambda p: f"line {face_lines[p]}")
 
 
 def save_obj(path: str | Path, mesh: Mesh) -> None:

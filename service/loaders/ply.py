@@ -329,7 +329,8 @@ def load_ply(path: str | Path) -> Mesh:
     Raises
     ------
     MeshFileError
-        Naming the header line, or the element record (``"face 7"``), at fault.
+        Naming the header line, or the element record (``"face 7"``), at fault; a
+        face that is not planar and convex is reported as its record.
     """
     path = Path(path)
     data = read_bytes(path)
@@ -341,7 +342,7 @@ def load_ply(path: str | Path) -> Mesh:
     cols = BODY_READERS[head.fmt](path, data, head, start)
     verts = _vertices(path, elements["vertex"], cols["vertex"])
     polygons, counts = _faces(path, elements["face"], cols["face"], verts.shape[0])
-    return finish_mesh(path, verts, polygons, counts)
+    return finish_mesh(path, verts, polygons, counts, lambda p: f"face {p}")
 
 
 def save_ply(path: str | Path, mesh: Mesh, fmt: str = "binary_little_endian") -> None:

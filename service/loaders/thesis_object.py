@@ -137,7 +137,8 @@ def load_thesis_object(path: str | Path) -> Mesh:
     Raises
     ------
     MeshFileError
-        Naming the line or polygon at fault.
+        Naming the line or polygon at fault; a polygon that is not planar and convex
+        is reported at the line of its vertex count ``k``.
     """
     path = Path(path)
     rows = _data_lines(text_lines(path))
@@ -147,7 +148,9 @@ def load_thesis_object(path: str | Path) -> Mesh:
         reason = f"NUMVERTS is {nverts} but the polygons list {int(counts.sum())} vertices"
         raise MeshFileError(str(path), f"line {rows[0][0]}", reason)
     vertices, index = weld(_coordinates(path, rows, counts, starts))
-    return finish_mesh(path, vertices, pad_flat(index, counts), counts)
+    k_lines = [rows[s - 1][0] for s in starts]  # the line of each polygon's k
+    polygons = pad_flat(index, counts)
+    return finish_mesh(path, vertices, polygons, counts, lambda p: f"line {k_lines[p]}")
 
 
 def save_thesis_object(path: str | Path, mesh: Mesh, comment: str = "") -> None:

@@ -19,7 +19,7 @@ from service.loaders import (
     save_thesis_object,
 )
 from service.mesh import Mesh
-from service.primitives import attacker, cube, player, sphere
+from service.primitives import attacker, cube, player, sphere, torus
 
 PLY_FORMATS = ["ascii", "binary_little_endian", "binary_big_endian"]
 
@@ -283,6 +283,94 @@ def test_degenerate_polygons_dropped_with_warning(tmp_path, ext):
     with pytest.warns(UserWarning, match=r"deg.*dropped 1 degenerate"):
         back = load_mesh(path)
     assert back.n_polygons == 2
+
+
+# --- polygon shapes: planar and convex -------------------------------------------
+
+SHAPE_TRIANGLE = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+BAD_SHAPES = {  # corners of polygon 1; polygon 0 is SHAPE_TRIANGLE
+    "concave": ([[0, 0, 1], [2, 0, 1], [0.5, 0.5, 1], [0, 2, 1]], "not convex"),
+    "non-planar": ([[0, 0, 1], [2, 0, 1], [2, 2, 1.2], [0, 2, 1]], "not planar"),
+    "bow-tie": ([[0, 0, 1], [2, 2, 1], [2, 0, 1], [0, 2, 1]], "not convex"),
+}
+# a square in the tilted plane z = 1 + 0.3x - 0.7y, written with 6 decimals (as many
+# exporters do), then off the plane by up to 1e-6: within the tolerance (1e-5 of the extent)
+_TILT = [[x, y, 1 + 0.3 * x - 0.7 * y] for x, y in ((0, 0), (1.7, 0.1), (1.9, 1.3), (0.3, 1.9))]
+GOOD_SHAPES = {
+    "convex quad": [[0, 0, 1], [2, 0, 1], [2.5, 2, 1], [0, 2, 1]],
+    "pentagon, collinear corner": [[0, 0, 1], [1, 0, 1], [2, 0, 1], [2, 2, 1], [0, 2, 1]],
+    "noisy quad": (np.round(np.array(_TILT), 6) + [[0, 0, 1e-6], [0, 0, -1e-6], [0, 0, 0],
+                                                    [0, 0, 5e-7]]).tolist(),
+}
+SHAPE_FORMATS = [".obj", ".hobj", "ascii.ply", "binary_little_endian.ply",
+                 "binary_big_endian.ply"]
+
+
+def write_two_polygons(tmp_path: Path, fmt: str, corners: list) -> tuple[Path, str]:
+    """A file with SHAPE_TRIANGLE then ``corners``; returns it and polygon 1's place."""
+    verts = SHAPE_TRIANGLE + list(corners)
+    faces = [[0, 1, 2], list(range(3, len(verts)))]
+    if fmt.endswith(".ply"):
+        path = tmp_path / "shape.ply"
+        path.write_bytes(ply_bytes(fmt[:-4], [("double", a) for a in "xyz"], verts, faces))
+        return path, "face 1"
+    lines = ["# two polygons"]
+    if fmt == ".obj":
+        lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in verts]
+        lines += ["f " + " ".join(str(i + 1) for i in f) for f in faces]
+        where = f"line {len(lines)}"
+    else:
+        lines += [f"{len(verts)} 2"]
+        for f in faces:
+            lines += [str(len(f))] + [" ".join(repr(c) for c in verts[i]) for i in f]
+        where = f"line {2 + 1 + 3 + 1}"  # comment, header, triangle, then its k
+    path = tmp_path / f"shape{fmt}"
+    path.write_text("\n".join(lines) + "\n")
+    return path, where
+
+
+@pytest.mark.parametrize("fmt", SHAPE_FORMATS)
+@pytest.mark.parametrize("shape", sorted(BAD_SHAPES))
+def test_non_planar_or_non_convex_polygon_names_file_and_place(tmp_path, fmt, shape):
+    corners, reason = BAD_SHAPES[shape]
+    path, where = write_two_polygons(tmp_path, fmt, corners)
+    with pytest.raises(MeshFileError) as info:
+        load_mesh(path)
+    err = info.value
+    assert err.path == str(path) and err.where == where
+    assert err.reason.startswith(f"polygon 1 is {reason}")
+    assert "planar and convex" in err.reason and "tolerance" in err.reason
+    assert str(err).startswith(f"{path}, {where}: polygon 1")
+
+
+@pytest.mark.parametrize("fmt", SHAPE_FORMATS)
+@pytest.mark.parametrize("shape", sorted(GOOD_SHAPES))
+def test_planar_convex_polygons_load(tmp_path, fmt, shape):
+    path, _ = write_two_polygons(tmp_path, fmt, GOOD_SHAPES[shape])
+    mesh = load_mesh(path)
+    assert mesh.counts.tolist() == [3, len(GOOD_SHAPES[shape])]
+    assert np.allclose(mesh.vertices[mesh.polygons[1, : mesh.counts[1]]], GOOD_SHAPES[shape])
+
+
+def test_rounded_coordinates_of_small_quads_load(tmp_path):
+    """File rounding is noise, not a fault: float32 PLY far from the origin, 6-decimal OBJ.
+
+    Relative to each quad's own size these are off their planes by 1.5e-6 (torus) and
+    1.2e-5 (sphere); relative to the mesh's extent, by 6e-8 and 4e-7.
+    """
+    mesh = torus(0.5, 0.15, 64, 24)
+    verts = (mesh.vertices + [3.0, -2.0, 1.0]).astype(np.float32).tolist()
+    faces = [list(r[:k]) for r, k in zip(mesh.polygons, mesh.counts, strict=True)]
+    path = tmp_path / "torus32.ply"
+    path.write_bytes(ply_bytes("binary_little_endian", [("float", a) for a in "xyz"], verts,
+                               faces))
+    assert load_mesh(path).n_polygons == mesh.n_polygons
+    ball = sphere(0.5, 64, 128)
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in ball.vertices]
+    lines += ["f " + " ".join(str(i + 1) for i in r[:k])
+              for r, k in zip(ball.polygons, ball.counts, strict=True)]
+    (tmp_path / "ball.obj").write_text("\n".join(lines) + "\n")
+    assert load_mesh(tmp_path / "ball.obj").n_polygons == ball.n_polygons
 
 
 # --- fuzz -----------------------------------------------------------------------

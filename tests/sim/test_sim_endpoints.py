@@ -154,16 +154,19 @@ def test_tcp_start_stop_and_reconnect():
     runner = DeviceRunner(sim, link, spec, seconds=0.5, realtime=True, pace=True).start()
 
     def reopen():
-        return serial.serial_for_url(link.name, timeout=0.02)
+        # a device plugged back in waits for the start command again, as at power-on
+        port = serial.serial_for_url(link.name, timeout=0.02)
+        port.write(b"S")
+        return port
 
     try:
         port = reopen()
-        port.write(b"S")
         events, reopened = read_until(port, make_decoder("hatire"),
                                       lambda ev: 249 in seqs(ev), reopen=reopen)
         assert reopened == runner.ledger.counts["disconnect"] >= 2
         assert seqs(events) == list(range(250))  # TCP delivers what was sent before a close
         assert events[0].details["meaning"] == "start"
+        assert sim.received["start"] == reopened + 1
     finally:
         runner.stop()
         link.close()
