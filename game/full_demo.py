@@ -6,25 +6,65 @@ events (with the game's button lamps lit), and the game.  With a display the gam
 opens its window in attract mode until a key; without one the bot plays headless
 for ``--seconds`` (20) and ``demo-out/`` gets screenshots of each mode, a film
 strip, a GIF and ``stats.json``, and a summary is printed.  Every process started
-here is stopped at the end, on Ctrl-C and on errors.  ``--local`` leaves the
-service out (the game renders in process).
+here is stopped at the end, on SIGINT (Ctrl-C) and SIGTERM (exit status 128 + the
+signal's number), and when one of them fails (exit status 1).  ``--local`` leaves
+the service out (the game renders in process).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from game.actions import lamp_mask
 from game.display import has_display, headless_env
+from service.signals import stop_on_signals
 
 ANY = "tcp://127.0.0.1:0"
+#: Seconds between looks at a child while waiting for it.
+POLL_S = 0.02
+
+
+class Stopped(Exception):
+    """A signal asked the demo to stop.
+
+    Parameters
+    ----------
+    signum : int
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+class Signals:
+    """SIGINT and SIGTERM while the demo runs, caught by :func:`stop_on_signals`."""
+
+    def __init__(self) -> None:
+        self.events = {sig: threading.Event() for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    @contextlib.contextmanager
+    def caught(self) -> Iterator[None]:
+        """Within the block each signal only sets its event (no KeyboardInterrupt)."""
+        with contextlib.ExitStack() as stack:
+            for sig, event in self.events.items():
+                stack.enter_context(stop_on_signals(event, (sig,)))
+            yield
+
+    def check(self) -> None:
+        """Raise :class:`Stopped` if a signal came."""
+        for sig, event in self.events.items():
+            if event.is_set():
+                raise Stopped(sig)
 
 
 class Proc:
@@ -35,10 +75,18 @@ class Proc:
     name : str
     args : list of str
     env : dict, optional
+    check : callable, optional
+        Called while waiting on the child; raises to stop waiting (a signal came).
     """
 
-    def __init__(self, name: str, args: list[str], env: dict | None = None) -> None:
-        self.name = name
+    def __init__(
+        self,
+        name: str,
+        args: list[str],
+        env: dict | None = None,
+        check: Callable[[], None] = lambda: None,
+    ) -> None:
+        self.name, self.check = name, check
         self.p = subprocess.Popen(
             args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
         )
@@ -52,12 +100,13 @@ class Proc:
         deadline = time.monotonic() + timeout
         tick = threading.Event()
         while time.monotonic() < deadline:
+            self.check()
             found = next((ln for ln in list(lines) if pred(ln)), None)
             if found is not None:
                 return found
             if self.p.poll() is not None:
                 break
-            tick.wait(0.02)
+            tick.wait(POLL_S)
         raise RuntimeError(f"{self.name} did not start (rc={self.p.poll()}): {self.err[-5:]}")
 
     def stop(self, timeout: float = 5.0) -> None:
@@ -71,6 +120,56 @@ class Proc:
                 self.p.wait(timeout)
 
 
+class Children:
+    """The processes the demo started, stopped together.
+
+    Parameters
+    ----------
+    check : callable
+        Passed to every :class:`Proc` (a signal stops waits).
+    """
+
+    def __init__(self, check: Callable[[], None] = lambda: None) -> None:
+        self.procs: list[Proc] = []
+        self.check = check
+
+    def start(self, name: str, args: list[str], env: dict | None = None) -> Proc:
+        """Start a child and keep it for :meth:`stop_all`."""
+        proc = Proc(name, args, env, self.check)
+        self.procs.append(proc)
+        return proc
+
+    def wait_for(self, proc: Proc, timeout: float | None) -> int:
+        """``proc``'s exit status; raises if another child exits first or time runs out.
+
+        Raises
+        ------
+        RuntimeError
+            Another child exited while ``proc`` ran (every child runs until stopped).
+        subprocess.TimeoutExpired
+        Stopped
+            From ``check``: a signal came.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        tick = threading.Event()
+        while (rc := proc.p.poll()) is None:
+            self.check()
+            for other in self.procs:
+                if other is not proc and other.p.poll() is not None:
+                    self.check()  # a Ctrl-C reaches the children too: it is the signal
+                    why = f"{other.name} exited {other.p.returncode} while {proc.name} ran"
+                    raise RuntimeError(f"{why}: {other.err[-5:]}")
+            if deadline is not None and time.monotonic() > deadline:
+                raise subprocess.TimeoutExpired(proc.p.args, timeout)
+            tick.wait(POLL_S)
+        return rc
+
+    def stop_all(self) -> None:
+        """Stop every child, the last started first."""
+        for proc in reversed(self.procs):
+            proc.stop()
+
+
 def _pump(stream: object, lines: list[str]) -> None:
     for line in stream:
         lines.append(line.rstrip("\n"))
@@ -80,64 +179,45 @@ def _script(name: str) -> list[str]:
     return [sys.executable, "-m", name]
 
 
-def start_devices(procs: list[Proc], seconds: float) -> str:
+def start_devices(children: Children, seconds: float) -> str:
     """holo-sim tracker and dial box on ptys, holo-devices publishing; returns its address."""
-    tracker = Proc(
-        "holo-sim tracker",
-        [*_script("sim_devices.cli"), "tracker", "--pty", "--motion", "sway:scale=2"],
+    sim = _script("sim_devices.cli")
+    tracker = children.start(
+        "holo-sim tracker", [*sim, "tracker", "--pty", "--motion", "sway:scale=2"]
     )
-    procs.append(tracker)
-    dials = Proc(
+    dials = children.start(
         "holo-sim dials",
-        [
-            *_script("sim_devices.cli"),
-            "dials",
-            "--pty",
-            "--seconds",
-            str(seconds + 30),
-            "--seed",
-            "1",
-        ],
+        [*sim, "dials", "--pty", "--seconds", str(seconds + 30), "--seed", "1"],
     )
-    procs.append(dials)
     t_path = tracker.wait_line(tracker.out, lambda ln: ln.startswith("/dev/"), 20)
     d_path = dials.wait_line(dials.out, lambda ln: ln.startswith("/dev/"), 20)
-    devices = Proc(
+    devices = children.start(
         "holo-devices",
         [
             *_script("drivers.cli_devices"),
-            "--tracker",
-            t_path,
-            "--dials",
-            d_path,
-            "--pub",
-            ANY,
-            "--reset-wait",
-            "0.5",
-            "--lamps",
-            hex(lamp_mask()),
+            "--tracker", t_path,
+            "--dials", d_path,
+            "--pub", ANY,
+            "--reset-wait", "0.5",
+            "--lamps", hex(lamp_mask()),
         ],
-    )
-    procs.append(devices)
+    )  # fmt: skip
     line = devices.wait_line(devices.err, lambda ln: "publishing on" in ln, 20)
     return line.split()[-1]
 
 
-def start_service(procs: list[Proc]) -> str:
-    """holo-service on free ports; returns its control address."""
-    svc = Proc(
+def start_service(children: Children, extra: Sequence[str] = ()) -> str:
+    """holo-service on free ports (plus ``extra`` arguments); returns its control address."""
+    svc = children.start(
         "holo-service",
         [
             *_script("service.cli_service"),
-            "--control",
-            ANY,
-            "--frames",
-            ANY,
-            "--worker-address",
-            ANY,
+            "--control", ANY,
+            "--frames", ANY,
+            "--worker-address", ANY,
+            *extra,
         ],
-    )
-    procs.append(svc)
+    )  # fmt: skip
     line = svc.wait_line(svc.err, lambda ln: ln.startswith("holo-service: control"), 30)
     return line.split()[2]
 
@@ -148,59 +228,76 @@ def game_args(
     """The holo-game command line."""
     cmd = [
         *_script("game.cli"),
-        "--devices",
-        devices,
+        "--devices", devices,
         "--bot",
-        "--highscores",
-        str(Path(args.out) / "highscores.json"),
-    ]
+        "--highscores", str(Path(args.out) / "highscores.json"),
+    ]  # fmt: skip
     cmd += ["--local"] if control is None else ["--service", control]
     if headless:
         cmd += [
             "--headless",
-            "--seconds",
-            str(args.seconds),
-            "--out",
-            args.out,
-            "--bot-gives-up",
-            str(args.gives_up),
-        ]
+            "--seconds", str(args.seconds),
+            "--out", args.out,
+            "--bot-gives-up", str(args.gives_up),
+        ]  # fmt: skip
     return cmd
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the whole loop; returns the exit status."""
+def build_parser() -> argparse.ArgumentParser:
+    """The command line."""
     ap = argparse.ArgumentParser(prog="holo-demo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="demo-out")
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--gives-up", type=float, default=6.0, help="bot gives up after S s")
     ap.add_argument("--local", action="store_true", help="no service: render in the game")
     ap.add_argument("--headless", action="store_true", help="even with a display")
-    args = ap.parse_args(argv)
+    ap.add_argument(
+        "--service-arg",
+        action="append",
+        default=[],
+        metavar="ARG",
+        help="one more holo-service argument (repeat it; write --service-arg=--workers=2)",
+    )
+    return ap
+
+
+def run(args: argparse.Namespace, children: Children, headless: bool) -> int:
+    """Start every process, wait for the game; returns the exit status (0 or 1)."""
+    devices = start_devices(children, args.seconds)
+    control = None if args.local else start_service(children, args.service_arg)
+    env = headless_env() if headless else None
+    game = children.start("holo-game", game_args(args, control, devices, headless), env)
+    rc = children.wait_for(game, None if not headless else args.seconds + 120)
+    if rc != 0:
+        print(f"holo-demo: holo-game exited {rc}: {game.err[-5:]}", file=sys.stderr)
+        return 1
+    if headless:
+        _summary(args.out, control)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the whole loop; returns the exit status.
+
+    Every child is stopped before returning: at the end, on SIGINT or SIGTERM
+    (status 128 + the signal), and when one fails or exits early (status 1).
+    """
+    args = build_parser().parse_args(argv)
     headless = args.headless or not has_display()
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    procs: list[Proc] = []
-    try:
-        devices = start_devices(procs, args.seconds)
-        control = None if args.local else start_service(procs)
-        env = headless_env() if headless else None
-        game = Proc("holo-game", game_args(args, control, devices, headless), env)
-        procs.append(game)
-        rc = game.p.wait(None if not headless else args.seconds + 120)
-        if rc != 0:
-            print(f"holo-demo: holo-game exited {rc}: {game.err[-5:]}", file=sys.stderr)
+    signals = Signals()
+    children = Children(signals.check)
+    with signals.caught():
+        try:
+            return run(args, children, headless)
+        except Stopped as exc:
+            print(f"holo-demo: {exc}: stopping every process", file=sys.stderr)
+            return 128 + exc.signum
+        except (RuntimeError, subprocess.TimeoutExpired) as exc:
+            print(f"holo-demo: {exc}; stopping every process", file=sys.stderr)
             return 1
-        if headless:
-            _summary(args.out, control)
-        return 0
-    except KeyboardInterrupt:
-        return 130
-    except (RuntimeError, subprocess.TimeoutExpired) as exc:
-        print(f"holo-demo: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        for proc in reversed(procs):
-            proc.stop()
+        finally:
+            children.stop_all()
 
 
 def _summary(out: str, control: str | None) -> None:
