@@ -7,9 +7,15 @@ Examples::
                  --pub tcp://127.0.0.1:5556 --record session.hlog      (one line)
     holo-devices --tracker socket://127.0.0.1:7001 --dump --seconds 10
 
+The tracker is sent its start command each time its port opens (the first time, and
+after every reconnect or watchdog reopen) and its stop command on a clean stop
+(``--hatire-start C`` / ``--hatire-stop C`` / ``--hatire-reset C`` choose the Hatire
+characters; native devices get command frames); the dial box gets VRPN's handshake.
+
 ``--dump`` prints one JSON object per event per line on stdout (schema in
-``docs/drivers.md``). With ``--pub`` the first stderr line names the bound address
-(``tcp://127.0.0.1:0`` picks a free port). Problems with the links (errors,
+``docs/drivers.md``; dial events carry ``turns`` per ``--dial-counts-per-turn``).
+With ``--pub`` the first stderr line names the bound address (``tcp://127.0.0.1:0``
+picks a free port). Problems with the links (errors,
 reconnects) also go to stderr, one line each. Ctrl-C or SIGTERM stops cleanly: readers
 are joined, the queue is drained, the recorder closed (the log is complete) and a JSON
 summary of each device's statistics is printed on stderr. Exit status: 0, or 2 for bad
@@ -28,20 +34,22 @@ from collections.abc import Callable, Sequence
 from typing import Any, TextIO
 
 from drivers.dialbox_driver import DialBoxDriver
-from drivers.events import Event, StatusEvent
+from drivers.events import DEFAULT_COUNTS_PER_TURN, DialEvent, Event, StatusEvent
 from drivers.protocols.sgi_dialbox import BAUD as SGI_BAUD
 from drivers.publisher import Publisher
 from drivers.reader import (
     CONTROL_PROTOCOL,
     CONTROL_SUFFIX,
     Chunk,
+    DeviceHooks,
     DeviceReader,
     EventHub,
     Item,
     ReaderSettings,
 )
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
-from service.errors import HoloError
+from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
+from service.errors import HoloError, SettingsError
 from service.signals import stop_on_signals
 
 Listener = Callable[[Item, list[Event]], None]
@@ -82,7 +90,34 @@ def build_parser() -> argparse.ArgumentParser:
                    help="longest wait for the dial box's reset answer (default: %(default)s)")
     p.add_argument("--lamps", type=lambda s: int(s, 0), default=0, metavar="MASK",
                    help="dial box lamps to light after init, e.g. 0xffffffff")
+    add_tracker_options(p)
+    p.add_argument("--dial-counts-per-turn", type=positive_int, default=DEFAULT_COUNTS_PER_TURN,
+                   metavar="N", help="dial counts per turn, for the 'turns' of dial events "
+                   "(default: %(default)s, VRPN's value)")
     return p
+
+
+def add_tracker_options(p: argparse.ArgumentParser) -> None:
+    """The tracker's host commands and Hatire byte order."""
+    add_command_options(p)
+    p.add_argument("--tracker-reset-on-open", action="store_true",
+                   help="send the reset command before the start command on every open")
+    p.add_argument("--hatire-big-endian", action="store_true",
+                   help="Hatire frames are big-endian (default: little-endian)")
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: an integer > 0."""
+    value = int(text)
+    if value <= 0:
+        raise SettingsError(f"must be > 0, not {value}")
+    return value
+
+
+def publishing_line(prog: str, pub: Publisher) -> str:
+    """The stderr line that names the bound address(es): ``PROG: publishing on ...``."""
+    where = pub.address + (f" (poses only: {pub.pose_address})" if pub.pose_address else "")
+    return f"{prog}: publishing on {where}"
 
 
 def log_devices(settings: Sequence[ReaderSettings]) -> tuple[DeviceInfo, ...]:
@@ -92,6 +127,17 @@ def log_devices(settings: Sequence[ReaderSettings]) -> tuple[DeviceInfo, ...]:
         out.append(DeviceInfo(s.device_name, s.protocol, SerialSettings(s.url, s.baudrate)))
         out.append(DeviceInfo(s.device_name + CONTROL_SUFFIX, CONTROL_PROTOCOL))
     return tuple(out)
+
+
+def header_extra(settings: Sequence[ReaderSettings], counts_per_turn: int) -> dict[str, Any]:
+    """The log header's ``extra``: what replay needs to print what was seen live.
+
+    ``decoder_options`` (device name -> decoder keyword arguments, e.g. a big-endian
+    Hatire tracker) and ``counts_per_turn`` (the dump's dial ``turns``).
+    """
+    options = {s.device_name: dict(s.decoder_options) for s in settings if s.decoder_options}
+    return {"program": "holo-devices", "t0": "start_monotonic_ns",
+            "decoder_options": options, "counts_per_turn": counts_per_turn}
 
 
 def recorder_listener(writer: LogWriter) -> Listener:
@@ -106,12 +152,21 @@ def recorder_listener(writer: LogWriter) -> Listener:
     return record
 
 
-def dump_listener(out: TextIO, t0_ns: int) -> Listener:
-    """A hub listener writing one dump-schema JSON line per event to ``out``."""
+def dump_listener(out: TextIO, t0_ns: int,
+                  counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> Listener:
+    """A hub listener writing one dump-schema JSON line per event to ``out``.
+
+    Dial events' ``turns`` are ``value / counts_per_turn``.
+    """
+
+    def line(ev: Event) -> str:
+        if isinstance(ev, DialEvent):
+            return ev.to_json(t0_ns, counts_per_turn) + "\n"
+        return ev.to_json(t0_ns) + "\n"
 
     def dump(item: Item, events: list[Event]) -> None:
         if events:
-            out.write("".join(ev.to_json(t0_ns) + "\n" for ev in events))
+            out.write("".join(map(line, events)))
 
     return dump
 
@@ -127,11 +182,15 @@ def stderr_listener(err: TextIO, t0_ns: int) -> Listener:
     return echo
 
 
-def _settings(args: argparse.Namespace) -> list[tuple[ReaderSettings, DialBoxDriver | None]]:
-    out: list[tuple[ReaderSettings, DialBoxDriver | None]] = []
+def _settings(args: argparse.Namespace) -> list[tuple[ReaderSettings, DeviceHooks]]:
+    out: list[tuple[ReaderSettings, DeviceHooks]] = []
     if args.tracker:
+        big = args.hatire_big_endian and args.tracker_protocol == "hatire"
+        options = {"byte_order": "big"} if big else {}
         out.append((ReaderSettings(args.tracker, args.tracker_protocol, "tracker", args.baud,
-                                   watchdog_s=args.watchdog or None), None))
+                                   watchdog_s=args.watchdog or None, decoder_options=options),
+                    TrackerDriver(args.tracker_protocol, commands_from_args(args),
+                                  args.tracker_reset_on_open)))
     if args.dials:
         out.append((ReaderSettings(args.dials, "sgi", "dials", args.dials_baud,
                                    watchdog_s=args.dials_watchdog or None),
@@ -157,8 +216,8 @@ class DeviceSession:
         self.hub = EventHub()
         specs = _settings(args)
         self.header = LogHeader(log_devices([s for s, _ in specs]),
-                                extra={"program": "holo-devices",
-                                       "t0": "start_monotonic_ns"})
+                                extra=header_extra([s for s, _ in specs],
+                                                   args.dial_counts_per_turn))
         self.t0_ns = self.header.start_monotonic_ns
         self.writer: LogWriter | None = None
         self.publisher: Publisher | None = None
@@ -179,9 +238,10 @@ class DeviceSession:
             self.writer = LogWriter(a.record, self.header)
             self.listeners.append(recorder_listener(self.writer))
         if a.pub:
-            self.publisher = Publisher(a.pub, self.t0_ns, pose_address=a.pub_pose)
+            self.publisher = Publisher(a.pub, self.t0_ns, pose_address=a.pub_pose,
+                                       counts_per_turn=a.dial_counts_per_turn)
         if a.dump:
-            self.listeners.append(dump_listener(self.out, self.t0_ns))
+            self.listeners.append(dump_listener(self.out, self.t0_ns, a.dial_counts_per_turn))
         self.listeners.append(stderr_listener(err, self.t0_ns))
 
     def stats(self) -> dict[str, Any]:
@@ -233,9 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"holo-devices: {exc}", file=sys.stderr)
         return 2
     if session.publisher is not None:
-        pub = session.publisher
-        where = pub.address + (f" (poses only: {pub.pose_address})" if pub.pose_address else "")
-        print(f"holo-devices: publishing on {where}", file=sys.stderr, flush=True)
+        print(publishing_line("holo-devices", session.publisher), file=sys.stderr, flush=True)
     try:
         with stop_on_signals(session.stop):
             session.run()

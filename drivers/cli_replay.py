@@ -33,17 +33,25 @@ import argparse
 import contextlib
 import sys
 import threading
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
 import serial
 
-from drivers.cli_devices import Listener, dump_listener
-from drivers.events import Event
+from drivers.cli_devices import Listener, dump_listener, positive_int, publishing_line
+from drivers.events import DEFAULT_COUNTS_PER_TURN, Event
 from drivers.protocols import DEVICE_OF
 from drivers.publisher import Publisher
-from drivers.reader import CONTROL_PROTOCOL, CONTROL_SUFFIX, Chunk, Control, DeviceStream, Item
+from drivers.reader import (
+    CONTROL_PROTOCOL,
+    CONTROL_SUFFIX,
+    Chunk,
+    Control,
+    DeviceStream,
+    Item,
+    canonical_protocol,
+)
 from drivers.recording import MAGIC, LogHeader, LogReader, RawCaptureReader, Record
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
 from service.errors import DeviceError, HoloError, LogFileError, SettingsError
@@ -88,6 +96,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="raw capture line rate / --to-port baud (default: per protocol)")
     p.add_argument("--chunk-size", type=int, default=64, help="raw capture bytes per chunk")
     p.add_argument("--skip-bytes", type=int, default=0, help="raw capture bytes to drop first")
+    p.add_argument("--hatire-big-endian", action="store_true",
+                   help="Hatire bytes are big-endian (raw captures; a session log's header "
+                   "says it itself)")
+    p.add_argument("--dial-counts-per-turn", type=positive_int, default=None, metavar="N",
+                   help="dial counts per turn for the 'turns' of dial events (default: the "
+                   f"log's setting, else {DEFAULT_COUNTS_PER_TURN})")
     return p
 
 
@@ -120,23 +134,56 @@ def data_devices(header: LogHeader) -> list[tuple[str, str]]:
     return [(d.name, d.protocol) for d in header.devices if d.protocol != CONTROL_PROTOCOL]
 
 
+def decoder_options(header: LogHeader, big_endian: bool = False) -> dict[str, dict[str, Any]]:
+    """Device name -> decoder options: the header's ``extra["decoder_options"]``.
+
+    ``big_endian`` makes Hatire devices whose options do not name a byte order
+    big-endian (raw captures, logs written before the header kept options).
+    """
+    recorded = header.extra.get("decoder_options") or {}
+    out = {name: dict(recorded.get(name) or {}) for name, _ in data_devices(header)}
+    for name, proto in data_devices(header):
+        if big_endian and canonical_protocol(proto) == "hatire":
+            out[name].setdefault("byte_order", "big")
+    return out
+
+
 class Replayer:
     """Turns records into items and events, one :class:`DeviceStream` per device.
 
     Parameters
     ----------
     header : LogHeader
+    options : Mapping, optional
+        Device name -> decoder options (default: :func:`decoder_options` of the header).
     """
 
-    def __init__(self, header: LogHeader) -> None:
+    def __init__(self, header: LogHeader,
+                 options: Mapping[str, Mapping[str, Any]] | None = None) -> None:
         self.header = header
         self.t0_ns = header.start_monotonic_ns
         self._devices = data_devices(header)
+        self._options = decoder_options(header) if options is None else dict(options)
         self.reset()
 
     def reset(self) -> None:
         """Fresh decoders (a new pass)."""
-        self.streams = {name: DeviceStream(name, proto) for name, proto in self._devices}
+        self.streams = {name: DeviceStream(name, proto, self._options.get(name))
+                        for name, proto in self._devices}
+        self._last_t: dict[str, int] = {}
+
+    def flush(self) -> list[tuple[Item, list[Event]]]:
+        """End of a pass: each decoder's leftovers, at its device's last record time.
+
+        Returns ``(item, events)`` pairs for the listeners; the item is an empty
+        chunk (nothing was read).
+        """
+        out: list[tuple[Item, list[Event]]] = []
+        for name, t_ns in self._last_t.items():
+            events = self.streams[name].flush(t_ns)
+            if events:
+                out.append((Chunk(name, t_ns, b""), events))
+        return out
 
     def item(self, rec: Record) -> Item:
         """The live reader's item for a record."""
@@ -147,7 +194,10 @@ class Replayer:
     def events(self, item: Item) -> list[Event]:
         """Decode an item as the live reader did (unknown devices give nothing)."""
         stream = self.streams.get(item.device)
-        return stream.process(item) if stream is not None else []
+        if stream is None:
+            return []
+        self._last_t[item.device] = item.t_ns
+        return stream.process(item)
 
 
 class _PtyOut:
@@ -158,7 +208,12 @@ class _PtyOut:
         self.path = link.path
 
     def write(self, data: bytes) -> None:
-        """Write all of ``data`` for the client of the slave side."""
+        """Write all of ``data`` for the client of the slave side.
+
+        Host bytes the client sent (a tracker driver's start command on each open)
+        are read and dropped, so they never fill the pty.
+        """
+        self.link.read_available()
         self.link.write(data)
 
     def flush(self) -> None:
@@ -184,7 +239,11 @@ class ReplaySession:
         self.out = out
         self.stop = threading.Event()
         self.source = open_source(args)
-        self.replayer = Replayer(self.source.header)
+        header = self.source.header
+        self.replayer = Replayer(header, decoder_options(header, args.hatire_big_endian))
+        self.counts_per_turn = int(args.dial_counts_per_turn
+                                   or header.extra.get("counts_per_turn")
+                                   or DEFAULT_COUNTS_PER_TURN)
         settings = ReplaySettings(speed=args.speed, as_fast_as_possible=args.as_fast_as_possible,
                                   skip_s=args.skip,
                                   skip_mode="drop" if args.to_port or args.to_pty else "fast",
@@ -207,11 +266,12 @@ class ReplaySession:
     def _open_outputs(self) -> None:
         a, t0 = self.args, self.replayer.t0_ns
         if a.pub:
-            self.publisher = Publisher(a.pub, t0, pose_address=a.pub_pose)
+            self.publisher = Publisher(a.pub, t0, pose_address=a.pub_pose,
+                                       counts_per_turn=self.counts_per_turn)
             pub = self.publisher
             self.listeners.append(lambda item, events: pub.publish_all(events))
         if a.dump:
-            self.listeners.append(dump_listener(self.out, t0))
+            self.listeners.append(dump_listener(self.out, t0, self.counts_per_turn))
         if a.to_port or a.to_pty:
             self._open_port(a)
 
@@ -236,7 +296,7 @@ class ReplaySession:
             yield self.scheduler.stats.passes, rec
 
     def run(self) -> None:
-        """Replay everything (or until stopped)."""
+        """Replay everything (or until stopped); each pass ends with a decoder flush."""
         first = next(iter(self.source), None)
         if first is None:
             return
@@ -246,10 +306,18 @@ class ReplaySession:
             for n_pass, rec in self._records():
                 if n_pass != current:
                     current = n_pass
-                    self.replayer.reset()
+                    self._end_pass(show_from)
                 self._one(rec, rec.t_ns >= show_from)
                 if self.stop.is_set():
                     break
+        self._end_pass(show_from)
+
+    def _end_pass(self, show_from: int) -> None:
+        """Flush the decoders (a torn last frame shows as ``truncated``), then reset."""
+        for item, events in self.replayer.flush():
+            if item.t_ns >= show_from:
+                self._dispatch(item, events)
+        self.replayer.reset()
 
     def _one(self, rec: Record, show: bool) -> None:
         item = self.replayer.item(rec)
@@ -294,6 +362,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     if isinstance(session.port, _PtyOut):
         print(f"holo-replay: device on {session.port.path}", file=sys.stderr, flush=True)
+    if session.publisher is not None:
+        print(publishing_line("holo-replay", session.publisher), file=sys.stderr, flush=True)
     try:
         with stop_on_signals(session.stop):
             session.run()

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
+import select
 import signal
 import subprocess
 import sys
 import threading
 import time
+import tty
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,9 +21,11 @@ from drivers.recording import LogReader
 from drivers.subscriber import DeviceSubscriber
 
 ROOT = Path(__file__).resolve().parents[2]
+FIXTURE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
 POSE_KEYS = {"t", "device", "kind", "yaw", "pitch", "roll", "x", "y", "z", "seq"}
-KIND_KEYS = {"pose": POSE_KEYS, "dial": {"t", "device", "kind", "index", "delta", "value"},
+KIND_KEYS = {"pose": POSE_KEYS,
+             "dial": {"t", "device", "kind", "index", "delta", "value", "turns"},
              "button": {"t", "device", "kind", "index", "pressed"},
              "status": {"t", "device", "kind", "event", "details"}}
 
@@ -124,9 +129,58 @@ def test_live_dump_equals_replay_dump_and_sigterm_closes_the_log(procs, tmp_path
         assert set(rec) >= KIND_KEYS[rec["kind"]] and rec["device"] in ("tracker", "dials")
     assert {r["kind"] for r in records} >= {"pose", "dial", "status"}
     events = {r["details"].get("message") for r in records if r["kind"] == "status"}
-    assert {"opened", "init", "reset_ack"} <= events
+    assert {"opened", "init", "reset_ack", "closed"} <= events
+    assert all(r["turns"] == r["value"] / 200 for r in records if r["kind"] == "dial")
     assert any(r["kind"] == "status" and r["event"] in ("crc_error", "resync")
                for r in records)
+
+
+@posix_only
+def test_clean_stop_reports_the_torn_last_frame_as_replay_does(procs, tmp_path):
+    """The Hatire capture written into a pty: SIGTERM flushes the decoder (truncated)."""
+    if not FIXTURE.is_file():
+        pytest.skip("fixture not present")
+    capture = FIXTURE.read_bytes()
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        live = procs("drivers.cli_devices", "--tracker", os.ttyname(slave), "--dump",
+                     "--watchdog", "0", "--record", str(tmp_path / "s.hlog"))
+        live.wait_lines(lambda: live.out)  # opened: from now on nothing written is lost
+        view = memoryview(capture)
+        while view:
+            select.select([], [master], [], 1.0)
+            view = view[os.write(master, view[:4096]):]
+        live.wait_lines(lambda: kinds(live.out).count("pose") == 4765)
+        live.p.send_signal(signal.SIGTERM)
+        assert live.finish() == 0
+    finally:
+        os.close(master)
+        os.close(slave)
+    records = [json.loads(line) for line in live.out]
+    assert records[-2]["event"] == "truncated" and records[-2]["details"] == {"bytes": 19}
+    assert records[-1]["details"] == {"message": "closed"}
+    stats = json.loads(live.err[-1])["stats"]["tracker"]
+    assert (stats["frames"], stats["counter_gaps"], stats["truncated"]) == (4765, 2, 1)
+    # what the replay of the raw capture reports, in the same order
+    replay = procs("drivers.cli_replay", str(FIXTURE), "--protocol", "hatire",
+                   "--as-fast-as-possible", "--dump")
+    assert replay.finish(60) == 0
+    assert device_events(live.out) == device_events(replay.out)
+    recorded = procs("drivers.cli_replay", str(tmp_path / "s.hlog"), "--as-fast-as-possible",
+                     "--dump")
+    assert recorded.finish(60) == 0 and recorded.out == live.out
+
+
+def device_events(lines: list[str]) -> list[tuple]:
+    """Decoder events without times, the readers' own statuses left out."""
+    out = []
+    for rec in map(json.loads, lines):
+        if rec["kind"] == "status" and "message" in rec["details"]:
+            continue
+        out.append((rec["kind"], rec.get("seq"), rec.get("event"),
+                    json.dumps(rec.get("details"), sort_keys=True)))
+    return out
 
 
 def test_seconds_limit_and_dump_of_a_quiet_loop_port(capsys):

@@ -16,11 +16,13 @@ from pathlib import Path
 import pytest
 
 from drivers import cli_replay
-from drivers.cli_devices import log_devices
+from drivers.cli_devices import header_extra, log_devices
 from drivers.events import PoseEvent
 from drivers.protocols import hatire, make_decoder
+from drivers.protocols import sgi_dialbox as sgi
 from drivers.reader import Control, DeviceReader, ReaderSettings
 from drivers.recording import LogHeader, LogWriter
+from drivers.subscriber import DeviceSubscriber
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
@@ -58,6 +60,10 @@ def test_hatire_fixture_as_fast_as_possible_gives_4765_pose_lines():
     assert len(poses) == 4765
     assert sum(r.get("event") == "counter_gap" for r in records) == 2
     assert poses[0]["t"] > 0 and all(r["device"] == "tracker" for r in records)
+    # the end of the replay flushes the decoder: the torn last frame is reported
+    truncated = [r for r in records if r.get("event") == "truncated"]
+    assert truncated == [records[-1]] and truncated[0]["details"] == {"bytes": 19}
+    assert truncated[0]["t"] == records[-2]["t"]  # at the time of the last chunk
 
 
 def test_log_replay_times_and_values(tmp_path, capsys):
@@ -88,6 +94,64 @@ def test_skip_keeps_decoder_state_and_loop_repeats(tmp_path, capsys):
     assert all(r["kind"] == "pose" for r in skipped)  # no false counter gap at the cut
     looped = dump(capsys, str(log), "--as-fast-as-possible", "--loop", "--passes", "2")
     assert [r.get("seq") for r in looped] == 2 * ([None] + list(range(20)))
+
+
+def test_each_pass_ends_with_a_flush_of_a_torn_frame(tmp_path, capsys):
+    log = tmp_path / "s.hlog"
+    header = LogHeader(log_devices([ReaderSettings("loop://", "hatire", "tracker")]),
+                       start_monotonic_ns=T0)
+    with LogWriter(log, header) as w:
+        w.write("tracker", T0 + 10, hatire.encode_pose(0, 1.0, 0.0, 0.0))
+        w.write("tracker", T0 + 20, hatire.encode_pose(1, 2.0, 0.0, 0.0)[:12])  # torn
+    looped = dump(capsys, str(log), "--as-fast-as-possible", "--loop", "--passes", "2")
+    assert [(r["kind"], r.get("event")) for r in looped] == 2 * [("pose", None),
+                                                                  ("status", "truncated")]
+    assert looped[1]["details"] == {"bytes": 12} and looped[1]["t"] == 20 / 1e9
+
+
+def test_dial_turns_follow_the_logged_or_given_counts_per_turn(tmp_path, capsys):
+    log = tmp_path / "dials.hlog"
+    settings = [ReaderSettings("loop://", "sgi", "dials", 9600)]
+    header = LogHeader(log_devices(settings), start_monotonic_ns=T0,
+                       extra=header_extra(settings, 50))
+    with LogWriter(log, header) as w:
+        w.write("dials", T0 + 10, sgi.encode_dial(2, 25) + sgi.encode_dial(2, -75))
+    dials = dump(capsys, str(log), "--as-fast-as-possible")
+    assert [(d["value"], d["turns"]) for d in dials] == [(25, 0.5), (-75, -1.5)]
+    assert set(dials[0]) == {"t", "device", "kind", "index", "delta", "value", "turns"}
+    given = dump(capsys, str(log), "--as-fast-as-possible", "--dial-counts-per-turn", "100")
+    assert [d["turns"] for d in given] == [0.25, -0.75]
+    with pytest.raises(SystemExit) as exc:
+        cli_replay.main([str(log), "--dial-counts-per-turn", "0"])
+    assert exc.value.code == 2
+
+
+@posix_only
+def test_replay_publishes_on_the_address_it_prints(tmp_path):
+    log = tmp_path / "s.hlog"
+    make_log(log)
+    proc = subprocess.Popen([sys.executable, "-m", "drivers.cli_replay", str(log), "--loop",
+                             "--pub", "tcp://127.0.0.1:0"],
+                            cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    try:
+        assert select.select([proc.stderr], [], [], 20)[0], "no output from holo-replay"
+        line = proc.stderr.readline()
+        assert line.startswith("holo-replay: publishing on tcp://127.0.0.1:"), line
+        address = line.split()[-1]
+        assert not address.endswith(":0")
+        with DeviceSubscriber(address) as sub:
+            got = sub.wait_pose(20.0)
+            assert got is not None, "no pose from holo-replay"
+            assert sub.wait_for(lambda s: s.pose_count >= 25, 20.0)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        proc.stderr.close()
+    assert 0 <= got.seq < 20 and got.yaw == float(got.seq)  # the log's frames
+    assert sub.stats.malformed == 0
 
 
 def test_torn_log_replays_what_is_complete(tmp_path, capsys):
