@@ -215,6 +215,13 @@ def shape_tolerance(vertices: np.ndarray) -> float:
     return SHAPE_TOL * float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products of broadcast arrays of shape (..., 3) (faster than ``np.cross``)."""
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     """Rows of ``v`` (shape (..., 3)) scaled to length 1; zero rows stay zero."""
     length = np.linalg.norm(v, axis=-1, keepdims=True)
@@ -244,17 +251,60 @@ def _reference_normals(q: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarra
     d = q[:, None, :, :] - q[:, :, None, :]  # d[:, j, i] = corner i - corner j
     j, i = np.divmod(np.einsum("njix,njix->nji", d, d).reshape(n, -1).argmax(axis=1), k)
     diam = np.linalg.norm(d[ar, j, i], axis=1)
-    off = np.cross(d[ar, j], _unit(d[ar, j, i])[:, None, :])  # (n, k, 3) off that line
+    off = _cross(d[ar, j], _unit(d[ar, j, i])[:, None, :])  # (n, k, 3) off that line
     width = np.linalg.norm(off, axis=2)
     far = width.argmax(axis=1)
-    newell = np.cross(q, np.roll(q, -1, axis=1)).sum(axis=1)
-    fallback = np.cross(d[ar, j, i], d[ar, j, far])
+    newell = _cross(q, np.roll(q, -1, axis=1)).sum(axis=1)
+    fallback = _cross(d[ar, j, i], d[ar, j, far])
     use_newell = np.linalg.norm(newell, axis=1) >= 0.5 * diam * width[ar, far]
     return _unit(np.where(use_newell[:, None], newell, fallback)), width[ar, far] <= tol
 
 
+def _deviations(q: np.ndarray, normal: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
+    """Planarity and convexity deviations of polygons against given plane normals.
+
+    Parameters
+    ----------
+    q : ndarray, shape (n, k, 3)
+        Corners of ``n`` polygons of ``k`` corners each, centred on their mean.
+    normal : ndarray, shape (n, 3)
+        Unit normals the polygons should be counter-clockwise about.
+    tol : float
+
+    Returns
+    -------
+    kind, corner : ndarray, shape (n,), int64
+        ``kind`` is 0 (fine), ``PLANAR`` or ``CONVEX``; ``corner`` deviates most.
+    edge : ndarray, shape (n, 2), int64
+        The ends of the edge a ``CONVEX`` fault's corner is outside of, else -1.
+    deviation : ndarray, shape (n,), float64
+    """
+    n, k, _ = q.shape
+    ar = np.arange(n)
+    height = np.abs(np.einsum("nkx,nx->nk", q, normal))
+    # m_j = normal x e_j points into the polygon from edge j, as long as e_j's projection
+    m = _cross(normal[:, None, :], np.roll(q, -1, axis=1) - q)
+    left = np.matmul(m, q.transpose(0, 2, 1))  # m_j . q_i
+    left -= np.diagonal(left, axis1=1, axis2=2)[:, :, None]  # left[:, j, i]: i's side of edge j
+    length = np.sqrt(np.einsum("njx,njx->nj", m, m))[:, :, None]
+    outside = np.divide(-left, length, out=np.zeros_like(left), where=length > 0)
+    edge, corner = np.divmod(outside.reshape(n, -1).argmax(axis=1), k)
+    convex_dev = outside[ar, edge, corner]
+    planar_corner = height.argmax(axis=1)
+    planar_dev = height[ar, planar_corner]
+    planar = planar_dev > tol
+    kind = np.where(planar, PLANAR, np.where(convex_dev > tol, CONVEX, 0))
+    ends = np.where(planar[:, None], -1, np.stack([edge, (edge + 1) % k], axis=1))
+    return (kind, np.where(planar, planar_corner, corner), ends,
+            np.where(planar, planar_dev, convex_dev))
+
+
 def _chunk_faults(pts: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
-    """Planarity and convexity deviations of polygons with the same corner count.
+    """Faults of polygons with the same corner count (kind 0: fine or degenerate).
+
+    Every polygon is first tested against its Newell normal; a polygon that fails, or
+    whose Newell normal is too short to trust, is tested again against the normal
+    from :func:`_reference_normals`, which also says whether it is degenerate.
 
     Parameters
     ----------
@@ -264,35 +314,21 @@ def _chunk_faults(pts: np.ndarray, tol: float) -> tuple[np.ndarray, ...]:
 
     Returns
     -------
-    kind, corner : ndarray, shape (n,), int64
-        ``kind`` is 0 (fine, or degenerate), ``PLANAR`` or ``CONVEX``.
-    edge : ndarray, shape (n, 2), int64
-    deviation : ndarray, shape (n,), float64
+    kind, corner, edge, deviation
+        As :func:`_deviations` returns them.
     """
-    n, k, _ = pts.shape
-    ar = np.arange(n)
     q = pts - pts.mean(axis=1, keepdims=True)
-    normal, degenerate = _reference_normals(q, tol)
-    height = np.abs(np.einsum("nkx,nx->nk", q, normal))
-    # an in-plane frame (a, b) with a x b = normal, so counter-clockwise turns are positive
-    a = _unit(np.cross(normal, np.eye(3)[np.abs(normal).argmin(axis=1)]))
-    x, y = np.einsum("nkx,nx->nk", q, a), np.einsum("nkx,nx->nk", q, np.cross(normal, a))
-    ex, ey = np.roll(x, -1, axis=1) - x, np.roll(y, -1, axis=1) - y
-    left = ex[:, :, None] * (y[:, None, :] - y[:, :, None]) - ey[:, :, None] * (
-        x[:, None, :] - x[:, :, None]
-    )  # left[:, j, i]: corner i's side of edge j, times the edge's length
-    length = np.hypot(ex, ey)[:, :, None]
-    outside = np.divide(-left, length, out=np.zeros_like(left), where=length > 0)
-    edge, corner = np.divmod(outside.reshape(n, -1).argmax(axis=1), k)
-    convex_dev = outside[ar, edge, corner]
-    planar_corner = height.argmax(axis=1)
-    planar_dev = height[ar, planar_corner]
-    kind = np.where(planar_dev > tol, PLANAR, np.where(convex_dev > tol, CONVEX, 0))
-    kind = np.where(degenerate, 0, kind)
-    planar = kind == PLANAR
-    ends = np.where(planar[:, None], -1, np.stack([edge, (edge + 1) % k], axis=1))
-    return (kind, np.where(planar, planar_corner, corner), ends,
-            np.where(planar, planar_dev, convex_dev))
+    newell = _cross(q, np.roll(q, -1, axis=1)).sum(axis=1)
+    size = np.sqrt(np.einsum("nkx,nkx->nk", q, q).max(axis=1))
+    found = _deviations(q, _unit(newell), tol)
+    suspect = (found[0] > 0) | (np.linalg.norm(newell, axis=1) <= tol * size)
+    if suspect.any():
+        normal, degenerate = _reference_normals(q[suspect], tol)
+        again = _deviations(q[suspect], normal, tol)
+        again[0][degenerate] = 0
+        for whole, part in zip(found, again, strict=True):
+            whole[suspect] = part
+    return found
 
 
 def polygon_shape_faults(
@@ -320,10 +356,12 @@ def polygon_shape_faults(
     -------
     ShapeFaults
     """
-    tol = shape_tolerance(vertices) if tol is None else tol
+    big = counts >= 4
+    if tol is None:
+        tol = shape_tolerance(vertices) if big.any() else 0.0
     parts = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
               np.zeros((0, 2), np.int64), np.zeros(0))]
-    for k in np.unique(counts[counts >= 4]).tolist():
+    for k in np.unique(counts[big]).tolist():
         rows = np.nonzero(counts == k)[0]
         step = max(1, SHAPE_CHUNK // (k * k))
         for start in range(0, rows.size, step):
