@@ -287,7 +287,7 @@ def _deviations(q: np.ndarray, normal: np.ndarray, tol: float) -> tuple[np.ndarr
     left = np.matmul(m, q.transpose(0, 2, 1))  # m_j . q_i
     left -= np.diagonal(left, axis1=1, axis2=2)[:, :, None]  # left[:, j, i]: i's side of edge j
     length = np.sqrt(np.einsum("njx,njx->nj", m, m))[:, :, None]
-    outside = np.divide(-left, length, out=np.zeros_like(left), where=length > 0)
+    outside = left / -np.maximum(length, np.finfo(float).tiny)  # a zero m_j has left 0
     edge, corner = np.divmod(outside.reshape(n, -1).argmax(axis=1), k)
     convex_dev = outside[ar, edge, corner]
     planar_corner = height.argmax(axis=1)
