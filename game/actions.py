@@ -203,3 +203,60 @@ def from_devices(events: Iterable[object]) -> Input:
         if handler is not None:
             out = out.merge(handler(ev))
     return out
+
+
+#: Hat direction -> its name in :func:`binding_help`.
+HAT_NAMES = {(0, 1): "hat up", (0, -1): "hat down", (-1, 0): "hat left", (1, 0): "hat right"}
+AXIS_NAMES = "xyz"
+
+
+def _grouped(pairs: Iterable[tuple[str, str]]) -> dict[str, list[str]]:
+    """(input, action) pairs -> action -> its inputs, in the order first seen."""
+    out: dict[str, list[str]] = {}
+    for name, action in pairs:
+        out.setdefault(action, []).append(name)
+    return out
+
+
+def _section(title: str, grouped: dict[str, list[str]]) -> list[str]:
+    """A titled help section: one line per action, then its inputs."""
+    return [f"{title}:", *(f"  {a:<26}  {', '.join(names)}" for a, names in grouped.items())]
+
+
+def _shift_name(world: int, scale: float, unit: str) -> str:
+    """A continuous move's name: ``along x (+0.002 per count)``."""
+    return f"along {AXIS_NAMES[world]} ({scale:+g} {unit})"
+
+
+def binding_help(notes: dict[str, str] | None = None) -> str:
+    """Every binding, made from the tables above (``holo-game --help``'s epilog).
+
+    Parameters
+    ----------
+    notes : dict, optional
+        Action -> a remark printed after its name (``"not available"``).
+
+    Returns
+    -------
+    str
+        Sections ``keys:``, ``dial box:`` and ``gamepad:``; each line is an action
+        (or a continuous move) followed by its inputs, comma-separated.
+    """
+    notes = notes or {}
+
+    def named(grouped: dict[str, list[str]]) -> dict[str, list[str]]:
+        return {(f"{a} ({notes[a]})" if a in notes else a): n for a, n in grouped.items()}
+
+    keys = _grouped((pygame.key.name(k), a) for k, a in KEY_BINDINGS.items())
+    dials = _grouped(
+        (f"dial {i}", _shift_name(w, g, "per count")) for i, (w, g) in DIAL_AXES.items()
+    )
+    buttons = _grouped((f"button {b}", a) for b, a in BUTTON_BINDINGS.items())
+    pad = _grouped([*PAD_BUTTONS.items(), *((HAT_NAMES[v], a) for v, a in HAT_BINDINGS.items())])
+    sticks = _grouped(
+        (name, _shift_name(w, s * STICK_SPEED, "per s")) for name, (w, s) in PAD_AXES.items()
+    )
+    lines = _section("keys", named(keys))
+    lines += _section("dial box (lamps of bound buttons lit)", {**dials, **named(buttons)})
+    lines += _section("gamepad (SDL game-controller names)", {**named(pad), **sticks})
+    return "\n".join(lines)

@@ -7,11 +7,9 @@
     holo-game --devices tcp://127.0.0.1:5557    # dial box, buttons and head tracker
     holo-game --local --bot --headless --seconds 20 --out demo-out
 
-Keys: arrows / WASD move left, right, up, down; Q / PageUp in, E / PageDown out;
-P pause; 1 head-tracked, 2 strip, 3 fixed zone ([ and ] pick it), 4 autostereogram
-(not available yet); SPACE starts; Esc quits.  The dial box: dials 0-2 move along
-x, y, z; buttons 0-5 make the six moves, 6 pauses (their lamps are lit when
-``holo-devices --lamps`` is given :func:`game.actions.lamp_mask`).
+Every key, dial-box and gamepad binding is listed by ``holo-game --help``, made
+from :mod:`game.actions`' tables.  The dial box's bound buttons have their lamps lit
+when ``holo-devices --lamps`` is given ``holo-game --print-lamps``.
 """
 
 from __future__ import annotations
@@ -25,7 +23,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from game.actions import lamp_mask
+from game.actions import binding_help, lamp_mask
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
 from service.display import DisplaySettings, parse_size
@@ -40,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="holo-game",
         description=__doc__.split("\n\n")[0],
+        epilog=binding_help({f"mode_{m}": "not available" for m in UNAVAILABLE}),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--service", default=DEFAULT_SERVICE, help="holo-service control address")

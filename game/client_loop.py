@@ -9,8 +9,9 @@ renderer).  The newest frame is drawn in the current display mode with the HUD;
 while the backend is unreachable the window says "reconnecting" and the game is
 paused until the link is back.
 
-Attract mode: the bot plays and games restart by themselves; a key (or a dial-box
-button) hands the game to the player.
+Attract mode: the bot plays and games restart by themselves; a key or a gamepad
+button that makes a move or starts hands the game to the player.  The dial box does
+not (the simulated box of the demo plays a script; the bot ignores its input).
 """
 
 from __future__ import annotations

@@ -3,8 +3,26 @@
 from __future__ import annotations
 
 import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pygame
 
 from game import cli
+from game.actions import (
+    BUTTON_BINDINGS,
+    DIAL_AXES,
+    HAT_BINDINGS,
+    HAT_NAMES,
+    KEY_BINDINGS,
+    PAD_AXES,
+    PAD_BUTTONS,
+)
+from game.display import headless_env
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_local_headless_bot_run_writes_screenshots_and_stats(tmp_path, capsys):
@@ -56,3 +74,44 @@ def test_lamp_mask_and_bad_arguments(capsys, tmp_path):
         == 2
     )
     assert "holo-game:" in capsys.readouterr().err
+
+
+def help_sections(text: str) -> dict[str, dict[str, set[str]]]:
+    """The epilog's sections: title -> action -> its inputs."""
+    sections: dict[str, dict[str, set[str]]] = {}
+    current = None
+    for line in text[text.index("\nkeys:") + 1 :].splitlines():
+        if line and not line.startswith(" "):
+            current = sections.setdefault(line.split(" ")[0].rstrip(":"), {})
+        elif line.strip() and current is not None:
+            action, inputs = re.split(r"\s{2,}", line.strip(), maxsplit=1)
+            current[action.split(" (")[0]] = set(inputs.split(", "))
+    return sections
+
+
+def expected(pairs) -> dict[str, set[str]]:
+    out: dict[str, set[str]] = {}
+    for name, action in pairs:
+        out.setdefault(action, set()).add(name)
+    return out
+
+
+def test_help_lists_every_key_dial_box_and_gamepad_binding():
+    run = subprocess.run(
+        [sys.executable, "-m", "game.cli", "--help"],
+        cwd=ROOT, env=headless_env(), capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    got = help_sections(run.stdout)
+    assert set(got) == {"keys", "dial", "gamepad"}
+    assert got["keys"] == expected((pygame.key.name(k), a) for k, a in KEY_BINDINGS.items())
+    assert "mode_autostereogram (not available)" in run.stdout
+    buttons = expected((f"button {b}", a) for b, a in BUTTON_BINDINGS.items())
+    assert {a: got["dial"][a] for a in buttons} == buttons
+    assert {f"dial {i}" for i in DIAL_AXES} == set().union(
+        *(v for a, v in got["dial"].items() if a.startswith("along"))
+    )
+    pad = expected([*PAD_BUTTONS.items(), *((HAT_NAMES[v], a) for v, a in HAT_BINDINGS.items())])
+    assert {a: got["gamepad"][a] for a in pad} == pad
+    sticks = set().union(*(v for a, v in got["gamepad"].items() if a.startswith("along")))
+    assert sticks == set(PAD_AXES)
