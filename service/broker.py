@@ -18,6 +18,7 @@ import json
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -164,6 +165,11 @@ class BandClient:
         Deadline per attempt of each band.
     retries : int
         Resends per band before the update fails.
+    stop : threading.Event, optional
+        Set: :meth:`run` gives up at once.
+    has_workers : callable, optional
+        Whether the broker knows a worker; a band past its deadline when it knows
+        none fails the update instead of being resent to nobody.
     """
 
     def __init__(
@@ -173,8 +179,10 @@ class BandClient:
         timeout_s: float = 5.0,
         retries: int = 3,
         stop: threading.Event | None = None,
+        has_workers: Callable[[], bool] | None = None,
     ) -> None:
         self.stop = stop or threading.Event()
+        self.has_workers = has_workers or (lambda: True)
         self.sock = context.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.connect(address)
@@ -197,7 +205,7 @@ class BandClient:
             now = time.monotonic()
             for b in [b for b in range(len(bands)) if b not in got]:
                 if now - sent_at[b] > self.timeout_s:
-                    if attempts[b] >= self.retries:
+                    if attempts[b] >= self.retries or not self.has_workers():
                         return None
                     attempts[b] += 1
                     self.resent += 1

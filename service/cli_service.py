@@ -68,9 +68,11 @@ def _add_addresses(ap: argparse.ArgumentParser) -> None:
     )
     ap.add_argument(
         "--worker-address",
-        default="tcp://127.0.0.1:5557",
+        default=None,
         metavar="ADDR",
-        help="broker backend address workers connect to",
+        help="broker backend address workers connect to (default: tcp://127.0.0.1:5557, "
+        "used when --workers > 0).  Giving it starts the broker even with --workers 0, for "
+        "workers on other hosts; renders run in process until one connects",
     )
     ap.add_argument(
         "--curve-keys",

@@ -7,7 +7,8 @@ Three loops share one :class:`State` under a lock:
 * the **render thread** renders the scene as fast as it can (or at most
   ``max_update_hz``) for a rendezvous a little in the future, in process or through
   the LRU broker to worker processes (whole frames, one in flight per worker, each
-  for its own rendezvous; or bands of hololines), and builds the galpixmap;
+  for its own rendezvous; or bands of hololines), and builds the galpixmap; with a
+  broker but no worker connected to it, it renders in process;
 * the **refresh thread** ticks at the refresh rate on an absolute schedule, hands
   finished updates to the Galilean stage, takes the viewer's pose from the devices'
   stream, refreshes and publishes the frame.  It never waits for a render; a render
@@ -46,6 +47,7 @@ from service.scene_motion import advance_scene
 from service.worker import StatsRenderer, render_job, stitch
 
 ENCODINGS = ("colour", "depth", "debris")
+DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
 METHODS = ("zbuffer", "runlength", "bsp", "raycast")
@@ -59,7 +61,10 @@ class ServiceConfig:
     frames: str = "tcp://127.0.0.1:5556"
     devices: str | None = None
     workers: int = 0
-    worker_address: str = "tcp://127.0.0.1:5557"
+    #: the broker's backend address.  ``None``: :data:`DEFAULT_WORKER_ADDRESS`, and no
+    #: broker unless ``workers`` > 0.  Given, the broker starts even with no local
+    #: workers, for workers on other hosts (renders run in process while none is connected).
+    worker_address: str | None = None
     refresh_hz: float = 60.0
     curve_keys: str | None = None
     render_timeout_s: float = 5.0
@@ -334,19 +339,21 @@ class Service:
             self.router.bind(c.control)
             self.control_address = self.router.getsockopt_string(zmq.LAST_ENDPOINT)
             self.stream = FrameStream(self.ctx, c.frames, self.session, self._secure(c.frames))
-            if c.workers > 0:
+            if c.workers > 0 or c.worker_address is not None:
                 self._start_broker()
         except (zmq.ZMQError, SettingsError):
             self.close()
             raise
 
     def _start_broker(self) -> None:
+        """Bind the broker's backend and start ``config.workers`` local workers (maybe 0)."""
         c = self.config
+        address = c.worker_address or DEFAULT_WORKER_ADDRESS
         self.broker = Broker(
             self.ctx,
             "inproc://holo-broker",
-            c.worker_address,
-            self._secure(c.worker_address),
+            address,
+            self._secure(address),
             busy_limit_s=2 * c.render_timeout_s,
         )
         t = threading.Thread(target=self.broker.run, name="broker", daemon=True)
@@ -575,7 +582,7 @@ class Service:
             worker_pids=[p.pid for p in self.workers],
             band_retries=self.band_retries,
             render_retries=self.band_retries,
-            split=self.config.split if self.broker is not None else "in_process",
+            split=self.config.split if self._to_workers() else "in_process",
             max_in_flight=self._pipe.max_in_flight if self._pipe is not None else None,
             last_render_error=self.last_render_error,
             last_refresh_error=self.last_refresh_error,
@@ -625,7 +632,11 @@ class Service:
         bands = None
         if self.broker is not None:
             bands = BandClient(
-                self.ctx, "inproc://holo-broker", self.config.render_timeout_s, stop=self._stop
+                self.ctx,
+                "inproc://holo-broker",
+                self.config.render_timeout_s,
+                stop=self._stop,
+                has_workers=self._to_workers,
             )
         render_id = 0
         last_start = 0.0
@@ -636,7 +647,7 @@ class Service:
                     if wait > 0 and self._stop.wait(wait):
                         break
                 last_start = time.monotonic()
-                if self._render_once(renderer, bands, render_id):
+                if self._render_once(renderer, bands if self._to_workers() else None, render_id):
                     render_id += 1
                 elif self._stop.wait(0.02):
                     break
@@ -735,28 +746,57 @@ class Service:
             return None
 
     # ------------------------------------------------- pipelined whole frames
+    def _to_workers(self) -> bool:
+        """Whether renders go through the broker rather than run in process.
+
+        They do when the broker knows a worker (ready or busy), and always when this
+        service started local workers (they say ``READY`` once warmed up; jobs wait
+        for them).  With only remote workers expected (``--workers 0`` and a
+        ``--worker-address``), renders run in process while none is connected.
+        """
+        b = self.broker
+        if b is None:
+            return False
+        return self.config.workers > 0 or len(b.ready) + len(b.busy) > 0
+
     def _capacity(self) -> int:
         """Renders to keep in flight: one per worker the broker knows (at least one)."""
         b = self.broker
         return max(1, len(b.ready) + len(b.busy)) if b is not None else 1
 
+    def _cap_s(self) -> float:
+        """The shortest time between render starts (``--max-update-hz``; 0: no cap)."""
+        hz = self.config.max_update_hz
+        return 1.0 / hz if hz > 0 else 0.0
+
     def _spacing_s(self, capacity: int) -> float:
         """Time between dispatches: a render's time over the workers (and the cap)."""
-        cap = 1.0 / self.config.max_update_hz if self.config.max_update_hz > 0 else 0.0
+        cap = self._cap_s()
         recent = list(self.counters.render_ms)[-20:]
         spread = float(np.median(recent)) / 1e3 / capacity if recent else 0.0
         return max(cap, spread)
 
     def _pipeline_loop(self) -> None:
-        """Whole-frame renders for successive rendezvous, one in flight per worker."""
+        """Whole-frame renders for successive rendezvous, one in flight per worker.
+
+        With no local workers and none connected (``--workers 0`` with a
+        ``--worker-address``; see :meth:`_to_workers`) it renders in process, so
+        renders never wait for a worker that may never come.
+        """
         pipe = FramePipe(self.ctx, "inproc://holo-broker", self.config.render_timeout_s)
         self._pipe = pipe
+        local: StatsRenderer | None = None
         render_id, next_start = 0, 0.0
         try:
             while not self._stop.is_set():
-                capacity = self._capacity()
+                capacity, remote = self._capacity(), self._to_workers()
                 now = time.monotonic()
-                if len(pipe.flights) < capacity and now >= next_start:
+                if not remote and now >= next_start:
+                    local = local or StatsRenderer()
+                    done = self._render_once(local, None, render_id)
+                    render_id += int(done)
+                    next_start = now + (self._cap_s() if done else 0.02)
+                elif remote and len(pipe.flights) < capacity and now >= next_start:
                     aim = self._aim(render_id)
                     if aim is None:
                         next_start = now + 0.02
@@ -764,9 +804,9 @@ class Service:
                         self._dispatch(pipe, aim, 0)
                         render_id += 1
                         next_start = now + self._spacing_s(capacity)
-                full = len(pipe.flights) >= capacity
-                wait = 50 if full else min(50, max(0, int((next_start - now) * 1000)))
-                for flight, head in pipe.poll(wait):
+                full = remote and len(pipe.flights) >= capacity
+                wait = 50 if full else (next_start - time.monotonic()) * 1000
+                for flight, head in pipe.poll(min(50, max(0, int(wait)))):
                     self._landed(flight, head)
                 for flight in pipe.expired():
                     self._retry(pipe, flight)
@@ -795,10 +835,12 @@ class Service:
         """A job past its deadline (its worker died or stalled): re-aim it and resend.
 
         The resend is aimed at a new rendezvous from the present, so the render is
-        never grafted late; after 3 resends the render counts as failed.
+        never grafted late; after 3 resends, or when the broker knows no worker any
+        more, the render counts as failed.
         """
         self.band_retries += 1
-        aim = self._aim(flight.meta.render_id) if flight.attempt < 3 else None
+        retry = flight.attempt < 3 and self._to_workers()  # none: renders run in process
+        aim = self._aim(flight.meta.render_id) if retry else None
         if aim is None:
             self.counters.n["render_failures"] += 1
             self.last_render_error = f"render {flight.meta.render_id}: no worker answered"

@@ -92,9 +92,17 @@ class ServiceProcess:
 def start_service(
     *args: str, ports: tuple[int, int, int] | None = None, ready_timeout_s: float = 60.0
 ) -> ServiceProcess:
-    """Start ``holo-service`` on free loopback ports and wait until it answers hello."""
+    """Start ``holo-service`` on free loopback ports and wait until it answers hello.
+
+    The broker's backend goes on ``ports[2]`` when the service starts local workers
+    (``--workers 0`` starts no broker unless ``args`` name a ``--worker-address``).
+    """
     ports = ports or (free_port(), free_port(), free_port())
     control, frames = f"tcp://127.0.0.1:{ports[0]}", f"tcp://127.0.0.1:{ports[1]}"
+    local_workers = "--worker-address" not in args and not any(
+        a == "--workers" and b == "0" for a, b in zip(args, args[1:], strict=False)
+    )
+    backend = ["--worker-address", f"tcp://127.0.0.1:{ports[2]}"] if local_workers else []
     cmd = [
         sys.executable,
         "-m",
@@ -103,8 +111,7 @@ def start_service(
         control,
         "--frames",
         frames,
-        "--worker-address",
-        f"tcp://127.0.0.1:{ports[2]}",
+        *backend,
         *args,
     ]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}

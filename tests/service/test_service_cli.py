@@ -35,6 +35,7 @@ def test_help_shows_the_default_addresses_and_refresh_rate():
     assert "(default: tcp://127.0.0.1:5555)" in entries["--control"]
     assert "(default: tcp://127.0.0.1:5556)" in entries["--frames"]
     assert "(default: 60" in entries["--refresh"]
+    assert "default: tcp://127.0.0.1:5557" in entries["--worker-address"]
 
 
 def test_help_shows_every_default():
@@ -43,5 +44,6 @@ def test_help_shows_every_default():
         if action.default is argparse.SUPPRESS:
             continue  # --help itself
         option = action.option_strings[0]
-        shown = "default: none" if action.default is None else f"default: {action.default}"
+        # a None default is explained in words ("default: none", or what happens)
+        shown = "default:" if action.default is None else f"default: {action.default}"
         assert shown in entries[option], f"{option}: {shown!r} not in {entries[option]!r}"
