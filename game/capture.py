@@ -2,7 +2,8 @@
 
 :class:`Capture` is called after every tick.  It first tours the display modes
 (:data:`game.display.MODES`; each shown for ``dwell_s`` and screenshotted as
-``mode-<name>.png``), then returns to the mode the run asked for.  The tour starts
+``mode-<name>.png`` after three quarters of that, or as it ends if no tick fell
+later), then returns to the mode the run asked for.  The tour starts
 with the first frame: a service that starts slowly (a loaded machine) would
 otherwise leave the first modes without a picture to screenshot.  It also saves
 ``gameover.png`` during the spectacular display, ``score.png`` on the score
@@ -59,6 +60,7 @@ class Capture:
         self.film: list[np.ndarray] = []
         self._home: str | None = None
         self._tour_start: float | None = None
+        self._showing: str | None = None
         self._next_film = start
         self._taken: set[str] = set()
 
@@ -79,20 +81,29 @@ class Capture:
             self.film.append(pygame.surfarray.array3d(small).swapaxes(0, 1).copy())
 
     def _tour(self, client: Any, now: float) -> None:
+        """Show the next mode of the plan; screenshot the one the last tick drew.
+
+        A mode is screenshotted after 3/4 of its dwell, or when its dwell is over
+        without one (ticks slower than a quarter dwell on a loaded machine).
+        """
         if self._home is None:
             self._home = client.mode
+        if not self.plan:
+            return
         if self._tour_start is None:
             if client.colour is None:
                 return  # no frame yet: nothing to show in any mode
             self._tour_start = now
-        k = int((now - self._tour_start) // self.dwell_s)
-        if k < len(self.plan):
-            client.set_mode(self.plan[k])
-            if now - self._tour_start - k * self.dwell_s > 0.75 * self.dwell_s:
-                self._once(client, f"mode-{self.plan[k]}")
-        elif self.plan:
+        k, into = divmod(now - self._tour_start, self.dwell_s)
+        due = self.plan[int(k)] if k < len(self.plan) else None
+        if self._showing is not None and (self._showing != due or into > 0.75 * self.dwell_s):
+            self._once(client, f"mode-{self._showing}")
+        if due is None:
             client.set_mode(self._home)
-            self.plan = []
+            self.plan, self._showing = [], None
+        else:
+            client.set_mode(due)
+            self._showing = due
 
     def _once(self, client: Any, name: str) -> None:
         if name not in self._taken and client.colour is not None:

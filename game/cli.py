@@ -45,18 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", default=None, help="frame stream address (default: from hello)")
     p.add_argument("--devices", default=None, help="holo-devices PUB address (input, head)")
     p.add_argument("--local", action="store_true", help="render in this process, no service")
-    p.add_argument(
-        "--mode",
-        default="head",
-        choices=[*MODES, *UNAVAILABLE],
-        help="display mode (autostereogram: not available yet, shows head)",
-    )
-    p.add_argument(
-        "--zone",
-        type=int,
-        default=None,
-        help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
-    )
+    _add_display_args(p)
     p.add_argument("--bot", action="store_true", help="attract mode: the bot plays")
     p.add_argument(
         "--bot-gives-up",
@@ -71,9 +60,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
     p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES))
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--zones", type=int, default=5, help="view zones (default 5)")
-    p.add_argument("--size", default="200x150", help="pixels per zone, COLSxROWS")
-    p.add_argument("--refresh", type=float, default=60.0, help="refresh rate, Hz")
     p.add_argument("--attackers", default=None, help="attacker mesh file (.obj, .ply, ...)")
     p.add_argument("--highscores", default=str(Path.home() / ".holo-game-scores.json"))
     p.add_argument("--name", default=os.environ.get("USER", "player"))
@@ -90,6 +76,25 @@ def build_parser() -> argparse.ArgumentParser:
         help="print the lamp mask for holo-devices --lamps and exit",
     )
     return p
+
+
+def _add_display_args(p: argparse.ArgumentParser) -> None:
+    """The display's options: mode, fixed zone, zones, size, refresh rate."""
+    p.add_argument(
+        "--mode",
+        default="head",
+        choices=[*MODES, *UNAVAILABLE],
+        help="display mode (autostereogram: not available yet, shows head)",
+    )
+    p.add_argument(
+        "--zone",
+        type=int,
+        default=None,
+        help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
+    )
+    p.add_argument("--zones", type=int, default=5, help="view zones (default 5)")
+    p.add_argument("--size", default="200x150", help="pixels per zone, COLSxROWS")
+    p.add_argument("--refresh", type=float, default=60.0, help="refresh rate, Hz")
 
 
 def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import numpy as np
+import pygame
+import pytest
 from game_fakes import RecordingBackend
 
 from game.capture import Capture
@@ -22,7 +25,8 @@ class SlowBackend(RecordingBackend):
         return None if self.calls <= self.first else super().frame(timeout_s)
 
 
-def test_mode_tour_starts_with_the_first_frame(pygame_headless, tmp_path):
+@pytest.mark.parametrize("step", [0.05, 0.9])  # 0.9: no tick in a mode's last quarter
+def test_mode_tour_starts_with_the_first_frame(pygame_headless, tmp_path, step):
     clock = [0.0]
     client = GameClient(
         SlowBackend(first=100),  # 5 s of clock without a frame
@@ -31,10 +35,18 @@ def test_mode_tour_starts_with_the_first_frame(pygame_headless, tmp_path):
         clock=lambda: clock[0],
     )
     capture = Capture(tmp_path, 0.0, dwell_s=1.0)
-    for _ in range(100 + 20 * (len(MODES) + 1)):
+    while client.backend.calls <= 100:  # the service starting
         clock[0] += 0.05
         client.tick()
         capture(client)
-    names = {p.name for p in capture.files}
-    assert {f"mode-{m}.png" for m in MODES} <= names
+    for _ in range(int((len(MODES) + 1) / step) + 1):
+        clock[0] += step
+        client.tick()
+        capture(client)
+    shots = {p.name: p for p in capture.files}
+    assert {f"mode-{m}.png" for m in MODES} <= set(shots)
+    greys = {40, 80, 120}  # zones 0, 1, 2 of RecordingBackend's frames
+    for mode, shown in (("head", {80}), ("zone", {120}), ("strip", greys)):
+        rgb = pygame.surfarray.array3d(pygame.image.load(shots[f"mode-{mode}.png"]))
+        assert greys & set(np.unique(rgb[..., 0][(rgb[..., 0] == rgb[..., 2])])) == shown
     assert client.mode == "zone"  # back to the mode the run asked for
