@@ -155,8 +155,13 @@ class PtyLink:
         except (BlockingIOError, OSError):
             return b""
 
-    def drain(self, timeout: float = 2.0) -> None:
-        """Wait (up to ``timeout``) until the client has read what was sent."""
+    def drain(self, timeout: float = 10.0) -> None:
+        """Wait (up to ``timeout``) until the client has read what was sent.
+
+        Closing the pty discards what the client has not read yet, so a run that
+        ends by itself waits for a slow reader (a loaded machine can leave one
+        seconds behind); a run stopped through ``stop`` does not wait.
+        """
         import fcntl
         import struct
         import termios
@@ -164,7 +169,8 @@ class PtyLink:
         deadline = time.monotonic() + timeout
         buf = bytearray(4)
         empty = 0  # the kernel moves pty data in the background: want 3 empty looks
-        while self._slave >= 0 and empty < 3 and time.monotonic() < deadline:
+        while (self._slave >= 0 and empty < 3 and time.monotonic() < deadline
+               and not (self.stop is not None and self.stop.is_set())):
             fcntl.ioctl(self._slave, termios.FIONREAD, buf)
             empty = empty + 1 if struct.unpack("i", buf)[0] == 0 else 0
             select.select([], [], [], POLL_S)

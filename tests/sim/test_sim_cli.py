@@ -64,3 +64,59 @@ def test_pty_across_processes(protocol):
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["frames"] == 200 and summary["faults"]["burst"] > 0
     assert dec.stats.bytes_discarded > 0 and proc.returncode == 0, err
+
+
+def _sim(*args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "sim_devices.cli", "tracker", "--pty", "--protocol", "native",
+         "--rate", "200", "--seed", "3", "--wait-start", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _queued(port: serial.Serial, want: int, timeout: float) -> int:
+    """Wait until ``want`` bytes wait unread in the port (or ``timeout``); return the count."""
+    deadline = time.monotonic() + timeout
+    while port.in_waiting < want and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return port.in_waiting
+
+
+@posix_only
+def test_pty_sim_waits_for_a_slow_reader_before_closing():
+    # a reader seconds behind (a loaded machine) still gets every frame: closing the
+    # pty would throw away what it has not read
+    proc = _sim("--seconds", "0.25")
+    try:
+        port = serial.serial_for_url(proc.stdout.readline().strip(), timeout=0.05)
+        port.write(START["native"])  # opening flushed the input: start the device now
+        frame = len(native.encode_pose(0, 0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)))
+        assert _queued(port, 50 * frame, 10) >= 50 * frame  # the whole run is queued
+        lag = time.monotonic() + 3.0  # the reader lags past the old 2 s drain limit
+        while time.monotonic() < lag:
+            assert proc.poll() is None, "the simulator closed the pty under an unread queue"
+            time.sleep(0.05)
+        dec = make_decoder("native")
+        data = port.read(port.in_waiting)
+        poses = [e for e in dec.feed(data, 0) if isinstance(e, PoseEvent)]
+        port.close()
+        out, _ = proc.communicate(timeout=15)
+    finally:
+        proc.kill()
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert len(poses) == summary["frames"] >= 50
+
+
+@posix_only
+def test_pty_sim_stopped_by_sigterm_does_not_wait_for_a_reader():
+    proc = _sim("--seconds", "30")
+    try:
+        port = serial.serial_for_url(proc.stdout.readline().strip(), timeout=0.05)
+        port.write(START["native"])
+        assert _queued(port, 200, 10) >= 200  # frames are queued, nobody reads them
+        t0 = time.monotonic()
+        proc.terminate()
+        proc.communicate(timeout=15)
+        assert time.monotonic() - t0 < 3.0
+        port.close()
+    finally:
+        proc.kill()
