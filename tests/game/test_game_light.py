@@ -1,0 +1,107 @@
+"""Ambient-only light is the game's default; ``--full-light`` switches to Blinn-Phong.
+
+The settings are taken from what :func:`game.cli._setup` hands the backend, and the
+frames from the real renderer with those settings (issue 6, thesis 5.1.1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pygame
+import pytest
+
+from game import cli
+from game.backends import LocalRenderer
+from game.rules import new_game
+from game.scene import apply_states, object_states
+from service.pipeline import Renderer
+from service.scene import Scene
+
+
+@pytest.fixture
+def setup_from_args(tmp_path):
+    """Parse a command line and run ``cli._setup`` on it; closes what it opened."""
+    opened = []
+
+    def setup(*extra: str):
+        parser = cli.build_parser()
+        args = parser.parse_args(
+            [
+                "--local",
+                "--headless",
+                "--size",
+                "120x90",
+                "--highscores",
+                str(tmp_path / "hs.json"),
+                *extra,
+            ]
+        )
+        cli.check_args(parser, args)
+        game, backend, *_ = cli._setup(args)
+        opened.append(backend)
+        return game, backend
+
+    try:
+        yield setup
+    finally:
+        for backend in opened:
+            backend.close()
+        pygame.quit()
+
+
+def _player_only(backend: LocalRenderer, game) -> Scene:
+    """The scene the backend was given, placed at the game's start, player alone."""
+    scene = apply_states(backend._scene, object_states(new_game(game)))
+    return Scene(
+        objects=[o for o in scene.objects if o.name == "player"],
+        lights=scene.lights,
+        ambient=scene.ambient,
+    )
+
+
+def _first_render(backend: LocalRenderer, game):
+    """The backend's first refresh showing a render of the game's start."""
+    backend.update(object_states(new_game(game)))
+    for _ in range(200):  # frame() waits on the refresh thread, no sleeping here
+        view = backend.frame(timeout_s=1.0)
+        if view is not None and view.render_id >= 0:
+            return view
+    pytest.fail("the local renderer showed no render")
+
+
+def _colours(pixels: np.ndarray) -> np.ndarray:
+    return np.unique(pixels.reshape(-1, 3), axis=0)
+
+
+def test_ambient_only_light_is_the_default(setup_from_args):
+    game, backend = setup_from_args()
+    assert isinstance(backend, LocalRenderer)
+    assert backend.settings.light_model == "ambient"
+    assert backend.render_settings.light.model == "ambient"
+
+    frame = Renderer().render(
+        _player_only(backend, game), backend.settings.display, backend.render_settings
+    )
+    player = np.isfinite(frame.depth)
+    assert player.sum() > 100
+    assert len(_colours(frame.colour[player])) == 1  # flat: one colour for the whole ship
+
+    # the displayed frame: only the background and one colour per object
+    view = _first_render(backend, game)
+    assert len(_colours(view.colour)) <= 1 + len(backend._scene.objects)
+
+
+def test_full_light_switches_to_blinn_phong_and_shades(setup_from_args):
+    game, backend = setup_from_args("--full-light")
+    assert backend.settings.light_model == "blinn"
+    assert backend.render_settings.light.model == "blinn"
+
+    frame = Renderer().render(
+        _player_only(backend, game), backend.settings.display, backend.render_settings
+    )
+    player = np.isfinite(frame.depth)
+    assert player.sum() > 100
+    assert len(_colours(frame.colour[player])) > 20  # faces lit differently
+
+    view = _first_render(backend, game)
+    assert len(_colours(view.colour)) > 100
