@@ -684,7 +684,23 @@ class Service:
         }
         return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns())
 
+    def _ahead(self) -> bool:
+        """Whether the last render is aimed past the rendezvous one started now would get.
+
+        Renders one at a time (in process, or in bands) wait for the refresh clock
+        then: aiming each at the last rendezvous + 1 while renders are quicker than
+        refreshes would queue them ever further ahead (latency and memory growing
+        without bound).
+        """
+        index, _t, gen, _fixed, _order = self._clock
+        if gen != self._last_aim[0]:
+            return False
+        hz = self.state.settings.refresh_hz
+        return self._last_aim[1] >= index + math.ceil(_lead_s(self.counters.render_ms) * hz) + 1
+
     def _render_once(self, renderer: Renderer, bands: BandClient | None, render_id: int) -> bool:
+        if self._ahead():
+            return False
         aim = self._aim(render_id)
         if aim is None:
             return False
