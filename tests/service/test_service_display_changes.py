@@ -1,0 +1,60 @@
+"""``set_display`` at run time: the method, the viewing angle and the refresh rate take effect."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from service_helpers import wait_until
+
+from service.client import FrameSubscriber, ServiceClient
+
+
+def _service(service_factory):
+    return service_factory(
+        "--scene", "game", "--zones", "3", "--cols", "32", "--rows", "24",
+        "--workers", "0", "--refresh", "30", "--angle", "0",
+    )  # fmt: skip
+
+
+def test_method_and_angle_change_the_render(service_factory):
+    svc = _service(service_factory)
+    with ServiceClient(svc.control, timeout_s=20) as c:
+        header, arrays = c.render_once()
+        assert header["stats"]["method"] == "zbuffer"
+        colour = arrays["colour"]
+        assert colour.any(), "nothing rendered"
+        # every zone looks along the same direction at 0 degrees
+        assert all(np.array_equal(colour[0], colour[z]) for z in (1, 2))
+        shown = c.set_display(method="runlength", angle_deg=30.0)
+        assert shown["method"] == "runlength" and shown["angle_deg"] == 30.0
+        header, arrays = c.render_once()
+        assert header["stats"]["method"] == "runlength"
+        colour, depth = arrays["colour"], arrays["depth"]
+        assert not np.array_equal(colour[0], colour[2]), "30 degrees: zones 0 and 2 should differ"
+        assert not np.array_equal(depth[0], depth[2])
+        c.set_display(method="bsp")
+        assert c.render_once()[0]["stats"]["method"] == "bsp"
+
+
+def _rate(frames: FrameSubscriber, hz: float, window_s: float) -> tuple[float, float, int]:
+    """Frames per second and median interval (ms) over ``window_s`` of frames at ``hz``."""
+    assert wait_until(lambda: (f := frames.next(0.5)) and f[0]["refresh_hz"] == hz, 20), hz
+    stamps, start = [], time.monotonic()
+    while time.monotonic() - start < window_s:
+        got = frames.next(1.0)
+        if got is not None:
+            assert got[0]["refresh_hz"] == hz
+            stamps.append(got[0]["t_ns"] / 1e6)
+    intervals = np.diff(stamps)
+    return 1e3 * len(intervals) / (stamps[-1] - stamps[0]), float(np.median(intervals)), len(stamps)
+
+
+def test_refresh_rate_change_paces_the_frames(service_factory):
+    svc = _service(service_factory)
+    with FrameSubscriber(svc.frames, hwm=100) as frames, ServiceClient(svc.control) as c:
+        rate, median, n = _rate(frames, 30.0, 1.0)
+        assert 30 * 0.85 <= rate <= 30 * 1.1 and abs(median - 33.3) < 4, (rate, median, n)
+        assert c.set_display(refresh_hz=12.0)["refresh_hz"] == 12.0
+        rate, median, n = _rate(frames, 12.0, 2.0)
+        assert 12 * 0.85 <= rate <= 12 * 1.1 and abs(median - 83.3) < 6, (rate, median, n)
