@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import os
-import sys
 import threading
 import time
-from collections.abc import Callable
 
 import pytest
+from reader_helpers import Collector, posix_only, wait_for
 
 from drivers.dialbox_driver import DialBoxDriver
-from drivers.events import ButtonEvent, DialEvent, PoseEvent, StatusEvent
+from drivers.events import ButtonEvent, DialEvent, PoseEvent
 from drivers.protocols import hatire
 from drivers.protocols import sgi_dialbox as sgi
 from drivers.reader import (
@@ -28,42 +27,6 @@ from sim_devices.endpoints import DeviceRunner, LoopLink, PtyLink
 from sim_devices.faults import FaultSpec
 from sim_devices.motion import make_motion
 from sim_devices.tracker import TrackerSim
-
-posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
-
-
-def wait_for(pred: Callable[[], bool], timeout: float = 5.0, what: str = "condition") -> None:
-    """Wait on a condition (polling every few ms); fail after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    tick = threading.Event()
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not met within {timeout} s")
-        tick.wait(0.005)
-
-
-class Collector:
-    """A thread-safe sink keeping every item and event."""
-
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.items: list = []
-        self.events: list = []
-
-    def __call__(self, item, events) -> None:
-        with self.lock:
-            self.items.append(item)
-            self.events.extend(events)
-
-    def snapshot(self) -> list:
-        with self.lock:
-            return list(self.events)
-
-    def seqs(self) -> list[int]:
-        return [e.seq for e in self.snapshot() if isinstance(e, PoseEvent)]
-
-    def status(self, name: str) -> list[StatusEvent]:
-        return [e for e in self.snapshot() if isinstance(e, StatusEvent) and e.event == name]
 
 
 def send_until_seen(link, sink: Collector, seq: int, timeout: float = 5.0) -> None:

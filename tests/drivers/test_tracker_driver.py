@@ -6,12 +6,10 @@ import json
 import signal
 import subprocess
 import sys
-import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from reader_helpers import Collector, posix_only, wait_for
 
 from drivers import cli_devices
 from drivers.events import PoseEvent, StatusEvent
@@ -25,43 +23,6 @@ from sim_devices.faults import FaultSpec
 from sim_devices.tracker import TrackerSim
 
 ROOT = Path(__file__).resolve().parents[2]
-posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
-
-
-def wait_for(pred: Callable[[], bool], timeout: float = 10.0, what: str = "condition") -> None:
-    """Wait on a condition (polling every few ms); fail after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    tick = threading.Event()
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not met within {timeout} s")
-        tick.wait(0.005)
-
-
-class Collector:
-    """A thread-safe sink keeping every event."""
-
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.events: list = []
-
-    def __call__(self, item, events) -> None:
-        with self.lock:
-            self.events.extend(events)
-
-    def snapshot(self) -> list:
-        with self.lock:
-            return list(self.events)
-
-    def poses_after(self, match: Callable[[StatusEvent], bool]) -> list[PoseEvent]:
-        """Poses that came after the last status event matching ``match``."""
-        events = self.snapshot()
-        marks = [i for i, e in enumerate(events) if isinstance(e, StatusEvent) and match(e)]
-        if not marks:
-            return []
-        return [e for e in events[marks[-1]:] if isinstance(e, PoseEvent)]
-
-
 def is_reconnect(e: StatusEvent) -> bool:
     return e.event == "reconnect"
 
