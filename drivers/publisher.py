@@ -1,6 +1,6 @@
 """Device events on a ZeroMQ publisher socket (message layout: ``docs/device-messages.md``).
 
-Every message is two frames, a topic and a JSON object (UTF-8; never pickle):
+Every message is two frames, a topic and a JSON object (UTF-8; never Python object serialisation):
 
 =============  ===================================================================
 ``b"pose"``    a tracker pose: the dump fields plus ``t_ns``, ``n`` and ``session``;

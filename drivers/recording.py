@@ -13,7 +13,7 @@ intact, a torn last record is detected and skipped (counted in
 :attr:`ReadStats.torn`, with a :class:`LogWarning`).  A damaged record in the
 middle fails its CRC, is counted in :attr:`ReadStats.corrupt` (with a warning),
 and reading resumes at the next sync marker whose record header checks out.
-No pickle anywhere: struct-packed binary and JSON.
+Struct-packed binary and JSON only, never Python object serialisation.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ times, then :class:`~service.errors.ServiceUnavailableError` is raised; an error
 reply raises :class:`~service.errors.ServiceError` with the protocol's code.  A
 new ``session`` in a reply to :meth:`ServiceClient.hello` (or in frame headers)
 means the service restarted: ``restarted`` is set so the caller can load its
-scene again.  No pickle anywhere.
+scene again.  JSON and raw buffers only, never Python object serialisation.
 """
 
 from __future__ import annotations

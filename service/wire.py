@@ -3,7 +3,7 @@
 An array travels as one raw little-endian buffer frame, described in the header's
 ``arrays`` list (``{"dtype", "shape", "encoding": "raw"}``) and referred to from the JSON with
 ``{"$array": i}``.  Buffers above :data:`ZERO_COPY_BYTES` are sent without a copy.
-No pickle: the only serialisations are JSON and raw buffers.
+The only serialisations are JSON and raw buffers (never Python object serialisation).
 
 Scenes are encoded inline with the same mechanism (:func:`scene_to_wire`,
 :func:`scene_from_wire`); meshes shared by several objects travel once.

@@ -4,7 +4,7 @@ A worker connects a DEALER to the broker's backend (``service/broker.py``), says
 ``READY`` (and again every heartbeat while idle, so the broker can forget dead
 ones), and answers each job with the arrays of its rows (all of them for a
 whole-frame job, the default) and the render's stats.  A job is a JSON header plus
-the scene's buffers (``docs/protocol.md`` array rules, no pickle)::
+the scene's buffers (``docs/protocol.md`` array rules: JSON and raw buffers only)::
 
     {"job": 12, "band": 1, "attempt": 0, "rows": [60, 120], "t": 0.25,
      "refresh_hz": 60, "display": {...}, "render": {...}, "viewer": {...} | null,
