@@ -16,7 +16,16 @@
     refresh against the true render at that instant, and ms per refresh; the
     benefit of the out-of-view margin and of the obscuration cache; the thought
     experiments; and the 640x480 timing of one refresh per order against a render.
-    Writes ``galilean_sweep.json``/``.csv``, ``galilean_timing.json`` and PNG charts.
+    Writes ``galilean_sweep.json``/``.csv``, ``galilean_timing.json``,
+    ``galilean_complexity.json``/``.csv`` and PNG charts.
+
+``holo-bench galilean --complexity --out DIR [--complexity-counts 0,1000,...]``
+    Against scene complexity (the rotating cube scene plus a grid of spinning,
+    drifting spheres of growing tessellation, about 250 to 100,000 triangles):
+    ms of ``Renderer.render``, of ``render_with_motion`` (what an update costs) and
+    of one G(2) refresh at ``--time-size``, one zone, interleaved, median per step;
+    and the smallest triangle count at which the refresh is >= 10x cheaper than
+    each.  Writes ``galilean_complexity.json``/``.csv``/``.png`` and prints the JSON.
 """
 
 from __future__ import annotations
@@ -53,7 +62,7 @@ from service.galilean.shadow import shadow_depth
 from service.galilean.stage import GalileanSettings, GalileanStage, margin_display
 from service.light import LightSettings
 from service.pipeline import Renderer, RenderSettings, warm_up
-from service.primitives import cube
+from service.primitives import cube, sphere
 from service.scene import (
     Light,
     Material,
@@ -73,6 +82,12 @@ HZ = 60.0
 WRONG_LEVELS = 32
 #: Out-of-view margin of the variants, px on every side.
 MARGIN = 16
+#: Extra triangles (beyond the rotating cube scene's 252) of the complexity steps.
+COMPLEXITY_COUNTS = (0, 300, 1000, 3000, 10000, 30000, 100000)
+#: Centre spacing and radius (world units) of the complexity scene's spheres.
+SPHERE_PITCH, SPHERE_RADIUS = 0.25, 0.1
+#: Refreshes timed after each update (1-15, as :func:`timing` does).
+REFRESHES_PER_UPDATE = 15
 
 
 # ------------------------------------------------------------------ scenes
@@ -363,6 +378,184 @@ def run_timing(out: Path, time_size: tuple[int, int]) -> dict:
     return tm
 
 
+# -------------------------------------------------------- scene complexity
+def sphere_grid(extra: int, display: DisplaySettings) -> list[SceneObject]:
+    """Spinning, drifting spheres on a grid over the display, about ``extra`` triangles.
+
+    Parameters
+    ----------
+    extra : int
+        Triangles wanted in all; 0 (or less) gives no spheres.  Every sphere gets
+        the same UV tessellation, chosen so that the total is near ``extra`` (at
+        least 6 triangles a sphere).
+    display : DisplaySettings
+        The grid (pitch :data:`SPHERE_PITCH`) covers its display plane at z = -0.7,
+        between the studded wall and the cube, so every sphere is in view.
+
+    Returns
+    -------
+    list of SceneObject
+    """
+    if extra <= 0:
+        return []
+    nx = max(1, int(display.width / SPHERE_PITCH))
+    ny = max(1, int(display.height / SPHERE_PITCH))
+    per = extra / (nx * ny)
+    bands = 1 + max(1, round(math.sqrt(per / 4)))
+    mesh = sphere(SPHERE_RADIUS, bands, max(3, round(per / (2 * (bands - 1)))))
+    x0, y0 = -(nx - 1) * SPHERE_PITCH / 2, -(ny - 1) * SPHERE_PITCH / 2
+    return [_obj(mesh, [x0 + i * SPHERE_PITCH, y0 + j * SPHERE_PITCH, -0.7],
+                 (0.3 + 0.12 * (i % 5), 0.5, 0.9 - 0.12 * (j % 5)),
+                 velocity=[0.2 * (-1) ** (i + j), 0.1, 0.0], angular_velocity=[0.0, 2.0, 0.5])
+            for i in range(nx) for j in range(ny)]
+
+
+def complexity_scene(extra: int, display: DisplaySettings) -> Scene:
+    """The rotating cube bench scene plus :func:`sphere_grid` of ``extra`` triangles."""
+    base = bench_scene("rotating-cube")
+    return Scene([*base.objects, *sphere_grid(extra, display)], lights=list(base.lights),
+                 ambient=base.ambient)
+
+
+def triangle_count(scene: Scene) -> int:
+    """Triangles the renderer rasterises for ``scene`` (fan triangulation, before culling)."""
+    return int(sum(len(o.mesh.triangles) for o in scene.objects))
+
+
+def _complexity_step(r: Renderer, scene: Scene, display: DisplaySettings,
+                     settings: RenderSettings, repeats: int) -> dict:
+    """Median (and best) ms of a render, a G(2) refresh and ``render_with_motion`` of a scene.
+
+    The three are called in turn in every repeat (so each refresh follows a
+    render, as in :func:`timing`); the stage is updated once per
+    :data:`REFRESHES_PER_UPDATE` refreshes and the refresh grafting it is not
+    timed.  ``refresh_expanded`` / ``refresh_clashes`` are the last timed
+    refresh's counters: the part of a refresh's work that grows with what moves.
+    """
+    frame = r.render(scene, display, settings)
+    up = render_with_motion(r, scene, display, 0.0, HZ, settings)
+    st = GalileanStage(display, GalileanSettings(order=2, refresh_hz=HZ, order_guard=False))
+    jobs = {"render_ms": lambda: r.render(scene, display, settings),
+            "refresh_ms": st.refresh,
+            "render_with_motion_ms": lambda: render_with_motion(r, scene, display, 0.0, HZ,
+                                                                settings)}
+    times: dict[str, list[float]] = {k: [] for k in jobs}
+    last: dict = {}
+    for i in range(repeats):
+        if i % REFRESHES_PER_UPDATE == 0:
+            st.update(up)
+            st.refresh()
+        for k, f in jobs.items():
+            t0 = time.perf_counter()
+            last[k] = f()
+            times[k].append((time.perf_counter() - t0) * 1e3)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    moving = np.any(np.abs(up.derivatives[0, :2]) > 1e-3, axis=0)  # px per refresh
+    stats = last["refresh_ms"].stats
+    return {"triangles": triangle_count(scene),
+            "polygons_drawn": int(frame.stats["polygons"]["drawn"]),
+            "moving_pct": 100.0 * float(moving.mean()), **med,
+            "render_ratio": med["render_ms"] / med["refresh_ms"],
+            "update_ratio": med["render_with_motion_ms"] / med["refresh_ms"],
+            **{k.replace("_ms", "_ms_min"): float(np.min(v)) for k, v in times.items()},
+            "refresh_expanded": int(stats.get("expanded", 0)),
+            "refresh_clashes": int(stats.get("clashes", 0))}
+
+
+def _crossover(steps: list[dict], key: str, factor: float = 10.0) -> int | None:
+    """Triangle count of the first step whose ``key`` ratio is >= ``factor`` (None if none)."""
+    return next((s["triangles"] for s in steps if s[key] >= factor), None)
+
+
+def complexity_timing(size: tuple[int, int], settings: RenderSettings,
+                      counts: tuple[int, ...] = COMPLEXITY_COUNTS, repeats: int = 15) -> dict:
+    """Render, update and G(2) refresh ms against scene complexity, at ``size``, one zone.
+
+    Parameters
+    ----------
+    size : tuple of int
+        Display (cols, rows).
+    settings : RenderSettings
+        Render settings of the render and of ``render_with_motion``.
+    counts : tuple of int
+        Extra triangles per step (:func:`complexity_scene`); steps run in
+        increasing order, and a step adding no triangles to the one before is skipped.
+    repeats : int
+        Interleaved calls of each per step; the medians are reported.
+
+    Returns
+    -------
+    dict
+        ``size``, ``repeats``, ``steps`` (per step: ``triangles``,
+        ``polygons_drawn`` (polygons with a pixel in the render), ``moving_pct``
+        (% of pixels the update moves by more than 0.001 px per refresh),
+        ``render_ms``, ``refresh_ms``, ``render_with_motion_ms``, ``render_ratio``
+        and ``update_ratio``, the last two over ``refresh_ms``; ``*_ms_min``, the
+        best of each; ``refresh_expanded``, ``refresh_clashes``) and
+        ``crossover_10x_render`` / ``crossover_10x_update``: the smallest triangle
+        count whose ratio is >= 10, or None.
+    """
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    r, steps = Renderer(), []
+    for extra in sorted(set(counts)):
+        scene = complexity_scene(extra, display)
+        if steps and triangle_count(scene) <= steps[-1]["triangles"]:
+            continue
+        print(f"galilean complexity: {triangle_count(scene)} triangles", file=sys.stderr,
+              flush=True)
+        steps.append(_complexity_step(r, scene, display, settings, repeats))
+    return {"size": f"{size[0]}x{size[1]}", "zones": 1, "order": 2, "refresh_hz": HZ,
+            "repeats": repeats, "steps": steps,
+            "crossover_10x_render": _crossover(steps, "render_ratio"),
+            "crossover_10x_update": _crossover(steps, "update_ratio")}
+
+
+def chart_complexity(cx: dict, path: Path) -> None:
+    """Log-log ms against triangles: render, ``render_with_motion``, refresh and 10x refresh.
+
+    Parameters
+    ----------
+    cx : dict
+        What :func:`complexity_timing` returns.
+    path : Path
+        PNG to write.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tri = [s["triangles"] for s in cx["steps"]]
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for key, label, style in (("render_ms", "Renderer.render", "o-"),
+                              ("render_with_motion_ms", "render_with_motion (update)", "s-"),
+                              ("refresh_ms", "G(2) refresh", "^-")):
+        ax.plot(tri, [s[key] for s in cx["steps"]], style, label=label)
+    ax.plot(tri, [10 * s["refresh_ms"] for s in cx["steps"]], "k--", label="10 x refresh")
+    ax.set(xscale="log", yscale="log", xlabel="triangles in the scene",
+           ylabel=f"ms at {cx['size']}, one zone (median)",
+           title=f"10x crossover: render {cx['crossover_10x_render']}, "
+                 f"update {cx['crossover_10x_update']}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def run_complexity(out: Path, time_size: tuple[int, int],
+                   counts: tuple[int, ...] = COMPLEXITY_COUNTS, repeats: int = 15) -> dict:
+    """``--complexity``: :func:`complexity_timing` into JSON, CSV and PNG under ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    settings = RenderSettings(light=LightSettings("blinn"))
+    warm_up(settings)
+    cx = complexity_timing(time_size, settings, counts, repeats)
+    (out / "galilean_complexity.json").write_text(json.dumps(cx, indent=1))
+    write_rows(cx["steps"], out / "galilean_complexity.csv")
+    chart_complexity(cx, out / "galilean_complexity.png")
+    return cx
+
+
 def thought_experiments() -> dict:
     """The paper's numbers, for the record and the charts."""
     fall = {f"G{o}_K{k}": run_case(CASES["falling"](), o, k, 10).errors(True).tolist()
@@ -521,8 +714,9 @@ def print_case(res: dict) -> None:
 
 
 # -------------------------------------------------------------------- main
-def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[int, int]) -> None:
-    """Everything ``--sweep`` writes."""
+def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[int, int],
+              counts: tuple[int, ...] = COMPLEXITY_COUNTS) -> None:
+    """Everything ``--sweep`` writes (``counts``: the complexity steps' extra triangles)."""
     out.mkdir(parents=True, exist_ok=True)
     settings = RenderSettings(light=LightSettings("blinn"))
     warm_up(settings)
@@ -532,6 +726,7 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
     te = thought_experiments()
     print("galilean sweep: timing", file=sys.stderr, flush=True)
     tm = run_timing(out, time_size)
+    cx = run_complexity(out, time_size, counts)
     doc = {"size": f"{size[0]}x{size[1]}", "frames": frames, "refresh_hz": HZ,
            "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": var,
            "thought_experiments": te}
@@ -540,7 +735,19 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
     write_rows(var, out / "galilean_variants.csv")
     chart_sweep(rows, out / "galilean_sweep.png")
     chart_thought(te, out / "galilean_thought.png")
-    print(json.dumps({"timing": tm, "variants": var}, indent=1))
+    print(json.dumps({"timing": tm, "complexity": cx, "variants": var}, indent=1))
+
+
+def _counts(text: str) -> tuple[int, ...]:
+    """Parse ``--complexity-counts``: comma-separated integers >= 0."""
+    try:
+        counts = tuple(int(c) for c in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"want integers like 0,1000,10000, got {text!r}") \
+            from None
+    if not counts or min(counts) < 0:
+        raise argparse.ArgumentTypeError(f"counts must be >= 0, got {text!r}")
+    return counts
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -555,6 +762,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sweep", action="store_true", help="run the full sweep into --out")
     p.add_argument("--timing", action="store_true",
                    help="only the --time-size timing (refresh, render, shadow) into --out")
+    p.add_argument("--complexity", action="store_true",
+                   help="only the --time-size timing against scene complexity into --out")
+    p.add_argument("--complexity-counts", type=_counts, default=COMPLEXITY_COUNTS,
+                   help="extra triangles per complexity step, comma-separated "
+                        "(default %(default)s)")
+    p.add_argument("--complexity-repeats", type=int, default=15,
+                   help="interleaved calls per complexity step")
     p.add_argument("--out", default="bench-out")
     p.add_argument("--size", default="160x120", help="sweep render size")
     p.add_argument("--sweep-frames", type=int, default=33)
@@ -562,12 +776,19 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.interval < 1 or args.frames < 1:
         p.error("--interval and --frames must be >= 1")
+    if args.complexity_repeats < 1:
+        p.error("--complexity-repeats must be >= 1")
+    if args.complexity:
+        print(json.dumps(run_complexity(Path(args.out), parse_size(args.time_size),
+                                        args.complexity_counts, args.complexity_repeats),
+                         indent=1))
+        return 0
     if args.timing:
         print(json.dumps(run_timing(Path(args.out), parse_size(args.time_size)), indent=1))
         return 0
     if args.sweep:
         run_sweep(Path(args.out), parse_size(args.size), args.sweep_frames,
-                  parse_size(args.time_size))
+                  parse_size(args.time_size), args.complexity_counts)
         return 0
     res = scene_case(args.order, args.interval, args.frames) if args.case == "scene" else \
         thought_case(args.case, args.order, args.interval, args.frames)

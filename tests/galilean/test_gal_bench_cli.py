@@ -1,4 +1,7 @@
 import json
+import math
+
+import pytest
 
 from service.bench.galilean_bench import main
 from service.cli_bench import main as holo_bench
@@ -25,3 +28,34 @@ def test_cli_scene_case(capsys):
                  "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert len(doc["errors"]) == 3 and max(doc["errors"]) < 3.0
+
+
+def test_cli_complexity(tmp_path, capsys):
+    assert main(["--complexity", "--time-size", "64x48", "--complexity-counts", "0,300,3000",
+                 "--complexity-repeats", "2", "--out", str(tmp_path)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    for name in ("galilean_complexity.json", "galilean_complexity.csv",
+                 "galilean_complexity.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert json.loads((tmp_path / "galilean_complexity.json").read_text()) == doc
+    steps = doc["steps"]
+    assert doc["size"] == "64x48" and len(steps) == 3
+    assert len((tmp_path / "galilean_complexity.csv").read_text().splitlines()) == 1 + 3
+    tris = [s["triangles"] for s in steps]
+    assert tris == sorted(set(tris)) and tris[0] == 252 and tris[-1] > 3000
+    for s in steps:
+        ms = [s["render_ms"], s["render_with_motion_ms"], s["refresh_ms"]]
+        assert all(math.isfinite(m) and m > 0 for m in ms)
+        assert s["render_ratio"] == pytest.approx(s["render_ms"] / s["refresh_ms"])
+        assert s["update_ratio"] == pytest.approx(s["render_with_motion_ms"] / s["refresh_ms"])
+        assert s["polygons_drawn"] > 0 and s["moving_pct"] > 0
+    assert steps[-1]["polygons_drawn"] > steps[0]["polygons_drawn"]
+    for key, ratio in (("crossover_10x_render", "render_ratio"),
+                       ("crossover_10x_update", "update_ratio")):
+        first = next((s["triangles"] for s in steps if s[ratio] >= 10), None)
+        assert key in doc and doc[key] == first
+
+
+def test_cli_complexity_counts_rejected():
+    with pytest.raises(SystemExit):
+        main(["--complexity", "--complexity-counts", "10,-5"])
