@@ -652,6 +652,51 @@ def _landing(x: int, y: int, debris: int, z: int, h: int, w: int, half: int, fp:
     return -1 if debris != 0 else ((z * h + qr) * w + qc if inside else -2)
 
 
+@nb.njit(cache=True, inline="always")
+def _no_colour_motion(dc: tuple, ncol: int, p: np.uint64) -> bool:
+    """Whether galpixel ``p``'s colour derivatives (``ncol`` planes of ``dc``) are all zero."""
+    return ncol == 0 or (dc[0][p] == 0 and dc[1][p] == 0 and dc[2][p] == 0 and dc[3][p] == 0)
+
+
+@nb.njit(cache=True, inline="always")
+def _unmoved(
+    p: np.uint64,
+    i: np.uint64,
+    q: int,
+    frac: tuple,
+    dep: np.ndarray,
+    qb: np.ndarray,
+    db: np.ndarray,
+    fxb: np.ndarray,
+    fyb: np.ndarray,
+    vxb: np.ndarray,
+    vyb: np.ndarray,
+    axb: np.ndarray,
+    ayb: np.ndarray,
+    sb: np.ndarray,
+) -> None:
+    """Advance step of a galpixel known static: it stays at flat pixel ``q`` as it is."""
+    qb[i] = q
+    db[i] = dep[p]
+    fxb[i] = frac[0][p]
+    fyb[i] = frac[1][p]
+    vxb[i] = vyb[i] = axb[i] = ayb[i] = 0
+    sb[i] = 2
+
+
+@nb.njit(cache=True, inline="always")
+def _all_set(flags: np.ndarray, a: int, b: int) -> bool:
+    """Whether ``flags[a:b]`` (uint8) are all non-zero."""
+    every = np.uint8(1)
+    for k in range(a, b):
+        every &= flags[_u(k)]
+    return every != 0
+
+
+#: Pixels :func:`scatter_bands` checks at once for galpixels known static.
+CHUNK = 32
+
+
 #: Pixels per batch of rows :func:`scatter_bands` advances before it copies.
 BATCH = 4096
 
@@ -671,6 +716,8 @@ def scatter_bands(
     bands: int,
     stats: np.ndarray,
     reach_out: np.ndarray,
+    same_in: np.ndarray,
+    same_out: np.ndarray,
 ) -> None:
     """First sweep without its debris arm or cache, the new rows in parallel bands.
 
@@ -724,6 +771,27 @@ def scatter_bands(
         Accumulated per band: propagated, clashes, dropped (of its own old rows).
     reach_out : ndarray, shape (bands, 3), int64
         Out: per band the largest ``|vy|``, ``|ay|``, ``|jy|`` it wrote.
+    same_in : ndarray, shape (N,), uint8
+        1 where ``new`` already holds, bit for bit, the galpixel ``old`` holds and
+        that galpixel is static (see below); all 0 when that is not known.
+    same_out : ndarray, shape (N,), uint8
+        Out: ``same_in`` for the next refresh, at every pixel a galpixel lands on
+        (:func:`finish` writes the others).
+
+    Notes
+    -----
+    *Static galpixels are not rewritten.*  A galpixel with no motion, z motion or
+    colour motion that lands on its own pixel (its fraction then unchanged) is a
+    copy of itself.  When it is the first galpixel to land there and ``same_in`` says
+    the new map already holds it (it was static and won its pixel in the previous
+    refresh too, when the maps were the other way round), only the z-test's depth
+    and flag are written; a later galpixel that wins the pixel overwrites it as
+    usual.  Such a galpixel is not even read beyond its depth and fraction.
+    ``same_out`` records for the next refresh 1 where a pixel's winner is its own
+    static galpixel, 0 where another galpixel won (pixels nothing lands on are
+    left to :func:`finish`, which clears them).  The one
+    difference from the one-pass scan is the sign of a zero: a static galpixel's
+    colour of -0.0 stays -0.0 where the scan's ``colour + 0.0`` writes +0.0.
     """
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
@@ -744,6 +812,8 @@ def scatter_bands(
     run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
     run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
     run_n_all = np.empty((bands, size), np.int64)  # its length
+    # 1: no motion, lands on its own pixel; 2: that, and the new map holds it already
+    sb_all = np.zeros((bands, size), np.uint8)
     for band in nb.prange(bands):
         lo, hi = band * h // bands, (band + 1) * h // bands
         r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
@@ -758,6 +828,7 @@ def scatter_bands(
         run_i = run_i_all[band]
         run_q = run_q_all[band]
         run_n = run_n_all[band]
+        sb = sb_all[band]
         n_prop = n_clash = n_drop = np.int64(0)
         mvy = may = mjy = np.int64(0)
         for z in range(nz):
@@ -774,85 +845,108 @@ def scatter_bands(
                     p0 = zb + r * w
                     i0 = rr * w
                     y0 = np.int64(r) << fp
-                    if order == 0:
-                        for c in range(w):
-                            p, i = _u(p0 + c), _u(i0 + c)
-                            x = (np.int64(c) << fp) + o_frac[0][p]
-                            y = y0 + o_frac[1][p]
-                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                            fxb[i] = x - (((x + half) >> fp) << fp)
-                            fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = o_dep[p]
-                    elif order == 1:
-                        for c in range(w):
-                            p, i = _u(p0 + c), _u(i0 + c)
-                            vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                            x = (np.int64(c) << fp) + o_frac[0][p] + ((vx + (1 << (sh - 1))) >> sh)
-                            y = y0 + o_frac[1][p] + ((vy + (1 << (sh - 1))) >> sh)
-                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                            fxb[i] = x - (((x + half) >> fp) << fp)
-                            fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = o_dep[p] + ((np.int64(o_zm[0][p]) + (1 << (sh - 1))) >> sh)
-                            vxb[i] = vx
-                            vyb[i] = vy
-                    elif order == 2:
-                        for c in range(w):
-                            p, i = _u(p0 + c), _u(i0 + c)
-                            vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                            ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
-                            x = (
-                                (np.int64(c) << fp)
-                                + o_frac[0][p]
-                                + ((2 * vx + ax + (1 << sh)) >> (sh + 1))
-                            )
-                            y = y0 + o_frac[1][p] + ((2 * vy + ay + (1 << sh)) >> (sh + 1))
-                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                            fxb[i] = x - (((x + half) >> fp) << fp)
-                            fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = o_dep[p] + (
-                                (2 * np.int64(o_zm[0][p]) + o_zm[1][p] + (1 << sh)) >> (sh + 1)
-                            )
-                            vxb[i] = vx + ax
-                            vyb[i] = vy + ay
-                            axb[i] = ax
-                            ayb[i] = ay
-                    else:
-                        for c in range(w):
-                            p, i = _u(p0 + c), _u(i0 + c)
-                            x, vx, ax = advance(
-                                (np.int64(c) << fp) + o_frac[0][p],
-                                np.int64(o_mot[0][p]),
-                                np.int64(o_mot[2][p]),
-                                np.int64(o_mot[4][p]),
-                                3,
-                                fp,
-                                fm,
-                            )
-                            y, vy, ay = advance(
-                                y0 + o_frac[1][p],
-                                np.int64(o_mot[1][p]),
-                                np.int64(o_mot[3][p]),
-                                np.int64(o_mot[5][p]),
-                                3,
-                                fp,
-                                fm,
-                            )
-                            qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                            fxb[i] = x - (((x + half) >> fp) << fp)
-                            fyb[i] = y - (((y + half) >> fp) << fp)
-                            db[i] = advance(
-                                np.int64(o_dep[p]),
-                                np.int64(o_zm[0][p]),
-                                np.int64(o_zm[1][p]),
-                                np.int64(o_zm[2][p]),
-                                3,
-                                fp,
-                                fm,
-                            )[0]
-                            vxb[i] = vx
-                            vyb[i] = vy
-                            axb[i] = ax
-                            ayb[i] = ay
+                    # stretches of whole chunks known static, and the stretches
+                    # between them (long loops: each loop entry checks aliasing)
+                    ce = 0
+                    while ce < w:
+                        ca = cb = ce
+                        while cb < w and not _all_set(same_in, p0 + cb, p0 + min(w, cb + CHUNK)):
+                            cb = min(w, cb + CHUNK)
+                        ce = cb
+                        while ce < w and _all_set(same_in, p0 + ce, p0 + min(w, ce + CHUNK)):
+                            ce = min(w, ce + CHUNK)
+                        for c in range(cb, ce):
+                            _unmoved(_u(p0 + c), _u(i0 + c), p0 + c, o_frac, o_dep,
+                                     qb, db, fxb, fyb, vxb, vyb, axb, ayb, sb)
+                        if order == 0:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                x = (np.int64(c) << fp) + o_frac[0][p]
+                                y = y0 + o_frac[1][p]
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = o_dep[p]
+                                sb[i] = qb[i] == p0 + c
+                        elif order == 1:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                                rh = np.int64(1) << (sh - 1)
+                                x = (np.int64(c) << fp) + o_frac[0][p] + ((vx + rh) >> sh)
+                                y = y0 + o_frac[1][p] + ((vy + rh) >> sh)
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = o_dep[p] + ((np.int64(o_zm[0][p]) + (1 << (sh - 1))) >> sh)
+                                vxb[i] = vx
+                                vyb[i] = vy
+                                sb[i] = (qb[i] == p0 + c) & ((vx | vy | o_zm[0][p]) == 0)
+                        elif order == 2:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                                ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                                x = (
+                                    (np.int64(c) << fp)
+                                    + o_frac[0][p]
+                                    + ((2 * vx + ax + (1 << sh)) >> (sh + 1))
+                                )
+                                y = y0 + o_frac[1][p] + ((2 * vy + ay + (1 << sh)) >> (sh + 1))
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = o_dep[p] + (
+                                    (2 * np.int64(o_zm[0][p]) + o_zm[1][p] + (1 << sh)) >> (sh + 1)
+                                )
+                                vxb[i] = vx + ax
+                                vyb[i] = vy + ay
+                                axb[i] = ax
+                                ayb[i] = ay
+                                sb[i] = (qb[i] == p0 + c) & (
+                                    (vx | vy | ax | ay | o_zm[0][p] | o_zm[1][p]) == 0
+                                )
+                        else:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                x, vx, ax = advance(
+                                    (np.int64(c) << fp) + o_frac[0][p],
+                                    np.int64(o_mot[0][p]),
+                                    np.int64(o_mot[2][p]),
+                                    np.int64(o_mot[4][p]),
+                                    3,
+                                    fp,
+                                    fm,
+                                )
+                                y, vy, ay = advance(
+                                    y0 + o_frac[1][p],
+                                    np.int64(o_mot[1][p]),
+                                    np.int64(o_mot[3][p]),
+                                    np.int64(o_mot[5][p]),
+                                    3,
+                                    fp,
+                                    fm,
+                                )
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = advance(
+                                    np.int64(o_dep[p]),
+                                    np.int64(o_zm[0][p]),
+                                    np.int64(o_zm[1][p]),
+                                    np.int64(o_zm[2][p]),
+                                    3,
+                                    fp,
+                                    fm,
+                                )[0]
+                                vxb[i] = vx
+                                vyb[i] = vy
+                                axb[i] = ax
+                                ayb[i] = ay
+                                still = (o_mot[0][p] | o_mot[1][p] | o_mot[2][p] | o_mot[3][p]
+                                         | o_mot[4][p] | o_mot[5][p]) == 0
+                                zstill = (o_zm[0][p] | o_zm[1][p] | o_zm[2][p]) == 0
+                                sb[i] = (qb[i] == p0 + c) & still & zstill
                 # 2. z-test in scan order; the open run is kept in registers
                 runs = 0
                 ri = rq = rn = np.int64(0)
@@ -870,7 +964,8 @@ def scatter_bands(
                         continue
                     n_prop += own
                     d = db[i]
-                    if n_deb[_u(q)] == 0:
+                    fresh = n_deb[_u(q)] != 0
+                    if not fresh:
                         n_clash += 1
                         if d >= n_dep[_u(q)]:
                             if rn:
@@ -880,6 +975,19 @@ def scatter_bands(
                             continue
                     n_dep[_u(q)] = d
                     n_deb[_u(q)] = 0
+                    kind = sb[i]
+                    still = kind == 2 or (kind == 1 and _no_colour_motion(o_dc, ncol, _u(b0 + i)))
+                    if still and fresh and same_in[_u(q)] != 0:
+                        # static, and the new map holds it already: nothing to copy
+                        same_out[_u(q)] = 1
+                        if track:
+                            src_idx[_u(q)] = b0 + i - zb
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                    same_out[_u(q)] = still
                     if rn and q == rq + rn:
                         rn += 1
                     else:
@@ -1084,6 +1192,7 @@ def finish(
     write_out: bool,
     track: bool,
     stats: np.ndarray,
+    same_out: np.ndarray,
     zs: float = 1.0,
 ) -> None:
     """Second pass after :func:`scatter_bands`: debris arm, expansion and display copy.
@@ -1113,6 +1222,9 @@ def finish(
     track : bool
         Whether the first sweep recorded origins (the debris arm then stores -1).
     stats : ndarray, shape (7,), int64
+    same_out : ndarray, shape (N,), uint8
+        :func:`scatter_bands`'s record of pixels the two maps will agree on;
+        cleared at every pixel this pass writes (nothing landed there).
     """
     nz, h, w = shape
     # every plane in a local of its own, once: taking arrays out of tuples inside
@@ -1138,6 +1250,7 @@ def finish(
                     continue
                 if deb[p] == 0:
                     continue
+                same_out[p] = 0
                 near = (
                     (c > 0 and deb[_u(base + c - 1)] == 0)
                     or (c < w - 1 and deb[_u(base + c + 1)] == 0)

@@ -200,6 +200,15 @@ class GalileanStage:
         self._started = False
         #: rows a galpixel of ``self.map`` can move in one refresh (None: unknown)
         self._reach: int | None = None
+        #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
+        #: plane the next refresh records that in (see :func:`scatter_bands`)
+        self._same = (np.zeros(self._src.size, np.uint8), np.zeros(self._src.size, np.uint8))
+
+    def _map_changed(self) -> None:
+        """Forget what is known of ``map`` (a graft or a motion update wrote it)."""
+        self._reach = None
+        for plane in self._same:
+            plane.fill(0)
 
     # ----------------------------------------------------------------- inputs
     def update(
@@ -322,7 +331,7 @@ class GalileanStage:
                 self._events.append({"kind": "motion_clamped", "count": clamped,
                                      "source": "viewer"})
             self._viewer, self._viewer_next = self._viewer_next, None
-            self._reach = None
+            self._map_changed()
         z, r, c = self.display.zones, self.display.rows, self.display.cols
         shown = (
             np.empty((z, r, c, 3), np.uint8),
@@ -410,6 +419,7 @@ class GalileanStage:
                 bands,
                 band_stats,
                 reach,
+                *self._same,
             )
             counters[:3] += band_stats.sum(axis=0)
             top = reach.max(axis=0)
@@ -449,18 +459,22 @@ class GalileanStage:
             False,
             s.poisson,
             counters,
+            self._same[1],
         )
         if shown is not None:
             zs = 2.0**-self.fixed.fz
             show_bands(new_p, self.shape, s.margin, *(a.reshape(-1) for a in shown), zs)
         self.map, self._spare = new, self.map
         self._reach = next_reach
+        if next_reach is None:  # the cache path: nothing known
+            self._map_changed()
+        self._same = self._same[::-1]
         if self.cache is not None:
             self.cache = (cnew, cold)
         return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
 
     def _graft(self, p: _Pending) -> None:
-        self._reach = None
+        self._map_changed()
         if p.objects is None:
             for name, arr in zip(
                 ("colour", "depth", "frac", "motion", "zmotion", "dcolour", "debris", "obj"),
