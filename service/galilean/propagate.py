@@ -662,26 +662,18 @@ def _no_colour_motion(dc: tuple, ncol: int, p: np.uint64) -> bool:
 def _unmoved(
     p: np.uint64,
     i: np.uint64,
-    q: int,
     frac: tuple,
-    dep: np.ndarray,
-    qb: np.ndarray,
-    db: np.ndarray,
     fxb: np.ndarray,
     fyb: np.ndarray,
     vxb: np.ndarray,
     vyb: np.ndarray,
     axb: np.ndarray,
     ayb: np.ndarray,
-    sb: np.ndarray,
 ) -> None:
-    """Advance step of a galpixel known static: it stays at flat pixel ``q`` as it is."""
-    qb[i] = q
-    db[i] = dep[p]
+    """Batch entry ``i`` for the copy of static galpixel ``p`` (its fraction, no motion)."""
     fxb[i] = frac[0][p]
     fyb[i] = frac[1][p]
     vxb[i] = vyb[i] = axb[i] = ayb[i] = 0
-    sb[i] = 2
 
 
 @nb.njit(cache=True, inline="always")
@@ -782,16 +774,20 @@ def scatter_bands(
     -----
     *Static galpixels are not rewritten.*  A galpixel with no motion, z motion or
     colour motion that lands on its own pixel (its fraction then unchanged) is a
-    copy of itself.  When it is the first galpixel to land there and ``same_in`` says
-    the new map already holds it (it was static and won its pixel in the previous
-    refresh too, when the maps were the other way round), only the z-test's depth
-    and flag are written; a later galpixel that wins the pixel overwrites it as
-    usual.  Such a galpixel is not even read beyond its depth and fraction.
+    copy of itself.  ``same_in`` marks those that won their own pixel in the
+    previous refresh too (when the maps were the other way round), so that the
+    new map holds them already.  Step 1 skips whole chunks of such pixels
+    (:data:`CHUNK`) and step 2, for one that is the first to land on its pixel,
+    only clears the pixel's debris flag: its planes are neither read nor copied.
+    A later galpixel that wins the pixel overwrites it as usual; one that landed
+    first makes it a normal clash (its depth read, and copied if it wins).
     ``same_out`` records for the next refresh 1 where a pixel's winner is its own
     static galpixel, 0 where another galpixel won (pixels nothing lands on are
-    left to :func:`finish`, which clears them).  The one
-    difference from the one-pass scan is the sign of a zero: a static galpixel's
-    colour of -0.0 stays -0.0 where the scan's ``colour + 0.0`` writes +0.0.
+    left to :func:`finish`, which clears them).  The origin (``src_idx``) of a
+    pixel left in place is not rewritten either: the previous refresh wrote the
+    same.  The one difference from the one-pass scan is the sign of a zero: a
+    static galpixel's colour of -0.0 stays -0.0 where the scan's ``colour + 0.0``
+    writes +0.0.
     """
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
@@ -812,8 +808,7 @@ def scatter_bands(
     run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
     run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
     run_n_all = np.empty((bands, size), np.int64)  # its length
-    # 1: no motion, lands on its own pixel; 2: that, and the new map holds it already
-    sb_all = np.zeros((bands, size), np.uint8)
+    sb_all = np.zeros((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
     for band in nb.prange(bands):
         lo, hi = band * h // bands, (band + 1) * h // bands
         r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
@@ -845,8 +840,9 @@ def scatter_bands(
                     p0 = zb + r * w
                     i0 = rr * w
                     y0 = np.int64(r) << fp
-                    # stretches of whole chunks known static, and the stretches
-                    # between them (long loops: each loop entry checks aliasing)
+                    # stretches of whole chunks known static (left to step 2) and
+                    # the stretches between them (long loops: each loop entry
+                    # checks aliasing)
                     ce = 0
                     while ce < w:
                         ca = cb = ce
@@ -855,9 +851,6 @@ def scatter_bands(
                         ce = cb
                         while ce < w and _all_set(same_in, p0 + ce, p0 + min(w, ce + CHUNK)):
                             ce = min(w, ce + CHUNK)
-                        for c in range(cb, ce):
-                            _unmoved(_u(p0 + c), _u(i0 + c), p0 + c, o_frac, o_dep,
-                                     qb, db, fxb, fyb, vxb, vyb, axb, ayb, sb)
                         if order == 0:
                             for c in range(ca, cb):
                                 p, i = _u(p0 + c), _u(i0 + c)
@@ -951,7 +944,9 @@ def scatter_bands(
                 runs = 0
                 ri = rq = rn = np.int64(0)
                 for i in range(nr * w):
-                    q = qb[i]
+                    p = _u(b0 + i)
+                    known = same_in[p] != 0  # static, lands on p, and new holds it
+                    q = b0 + i if known else qb[i]
                     own = own_lo <= i < own_hi
                     if q < 0 or q < q_lo or q >= q_hi:
                         if q != -1 and own:
@@ -963,8 +958,17 @@ def scatter_bands(
                             rn = 0
                         continue
                     n_prop += own
-                    d = db[i]
                     fresh = n_deb[_u(q)] != 0
+                    if known and fresh:
+                        # the first to land on its own pixel, which holds it already
+                        n_deb[_u(q)] = 0
+                        same_out[_u(q)] = 1
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                    d = np.int64(o_dep[p]) if known else db[i]
                     if not fresh:
                         n_clash += 1
                         if d >= n_dep[_u(q)]:
@@ -975,18 +979,9 @@ def scatter_bands(
                             continue
                     n_dep[_u(q)] = d
                     n_deb[_u(q)] = 0
-                    kind = sb[i]
-                    still = kind == 2 or (kind == 1 and _no_colour_motion(o_dc, ncol, _u(b0 + i)))
-                    if still and fresh and same_in[_u(q)] != 0:
-                        # static, and the new map holds it already: nothing to copy
-                        same_out[_u(q)] = 1
-                        if track:
-                            src_idx[_u(q)] = b0 + i - zb
-                        if rn:
-                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                            runs += 1
-                            rn = 0
-                        continue
+                    if known:  # step 1 skipped it: its batch entries for the copy
+                        _unmoved(p, _u(i), o_frac, fxb, fyb, vxb, vyb, axb, ayb)
+                    still = known or (sb[i] != 0 and _no_colour_motion(o_dc, ncol, p))
                     same_out[_u(q)] = still
                     if rn and q == rq + rn:
                         rn += 1
@@ -1172,6 +1167,20 @@ def show_bands(
         )
 
 
+@nb.njit(cache=True, inline="always")
+def _row_col(i: int, w: int, inv_w: float) -> tuple:
+    """``divmod(i, w)`` for ``0 <= i < 2**31`` without an integer division (1/w in float)."""
+    r = np.int64(np.float64(i) * inv_w)
+    c = i - r * w
+    if c < 0:
+        r -= 1
+        c += w
+    elif c >= w:
+        r += 1
+        c -= w
+    return r, c
+
+
 @nb.njit(cache=True, nogil=True)
 def finish(
     new: tuple,
@@ -1235,6 +1244,7 @@ def finish(
     d0, d1, d2, d3 = dc
     (o0, o1, o2), o_dep, o_deb, o_obj = old[0], old[1], old[6], old[7]
     ww = w - 2 * margin
+    inv_w = 1.0 / w
     expanded = left = 0
     n8 = 8 * deb64.size
     for z in range(nz):
@@ -1277,7 +1287,7 @@ def finish(
                         if sq < 0:
                             continue
                         # Poisson flag of the origin (poisson.poisson_flag, same arithmetic)
-                        sr, sc = sq // w, sq % w
+                        sr, sc = _row_col(sq, w, inv_w)
                         if sr == 0 or sc == 0 or sr == h - 1 or sc == w - 1:
                             continue
                         pc, pl, pr = _u(zb + sq), _u(zb + sq - 1), _u(zb + sq + 1)
