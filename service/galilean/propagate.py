@@ -1167,18 +1167,48 @@ def show_bands(
         )
 
 
-@nb.njit(cache=True, inline="always")
-def _row_col(i: int, w: int, inv_w: float) -> tuple:
-    """``divmod(i, w)`` for ``0 <= i < 2**31`` without an integer division (1/w in float)."""
-    r = np.int64(np.float64(i) * inv_w)
-    c = i - r * w
-    if c < 0:
-        r -= 1
-        c += w
-    elif c >= w:
-        r += 1
-        c -= w
-    return r, c
+@nb.njit(cache=True, nogil=True, parallel=True)
+def poisson_interiors(
+    dep: np.ndarray, deb: np.ndarray, shape: tuple, threshold: float, out: np.ndarray
+) -> None:
+    """Which galpixels of a map pass the Poisson test (equation 34), rows in parallel.
+
+    ``out[p]`` is 1 where :func:`service.galilean.poisson.poisson_flag` is 0 (a
+    surface interior: not on the border, no debris among the pixel and its four
+    neighbours, no empty depth, ``|laplacian| <= threshold``), with its arithmetic.
+
+    Parameters
+    ----------
+    dep : ndarray, shape (N,), int32
+        Fixed-point depth plane (``Z_EMPTY`` empty).
+    deb : ndarray, shape (N,), uint8
+        Debris plane.
+    shape : tuple
+        (Z, H, W), N = Z H W.
+    threshold : float
+        In fixed-point depth units.
+    out : ndarray, shape (N,), uint8
+    """
+    nz, h, w = shape
+    for k in nb.prange(nz * h):
+        r = k % h
+        base = k * w
+        if r == 0 or r == h - 1:
+            for c in range(w):
+                out[_u(base + c)] = 0
+            continue
+        out[_u(base)] = 0
+        out[_u(base + w - 1)] = 0
+        for c in range(1, w - 1):
+            p, pl, pr = _u(base + c), _u(base + c - 1), _u(base + c + 1)
+            pu, pd = _u(base + c - w), _u(base + c + w)
+            clean = (deb[p] | deb[pl] | deb[pr] | deb[pu] | deb[pd]) == 0
+            e0, e1, e2 = np.int64(dep[p]), np.int64(dep[pr]), np.int64(dep[pl])
+            e3, e4 = np.int64(dep[pd]), np.int64(dep[pu])
+            full = ((e0 != Z_EMPTY) & (e1 != Z_EMPTY) & (e2 != Z_EMPTY)
+                    & (e3 != Z_EMPTY) & (e4 != Z_EMPTY))
+            lap = e1 + e2 + e3 + e4 - 4 * e0
+            out[p] = clean & full & (abs(lap) <= threshold)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -1202,6 +1232,7 @@ def finish(
     track: bool,
     stats: np.ndarray,
     same_out: np.ndarray,
+    interior: np.ndarray,
     zs: float = 1.0,
 ) -> None:
     """Second pass after :func:`scatter_bands`: debris arm, expansion and display copy.
@@ -1234,6 +1265,8 @@ def finish(
     same_out : ndarray, shape (N,), uint8
         :func:`scatter_bands`'s record of pixels the two maps will agree on;
         cleared at every pixel this pass writes (nothing landed there).
+    interior : ndarray, shape (N,), uint8
+        :func:`poisson_interiors` of ``old`` (read only when ``threshold >= 0``).
     """
     nz, h, w = shape
     # every plane in a local of its own, once: taking arrays out of tuples inside
@@ -1242,9 +1275,8 @@ def finish(
     m0, m1, m2, m3, m4, m5 = mot
     z0, z1, z2 = zm
     d0, d1, d2, d3 = dc
-    (o0, o1, o2), o_dep, o_deb, o_obj = old[0], old[1], old[6], old[7]
+    (o0, o1, o2), o_dep, o_obj = old[0], old[1], old[7]
     ww = w - 2 * margin
-    inv_w = 1.0 / w
     expanded = left = 0
     n8 = 8 * deb64.size
     for z in range(nz):
@@ -1286,21 +1318,8 @@ def finish(
                         sq = np.int64(src_idx[_u(qi)])
                         if sq < 0:
                             continue
-                        # Poisson flag of the origin (poisson.poisson_flag, same arithmetic)
-                        sr, sc = _row_col(sq, w, inv_w)
-                        if sr == 0 or sc == 0 or sr == h - 1 or sc == w - 1:
-                            continue
-                        pc, pl, pr = _u(zb + sq), _u(zb + sq - 1), _u(zb + sq + 1)
-                        pu, pd = _u(zb + sq - w), _u(zb + sq + w)
-                        if o_deb[pc] | o_deb[pl] | o_deb[pr] | o_deb[pu] | o_deb[pd]:
-                            continue
-                        e0, e1, e2 = o_dep[pc], o_dep[pr], o_dep[pl]
-                        e3, e4 = o_dep[pd], o_dep[pu]
-                        if (e0 == Z_EMPTY or e1 == Z_EMPTY or e2 == Z_EMPTY or e3 == Z_EMPTY
-                                or e4 == Z_EMPTY):
-                            continue
-                        lap = e1 + e2 + e3 + e4 - 4 * e0
-                        if not np.isfinite(np.float64(lap)) or abs(lap) > threshold:
+                        # Poisson test of the origin (poisson_interiors of the old map)
+                        if interior[_u(zb + sq)] == 0:
                             continue
                         if first < 0:
                             first = qi

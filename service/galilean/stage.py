@@ -44,6 +44,7 @@ from service.galilean.propagate import (
     flat,
     map_reach,
     planes,
+    poisson_interiors,
     reach_of,
     scatter,
     scatter_bands,
@@ -203,6 +204,8 @@ class GalileanStage:
         #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
         #: plane the next refresh records that in (see :func:`scatter_bands`)
         self._same = (np.zeros(self._src.size, np.uint8), np.zeros(self._src.size, np.uint8))
+        #: the Poisson test of every galpixel of ``map``, computed before each expansion
+        self._interior = np.zeros(self._src.size, np.uint8)
 
     def _map_changed(self) -> None:
         """Forget what is known of ``map`` (a graft or a motion update wrote it)."""
@@ -440,6 +443,8 @@ class GalileanStage:
                 counters,
             )
             next_reach = None
+        if thr >= 0:  # the Poisson tests of the origins, all at once in parallel
+            poisson_interiors(old_p[1], old_p[6], self.shape, thr, self._interior)
         # expansion and debris arm (sequential: an expansion feeds the next), then
         # the display copy in parallel bands
         finish(
@@ -460,6 +465,7 @@ class GalileanStage:
             s.poisson,
             counters,
             self._same[1],
+            self._interior,
         )
         if shown is not None:
             zs = 2.0**-self.fixed.fz

@@ -11,13 +11,15 @@ import numpy as np
 import pytest
 
 from service.display import DisplaySettings
+from service.galilean.fixed_point import Z_EMPTY
 from service.galilean.galpixmap import Galpixmap
-from service.galilean.poisson import EXPANSION_MODES
+from service.galilean.poisson import EXPANSION_MODES, poisson_map
 from service.galilean.propagate import (
     STAT_NAMES,
     flat,
     map_reach,
     planes,
+    poisson_interiors,
     reach_of,
     scatter_bands,
     second_sweep,
@@ -316,3 +318,27 @@ def test_static_galpixels_left_in_place_give_the_same_refreshes(order: int, case
     # skipped[k]: pixels refresh k + 1 may leave in place; none right after a graft
     assert skipped[0] == 0 and min(skipped[1:10]) > 0.5 * fast._src.size
     assert skipped[10] == 0 and skipped[11] > 0
+
+
+@pytest.mark.parametrize("threshold", [0.0, 3.0, 1e9])
+def test_poisson_interiors_are_the_poisson_test(threshold: float) -> None:
+    """The parallel all-at-once Poisson test agrees with poisson_map pixel for pixel.
+
+    Tilted planes (interiors), steps (sources), empty depths, debris, the border,
+    and depths near the int32 limit, whose laplacian overflows 32 bits.
+    """
+    rng = np.random.default_rng(int(threshold) % 97)
+    z, h, w = 2, 33, 47
+    rr, cc = np.mgrid[0:h, 0:w]
+    depth = (1000 + 3 * rr + 2 * cc + 500 * (cc > w // 2)).astype(np.int64)
+    depth = np.broadcast_to(depth, (z, h, w)).copy()
+    depth[rng.random(depth.shape) < 0.05] = Z_EMPTY
+    depth[1, 5:9, 5:9] = 2**31 - 40  # near the top of int32, next to small depths
+    depth[1, 20:24, 30:34] = 2**31 - 40 - rr[20:24, 30:34]
+    depth = depth.astype(np.int32)
+    debris = (rng.random((z, h, w)) < 0.04).astype(np.uint8)
+    out = np.full(depth.size, 7, np.uint8)
+    poisson_interiors(depth.reshape(-1), debris.reshape(-1), (z, h, w), threshold, out)
+    want = 1 - poisson_map(depth, debris, threshold)
+    assert (out.reshape(z, h, w) == want).all()
+    assert out.sum() > 0 and (out == 0).sum() > 0
