@@ -59,3 +59,20 @@ def test_cli_complexity(tmp_path, capsys):
 def test_cli_complexity_counts_rejected():
     with pytest.raises(SystemExit):
         main(["--complexity", "--complexity-counts", "10,-5"])
+
+
+def test_cli_timing(tmp_path, capsys):
+    """--timing: every order, serial and threaded, and a head turn that moves everything."""
+    assert main(["--timing", "--time-size", "64x48", "--out", str(tmp_path)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    for name in ("galilean_timing.json", "galilean_timing.csv", "galilean_timing.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    runs = doc["orders"]
+    assert {"G0", "G1", "G2", "G3", "G2-all-threads", "G2-all-threads-head-motion"} <= set(runs)
+    assert doc["render_with_motion_ms"] > 0
+    for v in runs.values():
+        assert math.isfinite(v["ms_per_refresh"]) and 0 < v["ms_min"] <= v["ms_per_refresh"]
+        assert v["render_ratio"] == pytest.approx(v["render_ms"] / v["ms_per_refresh"])
+        assert v["update_ratio"] == pytest.approx(
+            doc["render_with_motion_ms"] / v["ms_per_refresh"])
+    assert doc["shadow"]["shadow_depth_ms"] > 0
