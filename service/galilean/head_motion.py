@@ -10,7 +10,10 @@ in the viewer's frame as
     q'' = -alpha x q - a + 2 w x v + w x (w x q)
 
 (second order in time of ``q(t) = R(t)^T (q0 - p(t))``).  The projection is affine,
-so the apparent motion is the projection's linear part applied to these.  Renders
+so the apparent motion is the projection's linear part applied to these; and since
+q is affine in the galpixel's pixel position and depth, so is the motion change:
+:func:`pixel_coefficients` works it out once per zone and the per-galpixel kernel
+only evaluates it (three multiply-adds per component).  Renders
 already contain the viewer motion they were made with; a head-motion update adds
 the *difference* between the new filtered viewer motion and the one already in the
 map, evaluated at each galpixel's own depth.  Empty (depth +inf) and debris pixels
@@ -35,71 +38,152 @@ def _per_refresh(m: MotionState, hz: float) -> np.ndarray:
                      m.angular_acceleration * t * t])
 
 
-@nb.njit(cache=True, inline="always")
-def _cross(a0: float, a1: float, a2: float, b0: float, b1: float, b2: float) -> tuple:
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+def _skew(a: np.ndarray) -> np.ndarray:
+    """(3, 3) matrix of ``q -> a x q``."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def induced_affine(m: np.ndarray) -> tuple:
+    """Velocity q' and acceleration q'' of a static point, affine in its position q.
+
+    Parameters
+    ----------
+    m : ndarray, shape (4, 3)
+        v, a, w, alpha per refresh (:func:`_per_refresh`).
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(M1, m1, M2, m2)``: q' = M1 q + m1, q'' = M2 q + m2; M (3, 3), m (3,).
+    """
+    v, a, w, al = m
+    ww = np.outer(w, w) - np.dot(w, w) * np.eye(3)  # q -> w x (w x q)
+    return -_skew(w), -v, -_skew(al) + ww, -a + 2.0 * np.cross(w, v)
+
+
+def pixel_coefficients(old: np.ndarray, new: np.ndarray, geo: np.ndarray, shears: np.ndarray,
+                       scales: np.ndarray) -> np.ndarray:
+    """The motion change of a galpixel as affine functions of its position, per zone.
+
+    A galpixel at pixel position (sx, sy) (its column and row from the top left
+    of the display, centre 0.5, fraction included) and depth d (depth units) is the
+    view-frame point q = (sx s - width / 2 - d shear, height / 2 - sy s, -d); its
+    apparent motion is the projection's linear part applied to q' and q''.  Both
+    are affine in q, so the change from viewer motion ``old`` to ``new`` is affine
+    in (sx, sy, d).
+
+    Parameters
+    ----------
+    old, new : ndarray, shape (4, 3)
+        Viewer motion per refresh, already in the map and new.
+    geo : ndarray, shape (4,)
+        Pixel size s, display width, height (view units), margin (px).
+    shears : ndarray, shape (Z,)
+    scales : ndarray, shape (3,)
+        Fixed-point units per px (x and y motion) and per depth unit (z motion),
+        applied to the outputs: 2^fm, 2^fm, 2^fzm.
+
+    Returns
+    -------
+    ndarray, shape (Z, 2, 3, 4)
+        For zone z, derivative k (velocity, acceleration), output (x, y, z motion in
+        fixed-point units): coefficients of (1, sx, sy, d).
+    """
+    s, width, height = geo[0], geo[1], geo[2]
+    n, o = induced_affine(new), induced_affine(old)
+    out = np.zeros((len(shears), 2, 3, 4))
+    for z, sh in enumerate(shears):
+        # q = q0 + qsx sx + qsy sy + qd d
+        basis = np.array([[-width / 2, height / 2, 0.0], [s, 0.0, 0.0], [0.0, -s, 0.0],
+                          [-sh, 0.0, -1.0]]).T  # (3, 4)
+        proj = np.array([[1.0 / s, 0.0, -sh / s], [0.0, -1.0 / s, 0.0], [0.0, 0.0, -1.0]])
+        for k in range(2):
+            dm, dc = n[2 * k] - o[2 * k], n[2 * k + 1] - o[2 * k + 1]
+            lin = dm @ basis
+            lin[:, 0] += dc
+            out[z, k] = (proj @ lin) * scales[:, None]
+    return out
 
 
 @nb.njit(cache=True, inline="always")
-def _induced(m: np.ndarray, q0: float, q1: float, q2: float) -> tuple:
-    """(q', q'') of a static point at q for viewer motion m (4, 3)."""
-    v, a, w, al = m[0], m[1], m[2], m[3]
-    c = _cross(w[0], w[1], w[2], q0, q1, q2)
-    d1 = (-c[0] - v[0], -c[1] - v[1], -c[2] - v[2])
-    e = _cross(al[0], al[1], al[2], q0, q1, q2)
-    f = _cross(w[0], w[1], w[2], v[0], v[1], v[2])
-    g = _cross(w[0], w[1], w[2], c[0], c[1], c[2])
-    d2 = (-e[0] - a[0] + 2 * f[0] + g[0], -e[1] - a[1] + 2 * f[1] + g[1],
-          -e[2] - a[2] + 2 * f[2] + g[2])
-    return d1, d2
+def _add(
+    motion: np.ndarray, zmotion: np.ndarray, k: int, z: int, r: int, c: int, vx: float,
+    vy: float, vz: float, lim: float, zlim: float,
+) -> int:
+    """Add (vx, vy, vz) (fixed-point units, rounded) to derivative ``k``; values clamped."""
+    mx = motion[2 * k, z, r, c] + np.floor(vx + 0.5)
+    my = motion[2 * k + 1, z, r, c] + np.floor(vy + 0.5)
+    mz = zmotion[k, z, r, c] + np.floor(vz + 0.5)
+    motion[2 * k, z, r, c] = min(max(mx, -lim), lim)
+    motion[2 * k + 1, z, r, c] = min(max(my, -lim), lim)
+    zmotion[k, z, r, c] = min(max(mz, -zlim), zlim)
+    return (abs(mx) > lim) + (abs(my) > lim) + (abs(mz) > zlim)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
+def _apply_row(
+    z: int, r: int, frac: np.ndarray, depth: np.ndarray, debris: np.ndarray,
+    motion: np.ndarray, zmotion: np.ndarray, coef: np.ndarray, margin: float, fp: int,
+    fz: int, limits: np.ndarray, order: int,
+) -> tuple:
+    """:func:`_apply` for row ``r`` of zone ``z``: (changed, clamped).
+
+    The coefficients go into scalars first: a view of ``coef`` per galpixel would
+    cost an atomic reference-count pair each, which threads fight over.
+    """
+    unit_z, unit_p = 2.0**-fz, 2.0**-fp
+    zlim = np.float64(Z_LIMIT)
+    sy0 = r - margin + 0.5
+    # (derivative k, output x/y/z): constant, per sx, per sy, per d; the row's sy0 folded in
+    a = np.empty((2, 3, 3))
+    for k in range(2):
+        for o in range(3):
+            a[k, o, 0] = coef[z, k, o, 0] + coef[z, k, o, 2] * sy0
+            a[k, o, 1] = coef[z, k, o, 1]
+            a[k, o, 2] = coef[z, k, o, 3]
+    ax0, ax1, ax2, ay0, ay1, ay2, az0, az1, az2 = a[0].ravel()
+    bx0, bx1, bx2, by0, by1, by2, bz0, bz1, bz2 = a[1].ravel()
+    cy0, cy1, cy2 = coef[z, 0, 0, 2], coef[z, 0, 1, 2], coef[z, 0, 2, 2]
+    dy0, dy1, dy2 = coef[z, 1, 0, 2], coef[z, 1, 1, 2], coef[z, 1, 2, 2]
+    vlim, alim = limits[0], limits[1]
+    count = clamped = 0
+    for c in range(depth.shape[2]):
+        if debris[z, r, c] == 1 or depth[z, r, c] == Z_EMPTY:
+            continue
+        sx = c - margin + 0.5 + frac[0, z, r, c] * unit_p
+        fy = frac[1, z, r, c] * unit_p  # sy = sy0 + fy
+        d = depth[z, r, c] * unit_z
+        clamped += _add(motion, zmotion, 0, z, r, c, ax0 + ax1 * sx + cy0 * fy + ax2 * d,
+                        ay0 + ay1 * sx + cy1 * fy + ay2 * d, az0 + az1 * sx + cy2 * fy + az2 * d,
+                        vlim, zlim)
+        if order >= 2:
+            clamped += _add(motion, zmotion, 1, z, r, c, bx0 + bx1 * sx + dy0 * fy + bx2 * d,
+                            by0 + by1 * sx + dy1 * fy + by2 * d,
+                            bz0 + bz1 * sx + dy2 * fy + bz2 * d, alim, zlim)
+        count += 1
+    return count, clamped
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _apply(
     frac: np.ndarray, depth: np.ndarray, debris: np.ndarray, motion: np.ndarray,
-    zmotion: np.ndarray, old: np.ndarray, new: np.ndarray, geo: np.ndarray, shears: np.ndarray,
-    fp: int, fm: int, limits: np.ndarray, order: int, fz: int, fzm: int,
+    zmotion: np.ndarray, coef: np.ndarray, margin: float, fp: int, fz: int,
+    limits: np.ndarray, order: int,
 ) -> tuple:
-    """Add the induced-motion difference to every galpixel.
+    """Add the motion change (:func:`pixel_coefficients`) to every galpixel, rows in parallel.
 
-    ``geo`` is (pixel size, width, height, margin); ``limits`` (2,) the velocity and
-    acceleration bounds in px per refresh^n.  Returns (galpixels changed, values
-    clamped): sums beyond the bounds, or z motion beyond the depth format, are
-    clamped there rather than wrapped.
+    ``limits`` (2,): the velocity and acceleration bounds in fixed-point units.
+    Returns (galpixels changed, values clamped): sums beyond the bounds, or z motion
+    beyond the depth format, are clamped there rather than wrapped.
     """
-    s, width, height, margin = geo[0], geo[1], geo[2], geo[3]
-    scale = 2.0**fm
-    zlim = np.float64(Z_LIMIT)
+    nz, h = depth.shape[0], depth.shape[1]
     count = clamped = 0
-    nz, h, w = depth.shape
-    for z in range(nz):
-        sh = shears[z]
-        for r in range(h):
-            for c in range(w):
-                if debris[z, r, c] == 1 or depth[z, r, c] == Z_EMPTY:
-                    continue
-                d = depth[z, r, c] / 2.0**fz
-                sx = c - margin + 0.5 + frac[0, z, r, c] / 2.0**fp
-                sy = r - margin + 0.5 + frac[1, z, r, c] / 2.0**fp
-                qz = -d
-                qx = sx * s - width / 2 + qz * sh
-                qy = height / 2 - sy * s
-                n1, n2 = _induced(new, qx, qy, qz)
-                o1, o2 = _induced(old, qx, qy, qz)
-                for k in range(min(order, 2)):
-                    dq = (n1[0] - o1[0], n1[1] - o1[1], n1[2] - o1[2]) if k == 0 else \
-                        (n2[0] - o2[0], n2[1] - o2[1], n2[2] - o2[2])
-                    dx = (dq[0] - dq[2] * sh) / s
-                    dy = -dq[1] / s
-                    lim = limits[k] * scale
-                    mx = motion[2 * k, z, r, c] + np.floor(dx * scale + 0.5)
-                    my = motion[2 * k + 1, z, r, c] + np.floor(dy * scale + 0.5)
-                    mz = zmotion[k, z, r, c] + np.floor(-dq[2] * 2.0**fzm + 0.5)
-                    clamped += (abs(mx) > lim) + (abs(my) > lim) + (abs(mz) > zlim)
-                    motion[2 * k, z, r, c] = min(max(mx, -lim), lim)
-                    motion[2 * k + 1, z, r, c] = min(max(my, -lim), lim)
-                    zmotion[k, z, r, c] = min(max(mz, -zlim), zlim)
-                count += 1
+    for row in nb.prange(nz * h):
+        z, r = row // h, row % h
+        n, k = _apply_row(z, r, frac, depth, debris, motion, zmotion, coef, margin, fp, fz,
+                          limits, order)
+        count += n
+        clamped += k
     return count, clamped
 
 
@@ -130,9 +214,11 @@ def apply_viewer_motion(
     if gp.order == 0:
         return 0, 0
     geo = np.array([display.pixel_size, display.width, display.height, margin], np.float64)
-    limits = np.array([gp.fixed.v_max, gp.fixed.a_max], np.float64)
-    changed, clamped = _apply(gp.frac, gp.depth, gp.debris, gp.motion, gp.zmotion,
-                              _per_refresh(old, refresh_hz), _per_refresh(new, refresh_hz), geo,
-                              display.shears(), gp.fixed.fp, gp.fixed.fm, limits, gp.order,
-                              gp.fixed.fz, gp.fixed.fzm)
+    f = gp.fixed
+    scales = np.array([2.0**f.fm, 2.0**f.fm, 2.0**f.fzm])
+    coef = pixel_coefficients(_per_refresh(old, refresh_hz), _per_refresh(new, refresh_hz), geo,
+                              display.shears(), scales)
+    limits = np.array([f.v_max, f.a_max], np.float64) * 2.0**f.fm
+    changed, clamped = _apply(gp.frac, gp.depth, gp.debris, gp.motion, gp.zmotion, coef,
+                              float(margin), f.fp, f.fz, limits, gp.order)
     return int(changed), int(clamped)

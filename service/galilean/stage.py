@@ -24,6 +24,8 @@ numerically differentiated motion falls back to G(2)) and flags it.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numba as nb
@@ -82,8 +84,9 @@ class GalileanSettings:
     order_guard : bool
         Fall back to a lower order when it predicted the control points better.
     threads : int
-        Threads a refresh may use (row bands of the scatter and of the display
-        copy); 0, the default: numba's thread count; 1: serial.  With OpenMP
+        Threads a refresh may use (row bands of the scatter, the Poisson tests,
+        the display copy and the head-motion update); 0, the default: numba's
+        thread count; 1: serial.  With OpenMP
         threads that sleep while waiting (``OMP_WAIT_POLICY=PASSIVE``, which
         ``holo-service`` and ``holo-bench`` set) two threads were 1.2-1.5x faster
         than one on this 2-core machine when idle and no slower beside a busy
@@ -317,24 +320,47 @@ class GalileanStage:
     # ---------------------------------------------------------------- refresh
     def refresh(self) -> Refresh:
         """Produce the next displayed frame."""
+        with self._thread_limit():
+            return self._refresh()
+
+    @contextmanager
+    def _thread_limit(self) -> Iterator[None]:
+        """Limit numba's threads to ``settings.threads`` (0: leave numba's count) for a block."""
+        threads = self.settings.threads
+        if not threads:
+            yield
+            return
+        before = nb.get_num_threads()  # per calling thread in numba
+        nb.set_num_threads(min(threads, nb.config.NUMBA_NUM_THREADS))
+        try:
+            yield
+        finally:
+            nb.set_num_threads(before)
+
+    def _apply_viewer(self) -> int:
+        """The global head-motion update: the new viewer motion into every galpixel."""
+        changed, clamped = apply_viewer_motion(
+            self.map,
+            self.display,
+            self.settings.margin,
+            self._viewer,
+            self._viewer_next,
+            self.settings.refresh_hz,
+        )
+        if clamped:
+            self._events.append({"kind": "motion_clamped", "count": clamped,
+                                 "source": "viewer"})
+        self._viewer, self._viewer_next = self._viewer_next, None
+        self._map_changed()
+        return changed
+
+    def _refresh(self) -> Refresh:
         t0 = time.perf_counter()
         stats = dict.fromkeys(STAT_NAMES, 0)
         due = [p for p in self._pending if p.rendezvous == self.index]
         self._pending = [p for p in self._pending if p.rendezvous > self.index]
         if self._viewer_next is not None:
-            stats["viewer_updated"], clamped = apply_viewer_motion(
-                self.map,
-                self.display,
-                self.settings.margin,
-                self._viewer,
-                self._viewer_next,
-                self.settings.refresh_hz,
-            )
-            if clamped:
-                self._events.append({"kind": "motion_clamped", "count": clamped,
-                                     "source": "viewer"})
-            self._viewer, self._viewer_next = self._viewer_next, None
-            self._map_changed()
+            stats["viewer_updated"] = self._apply_viewer()
         z, r, c = self.display.zones, self.display.rows, self.display.cols
         shown = (
             np.empty((z, r, c, 3), np.uint8),
@@ -377,17 +403,6 @@ class GalileanStage:
 
     def _propagate(self, shown: tuple | None) -> dict:
         """One refresh of the whole map (both sweeps); fills ``shown`` unless None."""
-        threads = self.settings.threads
-        if not threads:
-            return self._propagate_bands(shown)
-        before = nb.get_num_threads()  # per calling thread in numba
-        nb.set_num_threads(min(threads, nb.config.NUMBA_NUM_THREADS))
-        try:
-            return self._propagate_bands(shown)
-        finally:
-            nb.set_num_threads(before)
-
-    def _propagate_bands(self, shown: tuple | None) -> dict:
         s = self.settings
         new = self._spare
         new.debris.fill(1)

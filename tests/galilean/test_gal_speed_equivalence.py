@@ -244,8 +244,12 @@ def test_serial_refresh_matches_the_parallel_one() -> None:
     gp = random_map(one, np.random.default_rng(11))
     for st in (one, many):
         st.submit(gp.copy(), 0)
-    for k in range(4):
+    for k in range(6):
+        if k == 3:  # a head-motion update (rows in parallel too)
+            for st in (one, many):
+                st.viewer(MotionState(velocity=[0.1, 0.0, 0.0], angular_velocity=[0.0, 0.4, 0.1]))
         a, b = one.refresh(), many.refresh()
+        assert same(one.map.motion, many.map.motion), f"refresh {k}: motion"
         for name in ("colour", "depth", "debris"):
             assert same(getattr(a, name), getattr(b, name)), f"refresh {k}: {name}"
         assert {n: v for n, v in a.stats.items() if n != "ms"} == {
