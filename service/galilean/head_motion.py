@@ -30,12 +30,18 @@ from service.galilean.fixed_point import Z_EMPTY, Z_LIMIT
 from service.galilean.galpixmap import Galpixmap
 from service.scene import MotionState
 
+#: Bound on every per-refresh viewer motion component (view units or radians per
+#: refresh^n): far past anything the format can hold, small enough that the
+#: products below stay finite (1e300 squared would overflow and give inf - inf).
+MOTION_BOUND = 1e6
+
 
 def _per_refresh(m: MotionState, hz: float) -> np.ndarray:
-    """(4, 3): v, a, w, alpha in per-refresh units."""
+    """(4, 3): v, a, w, alpha in per-refresh units, each within :data:`MOTION_BOUND`."""
     t = 1.0 / hz
-    return np.stack([m.velocity * t, m.acceleration * t * t, m.angular_velocity * t,
-                     m.angular_acceleration * t * t])
+    per = np.stack([m.velocity * t, m.acceleration * t * t, m.angular_velocity * t,
+                    m.angular_acceleration * t * t])
+    return np.clip(per, -MOTION_BOUND, MOTION_BOUND)
 
 
 def _skew(a: np.ndarray) -> np.ndarray:
@@ -110,7 +116,13 @@ def _add(
     motion: np.ndarray, zmotion: np.ndarray, k: int, z: int, r: int, c: int, vx: float,
     vy: float, vz: float, lim: float, zlim: float,
 ) -> int:
-    """Add (vx, vy, vz) (fixed-point units, rounded) to derivative ``k``; values clamped."""
+    """Add (vx, vy, vz) (fixed-point units, rounded) to derivative ``k``; values clamped.
+
+    A sum that is not a number (never for a bounded viewer motion) leaves the
+    value as it was and counts as clamped.
+    """
+    if np.isnan(vx) or np.isnan(vy) or np.isnan(vz):
+        return 3
     mx = motion[2 * k, z, r, c] + np.floor(vx + 0.5)
     my = motion[2 * k + 1, z, r, c] + np.floor(vy + 0.5)
     mz = zmotion[k, z, r, c] + np.floor(vz + 0.5)
