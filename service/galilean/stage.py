@@ -41,6 +41,7 @@ from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
 from service.galilean.propagate import (
     STAT_NAMES,
+    TABLE_FROM,
     debris_words,
     finish,
     flat,
@@ -53,6 +54,13 @@ from service.galilean.propagate import (
     show_bands,
 )
 from service.scene import MotionState
+
+#: Mean number of refreshes between changes of the map (grafts, head-motion
+#: updates), or refreshes since the last one, from which a refresh records the
+#: still galpixels the two maps share (:func:`scatter_bands`): recording costs
+#: about a fifth of a refresh that cannot use it, and the first refresh after a
+#: change never can.
+STEADY_MIN = 3.0
 
 
 @dataclass(frozen=True)
@@ -207,14 +215,21 @@ class GalileanStage:
         #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
         #: plane the next refresh records that in (see :func:`scatter_bands`)
         self._same = (np.zeros(self._src.size, np.uint8), np.zeros(self._src.size, np.uint8))
+        #: whether ``_same[0]`` holds what the last refresh recorded
+        self._same_valid = False
+        #: refreshes since ``map`` last changed otherwise than by a refresh, and
+        #: their running mean over past changes (records ``same`` only if it pays)
+        self._steady, self._steady_mean = 0, float(STEADY_MIN)
         #: the Poisson test of every galpixel of ``map``, computed before each expansion
         self._interior = np.zeros(self._src.size, np.uint8)
 
     def _map_changed(self) -> None:
         """Forget what is known of ``map`` (a graft or a motion update wrote it)."""
         self._reach = None
-        for plane in self._same:
-            plane.fill(0)
+        self._same_valid = False
+        if self._started:  # the first graft ends no steady stretch
+            self._steady_mean += 0.25 * (self._steady - self._steady_mean)
+        self._steady = 0
 
     # ----------------------------------------------------------------- inputs
     def update(
@@ -417,6 +432,9 @@ class GalileanStage:
         src = self._src.reshape(-1)
         old_p, new_p = planes(self.map.arrays()), planes(new.arrays())
         ncol = self.map.colour_planes
+        # record which still galpixels the maps share only where that will be used:
+        # a map that changes every refresh or two never gets to leave them in place
+        record = self.cache is None and max(self._steady, self._steady_mean) >= STEADY_MIN
         if self.cache is None:
             if self._reach is None:
                 self._reach = map_reach(self.map.motion, self.fixed.fm)
@@ -438,6 +456,8 @@ class GalileanStage:
                 band_stats,
                 reach,
                 *self._same,
+                self._same_valid,
+                record,
             )
             counters[:3] += band_stats.sum(axis=0)
             top = reach.max(axis=0)
@@ -458,7 +478,10 @@ class GalileanStage:
                 counters,
             )
             next_reach = None
-        if thr >= 0:  # the Poisson tests of the origins, all at once in parallel
+        # the origins' Poisson tests all at once (in parallel) when many pixels are debris
+        fresh = counters[0] - counters[2] - counters[1]
+        table = thr >= 0 and src.size - fresh >= TABLE_FROM * src.size
+        if table:
             poisson_interiors(old_p[1], old_p[6], self.shape, thr, self._interior)
         # expansion and debris arm (sequential: an expansion feeds the next), then
         # the display copy in parallel bands
@@ -481,15 +504,16 @@ class GalileanStage:
             counters,
             self._same[1],
             self._interior,
+            table,
         )
         if shown is not None:
             zs = 2.0**-self.fixed.fz
             show_bands(new_p, self.shape, s.margin, *(a.reshape(-1) for a in shown), zs)
         self.map, self._spare = new, self.map
         self._reach = next_reach
-        if next_reach is None:  # the cache path: nothing known
-            self._map_changed()
         self._same = self._same[::-1]
+        self._same_valid = record
+        self._steady += 1
         if self.cache is not None:
             self.cache = (cnew, cold)
         return dict(zip(STAT_NAMES, counters.tolist(), strict=True))

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from service.display import DisplaySettings
+from service.galilean import stage as stage_module
 from service.galilean.fixed_point import Z_EMPTY
 from service.galilean.galpixmap import Galpixmap
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
@@ -174,7 +175,12 @@ CASES = [
 
 @pytest.mark.parametrize("order", [0, 1, 2, 3])
 @pytest.mark.parametrize("case", range(len(CASES)))
-def test_fast_refresh_is_bit_identical(order: int, case: int) -> None:
+@pytest.mark.parametrize("table_from", [0.0, 2.0])
+def test_fast_refresh_is_bit_identical(
+    order: int, case: int, table_from: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Poisson tests from the parallel table always (0.0), or on the spot always (2.0)
+    monkeypatch.setattr(stage_module, "TABLE_FROM", table_from)
     display = DisplaySettings(zones=2 if case == 0 else 1, cols=72, rows=40)
     gs = GalileanSettings(order=order, refresh_hz=50.0, **CASES[case])
     fast, ref = GalileanStage(display, gs), ReferenceStage(display, gs)
@@ -221,7 +227,7 @@ def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None
         stats, out = np.zeros((bands, 3), np.int64), np.zeros((bands, 3), np.int64)
         scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
                       st.fixed.fp, st.fixed.fm, 4, True, r, bands, stats, out,
-                      np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8))
+                      np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False, True)
         results.append((new, src, stats.sum(0), out.max(0)))
     first = results[0]
     for new, src, stats, top in results[1:]:
@@ -318,7 +324,7 @@ def test_static_galpixels_left_in_place_give_the_same_refreshes(order: int, case
             fast.viewer(vm)
             ref.viewer(vm)
         assert_identical(fast, ref, k)
-        skipped.append(int(fast._same[0].sum()))
+        skipped.append(int(fast._same[0].sum()) if fast._same_valid else 0)
     # skipped[k]: pixels refresh k + 1 may leave in place; none right after a graft
     assert skipped[0] == 0 and min(skipped[1:10]) > 0.5 * fast._src.size
     assert skipped[10] == 0 and skipped[11] > 0
@@ -346,3 +352,28 @@ def test_poisson_interiors_are_the_poisson_test(threshold: float) -> None:
     want = 1 - poisson_map(depth, debris, threshold)
     assert (out.reshape(z, h, w) == want).all()
     assert out.sum() > 0 and (out == 0).sum() > 0
+
+
+def test_still_galpixels_are_recorded_only_while_the_map_stays_steady() -> None:
+    """Grafts every other refresh switch the recording off; a steady map switches it on.
+
+    The refreshes stay byte for byte those of the reference throughout.
+    """
+    display = DisplaySettings(zones=1, cols=48, rows=32)
+    gs = GalileanSettings(order=2, refresh_hz=50.0)
+    fast, ref = GalileanStage(display, gs), ReferenceStage(display, gs)
+    rng = np.random.default_rng(5)
+    gp = mostly_static_map(fast, rng)
+    for st in (fast, ref):
+        st.submit(gp.copy(), 0)
+    recorded = []
+    for k in range(40):
+        if 6 <= k < 24 and k % 2 == 0:
+            nxt = mostly_static_map(fast, rng)
+            for st in (fast, ref):
+                assert st.submit(nxt.copy(), st.index)
+        assert_identical(fast, ref, k)
+        recorded.append(fast._same_valid)
+    assert all(recorded[1:6])  # steady from the start
+    assert not any(recorded[14:24])  # a graft every second refresh: not worth recording
+    assert all(recorded[27:])  # steady again for three refreshes: recording again
