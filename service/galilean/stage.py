@@ -51,6 +51,7 @@ from service.galilean.propagate import (
     reach_of,
     scatter,
     scatter_bands,
+    scatter_bands_plain,
     show_bands,
 )
 from service.scene import MotionState
@@ -441,7 +442,9 @@ class GalileanStage:
             bands = max(1, min(nb.get_num_threads(), self.shape[1] // 8))
             band_stats = np.zeros((bands, 3), np.int64)
             reach = np.zeros((bands, 3), np.int64)
-            scatter_bands(
+            # the bookkeeping compiled out when it is neither used nor recorded
+            kernel = scatter_bands if record or self._same_valid else scatter_bands_plain
+            kernel(
                 old_p,
                 new_p,
                 src,
