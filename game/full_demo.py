@@ -26,7 +26,7 @@ from pathlib import Path
 
 from game.actions import lamp_mask
 from game.display import has_display, headless_env
-from service.signals import stop_on_signals
+from service.signals import end_process, stop_on_signals
 
 ANY = "tcp://127.0.0.1:0"
 #: Seconds between looks at a child while waiting for it.
@@ -111,13 +111,7 @@ class Proc:
 
     def stop(self, timeout: float = 5.0) -> None:
         """Terminate, then kill if it does not go."""
-        if self.p.poll() is None:
-            self.p.terminate()
-            try:
-                self.p.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.p.kill()
-                self.p.wait(timeout)
+        end_process(self.p, timeout)
 
 
 class Children:

@@ -44,6 +44,7 @@ from service.keys import curve_server, is_local, start_authenticator
 from service.pipeline import Renderer
 from service.scene import MotionState, Scene, Transform, euler_quaternion
 from service.scene_motion import advance_scene
+from service.signals import end_process
 from service.worker import StatsRenderer, render_job, stitch
 
 ENCODINGS = ("colour", "depth", "debris")
@@ -886,7 +887,7 @@ class Service:
             if t is not threading.current_thread():
                 t.join(5.0)
         for p in self.workers:
-            _end_process(p)
+            end_process(p, 3.0)
         for sock in (
             getattr(self, "router", None),
             getattr(getattr(self, "stream", None), "sock", None),
@@ -916,16 +917,6 @@ def _worker_env(workers: int) -> dict[str, str]:
     if "NUMBA_NUM_THREADS" not in env and workers > 0:
         env["NUMBA_NUM_THREADS"] = str(max(1, (os.cpu_count() or 1) // workers))
     return env
-
-
-def _end_process(p: subprocess.Popen) -> None:
-    if p.poll() is None:
-        p.terminate()
-        try:
-            p.wait(3.0)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(3.0)
 
 
 def _lead_s(render_ms: deque[float]) -> float:

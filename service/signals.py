@@ -8,6 +8,7 @@ loaded CI machine.)
 
 :func:`stop_on_signals` keeps the handler lock-free: it writes one byte into a pipe,
 and a watcher thread reads the byte and sets the event from outside the handler.
+:func:`end_process` ends a child process: terminate, then kill if it does not go.
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import subprocess
 import threading
 from collections.abc import Iterator
 
-__all__ = ["stop_on_signals"]
+__all__ = ["end_process", "stop_on_signals"]
 
 _SIGNAL, _QUIT = b"s", b"q"
 
@@ -73,3 +75,14 @@ def stop_on_signals(
         watcher.join(2.0)
         os.close(write_fd)
         os.close(read_fd)
+
+
+def end_process(p: subprocess.Popen, timeout: float = 5.0) -> None:
+    """End child ``p``: SIGTERM, wait up to ``timeout`` s, then SIGKILL and wait again."""
+    if p.poll() is None:
+        p.terminate()
+        try:
+            p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout)

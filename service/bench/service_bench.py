@@ -48,6 +48,7 @@ import zmq
 from service import protocol
 from service.client import FrameSubscriber, ServiceClient
 from service.frame_stream import FrameStream
+from service.signals import end_process
 
 TRANSPORT_TARGET = 1.5
 MTP_TARGET_MS = 20.0
@@ -208,13 +209,7 @@ class Running:
 
     def __exit__(self, *exc: object) -> None:
         self.client.close()
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        end_process(self.proc)
 
     def wait_updates(self, n: int, timeout_s: float) -> bool:
         """Poll stats until ``n`` updates were grafted."""

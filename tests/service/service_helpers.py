@@ -19,6 +19,8 @@ from pathlib import Path
 
 import zmq
 
+from service.signals import end_process
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -80,13 +82,7 @@ class ServiceProcess:
     ports: tuple[int, ...]
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        end_process(self.proc)
 
 
 def start_service(
