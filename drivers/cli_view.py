@@ -170,7 +170,8 @@ class Viewer:
     def __init__(self, args: argparse.Namespace, out: TextIO, live: bool) -> None:
         self.args, self.out, self.live = args, out, live and not args.json
         self.stop = threading.Event()
-        self.sub = DeviceSubscriber(args.address, TOPICS, pose_address=args.pose)
+        topics = TOPICS if args.pose is None else tuple(t for t in TOPICS if t != b"pose")
+        self.sub = DeviceSubscriber(args.address, topics, pose_address=args.pose)
         self.recent: deque[dict[str, Any]] = deque(maxlen=RECENT)
         self.written = 0
         self.start = time.monotonic()

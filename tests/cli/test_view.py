@@ -155,3 +155,33 @@ def test_sigint_while_waiting_for_a_publisher(procs):
     view.wait_lines(lambda: catches(view.p.pid, signal.SIGTERM))
     view.signal(signal.SIGINT)
     assert view.finish() == 130 and view.out == []
+
+
+def test_poses_from_the_pose_only_endpoint(procs):
+    pub = Publisher("tcp://127.0.0.1:0", 0, pose_address="tcp://127.0.0.1:0")
+    stop = threading.Event()
+
+    def run() -> None:
+        k = 0
+        while not stop.wait(0.01):
+            k += 1
+            pub.publish(PoseEvent(time.monotonic_ns(), float(k), 0.0, 0.0, 0.0, 0.0, 0.0, k))
+            pub.service()
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        view = procs("drivers.cli_view", pub.address, "--pose", pub.pose_address, "--json",
+                     "--count", "20", "--rate", "100")
+        assert view.finish() == 0
+    finally:
+        stop.set()
+        thread.join(5)
+        pub.close()
+    snaps = [json.loads(ln) for ln in view.out]
+    with_pose = [s for s in snaps if s["pose"]]
+    assert with_pose and all(s["pose"]["yaw"] == s["pose"]["seq"] for s in with_pose)
+    # each pose counted once (not also taken from the main socket): no more poses came
+    # in than the publisher sent meanwhile
+    first, last = with_pose[0], with_pose[-1]
+    assert 0 < last["poses"] - first["poses"] <= last["pose"]["seq"] - first["pose"]["seq"]
