@@ -48,8 +48,8 @@ BUSY_CHILD = """
 import sys
 from service.signals import interruptible
 def work():
-    print("ready", flush=True)
     try:
+        print("ready", flush=True)  # inside: the signal may come as print returns
         while True:
             sum(range(1000))
     finally:
