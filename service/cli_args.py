@@ -155,7 +155,8 @@ class _SizePart(argparse.Action):
         side = "W" if self.index == 0 else "H"
         print(f"{parser.prog}: {option_string} is deprecated; use --size WxH "
               f"({side} = {values})", file=sys.stderr)
-        current = list(getattr(namespace, self.size_dest))
+        current = getattr(namespace, self.size_dest)
+        current = list(size(current) if isinstance(current, str) else current)
         current[self.index] = values
         setattr(namespace, self.size_dest, tuple(current))
 
@@ -169,8 +170,10 @@ def add_size_option(p: argparse.ArgumentParser, default: tuple[int, int], help: 
     applied left to right, so a later ``--size`` wins over an earlier ``--cols``.
     """
     dest = flag.lstrip("-").replace("-", "_")
-    p.add_argument(flag, type=size, default=tuple(default), metavar="WxH",
-                   help=f"{help} (default: {default[0]}x{default[1]})")
+    # a string default goes through ``size`` too, and --help shows it as WxH (also
+    # under ArgumentDefaultsHelpFormatter, which sees %(default)s and adds nothing)
+    p.add_argument(flag, type=size, default=f"{default[0]}x{default[1]}", metavar="WxH",
+                   help=f"{help} (default: %(default)s)")
     if old_cols_rows:
         for index, name in enumerate(("--cols", "--rows")):
             p.add_argument(name, dest=f"_deprecated_{name[2:]}", action=_SizePart,

@@ -181,3 +181,13 @@ def test_plain_help_drops_the_markup():
     assert plain_help(text) == ("holo-bench galilean: see thought_case and Stage,\n"
                                 "an extrapolated refresh, 3*4 and **kwargs.\nExamples:\n")
     assert plain_help(None) == ""
+
+
+def test_size_default_reads_as_wxh_in_help_under_every_formatter(capsys):
+    for formatter in (argparse.HelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+        p = argparse.ArgumentParser(prog="tool", formatter_class=formatter)
+        add_size_option(p, (160, 120), "pixels per zone", old_cols_rows=True)
+        text = " ".join(p.format_help().split())
+        assert "pixels per zone (default: 160x120)" in text and "(160, 120)" not in text
+        assert p.parse_args([]).size == (160, 120)
+        assert p.parse_args(["--rows", "24"]).size == (160, 24)  # from the default
