@@ -19,6 +19,7 @@ from pathlib import Path
 
 from drivers.protocols import make_decoder
 from drivers.protocols import sgi_dialbox as sgi
+from service.cli_args import float_range, int_range
 
 TARGET_MB_S = 1.0
 
@@ -90,12 +91,13 @@ def run(out_dir: Path, scale: float, chunk: int, repeat: int) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point."""
-    p = argparse.ArgumentParser(prog="python -m drivers.bench_decoders",
+    p = argparse.ArgumentParser(prog="holo-bench decoders",
                                 description="Measure decoder throughput (MB/s per core).")
     p.add_argument("--out", type=Path, required=True, help="directory for the JSON report")
-    p.add_argument("--scale", type=float, default=1.0, help="stream size factor (1: ~1 MB)")
-    p.add_argument("--chunk", type=int, default=4096, help="bytes per feed() call")
-    p.add_argument("--repeat", type=int, default=3, help="runs per case (best is kept)")
+    p.add_argument("--scale", type=float_range(0, lo_open=True), default=1.0,
+                   help="stream size factor (1: ~1 MB)")
+    p.add_argument("--chunk", type=int_range(1), default=4096, help="bytes per feed() call")
+    p.add_argument("--repeat", type=int_range(1), default=3, help="runs per case (best is kept)")
     args = p.parse_args(argv)
     report = run(args.out, args.scale, args.chunk, args.repeat)
     for name, res in report["results"].items():

@@ -54,6 +54,7 @@ from drivers.filters import (
     run_filter,
 )
 from drivers.recording import RawCaptureReader
+from service.cli_args import float_range, plain_help
 
 DEFAULT_FIXTURE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
 #: Nominal Hatire capture rate: 4765 frames in one minute.
@@ -467,7 +468,7 @@ def write_results(rows: list[dict], out: Path, meta: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     ap = argparse.ArgumentParser(
-        prog="python -m drivers.bench_filters", description=__doc__.split("\n\n")[0]
+        prog="holo-bench filters", description=plain_help(__doc__.split("\n\n")[0])
     )
     ap.add_argument("--out", required=True, type=Path, help="output folder")
     ap.add_argument(
@@ -477,7 +478,7 @@ def main(argv: list[str] | None = None) -> int:
         help="raw Hatire capture (skipped if missing)",
     )
     ap.add_argument("--seed", type=int, default=2012, help="RNG seed of the simulations")
-    ap.add_argument("--lead-ms", type=float, default=50.0, help="prediction lead (ms)")
+    ap.add_argument("--lead-ms", type=float_range(0), default=50.0, help="prediction lead (ms)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     datasets = simulated(args.seed)

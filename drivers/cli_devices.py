@@ -4,7 +4,7 @@ Examples::
 
     holo-devices --tracker /dev/ttyUSB0 --dump
     holo-devices --tracker /dev/ttyACM0 --tracker-protocol native --dials /dev/ttyUSB1
-                 --pub tcp://127.0.0.1:5556 --record session.hlog      (one line)
+                 --pub --record session.hlog      (one line; --pub: tcp://127.0.0.1:5560)
     holo-devices --tracker socket://127.0.0.1:7001 --dump --seconds 10
 
 The tracker is sent its start command each time its port opens (the first time, and
@@ -14,12 +14,17 @@ characters; native devices get command frames); the dial box gets VRPN's handsha
 
 ``--dump`` prints one JSON object per event per line on stdout (schema in
 ``docs/drivers.md``; dial events carry ``turns`` per ``--dial-counts-per-turn``).
-With ``--pub`` the first stderr line names the bound address (``tcp://127.0.0.1:0``
-picks a free port). Problems with the links (errors,
-reconnects) also go to stderr, one line each. Ctrl-C or SIGTERM stops cleanly: readers
-are joined, the queue is drained, the recorder closed (the log is complete) and a JSON
-summary of each device's statistics is printed on stderr. Exit status: 0, or 2 for bad
-settings (an address that cannot be bound, a log that cannot be created).
+With ``--pub`` the first stderr line names the bound address (``--pub`` alone binds
+the default ``tcp://127.0.0.1:5560``, ``tcp://127.0.0.1:0`` picks a free port).
+Problems with the links (errors, reconnects) also go to stderr, one line each.
+Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue is drained, the
+recorder closed (the log is complete) and a JSON summary of each device's statistics
+is printed on stderr.
+
+Exit status (the rule of :mod:`service.signals`): 0 when the run ended (``--seconds``)
+having opened a device; 1 when no device could ever be opened (each device's last
+error is named); 2 for bad settings (an address that cannot be bound, a log that
+cannot be created); 130 / 143 after a clean stop on SIGINT / SIGTERM.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import signal
 import sys
 import threading
 import time
@@ -49,12 +55,23 @@ from drivers.reader import (
 )
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
-from service.errors import HoloError, SettingsError
-from service.signals import stop_on_signals
+from service.addresses import default_address
+from service.cli_args import endpoint, float_range, int_range, plain_help
+from service.errors import HoloError
+from service.signals import (
+    EXIT_FAILED,
+    EXIT_OK,
+    EXIT_RULE,
+    EXIT_USAGE,
+    exit_status,
+    stop_on_signals,
+)
 
 Listener = Callable[[Item, list[Event]], None]
 #: status events echoed on stderr.
 LOUD_STATUS = frozenset({"error", "reconnect"})
+#: An argparse type: an integer > 0.
+positive_int = int_range(1)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,39 +79,49 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="holo-devices",
         description="Read a head tracker and an SGI dial box over serial ports "
-        "(pyserial URLs), publish their events on ZeroMQ, record raw bytes, dump JSON.")
+        "(pyserial URLs), publish their events on ZeroMQ, record raw bytes, dump JSON.",
+        epilog=plain_help(EXIT_RULE + " 1: no device could be opened at all."))
     p.add_argument("--tracker", metavar="URL",
                    help="tracker port: /dev/ttyUSB0, loop://, socket://host:port, rfc2217://")
     p.add_argument("--tracker-protocol", choices=("hatire", "native"), default="hatire",
                    help="tracker byte protocol (default: %(default)s)")
     p.add_argument("--dials", metavar="URL", help="SGI dial and button box port")
-    p.add_argument("--pub", metavar="ADDR",
-                   help="publish events on a ZeroMQ socket bound here, e.g. tcp://127.0.0.1:5556")
-    p.add_argument("--pub-pose", metavar="ADDR",
-                   help="also publish poses alone (single frame, conflating) here")
+    add_publish_options(p)
     p.add_argument("--record", metavar="FILE", help="record raw bytes to a new session log")
     p.add_argument("--dump", action="store_true", help="print one JSON line per event")
-    p.add_argument("--baud", type=int, default=115200, metavar="N",
+    p.add_argument("--baud", type=int_range(1), default=115200, metavar="N",
                    help="tracker baud rate (default: %(default)s)")
-    p.add_argument("--dials-baud", type=int, default=SGI_BAUD, metavar="N",
+    p.add_argument("--dials-baud", type=int_range(1), default=SGI_BAUD, metavar="N",
                    help="dial box baud rate (default: %(default)s)")
-    p.add_argument("--seconds", type=float, default=None, metavar="N",
+    p.add_argument("--seconds", type=float_range(0), default=None, metavar="N",
                    help="stop after N seconds (default: run until Ctrl-C / SIGTERM)")
-    p.add_argument("--watchdog", type=float, default=2.0, metavar="S",
+    p.add_argument("--watchdog", type=float_range(0), default=2.0, metavar="S",
                    help="reopen the tracker port after S s without a valid frame "
                    "(0: only on errors; default: %(default)s)")
-    p.add_argument("--dials-watchdog", type=float, default=0.0, metavar="S",
+    p.add_argument("--dials-watchdog", type=float_range(0), default=0.0, metavar="S",
                    help="same for the dial box, which is silent when untouched "
                    "(default: 0 = only on errors)")
-    p.add_argument("--reset-wait", type=float, default=1.0, metavar="S",
+    p.add_argument("--reset-wait", type=float_range(0), default=1.0, metavar="S",
                    help="longest wait for the dial box's reset answer (default: %(default)s)")
-    p.add_argument("--lamps", type=lambda s: int(s, 0), default=0, metavar="MASK",
+    p.add_argument("--lamps", type=int_range(0, 0xFFFFFFFF), default=0, metavar="MASK",
                    help="dial box lamps to light after init, e.g. 0xffffffff")
     add_tracker_options(p)
     p.add_argument("--dial-counts-per-turn", type=positive_int, default=DEFAULT_COUNTS_PER_TURN,
                    metavar="N", help="dial counts per turn, for the 'turns' of dial events "
                    "(default: %(default)s, VRPN's value)")
     return p
+
+
+def add_publish_options(p: argparse.ArgumentParser) -> None:
+    """``--pub [ADDR]`` and ``--pub-pose [ADDR]`` (alone: the default ports 5560 / 5561)."""
+    pub, pose = default_address("devices"), default_address("pose")
+    p.add_argument("--pub", metavar="ADDR", nargs="?", const=pub, type=endpoint(bind=True),
+                   help=f"publish events on a ZeroMQ socket bound here (alone: {pub}; "
+                   "tcp://127.0.0.1:0 picks a free port)")
+    p.add_argument("--pub-pose", metavar="ADDR", nargs="?", const=pose,
+                   type=endpoint(bind=True),
+                   help=f"also publish poses alone (single frame, conflating) here "
+                   f"(alone: {pose})")
 
 
 def add_tracker_options(p: argparse.ArgumentParser) -> None:
@@ -104,14 +131,6 @@ def add_tracker_options(p: argparse.ArgumentParser) -> None:
                    help="send the reset command before the start command on every open")
     p.add_argument("--hatire-big-endian", action="store_true",
                    help="Hatire frames are big-endian (default: little-endian)")
-
-
-def positive_int(text: str) -> int:
-    """An argparse type: an integer > 0."""
-    value = int(text)
-    if value <= 0:
-        raise SettingsError(f"must be > 0, not {value}")
-    return value
 
 
 def publishing_line(prog: str, pub: Publisher) -> str:
@@ -222,6 +241,7 @@ class DeviceSession:
         self.writer: LogWriter | None = None
         self.publisher: Publisher | None = None
         self.listeners: list[Listener] = []
+        self.open_errors: dict[str, str] = {}
         try:
             self._open_outputs(err)
         except HoloError:
@@ -243,6 +263,13 @@ class DeviceSession:
         if a.dump:
             self.listeners.append(dump_listener(self.out, self.t0_ns, a.dial_counts_per_turn))
         self.listeners.append(stderr_listener(err, self.t0_ns))
+        self.listeners.append(self._note_open_errors)
+
+    def _note_open_errors(self, item: Item, events: list[Event]) -> None:
+        """Keep each device's last open error, for the summary at exit."""
+        for ev in events:
+            if isinstance(ev, StatusEvent) and ev.details.get("reason") == "open_failed":
+                self.open_errors[ev.device] = str(ev.details.get("message", ""))
 
     def stats(self) -> dict[str, Any]:
         """Every reader's statistics by device name."""
@@ -281,28 +308,50 @@ class DeviceSession:
             self.publisher.close()
 
 
+def never_opened(session: DeviceSession) -> list[str]:
+    """``NAME (URL): last error`` for each reader that never opened its port."""
+    out = []
+    for r in session.readers:
+        if r.counters.opens == 0:
+            why = session.open_errors.get(r.name, "not tried")
+            out.append(f"{r.name} ({r.settings.url}): {why}")
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``holo-devices``; returns the exit status (0, or 2 for bad settings)."""
+    """Run ``holo-devices``; returns the exit status (see the module docstring)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not (args.tracker or args.dials):
         parser.error("give --tracker URL and/or --dials URL")
+    if args.pub_pose and not args.pub:
+        parser.error("--pub-pose needs --pub")
     try:
         session = DeviceSession(args, sys.stdout, sys.stderr)
     except HoloError as exc:
         print(f"holo-devices: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     if session.publisher is not None:
         print(publishing_line("holo-devices", session.publisher), file=sys.stderr, flush=True)
+    signum = None
     try:
-        with stop_on_signals(session.stop):
+        with stop_on_signals(session.stop) as got:
             session.run()
-    except (KeyboardInterrupt, BrokenPipeError):
+        signum = got.signum
+    except KeyboardInterrupt:  # a Ctrl-C before the handler was in place
+        signum = signal.SIGINT
+    except BrokenPipeError:
         pass
     finally:
         session.close()
     print(json.dumps({"stats": session.stats()}), file=sys.stderr)
-    return 0
+    missing = never_opened(session)
+    for line in missing:
+        print(f"holo-devices: never opened {line}", file=sys.stderr)
+    ok = EXIT_FAILED if len(missing) == len(session.readers) else EXIT_OK
+    if ok == EXIT_FAILED:
+        print("holo-devices: no device could be opened; nothing was read", file=sys.stderr)
+    return exit_status(signum, ok)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ Examples::
 
     holo-replay session.hlog --dump                      # recorded timing, JSON lines
     holo-replay session.hlog --as-fast-as-possible --dump
-    holo-replay session.hlog --speed 2 --skip 10 --loop --pub tcp://127.0.0.1:5556
+    holo-replay session.hlog --speed 2 --skip 10 --loop --pub   # on tcp://127.0.0.1:5560
     holo-replay session.hlog --to-pty --loop             # holo-devices opens the printed pty
     holo-replay session.hlog --to-port /dev/ttyUSB1      # out of a null-modem cable
     holo-replay capture.log --protocol hatire --as-fast-as-possible --dump
@@ -24,13 +24,20 @@ client opened the port, so ``--loop`` suits it).
 
 A file without the log magic is read as a raw capture (``--protocol`` required):
 chunks of ``--chunk-size`` bytes stamped at the line rate of ``--baud``; time 0 is
-its first byte.  Exit status: 0, 2 for a bad file or settings.
+its first byte.  With no output option (``--dump``, ``--pub``, ``--to-port``,
+``--to-pty``) ``--dump`` is implied, and a note on stderr says so.
+
+Exit status (the rule of :mod:`service.signals`): 0 when the replay decoded device
+events; 1 when it decoded none (an empty log, or bytes in another protocol: the
+message names what was read and discarded); 2 for a bad file or settings; 130 / 143
+after a clean stop on SIGINT / SIGTERM.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import signal
 import sys
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -39,8 +46,14 @@ from typing import Any, TextIO
 
 import serial
 
-from drivers.cli_devices import Listener, dump_listener, positive_int, publishing_line
-from drivers.events import DEFAULT_COUNTS_PER_TURN, Event
+from drivers.cli_devices import (
+    Listener,
+    add_publish_options,
+    dump_listener,
+    positive_int,
+    publishing_line,
+)
+from drivers.events import DEFAULT_COUNTS_PER_TURN, Event, StatusEvent
 from drivers.protocols import DEVICE_OF
 from drivers.publisher import Publisher
 from drivers.reader import (
@@ -54,8 +67,16 @@ from drivers.reader import (
 )
 from drivers.recording import MAGIC, LogHeader, LogReader, RawCaptureReader, Record
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
+from service.cli_args import float_range, int_range, plain_help
 from service.errors import DeviceError, HoloError, LogFileError, SettingsError
-from service.signals import stop_on_signals
+from service.signals import (
+    EXIT_FAILED,
+    EXIT_OK,
+    EXIT_RULE,
+    EXIT_USAGE,
+    exit_status,
+    stop_on_signals,
+)
 from sim_devices.endpoints import PtyLink
 
 #: default line rate per protocol for raw captures.
@@ -71,19 +92,22 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="holo-replay",
         description="Replay a holo-devices session log (or a raw serial capture) at its "
-        "recorded timing: dump, publish, or write the bytes into a serial port.")
+        "recorded timing: dump, publish, or write the bytes into a serial port.",
+        epilog=plain_help("Without --dump, --pub, --to-port or --to-pty, --dump is implied. "
+                          + EXIT_RULE + " 1: no device event was decoded."))
     p.add_argument("file", type=Path, help="session log, or raw capture with --protocol")
     speed = p.add_mutually_exclusive_group()
-    speed.add_argument("--speed", type=float, default=1.0, help="speed factor (default 1)")
+    speed.add_argument("--speed", type=float_range(0, lo_open=True), default=1.0,
+                       help="speed factor (default 1)")
     speed.add_argument("--as-fast-as-possible", action="store_true", help="never wait")
-    p.add_argument("--skip", type=float, default=0.0, metavar="S",
+    p.add_argument("--skip", type=float_range(0), default=0.0, metavar="S",
                    help="start S recorded seconds in")
     p.add_argument("--loop", action="store_true", help="start again at the end")
-    p.add_argument("--passes", type=int, default=None, metavar="N",
+    p.add_argument("--passes", type=positive_int, default=None, metavar="N",
                    help="with --loop, stop after N passes")
-    p.add_argument("--pub", metavar="ADDR", help="publish events on ZeroMQ (as holo-devices)")
-    p.add_argument("--pub-pose", metavar="ADDR", help="pose-only conflating endpoint")
-    p.add_argument("--dump", action="store_true", help="print one JSON line per event")
+    add_publish_options(p)
+    p.add_argument("--dump", action="store_true",
+                   help="print one JSON line per event (implied without another output)")
     out = p.add_mutually_exclusive_group()
     out.add_argument("--to-port", metavar="URL", help="write a device's bytes into this port")
     out.add_argument("--to-pty", action="store_true",
@@ -92,10 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", metavar="NAME",
                    help="device whose bytes --to-port / --to-pty write (default: the first)")
     p.add_argument("--protocol", choices=tuple(RAW_BAUD), help="protocol of a raw capture")
-    p.add_argument("--baud", type=int, default=None,
+    p.add_argument("--baud", type=positive_int, default=None, metavar="N",
                    help="raw capture line rate / --to-port baud (default: per protocol)")
-    p.add_argument("--chunk-size", type=int, default=64, help="raw capture bytes per chunk")
-    p.add_argument("--skip-bytes", type=int, default=0, help="raw capture bytes to drop first")
+    p.add_argument("--chunk-size", type=positive_int, default=64, metavar="N",
+                   help="raw capture bytes per chunk (default: %(default)s)")
+    p.add_argument("--skip-bytes", type=int_range(0), default=0, metavar="N",
+                   help="raw capture bytes to drop first")
     p.add_argument("--hatire-big-endian", action="store_true",
                    help="Hatire bytes are big-endian (raw captures; a session log's header "
                    "says it itself)")
@@ -103,6 +129,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="dial counts per turn for the 'turns' of dial events (default: the "
                    f"log's setting, else {DEFAULT_COUNTS_PER_TURN})")
     return p
+
+
+def has_output(args: argparse.Namespace) -> bool:
+    """True when the command line names an output (dump, publisher, port)."""
+    return bool(args.dump or args.pub or args.to_port or args.to_pty)
 
 
 def open_source(args: argparse.Namespace) -> LogReader | RawCaptureReader:
@@ -253,6 +284,9 @@ class ReplaySession:
         self.publisher: Publisher | None = None
         self.port: Any = None
         self.port_device: str | None = None
+        #: device bytes replayed and device events (pose, dial, button) decoded from them
+        self.bytes_read = 0
+        self.decoded = 0
         try:
             self._open_outputs()
         except HoloError:
@@ -324,6 +358,9 @@ class ReplaySession:
         if self.port is not None and isinstance(item, Chunk) and item.device == self.port_device:
             self.port.write(item.data)
         events = self.replayer.events(item)
+        if isinstance(item, Chunk):
+            self.bytes_read += len(item.data)
+            self.decoded += sum(not isinstance(e, StatusEvent) for e in events)
         if show:
             self._dispatch(item, events)
 
@@ -345,39 +382,59 @@ class ReplaySession:
             self.port.close()
 
     def problems(self) -> Iterable[str]:
-        """What the log reader skipped (torn tail, corrupt regions)."""
+        """What the log reader skipped (torn tail, corrupt regions); nothing decoded."""
         st = self.source.stats
         if st.torn or st.corrupt:
             yield (f"log damage: {st.torn} torn, {st.corrupt} corrupt regions, "
                    f"{st.skipped_bytes} bytes skipped")
+        if not self.decoded:
+            yield f"{self.args.file}: {self._nothing_decoded()}"
+
+    def _nothing_decoded(self) -> str:
+        if not self.bytes_read:
+            return "no device bytes in the file; nothing was replayed"
+        protocols = ", ".join(sorted({p for _, p in data_devices(self.source.header)}))
+        return (f"no pose, dial or button event decoded from {self.bytes_read} bytes "
+                f"(read as {protocols}; is that the device's protocol?)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``holo-replay``; returns the exit status (0, or 2 for bad input)."""
-    args = build_parser().parse_args(argv)
+    """Run ``holo-replay``; returns the exit status (see the module docstring)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.pub_pose and not args.pub:
+        parser.error("--pub-pose needs --pub")
+    if not has_output(args):
+        args.dump = True
+        print("holo-replay: no output option given: dumping JSON lines (--dump)",
+              file=sys.stderr, flush=True)
     try:
         session = ReplaySession(args, sys.stdout)
     except HoloError as exc:
         print(f"holo-replay: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     if isinstance(session.port, _PtyOut):
         print(f"holo-replay: device on {session.port.path}", file=sys.stderr, flush=True)
     if session.publisher is not None:
         print(publishing_line("holo-replay", session.publisher), file=sys.stderr, flush=True)
+    signum = None
     try:
-        with stop_on_signals(session.stop):
+        with stop_on_signals(session.stop) as got:
             session.run()
+        signum = got.signum
         sys.stdout.flush()
-    except (KeyboardInterrupt, BrokenPipeError):
+    except KeyboardInterrupt:  # a Ctrl-C before the handler was in place
+        signum = signal.SIGINT
+    except BrokenPipeError:
         pass
     except (HoloError, serial.SerialException) as exc:
         print(f"holo-replay: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     finally:
         session.close()
     for line in session.problems():
         print(f"holo-replay: {line}", file=sys.stderr)
-    return 0
+    return exit_status(signum, EXIT_OK if session.decoded else EXIT_FAILED)
 
 
 if __name__ == "__main__":

@@ -54,6 +54,7 @@ from drivers.events import (
     StatusEvent,
 )
 from drivers.protocols.sgi_dialbox import NUM_BUTTONS, NUM_DIALS
+from service.addresses import check_endpoint
 from service.errors import DeviceError, SettingsError
 
 if TYPE_CHECKING:
@@ -147,7 +148,7 @@ class Publisher:
     Parameters
     ----------
     address : str
-        Where to bind, e.g. ``tcp://127.0.0.1:5556`` (``tcp://127.0.0.1:0`` or
+        Where to bind, e.g. ``tcp://127.0.0.1:5560`` (``tcp://127.0.0.1:0`` or
         ``:*`` picks a free port; :attr:`address` then holds the real one).
     t0_ns : int
         Session start; messages' ``t`` is seconds since it (as in the dump).
@@ -167,7 +168,8 @@ class Publisher:
     DeviceError
         The address cannot be bound.
     SettingsError
-        ``counts_per_turn`` is not positive.
+        ``counts_per_turn`` is not positive, or an address is malformed
+        (:func:`service.addresses.check_endpoint`: a port outside 1-65535...).
     """
 
     def __init__(self, address: str, t0_ns: int = 0, *, pose_address: str | None = None,
@@ -185,6 +187,8 @@ class Publisher:
         self._clock = clock_ns
         self._last_snapshot = clock_ns()
         self._lock = threading.Lock()
+        for where in (address, pose_address or "inproc://none"):
+            check_endpoint(where, bind=True)  # libzmq would bind port 99999 mod 65536
         ctx = context or zmq.Context.instance()
         self._sock = self._bind(ctx, zmq.XPUB, address, {zmq.XPUB_VERBOSE: 1})
         self.address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)

@@ -1,7 +1,11 @@
 """``holo-bench``: run one of the project's benchmarks by name.
 
 Each benchmark writes CSV or JSON plus matplotlib charts to ``--out``; see the
-README's "Benchmarks" section for how to read them.
+README's "Benchmarks" section for how to read them.  A bad option value is a one-line
+usage error (exit status 2) before any work; a setting the benchmark itself refuses
+is one line too (``holo-bench NAME: error: ...``, exit status 2).  Ctrl-C or SIGTERM
+stops any benchmark with one line and exit status 130 / 143, the rule of
+:mod:`service.signals`.
 """
 
 from __future__ import annotations
@@ -10,7 +14,9 @@ import importlib
 import os
 import sys
 
+from service.errors import HoloError
 from service.heap import keep_freed_memory
+from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
 
 BENCHES = {
     "render": (
@@ -46,6 +52,7 @@ def usage() -> str:
         "benchmarks:",
     ]
     lines += [f"  {name:10s} {text}" for name, (_, text) in BENCHES.items()]
+    lines += ["", EXIT_RULE]
     return "\n".join(lines)
 
 
@@ -62,8 +69,18 @@ def main(argv: list[str] | None = None) -> int:
     # the measured code needs (see service.cli_service.main); set before numba loads
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     keep_freed_memory()  # as the service does (service.heap)
-    module = importlib.import_module(BENCHES[argv[0]][0])
-    return int(module.main(argv[1:]) or 0)
+    prog = f"holo-bench {argv[0]}"
+    return interruptible(prog, lambda: _run(prog, BENCHES[argv[0]][0], argv[1:]))
+
+
+def _run(prog: str, module_name: str, argv: list[str]) -> int:
+    """Import and run one benchmark; a refused setting or file is one line and status 2."""
+    try:
+        module = importlib.import_module(module_name)
+        return int(module.main(argv) or 0)
+    except (HoloError, OSError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
 
 
 if __name__ == "__main__":

@@ -4,6 +4,11 @@ Examples
 --------
 holo-render model.ply --zones 5 --angle 16 --out out/
 holo-render builtin:game --method runlength --json
+
+``--json`` prints one object: the settings, the polygon counts, per-stage
+milliseconds and the occlusion counters (:func:`occlusion_counters`).  Exit status:
+0, 2 for bad options or a bad scene file, 130 / 143 on Ctrl-C / SIGTERM (the rule of
+:mod:`service.signals`).
 """
 
 from __future__ import annotations
@@ -13,8 +18,11 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
-from service.display import DisplaySettings, parse_size
+from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
@@ -22,6 +30,7 @@ from service.light import LightSettings
 from service.loaders import load_scene
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.scenes import SCENES, builtin_scene
+from service.signals import EXIT_RULE, interruptible
 
 LIGHT_MODELS = ("ambient", "phong", "blinn")
 EVALUATIONS = ("polygon", "vertex", "point")
@@ -35,14 +44,16 @@ def build_parser() -> argparse.ArgumentParser:
         "(thesis occlusion, cull and specular light) and write zone-NN.png, "
         "depth-NN.npy and strip.png.",
         epilog=f"SCENE is a .hobj (thesis object), .ply, .obj or .toml scene file, "
-        f"or builtin:NAME with NAME one of {', '.join(sorted(SCENES))}.",
+        f"or builtin:NAME with NAME one of {', '.join(SCENES)} (an underscore may stand for "
+        f"a hyphen). {plain_help(EXIT_RULE)}",
     )
     p.add_argument("scene", metavar="SCENE", help="scene or mesh file, or builtin:NAME")
-    p.add_argument("--zones", type=int, default=5, help="view zones, 1-64 (default 5)")
+    p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones, 1-64 (default 5)")
     p.add_argument(
-        "--angle", type=float, default=16.0, help="viewing angle in degrees, 0-60 (default 16)"
+        "--angle", type=float_range(0, 60), default=16.0,
+        help="viewing angle in degrees, 0-60 (default 16)",
     )
-    p.add_argument("--size", default="320x240", help="pixels per zone image, WxH (default 320x240)")
+    add_size_option(p, (320, 240), "pixels per zone image")
     p.add_argument("--method", choices=METHOD_NAMES, default="zbuffer", help="occlusion method")
     p.add_argument("--light", choices=LIGHT_MODELS, default="blinn", help="light model")
     p.add_argument(
@@ -52,17 +63,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="where light is evaluated: per polygon (thesis), vertex or point",
     )
     p.add_argument("--cull", choices=sorted(CULLS), default="modified", help="back-face cull")
-    p.add_argument(
+    fallback = p.add_mutually_exclusive_group()
+    fallback.add_argument(
         "--fallback",
         choices=("frame", "pixel", "off"),
         default="frame",
         help="when the run-length depth order proves wrong: redraw the frame with the "
         "z-buffer (frame, default), z-test just the wrong points (pixel), or keep it (off)",
     )
-    p.add_argument(
+    fallback.add_argument(
         "--no-fallback",
         action="store_true",
-        help="keep a run-length frame even when its depth order proved wrong",
+        help="keep a run-length frame even when its depth order proved wrong (--fallback off)",
     )
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
     p.add_argument("--out", default="render-out", help="output folder (default render-out)")
@@ -82,7 +94,7 @@ def _load(spec: str):
 
 def run(args: argparse.Namespace) -> dict:
     """Render as the parsed arguments say; return the JSON report."""
-    cols, rows = parse_size(args.size)
+    cols, rows = args.size
     display = DisplaySettings(zones=args.zones, angle_deg=args.angle, cols=cols, rows=rows)
     settings = RenderSettings(
         method=args.method,
@@ -113,15 +125,47 @@ def run(args: argparse.Namespace) -> dict:
         },
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
-        "occlusion": frame.stats["occlusion"],
+        "occlusion": occlusion_counters(frame.stats["occlusion"], frame.depth),
         "out": str(out),
     }
+
+
+def occlusion_counters(stats: dict, depth: np.ndarray) -> dict:
+    """The occlusion counters of ``--json``, the same keys for every method first.
+
+    Parameters
+    ----------
+    stats : dict
+        The method's own counters (``Frame.stats["occlusion"]``).
+    depth : ndarray, shape (Z, R, C)
+        The frame's depth, +inf where nothing is drawn.
+
+    Returns
+    -------
+    dict
+        ``covered_pixels`` (pixels showing a surface, all zones), ``covered_by_zone``
+        (list of Z), ``fallback`` (``"zbuffer"`` when a run-length frame was redrawn,
+        ``"pixel"`` when its wrong points were z-tested, else None), then the method's
+        own counters (run-length: ``inconsistent_pixels``, ``inconsistent_by_zone``;
+        bsp: ``nodes``, ``fragments``, ``splits``...; raycast: ``candidates``...),
+        milliseconds rounded to microseconds.
+    """
+    covered = np.isfinite(depth).reshape(depth.shape[0], -1).sum(axis=1)
+    out = {"covered_pixels": int(covered.sum()), "covered_by_zone": covered.tolist(),
+           "fallback": stats.get("fallback")}
+    for key, value in stats.items():
+        out[key] = round(value, 3) if isinstance(value, float) else value
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
     keep_freed_memory()  # see service.heap
+    return interruptible("holo-render", lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
     try:
         report = run(args)
     except HoloError as exc:

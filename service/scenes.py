@@ -12,6 +12,9 @@ name            what it shows
 ``demo``        several objects and materials, shiny ones, at different depths
 ==============  =====================================================================
 
+Names are spelled with hyphens; an underscore is taken for a hyphen
+(``sphere_torus`` is ``sphere-torus``), see :func:`canonical_scene_name`.
+
 All scenes fit the default display (width 2.0 centred on the origin, height 1.5 at
 320x240) with z within about +-0.6.
 """
@@ -218,14 +221,26 @@ SCENES: dict[str, Callable[[], Scene]] = {
 """Built-in scene builders by name."""
 
 
-def builtin_scene(name: str) -> Scene:
-    """A fresh copy of the built-in scene ``name`` (see ``SCENES``).
+def canonical_scene_name(name: str) -> str:
+    """The spelling ``SCENES`` uses: ``sphere_torus`` and ``Sphere-Torus`` give ``sphere-torus``.
 
     Raises
     ------
     SettingsError
         For an unknown name (the message lists the known ones).
     """
-    if name not in SCENES:
+    key = name.strip().lower().replace("_", "-")
+    if key not in SCENES:
         raise SettingsError(f"unknown scene {name!r}; known: {', '.join(SCENES)}")
-    return SCENES[name]()
+    return key
+
+
+def builtin_scene(name: str) -> Scene:
+    """A fresh copy of the built-in scene ``name`` (see ``SCENES``; ``_`` for ``-`` too).
+
+    Raises
+    ------
+    SettingsError
+        For an unknown name (the message lists the known ones).
+    """
+    return SCENES[canonical_scene_name(name)]()

@@ -9,7 +9,9 @@ Examples::
 
 The first stdout line is the path or URL a client opens (flushed at once).  When the
 run ends a JSON summary (bytes sent, faults applied; for a tracker, the host
-commands it received) is printed on stdout.
+commands it received) is printed on stdout.  Ctrl-C (SIGINT) and SIGTERM stop it at
+once, without waiting for a client to read what is queued: exit status 130 / 143,
+the rule of :mod:`service.signals`; 0 after ``--seconds``; 2 for bad settings.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ import sys
 from collections.abc import Sequence
 
 from drivers.tracker_driver import add_command_options, commands_from_args
+from service.cli_args import float_range, int_range, plain_help
 from service.errors import HoloError
-from service.signals import stop_on_signals
+from service.signals import EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
 from sim_devices.dialbox import DialBoxSim, demo_script
 from sim_devices.endpoints import DeviceRunner, PtyLink, TcpLink
 from sim_devices.faults import FaultSpec
@@ -40,12 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="holo-sim", description="Simulated head tracker (Hatire or native protocol) "
         "or SGI dial and button box, served on a pty pair or a TCP port on 127.0.0.1.",
-        epilog="The first line on stdout is what a client opens (a /dev/pts path or a "
-        "socket:// URL); a JSON summary follows when the run ends.")
+        epilog=plain_help("The first line on stdout is what a client opens (a /dev/pts "
+                          "path or a socket:// URL); a JSON summary follows when the run "
+                          "ends. " + EXIT_RULE))
     p.add_argument("device", choices=("tracker", "dials"), help="which device to simulate")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="serve on a pty pair (default)")
-    where.add_argument("--tcp", type=int, metavar="PORT",
+    where.add_argument("--tcp", type=int_range(0, 65535), metavar="PORT",
                        help="serve on 127.0.0.1:PORT (0 = any free port)")
     p.add_argument("--pty-link", metavar="PATH",
                    help="keep a symlink at PATH to the current pty (survives reconnects)")
@@ -55,9 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"tracker motion: {', '.join(MOTIONS)}, options as "
                    "name:key=value,... (e.g. turn:amplitude=45, replay:file=log; "
                    "default: %(default)s)")
-    p.add_argument("--noise", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--noise", type=float_range(0), default=0.0, metavar="DEG",
                    help="Gaussian angle noise (std, degrees; position noise = 2.5x in mm)")
-    p.add_argument("--rate", type=float, default=60.0, metavar="HZ",
+    p.add_argument("--rate", type=float_range(0, lo_open=True), default=60.0, metavar="HZ",
                    help="tracker frame rate (default: %(default)s)")
     p.add_argument("--byte-order", choices=("little", "big"), default="little",
                    help="Hatire byte order (default: %(default)s)")
@@ -68,12 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--enabled", action="store_true",
                    help="dial box reports without waiting for the init handshake")
     p.add_argument("--faults", default="", help=FAULT_HELP)
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=float_range(0), default=None, metavar="N",
                    help="stop after N seconds of device time (default: until Ctrl-C; "
                    "dials: 30)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed for motion, script and noise (default: %(default)s)")
-    p.add_argument("--baud", type=int, default=None,
+    p.add_argument("--baud", type=int_range(1), default=None, metavar="N",
                    help="rate writes are paced to (default: 115200 tracker, 9600 dials)")
     p.add_argument("--no-pace", action="store_true",
                    help="do not pace writes to the baud rate")
@@ -92,7 +96,7 @@ def _device(args: argparse.Namespace) -> TrackerSim | DialBoxSim:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the simulator; returns the exit status (0 ok, 2 bad settings or device)."""
+    """Run the simulator; returns the exit status (see the module docstring)."""
     args = build_parser().parse_args(argv)
     try:
         device = _device(args)
@@ -102,18 +106,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                               pace=not args.no_pace, baud=args.baud)
     except HoloError as exc:
         print(f"holo-sim: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     print(getattr(link, "path", link.name), flush=True)
+    signum = None
     try:
         if isinstance(link, PtyLink):
             link.stop = runner.stop_event
-        with stop_on_signals(runner.stop_event, (signal.SIGTERM,)):
+        # SIGINT too: a KeyboardInterrupt would leave the stop event unset, and the pty
+        # would then wait (up to 10 s) for a client to read what was queued
+        with stop_on_signals(runner.stop_event) as got:
             runner.run()
-    except KeyboardInterrupt:
-        pass
+        signum = got.signum
+    except KeyboardInterrupt:  # before the handler was in place
+        signum = signal.SIGINT
+        runner.stop_event.set()
     except HoloError as exc:
         print(f"holo-sim: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     finally:
         with contextlib.suppress(HoloError, OSError):
             runner.poll_host()  # count host commands that came in at the very end
@@ -125,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if isinstance(device, TrackerSim):
         summary["commands"] = dict(device.received)
     print(json.dumps(summary), flush=True)
-    return 0
+    return exit_status(signum)
 
 
 if __name__ == "__main__":

@@ -40,7 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.display import DisplaySettings, parse_size
+from service.cli_args import add_size_option, int_range, plain_help
+from service.display import DisplaySettings
 from service.galilean.experiments import (
     CASES,
     ONE_D,
@@ -781,12 +782,14 @@ def _counts(text: str) -> tuple[int, ...]:
 
 def main(argv: list[str] | None = None) -> int:
     """``holo-bench galilean``; returns the exit status."""
-    p = argparse.ArgumentParser(prog="holo-bench galilean", description=__doc__,
+    p = argparse.ArgumentParser(prog="holo-bench galilean", description=plain_help(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--case", choices=[*CASES, "scene"], default="falling")
     p.add_argument("--order", type=int, default=2, choices=ORDERS)
-    p.add_argument("--interval", type=int, default=2)
-    p.add_argument("--frames", type=int, default=10)
+    p.add_argument("--interval", type=int_range(1), default=2,
+                   help="refreshes per update (default: %(default)s)")
+    p.add_argument("--frames", type=int_range(1), default=10,
+                   help="refreshes to run (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--sweep", action="store_true", help="run the full sweep into --out")
     p.add_argument("--timing", action="store_true",
@@ -796,28 +799,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--complexity-counts", type=_counts, default=COMPLEXITY_COUNTS,
                    help="extra triangles per complexity step, comma-separated "
                         "(default %(default)s)")
-    p.add_argument("--complexity-repeats", type=int, default=15,
-                   help="interleaved calls per complexity step")
+    p.add_argument("--complexity-repeats", type=int_range(1), default=15,
+                   help="interleaved calls per complexity step (default: %(default)s)")
     p.add_argument("--out", default="bench-out")
-    p.add_argument("--size", default="160x120", help="sweep render size")
-    p.add_argument("--sweep-frames", type=int, default=33)
-    p.add_argument("--time-size", default="640x480", help="size of the timing run")
+    add_size_option(p, (160, 120), "sweep render size")
+    p.add_argument("--sweep-frames", type=int_range(2), default=33,
+                   help="refreshes per sweep run (default: %(default)s)")
+    add_size_option(p, (640, 480), "size of the timing run", flag="--time-size")
     args = p.parse_args(argv)
-    if args.interval < 1 or args.frames < 1:
-        p.error("--interval and --frames must be >= 1")
-    if args.complexity_repeats < 1:
-        p.error("--complexity-repeats must be >= 1")
     if args.complexity:
-        print(json.dumps(run_complexity(Path(args.out), parse_size(args.time_size),
+        print(json.dumps(run_complexity(Path(args.out), args.time_size,
                                         args.complexity_counts, args.complexity_repeats),
                          indent=1))
         return 0
     if args.timing:
-        print(json.dumps(run_timing(Path(args.out), parse_size(args.time_size)), indent=1))
+        print(json.dumps(run_timing(Path(args.out), args.time_size), indent=1))
         return 0
     if args.sweep:
-        run_sweep(Path(args.out), parse_size(args.size), args.sweep_frames,
-                  parse_size(args.time_size), args.complexity_counts)
+        run_sweep(Path(args.out), args.size, args.sweep_frames, args.time_size,
+                  args.complexity_counts)
         return 0
     res = scene_case(args.order, args.interval, args.frames) if args.case == "scene" else \
         thought_case(args.case, args.order, args.interval, args.frames)

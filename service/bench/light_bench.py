@@ -19,21 +19,24 @@ import csv
 import json
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
 import numba
 import numpy as np
 
+from service.cli_args import add_size_option, comma_list, int_range, plain_help, scene_name
 from service.cull import cull
 from service.depth_sort import average_z, sort_polygons, triangle_order
-from service.display import DisplaySettings, parse_size
+from service.display import DisplaySettings
 from service.light import LightSettings, intensity, intensity_error, shade
 from service.occlusion import Visibility
 from service.occlusion.zbuffer import zbuffer
 from service.primitives import sphere
 from service.projection import project
 from service.scene import Light, Material, Scene, SceneArrays, SceneObject
+from service.scenes import SCENES as BUILTIN_SCENES
 from service.scenes import builtin_scene
 
 #: (model, evaluation) pairs measured; ("blinn", "point") is the reference.
@@ -132,34 +135,69 @@ def measure(scene_name: str, zones: int, size: tuple[int, int], repeats: int) ->
     return rows
 
 
+#: Chart styles: colour by light model, marker by where light is evaluated.
+MODEL_COLOURS = {"ambient": "tab:grey", "phong": "tab:orange", "blinn": "tab:blue"}
+EVAL_MARKERS = {"polygon": "s", "vertex": "^", "point": "o"}
+
+
 def chart(rows: list[dict], path: Path) -> None:
-    """Scatter of ms per frame (log) against intensity error, one panel per scene."""
+    """Scatter of ms per frame (log) against intensity error, one panel per scene.
+
+    Colour is the light model, the marker where it is evaluated (both in the legend,
+    so each point is told apart without reading its label); hollow markers are 1
+    zone, filled ones more, and each point is labelled with its zone count (``5z``).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     scenes = sorted({r["scene"] for r in rows})
-    markers = {"polygon": "s", "vertex": "^", "point": "o"}
-    colours = {"ambient": "tab:grey", "phong": "tab:orange", "blinn": "tab:blue"}
-    fig, axes = plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(scenes), figsize=(6 * len(scenes), 5), squeeze=False)
     for ax, name in zip(axes[0], scenes, strict=True):
-        for r in (r for r in rows if r["scene"] == name):
-            filled = r["zones"] > 1
-            ax.scatter(r["ms"], r["error"], marker=markers[r["evaluation"]], s=60,
-                       color=colours[r["model"]] if filled else "none",
-                       edgecolors=colours[r["model"]])
-            ax.annotate(f"{r['model'][0]}/{r['evaluation'][:2]} z{r['zones']}",
-                        (r["ms"], r["error"]), fontsize=7, xytext=(3, 3),
+        mine = [r for r in rows if r["scene"] == name]
+        for r in mine:
+            colour = MODEL_COLOURS[r["model"]]
+            ax.scatter(r["ms"], r["error"], marker=EVAL_MARKERS[r["evaluation"]], s=60,
+                       color=colour if r["zones"] > 1 else "none", edgecolors=colour)
+            ax.annotate(f"{r['zones']}z", (r["ms"], r["error"]), fontsize=7, xytext=(4, 3),
                         textcoords="offset points")
         ax.set_xscale("log")
-        ax.set_xlabel("ms per frame (all zones), log")
+        _log_ticks(ax, [r["ms"] for r in mine])
+        ax.set_xlabel("ms per frame, all zones (log scale)")
         ax.set_ylabel("mean |intensity - per-point Blinn|")
-        ax.set_title(f"{name}: hollow 1 zone, filled 5+ zones")
-        ax.grid(True, alpha=0.3)
-    fig.tight_layout()
+        ax.set_title(f"{name}: hollow = 1 zone, filled = more zones")
+        ax.grid(True, which="both", alpha=0.3)
+    wide = len(scenes) > 1
+    fig.legend(handles=_legend_handles(), loc="lower center", ncol=6 if wide else 3,
+               fontsize=8, title="colour: light model; marker: where it is evaluated; "
+               "lower-left is better", title_fontsize=8)
+    fig.tight_layout(rect=(0, 0.13 if wide else 0.2, 1, 1))  # room for the legend below
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _legend_handles() -> list:
+    """Proxy artists: one per light model (colour) and one per evaluation (marker)."""
+    from matplotlib.lines import Line2D
+
+    models = [Line2D([], [], ls="", marker="o", color=c, label=f"{m} light")
+              for m, c in MODEL_COLOURS.items()]
+    evals = [Line2D([], [], ls="", marker=mk, color="black", mfc="none", label=f"per {e}")
+             for e, mk in EVAL_MARKERS.items()]
+    return models + evals
+
+
+def _log_ticks(ax, values: list[float]) -> None:
+    """Plain-number ticks on a log x axis, denser when the data span less than a decade."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    positive = [v for v in values if v > 0]
+    span = max(positive) / min(positive) if positive else 10.0
+    subs = (1.0, 2.0, 5.0) if span >= 10 else (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0)
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=subs))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
 
 
 def write(rows: list[dict], meta: dict, out: Path) -> list[Path]:
@@ -175,26 +213,43 @@ def write(rows: list[dict], meta: dict, out: Path) -> list[Path]:
     return [jpath, cpath, ppath]
 
 
+def light_scene_name(text: str) -> str:
+    """An argparse type: ``sphere`` or a built-in scene name (canonical spelling)."""
+    if text in SCENES:
+        return text
+    try:
+        return scene_name(text)
+    except argparse.ArgumentTypeError:
+        known = ", ".join([*SCENES, *BUILTIN_SCENES])
+        raise argparse.ArgumentTypeError(f"unknown scene {text!r}; known: {known}") from None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    """Command-line options."""
-    ap = argparse.ArgumentParser(prog="holo-bench light", description=__doc__.splitlines()[0])
+    """Command-line options (each value checked here: a bad one is a usage error)."""
+    ap = argparse.ArgumentParser(prog="holo-bench light",
+                                 description=plain_help(__doc__.splitlines()[0]))
     ap.add_argument("--out", type=Path, default=Path("bench-out/light"), help="output folder")
-    ap.add_argument("--scenes", default="sphere,sphere-torus,game",
-                    help="comma-separated: sphere or built-in scene names")
-    ap.add_argument("--zones", default="1,5", help="comma-separated zone counts")
-    ap.add_argument("--size", default="320x240", help="pixels per zone, COLSxROWS")
-    ap.add_argument("--repeats", type=int, default=20, help="timed runs per variant (median)")
+    ap.add_argument("--scenes", type=comma_list(light_scene_name),
+                    default="sphere,sphere-torus,game",
+                    help="comma-separated: sphere or built-in scene names "
+                    "(default: %(default)s)")
+    ap.add_argument("--zones", type=comma_list(int_range(1, 64)), default="1,5",
+                    help="comma-separated zone counts, 1-64 (default: %(default)s)")
+    add_size_option(ap, (320, 240), "pixels per zone")
+    ap.add_argument("--repeats", type=int_range(1), default=20,
+                    help="timed runs per variant (median; default: %(default)s)")
     return ap.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark, write its files and print a summary table."""
     args = parse_args(argv)
-    size = parse_size(args.size)
+    size = args.size
     rows = []
-    for name in args.scenes.split(","):
-        for zones in (int(z) for z in args.zones.split(",")):
-            rows += measure(name, zones, size, max(1, args.repeats))
+    for name in args.scenes:
+        for zones in args.zones:
+            print(f"{name}, {zones} zones", file=sys.stderr, flush=True)
+            rows += measure(name, zones, size, args.repeats)
     meta = {
         "what": "shade() ms per frame and mean |intensity error| vs per-point Blinn",
         "size": list(size),

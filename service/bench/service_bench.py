@@ -46,6 +46,7 @@ import numpy as np
 import zmq
 
 from service import protocol
+from service.cli_args import comma_list, float_range, int_range, plain_help
 from service.client import FrameSubscriber, ServiceClient
 from service.frame_stream import FrameStream
 from service.signals import end_process
@@ -563,19 +564,27 @@ def main(argv: list[str] | None = None) -> int:
     """``holo-bench service``; returns the exit status."""
     p = argparse.ArgumentParser(
         prog="holo-bench service",
-        description=__doc__,
+        description=plain_help(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--out", default="bench-out")
     p.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
-    p.add_argument("--seconds", type=float, default=8.0, help="measuring time per worker count")
-    p.add_argument("--workers", default="0,1,2,3", help="worker counts to compare")
-    p.add_argument("--rounds", type=int, default=2, help="rounds of the worker comparison")
+    p.add_argument(
+        "--seconds", type=float_range(0, lo_open=True), default=8.0,
+        help="measuring time per worker count",
+    )
+    p.add_argument(
+        "--workers", type=comma_list(int_range(0, 64)), default="0,1,2,3",
+        help="worker counts to compare, comma-separated",
+    )
+    p.add_argument(
+        "--rounds", type=int_range(1), default=2, help="rounds of the worker comparison"
+    )
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     q = args.quick
-    counts = [int(x) for x in args.workers.split(",") if x.strip()]
+    counts = args.workers
     res: dict[str, Any] = {
         "host": {
             "machine": platform.machine(),

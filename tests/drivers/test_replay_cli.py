@@ -144,7 +144,7 @@ def test_replay_publishes_on_the_address_it_prints(tmp_path):
             assert got is not None, "no pose from holo-replay"
             assert sub.wait_for(lambda s: s.pose_count >= 25, 20.0)
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(20) == 0
+        assert proc.wait(20) == 143  # 128 + SIGTERM, after the clean stop
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -224,7 +224,7 @@ def test_to_pty_plays_a_live_device_for_a_reader(tmp_path):
             assert time.monotonic() < deadline and proc.poll() is None
             threading.Event().wait(0.01)
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(20) == 0
+        assert proc.wait(20) == 143  # 128 + SIGTERM, after the clean stop
     finally:
         if reader is not None:
             reader.stop()

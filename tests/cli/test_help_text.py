@@ -1,0 +1,74 @@
+"""Every command's --help: plain text (no reStructuredText markup) and the exit rule.
+
+The commands are read from pyproject.toml's [project.scripts], and holo-bench's
+benchmarks from its table, so a new command or benchmark is scanned without
+editing this file.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import tomllib
+
+import pytest
+from cli_helpers import ROOT
+
+from service.cli_bench import BENCHES
+
+SCRIPTS = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+#: ``x``, :func:`x`, *emphasis* (not 3*4 or **kwargs-like text).
+MARKUP = re.compile(r"``|:[a-z]+:`|(?<![\w*])\*[A-Za-z][^*\n]*\*(?![\w*])")
+#: Commands whose files other sessions own; their fixes are pending there (see the
+#: issue 16 report).  The xfail is strict: once fixed, drop the entry.
+PENDING_MARKUP = {"holo-service": "service/cli_service.py: description=plain_help(...)",
+                  "holo-game": "game/cli.py: description=plain_help(...)",
+                  "holo-bench render": "service/bench/render_bench.py: plain_help(__doc__)"}
+PENDING_RULE = {"holo-service": "service/cli_service.py: epilog with EXIT_RULE",
+                "holo-game": "game/cli.py: epilog with EXIT_RULE"}
+#: Commands without the rule in their help: they run no loop and take no signal.
+NO_RULE = {"holo-service-keys"}
+
+
+def _help(entry: str, argv: list[str], capsys) -> str:
+    module, func = entry.split(":")
+    main = getattr(importlib.import_module(module), func)
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse's --help
+        rc = exc.code
+    assert rc in (0, None)
+    return capsys.readouterr().out
+
+
+def _commands() -> list:
+    out = []
+    for name, entry in SCRIPTS.items():
+        out.append(pytest.param(name, entry, ["--help"], id=name))
+    for bench in BENCHES:
+        name = f"holo-bench {bench}"
+        out.append(pytest.param(name, SCRIPTS["holo-bench"], [bench, "--help"], id=name))
+    return out
+
+
+def _pending(name: str, table: dict[str, str]) -> None:
+    if name in table:
+        pytest.xfail(reason=f"pending in another session's file: {table[name]}")
+
+
+@pytest.mark.parametrize(("name", "entry", "argv"), _commands())
+def test_help_has_no_markup(name, entry, argv, capsys):
+    text = _help(entry, argv, capsys)
+    assert text.strip()
+    found = MARKUP.findall(text)
+    if found:
+        _pending(name, PENDING_MARKUP)
+    assert not found, f"{name} --help shows markup: {found[:5]}"
+
+
+@pytest.mark.parametrize("name", [n for n in SCRIPTS if n not in NO_RULE])
+def test_help_states_the_exit_rule(name, capsys):
+    text = " ".join(_help(SCRIPTS[name], ["--help"], capsys).split())
+    if "130" not in text:
+        _pending(name, PENDING_RULE)
+    assert "Ctrl-C (SIGINT) 130" in text and "SIGTERM 143" in text, name

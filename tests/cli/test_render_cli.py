@@ -1,0 +1,51 @@
+"""holo-render: the occlusion counters of --json for every method, exclusive fallbacks."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from service import cli_render
+from service.pipeline import METHOD_NAMES
+
+#: Counters each method adds to the common ones.
+OWN = {"runlength": {"inconsistent_pixels", "inconsistent_by_zone"},
+       "zbuffer": set(),
+       "bsp": {"nodes", "fragments", "splits", "depth", "build_ms"},
+       "raycast": {"candidates", "bin_entries"}}
+
+
+def _report(capsys, *argv: str) -> dict:
+    assert cli_render.main([*argv, "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("method", METHOD_NAMES)
+def test_json_has_occlusion_counters_for_every_method(method, tmp_path, capsys):
+    report = _report(capsys, "builtin:sphere_torus", "--method", method, "--zones", "3",
+                     "--size", "64x48", "--out", str(tmp_path))
+    occ = report["occlusion"]
+    assert {"covered_pixels", "covered_by_zone", "fallback"} | OWN[method] <= set(occ)
+    depth = np.stack([np.load(tmp_path / f"depth-{k:02d}.npy") for k in range(3)])
+    covered = np.isfinite(depth).sum(axis=(1, 2))
+    assert occ["covered_by_zone"] == covered.tolist() and occ["covered_pixels"] == covered.sum()
+    assert 0 < occ["covered_pixels"] < 3 * 64 * 48
+    assert occ["fallback"] is None
+
+
+def test_json_names_the_fallback_and_the_inconsistent_pixels(tmp_path, capsys):
+    occ = _report(capsys, "builtin:cyclic", "--method", "runlength", "--size", "80x60",
+                  "--out", str(tmp_path))["occlusion"]
+    assert occ["fallback"] == "zbuffer" and occ["inconsistent_pixels"] > 0
+    occ = _report(capsys, "builtin:cyclic", "--method", "runlength", "--size", "80x60",
+                  "--no-fallback", "--out", str(tmp_path))["occlusion"]
+    assert occ["fallback"] is None and occ["inconsistent_pixels"] > 0
+
+
+def test_fallback_and_no_fallback_are_exclusive(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli_render.main(["builtin:game", "--fallback", "pixel", "--no-fallback"])
+    assert exc.value.code == 2
+    assert "--no-fallback: not allowed with argument --fallback" in capsys.readouterr().err

@@ -1,0 +1,145 @@
+"""holo-up: one TOML file starts simulators, holo-devices and holo-service, wired together."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import zmq
+from cli_helpers import (
+    ROOT,
+    SIGNALS,
+    STATUS,
+    alive,
+    children_of,
+    linux_only,
+    posix_only,
+)
+
+from service import cli_up
+
+ANY = "tcp://127.0.0.1:0"
+SIMS = """
+[sim.tracker]
+protocol = "native"
+rate = 100
+
+[sim.dials]
+seconds = 600
+seed = 2
+"""
+DEVICES = f"""
+[devices]
+pub = "{ANY}"
+reset_wait = 0.3
+"""
+SERVICE = f"""
+[service]
+control = "{ANY}"
+frames = "{ANY}"
+worker_address = "{ANY}"
+workers = 0
+zones = 2
+"""
+
+
+def _config(tmp_path, text: str):
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    return path
+
+
+def test_dry_run_shows_the_wiring(tmp_path, capsys):
+    path = _config(tmp_path, SIMS + DEVICES + SERVICE)
+    assert cli_up.main([str(path), "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split(":")[1].strip() for ln in lines] == [
+        "holo-sim tracker", "holo-sim dials", "holo-devices", "holo-service"]
+    assert "tracker --protocol native --rate 100 --pty" in lines[0]
+    assert "dials --seconds 600 --seed 2 --pty" in lines[1]
+    # holo-devices reads both simulators, in the tracker's protocol
+    assert "--tracker-protocol native --tracker '<holo-sim tracker address>' --dials " \
+           "'<holo-sim dials address>'" in lines[2]
+    assert lines[3].endswith("--workers 0 --zones 2 --devices '<holo-devices address>'")
+
+
+def test_the_example_config_is_valid(capsys):
+    assert cli_up.main([str(ROOT / "examples" / "holo-up.toml"), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "--pub tcp://127.0.0.1:5560" in out and "--control tcp://127.0.0.1:5555" in out
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    ("[devices\n", "not valid TOML"),
+    ("[sevice]\nx = 1\n", "unknown table [sevice]"),
+    ("[sim.mouse]\n", "unknown table [sim.mouse]"),
+    ("", "nothing to start"),
+    ("[devices]\ntracker = 'loop://'\nbaud = 0\n", "[devices]: holo-devices: argument --baud"),
+    ("[devices]\ntracker = 'loop://'\nspeed = 3\n", "unrecognized arguments: --speed 3"),
+    ("[devices]\npub = 'tcp://127.0.0.1:99999'\ntracker = 'loop://'\n", "port '99999'"),
+    ("[devices]\n", "give tracker and/or dials"),
+    ("[sim.tracker]\n[devices]\ntracker = 'loop://'\n", "give tracker or [sim.tracker]"),
+    ("[sim.tracker]\nmotion = {a = 1}\n", "want a string, number"),
+    ("[sim.tracker]\nargs = '--fast'\n", "args must be a list of strings"),
+    ("[sim.tracker]\n[up]\nstart_timeout = -1\n", "start_timeout must be a number > 0"),
+    ("[sim.tracker]\n[up]\nwait = 1\n", "[up]: unknown key 'wait'"),
+])
+def test_bad_files_are_one_line_and_status_2(tmp_path, capsys, text, words):
+    path = _config(tmp_path, text)
+    assert cli_up.main([str(path)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and str(path) in err and words in err, err
+
+
+def test_missing_file(tmp_path, capsys):
+    assert cli_up.main([str(tmp_path / "none.toml")]) == 2
+    assert "none.toml: cannot read" in capsys.readouterr().err
+
+
+def _where(up, name: str) -> str:
+    line = next(ln for ln in up.out if ln.startswith(f"holo-up: {name} "))
+    return line[len(f"holo-up: {name} "):]
+
+
+@linux_only
+@SIGNALS
+def test_starts_wires_and_stops_everything(procs, tmp_path, signum):
+    up = procs("service.cli_up", str(_config(tmp_path, SIMS + DEVICES + SERVICE)))
+    up.wait_lines(lambda: "holo-up: running; Ctrl-C stops everything" in up.out, 120)
+    assert _where(up, "holo-sim tracker").startswith("on /dev/")
+    assert _where(up, "holo-sim dials").startswith("on /dev/")
+    publisher = _where(up, "holo-devices").split()[2]
+    assert publisher.startswith("tcp://127.0.0.1:") and not publisher.endswith(":0")
+    assert _where(up, "holo-service").startswith("control tcp://127.0.0.1:")
+    # the simulated tracker reaches the publisher through holo-devices
+    view = subprocess.run([sys.executable, "-m", "drivers.cli_view", publisher, "--json",
+                           "--count", "30", "--timeout", "30"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+    assert view.returncode == 0, view.stderr
+    assert json.loads(view.stdout.splitlines()[-1])["pose"] is not None
+    started = children_of(up.p.pid)
+    assert len(started) == 4
+    up.signal(signum)
+    assert up.finish(60) == STATUS[signum]
+    assert not any(alive(pid) for pid in started)
+    assert any(ln.startswith("[holo-devices] {\"stats\"") for ln in up.err)
+
+
+@posix_only
+def test_a_program_that_fails_stops_the_others(procs, tmp_path):
+    ctx = zmq.Context.instance()
+    taken = ctx.socket(zmq.PUB)
+    taken.bind(ANY)
+    try:
+        address = taken.getsockopt_string(zmq.LAST_ENDPOINT)
+        text = SIMS + DEVICES.replace(ANY, address)
+        up = procs("service.cli_up", str(_config(tmp_path, text)))
+        assert up.finish(60) == 1
+    finally:
+        taken.close(0)
+    assert any(ln.startswith("holo-up: holo-sim dials on /dev/") for ln in up.out)
+    failure = [ln for ln in up.err if ln.startswith("holo-up: ")]
+    assert len(failure) == 1 and "holo-devices exited 2 while starting" in failure[0]
+    assert "Address already in use" in failure[0] and "stopping the others" in failure[0]
