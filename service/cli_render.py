@@ -16,6 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +30,9 @@ from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
 from service.light import LightSettings
 from service.loaders import load_scene
+from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.scene import Scene
 from service.scenes import SCENES, builtin_scene
 from service.signals import EXIT_RULE, interruptible
 
@@ -76,6 +80,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="keep a run-length frame even when its depth order proved wrong (--fallback off)",
     )
+    p.add_argument(
+        "--strict", action="store_true",
+        help="refuse mesh files that would otherwise be repaired on load (non-planar or "
+        "concave polygons, faces of under 3 corners, extra values on ascii PLY lines)",
+    )
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
     p.add_argument("--out", default="render-out", help="output folder (default render-out)")
     p.add_argument(
@@ -86,10 +95,41 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load(spec: str):
+def _load(spec: str, strict: bool = False) -> tuple[Scene, list[str]]:
+    """The scene, and the one-line repair warnings its mesh files gave."""
     if spec.startswith("builtin:"):
-        return builtin_scene(spec.split(":", 1)[1])
-    return load_scene(Path(spec))
+        return builtin_scene(spec.split(":", 1)[1]), []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeshRepairWarning)
+        scene = load_scene(Path(spec), strict)
+    for w in caught:
+        if not issubclass(w.category, MeshRepairWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return scene, [str(w.message) for w in caught if issubclass(w.category, MeshRepairWarning)]
+
+
+def mesh_report(scene: Scene, load_ms: float, strict: bool) -> dict:
+    """The ``mesh`` block of ``--json``: what loading repaired, summed over the objects.
+
+    Returns
+    -------
+    dict
+        ``strict``, ``load_ms``, ``polygons`` and ``triangles`` (as rendered), then the
+        counts of :class:`~service.mesh_repair.MeshRepair` (``faces_read``,
+        ``non_planar``, ``concave``, ``triangles_added``, ``degenerate``,
+        ``zero_area_triangles``, ``trailing_values``; faces read only counts meshes
+        read from files).
+    """
+    total = MeshRepair()
+    for obj in scene.objects:
+        if obj.mesh.repair is not None:
+            total.add(obj.mesh.repair)
+    return {
+        "strict": strict, "load_ms": round(load_ms, 3),
+        "polygons": sum(o.mesh.n_polygons for o in scene.objects),
+        "triangles": sum(int(o.mesh.triangles.shape[0]) for o in scene.objects),
+        **total.as_dict(),
+    }
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -102,7 +142,11 @@ def run(args: argparse.Namespace) -> dict:
         light=LightSettings(model=args.light, evaluation=args.specular),
         painter_fallback="off" if args.no_fallback else args.fallback,
     )
-    scene = _load(args.scene)
+    start = time.perf_counter()
+    scene, repairs = _load(args.scene, args.strict)
+    load_ms = (time.perf_counter() - start) * 1e3
+    for line in repairs:
+        print(f"holo-render: warning: {line}", file=sys.stderr)
     warm_up(settings)  # compile or load the numba kernels outside the timings
     frame = Renderer().render(scene, display, settings)
     out = Path(args.out)
@@ -123,6 +167,7 @@ def run(args: argparse.Namespace) -> dict:
             "cull": args.cull,
             "painter_fallback": "off" if args.no_fallback else args.fallback,
         },
+        "mesh": mesh_report(scene, load_ms, args.strict),
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
         "occlusion": occlusion_counters(frame.stats["occlusion"], frame.depth),

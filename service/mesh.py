@@ -15,7 +15,7 @@ tolerance are in ``docs/file-formats.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -36,12 +36,16 @@ class Mesh:
         Number of vertices of each polygon (3 or more).
     name : str
         A label for messages.
+    repair : MeshRepair or None
+        What loading the mesh's file repaired (:mod:`service.mesh_repair`); None for
+        a mesh not read from a file.
     """
 
     vertices: np.ndarray
     polygons: np.ndarray
     counts: np.ndarray
     name: str = "mesh"
+    repair: Any = field(default=None, repr=False, compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:

@@ -15,6 +15,7 @@ Every format is described in ``docs/file-formats.md``.  A bad file raises
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -40,12 +41,15 @@ __all__ = [
 ]
 
 
-def load_mesh(path: str | Path) -> Mesh:
+def load_mesh(path: str | Path, strict: bool = False) -> Mesh:
     """Read a mesh file, choosing the reader by extension (see ``MESH_LOADERS``).
 
     Parameters
     ----------
     path : str or Path
+    strict : bool
+        Refuse what would otherwise be repaired (non-planar or concave polygons,
+        degenerate faces, extra values on ascii PLY lines; :mod:`service.mesh_repair`).
 
     Returns
     -------
@@ -61,7 +65,7 @@ def load_mesh(path: str | Path) -> Mesh:
     if loader is None:
         known = ", ".join(sorted(MESH_LOADERS))
         raise MeshFileError(str(path), "", f"unknown mesh file extension {path.suffix!r} ({known})")
-    return loader(path)
+    return loader(path, strict)
 
 
 def fit_transform(mesh: Mesh, width: float = FIT_WIDTH) -> Transform:
@@ -72,7 +76,7 @@ def fit_transform(mesh: Mesh, width: float = FIT_WIDTH) -> Transform:
     return Transform(position=-(lo + hi) / 2 * scale, scale=scale)
 
 
-def load_scene(path: str | Path) -> Scene:
+def load_scene(path: str | Path, strict: bool = False) -> Scene:
     """Read a scene file, or a single mesh file as a one-object scene.
 
     A lone mesh gets the default :class:`Material` and :class:`Light`, and is centred
@@ -81,6 +85,8 @@ def load_scene(path: str | Path) -> Scene:
     Parameters
     ----------
     path : str or Path
+    strict : bool
+        Passed to :func:`load_mesh` for every mesh file.
 
     Returns
     -------
@@ -88,7 +94,7 @@ def load_scene(path: str | Path) -> Scene:
     """
     path = Path(path)
     if path.suffix.lower() in SCENE_EXTENSIONS:
-        return load_scene_file(path, load_mesh)
-    mesh = load_mesh(path)
+        return load_scene_file(path, partial(load_mesh, strict=strict))
+    mesh = load_mesh(path, strict)
     obj = SceneObject(mesh, Material(), fit_transform(mesh), name=mesh.name)
     return Scene(objects=[obj], lights=[Light()])

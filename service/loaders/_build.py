@@ -16,6 +16,7 @@ import numpy as np
 
 from service.errors import MeshError, MeshFileError
 from service.mesh import Mesh, describe_fault, polygon_shape_faults
+from service.mesh_repair import MeshRepair, MeshRepairWarning, distinct_corners, split_bad_shapes
 
 
 def read_bytes(path: str | Path) -> bytes:
@@ -142,9 +143,15 @@ def check_shapes(
 
 def finish_mesh(
     path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
-    where: Callable[[int], str] = by_polygon,
+    where: Callable[[int], str] = by_polygon, strict: bool = False,
+    report: MeshRepair | None = None,
 ) -> Mesh:
-    """Check polygon shapes, drop zero-area polygons (with a warning), build the mesh.
+    """Repair (or, if ``strict``, check) the polygons, drop zero-area ones, build the mesh.
+
+    Unless ``strict``, faces with fewer than 3 distinct corners are skipped and
+    non-planar or concave polygons are replaced by ear-clipped triangles
+    (:mod:`service.mesh_repair`), with one :class:`MeshRepairWarning` saying so.
+    ``strict`` refuses a polygon that is not planar and convex, as before.
 
     Parameters
     ----------
@@ -152,35 +159,70 @@ def finish_mesh(
         The file read; its stem names the mesh.
     vertices : ndarray, shape (V, 3), finite
     polygons : ndarray, shape (P, K), indices checked in range, padded with -1
-    counts : ndarray, shape (P,), each >= 3
+    counts : ndarray, shape (P,); each >= 3 when ``strict``
     where : callable
         Polygon index (file order) to its place in the file, for messages.
+    strict : bool
+    report : MeshRepair, optional
+        Repairs the reader already made (trailing values); counted on here.
 
     Raises
     ------
     MeshFileError
-        If there are no polygons, none with a non-zero area, or a polygon is not
-        planar and convex.
+        If there are no polygons, none with a non-zero area, or (``strict``) a
+        polygon is not planar and convex.
 
     Returns
     -------
     Mesh
+        Its ``repair`` says what was repaired.
     """
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    report = report or MeshRepair()
+    report.faces_read = int(counts.size)
     if counts.size == 0:
         raise MeshFileError(str(path), "", "the file has no polygons")
-    check_shapes(path, vertices, polygons, counts, where)
+    from_split = np.zeros(counts.size, bool)
+    if strict:
+        check_shapes(path, vertices, polygons, counts, where)
+    else:
+        few = distinct_corners(polygons, counts) < 3
+        if few.any():
+            report.degenerate += int(few.sum())
+            polygons, counts = polygons[~few], counts[~few]
+        if counts.size == 0:
+            raise MeshFileError(str(path), "", "every polygon is degenerate (zero area)")
+        polygons, counts, from_split = split_bad_shapes(vertices, polygons, counts, report)
+    polygons, counts = _drop_zero_area(path, vertices, polygons, counts, from_split, strict,
+                                       report)
+    if not strict and report.message():
+        warnings.warn(MeshRepairWarning(
+            f"{path}: repaired on load: {report.message()} (--strict refuses such files)"
+        ), stacklevel=3)
+    try:
+        return Mesh(vertices, polygons.astype(np.int64), counts.astype(np.int64),
+                    Path(path).stem, repair=report)
+    except MeshError as exc:
+        raise MeshFileError(str(path), "", str(exc)) from None
+
+
+def _drop_zero_area(
+    path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+    from_split: np.ndarray, strict: bool, report: MeshRepair,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Polygons and counts without the zero-area ones (counted, or warned of if strict)."""
     centred = vertices - vertices.mean(axis=0)
     scale = float(np.abs(centred).max())
     keep = twice_areas(centred, polygons, counts) > 1e-12 * scale * scale
     if not keep.any():
         raise MeshFileError(str(path), "", "every polygon is degenerate (zero area)")
-    if not keep.all():
+    if keep.all():
+        return polygons, counts
+    if strict:
         dropped = int((~keep).sum())
-        warnings.warn(f"{path}: dropped {dropped} degenerate (zero-area) polygon(s)", stacklevel=3)
-        polygons, counts = polygons[keep], counts[keep]
-        polygons = polygons[:, : int(counts.max())]
-    try:
-        return Mesh(vertices, polygons.astype(np.int64), counts.astype(np.int64), Path(path).stem)
-    except MeshError as exc:
-        raise MeshFileError(str(path), "", str(exc)) from None
+        warnings.warn(MeshRepairWarning(
+            f"{path}: dropped {dropped} degenerate (zero-area) polygon(s)"), stacklevel=4)
+    report.degenerate += int(np.sum(~keep & ~from_split))
+    report.zero_area_triangles += int(np.sum(~keep & from_split))
+    polygons, counts = polygons[keep], counts[keep]
+    return polygons[:, : int(counts.max())], counts

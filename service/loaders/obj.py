@@ -44,10 +44,10 @@ def _vertex(path: Path, n: int, tokens: list[str], verts: list) -> None:
     verts.append([to_float(path, f"line {n}", t) for t in tokens[1:4]])
 
 
-def _face(path: Path, n: int, tokens: list[str], n_verts: int) -> list[int]:
+def _face(path: Path, n: int, tokens: list[str], n_verts: int, strict: bool) -> list[int]:
     """Zero-based vertex indices of one face (relative ones resolved)."""
     where = f"line {n}"
-    if len(tokens) < 4:
+    if strict and len(tokens) < 4:
         raise MeshFileError(str(path), where, f"a face needs >= 3 vertices, got {len(tokens) - 1}")
     out = []
     for tok in tokens[1:]:
@@ -58,18 +58,21 @@ def _face(path: Path, n: int, tokens: list[str], n_verts: int) -> list[int]:
     return out
 
 
-def load_obj(path: str | Path) -> Mesh:
+def load_obj(path: str | Path, strict: bool = False) -> Mesh:
     """Read the polygons of a Wavefront OBJ file.
 
     Parameters
     ----------
     path : str or Path
+    strict : bool
+        Refuse faces of under 3 corners, and polygons that are not planar and convex,
+        instead of skipping or triangulating them (:mod:`service.mesh_repair`).
 
     Returns
     -------
     Mesh
-        Vertices (V, 3) in file order; polygons in file order (zero-area ones dropped
-        with a warning).
+        Vertices (V, 3) in file order; polygons in file order (degenerate ones
+        dropped, bad shapes triangulated, with one warning).
 
     Raises
     ------
@@ -85,7 +88,7 @@ def load_obj(path: str | Path) -> Mesh:
         if tokens[0] == "v":
             _vertex(path, n, tokens, verts)
         elif tokens[0] == "f":
-            faces.append(_face(path, n, tokens, len(verts)))
+            faces.append(_face(path, n, tokens, len(verts), strict))
             face_lines.append(n)
     if not faces:
         raise MeshFileError(str(path), "", "no faces ('f' lines) in the file")
@@ -100,7 +103,8 @@ def load_obj(path: str | Path) -> Mesh:
         )
     vertices = np.array(verts, np.float64).reshape(-1, 3)
     polygons = pad_flat(flat, counts)
-    return finish_mesh(path, vertices, polygons, counts, lambda p: f"line {face_lines[p]}")
+    return finish_mesh(path, vertices, polygons, counts, lambda p: f"line {face_lines[p]}",
+                       strict)
 
 
 def save_obj(path: str | Path, mesh: Mesh) -> None:

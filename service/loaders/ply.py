@@ -19,6 +19,7 @@ import numpy as np
 from service.errors import MeshFileError, SettingsError
 from service.loaders._build import decode_text, finish_mesh, pad_flat, read_bytes, to_int
 from service.mesh import Mesh
+from service.mesh_repair import MeshRepair
 
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -132,8 +133,14 @@ def parse_header(path: Path, data: bytes) -> tuple[Header, int]:
 # --- ascii body -------------------------------------------------------------------
 
 
-def _ascii_record(path: Path, where: str, tokens: list[str], props: list[Property]) -> list:
-    """Values of one record: a float per scalar, a list of ints per list property."""
+def _ascii_record(
+    path: Path, where: str, tokens: list[str], props: list[Property], strict: bool = True
+) -> tuple[list, bool]:
+    """Values of one record, and whether it had extra trailing values.
+
+    A float per scalar, a list of ints per list property; extra values at the end are
+    ignored unless ``strict``, which refuses them.
+    """
     values, i = [], 0
     try:
         for prop in props:
@@ -155,9 +162,9 @@ def _ascii_record(path: Path, where: str, tokens: list[str], props: list[Propert
     except ValueError:
         reason = "a value is not a number of the declared type"
         raise MeshFileError(str(path), where, reason) from None
-    if i != len(tokens):
+    if i != len(tokens) and strict:
         raise MeshFileError(str(path), where, "more values than the declared properties")
-    return values
+    return values, i != len(tokens)
 
 
 # --- binary body ------------------------------------------------------------------
@@ -235,8 +242,10 @@ def _binary_general(el: Element, order: str, data: bytes, start: int) -> tuple[l
     return cols, pos
 
 
-def _read_binary(path: Path, data: bytes, head: Header, start: int) -> dict[str, list]:
-    """Columns (one per property) of the vertex and face elements."""
+def _read_binary(
+    path: Path, data: bytes, head: Header, start: int, strict: bool
+) -> tuple[dict[str, list], int]:
+    """Columns (one per property) of every element, and 0 lines with trailing values."""
     out, pos = {}, start
     for el in head.elements:
         try:
@@ -248,22 +257,30 @@ def _read_binary(path: Path, data: bytes, head: Header, start: int) -> dict[str,
             raise MeshFileError(str(path), where, "the file ends early") from None
         pos = new_pos
         out[el.name] = cols
-    return out
+    return out, 0
 
 
-def _read_ascii(path: Path, data: bytes, head: Header, start: int) -> dict[str, list]:
-    """Columns of every element of an ascii body (one record per non-blank line)."""
+def _read_ascii(
+    path: Path, data: bytes, head: Header, start: int, strict: bool
+) -> tuple[dict[str, list], int]:
+    """Columns of every element of an ascii body (one record per non-blank line).
+
+    Also returns how many lines had extra trailing values (ignored; ``strict``
+    refuses them).
+    """
     lines = decode_text(path, data[start:], head.n_lines + 1).splitlines()
     rows = [(head.n_lines + 1 + i, s.split()) for i, s in enumerate(lines) if s.strip()]
-    out, pos = {}, 0
+    out, pos, trailing = {}, 0, 0
     for el in head.elements:
         if pos + el.count > len(rows):
             raise MeshFileError(str(path), f"{el.name} {len(rows) - pos}", "the file ends early")
         chunk = rows[pos : pos + el.count]
-        recs = [_ascii_record(path, f"line {n}", t, el.props) for n, t in chunk]
+        recs = [_ascii_record(path, f"line {n}", t, el.props, strict) for n, t in chunk]
+        trailing += sum(extra for _, extra in recs)
         pos += el.count
-        out[el.name] = [list(c) for c in zip(*recs, strict=True)] or [[] for _ in el.props]
-    return out
+        cols = [list(c) for c in zip(*(r for r, _ in recs), strict=True)]
+        out[el.name] = cols or [[] for _ in el.props]
+    return out, trailing
 
 
 BODY_READERS = {"": _read_ascii, "<": _read_binary, ">": _read_binary}
@@ -289,7 +306,9 @@ def _vertices(path: Path, el: Element, cols: list) -> np.ndarray:
     return verts
 
 
-def _faces(path: Path, el: Element, cols: list, n_verts: int) -> tuple[np.ndarray, np.ndarray]:
+def _faces(
+    path: Path, el: Element, cols: list, n_verts: int, strict: bool
+) -> tuple[np.ndarray, np.ndarray]:
     i = _find(path, el, FACE_LISTS, True)
     if el.props[i].dtype[0] == "f":
         raise MeshFileError(str(path), f"element {el.name}", "vertex indices must be integers")
@@ -300,7 +319,7 @@ def _faces(path: Path, el: Element, cols: list, n_verts: int) -> tuple[np.ndarra
     else:
         counts = np.array([len(f) for f in col], dtype=np.int64)
         flat = np.concatenate([np.asarray(f, np.int64) for f in col]) if col else np.zeros(0, int)
-    small = np.nonzero(counts < 3)[0]
+    small = np.nonzero(counts < 3)[0] if strict else np.zeros(0, np.int64)
     if small.size:
         f = int(small[0])
         raise MeshFileError(str(path), f"face {f}", f"has {counts[f]} vertices; at least 3 needed")
@@ -313,18 +332,22 @@ def _faces(path: Path, el: Element, cols: list, n_verts: int) -> tuple[np.ndarra
     return pad_flat(flat, counts), counts
 
 
-def load_ply(path: str | Path) -> Mesh:
+def load_ply(path: str | Path, strict: bool = False) -> Mesh:
     """Read a PLY file (ascii, binary_little_endian or binary_big_endian).
 
     Parameters
     ----------
     path : str or Path
+    strict : bool
+        Refuse faces of under 3 corners, extra values on ascii lines, and polygons
+        that are not planar and convex, instead of repairing them
+        (:mod:`service.mesh_repair`).
 
     Returns
     -------
     Mesh
         Vertices (V, 3) from x, y, z; polygons from the face element's index lists
-        (zero-area faces dropped with a warning).
+        (degenerate faces dropped, bad shapes triangulated, with one warning).
 
     Raises
     ------
@@ -339,10 +362,11 @@ def load_ply(path: str | Path) -> Mesh:
     for need in ("vertex", "face"):
         if need not in elements:
             raise MeshFileError(str(path), "header", f"no {need} element")
-    cols = BODY_READERS[head.fmt](path, data, head, start)
+    cols, trailing = BODY_READERS[head.fmt](path, data, head, start, strict)
     verts = _vertices(path, elements["vertex"], cols["vertex"])
-    polygons, counts = _faces(path, elements["face"], cols["face"], verts.shape[0])
-    return finish_mesh(path, verts, polygons, counts, lambda p: f"face {p}")
+    polygons, counts = _faces(path, elements["face"], cols["face"], verts.shape[0], strict)
+    report = MeshRepair(trailing_values=trailing)
+    return finish_mesh(path, verts, polygons, counts, lambda p: f"face {p}", strict, report)
 
 
 def save_ply(path: str | Path, mesh: Mesh, fmt: str = "binary_little_endian") -> None:

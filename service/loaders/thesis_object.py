@@ -122,12 +122,15 @@ def weld(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return points[np.sort(first)], index
 
 
-def load_thesis_object(path: str | Path) -> Mesh:
+def load_thesis_object(path: str | Path, strict: bool = False) -> Mesh:
     """Read a thesis object file.
 
     Parameters
     ----------
     path : str or Path
+    strict : bool
+        Refuse polygons that are not planar and convex instead of triangulating them
+        (:func:`~service.loaders._build.finish_mesh`).
 
     Returns
     -------
@@ -150,7 +153,8 @@ def load_thesis_object(path: str | Path) -> Mesh:
     vertices, index = weld(_coordinates(path, rows, counts, starts))
     k_lines = [rows[s - 1][0] for s in starts]  # the line of each polygon's k
     polygons = pad_flat(index, counts)
-    return finish_mesh(path, vertices, polygons, counts, lambda p: f"line {k_lines[p]}")
+    return finish_mesh(path, vertices, polygons, counts, lambda p: f"line {k_lines[p]}",
+                       strict)
 
 
 def save_thesis_object(path: str | Path, mesh: Mesh, comment: str = "") -> None:
