@@ -140,3 +140,21 @@ def test_the_checker_catches_an_upward_import():
     imports = {i for i in _imports(tree) if _is_module(i)}
     assert imports == {"sim_devices.tracker"}
     assert not _within("sim_devices.tracker", ALLOWED["drivers"])
+
+
+def test_every_exception_class_joins_the_one_hierarchy():
+    import importlib
+    import inspect
+
+    from service.errors import HoloError
+
+    outside = []
+    for name in MODULES:
+        module = importlib.import_module(name)
+        for cls_name, cls in inspect.getmembers(module, inspect.isclass):
+            # private control flow and warnings aside
+            if (cls.__module__ == name and issubclass(cls, Exception)
+                    and not issubclass(cls, (HoloError, Warning))
+                    and not cls_name.startswith("_")):
+                outside.append(f"{name}.{cls_name}")
+    assert not outside, f"not HoloErrors: {outside}"
