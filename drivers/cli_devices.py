@@ -40,7 +40,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, TextIO
 
 from drivers.dialbox_driver import DialBoxDriver
-from drivers.events import DEFAULT_COUNTS_PER_TURN, DialEvent, Event, StatusEvent
+from drivers.events import DEFAULT_COUNTS_PER_TURN, Event, StatusEvent
 from drivers.protocols.sgi_dialbox import BAUD as SGI_BAUD
 from drivers.publisher import Publisher
 from drivers.reader import (
@@ -179,9 +179,7 @@ def dump_listener(out: TextIO, t0_ns: int,
     """
 
     def line(ev: Event) -> str:
-        if isinstance(ev, DialEvent):
-            return ev.to_json(t0_ns, counts_per_turn) + "\n"
-        return ev.to_json(t0_ns) + "\n"
+        return ev.to_json(t0_ns, counts_per_turn) + "\n"
 
     def dump(item: Item, events: list[Event]) -> None:
         if events:

@@ -55,6 +55,7 @@ from drivers.cli_devices import (
 )
 from drivers.events import DEFAULT_COUNTS_PER_TURN, Event, StatusEvent
 from drivers.protocols import DEVICE_OF
+from drivers.pty_link import PtyLink
 from drivers.publisher import Publisher
 from drivers.reader import (
     CONTROL_PROTOCOL,
@@ -77,7 +78,6 @@ from service.signals import (
     exit_status,
     stop_on_signals,
 )
-from sim_devices.endpoints import PtyLink
 
 #: default line rate per protocol for raw captures.
 RAW_BAUD = {"hatire": 115200, "native": 115200, "sgi": 9600}

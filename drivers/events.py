@@ -48,8 +48,33 @@ NS_PER_S = 1_000_000_000
 DEFAULT_COUNTS_PER_TURN = 200
 
 
+class _Dumped:
+    """The dump schema, written once for every event class (a mixin, no state).
+
+    A dict is ``{"t": seconds since t0_ns, "device", "kind", **payload}``; the
+    subclasses give ``device``, ``kind`` and ``payload(counts_per_turn)``.
+    """
+
+    __slots__ = ()
+
+    def to_dict(self, t0_ns: int = 0,
+                counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> dict[str, Any]:
+        """Dump-schema dict; ``t`` is seconds since ``t0_ns``.
+
+        ``counts_per_turn`` sets a dial event's ``turns``; other events ignore it.
+        """
+        out: dict[str, Any] = {"t": (self.t_ns - t0_ns) / NS_PER_S,  # type: ignore[attr-defined]
+                               "device": self.device, "kind": self.kind}  # type: ignore[attr-defined]
+        out.update(self.payload(counts_per_turn))  # type: ignore[attr-defined]
+        return out
+
+    def to_json(self, t0_ns: int = 0, counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> str:
+        """Dump-schema JSON text (one line)."""
+        return json.dumps(self.to_dict(t0_ns, counts_per_turn), separators=(",", ":"))
+
+
 @dataclass(frozen=True, slots=True)
-class PoseEvent:
+class PoseEvent(_Dumped):
     """A head-tracker pose.
 
     Parameters
@@ -86,8 +111,8 @@ class PoseEvent:
     device = "tracker"
     kind = "pose"
 
-    def payload(self) -> dict[str, Any]:
-        """Kind-specific fields of the dump schema."""
+    def payload(self, counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> dict[str, Any]:
+        """Kind-specific fields of the dump schema (``counts_per_turn``: dials only)."""
         out: dict[str, Any] = {
             "yaw": self.yaw, "pitch": self.pitch, "roll": self.roll,
             "x": self.x, "y": self.y, "z": self.z, "seq": self.seq,
@@ -98,17 +123,9 @@ class PoseEvent:
             out["device_t_us"] = self.device_t_us
         return out
 
-    def to_dict(self, t0_ns: int = 0) -> dict[str, Any]:
-        """Dump-schema dict; ``t`` is seconds since ``t0_ns``."""
-        return _envelope(self, t0_ns)
-
-    def to_json(self, t0_ns: int = 0) -> str:
-        """Dump-schema JSON text (one line)."""
-        return json.dumps(self.to_dict(t0_ns), separators=(",", ":"))
-
 
 @dataclass(frozen=True, slots=True)
-class DialEvent:
+class DialEvent(_Dumped):
     """A dial turned.
 
     Parameters
@@ -150,22 +167,9 @@ class DialEvent:
         """Absolute value in turns (VRPN uses 200 counts per turn)."""
         return self.value / counts_per_turn
 
-    def to_dict(self, t0_ns: int = 0,
-                counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> dict[str, Any]:
-        """Dump-schema dict; ``t`` is seconds since ``t0_ns``."""
-        out: dict[str, Any] = {"t": (self.t_ns - t0_ns) / NS_PER_S, "device": self.device,
-                               "kind": self.kind}
-        out.update(self.payload(counts_per_turn))
-        return out
-
-    def to_json(self, t0_ns: int = 0,
-                counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> str:
-        """Dump-schema JSON text (one line)."""
-        return json.dumps(self.to_dict(t0_ns, counts_per_turn), separators=(",", ":"))
-
 
 @dataclass(frozen=True, slots=True)
-class ButtonEvent:
+class ButtonEvent(_Dumped):
     """A button pressed or released.
 
     Parameters
@@ -189,21 +193,13 @@ class ButtonEvent:
     device = "dials"
     kind = "button"
 
-    def payload(self) -> dict[str, Any]:
-        """Kind-specific fields of the dump schema."""
+    def payload(self, counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> dict[str, Any]:
+        """Kind-specific fields of the dump schema (``counts_per_turn``: dials only)."""
         return {"index": self.index, "pressed": self.pressed}
-
-    def to_dict(self, t0_ns: int = 0) -> dict[str, Any]:
-        """Dump-schema dict; ``t`` is seconds since ``t0_ns``."""
-        return _envelope(self, t0_ns)
-
-    def to_json(self, t0_ns: int = 0) -> str:
-        """Dump-schema JSON text (one line)."""
-        return json.dumps(self.to_dict(t0_ns), separators=(",", ":"))
 
 
 @dataclass(frozen=True, slots=True)
-class StatusEvent:
+class StatusEvent(_Dumped):
     """Something about the link rather than a reading.
 
     Parameters
@@ -235,27 +231,12 @@ class StatusEvent:
         """True when the decoder asks the driver to re-initialise the device."""
         return self.details.get("action") == "reinit"
 
-    def payload(self) -> dict[str, Any]:
-        """Kind-specific fields of the dump schema."""
+    def payload(self, counts_per_turn: int = DEFAULT_COUNTS_PER_TURN) -> dict[str, Any]:
+        """Kind-specific fields of the dump schema (``counts_per_turn``: dials only)."""
         return {"event": self.event, "details": dict(self.details)}
-
-    def to_dict(self, t0_ns: int = 0) -> dict[str, Any]:
-        """Dump-schema dict; ``t`` is seconds since ``t0_ns``."""
-        return _envelope(self, t0_ns)
-
-    def to_json(self, t0_ns: int = 0) -> str:
-        """Dump-schema JSON text (one line)."""
-        return json.dumps(self.to_dict(t0_ns), separators=(",", ":"))
 
 
 Event = PoseEvent | DialEvent | ButtonEvent | StatusEvent
-
-
-def _envelope(ev: Event, t0_ns: int) -> dict[str, Any]:
-    out: dict[str, Any] = {"t": (ev.t_ns - t0_ns) / NS_PER_S, "device": ev.device,
-                           "kind": ev.kind}
-    out.update(ev.payload())
-    return out
 
 
 def _pose(d: Mapping[str, Any], t_ns: int) -> PoseEvent:

@@ -219,10 +219,7 @@ class Publisher:
         return sock
 
     def _envelope(self, ev: Event) -> dict[str, Any]:
-        if isinstance(ev, DialEvent):
-            d = ev.to_dict(self.t0_ns, self.counts_per_turn)
-        else:
-            d = ev.to_dict(self.t0_ns)
+        d = ev.to_dict(self.t0_ns, self.counts_per_turn)
         d["t_ns"] = ev.t_ns
         d["session"] = self.session
         return d

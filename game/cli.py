@@ -4,7 +4,7 @@
 
     holo-game                                   # service on tcp://127.0.0.1:5555, a window
     holo-game --local                           # no service: in-process renderer
-    holo-game --devices tcp://127.0.0.1:5557    # dial box, buttons and head tracker
+    holo-game --devices tcp://127.0.0.1:5560    # dial box, buttons and head tracker
     holo-game --local --bot --headless --seconds 20 --out demo-out
 
 Every key, dial-box and gamepad binding is listed by ``holo-game --help``, made
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import sys
 import time
 from collections.abc import Sequence
@@ -26,9 +25,11 @@ from pathlib import Path
 from game.actions import binding_help, lamp_mask
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
-from service.display import DisplaySettings, parse_size
+from service.cli_args import add_size_option, plain_help
+from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
+from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, interruptible
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
 
@@ -37,8 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line."""
     p = argparse.ArgumentParser(
         prog="holo-game",
-        description=__doc__.split("\n\n")[0],
-        epilog=binding_help({f"mode_{m}": "not available" for m in UNAVAILABLE}),
+        description=plain_help(__doc__.split("\n\n")[0]),
+        epilog=plain_help(binding_help({f"mode_{m}": "not available" for m in UNAVAILABLE}))
+        + "\n\n" + EXIT_RULE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--service", default=DEFAULT_SERVICE, help="holo-service control address")
@@ -93,7 +95,7 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
         help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
     )
     p.add_argument("--zones", type=int, default=5, help="view zones (default 5)")
-    p.add_argument("--size", default="200x150", help="pixels per zone, COLSxROWS")
+    add_size_option(p, (200, 150), "pixels per zone")
     p.add_argument("--refresh", type=float, default=60.0, help="refresh rate, Hz")
 
 
@@ -132,7 +134,7 @@ def _setup(args: argparse.Namespace) -> tuple:
     from game.scene import attacker_mesh, game_scene
     from service.errors import ServiceError
 
-    cols, rows = parse_size(args.size)
+    cols, rows = args.size
     display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
     light = "blinn" if args.full_light else "ambient"
     settings = BackendSettings(display, light, args.refresh)
@@ -161,7 +163,11 @@ def _setup(args: argparse.Namespace) -> tuple:
 
 
 def run(args: argparse.Namespace) -> dict:
-    """Play (or let the bot play) until quit or ``--seconds``; returns the stats."""
+    """Play (or let the bot play) until quit or ``--seconds``; returns the stats.
+
+    The stats are also kept in ``args.stats``, written and closed down even when a
+    signal (:func:`~service.signals.interruptible`) ends the game.
+    """
     import pygame
 
     from game.capture import Capture
@@ -172,13 +178,14 @@ def run(args: argparse.Namespace) -> dict:
         game, args.mode, args.zone, args.bot, name=args.name, bot_gives_up=args.bot_gives_up
     )
     client = GameClient(backend, window, loop, devices, scores, beeper)
-    signal.signal(signal.SIGTERM, lambda *_: setattr(client, "quit", True))
     start = time.monotonic()
     capture = Capture(args.out, start) if args.out else None
+    cols, rows = args.size
+    where = "in process" if args.local else f"by {args.service}"
+    print(f"holo-game: playing, {args.mode} mode, {args.zones} zones of {cols}x{rows} "
+          f"rendered {where}", file=sys.stderr, flush=True)
     try:
         client.run(args.seconds, capture)
-    except KeyboardInterrupt:
-        pass
     finally:
         stats = client.stats(time.monotonic() - start)
         backend.close()
@@ -188,7 +195,13 @@ def run(args: argparse.Namespace) -> dict:
             stats["files"] = [p.name for p in capture.finish()]
             (Path(args.out) / "stats.json").write_text(json.dumps(stats, indent=1))
         pygame.quit()
+        args.stats = stats
     return stats
+
+
+def _play(args: argparse.Namespace) -> int:
+    run(args)
+    return EXIT_OK
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -207,12 +220,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.headless = True
         os.environ.update(headless_env({}))
     try:
-        stats = run(args)
+        status = interruptible("holo-game", lambda: _play(args))
     except (HoloError, ValueError, OSError) as exc:
         print(f"holo-game: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps(stats))
-    return 0
+        return EXIT_USAGE
+    if getattr(args, "stats", None) is not None:
+        print(json.dumps(args.stats))
+    return status
 
 
 if __name__ == "__main__":

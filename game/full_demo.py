@@ -33,7 +33,7 @@ ANY = "tcp://127.0.0.1:0"
 POLL_S = 0.02
 
 
-class Stopped(Exception):
+class Stopped(BaseException):  # noqa: N818 -- a stop, like KeyboardInterrupt
     """A signal asked the demo to stop.
 
     Parameters

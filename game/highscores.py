@@ -23,11 +23,14 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from service.errors import HoloError
+
 KEEP = 10
 VERSION = 1
 
 
-class HighScoreFileError(ValueError):
+
+class HighScoreFileError(HoloError, ValueError):
     """The high-score file is unreadable; ``backup`` is where a copy was kept."""
 
     def __init__(self, path: Path, reason: str, backup: Path | None) -> None:

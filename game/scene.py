@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from game.rules import GameState, attacker_velocities
+from service.errors import HoloError
 from service.mesh import Mesh
 from service.primitives import attacker, player
 from service.scene import (
@@ -47,7 +48,8 @@ ATTACKER_COLOURS = (
 )
 
 
-class SceneError(ValueError):
+
+class SceneError(HoloError, ValueError):
     """A game object breaks the rules (too many polygons)."""
 
 

@@ -35,7 +35,6 @@ __all__ = [
     "float_range",
     "int_range",
     "plain_help",
-    "scene_name",
     "size",
 ]
 
@@ -130,16 +129,6 @@ def endpoint(bind: bool = True) -> Callable[[str], str]:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
     return _named(parse, "address")
-
-
-def scene_name(text: str) -> str:
-    """An argparse type: a built-in scene, canonical spelling (``sphere_torus`` ok)."""
-    from service.scenes import canonical_scene_name
-
-    try:
-        return canonical_scene_name(text)
-    except SettingsError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 class _SizePart(argparse.Action):

@@ -35,12 +35,12 @@ BENCHES = {
         "service.bench.service_bench",
         "render service: transport overhead, round trip, workers, motion-to-photon",
     ),
-    "filters": ("drivers.bench_filters", "pose filters: jitter vs lag"),
+    "filters": ("service.bench.filters_bench", "pose filters: jitter vs lag"),
     "latency": (
-        "drivers.bench_latency",
+        "service.bench.latency_bench",
         "device drivers: byte arrival to published event (p50/p99)",
     ),
-    "decoders": ("drivers.bench_decoders", "serial protocol decoders: MB/s"),
+    "decoders": ("service.bench.decoders_bench", "serial protocol decoders: MB/s"),
 }
 
 

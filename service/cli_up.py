@@ -49,7 +49,7 @@ from typing import Any
 
 from service.addresses import default_address
 from service.cli_args import plain_help
-from service.errors import SettingsError
+from service.errors import HoloError, SettingsError
 from service.signals import (
     EXIT_FAILED,
     EXIT_OK,
@@ -274,7 +274,7 @@ READY: dict[str, tuple[str, Callable[[str], bool], Callable[[str], str],
 }
 
 
-class StartError(Exception):
+class StartError(HoloError):
     """A program exited or stayed silent while starting, or failed later."""
 
 

@@ -2,7 +2,11 @@
 
 Every error raised on purpose by Holo-realizer code derives from :class:`HoloError`,
 so a caller can catch everything the library reports with one ``except`` clause
-and still tell the kinds apart.
+and still tell the kinds apart.  The classes below are shared across packages; a few
+errors of one package's own live beside their code and derive from :class:`HoloError`
+too: ``service.galilean.GalileanError``, ``game.scene.SceneError`` and
+``game.highscores.HighScoreFileError``.  This module is the bottom layer: it imports
+nothing of the project.
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ All scenes fit the default display (width 2.0 centred on the origin, height 1.5 
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Callable
 
 import numpy as np
@@ -244,3 +245,11 @@ def builtin_scene(name: str) -> Scene:
         For an unknown name (the message lists the known ones).
     """
     return SCENES[canonical_scene_name(name)]()
+
+
+def scene_name(text: str) -> str:
+    """An argparse type: a built-in scene, canonical spelling (``sphere_torus`` ok)."""
+    try:
+        return canonical_scene_name(text)
+    except SettingsError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

@@ -23,12 +23,13 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from drivers.pty_link import PtyLink
 from drivers.tracker_driver import add_command_options, commands_from_args
 from service.cli_args import float_range, int_range, plain_help
 from service.errors import HoloError
 from service.signals import EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
 from sim_devices.dialbox import DialBoxSim, demo_script
-from sim_devices.endpoints import DeviceRunner, PtyLink, TcpLink
+from sim_devices.endpoints import DeviceRunner, TcpLink
 from sim_devices.faults import FaultSpec
 from sim_devices.motion import MOTIONS, make_motion
 from sim_devices.tracker import TrackerSim

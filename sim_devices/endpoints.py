@@ -6,10 +6,8 @@ Links (all offer ``name``, ``write``, ``read_available``, ``disconnect``,
 * :class:`LoopLink` - a pyserial ``loop://`` port for in-process tests.  What the
   device writes, a reader of ``link.port`` gets; it is one-way (host commands
   cannot be told apart from the device's own bytes, so none are read).
-* :class:`PtyLink` - a pseudo-terminal pair (``os.openpty``); ``name`` is the slave
-  device path another process opens with ``serial.serial_for_url(path)``.  A
-  disconnect closes the pair and a reconnect makes a new one; pass ``symlink`` to
-  get a stable path that is re-pointed at each new slave.
+* :class:`~drivers.pty_link.PtyLink` - a pseudo-terminal pair; it lives in ``drivers``
+  because ``holo-replay --pty`` uses it too.
 * :class:`TcpLink` - a TCP server on 127.0.0.1 only; clients open
   ``socket://127.0.0.1:PORT``.  A disconnect closes the client connection and a
   reconnect waits for the next client.
@@ -26,7 +24,6 @@ has ``power_cycle()`` (a tracker waiting for its start command waits again).
 from __future__ import annotations
 
 import contextlib
-import os
 import select
 import socket
 import threading
@@ -88,117 +85,6 @@ class LoopLink:
     def close(self) -> None:
         """Close the port."""
         self.port.close()
-
-
-class PtyLink:
-    """A pty pair; the device owns the master side, clients open ``name``.
-
-    Parameters
-    ----------
-    symlink : str or None
-        A path kept pointing at the current slave device (replaced atomically).
-    stop : threading.Event or None
-        When set, a write blocked on a full pty gives up (see :meth:`write`).
-    """
-
-    def __init__(self, symlink: str | None = None,
-                 stop: threading.Event | None = None) -> None:
-        self.symlink = symlink
-        self.stop = stop
-        self._master = self._slave = -1
-        self.name = ""
-        self._open()
-
-    def _open(self) -> None:
-        import tty
-
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.name = os.ttyname(self._slave)
-        if self.symlink:
-            tmp = f"{self.symlink}.tmp{os.getpid()}"
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(tmp)
-            os.symlink(self.name, tmp)
-            os.replace(tmp, self.symlink)
-
-    @property
-    def path(self) -> str:
-        """The path a client should open (the symlink if there is one)."""
-        return self.symlink or self.name
-
-    def write(self, data: bytes) -> None:
-        """Write all of ``data`` (waits while the pty buffer is full).
-
-        If ``stop`` is set while it waits (nobody reads the slave side), the rest of
-        ``data`` is dropped so the program can exit.
-        """
-        view = memoryview(data)
-        while view and not (self.stop is not None and self.stop.is_set()):
-            try:
-                n = os.write(self._master, view)
-            except BlockingIOError:
-                select.select([], [self._master], [], POLL_S)
-                continue
-            except OSError as exc:
-                raise DeviceError(f"pty {self.name} write failed: {exc}") from exc
-            view = view[n:]
-
-    def wait_client(self, stop: threading.Event | None = None) -> None:
-        """Nothing to wait for: bytes wait in the pty until a client opens it."""
-
-    def read_available(self) -> bytes:
-        """Host bytes waiting on the master side (b"" if none)."""
-        try:
-            return os.read(self._master, 4096)
-        except (BlockingIOError, OSError):
-            return b""
-
-    def drain(self, timeout: float = 10.0) -> None:
-        """Wait (up to ``timeout``) until the client has read what was sent.
-
-        Closing the pty discards what the client has not read yet, so a run that
-        ends by itself waits for a slow reader (a loaded machine can leave one
-        seconds behind); a run stopped through ``stop`` does not wait.
-        """
-        import fcntl
-        import struct
-        import termios
-
-        deadline = time.monotonic() + timeout
-        buf = bytearray(4)
-        empty = 0  # the kernel moves pty data in the background: want 3 empty looks
-        while (self._slave >= 0 and empty < 3 and time.monotonic() < deadline
-               and not (self.stop is not None and self.stop.is_set())):
-            fcntl.ioctl(self._slave, termios.FIONREAD, buf)
-            empty = empty + 1 if struct.unpack("i", buf)[0] == 0 else 0
-            select.select([], [], [], POLL_S)
-
-    def disconnect(self) -> None:
-        """Close both ends (a client sees the device vanish).
-
-        The symlink goes first: while the device is away, a client retrying the link
-        must not open whatever pty the kernel hands the recycled ``/dev/pts/N`` to.
-        """
-        if self.symlink:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.symlink)
-        for fd in (self._master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-        self._master = self._slave = -1
-
-    def reconnect(self, stop: threading.Event | None = None) -> None:
-        """A new pty pair (new ``name``; the symlink follows)."""
-        self._open()
-
-    def close(self) -> None:
-        """Close both ends and remove the symlink."""
-        self.disconnect()
-        if self.symlink:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.symlink)
 
 
 class TcpLink:

@@ -2,7 +2,7 @@
 
 ``holo-bench galilean --case NAME --order N --interval K --frames F [--json]``
     Runs a thought experiment (``falling``, ``uniform``, ``rotating-square``,
-    ``galcube``; see :mod:`service.galilean.experiments`) or a rendered ``scene``
+    ``galcube``; see :mod:`service.bench.galilean_experiments`) or a rendered ``scene``
     (a spinning, drifting cube through the real stage) with an update every K
     refreshes, and prints per refresh the displayed position and its error
     against the exact motion (signed px for 1-D cases, the largest absolute px
@@ -40,9 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cli_args import add_size_option, int_range, plain_help
-from service.display import DisplaySettings
-from service.galilean.experiments import (
+from service.bench.galilean_experiments import (
     CASES,
     ONE_D,
     galcube_paper,
@@ -50,6 +48,8 @@ from service.galilean.experiments import (
     run_case,
     run_tracker,
 )
+from service.cli_args import add_size_option, int_range, plain_help
+from service.display import DisplaySettings
 from service.galilean.fixed_point import (
     FixedPoint,
     bit_budget,

@@ -26,7 +26,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from service.cli_args import add_size_option, comma_list, int_range, plain_help, scene_name
+from service.cli_args import add_size_option, comma_list, int_range, plain_help
 from service.cull import cull
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
@@ -37,7 +37,7 @@ from service.primitives import sphere
 from service.projection import project
 from service.scene import Light, Material, Scene, SceneArrays, SceneObject
 from service.scenes import SCENES as BUILTIN_SCENES
-from service.scenes import builtin_scene
+from service.scenes import builtin_scene, scene_name
 
 #: (model, evaluation) pairs measured; ("blinn", "point") is the reference.
 VARIANTS = (

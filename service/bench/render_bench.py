@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.cli_args import plain_help
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
@@ -285,7 +286,8 @@ def write_rows(rows: list[dict], stem: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the occlusion benchmark; return the exit status."""
-    p = argparse.ArgumentParser(prog="holo-bench render", description=__doc__)
+    p = argparse.ArgumentParser(prog="holo-bench render", description=plain_help(__doc__),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="bench-out", help="output folder")
     p.add_argument("--quick", action="store_true", help="zones 1 and 5 only, fewer repeats")
     p.add_argument("--scenes", default=",".join(SCENE_NAMES), help="comma-separated scene names")

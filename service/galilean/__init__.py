@@ -4,8 +4,8 @@ Modules: :mod:`.fixed_point` (bit budget, arithmetic), :mod:`.galpixmap` (SoA ma
 :mod:`.motion_field` (apparent motion from the renderer), :mod:`.propagate` (the
 one-pass scatter), :mod:`.poisson` (test and expansion), :mod:`.local_update`
 (Flinders Street buffers, use-by dates, priorities), :mod:`.head_motion` (viewer
-motion), :mod:`.stage` (the object the service drives) and :mod:`.experiments`
-(the paper's thought experiments).  See ``docs/galilean.md``.
+motion), and :mod:`.stage` (the object the service drives).  The paper's thought experiments
+are in :mod:`service.bench.galilean_experiments`.  See ``docs/galilean.md``.
 """
 
 from service.galilean.fixed_point import BitBudget, FixedPoint, bit_budget

@@ -20,11 +20,10 @@ from service.cli_args import (
     float_range,
     int_range,
     plain_help,
-    scene_name,
     size,
 )
 from service.errors import SettingsError
-from service.scenes import SCENES, builtin_scene, canonical_scene_name
+from service.scenes import SCENES, builtin_scene, canonical_scene_name, scene_name
 from service.server import DEFAULT_WORKER_ADDRESS
 
 

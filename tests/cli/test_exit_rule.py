@@ -163,3 +163,16 @@ def test_holo_render(procs, tmp_path, signum):
                    "640x480", "--out", str(tmp_path / "out"))
     _interrupt_when_at_work(render, signum)
     _one_line(render, "holo-render", signum)
+
+
+@linux_only
+@SIGNALS
+def test_holo_game(procs, tmp_path, signum):
+    game = procs("game.cli", "--local", "--headless", "--bot", "--seconds", "300",
+                 "--size", "40x30", "--highscores", str(tmp_path / "scores.json"))
+    game.wait_lines(lambda: any("playing" in ln for ln in game.err), timeout=60)
+    game.signal(signum)
+    assert game.finish(60) == STATUS[signum], game.err[-5:]
+    assert game.out and '"refreshes"' in game.out[-1]  # the stats still come
+    assert game.err[-1] == f"holo-game: interrupted ({signal.Signals(signum).name})"
+    assert not any("Traceback" in ln for ln in game.err)

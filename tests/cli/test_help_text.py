@@ -21,11 +21,8 @@ SCRIPTS = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scrip
 MARKUP = re.compile(r"``|:[a-z]+:`|(?<![\w*])\*[A-Za-z][^*\n]*\*(?![\w*])")
 #: Commands whose files other sessions own; their fixes are pending there (see the
 #: issue 16 report).  The xfail is strict: once fixed, drop the entry.
-PENDING_MARKUP = {"holo-service": "service/cli_service.py: description=plain_help(...)",
-                  "holo-game": "game/cli.py: description=plain_help(...)",
-                  "holo-bench render": "service/bench/render_bench.py: plain_help(__doc__)"}
-PENDING_RULE = {"holo-service": "service/cli_service.py: epilog with EXIT_RULE",
-                "holo-game": "game/cli.py: epilog with EXIT_RULE"}
+PENDING_MARKUP = {"holo-service": "service/cli_service.py: description=plain_help(...)"}
+PENDING_RULE = {"holo-service": "service/cli_service.py: epilog with EXIT_RULE"}
 #: Commands without the rule in their help: they run no loop and take no signal.
 NO_RULE = {"holo-service-keys"}
 

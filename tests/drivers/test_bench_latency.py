@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from drivers import bench_latency
+from service.bench import latency_bench as bench_latency
 
 
 @pytest.mark.parametrize("transport", [

@@ -220,7 +220,7 @@ def test_constant_rate_rotation_unwrapped_for_any_start(name, start, rate):
 
 
 def test_bench_lag_estimate_recovers_known_delay():
-    from drivers.bench_filters import best_lag
+    from service.bench.filters_bench import best_lag
 
     t = np.arange(2000) / 80.0
     ref = np.c_[np.sin(2 * np.pi * 0.5 * t), np.cos(2 * np.pi * 0.3 * t)]
@@ -231,7 +231,7 @@ def test_bench_lag_estimate_recovers_known_delay():
 
 
 def test_bench_simulations_are_seeded_and_cross_180():
-    from drivers.bench_filters import simulated
+    from service.bench.filters_bench import simulated
 
     a, b = simulated(7), simulated(7)
     for da, db in zip(a, b, strict=True):

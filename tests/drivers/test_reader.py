@@ -13,6 +13,7 @@ from drivers.dialbox_driver import DialBoxDriver
 from drivers.events import ButtonEvent, DialEvent, PoseEvent
 from drivers.protocols import hatire
 from drivers.protocols import sgi_dialbox as sgi
+from drivers.pty_link import PtyLink
 from drivers.reader import (
     Chunk,
     Control,
@@ -23,7 +24,7 @@ from drivers.reader import (
 )
 from service.errors import LogFileError, SettingsError
 from sim_devices.dialbox import DialBoxSim, Press, Turn
-from sim_devices.endpoints import DeviceRunner, LoopLink, PtyLink
+from sim_devices.endpoints import DeviceRunner, LoopLink
 from sim_devices.faults import FaultSpec
 from sim_devices.motion import make_motion
 from sim_devices.tracker import TrackerSim

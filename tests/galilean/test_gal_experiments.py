@@ -1,8 +1,7 @@
 import numpy as np
 import pytest
 
-from service.errors import SettingsError
-from service.galilean.experiments import (
+from service.bench.galilean_experiments import (
     falling,
     galcube,
     galcube_paper,
@@ -12,6 +11,7 @@ from service.galilean.experiments import (
     run_tracker,
     uniform,
 )
+from service.errors import SettingsError
 from service.galilean.fixed_point import FixedPoint, bit_budget
 
 

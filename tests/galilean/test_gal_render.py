@@ -166,7 +166,7 @@ def test_error_estimate_orders_re_renders():
 
 
 def test_order_guard_falls_back_from_noisy_g3():
-    from service.galilean.experiments import tracker_head_turn
+    from service.bench.galilean_experiments import tracker_head_turn
     fixed = FixedPoint.for_order(bit_budget(1024, 16, 16), 3)
     exact, estimate = tracker_head_turn("raw", 200)
     errs = np.zeros(4)

@@ -80,7 +80,8 @@ def help_sections(text: str) -> dict[str, dict[str, set[str]]]:
     """The epilog's sections: title -> action -> its inputs."""
     sections: dict[str, dict[str, set[str]]] = {}
     current = None
-    for line in text[text.index("\nkeys:") + 1 :].splitlines():
+    bindings = text[text.index("\nkeys:") + 1 :].split("\nExit status:")[0]  # the rule ends it
+    for line in bindings.splitlines():
         if line and not line.startswith(" "):
             current = sections.setdefault(line.split(" ")[0].rstrip(":"), {})
         elif line.strip() and current is not None:

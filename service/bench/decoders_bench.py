@@ -1,4 +1,4 @@
-"""Decoder throughput benchmark: ``python -m drivers.bench_decoders --out DIR``.
+"""Decoder throughput benchmark: ``python -m service.bench.decoders_bench --out DIR``.
 
 Feeds each protocol's decoder a prepared byte stream in ``--chunk``-sized pieces (as
 a serial reader would) and reports megabytes (10**6 bytes) per second on one core,

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m drivers.bench_latency --out DIR [--frames N] [--rate HZ]
+    python -m service.bench.latency_bench --out DIR [--frames N] [--rate HZ]
                                     [--protocol native|hatire] [--transport pty|loop]
                                     [--wiring inline|hub|inline,hub]
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m drivers.bench_filters --out DIR [--fixture PATH] [--seed N] [--lead-ms MS]
+    python -m service.bench.filters_bench --out DIR [--fixture PATH] [--seed N] [--lead-ms MS]
 
 Data:
 

@@ -1,0 +1,160 @@
+"""The packages import each other one way only (README, "Layout").
+
+Every module's imports (function-local ones included) are read with ``ast`` and
+checked against the layer table below, so a new module is checked without editing
+this file.  From the bottom up:
+
+* **base** - ``service.errors``, ``signals``, ``heap``, ``addresses``, ``cli_args``:
+  the exception hierarchy, the exit rule, the allocator knob, address and argparse
+  types.  They import nothing of ours but each other.
+* **protocols** - ``drivers.protocols``, ``drivers.events``: pure codecs and the events
+  they make.  Base only.
+* **drivers** - the rest of ``drivers``: readers, filters, recording, publisher,
+  ``pty_link``.  Base and protocols only (never the render service).
+* **sim_devices** - simulated devices: base, protocols and ``drivers.pty_link``.
+* **service** - the render pipeline, the Galilean stage, the ZeroMQ service: may use
+  drivers (the service subscribes to devices and filters poses), never sim_devices
+  or game.
+* **game** - a client of the service.
+* **top** - command-line modules and benchmarks (``service.bench``): anything; and
+  nothing below them imports them.
+"""
+
+from __future__ import annotations
+
+import ast
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("service", "drivers", "sim_devices", "game")
+BASE = ("service.errors", "service.signals", "service.heap", "service.addresses",
+        "service.cli_args")
+PROTOCOLS = ("drivers.protocols", "drivers.events")
+#: layer -> the prefixes its modules may import (besides their own package's layer).
+ALLOWED = {
+    "base": BASE,
+    "protocols": BASE + PROTOCOLS,
+    "drivers": BASE + PROTOCOLS + ("drivers",),
+    "sim_devices": BASE + PROTOCOLS + ("drivers.pty_link", "sim_devices"),
+    "service": ("service", "drivers"),
+    "game": ("game", "service", "drivers"),
+    "top": PACKAGES,
+}
+
+
+def _name(path: Path) -> str:
+    return ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+
+
+def _ours(names: set[str]) -> set[str]:
+    return {n for n in names if n.split(".")[0] in PACKAGES}
+
+
+def _imports(tree: ast.Module) -> set[str]:
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+            found.update(f"{node.module}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+    return _ours(found)
+
+
+def _is_command(name: str, tree: ast.Module, scripts: set[str]) -> bool:
+    """A console script's module, or a ``python -m`` one named as a command (cli, demo).
+
+    ``service.worker`` also runs as ``python -m``, but it is the service's own worker
+    process, started by the service: not a command.
+    """
+    runs = any(isinstance(n, ast.If) and "__main__" in ast.unparse(n.test) for n in tree.body)
+    last = name.rsplit(".", 1)[-1]
+    return name in scripts or (runs and (last.startswith("cli") or last.endswith("demo")))
+
+
+def _modules() -> dict[str, tuple[set[str], bool]]:
+    """Every module -> (the modules of ours it imports, whether it is a command)."""
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    commands = {entry.split(":")[0] for entry in scripts.values()}
+    out = {}
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            tree = ast.parse(path.read_text(), str(path))
+            name = _name(path)
+            out[name] = (_imports(tree), _is_command(name, tree, commands))
+    return out
+
+
+MODULES = _modules()
+
+
+def _is_module(name: str) -> bool:
+    return name in MODULES
+
+
+def layer(name: str) -> str:
+    """The layer a module belongs to."""
+    is_command = MODULES[name][1]
+    if is_command or name.startswith("service.bench"):
+        return "top"
+    if name.startswith(BASE):
+        return "base"
+    if name.startswith(PROTOCOLS):
+        return "protocols"
+    return name.split(".")[0]
+
+
+def _within(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+def test_every_module_is_read():
+    assert {"service.server", "drivers.reader", "sim_devices.tracker", "game.rules"} <= set(
+        MODULES)
+    assert layer("service.cli_render") == "top" and layer("service.errors") == "base"
+
+
+@pytest.mark.parametrize("name", sorted(MODULES))
+def test_imports_go_down_only(name):
+    imports, _ = MODULES[name]
+    allowed = ALLOWED[layer(name)]
+    # a name imported from a module (``from drivers.protocols import hatire``) counts by
+    # its module; names that are not modules are dropped
+    modules = {i for i in imports if _is_module(i)}
+    wrong = sorted(i for i in modules if not _within(i, allowed))
+    assert not wrong, f"{name} ({layer(name)} layer) imports {wrong}"
+
+
+@pytest.mark.parametrize("name", sorted(n for n in MODULES if layer(n) != "top"))
+def test_nothing_below_the_top_imports_a_command_or_a_benchmark(name):
+    imports, _ = MODULES[name]
+    top = sorted(i for i in imports if _is_module(i) and layer(i) == "top")
+    assert not top, f"{name} imports {top}"
+
+
+def test_the_checker_catches_an_upward_import():
+    tree = ast.parse("def f():\n    from sim_devices.tracker import TrackerSim\n")
+    imports = {i for i in _imports(tree) if _is_module(i)}
+    assert imports == {"sim_devices.tracker"}
+    assert not _within("sim_devices.tracker", ALLOWED["drivers"])
+
+
+def test_every_exception_class_joins_the_one_hierarchy():
+    import importlib
+    import inspect
+
+    from service.errors import HoloError
+
+    outside = []
+    for name in MODULES:
+        module = importlib.import_module(name)
+        for cls_name, cls in inspect.getmembers(module, inspect.isclass):
+            # private control flow and warnings aside
+            if (cls.__module__ == name and issubclass(cls, Exception)
+                    and not issubclass(cls, (HoloError, Warning))
+                    and not cls_name.startswith("_")):
+                outside.append(f"{name}.{cls_name}")
+    assert not outside, f"not HoloErrors: {outside}"
