@@ -28,16 +28,13 @@ from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
-from service.light import LightSettings
+from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.scene import Scene
 from service.scenes import SCENES, builtin_scene
 from service.signals import EXIT_RULE, interruptible
-
-LIGHT_MODELS = ("ambient", "phong", "blinn")
-EVALUATIONS = ("polygon", "vertex", "point")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,10 +56,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_size_option(p, (320, 240), "pixels per zone image")
     p.add_argument("--method", choices=METHOD_NAMES, default="zbuffer", help="occlusion method")
-    p.add_argument("--light", choices=LIGHT_MODELS, default="blinn", help="light model")
+    p.add_argument("--light", choices=tuple(MODELS), default="blinn", help="light model")
     p.add_argument(
         "--specular",
-        choices=EVALUATIONS,
+        choices=tuple(EVALUATIONS),
         default="polygon",
         help="where light is evaluated: per polygon (thesis), vertex or point",
     )
