@@ -8,6 +8,7 @@ module                 what
 :mod:`.planes`         billboard clouds: greedy Hough-binned plane choice and merge
 :mod:`.rectangle`      minimal-area bounding rectangle (hull + rotating calipers)
 :mod:`.billboard`      billboard clouds: planes, rectangles, texture shoot
+:mod:`.cloud_file`     the ``.hbc`` billboard-cloud file (zip of .npy + header.json)
 :mod:`.errors`         :class:`SimplifyError`
 =====================  ==========================================================
 """
