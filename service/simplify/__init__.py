@@ -5,6 +5,9 @@ module                 what
 =====================  ==========================================================
 :mod:`.quadric`        quadric edge-collapse decimation (fast-simplification)
 :mod:`.distance`       sampled surface-to-surface distance (the error in world units)
+:mod:`.planes`         billboard clouds: greedy Hough-binned plane choice and merge
+:mod:`.rectangle`      minimal-area bounding rectangle (hull + rotating calipers)
+:mod:`.billboard`      billboard clouds: planes, rectangles, texture shoot
 :mod:`.errors`         :class:`SimplifyError`
 =====================  ==========================================================
 """
