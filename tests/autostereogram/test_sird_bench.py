@@ -1,4 +1,4 @@
-"""``holo-bench sird`` runs small and writes its CSV, JSON and chart; bad values are usage errors."""
+"""``holo-bench sird`` runs small, writes CSV, JSON and chart; bad values are usage errors."""
 
 from __future__ import annotations
 
