@@ -49,6 +49,10 @@ BENCHES = {
         "device drivers: byte arrival to published event (p50/p99)",
     ),
     "decoders": ("service.bench.decoders_bench", "serial protocol decoders: MB/s"),
+    "sird": (
+        "service.bench.sird_bench",
+        "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
+    ),
 }
 
 
