@@ -224,6 +224,7 @@ def run(args: argparse.Namespace) -> dict:
             "max_error": quality.budget.as_dict(),
         },
         "quality": frame.stats.get("quality"),
+        "billboards": frame.stats.get("billboards"),
         "mesh": mesh_report(scene, load_ms, args.strict),
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
