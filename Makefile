@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo render-demo lint bench clean
+.PHONY: venv warmup test demo render-demo lint bench clean
 
 venv: $(STAMP)
 
@@ -14,13 +14,18 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-test: $(STAMP)
+# Compile every numba kernel ahead, with progress (minutes once per clone, then
+# about 2 s: everything loads from numba's cache).
+warmup: $(STAMP)
+	$(BIN)/holo-warmup
+
+test: warmup
 	$(BIN)/python -m pytest -q
 
-demo: $(STAMP)
+demo: warmup
 	$(BIN)/python -m game.full_demo --out demo-out
 
-render-demo: $(STAMP)
+render-demo: warmup
 	$(BIN)/python -m service.demo --out demo-out
 
 lint: $(STAMP)
@@ -33,6 +38,7 @@ bench: $(STAMP)
 	$(BIN)/holo-bench decoders --out bench-out/decoders
 	$(BIN)/holo-bench latency --out bench-out/latency
 	$(BIN)/holo-bench galilean --sweep --out bench-out/galilean
+	$(BIN)/holo-bench sird --out bench-out/sird
 
 clean:
 	rm -rf $(VENV) demo-out bench-out
