@@ -35,6 +35,10 @@ BENCHES = {
         "service.bench.quality_bench",
         "--quality auto: calibrate its cost model; its error against the budget",
     ),
+    "targets": (
+        "service.bench.targets_bench",
+        "open speed targets (zones, G(2) refresh, Galilean premise), ratios side by side",
+    ),
     "service": (
         "service.bench.service_bench",
         "render service: transport overhead, round trip, workers, motion-to-photon",
