@@ -30,6 +30,7 @@ from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
 from service.light import LightSettings
 from service.loaders import load_scene
+from service.lod_cli import add_lod_options, lod_settings
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.scene import Scene
@@ -85,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="refuse mesh files that would otherwise be repaired on load (non-planar or "
         "concave polygons, faces of under 3 corners, extra values on ascii PLY lines)",
     )
+    add_lod_options(p)
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
     p.add_argument("--out", default="render-out", help="output folder (default render-out)")
     p.add_argument(
@@ -149,6 +151,7 @@ def run(args: argparse.Namespace) -> dict:
     cols, rows = args.size
     display = DisplaySettings(zones=args.zones, angle_deg=args.angle, cols=cols, rows=rows)
     settings = RenderSettings(
+        lod=lod_settings(args),
         method=args.method,
         cull=CullSettings(args.cull),
         light=LightSettings(model=args.light, evaluation=args.specular),
@@ -178,6 +181,7 @@ def run(args: argparse.Namespace) -> dict:
             "specular": args.specular,
             "cull": args.cull,
             "painter_fallback": "off" if args.no_fallback else args.fallback,
+            "lod": "on" if settings.lod else "off",
         },
         "mesh": {
             **mesh_report(scene, load_ms, args.strict),
@@ -186,6 +190,7 @@ def run(args: argparse.Namespace) -> dict:
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
         "occlusion": occlusion_counters(frame.stats["occlusion"], frame.depth),
+        **({"lod": frame.stats["lod"]} if "lod" in frame.stats else {}),
         "out": str(out),
     }
 
