@@ -219,7 +219,7 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
         build_ms=(time.perf_counter() - t0) * 1e3,
         key=key,
     )
-    if folder is not None:
+    if folder is not None and len(chain.levels) > 1:
         write_chain(folder, chain)
     return chain
 
