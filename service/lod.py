@@ -42,6 +42,7 @@ import hashlib
 import json
 import os
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -274,7 +275,7 @@ def read_chain(folder: Path, key: str, mesh: Mesh) -> LodChain | None:
             return None
         return LodChain(tuple(levels), errors, tris, tuple(head["kinds"]),
                         float(head["radius"]), 0.0, key)
-    except (OSError, ValueError, KeyError, TypeError, HoloError, EOFError):
+    except (OSError, ValueError, KeyError, TypeError, HoloError, EOFError, zipfile.BadZipFile):
         return None
 
 
