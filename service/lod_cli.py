@@ -12,19 +12,22 @@ from service.cli_args import float_range
 from service.lod import LodSettings
 
 
-def add_lod_options(p: argparse.ArgumentParser) -> None:
-    """Add ``--lod``, ``--lod-error`` and ``--budget-ms`` to a parser."""
+def add_lod_options(p: argparse.ArgumentParser, budget: bool = True) -> None:
+    """Add ``--lod``, ``--lod-error`` and (with ``budget``) ``--budget-ms`` to a parser."""
     p.add_argument(
         "--lod", choices=("on", "off"), default=None,
         help="level of detail per object: each frame every object is drawn with the "
         "cheapest of its simplified meshes whose predicted screen error stays under "
         "--lod-error (chains cached in $HOLO_LOD_CACHE or ~/.cache/holo-realizer/lod); "
-        "off unless --lod-error or --budget-ms is given",
+        "off unless --lod-error" + (" or --budget-ms" if budget else "") + " is given",
     )
     p.add_argument(
         "--lod-error", type=float_range(0, None, lo_open=True), default=None, metavar="PX",
         help="largest predicted screen error of a level of detail, pixels > 0 (default 0.5)",
     )
+    if not budget:
+        p.set_defaults(budget_ms=None)
+        return
     p.add_argument(
         "--budget-ms", type=float_range(0, None, lo_open=True), default=None, metavar="MS",
         help="with --lod: frame-time budget; objects go coarser than --lod-error allows, "

@@ -193,3 +193,21 @@ def test_the_pipeline_draws_the_chosen_levels(ring, chain, monkeypatch, tmp_path
     plain = Renderer().render(scene, display)
     np.testing.assert_array_equal(off.depth, plain.depth)
     assert "lod" not in off.stats
+
+
+def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp_path):
+    """render_with_motion (the service's workers and the game's local renderer) applies it."""
+    from service.galilean.motion_field import render_with_motion
+    from service.worker import render_settings_from
+
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    settings = render_settings_from({"method": "zbuffer", "light_model": "ambient",
+                                     "specular": "polygon", "lod_error": 0.5})
+    assert settings.lod is not None and settings.lod.error_px == 0.5
+    assert render_settings_from({"method": "zbuffer", "light_model": "ambient",
+                                 "specular": "polygon"}).lod is None
+    scene = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.5]), scale=0.05),
+                               name="far")])
+    display = DisplaySettings(zones=3, cols=64, rows=48)
+    up = render_with_motion(Renderer(), scene, display, 0.0, 60.0, settings)
+    assert up.frame.stats["lod"]["levels"][0] >= 3
