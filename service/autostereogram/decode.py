@@ -7,7 +7,10 @@ the method would have linked is compared (``row``/``interpolated``: ``(x, x + s)
 the ``left`` convention; ``tiw``: ``(l, l + s)`` with ``l = x - (s + (s & y & 1)) / 2``,
 the ``centre`` convention); pairs whose channels all differ by at most ``tol`` match.
 The decoded separation is the ``s`` with most matches in a ``2 r + 1`` pixel window
-along the row (ties: the smaller ``s``); 0 where fewer than ``r + 1`` match.
+along the row (ties: the smaller ``s``); 0 where fewer than ``r + 1`` match.  For
+``interpolated`` (``sub = 4``) candidates go in quarter pixels and a pixel is compared
+with the linear blend of its partner's two neighbours, the method's own constraint;
+the result is rounded to whole pixels.
 
 Accuracy is the fraction of pixels *away from depth edges* whose decoded separation
 is within 1 of the expected ``s(z)``: a pixel is near an edge when the expected
@@ -31,6 +34,8 @@ CONVENTIONS: dict[str, int] = {"left": 0, "centre": 1}
 
 #: The convention each method links pixels by.
 METHOD_CONVENTION: dict[str, str] = {"row": "left", "interpolated": "left", "tiw": "centre"}
+#: Decoder settings per method: (tolerance in grey levels, candidates per pixel).
+METHOD_DECODE: dict[str, tuple[int, int]] = {"row": (0, 1), "interpolated": (2, 4), "tiw": (0, 1)}
 
 
 @nb.njit(cache=True)
@@ -40,27 +45,44 @@ def _pair_left(x: int, s: int, y: int, centre: int) -> int:
     return x
 
 
+@nb.njit(cache=True)
+def _match(img: np.ndarray, y: int, x: int, j: int, sub: int, centre: int, tol: int) -> int:
+    """1 if pixel pair ``j / sub`` apart (the convention's) match within ``tol``, else 0."""
+    w = img.shape[1]
+    nc = img.shape[2]
+    if sub == 1:
+        a = _pair_left(x, j, y, centre)
+        b = a + j
+        if a < 0 or b >= w:
+            return 0
+        for c in range(nc):
+            if abs(int(img[y, a, c]) - int(img[y, b, c])) > tol:
+                return 0
+        return 1
+    p = x * sub + j  # blended partner at x + j / sub
+    i = p // sub
+    f = p - i * sub
+    if i + 1 >= w:
+        return 0
+    for c in range(nc):
+        v = (int(img[y, i, c]) * (sub - f) + int(img[y, i + 1, c]) * f) / sub
+        if abs(v - int(img[y, x, c])) > tol + 0.5:
+            return 0
+    return 1
+
+
 @nb.njit(cache=True, parallel=True)
-def _decode_kernel(img: np.ndarray, s_lo: int, s_hi: int, centre: int, r: int, tol: int,
-                   out: np.ndarray) -> None:
+def _decode_kernel(img: np.ndarray, s_lo: int, s_hi: int, sub: int, centre: int, r: int,
+                   tol: int, out: np.ndarray) -> None:
     h, w, nc = img.shape
     for y in nb.prange(h):
         best = np.zeros(w, np.int32)
         match = np.zeros(w, np.int32)
         orow = out[y]
         orow[:] = 0
-        for s in range(s_lo, s_hi + 1):
+        for j in range(s_lo * sub, s_hi * sub + 1):
             for x in range(w):
-                a = _pair_left(x, s, y, centre)
-                b = a + s
-                m = 0
-                if a >= 0 and b < w:
-                    m = 1
-                    for c in range(nc):
-                        if abs(int(img[y, a, c]) - int(img[y, b, c])) > tol:
-                            m = 0
-                            break
-                match[x] = m
+                match[x] = _match(img, y, x, j, sub, centre, tol)
             acc = 0
             for x in range(min(r, w)):
                 acc += match[x]
@@ -71,11 +93,11 @@ def _decode_kernel(img: np.ndarray, s_lo: int, s_hi: int, centre: int, r: int, t
                     acc -= match[x - r - 1]
                 if acc > best[x] and acc >= r + 1:
                     best[x] = acc
-                    orow[x] = s
+                    orow[x] = (j + sub // 2) // sub
 
 
 def decode(image: np.ndarray, s_lo: int, s_hi: int, *, convention: str = "left",
-           radius: int = 3, tol: int = 0) -> np.ndarray:
+           radius: int = 3, tol: int = 0, sub: int = 1) -> np.ndarray:
     """Decoded separation per pixel.
 
     Parameters
@@ -88,8 +110,11 @@ def decode(image: np.ndarray, s_lo: int, s_hi: int, *, convention: str = "left",
     radius : int
         Half-width of the matching window.
     tol : int
-        Largest channel difference that still matches (0 for copies; a few levels for
-        ``interpolated``).
+        Largest channel difference that still matches (0 for copies).
+    sub : int
+        Candidate separations per pixel (``left`` only): with ``sub > 1`` a pixel is
+        compared with the linear blend of its two neighbours at ``x + j / sub``, the
+        ``interpolated`` method's own constraint.
 
     Returns
     -------
@@ -100,7 +125,9 @@ def decode(image: np.ndarray, s_lo: int, s_hi: int, *, convention: str = "left",
     if img.ndim == 2:
         img = img[:, :, None]
     out = np.zeros(img.shape[:2], np.int32)
-    _decode_kernel(np.ascontiguousarray(img), int(max(1, s_lo)), int(s_hi),
+    if sub > 1 and convention != "left":
+        raise ValueError("sub-pixel decoding is for the left convention")
+    _decode_kernel(np.ascontiguousarray(img), int(max(1, s_lo)), int(s_hi), int(sub),
                    CONVENTIONS[convention], int(radius), int(tol), out)
     return out
 

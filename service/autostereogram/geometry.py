@@ -46,9 +46,11 @@ def default_eye_sep(width: int, dpi: float = 72.0) -> float:
     """Default eye separation in pixels: 2.5 inches at ``dpi``, at most ``width / 3``.
 
     The cap keeps at least three repetitions across a small window (the service's
-    160x120 default), where 2.5 inches would not fuse.
+    160x120 default), where 2.5 inches would not fuse.  Rounded down to an even
+    number of pixels, so the far plane's separation ``E / 2`` is whole and
+    ``interpolated`` copies the background without blending it.
     """
-    return float(min(EYE_SEP_INCHES * dpi, width / 3.0))
+    return float(max(4, 2 * math.floor(min(EYE_SEP_INCHES * dpi, width / 3.0) / 2)))
 
 
 @dataclass(frozen=True)
