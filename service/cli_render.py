@@ -29,7 +29,7 @@ from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
-from service.light import LightSettings
+from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
 from service.lod_cli import add_lod_options, lod_settings
 from service.mesh_repair import MeshRepair, MeshRepairWarning
@@ -45,9 +45,6 @@ from service.quality import (
 from service.scene import Scene
 from service.scenes import SCENES, builtin_scene
 from service.signals import EXIT_RULE, interruptible
-
-LIGHT_MODELS = ("ambient", "phong", "blinn")
-EVALUATIONS = ("polygon", "vertex", "point")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,10 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_size_option(p, (320, 240), "pixels per zone image")
     p.add_argument("--method", choices=METHOD_NAMES, default="zbuffer", help="occlusion method")
-    p.add_argument("--light", choices=LIGHT_MODELS, default="blinn", help="light model")
+    p.add_argument("--light", choices=tuple(MODELS), default="blinn", help="light model")
     p.add_argument(
         "--specular",
-        choices=EVALUATIONS,
+        choices=tuple(EVALUATIONS),
         default="polygon",
         help="where light is evaluated: per polygon (thesis), vertex or point",
     )

@@ -41,7 +41,8 @@ from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
 from service.keys import curve_server, is_local, start_authenticator
-from service.pipeline import Renderer
+from service.light import EVALUATIONS, MODELS
+from service.pipeline import METHOD_NAMES, Renderer
 from service.quality import MODES as QUALITY_MODES
 from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.scene import MotionState, Scene, Transform, euler_quaternion
@@ -49,11 +50,11 @@ from service.scene_motion import advance_scene
 from service.signals import end_process
 from service.worker import StatsRenderer, render_job, stitch
 
+#: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
 ENCODINGS = ("colour", "depth", "debris")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
-METHODS = ("zbuffer", "runlength", "bsp", "raycast")
 
 
 @dataclass
@@ -1035,9 +1036,9 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         "width": wire.number(req.get("width", d.width), "width", 1e-6, 1e6),
     }
     choices = {
-        "method": METHODS,
-        "light_model": ("ambient", "phong", "blinn"),
-        "specular": ("polygon", "vertex", "point"),
+        "method": METHOD_NAMES,
+        "light_model": tuple(MODELS),
+        "specular": tuple(EVALUATIONS),
     }
     kw: dict[str, Any] = {}
     for key, allowed in choices.items():
@@ -1376,7 +1377,6 @@ class RefreshLoop:
         self.input = None
 
     def _publish(self, r: Any, made: dict[str, Any], settings: Settings) -> None:
-        arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris}
         names = list(settings.encodings)
         viewer = self.svc.state.viewer
         header = {
@@ -1390,4 +1390,4 @@ class RefreshLoop:
             "events": r.flags["events"],
             "age": r.flags["age"],
         }
-        self.svc.stream.publish(header, [arrays[n] for n in names], names)
+        self.svc.stream.publish(header, [getattr(r, n) for n in names], names)

@@ -34,7 +34,7 @@ import zmq
 from service import protocol, wire
 from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
-from service.galilean.galpixmap import Galpixmap, build
+from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.heap import keep_freed_memory
 from service.light import LightSettings
@@ -50,7 +50,6 @@ from service.scene import (
 )
 
 #: galpixmap fields a band reply carries (as ``gp_<field>``), joined along axis -2.
-GALPIXMAP_FIELDS = ("colour", "depth", "frac", "motion", "zmotion", "dcolour", "debris", "obj")
 READY = b"READY"
 
 
@@ -185,7 +184,7 @@ def render_job(
     t1 = time.perf_counter()
     out = {"colour": up.frame.colour, "depth": up.frame.depth}
     gp = _galpixmap(up, display, int(job.get("order", 2)))
-    out.update({f"gp_{k}": getattr(gp, k) for k in GALPIXMAP_FIELDS})
+    out.update({f"gp_{k}": getattr(gp, k) for k in FIELDS})
     if rows[0] == 0 and up.points is not None:
         out["points"] = up.points
         out["point_derivs"] = up.point_derivs
@@ -232,7 +231,7 @@ def stitch(
     rendered = RenderedUpdate(
         frame, None, None, None, viewer_motion, first.get("points"), first.get("point_derivs")
     )
-    fields = {k: np.array(join(f"gp_{k}", -2)) for k in GALPIXMAP_FIELDS}
+    fields = {k: np.array(join(f"gp_{k}", -2)) for k in FIELDS}
     return rendered, Galpixmap(order, fixed, **fields)
 
 
