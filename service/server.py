@@ -80,6 +80,8 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
+    #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
+    lod_error: float = 0.0
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -100,6 +102,8 @@ class Settings:
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
+    #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
+    lod_error: float = 0.0
     generation: int = 0
     #: "auto": each render's method and specular chosen within ``max_error``
     #: (service.quality); "fixed": as set.
@@ -121,6 +125,7 @@ class Settings:
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
+            "lod_error": self.lod_error,
             "quality": self.quality,
             "max_error": self.max_error,
         }
@@ -282,7 +287,8 @@ class Service:
         self.limits = protocol.Limits()
         self.counters = Counters()
         self.state = State(
-            Settings(config.display, refresh_hz=config.refresh_hz), devices=config.devices
+            Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error),
+            devices=config.devices
         )
         self.state.viewer.scale = config.pose_scale
         self._stop = threading.Event()
@@ -1053,6 +1059,8 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["encodings"] = _encodings(req["encodings"])
     if "refresh_hz" in req:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    if "lod_error" in req:  # pixels; 0 turns level of detail off
+        kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
     kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
