@@ -41,7 +41,8 @@ from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
 from service.keys import curve_server, is_local, start_authenticator
-from service.pipeline import Renderer
+from service.light import EVALUATIONS, MODELS
+from service.pipeline import METHOD_NAMES, Renderer
 from service.quality import MODES as QUALITY_MODES
 from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.scene import MotionState, Scene, Transform, euler_quaternion
@@ -49,11 +50,11 @@ from service.scene_motion import advance_scene
 from service.signals import end_process
 from service.worker import StatsRenderer, render_job, stitch
 
+#: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
 ENCODINGS = ("colour", "depth", "debris")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
-METHODS = ("zbuffer", "runlength", "bsp", "raycast")
 
 
 @dataclass
@@ -77,6 +78,8 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
+    #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
+    lod_error: float = 0.0
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -97,6 +100,8 @@ class Settings:
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
+    #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
+    lod_error: float = 0.0
     generation: int = 0
     #: "auto": each render's method and specular chosen within ``max_error``
     #: (service.quality); "fixed": as set.
@@ -118,6 +123,7 @@ class Settings:
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
+            "lod_error": self.lod_error,
             "quality": self.quality,
             "max_error": self.max_error,
         }
@@ -279,7 +285,8 @@ class Service:
         self.limits = protocol.Limits()
         self.counters = Counters()
         self.state = State(
-            Settings(config.display, refresh_hz=config.refresh_hz), devices=config.devices
+            Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error),
+            devices=config.devices
         )
         self.state.viewer.scale = config.pose_scale
         self._stop = threading.Event()
@@ -1029,9 +1036,9 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         "width": wire.number(req.get("width", d.width), "width", 1e-6, 1e6),
     }
     choices = {
-        "method": METHODS,
-        "light_model": ("ambient", "phong", "blinn"),
-        "specular": ("polygon", "vertex", "point"),
+        "method": METHOD_NAMES,
+        "light_model": tuple(MODELS),
+        "specular": tuple(EVALUATIONS),
     }
     kw: dict[str, Any] = {}
     for key, allowed in choices.items():
@@ -1045,6 +1052,8 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["encodings"] = _encodings(req["encodings"])
     if "refresh_hz" in req:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    if "lod_error" in req:  # pixels; 0 turns level of detail off
+        kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
     kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
@@ -1368,7 +1377,6 @@ class RefreshLoop:
         self.input = None
 
     def _publish(self, r: Any, made: dict[str, Any], settings: Settings) -> None:
-        arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris}
         names = list(settings.encodings)
         viewer = self.svc.state.viewer
         header = {
@@ -1382,4 +1390,4 @@ class RefreshLoop:
             "events": r.flags["events"],
             "age": r.flags["age"],
         }
-        self.svc.stream.publish(header, [arrays[n] for n in names], names)
+        self.svc.stream.publish(header, [getattr(r, n) for n in names], names)
