@@ -70,7 +70,7 @@ def test_scene_round_trip_shares_meshes():
                 b'{"v": 1, "type": "ping", "arrays": [{"dtype": "float64", "shape": [1,1,1,1,1]}]}',
                 b"\0" * 8,
             ],
-            "bad_array",
+            "too_large",
         ),
         (
             [
