@@ -36,11 +36,11 @@ import zmq
 
 from service import protocol, wire
 from service.broker import BandClient, Broker, Flight, FramePipe, split_rows
+from service.curve_keys import curve_server, is_local, start_authenticator
 from service.display import DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
-from service.keys import curve_server, is_local, start_authenticator
 from service.light import EVALUATIONS, MODELS
 from service.pipeline import METHOD_NAMES, Renderer
 from service.quality import MODES as QUALITY_MODES
@@ -975,7 +975,7 @@ def _lead_s(render_ms: deque[float]) -> float:
 
 
 def _builtin(name: str) -> Scene:
-    from service.scenes import builtin_scene
+    from service.builtin_scenes import builtin_scene
 
     try:
         return builtin_scene(name)

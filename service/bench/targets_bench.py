@@ -32,13 +32,13 @@ from service.bench.galilean_bench import (
     complexity_scene,
     head_turn,
 )
+from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option, int_range
 from service.display import DisplaySettings
 from service.galilean.motion_field import render_with_motion
 from service.galilean.stage import GalileanSettings, GalileanStage
 from service.light import LightSettings
 from service.pipeline import Renderer, RenderSettings, StageClock, warm_up
-from service.scenes import builtin_scene
 
 STAGES_1_4 = ("project", "cull", "sort", "occlusion", "fallback")
 

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.pipeline import Renderer
@@ -17,7 +18,6 @@ from service.quality import (
     render_auto,
 )
 from service.scene_motion import advance_scene
-from service.scenes import builtin_scene
 
 SMALL = DisplaySettings(zones=5, angle_deg=16.0, cols=64, rows=48)
 

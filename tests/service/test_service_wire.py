@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from service import protocol, wire
+from service.builtin_scenes import builtin_scene
 from service.errors import MessageError
-from service.scenes import builtin_scene
 
 
 def _body(frames: list) -> list[bytes]:
