@@ -36,11 +36,11 @@ import zmq
 
 from service import protocol, wire
 from service.broker import BandClient, Broker, Flight, FramePipe, split_rows
+from service.curve_keys import curve_server, is_local, start_authenticator
 from service.display import DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
-from service.keys import curve_server, is_local, start_authenticator
 from service.light import EVALUATIONS, MODELS
 from service.pipeline import METHOD_NAMES, Renderer
 from service.quality import MODES as QUALITY_MODES
@@ -53,6 +53,8 @@ from service.worker import StatsRenderer, render_job, stitch
 #: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
 ENCODINGS = ("colour", "depth", "debris")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
+#: ``set_viewer`` keys of a pose (the other form names ``devices``).
+VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
 
@@ -78,6 +80,8 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
+    #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
+    lod_error: float = 0.0
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -98,6 +102,8 @@ class Settings:
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
+    #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
+    lod_error: float = 0.0
     generation: int = 0
     #: "auto": each render's method and specular chosen within ``max_error``
     #: (service.quality); "fixed": as set.
@@ -119,6 +125,7 @@ class Settings:
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
+            "lod_error": self.lod_error,
             "quality": self.quality,
             "max_error": self.max_error,
         }
@@ -280,7 +287,8 @@ class Service:
         self.limits = protocol.Limits()
         self.counters = Counters()
         self.state = State(
-            Settings(config.display, refresh_hz=config.refresh_hz), devices=config.devices
+            Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error),
+            devices=config.devices
         )
         self.state.viewer.scale = config.pose_scale
         self._stop = threading.Event()
@@ -514,7 +522,7 @@ class Service:
                     obj.material,
                     obj.transform,
                     obj.motion,
-                    wire.string(req["name"], "name", 256),
+                    wire.string(req["name"], "name", wire.MAX_NAME),
                 )
         else:
             obj = wire.object_from_wire(req.get("object"), "object")
@@ -561,6 +569,11 @@ class Service:
         return ({"updated": len(changed)},)
 
     def _set_viewer(self, req: dict[str, Any]) -> tuple:
+        pose = [k for k in VIEWER_POSE_FIELDS if k in req]
+        if pose and "devices" in req:
+            raise MessageError(
+                "bad_message", f"set_viewer takes a pose or devices, not both (got {pose})"
+            )
         with self.state.lock:
             if "devices" in req:
                 dev = req["devices"]
@@ -962,7 +975,7 @@ def _lead_s(render_ms: deque[float]) -> float:
 
 
 def _builtin(name: str) -> Scene:
-    from service.scenes import builtin_scene
+    from service.builtin_scenes import builtin_scene
 
     try:
         return builtin_scene(name)
@@ -1007,7 +1020,7 @@ def _object_index(u: Any, objs: list, i: int) -> int:
         return k
     if "name" not in u:
         raise MessageError("bad_message", f"objects[{i}] needs an index or a name")
-    name = wire.string(u["name"], f"objects[{i}].name", 256)
+    name = wire.string(u["name"], f"objects[{i}].name", wire.MAX_NAME)
     for k, o in enumerate(objs):
         if o.name == name:
             return k
@@ -1046,6 +1059,8 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["encodings"] = _encodings(req["encodings"])
     if "refresh_hz" in req:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    if "lod_error" in req:  # pixels; 0 turns level of detail off
+        kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
     kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
@@ -1133,8 +1148,7 @@ class ViewerTracker:
 
     def set_fields(self, req: dict[str, Any]) -> None:
         """Apply ``set_viewer`` fields (validated)."""
-        keys = ("position", "orientation", *wire.MOTION_FIELDS)
-        if not any(k in req for k in keys):
+        if not any(k in req for k in VIEWER_POSE_FIELDS):
             return
         probe = wire.apply_fields(_probe_object(), req, "viewer")
         self.position = probe.transform.position

@@ -38,6 +38,7 @@ from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.heap import keep_freed_memory
 from service.light import LightSettings
+from service.lod import LodSettings
 from service.pipeline import Renderer, RenderSettings, StageClock
 from service.scene import (
     Light,
@@ -60,9 +61,14 @@ def display_from(d: dict[str, Any]) -> DisplaySettings:
 
 
 def render_settings_from(d: dict[str, Any]) -> RenderSettings:
-    """RenderSettings from ``{"method", "light_model", "specular"}``."""
+    """RenderSettings from ``{"method", "light_model", "specular", "lod_error"}``.
+
+    ``lod_error`` is optional: pixels of level-of-detail error, 0 or absent for off.
+    """
+    lod = float(d.get("lod_error") or 0.0)
     return RenderSettings(
-        method=d["method"], light=LightSettings(model=d["light_model"], evaluation=d["specular"])
+        method=d["method"], light=LightSettings(model=d["light_model"], evaluation=d["specular"]),
+        lod=LodSettings(error_px=lod) if lod > 0 else None,
     )
 
 
@@ -192,6 +198,8 @@ def render_job(
         "rows": list(rows),
         "inconsistent_pixels": int(getattr(renderer, "last_inconsistent", 0)),
     }
+    if "lod" in up.frame.stats:
+        stats["lod"] = up.frame.stats["lod"]
     return out, stats
 
 
