@@ -41,19 +41,22 @@ from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
 from service.keys import curve_server, is_local, start_authenticator
-from service.pipeline import Renderer
+from service.light import EVALUATIONS, MODELS
+from service.pipeline import METHOD_NAMES, Renderer
+from service.quality import MODES as QUALITY_MODES
+from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.scene import MotionState, Scene, Transform, euler_quaternion
 from service.scene_motion import advance_scene
 from service.signals import end_process
 from service.worker import StatsRenderer, render_job, stitch
 
+#: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
 ENCODINGS = ("colour", "depth", "debris", "autostereogram")
 #: SIRD methods of the ``autostereogram`` encoding (service.autostereogram).
 SIRD_METHODS = ("tiw", "row", "interpolated")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
-METHODS = ("zbuffer", "runlength", "bsp", "raycast")
 
 
 @dataclass
@@ -77,6 +80,8 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
+    #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
+    lod_error: float = 0.0
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -99,7 +104,13 @@ class Settings:
     refresh_hz: float = 60.0
     sird_method: str = "tiw"
     sird_eye_sep: float = 0.0
+    #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
+    lod_error: float = 0.0
     generation: int = 0
+    #: "auto": each render's method and specular chosen within ``max_error``
+    #: (service.quality); "fixed": as set.
+    quality: str = "fixed"
+    max_error: str = "0.5%"
 
     def as_dict(self) -> dict[str, Any]:
         """The settings as ``set_display`` replies them."""
@@ -118,6 +129,9 @@ class Settings:
             "refresh_hz": self.refresh_hz,
             "sird_method": self.sird_method,
             "sird_eye_sep": self.sird_eye_sep,
+            "lod_error": self.lod_error,
+            "quality": self.quality,
+            "max_error": self.max_error,
         }
 
 
@@ -279,7 +293,8 @@ class Service:
         self.limits = protocol.Limits()
         self.counters = Counters()
         self.state = State(
-            Settings(config.display, refresh_hz=config.refresh_hz), devices=config.devices
+            Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error),
+            devices=config.devices
         )
         self.state.viewer.scale = config.pose_scale
         self._stop = threading.Event()
@@ -290,6 +305,7 @@ class Service:
         self._clock: tuple = (0, time.monotonic(), -1, None, 2)
         self.band_retries = 0
         self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
+        self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
         self._pipe: FramePipe | None = None
         self.last_render_error = ""
         self.last_refresh_error = ""
@@ -691,7 +707,19 @@ class Service:
             "viewer": viewer,
             "order": order,
         }
+        if settings.quality == "auto":
+            self._auto(job, scene, settings)
         return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns())
+
+    def _auto(self, job: dict[str, Any], scene: Scene, settings: Settings) -> None:
+        """``quality: "auto"``: this render's method and specular, and the choice in the job."""
+        gen = settings.generation
+        if self._chooser is None or self._chooser[0] != gen:
+            self._chooser = (gen, QualityChooser(
+                QualitySettings("auto", parse_budget(settings.max_error))))
+        q = choose(self._chooser[1], scene, settings.display, settings.light_model)
+        job["render"] = {**job["render"], "method": q.method, "specular": q.specular}
+        job["quality"] = q.as_dict()
 
     def _ahead(self) -> bool:
         """Whether the last render is aimed past the rendezvous one started now would get.
@@ -733,6 +761,9 @@ class Service:
             "stitch_ms": round((time.perf_counter() - t_stitch) * 1e3, 3),
             "rendezvous": aim.rendezvous,
         }
+        if "quality" in aim.job:
+            stats["quality"] = aim.job["quality"]
+            self._observe(aim, parts, stats)
         self.counters.n["renders"] += 1
         self._ready.append(
             Ready(
@@ -747,6 +778,16 @@ class Service:
         )
         mark = (aim.settings.generation, aim.scene_version)
         self._render_results.put((aim.render_id, aim.t0, rendered.frame, mark, stats))
+
+    def _observe(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict) -> None:
+        """Tell the quality chooser what the render showed (out-of-order points, coverage)."""
+        chooser = self._chooser
+        if chooser is None or chooser[0] != aim.settings.generation:
+            return
+        bands = stats.get("bands") or [stats]
+        bad = sum(int(b.get("inconsistent_pixels", 0)) for b in bands)
+        covered = sum(int(np.isfinite(p["depth"]).sum()) for p in parts if "depth" in p)
+        chooser[1].observe(aim.job["render"]["method"], {"inconsistent_pixels": bad}, covered)
 
     def _run_job(
         self, renderer: Renderer, bands: BandClient | None, aim: Aim
@@ -1013,9 +1054,9 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         "width": wire.number(req.get("width", d.width), "width", 1e-6, 1e6),
     }
     choices = {
-        "method": METHODS,
-        "light_model": ("ambient", "phong", "blinn"),
-        "specular": ("polygon", "vertex", "point"),
+        "method": METHOD_NAMES,
+        "light_model": tuple(MODELS),
+        "specular": tuple(EVALUATIONS),
         "sird_method": SIRD_METHODS,
     }
     kw: dict[str, Any] = {}
@@ -1034,6 +1075,9 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["sird_eye_sep"] = wire.number(req["sird_eye_sep"], "sird_eye_sep", 0.0, 4096.0)
     if "autostereogram" in kw.get("encodings", s.encodings):
         _check_sird(disp["cols"], kw.get("sird_eye_sep", s.sird_eye_sep))
+    if "lod_error" in req:  # pixels; 0 turns level of detail off
+        kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
+    kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
     return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
@@ -1047,6 +1091,25 @@ def _sird_output(settings: Settings) -> Any:
 
     d = settings.display
     return SirdOutput(d.cols, d.rows, d.width, settings.sird_method, settings.sird_eye_sep)
+
+
+def _quality_fields(req: dict[str, Any]) -> dict[str, str]:
+    """``quality`` ("fixed" / "auto") and ``max_error`` ("0.5%", 0.5, "40dB") of set_display."""
+    kw = {}
+    if "quality" in req:
+        if req["quality"] not in QUALITY_MODES:
+            raise MessageError("bad_settings", f"quality must be one of {list(QUALITY_MODES)}")
+        kw["quality"] = req["quality"]
+    if "max_error" in req:
+        v = req["max_error"]
+        try:
+            if not isinstance(v, str | int | float) or isinstance(v, bool):
+                raise SettingsError("max_error must be a number or a string like 40dB")
+            parse_budget(v)
+        except SettingsError as exc:
+            raise MessageError("bad_settings", str(exc)) from None
+        kw["max_error"] = str(v)
+    return kw
 
 
 def _viewer_motion(job: dict[str, Any]) -> MotionState:
@@ -1354,8 +1417,6 @@ class RefreshLoop:
         self.input = None
 
     def _publish(self, r: Any, made: dict[str, Any], settings: Settings) -> None:
-        arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris,
-                  "autostereogram": r.flags.get("autostereogram")}
         names = list(settings.encodings)
         viewer = self.svc.state.viewer
         header = {
@@ -1369,4 +1430,5 @@ class RefreshLoop:
             "events": r.flags["events"],
             "age": r.flags["age"],
         }
-        self.svc.stream.publish(header, [arrays[n] for n in names], names)
+        arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]
+        self.svc.stream.publish(header, arrays, names)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import zmq
-from service_helpers import raw_request
+from testkit import raw_request
 
 from service.client import ServiceClient
 

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import zmq
-from service_helpers import wait_until
+from testkit import TINY_DISPLAY, wait_until
 
 from service import protocol
 from service.client import ServiceClient
@@ -16,9 +16,7 @@ from service.client import ServiceClient
 
 def test_frame_stream_sends_heartbeats_without_frames(service_factory):
     # no scene: nothing is rendered, so no frame is ever published
-    svc = service_factory(
-        "--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0", "--refresh", "30"
-    )
+    svc = service_factory(*TINY_DISPLAY, "--refresh", "30")
     with ServiceClient(svc.control) as c:
         hello = c.hello()
     sub = zmq.Context.instance().socket(zmq.SUB)
