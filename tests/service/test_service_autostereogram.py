@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from service_helpers import wait_until
+from testkit import wait_until
 
 from service.autostereogram import SirdSettings, default_eye_sep, separation_map
 from service.client import FrameSubscriber, ServiceClient
