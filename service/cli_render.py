@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.builtin_scenes import SCENES, builtin_scene
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
@@ -43,7 +44,6 @@ from service.quality import (
     render_auto,
 )
 from service.scene import Scene
-from service.scenes import SCENES, builtin_scene
 from service.signals import EXIT_RULE, interruptible
 
 

@@ -18,10 +18,10 @@ import sys
 from collections.abc import Sequence
 
 from service.cli_args import float_range
+from service.curve_keys import make_keys
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
-from service.keys import make_keys
 from service.signals import stop_on_signals
 
 

@@ -36,11 +36,11 @@ import zmq
 
 from service import protocol, wire
 from service.broker import BandClient, Broker, Flight, FramePipe, split_rows
+from service.curve_keys import curve_server, is_local, start_authenticator
 from service.display import DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
-from service.keys import curve_server, is_local, start_authenticator
 from service.light import EVALUATIONS, MODELS
 from service.pipeline import METHOD_NAMES, Renderer
 from service.quality import MODES as QUALITY_MODES
@@ -53,6 +53,8 @@ from service.worker import StatsRenderer, render_job, stitch
 #: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
 ENCODINGS = ("colour", "depth", "debris")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
+#: ``set_viewer`` keys of a pose (the other form names ``devices``).
+VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
 
@@ -520,7 +522,7 @@ class Service:
                     obj.material,
                     obj.transform,
                     obj.motion,
-                    wire.string(req["name"], "name", 256),
+                    wire.string(req["name"], "name", wire.MAX_NAME),
                 )
         else:
             obj = wire.object_from_wire(req.get("object"), "object")
@@ -567,6 +569,11 @@ class Service:
         return ({"updated": len(changed)},)
 
     def _set_viewer(self, req: dict[str, Any]) -> tuple:
+        pose = [k for k in VIEWER_POSE_FIELDS if k in req]
+        if pose and "devices" in req:
+            raise MessageError(
+                "bad_message", f"set_viewer takes a pose or devices, not both (got {pose})"
+            )
         with self.state.lock:
             if "devices" in req:
                 dev = req["devices"]
@@ -968,7 +975,7 @@ def _lead_s(render_ms: deque[float]) -> float:
 
 
 def _builtin(name: str) -> Scene:
-    from service.scenes import builtin_scene
+    from service.builtin_scenes import builtin_scene
 
     try:
         return builtin_scene(name)
@@ -1013,7 +1020,7 @@ def _object_index(u: Any, objs: list, i: int) -> int:
         return k
     if "name" not in u:
         raise MessageError("bad_message", f"objects[{i}] needs an index or a name")
-    name = wire.string(u["name"], f"objects[{i}].name", 256)
+    name = wire.string(u["name"], f"objects[{i}].name", wire.MAX_NAME)
     for k, o in enumerate(objs):
         if o.name == name:
             return k
@@ -1141,8 +1148,7 @@ class ViewerTracker:
 
     def set_fields(self, req: dict[str, Any]) -> None:
         """Apply ``set_viewer`` fields (validated)."""
-        keys = ("position", "orientation", *wire.MOTION_FIELDS)
-        if not any(k in req for k in keys):
+        if not any(k in req for k in VIEWER_POSE_FIELDS):
             return
         probe = wire.apply_fields(_probe_object(), req, "viewer")
         self.position = probe.transform.position
