@@ -211,3 +211,41 @@ def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp
     display = DisplaySettings(zones=3, cols=64, rows=48)
     up = render_with_motion(Renderer(), scene, display, 0.0, 60.0, settings)
     assert up.frame.stats["lod"]["levels"][0] >= 3
+
+
+@pytest.mark.parametrize("hysteresis", [0.0, 0.25])
+def test_no_flicker_through_the_pipeline(ring, chain, monkeypatch, tmp_path, hysteresis):
+    """An object whose size wobbles 3 % around a level's threshold, frame after frame."""
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    display = DisplaySettings(zones=1, cols=48, rows=36)
+    k = 2
+    threshold = 0.5 / (chain.errors[k] * pixels_per_unit(display))  # level k at exactly 0.5 px
+    settings = RenderSettings(lod=LodSettings(error_px=0.5, hysteresis=hysteresis))
+    r, seen = Renderer(), []
+    for i in range(16):
+        s = threshold * (1 + 0.03 * (-1) ** i)
+        scene = Scene([SceneObject(ring, transform=Transform(np.zeros(3), scale=s), name="w")])
+        report = r.render(scene, display, settings).stats["lod"]
+        assert report["predicted_px"][0] <= 0.5
+        seen.append(report["levels"][0])
+    changes = int(np.count_nonzero(np.diff(seen)))
+    if hysteresis:
+        assert changes == 0, seen
+    else:
+        assert changes >= 10, seen  # the test can see flicker when there is some
+
+
+def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch, tmp_path):
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    display = DisplaySettings(zones=1, cols=64, rows=48)
+    scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, -0.3]), scale=s),
+                               name=f"o{i}")
+                   for i, (x, s) in enumerate(((-0.5, 1.0), (0.5, 0.5)))])
+    r = Renderer()
+    first = r.render(scene, display, RenderSettings(lod=LodSettings(budget_ms=1e-6)))
+    assert first.stats["lod"]["over_error"] == 0  # no cost measured yet: error rules
+    second = r.render(scene, display, RenderSettings(lod=LodSettings(budget_ms=1e-6)))
+    report = second.stats["lod"]
+    coarsest = len(chain.levels) - 1
+    assert report["levels"] == [coarsest, coarsest]
+    assert report["over_error"] >= 1 and max(report["predicted_px"]) > 0.5
