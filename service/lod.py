@@ -42,6 +42,7 @@ import hashlib
 import json
 import os
 import time
+import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -65,6 +66,10 @@ MIN_TRIANGLES = 8
 
 class LodError(HoloError, ValueError):
     """A level-of-detail chain cannot be built or read."""
+
+
+class LodCacheWarning(UserWarning):
+    """The chain cache folder could not be written; the chain is used uncached."""
 
 
 @dataclass(frozen=True)
@@ -221,7 +226,11 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
         key=key,
     )
     if folder is not None and len(chain.levels) > 1:
-        write_chain(folder, chain)
+        try:
+            write_chain(folder, chain)
+        except OSError as exc:  # a read-only or odd cache folder: go on without it
+            warnings.warn(f"level-of-detail cache not written ({folder}): {exc}",
+                          LodCacheWarning, stacklevel=2)
     return chain
 
 

@@ -249,3 +249,25 @@ def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch,
     coarsest = len(chain.levels) - 1
     assert report["levels"] == [coarsest, coarsest]
     assert report["over_error"] >= 1 and max(report["predicted_px"]) > 0.5
+
+
+def test_an_unwritable_cache_warns_and_still_renders(ring, tmp_path, monkeypatch):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache folder should be")
+    from service.lod import LodCacheWarning
+
+    with pytest.warns(LodCacheWarning, match="not written"):
+        chain = build_chain(ring, cache=blocker / "lod")
+    assert len(chain.levels) >= 4
+
+
+def test_a_mesh_without_faces_has_a_one_level_chain(tmp_path):
+    from service.mesh import Mesh
+
+    empty = Mesh(np.zeros((3, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64))
+    chain = build_chain(empty, cache=tmp_path)
+    assert len(chain.levels) == 1 and chain.errors.tolist() == [0.0]
+    scene = Scene([SceneObject(empty, name="nothing")])
+    frame = Renderer().render(scene, DisplaySettings(zones=1, cols=8, rows=8),
+                              RenderSettings(lod=LodSettings()))
+    assert frame.stats["lod"]["levels"] == [0]
