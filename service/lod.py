@@ -305,13 +305,16 @@ def select_levels(
     previous: np.ndarray | None = None,
     hysteresis: float = 0.25,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Each object's level: the coarsest whose predicted error is within budget.
+    """Each object's level: the cheapest (last) whose predicted error is within budget.
+
+    Levels are ordered by cost, dearest (the full mesh) first; their errors need not
+    grow with the index.
 
     Parameters
     ----------
     errors : ndarray, shape (N, L), float64
         Geometric error of each object's levels in world units (mesh error x scale),
-        non-decreasing along a row, ``errors[:, 0] == 0``; ``inf`` past a chain's end.
+        ``errors[:, 0] == 0``; ``inf`` past a chain's end.
     ppu : float or ndarray, shape (N,)
         Pixels per world unit for each object.
     error_px : float
@@ -326,10 +329,11 @@ def select_levels(
         Predicted screen error of the chosen level, pixels.
     """
     pred = errors * np.asarray(ppu, np.float64).reshape(-1, 1)
-    n = pred.shape[0]
+    n, width = pred.shape
     rows = np.arange(n)
-    coarsen = (pred <= error_px * (1.0 - hysteresis)).sum(axis=1) - 1
-    level = np.maximum(coarsen, 0)
+    # the cheapest (last) level within the stricter bound; level 0 (error 0) always is
+    strict = pred <= error_px * (1.0 - hysteresis)
+    level = width - 1 - np.argmax(strict[:, ::-1], axis=1)
     if previous is not None:
         prev = np.clip(previous, 0, pred.shape[1] - 1)
         keep = (previous >= 0) & (prev > level) & (pred[rows, prev] <= error_px)
