@@ -51,7 +51,9 @@ from service.signals import end_process
 from service.worker import StatsRenderer, render_job, stitch
 
 #: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
-ENCODINGS = ("colour", "depth", "debris")
+ENCODINGS = ("colour", "depth", "debris", "autostereogram")
+#: SIRD methods of the ``autostereogram`` encoding (service.autostereogram).
+SIRD_METHODS = ("tiw", "row", "interpolated")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
 #: ``set_viewer`` keys of a pose (the other form names ``devices``).
 VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)
@@ -102,6 +104,8 @@ class Settings:
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
+    sird_method: str = "tiw"
+    sird_eye_sep: float = 0.0
     #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
     lod_error: float = 0.0
     generation: int = 0
@@ -125,6 +129,8 @@ class Settings:
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
+            "sird_method": self.sird_method,
+            "sird_eye_sep": self.sird_eye_sep,
             "lod_error": self.lod_error,
             "quality": self.quality,
             "max_error": self.max_error,
@@ -241,6 +247,7 @@ class Counters:
         )
         self.render_ms: deque[float] = deque(maxlen=200)
         self.refresh_ms: deque[float] = deque(maxlen=600)
+        self.sird_ms: deque[float] = deque(maxlen=600)
         self.update_t: deque[float] = deque(maxlen=1000)
         self.refresh_t: deque[float] = deque(maxlen=2000)
         self.tick_late_ms: deque[float] = deque(maxlen=2000)
@@ -263,6 +270,7 @@ class Counters:
             "refreshes_per_s": self.rate(self.refresh_t),
             "render_ms_p50": med(self.render_ms),
             "refresh_ms_p50": med(self.refresh_ms),
+            "sird_ms_p50": med(self.sird_ms),
             "tick_late_ms_p50": med(self.tick_late_ms),
             "tick_late_ms_p95": (
                 float(np.percentile(list(self.tick_late_ms), 95)) if self.tick_late_ms else None
@@ -862,7 +870,9 @@ class Service:
                     render_id += int(done)
                     next_start = now + (self._cap_s() if done else 0.02)
                 elif remote and len(pipe.flights) < capacity and now >= next_start:
-                    aim = self._aim(render_id)
+                    # renders quicker than refreshes (a low refresh_hz) would otherwise be
+                    # aimed one rendezvous past the last, ever further into the future
+                    aim = None if self._ahead() else self._aim(render_id)
                     if aim is None:
                         next_start = now + 0.02
                     else:
@@ -1033,6 +1043,16 @@ def _encodings(v: Any) -> tuple[str, ...]:
     return tuple(dict.fromkeys(v))
 
 
+def _check_sird(cols: int, eye_sep: float) -> None:
+    """Refuse an autostereogram the eyes cannot fuse (``bad_settings``)."""
+    from service.autostereogram import SirdSettings, default_eye_sep
+
+    try:
+        SirdSettings(eye_sep=eye_sep or default_eye_sep(cols)).check_width(cols)
+    except SettingsError as exc:
+        raise MessageError("bad_settings", f"autostereogram: {exc}") from None
+
+
 def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
     d = s.display
     disp = {
@@ -1046,6 +1066,7 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         "method": METHOD_NAMES,
         "light_model": tuple(MODELS),
         "specular": tuple(EVALUATIONS),
+        "sird_method": SIRD_METHODS,
     }
     kw: dict[str, Any] = {}
     for key, allowed in choices.items():
@@ -1059,12 +1080,26 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["encodings"] = _encodings(req["encodings"])
     if "refresh_hz" in req:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    if "sird_eye_sep" in req:
+        kw["sird_eye_sep"] = wire.number(req["sird_eye_sep"], "sird_eye_sep", 0.0, 4096.0)
+    if "autostereogram" in kw.get("encodings", s.encodings):
+        _check_sird(disp["cols"], kw.get("sird_eye_sep", s.sird_eye_sep))
     if "lod_error" in req:  # pixels; 0 turns level of detail off
         kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
     kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
     return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
+
+
+def _sird_output(settings: Settings) -> Any:
+    """The ``autostereogram`` encoding's state for these settings, or None when it is off."""
+    if "autostereogram" not in settings.encodings:
+        return None
+    from service.autostereogram.output import SirdOutput
+
+    d = settings.display
+    return SirdOutput(d.cols, d.rows, d.width, settings.sird_method, settings.sird_eye_sep)
 
 
 def _quality_fields(req: dict[str, Any]) -> dict[str, str]:
@@ -1233,6 +1268,7 @@ class RefreshLoop:
         self.since = 0
         self.prepared: tuple[Any, dict[str, Any]] | None = None
         self.input: dict[str, Any] | None = None
+        self.sird = None  # service.autostereogram.SirdOutput while that encoding is on
 
     def _restart(self, settings: Settings) -> None:
         self.stage = GalileanStage(
@@ -1240,6 +1276,7 @@ class RefreshLoop:
             GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz),
         )
         self.generation = settings.generation
+        self.sird = _sird_output(settings)
         self.due.clear()
         self.render_id, self.since = -1, 0
         self.prepared = None
@@ -1315,6 +1352,11 @@ class RefreshLoop:
         )
         ms = (time.perf_counter() - t0) * 1e3
         c.refresh_ms.append(ms)
+        if self.sird is not None:  # the SIRD of the zone the newest pose picked (or the centre)
+            zone = self.svc.state.viewer.zone
+            sird = self.sird.frame(r.depth[r.depth.shape[0] // 2 if zone is None else zone])
+            r = replace(r, flags={**r.flags, "autostereogram": sird})
+            c.sird_ms.append(self.sird.last_ms)
         if self.render_id >= 0:
             self.prepared = (
                 r,
@@ -1396,4 +1438,5 @@ class RefreshLoop:
             "events": r.flags["events"],
             "age": r.flags["age"],
         }
-        self.svc.stream.publish(header, [getattr(r, n) for n in names], names)
+        arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]
+        self.svc.stream.publish(header, arrays, names)
