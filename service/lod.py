@@ -56,8 +56,12 @@ from service.scene import Scene, SceneObject
 
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
 DEFAULT_FRACTIONS = (0.5, 0.25, 0.12, 0.06, 0.03, 0.015, 0.007)
-#: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.
-DEFAULT_CLOUD_EPS = (0.01,)
+#: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.  None
+#: by default: drawing a cloud (a ray per pixel per quad box, service.billboard_render)
+#: measured dearer than the meshes it stands for (the torus at 320x240 x 5 zones, one
+#: thread: its 47-quad cloud 50 ms CPU, the full 9,216 triangles 5.8 ms), so the
+#: triangle-count cost proxy would choose it wrongly; opt in with e.g. (0.01,).
+DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
 #: Bump when the chain's contents or file layout change (old cache files are rebuilt).
@@ -94,8 +98,8 @@ class LodSettings:
         Triangle fractions of the decimated levels.
     cloud_eps : tuple of float in (0, 1)
         Billboard-cloud levels (issue 13B), each with EPS this fraction of the mesh's
-        bounding-box diagonal; () for none.  Used only where billboards can be drawn
-        (``Renderer.render``), and only when :mod:`service.billboard_render` exists.
+        bounding-box diagonal; () for none (the default, see ``DEFAULT_CLOUD_EPS``).
+        Used only where billboards can be drawn (``Renderer.render``).
     texture_res : int
         Texels across the bounding-box diagonal of each cloud's textures.
     """
@@ -139,13 +143,15 @@ class LodChain:
     Attributes
     ----------
     levels : tuple of Mesh or BillboardCloud
-        Dearest first: ``levels[0]`` is the full mesh, then quadric meshes, then
-        billboard clouds (:class:`service.simplify.billboard.BillboardCloud`).
+        Dearest first (by ``triangles``): ``levels[0]`` is the full mesh, then quadric
+        meshes and billboard clouds (:class:`service.simplify.billboard.BillboardCloud`)
+        in order of cost.
     errors : ndarray, shape (L,), float64
         Geometric error of each level in mesh units, ``errors[0] == 0``,
         non-decreasing over the mesh levels (a cloud's is :func:`cloud_error`).
     triangles : ndarray, shape (L,), int64
-        Triangles of a mesh level; twice the quads of a cloud (a cost proxy).
+        Triangles of a mesh level; twice the quads of a cloud (a cost proxy: a quad
+        is drawn like two triangles, with a texel lookup per pixel).
     kinds : tuple of str
         ``"full"``, ``"quadric"`` or ``"billboard"`` per level.
     radius : float
@@ -271,12 +277,16 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
     levels = _decimated(mesh, settings.fractions) if mesh.triangles.shape[0] else []
     clouds = _clouds(mesh, settings) if mesh.triangles.shape[0] >= MIN_TRIANGLES else []
     errors = np.maximum.accumulate(np.array([0.0] + [e for _, e in levels]))
+    parts = ([(mesh, 0.0, mesh.triangles.shape[0], "full")]
+             + [(m, e, m.n_polygons, "quadric") for (m, _), e in zip(levels, errors[1:],
+                                                                      strict=True)]
+             + [(c, e, 2 * c.n_billboards, "billboard") for c, e in clouds])
+    parts = parts[:1] + sorted(parts[1:], key=lambda p: -p[2])  # dearest first (stable)
     chain = LodChain(
-        levels=(mesh, *(m for m, _ in levels), *(c for c, _ in clouds)),
-        errors=np.concatenate([errors, [e for _, e in clouds]]),
-        triangles=np.array([mesh.triangles.shape[0]] + [m.n_polygons for m, _ in levels]
-                           + [2 * c.n_billboards for c, _ in clouds], np.int64),
-        kinds=("full",) + ("quadric",) * len(levels) + ("billboard",) * len(clouds),
+        levels=tuple(p[0] for p in parts),
+        errors=np.array([p[1] for p in parts], np.float64),
+        triangles=np.array([p[2] for p in parts], np.int64),
+        kinds=tuple(p[3] for p in parts),
         radius=_radius(mesh),
         build_ms=(time.perf_counter() - t0) * 1e3,
         key=key,

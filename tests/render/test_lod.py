@@ -276,3 +276,24 @@ def test_a_mesh_without_faces_has_a_one_level_chain(tmp_path):
     frame = Renderer().render(scene, DisplaySettings(zones=1, cols=8, rows=8),
                               RenderSettings(lod=LodSettings()))
     assert frame.stats["lod"]["levels"] == [0]
+
+
+def test_a_billboard_cloud_level_is_cached_drawn_and_kept_off_the_galilean_path(
+        ring, tmp_path, monkeypatch):
+    from service.galilean.motion_field import render_with_motion
+
+    settings = LodSettings(fractions=(0.5,), cloud_eps=(0.05,), texture_res=64)
+    chain = build_chain(ring, settings, cache=tmp_path)
+    assert chain.kinds[-1] == "billboard" and chain.triangles[-1] < chain.triangles[1]
+    assert list(tmp_path.glob("*.hbc"))
+    again = build_chain(ring, settings, cache=tmp_path)
+    assert again.build_ms == 0.0 and again.kinds == chain.kinds  # the .hbc read back
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    tiny = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.3]), scale=0.05),
+                              name="far")])
+    display = DisplaySettings(zones=2, cols=64, rows=48)
+    frame = Renderer().render(tiny, display, RenderSettings(lod=settings))
+    assert frame.stats["lod"]["billboards"] == 1
+    assert frame.stats["billboards"]["covered_pixels"] > 0
+    up = render_with_motion(Renderer(), tiny, display, 0.0, 60.0, RenderSettings(lod=settings))
+    assert up.frame.stats["lod"]["levels"][0] == 1  # the mesh level, not the cloud
