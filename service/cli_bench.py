@@ -35,6 +35,10 @@ BENCHES = {
         "service.bench.quality_bench",
         "--quality auto: calibrate its cost model; its error against the budget",
     ),
+    "targets": (
+        "service.bench.targets_bench",
+        "open speed targets (zones, G(2) refresh, Galilean premise), ratios side by side",
+    ),
     "service": (
         "service.bench.service_bench",
         "render service: transport overhead, round trip, workers, motion-to-photon",
@@ -45,6 +49,10 @@ BENCHES = {
         "device drivers: byte arrival to published event (p50/p99)",
     ),
     "decoders": ("service.bench.decoders_bench", "serial protocol decoders: MB/s"),
+    "lod": (
+        "service.bench.lod_bench",
+        "level of detail: triangles vs image error vs ms; a 200-object crowd, LOD on/off",
+    ),
     "sird": (
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",

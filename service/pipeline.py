@@ -24,6 +24,7 @@ from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.frame import Frame
 from service.light import LightSettings, mark_shown, shade
+from service.lod import LodSettings, LodState
 from service.occlusion import Visibility
 from service.occlusion.bsp import BspCache, bsp
 from service.occlusion.raycast import raycast
@@ -57,6 +58,8 @@ class RenderSettings:
         zones) keeps the run-length method instead of paying for two methods.
     painter_tolerance : int
         Inconsistent pixels tolerated before the ``"frame"`` fallback (0: any).
+    lod : LodSettings or None
+        Level of detail per object (:mod:`service.lod`); None or disabled: full meshes.
     """
 
     method: str = "zbuffer"
@@ -64,6 +67,7 @@ class RenderSettings:
     light: LightSettings = field(default_factory=LightSettings)
     painter_fallback: str = "pixel"
     painter_tolerance: int = 0
+    lod: LodSettings | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHOD_NAMES:
@@ -97,6 +101,7 @@ class Renderer:
             "raycast": raycast,
         }
         self._scratch = threading.local()
+        self.lod = LodState()
 
     def _triangle_buffer(self, shape: tuple[int, int, int]) -> np.ndarray:
         """Reusable (Z, R, C) int32 triangle map of the calling thread for :meth:`render`.
@@ -130,6 +135,10 @@ class Renderer:
         settings = settings or RenderSettings()
         ms: dict[str, float] = {}
         clock = StageClock(ms)
+        lod = settings.lod if settings.lod is not None and settings.lod.enabled else None
+        if lod is not None:
+            with clock("lod"):
+                scene, lod_report = self.lod.apply(scene, display, lod)
         with clock("flatten"):
             arrays = scene.flatten()
         # visibility() keeps its signature (subclasses override it): the buffer goes
@@ -143,6 +152,9 @@ class Renderer:
             colour = shade(arrays, proj, vis, display, scene.lights, scene.ambient, settings.light)
         stats = {"polygons": counts, "ms": ms, "occlusion": vis.stats, "method": settings.method}
         stats["ms"]["total"] = float(sum(ms.values()))
+        if lod is not None:
+            stats["lod"] = lod_report
+            self.lod.observe(arrays.triangles.shape[0], stats["ms"]["total"])
         return Frame(colour=colour, depth=vis.depth, stats=stats)
 
     def visibility(

@@ -252,10 +252,15 @@ class QualityChooser:
         self.covered: int | None = None
 
     # occlusion -------------------------------------------------------------
-    def occlusion(self, arrays: SceneArrays, display: DisplaySettings) -> tuple[str, dict, str]:
-        """(method, predicted ms per candidate, reason) for this frame's geometry."""
+    def occlusion(self, arrays: SceneArrays, display: DisplaySettings,
+                  moving: bool = False) -> tuple[str, dict, str]:
+        """(method, predicted ms per candidate, reason) for this frame's geometry.
+
+        ``moving``: the scene has motion (a service renders it at later times than
+        its snapshot), so it is never static.
+        """
         key = _geometry_key(arrays)
-        self._static = key == self._last_geometry
+        self._static = key == self._last_geometry and not moving
         self._static_frames = self._static_frames + 1 if self._static else 0
         if not self._static:
             self._tree_built = False
@@ -272,12 +277,15 @@ class QualityChooser:
                   f"{self._bad} points out of sort order last frame)")
         return method, ms, reason
 
-    def observe(self, method: str, occlusion_stats: dict[str, Any]) -> None:
-        """Feed back what a frame's occlusion reported (its out-of-order points)."""
+    def observe(self, method: str, occlusion_stats: dict[str, Any],
+                covered: int | None = None) -> None:
+        """Feed back what a frame showed: its out-of-order points, its covered pixels."""
         if method == "runlength":
             self._bad = int(occlusion_stats.get("inconsistent_pixels", 0))
         if method == "bsp":
             self._tree_built = True
+        if covered is not None:
+            self.covered = covered
 
     # light -----------------------------------------------------------------
     def light_errors(self, scene: Scene, arrays: SceneArrays, display: DisplaySettings,
@@ -352,28 +360,36 @@ def render_auto(renderer: Renderer, chooser: QualityChooser, scene: Scene,
         (``pct_wrong``, ``psnr`` of the light against per-point light; occlusion is
         exact), and the Galilean order and interval for the scene's motion.
     """
+    choice = choose(chooser, scene, display, light_model)
+    settings = RenderSettings(method=choice.method, cull=cull or CullSettings(),
+                              light=LightSettings(light_model, choice.specular),
+                              painter_fallback="pixel")
+    frame = renderer.render(scene, display, settings)
+    chooser.observe(choice.method, frame.stats["occlusion"],
+                    int(np.isfinite(frame.depth).sum()))
+    frame.stats["quality"] = choice.as_dict()
+    return frame
+
+
+def choose(chooser: QualityChooser, scene: Scene, display: DisplaySettings,
+           light_model: str = "blinn") -> Choice:
+    """The methods for the next frame of ``scene`` (then :meth:`QualityChooser.observe`)."""
     arrays = scene.flatten()
-    method, occ_ms, reason = chooser.occlusion(arrays, display)
+    kind = motion_kind(scene)
+    method, occ_ms, reason = chooser.occlusion(arrays, display, moving=kind != "none")
     errors = chooser.light_errors(scene, arrays, display, light_model, _zbuffer_visibility)
     covered = chooser.covered if chooser.covered is not None else _pixels(display)
     spec, light_ms = chooser.specular(errors, arrays.triangles.shape[0], covered)
-    settings = RenderSettings(method=method, cull=cull or CullSettings(),
-                              light=LightSettings(light_model, spec), painter_fallback="pixel")
-    frame = renderer.render(scene, display, settings)
-    chooser.observe(method, frame.stats["occlusion"])
-    chooser.covered = int(np.isfinite(frame.depth).sum())
     predicted = occ_ms[method] + light_ms[spec]
-    choice = Choice(
+    return Choice(
         method, spec,
         {**{f"occlusion_{m}": v for m, v in occ_ms.items()},
          **{f"light_{e}": v for e, v in light_ms.items()}, "total": predicted},
         {"pct_wrong": round(errors[spec][0], 4), "psnr": round(errors[spec][1], 2),
          "occlusion_pct_wrong": 0.0},
         reason,
-        chooser.galilean(motion_kind(scene), predicted, display),
+        chooser.galilean(kind, predicted, display),
     )
-    frame.stats["quality"] = choice.as_dict()
-    return frame
 
 
 def _zbuffer_visibility(arrays: SceneArrays, display: DisplaySettings) -> Visibility:
