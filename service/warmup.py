@@ -113,6 +113,37 @@ def _scenes(kit: _Kit) -> None:
     ear_clip(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.5, 0.4], [0.0, 1.0]]))
 
 
+#: A mesh file with a concave and a non-planar polygon: loading repairs both by
+#: ear-clipping (``service.mesh_repair``), as a user's mesh would be.
+_OBJ = """v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0.5 0.3 0
+v 0 1 0
+v 2 0 0
+v 3 0 0.4
+v 3 1 0
+v 2 1 0.3
+f 1 2 3 4 5
+f 6 7 8 9
+"""
+
+
+def _mesh_files(kit: _Kit) -> None:
+    """A mesh file loaded as the service loads one (repair: ear-clipping)."""
+    import tempfile
+    import warnings
+    from pathlib import Path
+
+    from service.loaders import load_scene
+
+    with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the repair's own warning
+        path = Path(tmp) / "warmup.obj"
+        path.write_text(_OBJ)
+        load_scene(path).flatten()
+
+
 def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
             fallback: str = "frame") -> Callable:
     def job(kit: _Kit) -> None:
@@ -210,10 +241,26 @@ def _galilean_variants(kit: _Kit) -> None:
         _stage_refreshes(stage, 4)
 
 
+def _galilean_local(kit: _Kit) -> None:
+    """Local updates (Flinders Street buffers with depth-only shadows), grafted."""
+    from service.galilean import GalileanSettings, GalileanStage
+    from service.galilean.local_update import render_local
+    from service.pipeline import Renderer
+
+    stage = GalileanStage(kit.display, GalileanSettings(order=2))
+    renderer = Renderer()
+    for shadow in ("depth", "full"):
+        local = render_local(renderer, kit.scene(), kit.display, [0], 0.1, 60.0, 2, stage.fixed,
+                             shadow=shadow)
+        stage.submit(local.buffer, None, (0,))
+        _stage_refreshes(stage)
+
+
 #: The warm-up's jobs, in order: name -> job(kit).  Each runs the real code path
 #: on tiny inputs, so the kernels compile for the types they are really called with.
 JOBS: dict[str, Callable[[_Kit], None]] = {
     "scenes: normals, triangulation": _scenes,
+    "mesh files: repair": _mesh_files,
     "render zbuffer": _render("zbuffer"),
     "render runlength": _render("runlength"),
     "render runlength, pixel fallback": _render("runlength", fallback="pixel"),
@@ -228,6 +275,7 @@ JOBS: dict[str, Callable[[_Kit], None]] = {
     "galilean: service refresh": _galilean_service,
     "galilean: game refresh": _galilean_game,
     "galilean: orders, cache, margin": _galilean_variants,
+    "galilean: local updates": _galilean_local,
 }
 
 
