@@ -28,11 +28,13 @@ import pytest
 from service.signals import end_process
 
 ROOT = Path(__file__).resolve().parents[2]
-#: A cold warm-up took 65-200 s here (2 cores shared); generous.
-COLD_TIMEOUT_S = 900
-#: From launch to the 60th frame of a service whose kernels are cached (measured
-#: about 6 s here); a compiling service was far from it (124 s for 120 frames).
-FRAMES_DEADLINE_S = 30.0
+#: A cold warm-up took 200 s here on 2 idle cores, 684 s beside 6 busy helpers.
+COLD_TIMEOUT_S = 1500
+#: From launch to the 60th frame of a service whose kernels are cached (24 s here
+#: with the machine 5x oversubscribed); a compiling service needed 124 s for its
+#: first 120 frames on a quiet one.  The decisive check is the cache's: the
+#: service adds no entry to it.
+FRAMES_DEADLINE_S = 60.0
 
 #: Per-dispatcher cache stats of a process that ran the warm-up (a child's stdout).
 _STATS = """
@@ -93,7 +95,9 @@ def test_second_process_reuses_every_cache_entry(warmed):
     assert not missed, f"compiled again: {missed}"
     hits = {k: v[0] for k, v in got["dispatchers"].items() if v[0]}
     assert len(hits) >= 20, hits
-    # both kernels the scatter factory builds come from the cache, each its own entry
+    # both kernels the scatter factory builds (with and without the still-galpixel
+    # bookkeeping; one name, told apart by the closure constant in numba's index key)
+    # come from the cache
     scatter = [k for k in hits if k.endswith("scatter_bands")]
     assert len(scatter) == 1 and hits[scatter[0]] >= 2, hits
     assert _snapshot(cache) == before, "the second process wrote to the cache"
