@@ -18,26 +18,33 @@ import json
 import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from service.builtin_scenes import SCENES, builtin_scene
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
-from service.light import LightSettings
+from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
+from service.lod_cli import add_lod_options, lod_settings
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.quality import (
+    MODES,
+    CostModel,
+    QualityChooser,
+    QualitySettings,
+    parse_budget,
+    render_auto,
+)
 from service.scene import Scene
-from service.scenes import SCENES, builtin_scene
 from service.signals import EXIT_RULE, interruptible
-
-LIGHT_MODELS = ("ambient", "phong", "blinn")
-EVALUATIONS = ("polygon", "vertex", "point")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,10 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_size_option(p, (320, 240), "pixels per zone image")
     p.add_argument("--method", choices=METHOD_NAMES, default="zbuffer", help="occlusion method")
-    p.add_argument("--light", choices=LIGHT_MODELS, default="blinn", help="light model")
+    p.add_argument("--light", choices=tuple(MODELS), default="blinn", help="light model")
     p.add_argument(
         "--specular",
-        choices=EVALUATIONS,
+        choices=tuple(EVALUATIONS),
         default="polygon",
         help="where light is evaluated: per polygon (thesis), vertex or point",
     )
@@ -71,9 +78,11 @@ def build_parser() -> argparse.ArgumentParser:
     fallback.add_argument(
         "--fallback",
         choices=("frame", "pixel", "off"),
-        default="frame",
-        help="when the run-length depth order proves wrong: redraw the frame with the "
-        "z-buffer (frame, default), z-test just the wrong points (pixel), or keep it (off)",
+        default=None,  # None, not "pixel": argparse lets a value equal to the default
+        # slip past the mutually exclusive check (--fallback pixel --no-fallback)
+        help="when the run-length depth order proves wrong: z-test just the wrong points "
+        "(pixel, default: the z-buffer's picture), redraw the frame with the z-buffer "
+        "(frame), or keep it (off)",
     )
     fallback.add_argument(
         "--no-fallback",
@@ -84,6 +93,23 @@ def build_parser() -> argparse.ArgumentParser:
         "--strict", action="store_true",
         help="refuse mesh files that would otherwise be repaired on load (non-planar or "
         "concave polygons, faces of under 3 corners, extra values on ascii PLY lines)",
+    )
+    add_lod_options(p)
+    p.add_argument(
+        "--quality", choices=MODES, default=None,
+        help="auto: pick the cheapest occlusion method and specular evaluation within "
+        "--max-error (overrides --method, --specular and --fallback); default fixed, or "
+        "the scene file's [quality] mode",
+    )
+    p.add_argument(
+        "--max-error", type=_budget, default=None, metavar="BUDGET",
+        help="error budget of --quality auto: %% of pixels wrong (0.5 or 0.5%%) or a least "
+        "PSNR (40dB); default 0.5%%, or the scene file's [quality] max_error",
+    )
+    p.add_argument(
+        "--cost-model", default=None, metavar="PATH",
+        help="cost model JSON of --quality auto (holo-bench quality --calibrate writes one; "
+        "default: the one measured on the development machine)",
     )
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
     p.add_argument("--out", default="render-out", help="output folder (default render-out)")
@@ -132,23 +158,66 @@ def mesh_report(scene: Scene, load_ms: float, strict: bool) -> dict:
     }
 
 
+def build_report(flatten_ms: float, scene: Scene) -> dict:
+    """The one-off mesh build: ``flatten_ms`` and microseconds per triangle.
+
+    The first render of a freshly loaded scene builds each mesh's triangles, polygon
+    normals and closedness and the scene's polygon list (``Scene.flatten``); later
+    frames only transform.
+    """
+    tris = sum(int(o.mesh.triangles.shape[0]) for o in scene.objects)
+    return {"flatten_ms": round(flatten_ms, 3),
+            "flatten_us_per_triangle": round(1e3 * flatten_ms / max(tris, 1), 4)}
+
+
+def _budget(text: str):
+    """The argparse type of ``--max-error``."""
+    try:
+        return parse_budget(text)
+    except HoloError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _quality(args: argparse.Namespace, scene: Scene) -> QualitySettings:
+    """Command line first, then the scene file's ``[quality]`` table, then fixed / 0.5%."""
+    own = getattr(scene, "quality", {}) or {}
+    mode = args.quality or own.get("mode", "fixed")
+    budget = args.max_error or parse_budget(own.get("max_error", "0.5%"))
+    return QualitySettings(mode, budget)
+
+
+def _fallback(args: argparse.Namespace) -> str:
+    """The painter fallback the flags ask for (``pixel`` unless told)."""
+    return "off" if args.no_fallback else args.fallback or "pixel"
+
+
 def run(args: argparse.Namespace) -> dict:
     """Render as the parsed arguments say; return the JSON report."""
     cols, rows = args.size
     display = DisplaySettings(zones=args.zones, angle_deg=args.angle, cols=cols, rows=rows)
     settings = RenderSettings(
+        lod=lod_settings(args),
         method=args.method,
         cull=CullSettings(args.cull),
         light=LightSettings(model=args.light, evaluation=args.specular),
-        painter_fallback="off" if args.no_fallback else args.fallback,
+        painter_fallback=_fallback(args),
     )
     start = time.perf_counter()
     scene, repairs = _load(args.scene, args.strict)
     load_ms = (time.perf_counter() - start) * 1e3
     for line in repairs:
         print(f"holo-render: warning: {line}", file=sys.stderr)
-    warm_up(settings)  # compile or load the numba kernels outside the timings
-    frame = Renderer().render(scene, display, settings)
+    quality = _quality(args, scene)
+    if quality.mode == "auto":
+        chooser = QualityChooser(quality, CostModel.load(args.cost_model))
+        warm_up(settings)
+        frame = render_auto(Renderer(), chooser, scene, display, args.light, settings.cull)
+        q = frame.stats["quality"]
+        settings = replace(settings, method=q["method"], painter_fallback="pixel",
+                           light=LightSettings(args.light, q["specular"]))
+    else:
+        warm_up(settings)  # compile or load the numba kernels outside the timings
+        frame = Renderer().render(scene, display, settings)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_zones(frame, out)
@@ -161,16 +230,25 @@ def run(args: argparse.Namespace) -> dict:
             "zones": args.zones,
             "angle_deg": args.angle,
             "size": [cols, rows],
-            "method": args.method,
+            "method": settings.method,
             "light": args.light,
-            "specular": args.specular,
+            "specular": settings.light.evaluation,
             "cull": args.cull,
-            "painter_fallback": "off" if args.no_fallback else args.fallback,
+            "painter_fallback": settings.painter_fallback,
+            "quality": quality.mode,
+            "max_error": quality.budget.as_dict(),
+            "lod": "on" if settings.lod else "off",
         },
-        "mesh": mesh_report(scene, load_ms, args.strict),
+        "quality": frame.stats.get("quality"),
+        "billboards": frame.stats.get("billboards"),
+        "mesh": {
+            **mesh_report(scene, load_ms, args.strict),
+            **build_report(frame.stats["ms"]["flatten"], scene),
+        },
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
         "occlusion": occlusion_counters(frame.stats["occlusion"], frame.depth),
+        **({"lod": frame.stats["lod"]} if "lod" in frame.stats else {}),
         "out": str(out),
     }
 
@@ -227,11 +305,17 @@ def _main(args: argparse.Namespace) -> int:
             f"{p['in']} polygons, {p['culled']} culled, {p['drawn']} drawn; "
             f"{report['ms']['total']:.1f} ms; wrote {report['out']}/"
         )
+        q = report["quality"]
+        if q:
+            e = q["predicted_error"]
+            print(f"quality auto: {q['method']} occlusion, {q['specular']} light; predicted "
+                  f"{e['pct_wrong']:.3f}% of pixels wrong, {e['psnr']:.1f} dB ({q['reason']})")
         fb = report["occlusion"].get("fallback")
         if fb:
+            how = "redrawn with the zbuffer" if fb == "zbuffer" else "z-tested per pixel"
             print(
                 f"note: average-z order was inconsistent "
-                f"({report['occlusion']['inconsistent_pixels']} pixels); redrawn with the {fb}"
+                f"({report['occlusion']['inconsistent_pixels']} pixels); {how}"
             )
     return 0
 

@@ -17,10 +17,11 @@ import os
 import sys
 from collections.abc import Sequence
 
+from service.cli_args import float_range
+from service.curve_keys import make_keys
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
-from service.keys import make_keys
 from service.signals import stop_on_signals
 
 
@@ -148,6 +149,11 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
     ap.add_argument(
         "--pose-scale", type=float, default=0.001, help="world units per tracker position unit"
     )
+    ap.add_argument(
+        "--lod-error", type=float_range(0, None, lo_open=True), default=None, metavar="PX",
+        help="turn level of detail on: each object drawn with its cheapest simplified mesh "
+        "whose predicted screen error stays under PX pixels (e.g. 0.5); default off",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -179,6 +185,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scene=args.scene,
             display=DisplaySettings(args.zones, args.angle, args.cols, args.rows),
             pose_scale=args.pose_scale,
+            lod_error=args.lod_error or 0.0,
             scene_dirs=tuple(args.scene_dir or ()),
         )
         service = Service(config)

@@ -36,22 +36,29 @@ import zmq
 
 from service import protocol, wire
 from service.broker import BandClient, Broker, Flight, FramePipe, split_rows
+from service.curve_keys import curve_server, is_local, start_authenticator
 from service.display import DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
-from service.keys import curve_server, is_local, start_authenticator
-from service.pipeline import Renderer
+from service.light import EVALUATIONS, MODELS
+from service.pipeline import METHOD_NAMES, Renderer
+from service.quality import MODES as QUALITY_MODES
+from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.scene import MotionState, Scene, Transform, euler_quaternion
 from service.scene_motion import advance_scene
 from service.signals import end_process
 from service.worker import StatsRenderer, render_job, stitch
 
-ENCODINGS = ("colour", "depth", "debris")
+#: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
+ENCODINGS = ("colour", "depth", "debris", "autostereogram")
+#: SIRD methods of the ``autostereogram`` encoding (service.autostereogram).
+SIRD_METHODS = ("tiw", "row", "interpolated")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
+#: ``set_viewer`` keys of a pose (the other form names ``devices``).
+VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
-METHODS = ("zbuffer", "runlength", "bsp", "raycast")
 
 
 @dataclass
@@ -75,6 +82,8 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
+    #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
+    lod_error: float = 0.0
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -95,7 +104,15 @@ class Settings:
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
+    sird_method: str = "tiw"
+    sird_eye_sep: float = 0.0
+    #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
+    lod_error: float = 0.0
     generation: int = 0
+    #: "auto": each render's method and specular chosen within ``max_error``
+    #: (service.quality); "fixed": as set.
+    quality: str = "fixed"
+    max_error: str = "0.5%"
 
     def as_dict(self) -> dict[str, Any]:
         """The settings as ``set_display`` replies them."""
@@ -112,6 +129,11 @@ class Settings:
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
+            "sird_method": self.sird_method,
+            "sird_eye_sep": self.sird_eye_sep,
+            "lod_error": self.lod_error,
+            "quality": self.quality,
+            "max_error": self.max_error,
         }
 
 
@@ -225,6 +247,7 @@ class Counters:
         )
         self.render_ms: deque[float] = deque(maxlen=200)
         self.refresh_ms: deque[float] = deque(maxlen=600)
+        self.sird_ms: deque[float] = deque(maxlen=600)
         self.update_t: deque[float] = deque(maxlen=1000)
         self.refresh_t: deque[float] = deque(maxlen=2000)
         self.tick_late_ms: deque[float] = deque(maxlen=2000)
@@ -247,6 +270,7 @@ class Counters:
             "refreshes_per_s": self.rate(self.refresh_t),
             "render_ms_p50": med(self.render_ms),
             "refresh_ms_p50": med(self.refresh_ms),
+            "sird_ms_p50": med(self.sird_ms),
             "tick_late_ms_p50": med(self.tick_late_ms),
             "tick_late_ms_p95": (
                 float(np.percentile(list(self.tick_late_ms), 95)) if self.tick_late_ms else None
@@ -271,7 +295,8 @@ class Service:
         self.limits = protocol.Limits()
         self.counters = Counters()
         self.state = State(
-            Settings(config.display, refresh_hz=config.refresh_hz), devices=config.devices
+            Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error),
+            devices=config.devices
         )
         self.state.viewer.scale = config.pose_scale
         self._stop = threading.Event()
@@ -282,6 +307,7 @@ class Service:
         self._clock: tuple = (0, time.monotonic(), -1, None, 2)
         self.band_retries = 0
         self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
+        self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
         self._pipe: FramePipe | None = None
         self.last_render_error = ""
         self.last_refresh_error = ""
@@ -504,7 +530,7 @@ class Service:
                     obj.material,
                     obj.transform,
                     obj.motion,
-                    wire.string(req["name"], "name", 256),
+                    wire.string(req["name"], "name", wire.MAX_NAME),
                 )
         else:
             obj = wire.object_from_wire(req.get("object"), "object")
@@ -551,6 +577,11 @@ class Service:
         return ({"updated": len(changed)},)
 
     def _set_viewer(self, req: dict[str, Any]) -> tuple:
+        pose = [k for k in VIEWER_POSE_FIELDS if k in req]
+        if pose and "devices" in req:
+            raise MessageError(
+                "bad_message", f"set_viewer takes a pose or devices, not both (got {pose})"
+            )
         with self.state.lock:
             if "devices" in req:
                 dev = req["devices"]
@@ -683,7 +714,19 @@ class Service:
             "viewer": viewer,
             "order": order,
         }
+        if settings.quality == "auto":
+            self._auto(job, scene, settings)
         return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns())
+
+    def _auto(self, job: dict[str, Any], scene: Scene, settings: Settings) -> None:
+        """``quality: "auto"``: this render's method and specular, and the choice in the job."""
+        gen = settings.generation
+        if self._chooser is None or self._chooser[0] != gen:
+            self._chooser = (gen, QualityChooser(
+                QualitySettings("auto", parse_budget(settings.max_error))))
+        q = choose(self._chooser[1], scene, settings.display, settings.light_model)
+        job["render"] = {**job["render"], "method": q.method, "specular": q.specular}
+        job["quality"] = q.as_dict()
 
     def _ahead(self) -> bool:
         """Whether the last render is aimed past the rendezvous one started now would get.
@@ -725,6 +768,9 @@ class Service:
             "stitch_ms": round((time.perf_counter() - t_stitch) * 1e3, 3),
             "rendezvous": aim.rendezvous,
         }
+        if "quality" in aim.job:
+            stats["quality"] = aim.job["quality"]
+            self._observe(aim, parts, stats)
         self.counters.n["renders"] += 1
         self._ready.append(
             Ready(
@@ -739,6 +785,16 @@ class Service:
         )
         mark = (aim.settings.generation, aim.scene_version)
         self._render_results.put((aim.render_id, aim.t0, rendered.frame, mark, stats))
+
+    def _observe(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict) -> None:
+        """Tell the quality chooser what the render showed (out-of-order points, coverage)."""
+        chooser = self._chooser
+        if chooser is None or chooser[0] != aim.settings.generation:
+            return
+        bands = stats.get("bands") or [stats]
+        bad = sum(int(b.get("inconsistent_pixels", 0)) for b in bands)
+        covered = sum(int(np.isfinite(p["depth"]).sum()) for p in parts if "depth" in p)
+        chooser[1].observe(aim.job["render"]["method"], {"inconsistent_pixels": bad}, covered)
 
     def _run_job(
         self, renderer: Renderer, bands: BandClient | None, aim: Aim
@@ -814,7 +870,9 @@ class Service:
                     render_id += int(done)
                     next_start = now + (self._cap_s() if done else 0.02)
                 elif remote and len(pipe.flights) < capacity and now >= next_start:
-                    aim = self._aim(render_id)
+                    # renders quicker than refreshes (a low refresh_hz) would otherwise be
+                    # aimed one rendezvous past the last, ever further into the future
+                    aim = None if self._ahead() else self._aim(render_id)
                     if aim is None:
                         next_start = now + 0.02
                     else:
@@ -927,7 +985,7 @@ def _lead_s(render_ms: deque[float]) -> float:
 
 
 def _builtin(name: str) -> Scene:
-    from service.scenes import builtin_scene
+    from service.builtin_scenes import builtin_scene
 
     try:
         return builtin_scene(name)
@@ -972,7 +1030,7 @@ def _object_index(u: Any, objs: list, i: int) -> int:
         return k
     if "name" not in u:
         raise MessageError("bad_message", f"objects[{i}] needs an index or a name")
-    name = wire.string(u["name"], f"objects[{i}].name", 256)
+    name = wire.string(u["name"], f"objects[{i}].name", wire.MAX_NAME)
     for k, o in enumerate(objs):
         if o.name == name:
             return k
@@ -985,6 +1043,16 @@ def _encodings(v: Any) -> tuple[str, ...]:
     return tuple(dict.fromkeys(v))
 
 
+def _check_sird(cols: int, eye_sep: float) -> None:
+    """Refuse an autostereogram the eyes cannot fuse (``bad_settings``)."""
+    from service.autostereogram import SirdSettings, default_eye_sep
+
+    try:
+        SirdSettings(eye_sep=eye_sep or default_eye_sep(cols)).check_width(cols)
+    except SettingsError as exc:
+        raise MessageError("bad_settings", f"autostereogram: {exc}") from None
+
+
 def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
     d = s.display
     disp = {
@@ -995,9 +1063,10 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         "width": wire.number(req.get("width", d.width), "width", 1e-6, 1e6),
     }
     choices = {
-        "method": METHODS,
-        "light_model": ("ambient", "phong", "blinn"),
-        "specular": ("polygon", "vertex", "point"),
+        "method": METHOD_NAMES,
+        "light_model": tuple(MODELS),
+        "specular": tuple(EVALUATIONS),
+        "sird_method": SIRD_METHODS,
     }
     kw: dict[str, Any] = {}
     for key, allowed in choices.items():
@@ -1011,9 +1080,45 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["encodings"] = _encodings(req["encodings"])
     if "refresh_hz" in req:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    if "sird_eye_sep" in req:
+        kw["sird_eye_sep"] = wire.number(req["sird_eye_sep"], "sird_eye_sep", 0.0, 4096.0)
+    if "autostereogram" in kw.get("encodings", s.encodings):
+        _check_sird(disp["cols"], kw.get("sird_eye_sep", s.sird_eye_sep))
+    if "lod_error" in req:  # pixels; 0 turns level of detail off
+        kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
+    kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
     return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
+
+
+def _sird_output(settings: Settings) -> Any:
+    """The ``autostereogram`` encoding's state for these settings, or None when it is off."""
+    if "autostereogram" not in settings.encodings:
+        return None
+    from service.autostereogram.output import SirdOutput
+
+    d = settings.display
+    return SirdOutput(d.cols, d.rows, d.width, settings.sird_method, settings.sird_eye_sep)
+
+
+def _quality_fields(req: dict[str, Any]) -> dict[str, str]:
+    """``quality`` ("fixed" / "auto") and ``max_error`` ("0.5%", 0.5, "40dB") of set_display."""
+    kw = {}
+    if "quality" in req:
+        if req["quality"] not in QUALITY_MODES:
+            raise MessageError("bad_settings", f"quality must be one of {list(QUALITY_MODES)}")
+        kw["quality"] = req["quality"]
+    if "max_error" in req:
+        v = req["max_error"]
+        try:
+            if not isinstance(v, str | int | float) or isinstance(v, bool):
+                raise SettingsError("max_error must be a number or a string like 40dB")
+            parse_budget(v)
+        except SettingsError as exc:
+            raise MessageError("bad_settings", str(exc)) from None
+        kw["max_error"] = str(v)
+    return kw
 
 
 def _viewer_motion(job: dict[str, Any]) -> MotionState:
@@ -1078,8 +1183,7 @@ class ViewerTracker:
 
     def set_fields(self, req: dict[str, Any]) -> None:
         """Apply ``set_viewer`` fields (validated)."""
-        keys = ("position", "orientation", *wire.MOTION_FIELDS)
-        if not any(k in req for k in keys):
+        if not any(k in req for k in VIEWER_POSE_FIELDS):
             return
         probe = wire.apply_fields(_probe_object(), req, "viewer")
         self.position = probe.transform.position
@@ -1164,6 +1268,7 @@ class RefreshLoop:
         self.since = 0
         self.prepared: tuple[Any, dict[str, Any]] | None = None
         self.input: dict[str, Any] | None = None
+        self.sird = None  # service.autostereogram.SirdOutput while that encoding is on
 
     def _restart(self, settings: Settings) -> None:
         self.stage = GalileanStage(
@@ -1171,6 +1276,7 @@ class RefreshLoop:
             GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz),
         )
         self.generation = settings.generation
+        self.sird = _sird_output(settings)
         self.due.clear()
         self.render_id, self.since = -1, 0
         self.prepared = None
@@ -1246,6 +1352,11 @@ class RefreshLoop:
         )
         ms = (time.perf_counter() - t0) * 1e3
         c.refresh_ms.append(ms)
+        if self.sird is not None:  # the SIRD of the zone the newest pose picked (or the centre)
+            zone = self.svc.state.viewer.zone
+            sird = self.sird.frame(r.depth[r.depth.shape[0] // 2 if zone is None else zone])
+            r = replace(r, flags={**r.flags, "autostereogram": sird})
+            c.sird_ms.append(self.sird.last_ms)
         if self.render_id >= 0:
             self.prepared = (
                 r,
@@ -1314,7 +1425,6 @@ class RefreshLoop:
         self.input = None
 
     def _publish(self, r: Any, made: dict[str, Any], settings: Settings) -> None:
-        arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris}
         names = list(settings.encodings)
         viewer = self.svc.state.viewer
         header = {
@@ -1328,4 +1438,5 @@ class RefreshLoop:
             "events": r.flags["events"],
             "age": r.flags["age"],
         }
-        self.svc.stream.publish(header, [arrays[n] for n in names], names)
+        arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]
+        self.svc.stream.publish(header, arrays, names)

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from service_helpers import ROOT
+from testkit import ROOT
 
 from service.cli_service import build_parser
 
