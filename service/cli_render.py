@@ -240,6 +240,7 @@ def run(args: argparse.Namespace) -> dict:
             "lod": "on" if settings.lod else "off",
         },
         "quality": frame.stats.get("quality"),
+        "billboards": frame.stats.get("billboards"),
         "mesh": {
             **mesh_report(scene, load_ms, args.strict),
             **build_report(frame.stats["ms"]["flatten"], scene),

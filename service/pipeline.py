@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from service.billboard_render import draw_billboards
 from service.cull import CullSettings, cull, zone_mask
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
@@ -148,9 +149,18 @@ class Renderer:
             vis, counts, proj = self.visibility(arrays, display, settings, clock)
         finally:
             self._scratch.active = None
+        boards = None
+        if scene.billboards:  # alpha-tested quads into the same depth buffer
+            with clock("billboards"):
+                boards = draw_billboards(scene.billboards, display, vis, settings.method,
+                                         scene.lights, scene.ambient, settings.light)
         with clock("light"):
             colour = shade(arrays, proj, vis, display, scene.lights, scene.ambient, settings.light)
+            if boards is not None:
+                boards.paint(colour)
         stats = {"polygons": counts, "ms": ms, "occlusion": vis.stats, "method": settings.method}
+        if boards is not None:
+            stats["billboards"] = boards.stats
         stats["ms"]["total"] = float(sum(ms.values()))
         if lod is not None:
             stats["lod"] = lod_report

@@ -157,11 +157,16 @@ class SceneObject:
 
 @dataclass
 class Scene:
-    """Objects and lights.  ``ambient`` is the ambient light level (0-1)."""
+    """Objects and lights.  ``ambient`` is the ambient light level (0-1).
+
+    ``billboards`` are billboard-cloud objects
+    (:class:`service.billboard_render.BillboardObject`), drawn after the meshes.
+    """
 
     objects: list[SceneObject] = field(default_factory=list)
     lights: list[Light] = field(default_factory=lambda: [Light()])
     ambient: float = 1.0
+    billboards: list = field(default_factory=list)
     _static: dict = field(default_factory=dict, repr=False, compare=False)
     #: A scene file's ``[quality]`` table (``mode``, ``max_error``); empty otherwise.
     quality: dict = field(default_factory=dict, compare=False)
