@@ -13,14 +13,13 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 def test_a_tiny_report_writes_every_section_with_valid_inline_images(tmp_path, capsys):
     out = tmp_path / "rep"
-    status = report.main(["--quick", "--only", "light,decoders,billboards", "--size", "32x24",
+    status = report.main(["--quick", "--only", "light,decoders", "--size", "32x24",
                           "--out", str(out)])
     assert status == 0
     page = (out / "index.html").read_text()
-    for section in ("light", "decoders", "billboards", "failure-map"):
+    for section in ("light", "decoders", "failure-map"):
         assert f'id="{section}"' in page, section
     assert page.count("<h3>Stage table</h3>") == 2  # light and decoders ran
-    assert "Not run: not built" in page  # no billboard benchmark yet
     # self-contained: every image inline, nothing fetched from elsewhere
     assert not re.search(r'(src|href)="(?!data:|#)', page)
     images = re.findall(r'<img alt="([^"]+)" src="data:image/png;base64,([^"]+)">', page)
@@ -32,13 +31,18 @@ def test_a_tiny_report_writes_every_section_with_valid_inline_images(tmp_path, c
     assert captions and all(len(text) > 40 for _, text in captions)
     assert "phong per polygon" in page and "against the best peer" in page
     meta = json.loads((out / "report.json").read_text())
-    assert meta["benches"]["light"]["ran"] and not meta["benches"]["billboards"]["ran"]
+    assert meta["benches"]["light"]["ran"] and meta["benches"]["decoders"]["ran"]
     assert "wrote" in capsys.readouterr().out
 
 
-def test_nothing_run_is_status_1_and_still_a_page(tmp_path):
-    assert report.main(["--quick", "--only", "billboards", "--out", str(tmp_path)]) == 1
-    assert "Failure map" in (tmp_path / "index.html").read_text()
+def test_a_benchmark_not_built_is_a_row_saying_so(tmp_path):
+    from service.cli_bench import BENCHES
+
+    plan = report.Plan("no-such-bench", "Something not written yet", ((),), ((),))
+    res = report.run_plan(plan, BENCHES, tmp_path, True, "32x24")
+    assert not res.ok and res.reason.startswith("not built")
+    page = report.page([res], {"what": "t", "wall_s": 0.0, "cpu_s": 0.0, "machine": "m"}, ROOT)
+    assert "Not run: not built" in page and 'id="failure-map"' in page
 
 
 def test_the_occlusion_table_sets_each_method_against_the_best_peer(tmp_path):
