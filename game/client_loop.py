@@ -132,6 +132,7 @@ class GameClient:
                 f"zone {settings.zone} is not one of the display's {zones} zones (0 to {zones - 1})"
             )
         self.mode, self.notice = choose_mode(settings.mode)
+        self.backend.sird_wanted = self.mode == "autostereogram"
         self.zone, self.head_zone = settings.zone, zones // 2
         self.state: GameState = new_game(settings.game)
         self.over: GameOverSequence | None = None
@@ -139,6 +140,7 @@ class GameClient:
         self.scores: list[int] = []
         self.modes_shown: set[str] = set()
         self.colour: np.ndarray | None = None
+        self.sird: np.ndarray | None = None  # the frame's autostereogram, if it has one
         self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
         self.latencies: deque[float] = deque(maxlen=600)
         self.dial_events = self.disconnects = 0
@@ -166,6 +168,7 @@ class GameClient:
         is chosen.
         """
         self.mode, self.notice = choose_mode(mode, self.mode)
+        self.backend.sird_wanted = self.mode == "autostereogram"
 
     def _pause(self) -> None:
         self.state.paused = not self.state.paused
@@ -271,6 +274,7 @@ class GameClient:
         if frame is None:
             return
         self.colour = frame.colour
+        self.sird = frame.sird
         self.refreshes.add(now)
         if frame.render_id != self._render_id:
             self._render_id = frame.render_id
@@ -305,7 +309,7 @@ class GameClient:
     def _draw(self, now: float) -> None:
         self.fps.add(now)
         self.modes_shown.add(self.mode)
-        self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now))
+        self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now), self.sird)
         connected = self.backend.connected
         if not connected:
             self.window.banner(
