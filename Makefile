@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(BIN)/python -m game.full_demo --out demo-out
 
 render-demo: $(STAMP)
-	$(BIN)/python -m service.demo --out demo-out
+	$(BIN)/python -m service.demo --out render-demo-out
 
 lint: $(STAMP)
 	$(BIN)/ruff check service drivers game sim_devices tests
@@ -35,4 +35,4 @@ bench: $(STAMP)
 	$(BIN)/holo-bench galilean --sweep --out bench-out/galilean
 
 clean:
-	rm -rf $(VENV) demo-out bench-out
+	rm -rf $(VENV) demo-out render-demo-out bench-out

@@ -72,6 +72,11 @@ def raw_request(
         s.close(0)
 
 
+def _is_ready(reply: dict | None) -> bool:
+    """A hello reply from a service that is ready (not warming up)."""
+    return reply is not None and reply.get("status", "ready") == "ready"
+
+
 @dataclass
 class ServiceProcess:
     """A running ``holo-service``."""
@@ -88,7 +93,10 @@ class ServiceProcess:
 def start_service(
     *args: str, ports: tuple[int, int, int] | None = None, ready_timeout_s: float = 60.0
 ) -> ServiceProcess:
-    """Start ``holo-service`` on free loopback ports and wait until it answers hello.
+    """Start ``holo-service`` on free loopback ports and wait until hello says it is ready.
+
+    Until its warm-up is over the service answers hello with ``status: warming_up``
+    (``docs/protocol.md`` 1.8); the tests want a service that renders.
 
     The broker's backend goes on ``ports[2]`` when the service starts local workers
     (``--workers 0`` starts no broker unless ``args`` name a ``--worker-address``).
@@ -116,7 +124,8 @@ def start_service(
     try:
         hello = {"v": 1, "type": "hello", "id": 0, "versions": [1]}
         ok = wait_until(
-            lambda: proc.poll() is not None or raw_request(control, hello, (), 500), ready_timeout_s
+            lambda: proc.poll() is not None or _is_ready(raw_request(control, hello, (), 500)),
+            ready_timeout_s,
         )
         if not ok or proc.poll() is not None:
             raise RuntimeError(f"holo-service did not start (rc {proc.poll()})")
