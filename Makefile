@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo render-demo lint bench clean
+.PHONY: venv warmup test demo render-demo lint bench clean
 
 venv: $(STAMP)
 
@@ -14,13 +14,18 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-test: $(STAMP)
+# Compile every numba kernel ahead, with progress (minutes once per clone, then
+# about 2 s: everything loads from numba's cache).
+warmup: $(STAMP)
+	$(BIN)/holo-warmup
+
+test: warmup
 	$(BIN)/python -m pytest -q
 
-demo: $(STAMP)
+demo: warmup
 	$(BIN)/python -m game.full_demo --out demo-out
 
-render-demo: $(STAMP)
+render-demo: warmup
 	$(BIN)/python -m service.demo --out render-demo-out
 
 lint: $(STAMP)

@@ -71,9 +71,11 @@ def build_parser() -> argparse.ArgumentParser:
     fallback.add_argument(
         "--fallback",
         choices=("frame", "pixel", "off"),
-        default="frame",
-        help="when the run-length depth order proves wrong: redraw the frame with the "
-        "z-buffer (frame, default), z-test just the wrong points (pixel), or keep it (off)",
+        default=None,  # None, not "pixel": argparse lets a value equal to the default
+        # slip past the mutually exclusive check (--fallback pixel --no-fallback)
+        help="when the run-length depth order proves wrong: z-test just the wrong points "
+        "(pixel, default: the z-buffer's picture), redraw the frame with the z-buffer "
+        "(frame), or keep it (off)",
     )
     fallback.add_argument(
         "--no-fallback",
@@ -132,6 +134,11 @@ def mesh_report(scene: Scene, load_ms: float, strict: bool) -> dict:
     }
 
 
+def _fallback(args: argparse.Namespace) -> str:
+    """The painter fallback the flags ask for (``pixel`` unless told)."""
+    return "off" if args.no_fallback else args.fallback or "pixel"
+
+
 def run(args: argparse.Namespace) -> dict:
     """Render as the parsed arguments say; return the JSON report."""
     cols, rows = args.size
@@ -140,7 +147,7 @@ def run(args: argparse.Namespace) -> dict:
         method=args.method,
         cull=CullSettings(args.cull),
         light=LightSettings(model=args.light, evaluation=args.specular),
-        painter_fallback="off" if args.no_fallback else args.fallback,
+        painter_fallback=_fallback(args),
     )
     start = time.perf_counter()
     scene, repairs = _load(args.scene, args.strict)
@@ -165,7 +172,7 @@ def run(args: argparse.Namespace) -> dict:
             "light": args.light,
             "specular": args.specular,
             "cull": args.cull,
-            "painter_fallback": "off" if args.no_fallback else args.fallback,
+            "painter_fallback": _fallback(args),
         },
         "mesh": mesh_report(scene, load_ms, args.strict),
         "polygons": frame.stats["polygons"],
@@ -229,9 +236,10 @@ def _main(args: argparse.Namespace) -> int:
         )
         fb = report["occlusion"].get("fallback")
         if fb:
+            how = "redrawn with the zbuffer" if fb == "zbuffer" else "z-tested per pixel"
             print(
                 f"note: average-z order was inconsistent "
-                f"({report['occlusion']['inconsistent_pixels']} pixels); redrawn with the {fb}"
+                f"({report['occlusion']['inconsistent_pixels']} pixels); {how}"
             )
     return 0
 

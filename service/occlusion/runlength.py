@@ -29,6 +29,14 @@ in the sort already drew there.  That is wrong when the average-z order is wrong
 (cyclic overlap, interpenetration).  The kernel therefore also checks, for every
 occluded point, whether it is in fact *nearer* than what was drawn; such pixels are
 counted as ``inconsistent_pixels`` so the pipeline can fall back to the z-buffer.
+
+Tie rule of the repair (``repair=True``).  A hidden point replaces what was drawn
+when it is strictly nearer (``d < depth``), exactly the z-buffer's test, so an exact
+depth tie keeps the surface drawn first in the sort, as the z-buffer and the ray
+caster do: with the same order the repaired buffers equal the z-buffer's bit for
+bit.  Only the *count* ignores points nearer by less than ``DEPTH_EPS`` (float noise
+where coplanar surfaces meet), so a noise-level difference is repaired but does not
+make the frame "inconsistent".
 """
 
 from __future__ import annotations
@@ -169,7 +177,8 @@ def runlength_kernel(
     inconsistent : ndarray, shape (Z,), int64
         Out: per zone, occluded points that were nearer than the drawn surface.
     repair : bool
-        Draw such points anyway (a z-test on just the points the sort got wrong).
+        Draw hidden points that are strictly nearer than what was drawn (a z-test on
+        just the points the sort got wrong; the z-buffer's tie rule).
     """
     zones, rows, cols = tri_out.shape
     cap = cols + 4
@@ -193,9 +202,9 @@ def runlength_kernel(
                     if hidden:
                         if d < depth_out[z, r, c] - DEPTH_EPS:
                             bad += 1
-                            if repair:
-                                depth_out[z, r, c] = d
-                                tri_out[z, r, c] = t
+                        if repair and d < depth_out[z, r, c]:  # the z-buffer's tie rule
+                            depth_out[z, r, c] = d
+                            tri_out[z, r, c] = t
                     else:
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t

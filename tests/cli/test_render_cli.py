@@ -38,6 +38,9 @@ def test_json_has_occlusion_counters_for_every_method(method, tmp_path, capsys):
 def test_json_names_the_fallback_and_the_inconsistent_pixels(tmp_path, capsys):
     occ = _report(capsys, "builtin:cyclic", "--method", "runlength", "--size", "80x60",
                   "--out", str(tmp_path))["occlusion"]
+    assert occ["fallback"] == "pixel" and occ["inconsistent_pixels"] > 0  # the default
+    occ = _report(capsys, "builtin:cyclic", "--method", "runlength", "--size", "80x60",
+                  "--fallback", "frame", "--out", str(tmp_path))["occlusion"]
     assert occ["fallback"] == "zbuffer" and occ["inconsistent_pixels"] > 0
     occ = _report(capsys, "builtin:cyclic", "--method", "runlength", "--size", "80x60",
                   "--no-fallback", "--out", str(tmp_path))["occlusion"]

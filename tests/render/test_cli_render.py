@@ -60,6 +60,10 @@ def test_renders_a_mesh_file_and_reports_json(tmp_path):
 def test_builtin_scene_and_fallback_note(tmp_path):
     r = run("builtin:cyclic", "--method", "runlength", "--size", "80x60", "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
+    assert "z-tested per pixel" in r.stdout  # the default fallback
+    r = run("builtin:cyclic", "--method", "runlength", "--size", "80x60", "--fallback", "frame",
+            "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
     assert "redrawn with the zbuffer" in r.stdout
 
 

@@ -1,0 +1,89 @@
+"""``holo-warmup``: compile every numba kernel ahead, once, with progress.
+
+Examples
+--------
+holo-warmup                 # progress lines and a summary on stderr
+holo-warmup --jsonl         # one JSON object per line on stdout (for a parent process)
+
+Human mode writes one line per job to stderr, ``compiling kernels 7/15 render bsp
+(1.2 s)`` (``cached`` instead of the time when nothing had to be compiled), and a
+summary.  ``--jsonl`` writes ``{"event": "kernel", "done": i, "total": n, "name":
+..., "seconds": s, "cached": bool}`` per job, then ``{"event": "done", "total": n,
+"compiled": k, "cached": m, "seconds": s, "kernels": K}``.  The kernels land in
+numba's cache (``NUMBA_CACHE_DIR`` if set) and every later process loads them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import TYPE_CHECKING
+
+from service.cli_args import plain_help
+from service.signals import EXIT_RULE, interruptible
+
+if TYPE_CHECKING:
+    from service.warmup import WarmupStep
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``holo-warmup``."""
+    p = argparse.ArgumentParser(
+        prog="holo-warmup",
+        description="Compile (or load from numba's cache) every numba kernel the render "
+        "service, the Galilean stage and the game use, for the types they are called "
+        "with, so that no later process waits on the compiler. The first run on a "
+        "machine takes a few minutes; later runs take seconds.",
+        epilog=f"The cache is numba's: NUMBA_CACHE_DIR if set, else __pycache__ next to "
+        f"each module. {plain_help(EXIT_RULE)}",
+    )
+    p.add_argument("--jsonl", action="store_true",
+                   help="one JSON object per line on stdout instead of progress on stderr")
+    return p
+
+
+def _human(step: WarmupStep) -> None:
+    how = "cached" if step.cached else f"{step.seconds:.1f} s"
+    word = "loading" if step.cached else "compiling"
+    print(f"{word} kernels {step.done}/{step.total} {step.name} ({how})", file=sys.stderr,
+          flush=True)
+
+
+def _jsonl(step: WarmupStep) -> None:
+    print(json.dumps({"event": "kernel", "done": step.done, "total": step.total,
+                      "name": step.name, "seconds": round(step.seconds, 3),
+                      "cached": step.cached}), flush=True)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from service.warmup import warm_up
+
+    if not args.jsonl:
+        print("holo-warmup: compiling numba kernels (a few minutes the first time, "
+              "seconds once cached)", file=sys.stderr, flush=True)
+    report = warm_up(_jsonl if args.jsonl else _human)
+    if args.jsonl:
+        print(json.dumps({"event": "done", "total": report.total, "compiled": report.compiled,
+                          "cached": report.cached, "seconds": round(report.seconds, 3),
+                          "kernels": report.kernels}), flush=True)
+    elif report.compiled == 0:
+        print(f"holo-warmup: all {report.total} jobs cached ({report.kernels} kernels), "
+              f"{report.seconds:.1f} s", file=sys.stderr)
+    else:
+        print(f"holo-warmup: compiled {report.compiled} of {report.total} jobs "
+              f"({report.kernels} kernels) in {report.seconds:.1f} s; later starts load "
+              f"them from the cache", file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the process exit status."""
+    args = build_parser().parse_args(argv)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as holo-service, before numba
+    return interruptible("holo-warmup", lambda: _run(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

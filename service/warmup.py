@@ -1,0 +1,290 @@
+"""Compile ahead: every numba kernel the service, the Galilean stage and the game use.
+
+Numba compiles a kernel the first time it is called with new argument types and
+keeps the machine code in its cache (``NUMBA_CACHE_DIR``, else ``__pycache__`` next
+to the module), so a cold process pays for every kernel on its first frames: a
+``holo-service`` with an empty cache took 124 s to publish its first 120 frames.
+:func:`warm_up` pays that once, ahead, with progress: it runs each job of
+:data:`JOBS` (a tiny render, refresh or mesh build through the same code paths, so
+the kernels see the types they are really called with) and reports, per job, how
+long it took and whether every kernel it needed came from the cache.
+
+A job is *cached* when no kernel missed numba's cache during it (the dispatchers'
+``stats.cache_misses`` did not grow); a second process with the same cache
+compiles nothing (``tests/warmup``).  ``holo-warmup`` (:mod:`service.cli_warmup`)
+is the command; ``make venv`` runs it.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from service.display import DisplaySettings
+
+__all__ = ["JOBS", "WarmupReport", "WarmupStep", "cache_counts", "dispatchers", "warm_up"]
+
+
+@dataclass(frozen=True)
+class WarmupStep:
+    """One job of the warm-up, done.
+
+    Attributes
+    ----------
+    done, total : int
+        Jobs done so far (this one included) and in all.
+    name : str
+        The job (see :data:`JOBS`).
+    seconds : float
+        Wall time of the job.
+    cached : bool
+        True when every kernel it needed was loaded from numba's cache (nothing
+        compiled).
+    kernels : int
+        Kernel signatures compiled during the job (0 when ``cached``).
+    """
+
+    done: int
+    total: int
+    name: str
+    seconds: float
+    cached: bool
+    kernels: int = 0
+
+
+@dataclass(frozen=True)
+class WarmupReport:
+    """What :func:`warm_up` did.
+
+    Attributes
+    ----------
+    total : int
+        Jobs run.
+    compiled : int
+        Jobs that compiled at least one kernel.
+    cached : int
+        Jobs whose kernels all came from the cache (``compiled + cached == total``).
+    seconds : float
+        Wall time of the whole warm-up.
+    steps : tuple of WarmupStep
+    kernels : int
+        Kernel signatures loaded or compiled (numba dispatchers' overloads).
+    """
+
+    total: int
+    compiled: int
+    cached: int
+    seconds: float
+    steps: tuple[WarmupStep, ...] = ()
+    kernels: int = 0
+
+
+# ------------------------------------------------------------------ the kit
+@dataclass
+class _Kit:
+    """Small inputs the jobs share (built once, on first use)."""
+
+    display: DisplaySettings = field(
+        default_factory=lambda: DisplaySettings(zones=3, angle_deg=16.0, cols=24, rows=16)
+    )
+    cache: dict[str, Any] = field(default_factory=dict)
+
+    def scene(self, name: str = "game") -> Any:
+        """A built-in scene (cached)."""
+        from service.scenes import SCENES
+
+        if name not in self.cache:
+            self.cache[name] = SCENES[name]()
+        return self.cache[name]
+
+
+def _scenes(kit: _Kit) -> None:
+    """Mesh builders: corner normals and ear-clipping of polygons (all built-in scenes)."""
+    from service.scenes import SCENES
+    from service.triangulate import ear_clip
+
+    for name in SCENES:
+        kit.scene(name).flatten()
+    ear_clip(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.5, 0.4], [0.0, 1.0]]))
+
+
+def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
+            fallback: str = "frame") -> Callable:
+    def job(kit: _Kit) -> None:
+        from service.light import LightSettings
+        from service.pipeline import Renderer, RenderSettings
+
+        settings = RenderSettings(method=method, light=LightSettings(model, evaluation),
+                                  painter_fallback=fallback)
+        renderer = Renderer()
+        for name in ("game", "cyclic"):  # cyclic: the painter's fallback too
+            renderer.render(kit.scene(name), kit.display, settings)
+
+    return job
+
+
+def _motion(colour_motion: bool, model: str) -> Callable:
+    def job(kit: _Kit) -> None:
+        from service.galilean.motion_field import render_with_motion
+        from service.light import LightSettings
+        from service.pipeline import Renderer, RenderSettings
+
+        settings = RenderSettings(method="zbuffer", light=LightSettings(model))
+        render_with_motion(Renderer(), kit.scene(), kit.display, 0.1, 60.0, settings,
+                           colour_motion=colour_motion)
+
+    return job
+
+
+def _stage_refreshes(stage: Any, n: int = 3) -> None:
+    for _ in range(n):
+        stage.refresh()
+
+
+def _galilean_game(kit: _Kit) -> None:
+    """The game's in-process path (``game.backends.LocalRenderer``): update, refresh."""
+    from service.galilean import GalileanSettings, GalileanStage
+    from service.galilean.motion_field import render_with_motion
+    from service.light import LightSettings
+    from service.pipeline import Renderer, RenderSettings
+
+    settings = RenderSettings(method="zbuffer", light=LightSettings("ambient"))
+    stage = GalileanStage(kit.display, GalileanSettings(order=2, colour_motion=False))
+    renderer = Renderer()
+    for t in (0.1, 0.2):
+        stage.update(render_with_motion(renderer, kit.scene(), kit.display, t, 60.0, settings,
+                                        colour_motion=False))
+        _stage_refreshes(stage)
+
+
+def _galilean_service(kit: _Kit) -> None:
+    """The service's path: band renders (``render_job``), stitched, submitted, refreshed."""
+    from service.galilean import GalileanSettings, GalileanStage
+    from service.pipeline import Renderer
+    from service.scene import MotionState
+    from service.worker import render_job, stitch
+
+    d = kit.display
+    stage = GalileanStage(d, GalileanSettings(order=2, refresh_hz=60.0))
+    job = {
+        "display": {"zones": d.zones, "angle_deg": d.angle_deg, "cols": d.cols, "rows": d.rows,
+                    "width": d.width},
+        "rows": [0, d.rows], "t": 0.1, "refresh_hz": 60.0, "order": 2,
+        "render": {"method": "zbuffer", "light_model": "blinn", "specular": "polygon"},
+    }
+    renderer = Renderer()
+    for k in range(2):
+        half = d.rows // 2
+        bands = [render_job(renderer, {**job, "rows": r}, kit.scene())[0]
+                 for r in ([0, half], [half, d.rows])]
+        rendered, buf = stitch(bands, MotionState(), stage.fixed, 2)
+        stage.submit(buf, stage.index + 1, None, True, (), rendered.points,
+                     rendered.point_derivs, rendered.viewer_motion)
+        stage.viewer(MotionState(velocity=[0.1 * k, 0.0, 0.0], angular_velocity=[0.0, 0.2, 0.0]))
+        _stage_refreshes(stage)
+
+
+def _galilean_variants(kit: _Kit) -> None:
+    """Stage settings that take other kernels: orders 0-3, cache, margin, no Poisson."""
+    from service.galilean import GalileanSettings, GalileanStage
+    from service.galilean.motion_field import render_with_motion
+    from service.pipeline import Renderer
+
+    renderer = Renderer()
+    variants = [
+        GalileanSettings(order=o, cache=c, margin=m, poisson=p, threads=th, expansion=e)
+        for o, c, m, p, th, e in [
+            (0, False, 0, True, 0, "average"), (1, True, 2, True, 1, "replicate"),
+            (3, True, 0, False, 0, "average"), (2, False, 2, True, 1, "average"),
+        ]
+    ]
+    up = render_with_motion(renderer, kit.scene(), kit.display, 0.1, 60.0)
+    for s in variants:
+        stage = GalileanStage(kit.display, s)
+        stage.update(up)
+        _stage_refreshes(stage, 4)
+
+
+#: The warm-up's jobs, in order: name -> job(kit).  Each runs the real code path
+#: on tiny inputs, so the kernels compile for the types they are really called with.
+JOBS: dict[str, Callable[[_Kit], None]] = {
+    "scenes: normals, triangulation": _scenes,
+    "render zbuffer": _render("zbuffer"),
+    "render runlength": _render("runlength"),
+    "render runlength, pixel fallback": _render("runlength", fallback="pixel"),
+    "render bsp": _render("bsp"),
+    "render raycast": _render("raycast"),
+    "light ambient": _render("zbuffer", "ambient"),
+    "light phong": _render("zbuffer", "phong"),
+    "light vertex (Gouraud)": _render("zbuffer", "blinn", "vertex"),
+    "light point (per pixel)": _render("zbuffer", "blinn", "point"),
+    "motion field": _motion(True, "blinn"),
+    "motion field, no colour motion": _motion(False, "ambient"),
+    "galilean: service refresh": _galilean_service,
+    "galilean: game refresh": _galilean_game,
+    "galilean: orders, cache, margin": _galilean_variants,
+}
+
+
+# ------------------------------------------------------------ cache counters
+def dispatchers(prefix: str = "service") -> Iterator[Any]:
+    """Every numba dispatcher defined in an imported module under ``prefix``."""
+    from numba.core.dispatcher import Dispatcher
+
+    seen: set[int] = set()
+    for name, module in list(sys.modules.items()):
+        if module is None or not (name == prefix or name.startswith(prefix + ".")):
+            continue
+        for obj in list(vars(module).values()):
+            if isinstance(obj, Dispatcher) and id(obj) not in seen:
+                seen.add(id(obj))
+                yield obj
+
+
+def cache_counts(prefix: str = "service") -> tuple[int, int, int]:
+    """``(hits, misses, overloads)`` summed over :func:`dispatchers`.
+
+    A miss is a signature numba did not find in its cache and compiled.
+    """
+    hits = misses = loaded = 0
+    for d in dispatchers(prefix):
+        hits += sum(d.stats.cache_hits.values())
+        misses += sum(d.stats.cache_misses.values())
+        loaded += len(d.overloads)
+    return hits, misses, loaded
+
+
+def warm_up(progress: Callable[[WarmupStep], None] | None = None) -> WarmupReport:
+    """Compile, or load from numba's cache, every kernel of :data:`JOBS`.
+
+    Parameters
+    ----------
+    progress : callable, optional
+        Called with each :class:`WarmupStep` as its job finishes.
+
+    Returns
+    -------
+    WarmupReport
+    """
+    kit = _Kit()
+    steps: list[WarmupStep] = []
+    t_all = time.perf_counter()
+    total = len(JOBS)
+    for done, (name, job) in enumerate(JOBS.items(), 1):
+        misses0 = cache_counts()[1]
+        t0 = time.perf_counter()
+        job(kit)
+        seconds = time.perf_counter() - t0
+        compiled = cache_counts()[1] - misses0
+        step = WarmupStep(done, total, name, seconds, compiled == 0, compiled)
+        steps.append(step)
+        if progress is not None:
+            progress(step)
+    n_cached = sum(s.cached for s in steps)
+    return WarmupReport(total, total - n_cached, n_cached, time.perf_counter() - t_all,
+                        tuple(steps), cache_counts()[2])
