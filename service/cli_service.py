@@ -216,7 +216,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"session {service.session}"
     )
     if not service.ready:
-        _log("warming up: compiling kernels in a child process; requests get warming_up")
+        _log("warming up: numba kernels load or compile before the first frame; requests get "
+             "warming_up until ready")
     # The refresh thread must get the GIL soon after its tick: a 1 ms switch interval
     # (default 5 ms) bounds how long a busy thread holds it against a waiting one.
     sys.setswitchinterval(0.001)

@@ -58,12 +58,14 @@ def _jsonl(step: WarmupStep) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from service.readiness import mark_warm
     from service.warmup import warm_up
 
     if not args.jsonl:
         print("holo-warmup: compiling numba kernels (a few minutes the first time, "
               "seconds once cached)", file=sys.stderr, flush=True)
     report = warm_up(_jsonl if args.jsonl else _human)
+    mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
     if args.jsonl:
         print(json.dumps({"event": "done", "total": report.total, "compiled": report.compiled,
                           "cached": report.cached, "seconds": round(report.seconds, 3),

@@ -20,16 +20,28 @@ and even its heartbeats, so clients took it for dead.  Instead:
 If the child fails (it crashed, or ``service.cli_warmup`` is missing), step 3
 compiles in process instead (slower, but the service still gets ready and its
 heartbeats go on).  :meth:`Warmup.as_dict` is what replies and heartbeats carry.
+
+**A warm cache skips the child.**  Starting a Python process that imports numba and
+loads 60 kernels costs seconds (14 s on a loaded 2-core machine), on every start.
+So once a warm-up has found every kernel in the cache, :func:`mark_warm` writes a
+small JSON stamp beside the cache (``holo-warmup-stamp.json`` in ``NUMBA_CACHE_DIR``,
+else in ``service/__pycache__``) naming the sources (every ``service`` module's
+size and mtime), numba's and Python's versions.  While the stamp matches
+(:func:`is_warm`), the service goes straight to step 3.  Any edit of a module, a
+new numba or an emptied cache voids it.  ``holo-warmup`` writes it too.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from service.signals import end_process
@@ -117,12 +129,13 @@ class Warmup:
     # ------------------------------------------------------------- thread
     def _run(self) -> None:
         try:
-            ok = self._child()
+            ok = True if is_warm() else self._child()
             if self._stop.is_set():
                 return
             if not ok:
                 self._set(phase="compiling", done=0, note=self.note)
-            self._in_process("loading" if ok else "compiling")
+            if self._in_process("loading" if ok else "compiling") == 0:
+                mark_warm()
         except _Abort:
             return
         except Exception as exc:  # noqa: BLE001 -- the service still gets ready
@@ -177,8 +190,11 @@ class Warmup:
         how = "cached" if ev.get("cached") else f"{float(ev.get('seconds', 0)):.1f} s"
         self.log(f"warming up: compiling {self.done}/{self.total} {self.step} ({how})")
 
-    def _in_process(self, phase: str) -> None:
-        """The warm-up's jobs in this process: loads from the cache the child filled."""
+    def _in_process(self, phase: str) -> int:
+        """The warm-up's jobs in this process (loads from the cache the child filled).
+
+        Returns the number of jobs that had to compile (0: all came from the cache).
+        """
         from service.warmup import warm_up
 
         t0 = time.monotonic()
@@ -189,8 +205,9 @@ class Warmup:
                 raise _Abort
             self._set(done=step.done, total=step.total, step=step.name)
 
-        warm_up(progress)
+        report = warm_up(progress)
         self.load_s = time.monotonic() - t0
+        return report.compiled
 
 
 def _job_count() -> int:
@@ -200,3 +217,43 @@ def _job_count() -> int:
     except ImportError:
         return 0
     return len(JOBS)
+
+
+# ------------------------------------------------------------------ stamp
+def stamp_path() -> Path:
+    """Where the warm-cache stamp lives: beside numba's cache."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    base = Path(root) if root else Path(__file__).resolve().parent / "__pycache__"
+    return base / "holo-warmup-stamp.json"
+
+
+def fingerprint() -> dict[str, str]:
+    """What the cache was filled for: the ``service`` sources, numba and Python."""
+    import numba
+
+    pkg = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(pkg.rglob("*.py")):
+        st = path.stat()
+        h.update(f"{path.relative_to(pkg)}:{st.st_mtime_ns}:{st.st_size}\n".encode())
+    return {"sources": h.hexdigest(), "numba": numba.__version__, "python": sys.version}
+
+
+def is_warm() -> bool:
+    """Whether a warm-up found every kernel cached since the sources last changed."""
+    try:
+        return json.loads(stamp_path().read_text()) == fingerprint()
+    except (OSError, ValueError):
+        return False
+
+
+def mark_warm() -> None:
+    """Write the stamp (after a warm-up that filled, or found, every kernel cached)."""
+    path = stamp_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(fingerprint()))
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only cache: the next start goes through the child again

@@ -436,7 +436,8 @@ class Service:
         if self.config.scene:
             self.state.scene = _builtin(self.config.scene)
             self.state.scene_t = time.monotonic()
-        self._start_workers()
+        if not self.workers:
+            self._start_workers()
 
     # ------------------------------------------------------------- control
     @property
@@ -480,6 +481,8 @@ class Service:
                 break
             self.stream.extra = self.status()
             self.stream.heartbeat()
+            if not self.workers and self.warmup.phase == "loading":
+                self._start_workers()  # the cache is full: they load it while this does
             if self.router.poll(20):
                 self._serve_one(self.router.recv_multipart(copy=False))
             self._forget_clients()
