@@ -38,6 +38,7 @@ bench: $(STAMP)
 	$(BIN)/holo-bench decoders --out bench-out/decoders
 	$(BIN)/holo-bench latency --out bench-out/latency
 	$(BIN)/holo-bench galilean --sweep --out bench-out/galilean
+	$(BIN)/holo-bench sird --out bench-out/sird
 
 clean:
 	rm -rf $(VENV) demo-out render-demo-out bench-out

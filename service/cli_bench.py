@@ -31,6 +31,14 @@ BENCHES = {
         "service.bench.galilean_bench",
         "Galilean stage: thought experiments and the order x interval sweep",
     ),
+    "quality": (
+        "service.bench.quality_bench",
+        "--quality auto: calibrate its cost model; its error against the budget",
+    ),
+    "targets": (
+        "service.bench.targets_bench",
+        "open speed targets (zones, G(2) refresh, Galilean premise), ratios side by side",
+    ),
     "service": (
         "service.bench.service_bench",
         "render service: transport overhead, round trip, workers, motion-to-photon",
@@ -41,6 +49,10 @@ BENCHES = {
         "device drivers: byte arrival to published event (p50/p99)",
     ),
     "decoders": ("service.bench.decoders_bench", "serial protocol decoders: MB/s"),
+    "sird": (
+        "service.bench.sird_bench",
+        "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
+    ),
 }
 
 

@@ -18,6 +18,7 @@ import json
 import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,14 @@ from service.light import LightSettings
 from service.loaders import load_scene
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.quality import (
+    MODES,
+    CostModel,
+    QualityChooser,
+    QualitySettings,
+    parse_budget,
+    render_auto,
+)
 from service.scene import Scene
 from service.scenes import SCENES, builtin_scene
 from service.signals import EXIT_RULE, interruptible
@@ -87,6 +96,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="refuse mesh files that would otherwise be repaired on load (non-planar or "
         "concave polygons, faces of under 3 corners, extra values on ascii PLY lines)",
     )
+    p.add_argument(
+        "--quality", choices=MODES, default=None,
+        help="auto: pick the cheapest occlusion method and specular evaluation within "
+        "--max-error (overrides --method, --specular and --fallback); default fixed, or "
+        "the scene file's [quality] mode",
+    )
+    p.add_argument(
+        "--max-error", type=_budget, default=None, metavar="BUDGET",
+        help="error budget of --quality auto: %% of pixels wrong (0.5 or 0.5%%) or a least "
+        "PSNR (40dB); default 0.5%%, or the scene file's [quality] max_error",
+    )
+    p.add_argument(
+        "--cost-model", default=None, metavar="PATH",
+        help="cost model JSON of --quality auto (holo-bench quality --calibrate writes one; "
+        "default: the one measured on the development machine)",
+    )
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
     p.add_argument("--out", default="render-out", help="output folder (default render-out)")
     p.add_argument(
@@ -134,6 +159,22 @@ def mesh_report(scene: Scene, load_ms: float, strict: bool) -> dict:
     }
 
 
+def _budget(text: str):
+    """The argparse type of ``--max-error``."""
+    try:
+        return parse_budget(text)
+    except HoloError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _quality(args: argparse.Namespace, scene: Scene) -> QualitySettings:
+    """Command line first, then the scene file's ``[quality]`` table, then fixed / 0.5%."""
+    own = getattr(scene, "quality", {}) or {}
+    mode = args.quality or own.get("mode", "fixed")
+    budget = args.max_error or parse_budget(own.get("max_error", "0.5%"))
+    return QualitySettings(mode, budget)
+
+
 def _fallback(args: argparse.Namespace) -> str:
     """The painter fallback the flags ask for (``pixel`` unless told)."""
     return "off" if args.no_fallback else args.fallback or "pixel"
@@ -154,8 +195,17 @@ def run(args: argparse.Namespace) -> dict:
     load_ms = (time.perf_counter() - start) * 1e3
     for line in repairs:
         print(f"holo-render: warning: {line}", file=sys.stderr)
-    warm_up(settings)  # compile or load the numba kernels outside the timings
-    frame = Renderer().render(scene, display, settings)
+    quality = _quality(args, scene)
+    if quality.mode == "auto":
+        chooser = QualityChooser(quality, CostModel.load(args.cost_model))
+        warm_up(settings)
+        frame = render_auto(Renderer(), chooser, scene, display, args.light, settings.cull)
+        q = frame.stats["quality"]
+        settings = replace(settings, method=q["method"], painter_fallback="pixel",
+                           light=LightSettings(args.light, q["specular"]))
+    else:
+        warm_up(settings)  # compile or load the numba kernels outside the timings
+        frame = Renderer().render(scene, display, settings)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_zones(frame, out)
@@ -168,12 +218,15 @@ def run(args: argparse.Namespace) -> dict:
             "zones": args.zones,
             "angle_deg": args.angle,
             "size": [cols, rows],
-            "method": args.method,
+            "method": settings.method,
             "light": args.light,
-            "specular": args.specular,
+            "specular": settings.light.evaluation,
             "cull": args.cull,
-            "painter_fallback": _fallback(args),
+            "painter_fallback": settings.painter_fallback,
+            "quality": quality.mode,
+            "max_error": quality.budget.as_dict(),
         },
+        "quality": frame.stats.get("quality"),
         "mesh": mesh_report(scene, load_ms, args.strict),
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
@@ -234,6 +287,11 @@ def _main(args: argparse.Namespace) -> int:
             f"{p['in']} polygons, {p['culled']} culled, {p['drawn']} drawn; "
             f"{report['ms']['total']:.1f} ms; wrote {report['out']}/"
         )
+        q = report["quality"]
+        if q:
+            e = q["predicted_error"]
+            print(f"quality auto: {q['method']} occlusion, {q['specular']} light; predicted "
+                  f"{e['pct_wrong']:.3f}% of pixels wrong, {e['psnr']:.1f} dB ({q['reason']})")
         fb = report["occlusion"].get("fallback")
         if fb:
             how = "redrawn with the zbuffer" if fb == "zbuffer" else "z-tested per pixel"

@@ -163,6 +163,8 @@ class Scene:
     lights: list[Light] = field(default_factory=lambda: [Light()])
     ambient: float = 1.0
     _static: dict = field(default_factory=dict, repr=False, compare=False)
+    #: A scene file's ``[quality]`` table (``mode``, ``max_error``); empty otherwise.
+    quality: dict = field(default_factory=dict, compare=False)
 
     def flatten(self) -> SceneArrays:
         """All objects' polygons in one list, in world coordinates.

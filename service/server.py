@@ -42,6 +42,8 @@ from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
 from service.keys import curve_server, is_local, start_authenticator
 from service.pipeline import Renderer
+from service.quality import MODES as QUALITY_MODES
+from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.readiness import Warmup
 from service.scene import MotionState, Scene, Transform, euler_quaternion
 from service.scene_motion import advance_scene
@@ -135,6 +137,10 @@ class Settings:
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
     generation: int = 0
+    #: "auto": each render's method and specular chosen within ``max_error``
+    #: (service.quality); "fixed": as set.
+    quality: str = "fixed"
+    max_error: str = "0.5%"
 
     def as_dict(self) -> dict[str, Any]:
         """The settings as ``set_display`` replies them."""
@@ -151,6 +157,8 @@ class Settings:
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
+            "quality": self.quality,
+            "max_error": self.max_error,
         }
 
 
@@ -330,6 +338,7 @@ class Service:
         self._clock: tuple = (0, time.monotonic(), -1, None, 2)
         self.band_retries = 0
         self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
+        self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
         self._pipe: FramePipe | None = None
         self.last_render_error = ""
         self.last_refresh_error = ""
@@ -802,7 +811,19 @@ class Service:
             "viewer": viewer,
             "order": order,
         }
+        if settings.quality == "auto":
+            self._auto(job, scene, settings)
         return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns())
+
+    def _auto(self, job: dict[str, Any], scene: Scene, settings: Settings) -> None:
+        """``quality: "auto"``: this render's method and specular, and the choice in the job."""
+        gen = settings.generation
+        if self._chooser is None or self._chooser[0] != gen:
+            self._chooser = (gen, QualityChooser(
+                QualitySettings("auto", parse_budget(settings.max_error))))
+        q = choose(self._chooser[1], scene, settings.display, settings.light_model)
+        job["render"] = {**job["render"], "method": q.method, "specular": q.specular}
+        job["quality"] = q.as_dict()
 
     def _ahead(self) -> bool:
         """Whether the last render is aimed past the rendezvous one started now would get.
@@ -844,6 +865,9 @@ class Service:
             "stitch_ms": round((time.perf_counter() - t_stitch) * 1e3, 3),
             "rendezvous": aim.rendezvous,
         }
+        if "quality" in aim.job:
+            stats["quality"] = aim.job["quality"]
+            self._observe(aim, parts, stats)
         self.counters.n["renders"] += 1
         self._ready.append(
             Ready(
@@ -858,6 +882,16 @@ class Service:
         )
         mark = (aim.settings.generation, aim.scene_version)
         self._render_results.put((aim.render_id, aim.t0, rendered.frame, mark, stats))
+
+    def _observe(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict) -> None:
+        """Tell the quality chooser what the render showed (out-of-order points, coverage)."""
+        chooser = self._chooser
+        if chooser is None or chooser[0] != aim.settings.generation:
+            return
+        bands = stats.get("bands") or [stats]
+        bad = sum(int(b.get("inconsistent_pixels", 0)) for b in bands)
+        covered = sum(int(np.isfinite(p["depth"]).sum()) for p in parts if "depth" in p)
+        chooser[1].observe(aim.job["render"]["method"], {"inconsistent_pixels": bad}, covered)
 
     def _run_job(
         self, renderer: Renderer, bands: BandClient | None, aim: Aim
@@ -1132,9 +1166,29 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["encodings"] = _encodings(req["encodings"])
     if "refresh_hz" in req:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
     return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
+
+
+def _quality_fields(req: dict[str, Any]) -> dict[str, str]:
+    """``quality`` ("fixed" / "auto") and ``max_error`` ("0.5%", 0.5, "40dB") of set_display."""
+    kw = {}
+    if "quality" in req:
+        if req["quality"] not in QUALITY_MODES:
+            raise MessageError("bad_settings", f"quality must be one of {list(QUALITY_MODES)}")
+        kw["quality"] = req["quality"]
+    if "max_error" in req:
+        v = req["max_error"]
+        try:
+            if not isinstance(v, str | int | float) or isinstance(v, bool):
+                raise SettingsError("max_error must be a number or a string like 40dB")
+            parse_budget(v)
+        except SettingsError as exc:
+            raise MessageError("bad_settings", str(exc)) from None
+        kw["max_error"] = str(v)
+    return kw
 
 
 def _viewer_motion(job: dict[str, Any]) -> MotionState:

@@ -123,6 +123,7 @@ class StatsRenderer(Renderer):
         super().__init__()
         self.last_ms: dict[str, float] = {}
         self.last_counts: dict[str, int] = {}
+        self.last_inconsistent = 0  # run-length points out of sort order (for --quality auto)
 
     def visibility(self, arrays, display, settings, clock=None):  # noqa: ANN001, ANN201
         """As :meth:`Renderer.visibility`, noting per-stage ms and polygon counts."""
@@ -130,6 +131,7 @@ class StatsRenderer(Renderer):
         out = super().visibility(arrays, display, settings, clock or StageClock(ms))
         self.last_ms = ms
         self.last_counts = {k: int(v) for k, v in out[1].items()}
+        self.last_inconsistent = int(out[0].stats.get("inconsistent_pixels", 0))
         return out
 
 
@@ -189,6 +191,7 @@ def render_job(
         "polygons": dict(getattr(renderer, "last_counts", {})),
         "method": job["render"]["method"],
         "rows": list(rows),
+        "inconsistent_pixels": int(getattr(renderer, "last_inconsistent", 0)),
     }
     return out, stats
 

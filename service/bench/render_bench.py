@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cli_args import plain_help
+from service.cli_args import comma_list, plain_help, size
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
@@ -204,8 +204,12 @@ def continuous_error(scene_name: str, zones: int, angle: float, size=(320, 240))
     return round(100.0 * float(np.mean(obj[shown[zone_of]] != obj[truth])), 4)
 
 
-def chart_methods(rows: list[dict], path: Path) -> None:
-    """One panel per scene: ms per update (x, log) against % pixels differing (y)."""
+def chart_methods(rows: list[dict], path: Path, peer_rows: list[dict] = ()) -> None:
+    """One panel per scene: ms per update (x, log) against % pixels differing (y).
+
+    ``peer_rows`` (from :func:`service.bench.peers.compare`) add each peer as a dashed
+    grey reference line.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -234,6 +238,10 @@ def chart_methods(rows: list[dict], path: Path) -> None:
                     textcoords="offset points",
                     xytext=(3, 3),
                 )
+        if peer_rows:
+            from service.bench.peers import plot_peers
+
+            plot_peers(ax, list(peer_rows), scene)
         ax.set_xscale("log")
         ax.set_xlabel("ms per update (labels: zones)")
         ax.set_ylabel("% pixels unlike ray casting")
@@ -294,10 +302,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--zone-cost", action="store_true", help="only the cost of extra zones (a few seconds)"
     )
+    p.add_argument("--peers", action="store_true",
+                   help="also time llvmpipe and Embree beside our z-buffer (extra .[peers])")
+    p.add_argument("--peers-only", action="store_true", help="only the peers (implies --peers)")
+    p.add_argument("--peer-scenes", type=comma_list(str), default=None,
+                   help="extra scenes for the peers only (default: spheres-8k,spheres-100k; "
+                        "--quick: spheres-8k)")
+    p.add_argument("--peer-sizes", type=comma_list(size), default=None,
+                   help="sizes of the extra peer scenes (default: 320x240,640x480; "
+                        "--quick: 320x240)")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     warm_up(RenderSettings())
+    if args.peers_only:
+        run_peers(args, out, [])
+        return 0
     cost = zone_cost()
     write_rows(cost, out / "zone_cost")
     chart_zone_cost(cost, out / "zone_cost.png")
@@ -320,7 +340,8 @@ def main(argv: list[str] | None = None) -> int:
                 for r in measure(scene, z, 16.0, ["runlength"], reps, fallback=mode)
             ]
     write_rows(rows, out / "render_bench")
-    chart_methods(rows, out / "render_bench.png")
+    peer_rows = run_peers(args, out, rows) if args.peers else []
+    chart_methods(rows, out / "render_bench.png", peer_rows)
     sweep = []
     for a in ANGLES if not args.quick else (8, 16, 32, 60):
         sweep += measure("game", 5, float(a), ("runlength", "zbuffer"), reps, fallback="off")
@@ -343,6 +364,81 @@ def main(argv: list[str] | None = None) -> int:
     )
     print_summary(rows)
     return 0
+
+
+def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
+    """Time the peers beside our z-buffer; write ``peers.json``/``.csv`` and ``peers.png``.
+
+    The bench's scenes and zone counts at 320x240 (against the ray cast too, for the
+    chart's reference lines), then the big peer scenes at 1 and 5 zones and the peer
+    sizes.  A peer that cannot start is named with its reason, and the rest go on.
+    """
+    from service.bench import peers as pr
+
+    started, reasons = pr.start_peers()
+    for name, why in reasons.items():
+        print(f"peer {name} not measured: {why}", file=sys.stderr)
+    (out / "peers_status.json").write_text(json.dumps(
+        {"started": {p.name: p.renderer for p in started}, "not_started": reasons,
+         "tolerance": pr.TOLERANCE}, indent=1))
+    if not started:
+        return []
+    quick = args.quick
+    zones = (1, 5) if quick else ZONES
+    big = args.peer_scenes or (["spheres-8k"] if quick else list(pr.BIG_SCENES))
+    sizes = args.peer_sizes or ([(320, 240)] if quick else [(320, 240), (640, 480)])
+    configs = [(s, z, (320, 240), True) for s in args.scenes.split(",") for z in zones]
+    configs += [(s, z, wh, False) for s in big for z in (1, 5) for wh in sizes]
+    peer_rows = []
+    for i, (scene, z, wh, ref) in enumerate(configs, 1):
+        print(f"[peers {i}/{len(configs)}] {scene}, {z} zones, {wh[0]}x{wh[1]}",
+              file=sys.stderr, flush=True)
+        peer_rows += pr.compare(scene, z, wh, started, pr.PeerRun(reference=ref))
+    for p in started:
+        p.close()
+    write_rows(peer_rows, out / "peers")
+    chart_peers(peer_rows, out / "peers.png")
+    print_peers(peer_rows)
+    return peer_rows
+
+
+def chart_peers(rows: list[dict], path: Path) -> None:
+    """Bars: our ms / the peer's ms per configuration (below 1: we are faster)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = sorted({(r["scene"], r["zones"], r["size"]) for r in rows},
+                    key=lambda k: (k[0], k[2], k[1]))
+    names = sorted({r["peer"] for r in rows})
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.45 * len(labels) + 2), 4.2))
+    x = np.arange(len(labels))
+    width = 0.8 / max(1, len(names))
+    for i, name in enumerate(names):
+        by = {(r["scene"], r["zones"], r["size"]): r["ratio"] for r in rows if r["peer"] == name}
+        ax.bar(x + i * width, [by.get(k, np.nan) for k in labels], width, label=name)
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xticks(x + width * (len(names) - 1) / 2,
+                  [f"{s} {z}z {wh}" for s, z, wh in labels], rotation=60, ha="right",
+                  fontsize=7)
+    ax.set_ylabel("our ms / peer ms (below 1: ours faster)")
+    ax.set_title("depth, stages 1-4 (our z-buffer) against each peer")
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def print_peers(rows: list[dict]) -> None:
+    """One line per configuration and peer: ms each side, ratio, depth agreement."""
+    print("\npeers: our z-buffer (stages 1-4) against each peer, timed in turn")
+    for r in rows:
+        print(f"  {r['scene']:13s} {r['zones']:3d} zones {r['size']:>8s} {r['peer']:9s}"
+              f" ours {r['ours_ms']:8.2f} ms  peer {r['peer_ms']:8.2f} ms"
+              f"  ours/peer {r['ratio']:6.3f}  depth agrees {r['pct_agree']:8.4f} %")
 
 
 def print_zone_cost(rows: list[dict]) -> None:

@@ -32,7 +32,8 @@ from service.scene import (
     euler_quaternion,
 )
 
-TOP_KEYS = {"ambient", "light", "object"}
+TOP_KEYS = {"ambient", "light", "object", "quality"}
+QUALITY_KEYS = ("mode", "max_error")
 OBJECT_KEYS = {
     "name", "file", "primitive", "params", "position", "orientation", "rotation",
     "scale", "material", "motion",
@@ -201,4 +202,24 @@ def load_scene_file(path: str | Path, load_mesh: Callable[[Path], Mesh]) -> Scen
         raise MeshFileError(str(path), "", "the scene has no [[object]] tables")
     lights = [_light(path, i, s) for i, s in enumerate(_array(path, doc, "light"), 1)]
     ambient = _value(path, "ambient", "ambient", doc.get("ambient", 1.0), 0)
-    return Scene(objects=objects, lights=lights or [Light()], ambient=float(ambient))
+    return Scene(objects=objects, lights=lights or [Light()], ambient=float(ambient),
+                 quality=_quality(path, doc.get("quality", {})))
+
+
+def _quality(path: Path, table: object) -> dict:
+    """The ``[quality]`` table: ``mode`` ("fixed", "auto"), ``max_error`` (0.5, "0.5%", "40dB")."""
+    from service.quality import MODES, parse_budget
+
+    if not isinstance(table, dict):
+        raise MeshFileError(str(path), "quality", "quality must be a table")
+    unknown = sorted(set(table) - set(QUALITY_KEYS))
+    if unknown:
+        raise MeshFileError(str(path), "quality",
+                            f"unknown key {unknown[0]!r} (known: {sorted(QUALITY_KEYS)})")
+    if table.get("mode", "fixed") not in MODES:
+        raise MeshFileError(str(path), "quality, mode", f"mode must be one of {list(MODES)}")
+    try:
+        parse_budget(table.get("max_error", "0.5%"))
+    except SettingsError as exc:
+        raise MeshFileError(str(path), "quality, max_error", str(exc)) from None
+    return dict(table)

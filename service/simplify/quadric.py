@@ -77,3 +77,41 @@ def decimate(vertices: np.ndarray, faces: np.ndarray,
     if fs.shape[0] == 0:  # collapsed to nothing: keep the coarsest thing that is a mesh
         raise SimplifyError(f"target fraction {target_fraction} leaves no triangles")
     return np.asarray(vs, dtype=np.float64), fs, surface_distance(v, f, vs, fs).max
+
+
+def decimate_to_error(vertices: np.ndarray, faces: np.ndarray, eps: float,
+                      steps: int = 8) -> tuple[np.ndarray, np.ndarray, float]:
+    """The fewest triangles (found by bisection on the fraction) with error <= ``eps``.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3), float
+    faces : ndarray, shape (F, 3), int
+    eps : float
+        Greatest error allowed (world units), > 0.
+    steps : int
+        Bisection steps on the kept fraction (each one decimation, ~0.15 s for 16k
+        triangles).
+
+    Returns
+    -------
+    vertices, faces, error
+        As :func:`decimate`; the input itself (error 0) if no fraction tried is good.
+    """
+    v, f = check_triangles(vertices, faces)
+    if not (eps > 0 and np.isfinite(eps)):
+        raise SimplifyError(f"error EPS must be a positive number, not {eps}")
+    best = (v.copy(), f.copy(), 0.0)
+    lo, hi = max(4.0 / f.shape[0], 1e-6), 1.0  # fractions: lo may be too coarse, hi is fine
+    for _ in range(steps):
+        mid = np.sqrt(lo * hi)  # bisect in log space: errors grow fast at few triangles
+        try:
+            got = decimate(v, f, mid)
+        except SimplifyError:  # collapsed to nothing
+            lo = mid
+            continue
+        if got[2] <= eps:
+            best, hi = got, mid
+        else:
+            lo = mid
+    return best

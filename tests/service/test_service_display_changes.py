@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 from service_helpers import wait_until
 
 from service.client import FrameSubscriber, ServiceClient
@@ -58,3 +59,27 @@ def test_refresh_rate_change_paces_the_frames(service_factory):
         assert c.set_display(refresh_hz=12.0)["refresh_hz"] == 12.0
         rate, median, n = _rate(frames, 12.0, 2.0)
         assert 12 * 0.85 <= rate <= 12 * 1.1 and abs(median - 83.3) < 6, (rate, median, n)
+
+
+def test_quality_auto_picks_per_render_and_reports_it(service_factory):
+    from service.errors import ServiceError
+
+    svc = _service(service_factory)
+    with ServiceClient(svc.control, timeout_s=20) as c:
+        assert c.render_once()[0]["stats"].get("quality") is None  # fixed by default
+        shown = c.set_display(quality="auto", max_error="40dB", angle_deg=16.0)
+        assert shown["quality"] == "auto" and shown["max_error"] == "40dB"
+        for _ in range(2):
+            header, arrays = c.render_once()
+            q = header["stats"]["quality"]
+            assert header["stats"]["method"] == q["method"]
+            assert q["method"] in ("runlength", "zbuffer", "bsp")
+            assert q["predicted_error"]["psnr"] >= 40.0 and q["reason"]
+            assert q["galilean"]["order"] in (0, 1, 2, 3)
+            assert arrays["colour"].any()
+        for bad in ({"quality": "best"}, {"max_error": "lots"}, {"max_error": [1]}):
+            with pytest.raises(ServiceError) as info:
+                c.set_display(**bad)
+            assert info.value.code == "bad_settings", bad
+        assert c.set_display(quality="fixed")["quality"] == "fixed"
+        assert c.render_once()[0]["stats"].get("quality") is None

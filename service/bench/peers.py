@@ -1,0 +1,381 @@
+"""Peers: the depth a user could get from another engine, timed beside ours.
+
+Two engines a user might pick instead of this renderer, driven through the optional
+extra ``.[peers]`` (``pip install -e '.[peers]'``):
+
+- **llvmpipe**: OpenGL's software rasteriser (Mesa) through moderngl's headless EGL
+  context.  The mesh is uploaded once; a frame is one draw per zone into its own
+  viewport of one tall framebuffer, then one read back of the depth.  The vertex
+  shader applies each zone's shear (``X = x - z tan(theta_k)``, ``Y = y``, the
+  off-axis parallel projection of the README's display model); the fragment shader
+  writes the interpolated depth ``-z`` to a float colour target (exact for a parallel
+  projection), while a depth buffer decides which surface wins.  On Debian it needs
+  the packages ``libegl1``, ``libegl-mesa0``, ``libgbm1`` and ``libgl1-mesa-dri``.
+- **embree**: an Embree ray cast (embreex).  The scene's BVH is built once; a frame
+  casts one ray per pixel centre and zone, all parallel to that zone's direction
+  ``(-tan(theta_k), 0, -1)`` (an orthographic, sheared ray bundle), and reads the hit
+  distance as depth.  The rays depend only on the display, so they are made once.
+
+A peer that cannot start (the extra not installed, no EGL display) raises
+:class:`PeerUnavailable` with the reason; :func:`start_peers` collects the reasons
+and goes on with the peers that did start.
+
+``OMP_NUM_THREADS`` / ``NUMBA_NUM_THREADS`` limit our kernels' threads; llvmpipe's
+are ``LP_NUM_THREADS``, which :func:`start_peers` sets to numba's thread count unless
+it is set already, so both sides use the same cores.  Embree casts single rays from
+one thread.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.display import DisplaySettings
+from service.errors import HoloError
+from service.pipeline import Renderer, RenderSettings
+from service.scene import Scene, SceneArrays
+from service.scenes import builtin_scene
+
+PEER_NAMES = ("llvmpipe", "embree")
+#: Depths (world units) closer than this agree; a pixel is 2/cols wide (0.00625 at 320).
+TOLERANCE = 1e-3
+#: Extra scenes for the peers: the Galilean complexity scene at about 8k and 100k triangles.
+BIG_SCENES = {"spheres-8k": 8000, "spheres-100k": 100000}
+
+_VERTEX_SHADER = """
+#version 330
+in vec3 pos;
+uniform float shear;
+uniform vec2 half_size;
+uniform vec2 depth_range;
+out float depth;
+void main() {
+    depth = -pos.z;
+    float nz = 2.0 * (depth - depth_range.x) / (depth_range.y - depth_range.x) - 1.0;
+    gl_Position = vec4((pos.x - pos.z * shear) / half_size.x, pos.y / half_size.y, nz, 1.0);
+}
+"""
+_FRAGMENT_SHADER = """
+#version 330
+in float depth;
+out float value;
+void main() { value = depth; }
+"""
+
+
+class PeerUnavailable(HoloError):
+    """A peer engine could not be started; the message says why."""
+
+
+def peer_scene(name: str) -> Scene:
+    """A built-in scene, or one of :data:`BIG_SCENES` (the Galilean complexity scene)."""
+    if name in BIG_SCENES:
+        from service.bench.galilean_bench import complexity_scene
+
+        return complexity_scene(BIG_SCENES[name], DisplaySettings())
+    return builtin_scene(name)
+
+
+def _depth_range(vertices: np.ndarray) -> tuple[float, float]:
+    """Depth (-z) interval holding every vertex, padded so nothing touches a clip plane."""
+    lo, hi = float(-vertices[:, 2].max()), float(-vertices[:, 2].min())
+    pad = 0.01 * (hi - lo) + 0.01
+    return lo - pad, hi + pad
+
+
+class LlvmpipePeer:
+    """Mesa's llvmpipe through a headless moderngl (EGL) context."""
+
+    name = "llvmpipe"
+
+    def __init__(self) -> None:
+        try:
+            import moderngl
+        except ImportError as exc:
+            raise PeerUnavailable(
+                f"moderngl not installed ({exc}); pip install -e '.[peers]'") from None
+        try:
+            self.ctx = moderngl.create_context(standalone=True, backend="egl")
+        except Exception as exc:  # noqa: BLE001 - any driver failure means "cannot start"
+            raise PeerUnavailable(
+                f"no headless EGL context ({str(exc).splitlines()[0]}); on Debian install "
+                "libegl1 libegl-mesa0 libgbm1 libgl1-mesa-dri"
+            ) from None
+        self.renderer = self.ctx.info.get("GL_RENDERER", "?")
+        self.prog = self.ctx.program(vertex_shader=_VERTEX_SHADER,
+                                     fragment_shader=_FRAGMENT_SHADER)
+        self._depth_test = moderngl.DEPTH_TEST
+        self._objects: list = []
+        self.build_ms = 0.0
+
+    def load(self, arrays: SceneArrays, display: DisplaySettings) -> None:
+        """Upload a scene's triangles and make a framebuffer of ``zones`` stacked images."""
+        self._release()
+        t0 = time.perf_counter()
+        ctx, z, w, h = self.ctx, display.zones, display.cols, display.rows
+        vbo = ctx.buffer(np.ascontiguousarray(arrays.vertices, np.float32).tobytes())
+        ibo = ctx.buffer(np.ascontiguousarray(arrays.triangles, np.int32).tobytes())
+        self.vao = ctx.vertex_array(self.prog, [(vbo, "3f", "pos")], index_buffer=ibo,
+                                    index_element_size=4)
+        colour = ctx.texture((w, h * z), 1, dtype="f4")
+        depth = ctx.depth_renderbuffer((w, h * z))
+        self.fbo = ctx.framebuffer([colour], depth)
+        self._objects = [vbo, ibo, self.vao, colour, depth, self.fbo]
+        self.prog["half_size"].value = (display.width / 2, display.height / 2)
+        self.prog["depth_range"].value = _depth_range(arrays.vertices)
+        self.shears = [float(s) for s in display.shears()]
+        self.shape = (z, h, w)
+        self.build_ms = (time.perf_counter() - t0) * 1e3
+
+    def depth(self) -> np.ndarray:
+        """Draw every zone and read the depth back: (Z, R, C) float32, +inf where empty."""
+        z, h, w = self.shape
+        self.fbo.use()
+        self.fbo.viewport = (0, 0, w, h * z)
+        self.fbo.clear(red=np.inf, depth=1.0)
+        self.ctx.enable(self._depth_test)
+        for k, shear in enumerate(self.shears):
+            self.fbo.viewport = (0, k * h, w, h)
+            self.prog["shear"].value = shear
+            self.vao.render()
+        raw = self.fbo.read(viewport=(0, 0, w, h * z), components=1, dtype="f4")
+        # OpenGL's row 0 is the bottom; ours is the top
+        return np.frombuffer(raw, np.float32).reshape(z, h, w)[:, ::-1]
+
+    def _release(self) -> None:
+        for obj in reversed(self._objects):
+            obj.release()
+        self._objects = []
+
+    def close(self) -> None:
+        """Free the GL objects and the context."""
+        self._release()
+        self.ctx.release()
+
+
+class EmbreePeer:
+    """Embree's BVH ray cast (embreex), one orthographic sheared ray bundle per zone."""
+
+    name = "embree"
+
+    def __init__(self) -> None:
+        try:
+            import embreex.mesh_construction as mesh_construction
+            import embreex.rtcore_scene as rtcore_scene
+        except ImportError as exc:
+            raise PeerUnavailable(
+                f"embreex not installed ({exc}); pip install -e '.[peers]'") from None
+        self._scene_type = rtcore_scene.EmbreeScene
+        self._mesh_type = mesh_construction.TriangleMesh
+        self.renderer = "Embree 4 (embreex, one rtcIntersect1 per ray)"
+        self.build_ms = 0.0
+
+    def load(self, arrays: SceneArrays, display: DisplaySettings) -> None:
+        """Build the BVH and the rays of every zone (see :func:`sheared_rays`)."""
+        t0 = time.perf_counter()
+        self.scene = self._scene_type()
+        self.empty = arrays.triangles.shape[0] == 0
+        if not self.empty:
+            self._mesh_type(self.scene, np.ascontiguousarray(arrays.vertices, np.float32),
+                            np.ascontiguousarray(arrays.triangles, np.int32))
+            # the BVH is built on the first query: cast one ray so build_ms holds it
+            self.scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, -1]], np.float32))
+        self.front = float(arrays.vertices[:, 2].max()) + 1.0 if not self.empty else 1.0
+        self.rays = sheared_rays(display, self.front)
+        self.shape = (display.zones, display.rows, display.cols)
+        self.build_ms = (time.perf_counter() - t0) * 1e3
+
+    def depth(self) -> np.ndarray:
+        """Cast every zone's rays: (Z, R, C) float32, +inf where nothing is hit."""
+        out = np.full(self.shape, np.inf, np.float32)
+        if self.empty:
+            return out
+        for k, (origins, directions) in enumerate(self.rays):
+            tfar = np.asarray(self.scene.run(origins, directions, query="DISTANCE"))
+            # a miss leaves tfar at embreex's "infinity", 1e37
+            d = np.where(tfar < 1e30, tfar - np.float32(self.front), np.inf)
+            out[k] = d.reshape(self.shape[1:])
+        return out
+
+    def close(self) -> None:
+        """Drop the scene (embreex frees it when collected)."""
+        self.scene = None
+
+
+def sheared_rays(display: DisplaySettings, front: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per zone, origins and directions (each (R*C, 3) float32) of its pixel rays.
+
+    The ray of pixel (r, c) in zone k is the line of points that zone projects onto
+    the pixel centre: ``(X + z t_k, Y, z)`` with ``t_k = tan(theta_k)``.  It starts at
+    ``z = front`` (in front of the scene) and runs along ``(-t_k, 0, -1)``, so the hit
+    distance ``t`` is ``front - z`` and the depth ``-z`` is ``t - front``.
+    """
+    s = display.pixel_size
+    x = (np.arange(display.cols) + 0.5) * s - display.width / 2
+    y = display.height / 2 - (np.arange(display.rows) + 0.5) * s
+    xx, yy = np.meshgrid(x, y)
+    rays = []
+    for t in display.shears():
+        origins = np.stack([xx + front * t, yy, np.full_like(xx, front)], axis=-1)
+        directions = np.broadcast_to(np.array([-t, 0.0, -1.0]), origins.shape)
+        rays.append((np.ascontiguousarray(origins.reshape(-1, 3), np.float32),
+                     np.ascontiguousarray(directions.reshape(-1, 3), np.float32)))
+    return rays
+
+
+PEER_TYPES = {"llvmpipe": LlvmpipePeer, "embree": EmbreePeer}
+
+
+def start_peers(names=PEER_NAMES) -> tuple[list, dict[str, str]]:
+    """Start the named peers; return (the peers that started, {name: why not} for the rest)."""
+    try:
+        import numba
+
+        os.environ.setdefault("LP_NUM_THREADS", str(numba.config.NUMBA_NUM_THREADS))
+    except ImportError:  # pragma: no cover - numba is a dependency
+        pass
+    started, reasons = [], {}
+    for name in names:
+        try:
+            started.append(PEER_TYPES[name]())
+        except PeerUnavailable as exc:
+            reasons[name] = str(exc)
+    return started, reasons
+
+
+def depth_agreement(ours: np.ndarray, theirs: np.ndarray, tolerance: float = TOLERANCE) -> float:
+    """% of pixels where two depth maps agree: both empty, or both within ``tolerance``.
+
+    Parameters
+    ----------
+    ours, theirs : ndarray, shape (Z, R, C)
+        Depths, +inf where nothing is drawn.
+    """
+    empty = np.isinf(ours) & np.isinf(theirs)
+    with np.errstate(invalid="ignore"):
+        close = np.abs(ours.astype(np.float64) - theirs) <= tolerance
+    return 100.0 * float(np.mean(empty | close))
+
+
+@dataclass(frozen=True)
+class PeerRun:
+    """How one comparison is timed.
+
+    Attributes
+    ----------
+    repeats : int
+        Calls per round of each engine (median kept).
+    rounds : int
+        Rounds; each round times ours and every peer in turn, so a noisy machine
+        slows all alike; each engine keeps its best round.
+    reference : bool
+        Also ray cast with our ``raycast`` method and give each engine's % of pixels
+        whose depth differs from it (slow on big scenes).
+    tolerance : float
+        Depth agreement tolerance, world units.
+    """
+
+    repeats: int = 3
+    rounds: int = 3
+    reference: bool = True
+    tolerance: float = TOLERANCE
+
+
+def _ours(arrays: SceneArrays, display: DisplaySettings) -> np.ndarray:
+    """Our stages 1-4 with the z-buffer: the depth (Z, R, C)."""
+    vis, _, _ = Renderer().visibility(arrays, display, RenderSettings(method="zbuffer"))
+    return vis.depth
+
+
+def _timed(fn) -> tuple[float, np.ndarray]:
+    t0 = time.perf_counter()
+    out = fn()
+    return (time.perf_counter() - t0) * 1e3, out
+
+
+def interleaved_ms(engines: dict, run: PeerRun) -> tuple[dict[str, float], dict]:
+    """Best-round median ms of each engine (name -> callable), timed in turn.
+
+    Returns
+    -------
+    ms : dict of str to float
+    depth : dict of str to ndarray
+        Each engine's last output.
+    """
+    best: dict[str, float] = {}
+    depth: dict = {}
+    for _ in range(run.rounds):
+        for name, fn in engines.items():
+            times = []
+            for _ in range(run.repeats):
+                ms, depth[name] = _timed(fn)
+                times.append(ms)
+            best[name] = min(best.get(name, np.inf), float(np.median(times)))
+    return best, depth
+
+
+def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,
+            run: PeerRun | None = None, angle: float = 16.0) -> list[dict]:
+    """Time our z-buffer and every peer on one configuration; check their depth against ours.
+
+    Returns
+    -------
+    list of dict
+        One row per peer: ``scene, zones, size, triangles, peer, peer_ms, ours_ms,
+        ratio`` (ours / peer), ``build_ms`` (the peer's upload or BVH, not timed per
+        frame), ``pct_agree`` (depth within the tolerance of ours) and, with
+        ``run.reference``, ``pct_differ`` (% pixels unlike our ray cast) and
+        ``ours_pct_differ``.
+    """
+    run = run or PeerRun()
+    arrays = peer_scene(scene_name).flatten()
+    display = DisplaySettings(zones=zones, angle_deg=angle, cols=size[0], rows=size[1])
+    for peer in peers:
+        peer.load(arrays, display)
+    engines = {"ours": lambda: _ours(arrays, display)}
+    engines |= {p.name: p.depth for p in peers}
+    ms, depth = interleaved_ms(engines, run)
+    ref = None
+    if run.reference:
+        vis, _, _ = Renderer().visibility(arrays, display, RenderSettings(method="raycast"))
+        ref = vis.depth
+    rows = []
+    for peer in peers:
+        row = {"scene": scene_name, "zones": zones, "size": f"{size[0]}x{size[1]}",
+               "triangles": int(arrays.triangles.shape[0]), "peer": peer.name,
+               "peer_ms": round(ms[peer.name], 3), "ours_ms": round(ms["ours"], 3),
+               "ratio": round(ms["ours"] / ms[peer.name], 3),
+               "build_ms": round(peer.build_ms, 3),
+               "pct_agree": round(depth_agreement(depth["ours"], depth[peer.name],
+                                                  run.tolerance), 4)}
+        if ref is not None:
+            row["pct_differ"] = round(100 - depth_agreement(ref, depth[peer.name],
+                                                            run.tolerance), 4)
+            row["ours_pct_differ"] = round(100 - depth_agreement(ref, depth["ours"],
+                                                                 run.tolerance), 4)
+        rows.append(row)
+    return rows
+
+
+def plot_peers(ax, rows: list[dict], scene: str) -> None:
+    """Draw each peer as a dashed grey reference line (ms, % differ) on a chart panel.
+
+    Points are labelled with the zone count, as the methods' are; rows without
+    ``pct_differ`` (no ray-cast reference) are left out.
+    """
+    styles = {"llvmpipe": ("0.35", "P"), "embree": ("0.6", "*")}
+    for name in PEER_NAMES:
+        pts = sorted((r for r in rows if r["scene"] == scene and r["peer"] == name
+                      and "pct_differ" in r), key=lambda r: r["zones"])
+        if not pts:
+            continue
+        colour, marker = styles[name]
+        ax.plot([r["peer_ms"] for r in pts], [r["pct_differ"] for r in pts], ls="--",
+                color=colour, marker=marker, label=f"peer: {name}")
+        for r in pts:
+            ax.annotate(str(r["zones"]), (r["peer_ms"], r["pct_differ"]), fontsize=7,
+                        color=colour, textcoords="offset points", xytext=(3, -9))

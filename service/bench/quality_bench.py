@@ -1,0 +1,221 @@
+"""``holo-bench quality``: calibrate ``--quality auto``'s cost model, and check its budget.
+
+``--calibrate`` measures (a short run, about a minute on two cores): stages 1-4 of
+each occlusion method and the light stage of each evaluation on the built-in scenes
+at a few zone counts and sizes, BSP build times, and the Galilean order x interval
+sweep at a small size; fits :class:`service.quality.CostModel` and writes it
+(``--model PATH``, default ``OUT/quality_model.json``).  Copy it over
+``service/quality_model.json`` to make it the default.
+
+Without ``--calibrate`` it renders each scene with ``--quality auto`` for a few
+frames at each budget and writes what was picked, the predicted error and the error
+measured against ray casting with per-point light (``quality_auto.json`` / ``.csv``):
+the measured error must stay within the budget.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.cli_args import add_size_option
+from service.display import DisplaySettings
+from service.light import LightSettings, shade
+from service.pipeline import Renderer, RenderSettings, StageClock, warm_up
+from service.quality import (
+    OCCLUSION,
+    SPECULAR,
+    CostModel,
+    QualityChooser,
+    QualitySettings,
+    fit,
+    light_features,
+    occlusion_features,
+    parse_budget,
+    pct_wrong,
+    psnr,
+    render_auto,
+)
+from service.scenes import builtin_scene
+
+CAL_SCENES = ("sphere-torus", "game", "demo", "cyclic")
+CAL_ZONES = (1, 3, 5)
+CAL_SIZES = ((80, 60), (160, 120))
+CHECK_SCENES = ("game", "sphere-torus", "cyclic", "threaded", "demo")
+BUDGETS = ("0.1%", "2%", "30dB")
+
+
+def _median_ms(fn, repeats: int) -> tuple[float, object]:
+    out, ms = fn(), []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        ms.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(ms)), out
+
+
+def _time_occlusion(arrays, display: DisplaySettings, method: str, repeats: int):
+    """(median stages 1-4 ms, first Visibility (BSP: with its build), projection)."""
+    r, s = Renderer(), RenderSettings(method, painter_fallback="pixel")
+    first, _, proj = r.visibility(arrays, display, s)  # a BSP tree is built here
+    ms, _ = _median_ms(lambda: r.visibility(arrays, display, s, StageClock({})), repeats)
+    return ms, first, proj
+
+
+def _time_light(scene, arrays, proj, vis, display: DisplaySettings, evaluation: str,
+                repeats: int) -> float:
+    """Median light-stage ms of one evaluation (Blinn)."""
+    st = LightSettings("blinn", evaluation)
+    return _median_ms(lambda: shade(arrays, proj, vis, display, scene.lights, scene.ambient, st),
+                      repeats)[0]
+
+
+def calibrate(repeats: int = 3, galilean_frames: int = 17) -> CostModel:
+    """Measure and fit the cost model (see the module notes)."""
+    occ: dict[str, list] = {m: [] for m in OCCLUSION}
+    light: dict[str, list] = {e: [] for e in SPECULAR}
+    build = []
+    for name in CAL_SCENES:
+        scene = builtin_scene(name)
+        arrays = scene.flatten()
+        t = arrays.triangles.shape[0]
+        for z in CAL_ZONES:
+            for cols, rows in CAL_SIZES:
+                d = DisplaySettings(zones=z, cols=cols, rows=rows)
+                for m in OCCLUSION:
+                    ms, vis, proj = _time_occlusion(arrays, d, m, repeats)
+                    if m == "bsp":
+                        build.append((np.array([1.0, t / 1e3]), vis.stats["build_ms"]))
+                    bad = int(vis.stats.get("inconsistent_pixels", 0))
+                    occ[m].append((occlusion_features(t, z, rows * cols, bad), ms))
+                covered = int(np.isfinite(vis.depth).sum())
+                for e in SPECULAR:
+                    ms = _time_light(scene, arrays, proj, vis, d, e, repeats)
+                    light[e].append((light_features(t, covered), ms))
+    return CostModel(
+        update_factor=update_factor(repeats),
+        occlusion={m: fit(rows) for m, rows in occ.items()},
+        bsp_build=fit(build)[:2],
+        light={e: fit(rows) for e, rows in light.items()},
+        galilean=galilean_table(galilean_frames),
+        meta={"measured": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+              "machine": platform.platform(), "processor": platform.machine(),
+              "scenes": list(CAL_SCENES), "zones": list(CAL_ZONES),
+              "sizes": [list(s) for s in CAL_SIZES], "repeats": repeats,
+              "units": "ms; occlusion: 1, k triangle-zones, M pixel-zones, k bad points; "
+                       "light: 1, k triangles, M covered pixels; bsp_build: 1, k triangles"},
+    )
+
+
+def update_factor(repeats: int, size: tuple[int, int] = (160, 120)) -> float:
+    """How many renders' time an update for the Galilean stage costs (render_with_motion)."""
+    from service.galilean.motion_field import render_with_motion
+
+    scene, d, r = builtin_scene("game"), DisplaySettings(zones=1, cols=size[0], rows=size[1]), \
+        Renderer()
+    ratios = []
+    for _ in range(repeats + 2):  # interleaved, so a busy moment hits both
+        plain, _ = _median_ms(lambda: r.render(scene, d), 1)
+        full, _ = _median_ms(lambda: render_with_motion(r, scene, d, 0.0, 60.0), 1)
+        ratios.append(full / plain)
+    return round(float(np.median(ratios)), 3)
+
+
+def galilean_table(frames: int, size: tuple[int, int] = (64, 48)) -> list[dict]:
+    """The Galilean benchmark's order x interval sweep at a small size, one zone."""
+    from service.bench.galilean_bench import sweep
+
+    d = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    rows = sweep(d, frames, RenderSettings(light=LightSettings("blinn")))
+    return [{**r, "pixels": size[0] * size[1]} for r in rows]
+
+
+def reference(scene, display: DisplaySettings, model: str = "blinn") -> np.ndarray:
+    """Ray-cast occlusion with per-point light: the colour every auto frame is scored on."""
+    s = RenderSettings("raycast", light=LightSettings(model, "point"))
+    return Renderer().render(scene, display, s).colour
+
+
+def check(model: CostModel, size: tuple[int, int], zones: int = 5, frames: int = 3,
+          scenes=CHECK_SCENES, budgets=BUDGETS) -> list[dict]:
+    """Per scene and budget: what auto picked each frame, predicted and measured error."""
+    display = DisplaySettings(zones=zones, cols=size[0], rows=size[1])
+    out = []
+    for name in scenes:
+        scene = builtin_scene(name)
+        ref = reference(scene, display)
+        for text in budgets:
+            budget = parse_budget(text)
+            chooser, r = QualityChooser(QualitySettings("auto", budget), model), Renderer()
+            for k in range(frames):  # the same scene again: static from the 2nd frame
+                frame = render_auto(r, chooser, scene, display)
+                q = frame.stats["quality"]
+                wrong, db = pct_wrong(frame.colour, ref), psnr(frame.colour, ref)
+                out.append({
+                    "scene": name, "budget": text, "frame": k, "method": q["method"],
+                    "specular": q["specular"],
+                    "predicted_pct_wrong": q["predicted_error"]["pct_wrong"],
+                    "predicted_psnr": q["predicted_error"]["psnr"],
+                    "measured_pct_wrong": round(wrong, 4), "measured_psnr": round(db, 2),
+                    "within_budget": budget.allows(wrong, db),
+                    "predicted_ms": q["predicted_ms"]["total"],
+                    "ms": round(frame.stats["ms"]["total"], 3),
+                    "inconsistent_pixels": frame.stats["occlusion"].get("inconsistent_pixels"),
+                    "galilean_order": (q["galilean"] or {}).get("order"),
+                    "galilean_interval": (q["galilean"] or {}).get("interval"),
+                })
+    return out
+
+
+def write_rows(rows: list[dict], stem: Path) -> None:
+    """``stem.json`` and ``stem.csv``."""
+    stem.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+    with stem.with_suffix(".csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The options of ``holo-bench quality``."""
+    p = argparse.ArgumentParser(
+        prog="holo-bench quality",
+        description="Calibrate --quality auto's cost model (--calibrate), or check that "
+        "auto's frames stay within their error budgets.",
+    )
+    p.add_argument("--calibrate", action="store_true", help="measure and write the cost model")
+    p.add_argument("--model", default=None, help="cost model JSON to write or read")
+    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
+    add_size_option(p, (160, 120), "pixels per zone image of the budget check")
+    p.add_argument("--quick", action="store_true", help="fewer repeats and frames")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Calibrate, or check the budget; 1 when a frame went over its budget."""
+    args = parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    warm_up(RenderSettings("runlength"))
+    if args.calibrate:
+        model = calibrate(repeats=2 if args.quick else 3, galilean_frames=9 if args.quick else 17)
+        path = Path(args.model) if args.model else out / "quality_model.json"
+        path.write_text(model.to_json())
+        print(f"wrote {path}")
+        return 0
+    rows = check(CostModel.load(args.model), args.size, frames=2 if args.quick else 3)
+    write_rows(rows, out / "quality_auto")
+    for r in rows:
+        print(f"{r['scene']:13s} {r['budget']:5s} frame {r['frame']}: {r['method']:9s} "
+              f"{r['specular']:7s} predicted {r['predicted_pct_wrong']:.3f}% "
+              f"measured {r['measured_pct_wrong']:.3f}% / {r['measured_psnr']:.1f} dB "
+              f"{'ok' if r['within_budget'] else 'OVER BUDGET'}", file=sys.stderr)
+    return 0 if all(r["within_budget"] for r in rows) else 1

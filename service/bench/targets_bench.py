@@ -1,0 +1,174 @@
+"""``holo-bench targets``: the open speed targets, each a ratio measured side by side.
+
+* ``zones``: stages 1-4 (project, cull, sort, occlusion) of 5 zones over 1 zone, the
+  game scene, renders of both counts interleaved (target <= 2).
+* ``refresh``: a G(2) refresh at 640x480 (one zone) right after a head turn, so that
+  every galpixel moves, beside a refresh of the same update without one (target
+  <= 4 ms).
+* ``premise``: the Galilean premise on the complexity scenes (the rotating cube plus
+  a grid of spinning spheres): G(2) refresh ms at about 1k and 1M triangles (target
+  ratio <= 1.2) and ``render_with_motion`` over a refresh at 100k triangles and more
+  (target >= 10).
+
+Writes ``targets.json`` and ``targets.csv`` (one row per target: name, figure,
+target, met) to ``--out``; the report collects them from there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.bench.galilean_bench import (
+    HZ,
+    _complexity_step,
+    bench_scene,
+    complexity_scene,
+    head_turn,
+)
+from service.cli_args import add_size_option, int_range
+from service.display import DisplaySettings
+from service.galilean.motion_field import render_with_motion
+from service.galilean.stage import GalileanSettings, GalileanStage
+from service.light import LightSettings
+from service.pipeline import Renderer, RenderSettings, StageClock, warm_up
+from service.scenes import builtin_scene
+
+STAGES_1_4 = ("project", "cull", "sort", "occlusion", "fallback")
+
+
+def zones_target(size: tuple[int, int], repeats: int, scene_name: str = "game") -> dict:
+    """Stages 1-4 ms of 5 zones and of 1 zone, interleaved; medians and their ratio."""
+    arrays = builtin_scene(scene_name).flatten()
+    r, s = Renderer(), RenderSettings()
+    ms: dict[int, list[float]] = {1: [], 5: []}
+    displays = {z: DisplaySettings(zones=z, cols=size[0], rows=size[1]) for z in ms}
+    for d in displays.values():
+        r.visibility(arrays, d, s)
+    for _ in range(repeats):
+        for z, d in displays.items():
+            clock: dict[str, float] = {}
+            r.visibility(arrays, d, s, StageClock(clock))
+            ms[z].append(sum(clock.get(k, 0.0) for k in STAGES_1_4))
+    one, five = float(np.median(ms[1])), float(np.median(ms[5]))
+    return {"target": "zones", "what": f"stages 1-4, 5 zones / 1 zone, {scene_name}, "
+            f"{size[0]}x{size[1]}", "ms_1": round(one, 3), "ms_5": round(five, 3),
+            "figure": round(five / one, 3), "goal": 2.0, "met": five / one <= 2.0}
+
+
+def refresh_target(size: tuple[int, int], repeats: int) -> dict:
+    """G(2) refresh ms with every galpixel moving (head turn) and without, interleaved."""
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    settings = RenderSettings(light=LightSettings("blinn"))
+    scene, r = bench_scene("rotating-cube"), Renderer()
+    up = render_with_motion(r, scene, display, 0.0, HZ, settings)
+    stages = {}
+    for head in (False, True):
+        st = GalileanStage(display, GalileanSettings(order=2, refresh_hz=HZ, threads=0))
+        st.update(up, 0)
+        st.refresh()
+        if head:
+            st.viewer(head_turn())
+            st.refresh()
+        stages[head] = st
+    ms: dict[bool, list[float]] = {False: [], True: []}
+    for _ in range(repeats):
+        for head, st in stages.items():
+            t0 = time.perf_counter()
+            st.refresh()
+            ms[head].append((time.perf_counter() - t0) * 1e3)
+    moving, still = float(np.median(ms[True])), float(np.median(ms[False]))
+    return {"target": "refresh", "what": f"G(2) refresh, every galpixel moving, "
+            f"{size[0]}x{size[1]}, ms", "ms_still": round(still, 3),
+            "ms_moving": round(moving, 3), "figure": round(moving, 3), "goal": 4.0,
+            "met": moving <= 4.0}
+
+
+def premise_target(size: tuple[int, int], repeats: int,
+                   counts: tuple[int, ...] = (1_000, 100_000, 1_000_000)) -> list[dict]:
+    """Refresh ms flat in triangles, and render_with_motion / refresh at >= 100k."""
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    settings = RenderSettings(light=LightSettings("blinn"))
+    r, steps = Renderer(), []
+    for extra in counts:
+        scene = complexity_scene(extra, display)
+        print(f"targets: premise, {extra} triangles", file=sys.stderr, flush=True)
+        steps.append(_complexity_step(r, scene, display, settings, repeats))
+    flat = steps[-1]["refresh_ms"] / steps[0]["refresh_ms"]
+    big = [s for s in steps if s["triangles"] >= 100_000]
+    worst = min(s["update_ratio"] for s in big) if big else None
+    where = f"{size[0]}x{size[1]}, one zone"
+    return [
+        {"target": "premise-flat", "what": f"G(2) refresh ms at {steps[-1]['triangles']} / "
+         f"{steps[0]['triangles']} triangles, {where}",
+         "refresh_ms": [round(s["refresh_ms"], 3) for s in steps],
+         "triangles": [s["triangles"] for s in steps], "figure": round(flat, 3),
+         "goal": 1.2, "met": flat <= 1.2},
+        {"target": "premise-10x", "what": f"render_with_motion / G(2) refresh, worst of the "
+         f"steps >= 100k triangles, {where}",
+         "update_ms": [round(s["render_with_motion_ms"], 3) for s in big],
+         "triangles": [s["triangles"] for s in big],
+         "figure": None if worst is None else round(worst, 3), "goal": 10.0,
+         "met": worst is not None and worst >= 10.0},
+    ]
+
+
+def write(rows: list[dict], out: Path) -> None:
+    """``targets.json`` (everything) and ``targets.csv`` (name, figure, goal, met, what)."""
+    (out / "targets.json").write_text(json.dumps(rows, indent=1))
+    with (out / "targets.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["target", "figure", "goal", "met", "what"])
+        for r in rows:
+            w.writerow([r["target"], r["figure"], r["goal"], r["met"], r["what"]])
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The options of ``holo-bench targets``."""
+    p = argparse.ArgumentParser(
+        prog="holo-bench targets",
+        description="The open speed targets (zones, G(2) refresh, Galilean premise), each "
+        "a ratio measured side by side in one run; writes targets.json and targets.csv.",
+    )
+    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
+    p.add_argument("--only", choices=("zones", "refresh", "premise"), action="append",
+                   help="run just these targets (repeatable; default all)")
+    add_size_option(p, (640, 480), "display of the refresh and premise targets")
+    p.add_argument("--zone-size", type=str, default="320x240",
+                   help="display of the zones target (default 320x240)")
+    p.add_argument("--repeats", type=int_range(1, 1000), default=15,
+                   help="interleaved repeats per target (default 15)")
+    p.add_argument("--quick", action="store_true",
+                   help="premise up to 100k triangles only, 7 repeats")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the targets; print one line each."""
+    from service.display import parse_size
+
+    args = parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    warm_up(RenderSettings())
+    reps = 7 if args.quick else args.repeats
+    only = set(args.only or ("zones", "refresh", "premise"))
+    rows: list[dict] = []
+    if "zones" in only:
+        rows.append(zones_target(parse_size(args.zone_size), reps * 3))
+    if "refresh" in only:
+        rows.append(refresh_target(args.size, reps * 3))
+    if "premise" in only:
+        counts = (1_000, 100_000) if args.quick else (1_000, 100_000, 1_000_000)
+        rows += premise_target(args.size, reps, counts)
+    write(rows, out)
+    for r in rows:
+        print(f"{r['target']:13s} {r['figure']} (goal {r['goal']}) "
+              f"{'met' if r['met'] else 'NOT met'}: {r['what']}")
+    return 0

@@ -1,0 +1,433 @@
+"""``--quality auto``: the cheapest methods that keep a frame within an error budget.
+
+Each frame the chooser predicts, from a *measured* cost model, what every candidate
+would cost, and picks the cheapest whose predicted error fits the budget:
+
+* **Occlusion.**  Every candidate it may pick is exact (equal to the z-buffer, bit
+  for bit): the run-length method with pixel repair (its cost grows with the points
+  the sort got wrong, so the count the last frame reported is part of the
+  prediction: "runlength while the sort is consistent, pixel repair for a few bad
+  points, the z-buffer past that"), the z-buffer, and BSP, a candidate only while the
+  geometry stays the same as in the frame before (a static scene; its tree is then
+  built once and reused, so its build cost is shared by the frames the geometry has
+  stayed put so far).  The painter's order without repair is never picked: it
+  costs as much as the repair and is wrong where the repair is right.
+* **Specular.**  Light evaluated per polygon, per vertex or per point (the
+  reference): the error of each against per-point light is measured on the centre
+  zone of the frame (once per scene shape and display) and the cheapest within the
+  budget is used.
+* **Galilean order and update interval.**  From the measured table of the order x
+  interval sweep (``holo-bench galilean``; error of refreshes against exact renders
+  per kind of motion): the cheapest per refresh (render cost over the interval plus
+  the refresh cost of the order) within the budget.
+
+Errors are in the units of the Galilean benchmark: % of pixels whose largest colour
+channel differs by more than :data:`WRONG_LEVELS` from the reference, or PSNR in dB.
+The cost model is a least-squares fit of measured milliseconds (``holo-bench quality
+--calibrate`` measures and writes it; ``service/quality_model.json`` is the one
+measured on the development machine, with its date and machine in ``meta``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.cull import CullSettings
+from service.display import DisplaySettings
+from service.errors import SettingsError
+from service.frame import Frame
+from service.light import LightSettings, shade
+from service.occlusion import Visibility
+from service.pipeline import Renderer, RenderSettings
+from service.projection import project
+from service.scene import Scene, SceneArrays
+
+#: Colour levels a channel may differ by before a pixel counts as wrong.
+WRONG_LEVELS = 32
+#: The model measured on the development machine (see ``meta`` inside).
+DEFAULT_MODEL = Path(__file__).with_name("quality_model.json")
+#: Occlusion candidates; "bsp" only for a static scene.
+OCCLUSION = ("runlength", "zbuffer", "bsp")
+#: Light evaluations, cheapest first by design; "point" is the reference.
+SPECULAR = ("polygon", "vertex", "point")
+MODES = ("fixed", "auto")
+
+
+@dataclass(frozen=True)
+class ErrorBudget:
+    """How wrong a frame may be: % of pixels wrong, or a least PSNR (dB)."""
+
+    max_pct: float | None = 0.5
+    min_psnr: float | None = None
+
+    def __post_init__(self) -> None:
+        if (self.max_pct is None) == (self.min_psnr is None):
+            raise SettingsError("an error budget is either a % of pixels or a PSNR in dB")
+        if self.max_pct is not None and not 0.0 <= self.max_pct <= 100.0:
+            raise SettingsError(f"max error must be 0-100 %, got {self.max_pct}")
+        if self.min_psnr is not None and not self.min_psnr > 0.0:
+            raise SettingsError(f"PSNR budget must be > 0 dB, got {self.min_psnr}")
+
+    def allows(self, pct: float, psnr_db: float) -> bool:
+        """Whether an error (% wrong, PSNR) fits."""
+        if self.max_pct is not None:
+            return pct <= self.max_pct
+        return psnr_db >= self.min_psnr
+
+    def as_dict(self) -> dict[str, float | None]:
+        """``{"max_pct", "min_psnr"}`` (one of them None)."""
+        return {"max_pct": self.max_pct, "min_psnr": self.min_psnr}
+
+
+def parse_budget(text: str | float) -> ErrorBudget:
+    """``"0.5"``, ``"0.5%"`` (% of pixels wrong) or ``"40dB"`` (least PSNR)."""
+    if isinstance(text, int | float) and not isinstance(text, bool):
+        return ErrorBudget(max_pct=float(text))
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(%|db|dB|DB)?\s*", str(text))
+    if m is None:
+        raise SettingsError(f"max error must look like 0.5, 0.5% or 40dB, got {str(text)[:40]!r}")
+    value = float(m.group(1))
+    if (m.group(2) or "%").lower() == "db":
+        return ErrorBudget(max_pct=None, min_psnr=value)
+    return ErrorBudget(max_pct=value)
+
+
+@dataclass(frozen=True)
+class QualitySettings:
+    """``mode``: "fixed" (the settings as given) or "auto"; ``budget``: the error budget."""
+
+    mode: str = "fixed"
+    budget: ErrorBudget = field(default_factory=ErrorBudget)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise SettingsError(f"quality must be one of {MODES}, got {self.mode!r}")
+
+
+def pct_wrong(a: np.ndarray, b: np.ndarray) -> float:
+    """% of pixels of two (..., 3) uint8 images whose largest channel difference > WRONG_LEVELS."""
+    d = np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1)
+    return 100.0 * float((d > WRONG_LEVELS).mean())
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR in dB of two uint8 images (99 when identical)."""
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 99.0 if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
+
+
+# ------------------------------------------------------------------ cost model
+def occlusion_features(triangles: int, zones: int, pixels: int, bad: int) -> np.ndarray:
+    """Regressors of an occlusion cost: 1, k triangle-zones, M pixel-zones, k bad points."""
+    return np.array([1.0, triangles * zones / 1e3, pixels * zones / 1e6, bad / 1e3])
+
+
+def light_features(triangles: int, covered: int) -> np.ndarray:
+    """Regressors of a light cost: 1, k triangles, M covered pixels (all zones)."""
+    return np.array([1.0, triangles / 1e3, covered / 1e6])
+
+
+@dataclass(frozen=True)
+class CostModel:
+    """Measured cost coefficients (ms) and the Galilean error table.
+
+    Attributes
+    ----------
+    occlusion : dict
+        Method -> coefficients of :func:`occlusion_features` (stages 1-4, ms).
+    bsp_build : list of float
+        BSP tree build ms: ``[a, b]``, ``a + b * k triangles``.
+    light : dict
+        Evaluation -> coefficients of :func:`light_features` (light stage, ms).
+    galilean : list of dict
+        Rows ``{motion, order, interval, pct_wrong, psnr, ms_per_refresh, pixels}``.
+    update_factor : float
+        An update for the Galilean stage (``render_with_motion``: the render, its
+        difference renders and the galpixmap) in renders' time.
+    meta : dict
+        Where and when it was measured.
+    """
+
+    occlusion: dict[str, list[float]]
+    bsp_build: list[float]
+    light: dict[str, list[float]]
+    galilean: list[dict[str, Any]] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)
+    update_factor: float = 1.0
+
+    def occlusion_ms(self, method: str, triangles: int, zones: int, pixels: int,
+                     bad: int = 0) -> float:
+        """Predicted stages 1-4 ms of ``method`` (at least 0)."""
+        c = np.asarray(self.occlusion[method], float)
+        return max(0.0, float(c @ occlusion_features(triangles, zones, pixels, bad)))
+
+    def light_ms(self, evaluation: str, triangles: int, covered: int) -> float:
+        """Predicted light-stage ms of ``evaluation`` (at least 0)."""
+        c = np.asarray(self.light[evaluation], float)
+        return max(0.0, float(c @ light_features(triangles, covered)))
+
+    def build_ms(self, triangles: int) -> float:
+        """Predicted BSP build ms."""
+        return max(0.0, self.bsp_build[0] + self.bsp_build[1] * triangles / 1e3)
+
+    def to_json(self) -> str:
+        """The model as the JSON :meth:`load` reads."""
+        return json.dumps({"occlusion": self.occlusion, "bsp_build": self.bsp_build,
+                           "light": self.light, "galilean": self.galilean,
+                           "update_factor": self.update_factor, "meta": self.meta}, indent=1)
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> CostModel:
+        """Read a model written by :meth:`to_json` (default :data:`DEFAULT_MODEL`)."""
+        path = Path(path) if path is not None else DEFAULT_MODEL
+        try:
+            d = json.loads(path.read_text())
+            model = cls(d["occlusion"], d["bsp_build"], d["light"], d.get("galilean", []),
+                        d.get("meta", {}), float(d.get("update_factor", 1.0)))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise SettingsError(f"cost model {path}: {exc}") from exc
+        missing = [m for m in OCCLUSION if m not in model.occlusion]
+        missing += [e for e in SPECULAR if e not in model.light]
+        if missing:
+            raise SettingsError(f"cost model {path}: no coefficients for {missing}")
+        return model
+
+
+def fit(rows: list[tuple[np.ndarray, float]]) -> list[float]:
+    """Least-squares coefficients of ``ms ~ features`` (non-negative slopes)."""
+    x = np.array([f for f, _ in rows])
+    y = np.array([ms for _, ms in rows])
+    coef = np.zeros(x.shape[1])
+    free = np.ones(x.shape[1], bool)
+    while free.any():  # more work never costs less, nothing costs less than nothing:
+        c, *_ = np.linalg.lstsq(x[:, free], y, rcond=None)  # drop negative terms, refit
+        coef[:] = 0.0
+        coef[free] = c
+        if (c >= 0).all():
+            break
+        free[np.flatnonzero(free)[np.argmin(c)]] = False
+    return [round(float(c), 6) for c in coef]
+
+
+# --------------------------------------------------------------------- chooser
+@dataclass
+class Choice:
+    """What the chooser picked for one frame, with its predictions."""
+
+    method: str
+    specular: str
+    predicted_ms: dict[str, float]
+    predicted_error: dict[str, float]
+    reason: str
+    galilean: dict[str, Any] | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """The ``quality`` block of the render stats and of ``--json``."""
+        return {"method": self.method, "painter_fallback": "pixel", "specular": self.specular,
+                "predicted_ms": {k: round(v, 3) for k, v in self.predicted_ms.items()},
+                "predicted_error": self.predicted_error, "reason": self.reason,
+                "galilean": self.galilean}
+
+
+class QualityChooser:
+    """Picks methods frame by frame; remembers what the last frames showed."""
+
+    def __init__(self, settings: QualitySettings, model: CostModel | None = None) -> None:
+        self.settings = settings
+        self.model = model or CostModel.load()
+        self._last_geometry: bytes | None = None
+        self._static = False
+        self._static_frames = 0
+        self._tree_built = False
+        self._bad = 0
+        self._light_errors: dict[tuple, dict[str, tuple[float, float]]] = {}
+        #: Pixels the last frame covered (all zones); the light cost grows with them.
+        self.covered: int | None = None
+
+    # occlusion -------------------------------------------------------------
+    def occlusion(self, arrays: SceneArrays, display: DisplaySettings,
+                  moving: bool = False) -> tuple[str, dict, str]:
+        """(method, predicted ms per candidate, reason) for this frame's geometry.
+
+        ``moving``: the scene has motion (a service renders it at later times than
+        its snapshot), so it is never static.
+        """
+        key = _geometry_key(arrays)
+        self._static = key == self._last_geometry and not moving
+        self._static_frames = self._static_frames + 1 if self._static else 0
+        if not self._static:
+            self._tree_built = False
+        self._last_geometry = key
+        t, z, px = arrays.triangles.shape[0], display.zones, display.rows * display.cols
+        ms = {m: self.model.occlusion_ms(m, t, z, px, self._bad if m == "runlength" else 0)
+              for m in OCCLUSION}
+        if not self._static:
+            del ms["bsp"]  # the tree would be rebuilt every frame
+        elif not self._tree_built:  # shared by the frames the geometry has stayed put
+            ms["bsp"] += self.model.build_ms(t) / self._static_frames
+        method = min(ms, key=ms.__getitem__)
+        reason = (f"cheapest exact method ({'static' if self._static else 'moving'} geometry, "
+                  f"{self._bad} points out of sort order last frame)")
+        return method, ms, reason
+
+    def observe(self, method: str, occlusion_stats: dict[str, Any],
+                covered: int | None = None) -> None:
+        """Feed back what a frame showed: its out-of-order points, its covered pixels."""
+        if method == "runlength":
+            self._bad = int(occlusion_stats.get("inconsistent_pixels", 0))
+        if method == "bsp":
+            self._tree_built = True
+        if covered is not None:
+            self.covered = covered
+
+    # light -----------------------------------------------------------------
+    def light_errors(self, scene: Scene, arrays: SceneArrays, display: DisplaySettings,
+                     model: str, vis_fn) -> dict[str, tuple[float, float]]:
+        """Measured (% wrong, PSNR) of each evaluation against per-point light.
+
+        Measured on the centre zone once per scene shape, light model and display
+        (``vis_fn(arrays, display)`` gives that zone's visibility).
+        """
+        key = (arrays.n_polygons, arrays.triangles.shape[0], model, display.cols,
+               display.rows, display.angle_deg, len(scene.lights))
+        if key not in self._light_errors:
+            one = DisplaySettings(zones=1, angle_deg=0.0, cols=display.cols,
+                                  rows=display.rows, width=display.width)
+            vis = vis_fn(arrays, one)
+            proj = project(arrays.vertices, one)
+            ref = _shade(scene, arrays, proj, vis, one, LightSettings(model, "point"))
+            errs = {}
+            for ev in SPECULAR:
+                img = _shade(scene, arrays, proj, vis, one, LightSettings(model, ev))
+                errs[ev] = (pct_wrong(img, ref), psnr(img, ref))
+            self._light_errors[key] = errs
+        return self._light_errors[key]
+
+    def specular(self, errors: dict[str, tuple[float, float]], triangles: int,
+                 covered: int) -> tuple[str, dict[str, float]]:
+        """The cheapest evaluation within the budget (per point always fits)."""
+        ms = {ev: self.model.light_ms(ev, triangles, covered) for ev in SPECULAR}
+        fits = [ev for ev in SPECULAR if ev == "point" or self.settings.budget.allows(*errors[ev])]
+        return min(fits, key=ms.__getitem__), ms
+
+    # galilean --------------------------------------------------------------
+    def galilean(self, motion: str, render_ms: float,
+                 display: DisplaySettings) -> dict[str, Any] | None:
+        """Cheapest (order, interval) per refresh within the budget, from the table.
+
+        A refresh's cost is the table's, scaled by the pixels (the table was measured
+        at a small size); a render is shared by the ``interval`` refreshes it feeds.
+        """
+        if motion == "none":  # nothing moves: any refresh repeats the render exactly
+            longest = max((r["interval"] for r in self.model.galilean), default=1)
+            return {"motion": motion, "order": 0, "interval": longest,
+                    "predicted_pct_wrong": 0.0, "predicted_psnr": 99.0,
+                    "predicted_ms_per_refresh": None}
+        render_ms *= self.model.update_factor
+        rows = [_scored(r) for r in self.model.galilean if r["motion"] == motion]
+        rows = [r for r in rows if self.settings.budget.allows(r["pct_wrong"], r["psnr"])]
+        if not rows:
+            return None
+
+        def per_refresh(r: dict) -> float:
+            scale = _pixels(display) / max(1, r.get("pixels", _pixels(display)))
+            return render_ms / r["interval"] + r["ms_per_refresh"] * scale
+
+        best = min(rows, key=per_refresh)
+        return {"motion": motion, "order": best["order"], "interval": best["interval"],
+                "predicted_pct_wrong": round(best["pct_wrong"], 4),
+                "predicted_psnr": round(best["psnr"], 2),
+                "predicted_ms_per_refresh": round(per_refresh(best), 3)}
+
+
+def render_auto(renderer: Renderer, chooser: QualityChooser, scene: Scene,
+                display: DisplaySettings, light_model: str = "blinn",
+                cull: CullSettings | None = None) -> Frame:
+    """Render one frame with the methods the chooser picks for it.
+
+    Returns
+    -------
+    Frame
+        As :meth:`Renderer.render`, with ``stats["quality"]``: the choices, the
+        predicted milliseconds of every candidate and the predicted error
+        (``pct_wrong``, ``psnr`` of the light against per-point light; occlusion is
+        exact), and the Galilean order and interval for the scene's motion.
+    """
+    choice = choose(chooser, scene, display, light_model)
+    settings = RenderSettings(method=choice.method, cull=cull or CullSettings(),
+                              light=LightSettings(light_model, choice.specular),
+                              painter_fallback="pixel")
+    frame = renderer.render(scene, display, settings)
+    chooser.observe(choice.method, frame.stats["occlusion"],
+                    int(np.isfinite(frame.depth).sum()))
+    frame.stats["quality"] = choice.as_dict()
+    return frame
+
+
+def choose(chooser: QualityChooser, scene: Scene, display: DisplaySettings,
+           light_model: str = "blinn") -> Choice:
+    """The methods for the next frame of ``scene`` (then :meth:`QualityChooser.observe`)."""
+    arrays = scene.flatten()
+    kind = motion_kind(scene)
+    method, occ_ms, reason = chooser.occlusion(arrays, display, moving=kind != "none")
+    errors = chooser.light_errors(scene, arrays, display, light_model, _zbuffer_visibility)
+    covered = chooser.covered if chooser.covered is not None else _pixels(display)
+    spec, light_ms = chooser.specular(errors, arrays.triangles.shape[0], covered)
+    predicted = occ_ms[method] + light_ms[spec]
+    return Choice(
+        method, spec,
+        {**{f"occlusion_{m}": v for m, v in occ_ms.items()},
+         **{f"light_{e}": v for e, v in light_ms.items()}, "total": predicted},
+        {"pct_wrong": round(errors[spec][0], 4), "psnr": round(errors[spec][1], 2),
+         "occlusion_pct_wrong": 0.0},
+        reason,
+        chooser.galilean(kind, predicted, display),
+    )
+
+
+def _zbuffer_visibility(arrays: SceneArrays, display: DisplaySettings) -> Visibility:
+    return Renderer().visibility(arrays, display, RenderSettings("zbuffer"))[0]
+
+
+def motion_kind(scene: Scene) -> str:
+    """The sweep's motion a scene resembles: rotating, falling, linear, or none."""
+    m = [o.motion for o in scene.objects]
+    if any(np.any(x.angular_velocity) or np.any(x.angular_acceleration) for x in m):
+        return "rotating-cube"
+    if any(np.any(x.acceleration) for x in m):
+        return "falling"
+    return "linear" if any(np.any(x.velocity) for x in m) else "none"
+
+
+def _geometry_key(arrays: SceneArrays) -> bytes:
+    """A digest of the flattened geometry (same key: static since the last frame)."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.ascontiguousarray(arrays.vertices).tobytes())
+    h.update(np.ascontiguousarray(arrays.triangles).tobytes())
+    return h.digest()
+
+
+def _shade(scene: Scene, arrays: SceneArrays, proj: np.ndarray, vis: Visibility,
+           display: DisplaySettings, light: LightSettings) -> np.ndarray:
+    return shade(arrays, proj, vis, display, scene.lights, scene.ambient, light)
+
+
+def _scored(row: dict[str, Any]) -> dict[str, Any]:
+    """A sweep row; interval 1 (a render every refresh) scores no refresh: exact."""
+    if row.get("pct_wrong") is None:
+        return {**row, "pct_wrong": 0.0, "psnr": 99.0}
+    return row
+
+
+def _pixels(display: DisplaySettings) -> int:
+    """Pixels of every zone together."""
+    return display.zones * display.rows * display.cols

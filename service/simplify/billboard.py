@@ -1,0 +1,154 @@
+"""Billboard clouds (Decoret, Durand, Sillion and Dorsey, SIGGRAPH 2003; seed 004).
+
+A mesh becomes a few textured, alpha-tested rectangles: :mod:`.planes` chooses planes
+so that every face lies within ``eps`` of one; each plane's faces are projected on
+it, bounded by their minimal rectangle (:mod:`.rectangle`), and shot orthographically
+into a texture of colour, alpha and the normal of the face at each texel (so the
+renderer can still light it diffusely).  The file format is :mod:`.cloud_file`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.simplify.billboard_kernel import shoot_texture
+from service.simplify.errors import SimplifyError
+from service.simplify.planes import PlaneSettings, choose_planes
+from service.simplify.quadric import check_triangles
+from service.simplify.rectangle import min_area_rectangle
+
+
+@dataclass(frozen=True)
+class BillboardCloud:
+    """Textured rectangles standing in for a mesh.
+
+    Attributes
+    ----------
+    corners : ndarray, shape (P, 4, 3), float64
+        Each billboard's corners: origin, origin + U, origin + U + V, origin + V,
+        where U runs along a texture row and V down its rows.
+    planes : ndarray, shape (P, 4), float64
+        Unit normal ``n`` and offset ``rho`` of ``n . x = rho``.
+    tex_shape : ndarray, shape (P, 2), int64
+        Texture rows and columns of each billboard.
+    tex_offset : ndarray, shape (P + 1,), int64
+        Where each billboard's texels start in the flat texel arrays.
+    rgba : ndarray, shape (N, 4), uint8
+        Colour and alpha (0 or 255) of every texel, billboard after billboard, row-major.
+    normal : ndarray, shape (N, 3), int8
+        Surface normal at each texel, scaled to -127..127 (0 where alpha is 0).
+    eps : float
+        Greatest distance of any source face corner from its billboard (world units).
+    source_faces : int
+        Triangles of the mesh the cloud was built from.
+    build_s : float
+        Seconds the build took.
+    """
+
+    corners: np.ndarray
+    planes: np.ndarray
+    tex_shape: np.ndarray
+    tex_offset: np.ndarray
+    rgba: np.ndarray
+    normal: np.ndarray
+    eps: float
+    source_faces: int
+    build_s: float = 0.0
+
+    @property
+    def n_billboards(self) -> int:
+        """Number of billboards P."""
+        return int(self.planes.shape[0])
+
+    def texture(self, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """Billboard ``p``'s texture (H, W, 4) uint8 and normals (H, W, 3) int8."""
+        h, w = self.tex_shape[p]
+        sl = slice(self.tex_offset[p], self.tex_offset[p + 1])
+        return self.rgba[sl].reshape(h, w, 4), self.normal[sl].reshape(h, w, 3)
+
+
+def _basis(n: np.ndarray) -> np.ndarray:
+    """Two unit vectors (2, 3) spanning the plane of normal ``n``."""
+    t = np.eye(3)[int(np.argmin(np.abs(n)))]
+    u = np.cross(n, t)
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(n, u)])
+
+
+def _billboard(v: np.ndarray, f: np.ndarray, ids: np.ndarray, plane: np.ndarray,
+               texel: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """One billboard: corners (4, 3), every vertex in texel coordinates (V, 2), (rows, cols)."""
+    n, rho = plane[:3], plane[3]
+    basis = _basis(n)
+    used = np.unique(f[ids])
+    origin2, axes2, size = min_area_rectangle(v[used] @ basis.T)
+    axes = axes2 @ basis  # (2, 3) world directions of the rectangle's sides
+    cols, rows = (max(int(np.ceil(x / texel)), 1) for x in size)
+    base = origin2 @ basis + rho * n
+    big = np.array([cols, rows]) * texel
+    corners = np.array([base, base + big[0] * axes[0], base + big[0] * axes[0] + big[1] * axes[1],
+                        base + big[1] * axes[1]])
+    uv = (v - base) @ axes.T / texel
+    return corners, uv, (rows, cols)
+
+
+def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res: int = 256,
+                colours: np.ndarray | None = None,
+                settings: PlaneSettings | None = None) -> BillboardCloud:
+    """Build a billboard cloud of a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3), float
+    faces : ndarray, shape (F, 3), int; F >= 1
+    eps : float
+        Greatest distance of a face corner from its billboard (world units), > 0.
+    texture_res : int
+        Texels across the mesh's bounding-box diagonal (the same texel size on
+        every billboard), >= 1.
+    colours : ndarray, shape (F, 3), uint8, optional
+        Face colours (default white: the object's material gives the colour).
+    settings : PlaneSettings, optional
+        Plane-choice knobs (``eps`` is taken from the argument).
+
+    Raises
+    ------
+    SimplifyError
+        No faces, eps <= 0, texture_res < 1, bad colours.
+    """
+    t0 = time.perf_counter()
+    v, f = check_triangles(vertices, faces)
+    if int(texture_res) < 1:
+        raise SimplifyError(f"texture resolution must be at least 1, not {texture_res}")
+    s = PlaneSettings(eps=eps) if settings is None else PlaneSettings(
+        **{**settings.__dict__, "eps": eps})
+    col = np.full((f.shape[0], 3), 255, np.uint8) if colours is None else np.asarray(colours)
+    if col.shape != (f.shape[0], 3):
+        raise SimplifyError(f"colours must have shape ({f.shape[0]}, 3), not {col.shape}")
+    planes, owner = choose_planes(v, f, s)
+    diag = float(np.linalg.norm(v.max(0) - v.min(0))) or 1.0
+    texel = diag / int(texture_res)
+    a = v[f]
+    fn = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    nrm = np.round(fn * 127).astype(np.int8)
+    corners, shapes, rgba, normal = [], [], [], []
+    for p in range(planes.shape[0]):
+        ids = np.flatnonzero(owner == p)
+        c, uv, (rows, cols) = _billboard(v, f, ids, planes[p], texel)
+        tex = np.zeros((rows, cols, 4), np.uint8)
+        tn = np.zeros((rows, cols, 3), np.int8)
+        shoot_texture(uv, f, ids, nrm, col.astype(np.uint8), tex, tn)
+        corners.append(c)
+        shapes.append((rows, cols))
+        rgba.append(tex.reshape(-1, 4))
+        normal.append(tn.reshape(-1, 3))
+    sizes = np.array([r * c for r, c in shapes], np.int64)
+    return BillboardCloud(
+        corners=np.array(corners), planes=planes, tex_shape=np.array(shapes, np.int64),
+        tex_offset=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+        rgba=np.concatenate(rgba), normal=np.concatenate(normal), eps=float(eps),
+        source_faces=int(f.shape[0]), build_s=time.perf_counter() - t0)

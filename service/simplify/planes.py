@@ -1,0 +1,327 @@
+"""Greedy choice of billboard planes (Decoret et al. 2003, section 4; seed 004).
+
+Plane space is discretised into Hough bins: the normal by its polar angle ``theta``
+(0 to 90 degrees: a plane and its flip are one plane) and azimuth ``phi``, the offset
+``rho`` (``n . x = rho``, from the mesh's bounding-box centre) into bins ``EPS`` wide.
+A face is *valid* for a plane when all its corners lie within ``EPS`` of it.  A bin's
+density is the area, projected on the bin's centre plane, of the faces valid for it,
+less ``penalty`` times that of faces the plane misses by under another ``EPS``
+(near-tangent faces: a plane that grazes them would leave them to a nearly parallel
+second plane).
+
+Greedy loop: take the densest bin; refine it (halve the angular step around it, over
+the bin and its eight neighbours, taking the best offset for each normal exactly by a
+sweep, as a bin subdivided without end would) until the step is below
+``min_step``; refit the plane to the faces it collapses by least squares (area
+weighted) while that raises the density; collapse its valid faces (remove them and
+their contributions from the bins).  Repeat until every face lies on some plane: a
+face is always valid for its own plane, so the loop ends.  Last, planes whose faces
+are all valid for other planes are dropped (merge), smallest first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.simplify.billboard_kernel import (
+    best_offset,
+    face_distance,
+    hough_accumulate,
+)
+from service.simplify.errors import SimplifyError
+
+
+@dataclass(frozen=True)
+class PlaneSettings:
+    """Knobs of the greedy plane choice.
+
+    Attributes
+    ----------
+    eps : float
+        Greatest distance of a face's corner to its plane (world units), > 0.
+    n_theta, n_phi : int
+        Hough bins of the normal's polar angle (0-90 degrees) and azimuth (0-360).
+    penalty : float
+        Weight of near-tangent faces a plane misses (0 turns the penalty off).
+    min_step : float
+        Refinement stops when the angular step is below this (radians).
+    refits : int
+        Least-squares refits tried per plane.
+    merge : bool
+        Drop planes whose faces other planes can hold (tilting them).
+    merge_tries : int
+        Nearby planes tried for each plane dropped.
+    absorb_step : float
+        First angular step (radians) of the tilt that makes a plane take more faces.
+    """
+
+    eps: float
+    n_theta: int = 12
+    n_phi: int = 48
+    penalty: float = 0.25
+    min_step: float = 0.002
+    refits: int = 3
+    merge: bool = True
+    merge_tries: int = 8
+    absorb_step: float = 0.13
+
+    def __post_init__(self) -> None:
+        if not self.eps > 0 or not np.isfinite(self.eps):
+            raise SimplifyError(f"error EPS must be a positive number, not {self.eps}")
+        if self.n_theta < 1 or self.n_phi < 1:
+            raise SimplifyError("Hough bins must be at least 1 per angle")
+
+
+@dataclass
+class _Mesh:
+    """The centred mesh and what every step needs of it."""
+
+    v: np.ndarray       # (V, 3) centred vertices
+    f: np.ndarray       # (F, 3) int64
+    area: np.ndarray    # (F, 3) area vectors
+    radius: float
+
+
+def _direction(theta: float, phi: float) -> np.ndarray:
+    st = np.sin(theta)
+    return np.array([st * np.cos(phi), st * np.sin(phi), np.cos(theta)])
+
+
+def _bin_directions(s: PlaneSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Bin-centre normals (D, 3) and their (theta, phi) (D, 2)."""
+    th = (np.arange(s.n_theta) + 0.5) * (np.pi / 2) / s.n_theta
+    ph = (np.arange(s.n_phi) + 0.5) * (2 * np.pi) / s.n_phi
+    tt, pp = np.meshgrid(th, ph, indexing="ij")
+    angles = np.stack([tt.ravel(), pp.ravel()], axis=1)
+    st = np.sin(angles[:, 0])
+    dirs = np.stack([st * np.cos(angles[:, 1]), st * np.sin(angles[:, 1]),
+                     np.cos(angles[:, 0])], axis=1)
+    return np.ascontiguousarray(dirs), angles
+
+
+def _refine(m: _Mesh, ids: np.ndarray, theta: float, phi: float, step: float,
+            s: PlaneSettings, fixed: np.ndarray | None = None,
+            penalty: float | None = None) -> tuple[float, np.ndarray, float]:
+    """Local search around a bin: (density, normal, rho) of the best plane found.
+
+    ``fixed`` (len(ids),) weighs faces by number instead of projected area (merge).
+    """
+    pen = s.penalty if penalty is None else penalty
+    w = np.zeros(ids.shape[0]) if fixed is None else fixed
+    d = _direction(theta, phi)
+    best, rho = best_offset(m.v, m.f, m.area, ids, d, s.eps, pen, w)
+    while step >= s.min_step:
+        if fixed is None:  # faces that a plane within a few steps of this one can hold
+            near = face_distance(m.v, m.f, ids, d, rho) <= 3 * s.eps + 4 * m.radius * step
+            ids, w = ids[near], w[near]
+        moved = True
+        while moved:
+            moved = False
+            sphi = step / max(np.sin(theta), 0.05)
+            for dt in (-step, 0.0, step):
+                for dp in (-sphi, 0.0, sphi):
+                    if dt == 0.0 and dp == 0.0:
+                        continue
+                    c = _direction(theta + dt, phi + dp)
+                    dens, r = best_offset(m.v, m.f, m.area, ids, c, s.eps, pen, w)
+                    if dens > best * (1 + 1e-9):
+                        best, rho, d = dens, r, c
+                        theta, phi, moved = theta + dt, phi + dp, True
+        step *= 0.5
+    return best, d, rho
+
+
+def _refit(m: _Mesh, ids: np.ndarray, best: float, d: np.ndarray, rho: float,
+           s: PlaneSettings) -> tuple[float, np.ndarray, float]:
+    """Least-squares refits of the plane to the faces it collapses, while they help."""
+    for _ in range(s.refits):
+        held = ids[face_distance(m.v, m.f, ids, d, rho) <= s.eps]
+        if held.shape[0] < 2:
+            break
+        pts = m.v[m.f[held]].reshape(-1, 3)
+        w = np.repeat(np.linalg.norm(m.area[held], axis=1), 3) + 1e-300
+        c = (pts * w[:, None]).sum(0) / w.sum()
+        _, _, vt = np.linalg.svd((pts - c) * np.sqrt(w)[:, None], full_matrices=False)
+        n = vt[2] * (1.0 if vt[2] @ d >= 0 else -1.0)
+        dens, r = best_offset(m.v, m.f, m.area, ids, n, s.eps, s.penalty,
+                              np.zeros(ids.shape[0]))
+        if dens <= best * (1 + 1e-9):
+            break
+        best, d, rho = dens, n, r
+    return best, d, rho
+
+
+def _own_plane(m: _Mesh, face: int) -> tuple[np.ndarray, float]:
+    """The plane of one face (its own normal), for a face no bin found."""
+    a = m.area[face]
+    n = a / np.linalg.norm(a) if np.linalg.norm(a) > 0 else np.array([0.0, 0.0, 1.0])
+    return n, float(m.v[m.f[face]].mean(0) @ n)
+
+
+def _choose(m: _Mesh, acc: np.ndarray, angles: np.ndarray, remaining: np.ndarray,
+            drho: float, rho0: float, s: PlaneSettings) -> tuple[np.ndarray, float]:
+    """Refine the densest bin into one plane (normal, rho)."""
+    j, k = np.unravel_index(int(np.argmax(acc)), acc.shape)
+    cell = (np.pi / 2) / s.n_theta
+    d0 = _direction(*angles[j])
+    rho_c = rho0 + (k + 0.5) * drho
+    near = face_distance(m.v, m.f, remaining, d0, rho_c) <= 3 * s.eps + 2 * m.radius * cell
+    ids = remaining[near]
+    best, d, rho = _refine(m, ids, angles[j, 0], angles[j, 1], cell, s)
+    return _refit(m, ids, best, d, rho, s)[1:]
+
+
+def choose_planes(vertices: np.ndarray, faces: np.ndarray,
+                  s: PlaneSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy billboard planes for a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3), float64
+    faces : ndarray, shape (F, 3), int64; F >= 1
+    s : PlaneSettings
+
+    Returns
+    -------
+    planes : ndarray, shape (P, 4), float64
+        ``n`` (unit) and ``rho`` of ``n . x = rho`` in the mesh's coordinates.
+    face_plane : ndarray, shape (F,), int64
+        The plane each face lies on (within ``eps``).
+    """
+    centre = 0.5 * (vertices.min(0) + vertices.max(0))
+    v = np.ascontiguousarray(vertices - centre)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    a = v[f]
+    m = _Mesh(v, f, 0.5 * np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]),
+              float(np.linalg.norm(v, axis=1).max()))
+    dirs, angles = _bin_directions(s)
+    drho = s.eps
+    nrho = int(np.ceil(2 * m.radius / drho)) + 3
+    rho0 = -0.5 * nrho * drho
+    acc = np.zeros((dirs.shape[0], nrho))
+    remaining = np.arange(f.shape[0])
+    hough_accumulate(v, f, m.area, remaining, dirs, rho0, drho, s.eps, s.penalty, 1.0, acc)
+    planes: list[tuple[np.ndarray, float]] = []
+    face_plane = np.full(f.shape[0], -1, np.int64)
+    while remaining.shape[0]:
+        d, rho = _choose(m, acc, angles, remaining, drho, rho0, s)
+        held = face_distance(v, f, remaining, d, rho) <= s.eps
+        if not held.any():
+            big = remaining[np.argmax(np.linalg.norm(m.area[remaining], axis=1))]
+            d, rho = _own_plane(m, big)
+            held = remaining == big
+        face_plane[remaining[held]] = len(planes)
+        planes.append((d, rho))
+        hough_accumulate(v, f, m.area, remaining[held], dirs, rho0, drho, s.eps, s.penalty,
+                         -1.0, acc)
+        remaining = remaining[~held]
+    out = np.array([[*d, rho] for d, rho in planes])
+    if s.merge:
+        out, face_plane = merge_planes(m, out, face_plane, s)
+    out[:, 3] += out[:, :3] @ centre
+    return out, face_plane
+
+
+def _angles(d: np.ndarray) -> tuple[float, float]:
+    """(theta, phi) of a unit normal, flipped into the upper hemisphere."""
+    d = d if d[2] >= 0 else -d
+    return float(np.arccos(np.clip(d[2], -1, 1))), float(np.arctan2(d[1], d[0]))
+
+
+def _absorb(m: _Mesh, plane: np.ndarray, mine: np.ndarray, orphans: np.ndarray,
+            s: PlaneSettings) -> tuple[np.ndarray, np.ndarray] | None:
+    """Tilt ``plane`` to hold the orphan faces it can while keeping all of ``mine``.
+
+    Returns the new plane (4,) and the orphans it holds, or None if it holds none.
+    """
+    ids = np.concatenate([mine, orphans])
+    fixed = np.concatenate([np.full(mine.shape[0], 1.0 + orphans.shape[0]),
+                            np.ones(orphans.shape[0])])
+    need = mine.shape[0] * (1.0 + orphans.shape[0])
+    dens, d, rho = _refine(m, ids, *_angles(plane[:3]), s.absorb_step, s, fixed, 0.0)
+    if dens < need + 0.5:
+        return None
+    held = face_distance(m.v, m.f, orphans, d, rho) <= s.eps
+    if mine.shape[0] and not face_distance(m.v, m.f, mine, d, rho).max() <= s.eps:
+        return None
+    return np.array([*d, rho]), orphans[held]
+
+
+def _valid(m: _Mesh, plane: np.ndarray, eps: float) -> np.ndarray:
+    """Which faces (F,) plane (4,) holds."""
+    return face_distance(m.v, m.f, np.arange(m.f.shape[0]), plane[:3].copy(), plane[3]) <= eps
+
+
+class _Cover:
+    """Planes, which faces each holds, and which plane each face is drawn on."""
+
+    def __init__(self, m: _Mesh, planes: np.ndarray, owner: np.ndarray, eps: float) -> None:
+        self.planes, self.owner = planes.copy(), owner.copy()
+        self.valid = np.stack([_valid(m, p, eps) for p in planes])
+        self.keep = np.ones(planes.shape[0], bool)
+
+    def copy(self) -> _Cover:
+        c = object.__new__(_Cover)
+        c.planes, c.owner = self.planes.copy(), self.owner.copy()
+        c.valid, c.keep = self.valid.copy(), self.keep.copy()
+        return c
+
+    def exclusive(self, q: int, drop: int) -> tuple[np.ndarray, np.ndarray]:
+        """Faces owned by ``q``: those no other kept plane (nor ``drop``) holds, the rest."""
+        mine = np.flatnonzero(self.owner == q)
+        others = self.keep.copy()
+        others[[q, drop]] = False
+        shared = self.valid[others][:, mine].any(axis=0)
+        return mine[~shared], mine[shared]
+
+    def move(self, m: _Mesh, q: int, plane: np.ndarray, held: np.ndarray,
+             loose: np.ndarray, eps: float) -> None:
+        """Replace plane ``q``; it takes ``held``; ``loose`` faces it lost go elsewhere."""
+        self.planes[q] = plane
+        self.valid[q] = _valid(m, plane, eps)
+        self.owner[held] = q
+        lost = loose[~self.valid[q, loose]]
+        if lost.shape[0] == 0:
+            return
+        rows = np.flatnonzero(self.keep & (np.arange(self.keep.size) != q))
+        self.owner[lost] = rows[np.argmax(self.valid[rows][:, lost], axis=0)]
+
+
+def merge_planes(m: _Mesh, planes: np.ndarray, face_plane: np.ndarray,
+                 s: PlaneSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Drop planes, fewest faces first, whose faces nearby planes can take.
+
+    Each nearby plane (by the distance of the orphans to it) is tilted and shifted to
+    hold as many of the dropped plane's faces as it can while keeping the faces that
+    only it holds (a face another plane also holds is handed to that plane if the
+    tilt loses it).
+    """
+    cover = _Cover(m, planes, face_plane, s.eps)
+    for p in np.argsort(np.bincount(face_plane, minlength=planes.shape[0])):
+        orphans = np.flatnonzero(cover.owner == p)
+        elsewhere = cover.valid[cover.keep & (np.arange(cover.keep.size) != p)][:, orphans]
+        trial = cover.copy()
+        trial.keep[p] = False
+        if elsewhere.shape[0]:
+            rows = np.flatnonzero(trial.keep)
+            ok = elsewhere.any(axis=0)
+            trial.owner[orphans[ok]] = rows[np.argmax(elsewhere[:, ok], axis=0)]
+            orphans = orphans[~ok]
+        others = np.flatnonzero(trial.keep) if orphans.shape[0] else np.zeros(0, np.int64)
+        reach = [float(np.median(face_distance(m.v, m.f, orphans, trial.planes[q, :3].copy(),
+                                               trial.planes[q, 3]))) for q in others]
+        for q in others[np.argsort(reach)[:s.merge_tries]]:
+            mine, loose = trial.exclusive(q, p)
+            got = _absorb(m, trial.planes[q], mine, orphans, s)
+            if got is None:
+                continue
+            trial.move(m, q, got[0], got[1], loose, s.eps)
+            orphans = np.setdiff1d(orphans, got[1])
+            if orphans.shape[0] == 0:
+                break
+        if orphans.shape[0] == 0:
+            cover = trial
+    new_index = np.cumsum(cover.keep) - 1
+    return cover.planes[cover.keep], new_index[cover.owner]

@@ -1,0 +1,76 @@
+"""holo-simplify as a user runs it: a real process, its files, its exit status."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from service.loaders import load_mesh, save_ply
+from service.primitives import sphere
+from service.simplify.cloud_file import load_cloud
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "service.cli_simplify", *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture(scope="module")
+def mesh_file(tmp_path_factory):
+    p = tmp_path_factory.mktemp("m") / "ball.ply"
+    save_ply(p, sphere(0.5, 10, 20))
+    return p
+
+
+def test_billboard_cloud_json(mesh_file, tmp_path):
+    out = tmp_path / "ball.hbc"
+    r = _run(mesh_file, "--error", "5%", "--texture-res", "32", "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    cloud = load_cloud(out)
+    assert rep["billboards"] == cloud.n_billboards > 0
+    assert rep["eps"] == pytest.approx(0.05 * rep["diagonal"])
+    assert rep["build_s"] > 0 and rep["faces_in"] == cloud.source_faces
+
+
+def test_quadric_within_error(mesh_file, tmp_path):
+    out = tmp_path / "low.ply"
+    r = _run(mesh_file, "--error", "0.02", "--method", "quadric", "--out", out)
+    assert r.returncode == 0, r.stderr
+    low = load_mesh(out)
+    assert low.triangles.shape[0] < load_mesh(mesh_file).triangles.shape[0]
+    assert "error" in r.stdout
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--error", "0"], "must be > 0"),
+    (["--error=-1%"], "must be > 0"),
+    (["--error", "abc"], "want a number"),
+    (["--error", "1%", "--texture-res", "0"], "must be"),
+])
+def test_bad_options_exit_2_in_one_line(mesh_file, tmp_path, args, needle):
+    r = _run(mesh_file, *args, "--out", tmp_path / "x.hbc")
+    assert r.returncode == 2 and needle in r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if ln.startswith("holo-simplify: error")]
+    assert "Traceback" not in r.stderr and len(errors) == 1
+
+
+def test_mesh_with_no_faces_exits_2(tmp_path):
+    empty = tmp_path / "empty.obj"
+    empty.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    r = _run(empty, "--error", "1%", "--out", tmp_path / "x.hbc")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "holo-simplify" in r.stderr
+
+
+def test_wrong_output_extension_exits_2(mesh_file, tmp_path):
+    r = _run(mesh_file, "--error", "1%", "--out", tmp_path / "x.ply")
+    assert r.returncode == 2 and ".hbc" in r.stderr
+    assert not Path(tmp_path / "x.ply").exists()
+
+
+def test_help_is_plain():
+    r = _run("--help")
+    assert r.returncode == 0 and "Exit status" in r.stdout and "``" not in r.stdout
