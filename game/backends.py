@@ -38,6 +38,7 @@ from game.scene import apply_states
 from service.display import DisplaySettings
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.motion_field import render_with_motion
+from service.lod import LodSettings
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
@@ -82,12 +83,15 @@ class BackendSettings:
     refresh_hz : float
     order : int
         Galpixel order of the Galilean stage.
+    lod_error : float
+        Level-of-detail error budget in pixels (:mod:`service.lod`); 0: off.
     """
 
     display: DisplaySettings = DisplaySettings(zones=5, angle_deg=16.0, cols=200, rows=150)
     light_model: str = "ambient"
     refresh_hz: float = 60.0
     order: int = 2
+    lod_error: float = 0.0
 
 
 class LocalRenderer:
@@ -102,7 +106,10 @@ class LocalRenderer:
         from service.light import LightSettings
 
         self.settings = s = settings or BackendSettings()
-        self.render_settings = RenderSettings(method="zbuffer", light=LightSettings(s.light_model))
+        self.render_settings = RenderSettings(
+            method="zbuffer", light=LightSettings(s.light_model),
+            lod=LodSettings(error_px=s.lod_error) if s.lod_error > 0 else None,
+        )
         self.stage = GalileanStage(
             s.display, GalileanSettings(order=s.order, refresh_hz=s.refresh_hz, colour_motion=False)
         )
@@ -326,6 +333,7 @@ class ServiceBackend:
             galpixel_order=s.order,
             refresh_hz=s.refresh_hz,
             encodings=["colour"],
+            **({"lod_error": s.lod_error} if s.lod_error > 0 else {}),
         )
         self.client.load_scene(scene=self._scene)
         if self.devices:

@@ -29,6 +29,7 @@ from service.cli_args import add_size_option, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
+from service.lod_cli import add_lod_options, lod_settings
 from service.signals import EXIT_FAILED, EXIT_OK, EXIT_RULE, EXIT_USAGE, interruptible
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
@@ -73,6 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
     p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")
     p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
+    add_lod_options(p, budget=False)
     p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--attackers", default=None, help="attacker mesh file (.obj, .ply, ...)")
@@ -150,7 +152,9 @@ def _setup(args: argparse.Namespace) -> tuple:
     cols, rows = args.size
     display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
     light = "blinn" if args.full_light else "ambient"
-    settings = BackendSettings(display, light, args.refresh)
+    lod = lod_settings(args)
+    settings = BackendSettings(display, light, args.refresh,
+                               lod_error=lod.error_px if lod is not None else 0.0)
     game = GameSettings(seed=args.seed, difficulty=args.difficulty)
     scene = game_scene(
         len(new_game(game).attackers),

@@ -1,7 +1,7 @@
 """The render service package: three subsystems in one package, plus shared base modules.
 
 * **Render pipeline** (seed 000), stages in order: :mod:`.scene`, :mod:`.mesh`,
-  :mod:`.primitives`, :mod:`.scenes` (built-in scenes by name), :mod:`.loaders`
+  :mod:`.primitives`, :mod:`.builtin_scenes` (built-in scenes by name), :mod:`.loaders`
   (files) -> :mod:`.projection` (1) -> :mod:`.cull` (2) -> :mod:`.depth_sort` (3) ->
   :mod:`.occlusion` with :mod:`.raster` (4) -> :mod:`.light` (5) -> :mod:`.frame`,
   :mod:`.png` (6); :mod:`.pipeline` wires them; :mod:`.display` is the display model
@@ -10,7 +10,7 @@
 * **ZeroMQ render service**: :mod:`.server` (sockets, handlers, refresh loop),
   :mod:`.broker` and :mod:`.worker` (render processes), :mod:`.protocol` and
   :mod:`.wire` (messages and arrays), :mod:`.frame_stream`, :mod:`.client` (the client
-  library), :mod:`.keys` (CurveZMQ keys).
+  library), :mod:`.curve_keys` (CurveZMQ keys).
 * **Base** (imported by every package; imports nothing above it): :mod:`.errors`,
   :mod:`.signals`, :mod:`.heap`, :mod:`.addresses`, :mod:`.cli_args`.
 * **Commands and benchmarks**: ``cli_*.py``, :mod:`.demo`, :mod:`.bench`.

@@ -49,6 +49,10 @@ BENCHES = {
         "device drivers: byte arrival to published event (p50/p99)",
     ),
     "decoders": ("service.bench.decoders_bench", "serial protocol decoders: MB/s"),
+    "lod": (
+        "service.bench.lod_bench",
+        "level of detail: triangles vs image error vs ms; a 200-object crowd, LOD on/off",
+    ),
     "sird": (
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",

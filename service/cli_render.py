@@ -23,14 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
+from service.builtin_scenes import SCENES, builtin_scene
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
-from service.light import LightSettings
+from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
+from service.lod_cli import add_lod_options, lod_settings
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.quality import (
@@ -42,11 +44,7 @@ from service.quality import (
     render_auto,
 )
 from service.scene import Scene
-from service.scenes import SCENES, builtin_scene
 from service.signals import EXIT_RULE, interruptible
-
-LIGHT_MODELS = ("ambient", "phong", "blinn")
-EVALUATIONS = ("polygon", "vertex", "point")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,10 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_size_option(p, (320, 240), "pixels per zone image")
     p.add_argument("--method", choices=METHOD_NAMES, default="zbuffer", help="occlusion method")
-    p.add_argument("--light", choices=LIGHT_MODELS, default="blinn", help="light model")
+    p.add_argument("--light", choices=tuple(MODELS), default="blinn", help="light model")
     p.add_argument(
         "--specular",
-        choices=EVALUATIONS,
+        choices=tuple(EVALUATIONS),
         default="polygon",
         help="where light is evaluated: per polygon (thesis), vertex or point",
     )
@@ -96,6 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="refuse mesh files that would otherwise be repaired on load (non-planar or "
         "concave polygons, faces of under 3 corners, extra values on ascii PLY lines)",
     )
+    add_lod_options(p)
     p.add_argument(
         "--quality", choices=MODES, default=None,
         help="auto: pick the cheapest occlusion method and specular evaluation within "
@@ -159,6 +158,18 @@ def mesh_report(scene: Scene, load_ms: float, strict: bool) -> dict:
     }
 
 
+def build_report(flatten_ms: float, scene: Scene) -> dict:
+    """The one-off mesh build: ``flatten_ms`` and microseconds per triangle.
+
+    The first render of a freshly loaded scene builds each mesh's triangles, polygon
+    normals and closedness and the scene's polygon list (``Scene.flatten``); later
+    frames only transform.
+    """
+    tris = sum(int(o.mesh.triangles.shape[0]) for o in scene.objects)
+    return {"flatten_ms": round(flatten_ms, 3),
+            "flatten_us_per_triangle": round(1e3 * flatten_ms / max(tris, 1), 4)}
+
+
 def _budget(text: str):
     """The argparse type of ``--max-error``."""
     try:
@@ -185,6 +196,7 @@ def run(args: argparse.Namespace) -> dict:
     cols, rows = args.size
     display = DisplaySettings(zones=args.zones, angle_deg=args.angle, cols=cols, rows=rows)
     settings = RenderSettings(
+        lod=lod_settings(args),
         method=args.method,
         cull=CullSettings(args.cull),
         light=LightSettings(model=args.light, evaluation=args.specular),
@@ -225,12 +237,18 @@ def run(args: argparse.Namespace) -> dict:
             "painter_fallback": settings.painter_fallback,
             "quality": quality.mode,
             "max_error": quality.budget.as_dict(),
+            "lod": "on" if settings.lod else "off",
         },
         "quality": frame.stats.get("quality"),
-        "mesh": mesh_report(scene, load_ms, args.strict),
+        "billboards": frame.stats.get("billboards"),
+        "mesh": {
+            **mesh_report(scene, load_ms, args.strict),
+            **build_report(frame.stats["ms"]["flatten"], scene),
+        },
         "polygons": frame.stats["polygons"],
         "ms": {k: round(v, 3) for k, v in frame.stats["ms"].items()},
         "occlusion": occlusion_counters(frame.stats["occlusion"], frame.depth),
+        **({"lod": frame.stats["lod"]} if "lod" in frame.stats else {}),
         "out": str(out),
     }
 

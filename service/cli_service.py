@@ -23,10 +23,10 @@ import sys
 from collections.abc import Sequence
 
 from service.cli_args import float_range, int_range, plain_help
+from service.curve_keys import make_keys
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
-from service.keys import make_keys
 from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
 
@@ -170,6 +170,11 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
         default=0.001,
         help="world units per tracker position unit",
     )
+    ap.add_argument(
+        "--lod-error", type=float_range(0, None, lo_open=True), default=None, metavar="PX",
+        help="turn level of detail on: each object drawn with its cheapest simplified mesh "
+        "whose predicted screen error stays under PX pixels (e.g. 0.5); default off",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -201,6 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scene=args.scene,
             display=DisplaySettings(args.zones, args.angle, args.cols, args.rows),
             pose_scale=args.pose_scale,
+            lod_error=args.lod_error or 0.0,
             scene_dirs=tuple(args.scene_dir or ()),
             warmup=args.warmup,
         )

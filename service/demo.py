@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
-from service.scenes import builtin_scene
 
 STAGES = ("flatten", "project", "cull", "sort", "occlusion", "light", "total")
 

@@ -93,8 +93,15 @@ class FrameStream:
         return self.seq
 
     def heartbeat(self, force: bool = False) -> bool:
-        """Send a heartbeat if nothing went out for a heartbeat interval."""
-        if not force and time.monotonic() - self._last_send < protocol.HEARTBEAT_S:
+        """Send a heartbeat if nothing went out for half a heartbeat interval.
+
+        Callers check at their own pace (the refresh loop: every tick, 1 s apart at
+        1 Hz); half the interval as the threshold keeps the gap between messages at
+        most ``HEARTBEAT_S`` plus the caller's jitter, as ``docs/protocol.md`` 1.7
+        promises, where a full interval would let a tick that comes a hair early
+        skip and double the gap.
+        """
+        if not force and time.monotonic() - self._last_send < protocol.HEARTBEAT_S / 2:
             return False
         head = {
             **self.extra,

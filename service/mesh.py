@@ -407,14 +407,13 @@ def edges_closed(polygons: np.ndarray, counts: np.ndarray, n_vertices: int) -> b
     """
     if polygons.shape[0] == 0:
         return False
-    k = np.arange(polygons.shape[1])[None, :]
-    used = k < counts[:, None]
-    nxt = np.where(k + 1 < counts[:, None], np.minimum(k + 1, polygons.shape[1] - 1), 0)
-    a = polygons[used].astype(np.int64)
-    b = np.take_along_axis(polygons, nxt, axis=1)[used].astype(np.int64)
-    fwd = np.sort(a * n_vertices + b)
-    rev = np.sort(b * n_vertices + a)
-    return bool(np.all(fwd[1:] != fwd[:-1]) and np.array_equal(fwd, rev))
+    from service.normals_kernel import edges_closed_kernel
+
+    return bool(
+        edges_closed_kernel(
+            np.ascontiguousarray(polygons, np.int64), counts.astype(np.int64), int(n_vertices)
+        )
+    )
 
 
 def fan_triangulate(polygons: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -456,26 +455,13 @@ def polygon_normals(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarr
     ndarray, shape (P, 3), float64
         Unit normals; zero vectors for degenerate polygons.
     """
-    p, k = polygons.shape
-    normal = np.zeros((p, 3))
-    ar = np.arange(p)
-    for i in range(k):
-        has = counts > i
-        cur = vertices[polygons[ar, i]]
-        nxt_i = np.where(i + 1 < counts, np.minimum(i + 1, k - 1), 0)
-        nxt = vertices[polygons[ar, nxt_i]]
-        cross = np.stack(
-            [
-                (cur[:, 1] - nxt[:, 1]) * (cur[:, 2] + nxt[:, 2]),
-                (cur[:, 2] - nxt[:, 2]) * (cur[:, 0] + nxt[:, 0]),
-                (cur[:, 0] - nxt[:, 0]) * (cur[:, 1] + nxt[:, 1]),
-            ],
-            axis=1,
-        )
-        normal += np.where(has[:, None], cross, 0.0)
-    length = np.linalg.norm(normal, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(length > 1e-300, normal / np.where(length > 0, length, 1), 0.0)
+    from service.normals_kernel import newell_normals_kernel
+
+    return newell_normals_kernel(
+        np.ascontiguousarray(vertices, np.float64),
+        np.ascontiguousarray(polygons, np.int64),
+        counts.astype(np.int64),
+    )
 
 
 def polygon_mean(values: np.ndarray, polygons: np.ndarray, counts: np.ndarray) -> np.ndarray:

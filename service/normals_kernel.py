@@ -68,3 +68,67 @@ def corner_normals_kernel(
             else:
                 out[t, c] = face_normals[t]
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def newell_normals_kernel(
+    vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray
+) -> np.ndarray:
+    """Unit Newell normals of polygons, shape (P, 3); zero for degenerate ones.
+
+    ``vertices`` (V, 3) float64, ``polygons`` (P, K) int64 padded with -1, ``counts`` (P,).
+    """
+    out = np.zeros((polygons.shape[0], 3))
+    for p in range(polygons.shape[0]):
+        nx = ny = nz = 0.0
+        c = counts[p]
+        for i in range(c):
+            a = polygons[p, i]
+            b = polygons[p, i + 1] if i + 1 < c else polygons[p, 0]
+            ax, ay, az = vertices[a, 0], vertices[a, 1], vertices[a, 2]
+            bx, by, bz = vertices[b, 0], vertices[b, 1], vertices[b, 2]
+            nx += (ay - by) * (az + bz)
+            ny += (az - bz) * (ax + bx)
+            nz += (ax - bx) * (ay + by)
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 1e-300:
+            out[p, 0], out[p, 1], out[p, 2] = nx / length, ny / length, nz / length
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def edges_closed_kernel(polygons: np.ndarray, counts: np.ndarray, n_vertices: int) -> bool:
+    """Whether every directed edge occurs once and its reverse once (see ``edges_closed``).
+
+    Edges are bucketed by their first vertex (a counting sort), then each edge looks
+    for a twin of itself and for its reverse among its end vertex's few edges.
+    """
+    start = np.zeros(n_vertices + 1, np.int64)
+    for p in range(polygons.shape[0]):
+        for i in range(counts[p]):
+            start[polygons[p, i] + 1] += 1
+    for v in range(n_vertices):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    ends = np.empty(start[n_vertices], np.int64)
+    for p in range(polygons.shape[0]):
+        c = counts[p]
+        for i in range(c):
+            a = polygons[p, i]
+            ends[fill[a]] = polygons[p, i + 1] if i + 1 < c else polygons[p, 0]
+            fill[a] += 1
+    for a in range(n_vertices):
+        for e in range(start[a], start[a + 1]):
+            b = ends[e]
+            if b == a:
+                return False
+            for f in range(e + 1, start[a + 1]):  # the same directed edge twice
+                if ends[f] == b:
+                    return False
+            back = 0
+            for f in range(start[b], start[b + 1]):
+                if ends[f] == a:
+                    back += 1
+            if back != 1:
+                return False
+    return True

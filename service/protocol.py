@@ -81,6 +81,7 @@ class Limits:
     max_header_bytes: int = 1 << 20
     max_string: int = 4096
     max_id: int = 64
+    max_name: int = wire.MAX_NAME
     max_objects: int = wire.MAX_OBJECTS
     max_vertices: int = wire.MAX_VERTICES
     max_polygons: int = wire.MAX_POLYGONS
@@ -153,12 +154,48 @@ def _header(frame: Any, limits: Limits) -> dict[str, Any]:
 
 
 def check_id(value: Any, limits: Limits) -> Any:
-    """The request id if valid (int, or str of <= 64 chars), else None."""
+    """The request id if valid (int, or str of <= ``max_id`` chars), else None."""
     if isinstance(value, bool):
         return None
     if isinstance(value, int) or (isinstance(value, str) and len(value) <= limits.max_id):
         return value
     return None
+
+
+def _check_token(header: dict[str, Any], key: str, limits: Limits) -> None:
+    """``id`` (int or str) and ``client_id`` (str of 1 or more chars): at most ``max_id``."""
+    value = header[key]
+    kinds = (int, str) if key == "id" else (str,)
+    if isinstance(value, bool) or not isinstance(value, kinds) or value == "":
+        want = "an int or a non-empty string" if key == "id" else "a non-empty string"
+        raise MessageError("bad_message", f"{key} must be {want}, got {value!r:.80}")
+    if isinstance(value, str) and len(value) > limits.max_id:
+        raise MessageError(
+            "too_large", f"{key} has {len(value)} characters (max {limits.max_id})"
+        )
+
+
+def check_strings(value: Any, limits: Limits, path: str = "") -> None:
+    """Raise ``too_large`` for any string in a JSON value longer than ``max_string``."""
+    if isinstance(value, str):
+        if len(value) > limits.max_string:
+            raise MessageError(
+                "too_large",
+                f"{path or 'a string'} has {len(value)} characters (max {limits.max_string})",
+            )
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            check_strings(k, limits, f"a key of {path or 'the header'}")
+            check_strings(v, limits, f"{path}.{k}" if path else str(k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            check_strings(v, limits, f"{path}[{i}]")
+
+
+def _readable_type(header: dict[str, Any]) -> str | None:
+    """The request's ``type`` when it is a short string (echoed even if unknown)."""
+    t = header.get("type")
+    return t if isinstance(t, str) and len(t) <= 64 else None
 
 
 def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, Any]:
@@ -182,13 +219,16 @@ def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, An
         attribute holds the ``id``/``type`` read so far (for the error reply).
     """
     limits = limits or Limits()
-    if not body or len(body) > limits.max_frames:
+    if not body:
+        raise MessageError("bad_frames", "a request needs a header frame after the envelope")
+    if len(body) > limits.max_frames - 1:  # max_frames counts the empty delimiter
         raise MessageError(
-            "bad_frames",
-            f"a request has 1 to {limits.max_frames} frames after the envelope, got {len(body)}",
+            "too_large",
+            f"a request has at most {limits.max_frames - 1} frames after the delimiter "
+            f"(header and {limits.max_frames - 2} buffers), got {len(body)}",
         )
     header = _header(body[0], limits)
-    partial = {"id": check_id(header.get("id"), limits), "type": header.get("type")}
+    partial = {"id": check_id(header.get("id"), limits), "type": _readable_type(header)}
     try:
         v = header.get("v")
         if isinstance(v, bool) or not isinstance(v, int) or v not in SUPPORTED_VERSIONS:
@@ -197,13 +237,14 @@ def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, An
                 f"v must be one of {list(SUPPORTED_VERSIONS)}, got {header.get('v')!r}",
             )
         if header.get("type") not in MESSAGE_TYPES:
-            partial["type"] = None
             raise MessageError(
                 "unknown_type",
                 f"type must be one of {list(MESSAGE_TYPES)}, got {str(header.get('type'))[:64]!r}",
             )
-        if "id" in header and partial["id"] is None:
-            raise MessageError("bad_message", "id must be an int or a string of <= 64 chars")
+        for key in ("id", "client_id"):
+            if key in header:
+                _check_token(header, key, limits)
+        check_strings(header, limits)
         total = sum(memoryview(b).nbytes for b in body)
         if total > limits.max_request_bytes:
             raise MessageError(
@@ -270,8 +311,8 @@ def check_request_size(frames: list[Any], limits: Limits | None = None) -> None:
     limits = limits or DEFAULT_LIMITS
     body = frames[1:] if frames and len(frames[0]) == 0 else frames
     sizes = [memoryview(f).nbytes for f in body]
-    if len(body) > limits.max_frames:
-        raise MessageError("too_large", f"{len(body)} frames (max {limits.max_frames})")
+    if len(body) > limits.max_frames - 1:  # max_frames counts the empty delimiter
+        raise MessageError("too_large", f"{len(body) + 1} frames (max {limits.max_frames})")
     if sizes and sizes[0] > limits.max_header_bytes:
         raise MessageError(
             "too_large", f"header has {sizes[0]} bytes (max {limits.max_header_bytes})"

@@ -157,11 +157,16 @@ class SceneObject:
 
 @dataclass
 class Scene:
-    """Objects and lights.  ``ambient`` is the ambient light level (0-1)."""
+    """Objects and lights.  ``ambient`` is the ambient light level (0-1).
+
+    ``billboards`` are billboard-cloud objects
+    (:class:`service.billboard_render.BillboardObject`), drawn after the meshes.
+    """
 
     objects: list[SceneObject] = field(default_factory=list)
     lights: list[Light] = field(default_factory=lambda: [Light()])
     ambient: float = 1.0
+    billboards: list = field(default_factory=list)
     _static: dict = field(default_factory=dict, repr=False, compare=False)
     #: A scene file's ``[quality]`` table (``mode``, ``max_error``); empty otherwise.
     quality: dict = field(default_factory=dict, compare=False)
@@ -241,6 +246,23 @@ def quaternion_matrix(q: np.ndarray) -> np.ndarray:
     )
 
 
+def quaternion_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of unit quaternions (w, x, y, z), shape (N, 4) -> (N, 3, 3).
+
+    The same arithmetic as :func:`quaternion_matrix`, element by element.
+    """
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    w, x, y, z = (q / np.sqrt((q * q).sum(axis=1, keepdims=True))).T
+    return np.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        axis=1,
+    ).reshape(-1, 3, 3)
+
+
 def axis_angle_quaternion(axis: np.ndarray, angle: float) -> np.ndarray:
     """Unit quaternion (w, x, y, z) for a rotation of ``angle`` radians about ``axis``."""
     a = np.asarray(axis, dtype=np.float64)
@@ -270,49 +292,95 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def _runs(scene: Scene) -> list[tuple[Mesh, int, int]]:
+    """Runs of consecutive objects sharing one mesh: (mesh, first object, end object)."""
+    runs: list[tuple[Mesh, int, int]] = []
+    for i, obj in enumerate(scene.objects):
+        if runs and runs[-1][0] is obj.mesh:
+            runs[-1] = (obj.mesh, runs[-1][1], i + 1)
+        else:
+            runs.append((obj.mesh, i, i + 1))
+    return runs
+
+
 def _static_parts(scene: Scene) -> dict:
     """Placement-independent arrays of a scene, cached on it while meshes and materials hold.
+
+    Objects that share a mesh and follow each other (a crowd, the game's attackers)
+    are written as one broadcast block, so the cost is a few array operations per
+    run of objects, not per object.
 
     Returns
     -------
     dict
         ``polygons`` (P, K), ``counts`` (P,), ``triangles`` (T, 3),
         ``triangle_polygon`` (T,), ``polygon_object`` (P,), ``materials`` (P, 7),
-        ``polygon_closed`` (P,).
+        ``polygon_closed`` (P,); for the transforms ``runs`` (:func:`_runs`),
+        ``vertex_start`` and ``polygon_start`` (O + 1,).
     """
     key = tuple((id(o.mesh), o.material) for o in scene.objects)
     if scene._static.get("key") == key:
         return scene._static
-    polys, tris, tri_poly, mats = [], [], [], []
-    v_off = p_off = 0
-    k = max((o.mesh.polygons.shape[1] for o in scene.objects), default=3)
-    for obj in scene.objects:
-        m = obj.mesh
-        pad = np.full((m.n_polygons, k), -1, np.int64)
-        pad[:, : m.polygons.shape[1]] = np.where(m.polygons >= 0, m.polygons + v_off, -1)
-        polys.append(pad)
-        tris.append(m.triangles + v_off)
-        tri_poly.append(m.triangle_polygon + p_off)
-        mt = obj.material
-        row = [*mt.colour, mt.ambient, mt.diffuse, mt.specular, mt.shininess]
-        mats.append(np.tile(np.array(row, np.float64), (m.n_polygons, 1)))
-        v_off += m.n_vertices
-        p_off += m.n_polygons
-    counts = [o.mesh.counts for o in scene.objects]
-    objs = [np.full(o.mesh.n_polygons, i, np.int64) for i, o in enumerate(scene.objects)]
-    closed = [np.full(o.mesh.n_polygons, o.mesh.is_closed) for o in scene.objects]
+    runs = _runs(scene)
+    objs = scene.objects
+    n_v = np.array([o.mesh.n_vertices for o in objs], np.int64)
+    n_p = np.array([o.mesh.n_polygons for o in objs], np.int64)
+    n_t = np.array([o.mesh.triangles.shape[0] for o in objs], np.int64)
+    v0, p0, t0 = (np.concatenate([[0], np.cumsum(n)]) for n in (n_v, n_p, n_t))
+    k = max((o.mesh.polygons.shape[1] for o in objs), default=3)
+    polygons = np.full((p0[-1], k), -1, np.int64)
+    counts = np.empty(p0[-1], np.int64)
+    triangles = np.empty((t0[-1], 3), np.int64)
+    tri_poly = np.empty(t0[-1], np.int64)
+    closed = np.empty(p0[-1], np.bool_)
+    for mesh, a, b in runs:
+        n, vo = b - a, v0[a:b, None, None]
+        ps, pe, ts, te = p0[a], p0[b], t0[a], t0[b]
+        local = mesh.polygons
+        padded = mesh.counts.size and mesh.counts.min() < local.shape[1]
+        block = np.where(local >= 0, local + vo, -1) if padded else local[None] + vo
+        polygons[ps:pe, : local.shape[1]] = block.reshape(-1, local.shape[1])
+        counts[ps:pe].reshape(n, -1)[:] = mesh.counts
+        triangles[ts:te] = (mesh.triangles[None] + vo).reshape(-1, 3)
+        tri_poly[ts:te].reshape(n, -1)[:] = mesh.triangle_polygon[None] + p0[a:b, None]
+        closed[ps:pe] = mesh.is_closed
+    mats = np.array(
+        [[*o.material.colour, o.material.ambient, o.material.diffuse, o.material.specular,
+          o.material.shininess] for o in objs], np.float64,
+    ).reshape(-1, 7)
+    poly_obj = np.repeat(np.arange(len(objs), dtype=np.int64), n_p)
     scene._static.clear()
     scene._static.update(
-        key=key,
-        polygons=_cat(polys, (0, k), np.int64),
-        counts=_cat(counts, (0,), np.int64),
-        triangles=_cat(tris, (0, 3), np.int64),
-        triangle_polygon=_cat(tri_poly, (0,), np.int64),
-        polygon_object=_cat(objs, (0,), np.int64),
-        materials=_cat(mats, (0, 7), np.float64),
-        polygon_closed=_cat(closed, (0,), np.bool_),
+        key=key, polygons=polygons, counts=counts, triangles=triangles,
+        triangle_polygon=tri_poly, polygon_object=poly_obj, materials=mats[poly_obj],
+        polygon_closed=closed, runs=runs, vertex_start=v0, polygon_start=p0,
     )
     return scene._static
+
+
+def _placed(scene: Scene, static: dict) -> tuple[np.ndarray, np.ndarray, list]:
+    """World vertices (V, 3), world polygon normals (P, 3) and (mesh, rotation) per object.
+
+    One batched matrix product per run of objects sharing a mesh.
+    """
+    objs = scene.objects
+    v0, p0 = static["vertex_start"], static["polygon_start"]
+    verts = np.empty((v0[-1], 3))
+    normals = np.empty((p0[-1], 3))
+    if not objs:
+        return verts, normals, []
+    rot = quaternion_matrices(np.array([o.transform.orientation for o in objs]))
+    pos = np.array([o.transform.position for o in objs])
+    scale = np.array([o.transform.scale for o in objs], np.float64)
+    for mesh, a, b in static["runs"]:
+        n = b - a
+        out = verts[v0[a] : v0[b]].reshape(n, -1, 3)
+        np.matmul(mesh.vertices[None], (rot[a:b] * scale[a:b, None, None]).transpose(0, 2, 1),
+                  out=out)
+        out += pos[a:b, None, :]
+        np.matmul(mesh.normals[None], rot[a:b].transpose(0, 2, 1),
+                  out=normals[p0[a] : p0[b]].reshape(n, -1, 3))
+    return verts, normals, [(o.mesh, rot[i]) for i, o in enumerate(objs)]
 
 
 def _cat(parts: list, empty_shape: tuple, dtype: type) -> np.ndarray:
@@ -334,20 +402,15 @@ def flatten(scene: Scene) -> SceneArrays:
     SceneArrays
     """
     static = _static_parts(scene)
-    verts, normals, corners = [], [], []
-    for obj in scene.objects:
-        rot = quaternion_matrix(obj.transform.orientation)
-        verts.append(obj.mesh.vertices @ (rot * obj.transform.scale).T + obj.transform.position)
-        normals.append(obj.mesh.normals @ rot.T)
-        corners.append((obj.mesh, rot))
+    verts, normals, corners = _placed(scene, static)
     return SceneArrays(
-        vertices=_cat(verts, (0, 3), np.float64),
+        vertices=verts,
         polygons=static["polygons"],
         counts=static["counts"],
         triangles=static["triangles"],
         triangle_polygon=static["triangle_polygon"],
         polygon_object=static["polygon_object"],
-        normals=_cat(normals, (0, 3), np.float64),
+        normals=normals,
         materials=static["materials"],
         polygon_closed=static["polygon_closed"],
         _corners=corners,

@@ -36,12 +36,13 @@ import zmq
 
 from service import protocol, wire
 from service.broker import BandClient, Broker, Flight, FramePipe, split_rows
+from service.curve_keys import curve_server, is_local, start_authenticator
 from service.display import DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.frame_stream import FrameStream
 from service.galilean import GalileanSettings, GalileanStage
-from service.keys import curve_server, is_local, start_authenticator
-from service.pipeline import Renderer
+from service.light import EVALUATIONS, MODELS
+from service.pipeline import METHOD_NAMES, Renderer
 from service.quality import MODES as QUALITY_MODES
 from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.readiness import Warmup
@@ -50,11 +51,15 @@ from service.scene_motion import advance_scene
 from service.signals import end_process
 from service.worker import StatsRenderer, render_job, stitch
 
-ENCODINGS = ("colour", "depth", "debris")
+#: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
+ENCODINGS = ("colour", "depth", "debris", "autostereogram")
+#: SIRD methods of the ``autostereogram`` encoding (service.autostereogram).
+SIRD_METHODS = ("tiw", "row", "interpolated")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
+#: ``set_viewer`` keys of a pose (the other form names ``devices``).
+VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
-METHODS = ("zbuffer", "runlength", "bsp", "raycast")
 #: What a warming-up service answers as usual (with its ``status``); every other
 #: request gets a ``warming_up`` error (``docs/protocol.md`` 1.8).
 WHILE_WARMING = frozenset({"hello", "ping", "stats", "shutdown"})
@@ -81,6 +86,8 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
+    #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
+    lod_error: float = 0.0
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -119,7 +126,7 @@ def check_config(config: ServiceConfig) -> None:
         if not ok(value):
             raise SettingsError(f"{name} must be {want}, got {value!r}")
     if config.scene is not None:
-        from service.scenes import canonical_scene_name
+        from service.builtin_scenes import canonical_scene_name
 
         canonical_scene_name(config.scene)
     GalileanSettings(order=2, refresh_hz=config.refresh_hz)
@@ -136,6 +143,10 @@ class Settings:
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
+    sird_method: str = "tiw"
+    sird_eye_sep: float = 0.0
+    #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
+    lod_error: float = 0.0
     generation: int = 0
     #: "auto": each render's method and specular chosen within ``max_error``
     #: (service.quality); "fixed": as set.
@@ -157,6 +168,9 @@ class Settings:
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
+            "sird_method": self.sird_method,
+            "sird_eye_sep": self.sird_eye_sep,
+            "lod_error": self.lod_error,
             "quality": self.quality,
             "max_error": self.max_error,
         }
@@ -272,6 +286,7 @@ class Counters:
         )
         self.render_ms: deque[float] = deque(maxlen=200)
         self.refresh_ms: deque[float] = deque(maxlen=600)
+        self.sird_ms: deque[float] = deque(maxlen=600)
         self.update_t: deque[float] = deque(maxlen=1000)
         self.refresh_t: deque[float] = deque(maxlen=2000)
         self.tick_late_ms: deque[float] = deque(maxlen=2000)
@@ -294,6 +309,7 @@ class Counters:
             "refreshes_per_s": self.rate(self.refresh_t),
             "render_ms_p50": med(self.render_ms),
             "refresh_ms_p50": med(self.refresh_ms),
+            "sird_ms_p50": med(self.sird_ms),
             "tick_late_ms_p50": med(self.tick_late_ms),
             "tick_late_ms_p95": (
                 float(np.percentile(list(self.tick_late_ms), 95)) if self.tick_late_ms else None
@@ -327,7 +343,8 @@ class Service:
         self.limits = protocol.Limits()
         self.counters = Counters()
         self.state = State(
-            Settings(config.display, refresh_hz=config.refresh_hz), devices=config.devices
+            Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error),
+            devices=config.devices
         )
         self.state.viewer.scale = config.pose_scale
         self._stop = threading.Event()
@@ -631,7 +648,7 @@ class Service:
                     obj.material,
                     obj.transform,
                     obj.motion,
-                    wire.string(req["name"], "name", 256),
+                    wire.string(req["name"], "name", wire.MAX_NAME),
                 )
         else:
             obj = wire.object_from_wire(req.get("object"), "object")
@@ -678,6 +695,11 @@ class Service:
         return ({"updated": len(changed)},)
 
     def _set_viewer(self, req: dict[str, Any]) -> tuple:
+        pose = [k for k in VIEWER_POSE_FIELDS if k in req]
+        if pose and "devices" in req:
+            raise MessageError(
+                "bad_message", f"set_viewer takes a pose or devices, not both (got {pose})"
+            )
         with self.state.lock:
             if "devices" in req:
                 dev = req["devices"]
@@ -1082,7 +1104,7 @@ def _lead_s(render_ms: deque[float]) -> float:
 
 
 def _builtin(name: str) -> Scene:
-    from service.scenes import builtin_scene
+    from service.builtin_scenes import builtin_scene
 
     try:
         return builtin_scene(name)
@@ -1127,7 +1149,7 @@ def _object_index(u: Any, objs: list, i: int) -> int:
         return k
     if "name" not in u:
         raise MessageError("bad_message", f"objects[{i}] needs an index or a name")
-    name = wire.string(u["name"], f"objects[{i}].name", 256)
+    name = wire.string(u["name"], f"objects[{i}].name", wire.MAX_NAME)
     for k, o in enumerate(objs):
         if o.name == name:
             return k
@@ -1140,6 +1162,16 @@ def _encodings(v: Any) -> tuple[str, ...]:
     return tuple(dict.fromkeys(v))
 
 
+def _check_sird(cols: int, eye_sep: float) -> None:
+    """Refuse an autostereogram the eyes cannot fuse (``bad_settings``)."""
+    from service.autostereogram import SirdSettings, default_eye_sep
+
+    try:
+        SirdSettings(eye_sep=eye_sep or default_eye_sep(cols)).check_width(cols)
+    except SettingsError as exc:
+        raise MessageError("bad_settings", f"autostereogram: {exc}") from None
+
+
 def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
     d = s.display
     disp = {
@@ -1150,9 +1182,10 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         "width": wire.number(req.get("width", d.width), "width", 1e-6, 1e6),
     }
     choices = {
-        "method": METHODS,
-        "light_model": ("ambient", "phong", "blinn"),
-        "specular": ("polygon", "vertex", "point"),
+        "method": METHOD_NAMES,
+        "light_model": tuple(MODELS),
+        "specular": tuple(EVALUATIONS),
+        "sird_method": SIRD_METHODS,
     }
     kw: dict[str, Any] = {}
     for key, allowed in choices.items():
@@ -1166,10 +1199,26 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["encodings"] = _encodings(req["encodings"])
     if "refresh_hz" in req:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
+    if "sird_eye_sep" in req:
+        kw["sird_eye_sep"] = wire.number(req["sird_eye_sep"], "sird_eye_sep", 0.0, 4096.0)
+    if "autostereogram" in kw.get("encodings", s.encodings):
+        _check_sird(disp["cols"], kw.get("sird_eye_sep", s.sird_eye_sep))
+    if "lod_error" in req:  # pixels; 0 turns level of detail off
+        kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
     kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
     return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
+
+
+def _sird_output(settings: Settings) -> Any:
+    """The ``autostereogram`` encoding's state for these settings, or None when it is off."""
+    if "autostereogram" not in settings.encodings:
+        return None
+    from service.autostereogram.output import SirdOutput
+
+    d = settings.display
+    return SirdOutput(d.cols, d.rows, d.width, settings.sird_method, settings.sird_eye_sep)
 
 
 def _quality_fields(req: dict[str, Any]) -> dict[str, str]:
@@ -1253,8 +1302,7 @@ class ViewerTracker:
 
     def set_fields(self, req: dict[str, Any]) -> None:
         """Apply ``set_viewer`` fields (validated)."""
-        keys = ("position", "orientation", *wire.MOTION_FIELDS)
-        if not any(k in req for k in keys):
+        if not any(k in req for k in VIEWER_POSE_FIELDS):
             return
         probe = wire.apply_fields(_probe_object(), req, "viewer")
         self.position = probe.transform.position
@@ -1339,6 +1387,7 @@ class RefreshLoop:
         self.since = 0
         self.prepared: tuple[Any, dict[str, Any]] | None = None
         self.input: dict[str, Any] | None = None
+        self.sird = None  # service.autostereogram.SirdOutput while that encoding is on
 
     def _restart(self, settings: Settings) -> None:
         self.stage = GalileanStage(
@@ -1346,6 +1395,7 @@ class RefreshLoop:
             GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz),
         )
         self.generation = settings.generation
+        self.sird = _sird_output(settings)
         self.due.clear()
         self.render_id, self.since = -1, 0
         self.prepared = None
@@ -1421,6 +1471,11 @@ class RefreshLoop:
         )
         ms = (time.perf_counter() - t0) * 1e3
         c.refresh_ms.append(ms)
+        if self.sird is not None:  # the SIRD of the zone the newest pose picked (or the centre)
+            zone = self.svc.state.viewer.zone
+            sird = self.sird.frame(r.depth[r.depth.shape[0] // 2 if zone is None else zone])
+            r = replace(r, flags={**r.flags, "autostereogram": sird})
+            c.sird_ms.append(self.sird.last_ms)
         if self.render_id >= 0:
             self.prepared = (
                 r,
@@ -1489,7 +1544,6 @@ class RefreshLoop:
         self.input = None
 
     def _publish(self, r: Any, made: dict[str, Any], settings: Settings) -> None:
-        arrays = {"colour": r.colour, "depth": r.depth, "debris": r.debris}
         names = list(settings.encodings)
         viewer = self.svc.state.viewer
         header = {
@@ -1503,4 +1557,5 @@ class RefreshLoop:
             "events": r.flags["events"],
             "age": r.flags["age"],
         }
-        self.svc.stream.publish(header, [arrays[n] for n in names], names)
+        arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]
+        self.svc.stream.publish(header, arrays, names)

@@ -96,7 +96,7 @@ class _Kit:
 
     def scene(self, name: str = "game") -> Any:
         """A built-in scene (cached)."""
-        from service.scenes import SCENES
+        from service.builtin_scenes import SCENES
 
         if name not in self.cache:
             self.cache[name] = SCENES[name]()
@@ -105,7 +105,7 @@ class _Kit:
 
 def _scenes(kit: _Kit) -> None:
     """Mesh builders: corner normals and ear-clipping of polygons (all built-in scenes)."""
-    from service.scenes import SCENES
+    from service.builtin_scenes import SCENES
     from service.triangulate import ear_clip
 
     for name in SCENES:

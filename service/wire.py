@@ -37,6 +37,8 @@ DTYPES: dict[str, np.dtype] = {
 NAMES = {v: k for k, v in DTYPES.items()}
 MAX_DIMS = 4
 MAX_ARRAYS = 1024
+#: object names (and device addresses) are at most this many characters.
+MAX_NAME = 256
 #: buffer encodings of version 1: ``raw`` only (C order, little endian, uncompressed).
 ENCODINGS = ("raw",)
 
@@ -117,8 +119,12 @@ def send(sock: zmq.Socket, frames: list[Any], timeout_ms: int = 1000) -> bool:
 
 def _shape(desc: dict[str, Any], i: int, max_dims: int) -> tuple[int, ...]:
     shape = desc.get("shape")
-    if not isinstance(shape, list) or len(shape) > max_dims:
-        raise MessageError("bad_array", f"arrays[{i}].shape must be a list of <= {max_dims} ints")
+    if not isinstance(shape, list):
+        raise MessageError("bad_array", f"arrays[{i}].shape must be a list of ints")
+    if len(shape) > max_dims:
+        raise MessageError(
+            "too_large", f"arrays[{i}] has {len(shape)} dimensions (max {max_dims})"
+        )
     if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape):
         raise MessageError("bad_array", f"arrays[{i}].shape must hold non-negative ints")
     return tuple(shape)
@@ -145,12 +151,15 @@ def decode_arrays(
     MessageError
         ``bad_frames`` when the counts differ, ``bad_array`` for a bad dtype, shape
         or byte count, ``bad_message`` for an ``encoding`` other than ``raw``,
-        ``too_large`` past ``max_bytes`` per array.
+        ``too_large`` past ``max_bytes`` per array, ``max_dims`` dimensions or
+        :data:`MAX_ARRAYS` arrays.
     """
     if descs is None:
         descs = []
-    if not isinstance(descs, list) or len(descs) > MAX_ARRAYS:
-        raise MessageError("bad_message", f"arrays must be a list of <= {MAX_ARRAYS} descriptors")
+    if not isinstance(descs, list):
+        raise MessageError("bad_message", "arrays must be a list of descriptors")
+    if len(descs) > MAX_ARRAYS:
+        raise MessageError("too_large", f"{len(descs)} arrays (max {MAX_ARRAYS})")
     if len(descs) != len(buffers):
         raise MessageError(
             "bad_frames", f"{len(descs)} array descriptors but {len(buffers)} buffer frames"
@@ -348,7 +357,7 @@ def object_from_wire(spec: Any, name: str) -> SceneObject:
     """An inline object (``mesh``, ``material``, ``name`` and pose/motion fields)."""
     if not isinstance(spec, dict):
         raise MessageError("bad_message", f"{name} must be an object")
-    label = string(spec.get("name", ""), f"{name}.name")
+    label = string(spec.get("name", ""), f"{name}.name", MAX_NAME)
     mesh = spec.get("mesh")
     mesh = mesh if isinstance(mesh, Mesh) else mesh_from_wire(mesh, f"{name}.mesh")
     base = SceneObject(

@@ -34,10 +34,11 @@ import zmq
 from service import protocol, wire
 from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
-from service.galilean.galpixmap import Galpixmap, build
+from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.heap import keep_freed_memory
 from service.light import LightSettings
+from service.lod import LodSettings
 from service.pipeline import Renderer, RenderSettings, StageClock
 from service.scene import (
     Light,
@@ -49,7 +50,6 @@ from service.scene import (
 )
 
 #: galpixmap fields a band reply carries (as ``gp_<field>``), joined along axis -2.
-GALPIXMAP_FIELDS = ("colour", "depth", "frac", "motion", "zmotion", "dcolour", "debris", "obj")
 READY = b"READY"
 
 
@@ -61,9 +61,14 @@ def display_from(d: dict[str, Any]) -> DisplaySettings:
 
 
 def render_settings_from(d: dict[str, Any]) -> RenderSettings:
-    """RenderSettings from ``{"method", "light_model", "specular"}``."""
+    """RenderSettings from ``{"method", "light_model", "specular", "lod_error"}``.
+
+    ``lod_error`` is optional: pixels of level-of-detail error, 0 or absent for off.
+    """
+    lod = float(d.get("lod_error") or 0.0)
     return RenderSettings(
-        method=d["method"], light=LightSettings(model=d["light_model"], evaluation=d["specular"])
+        method=d["method"], light=LightSettings(model=d["light_model"], evaluation=d["specular"]),
+        lod=LodSettings(error_px=lod) if lod > 0 else None,
     )
 
 
@@ -179,7 +184,7 @@ def render_job(
     t1 = time.perf_counter()
     out = {"colour": up.frame.colour, "depth": up.frame.depth}
     gp = _galpixmap(up, display, int(job.get("order", 2)))
-    out.update({f"gp_{k}": getattr(gp, k) for k in GALPIXMAP_FIELDS})
+    out.update({f"gp_{k}": getattr(gp, k) for k in FIELDS})
     if rows[0] == 0 and up.points is not None:
         out["points"] = up.points
         out["point_derivs"] = up.point_derivs
@@ -193,6 +198,8 @@ def render_job(
         "rows": list(rows),
         "inconsistent_pixels": int(getattr(renderer, "last_inconsistent", 0)),
     }
+    if "lod" in up.frame.stats:
+        stats["lod"] = up.frame.stats["lod"]
     return out, stats
 
 
@@ -224,7 +231,7 @@ def stitch(
     rendered = RenderedUpdate(
         frame, None, None, None, viewer_motion, first.get("points"), first.get("point_derivs")
     )
-    fields = {k: np.array(join(f"gp_{k}", -2)) for k in GALPIXMAP_FIELDS}
+    fields = {k: np.array(join(f"gp_{k}", -2)) for k in FIELDS}
     return rendered, Galpixmap(order, fixed, **fields)
 
 

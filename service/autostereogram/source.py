@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
+from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.loaders import load_scene
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
-from service.scenes import builtin_scene
 
 
 def centre_depth(scene: Scene, cols: int, rows: int) -> np.ndarray:

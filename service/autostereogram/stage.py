@@ -49,6 +49,11 @@ class SirdWorkspace:
         self.sbuf = np.zeros((rows, cols), np.int32)
         self.counts = np.zeros((rows, 3), np.int64)
 
+    def fresh_output(self) -> None:
+        """Give :attr:`out` a new array (the old one may still be in use elsewhere)."""
+        self.out = np.empty_like(self.out)
+        self.flat = self.out.reshape(self.out.shape[0], -1)
+
     def fits(self, rows: int, cols: int, channels: int) -> bool:
         """Whether the buffers have this shape."""
         return self.out.shape == (rows, cols, channels)

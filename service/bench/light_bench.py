@@ -26,6 +26,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from service.builtin_scenes import SCENES as BUILTIN_SCENES
+from service.builtin_scenes import builtin_scene, scene_name
 from service.cli_args import add_size_option, comma_list, int_range, plain_help
 from service.cull import cull
 from service.depth_sort import average_z, sort_polygons, triangle_order
@@ -36,8 +38,6 @@ from service.occlusion.zbuffer import zbuffer
 from service.primitives import sphere
 from service.projection import project
 from service.scene import Light, Material, Scene, SceneArrays, SceneObject
-from service.scenes import SCENES as BUILTIN_SCENES
-from service.scenes import builtin_scene, scene_name
 
 #: (model, evaluation) pairs measured; ("blinn", "point") is the reference.
 VARIANTS = (
@@ -67,7 +67,7 @@ def sphere_scene() -> Scene:
     return Scene(objects=[ball], lights=lights, ambient=1.0)
 
 
-#: Scene name -> builder; names other than "sphere" come from service.scenes.
+#: Scene name -> builder; names other than "sphere" come from service.builtin_scenes.
 SCENES = {"sphere": sphere_scene}
 
 

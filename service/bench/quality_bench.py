@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option
 from service.display import DisplaySettings
 from service.light import LightSettings, shade
@@ -44,7 +45,6 @@ from service.quality import (
     psnr,
     render_auto,
 )
-from service.scenes import builtin_scene
 
 CAL_SCENES = ("sphere-torus", "game", "demo", "cyclic")
 CAL_ZONES = (1, 3, 5)

@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from service.builtin_scenes import builtin_scene
 from service.cli_args import comma_list, plain_help, size
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
-from service.scenes import builtin_scene
 
 ZONES = (1, 5, 9, 17, 33)
 SCENE_NAMES = ("game", "sphere-torus", "cyclic")

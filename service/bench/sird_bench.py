@@ -48,8 +48,8 @@ from service.autostereogram.decode import (
 )
 from service.autostereogram.depth_scenes import seed_slope, sphere, steps
 from service.autostereogram.source import centre_depth
+from service.builtin_scenes import builtin_scene
 from service.cli_args import comma_list, int_range, plain_help, size
-from service.scenes import builtin_scene
 
 METHOD_NAMES = ("row", "interpolated", "tiw")
 SCENE_NAMES = ("sphere", "slope", "steps", "game")

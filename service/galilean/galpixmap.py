@@ -55,6 +55,12 @@ _LAYOUT = {
     "debris": (np.uint8, None),
     "obj": (np.int32, None),
 }
+#: The fields in the order of :meth:`Galpixmap.arrays`, the kernels' and the wire's order.
+FIELDS = tuple(_LAYOUT)
+#: Fields with leading planes, ``(planes, R, C)``: colour, frac, motion, zmotion, dcolour.
+PLANE_FIELDS = tuple(k for k, (_, planes) in _LAYOUT.items() if planes is not None)
+#: Fields of one value per galpixel, ``(R, C)``: depth, debris, obj.
+PIXEL_FIELDS = tuple(k for k, (_, planes) in _LAYOUT.items() if planes is None)
 
 
 @dataclass
@@ -131,8 +137,8 @@ class Galpixmap:
         return Galpixmap(**kw)
 
     def arrays(self) -> tuple:
-        """The fields as the tuple the kernels take (order of :data:`_LAYOUT`)."""
-        return tuple(getattr(self, n) for n in _LAYOUT)
+        """The fields as the tuple the kernels take (order of :data:`FIELDS`)."""
+        return tuple(getattr(self, n) for n in FIELDS)
 
     def window(self, margin: int) -> tuple[np.ndarray, np.ndarray]:
         """Displayed part: colour (Z, R, C, 3) uint8 and depth (Z, R, C) float32."""

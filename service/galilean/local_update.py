@@ -30,7 +30,13 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, points_fixed, propagate_points
-from service.galilean.galpixmap import GalileanError, Galpixmap, build
+from service.galilean.galpixmap import (
+    PIXEL_FIELDS,
+    PLANE_FIELDS,
+    GalileanError,
+    Galpixmap,
+    build,
+)
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.galilean.shadow import shadow_depth, shadow_into
 from service.pipeline import Renderer, RenderSettings
@@ -60,10 +66,10 @@ def graft(main: Galpixmap, buffer: Galpixmap, objects: Sequence[int]) -> dict:
     take = buffer.debris == 0
     stale = np.isin(main.obj, np.asarray(objects, np.int32)) & ~take & (main.debris == 0)
     main.debris[stale] = 1
-    for name in ("colour", "frac", "motion", "zmotion", "dcolour"):
+    for name in PLANE_FIELDS:
         dst, src = getattr(main, name), getattr(buffer, name)
         dst[:, take] = src[:, take]
-    for name in ("depth", "debris", "obj"):
+    for name in PIXEL_FIELDS:
         getattr(main, name)[take] = getattr(buffer, name)[take]
     return {"grafted": int(take.sum()), "stale": int(stale.sum())}
 
@@ -127,9 +133,9 @@ def merge(buffers: list[Galpixmap]) -> Galpixmap:
     out = buffers[0].copy()
     for b in buffers[1:]:
         near = b.depth < out.depth
-        for name in ("colour", "frac", "motion", "zmotion", "dcolour"):
+        for name in PLANE_FIELDS:
             getattr(out, name)[:, near] = getattr(b, name)[:, near]
-        for name in ("depth", "debris", "obj"):
+        for name in PIXEL_FIELDS:
             getattr(out, name)[near] = getattr(b, name)[near]
     return out
 

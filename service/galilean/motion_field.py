@@ -250,6 +250,9 @@ def render_with_motion(
     RenderedUpdate
     """
     settings = settings or RenderSettings()
+    stats: dict = {"t": t}
+    if settings.lod is not None and settings.lod.enabled:  # each object at its level of detail
+        scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod)
     period = 1.0 / refresh_hz
     scenes = [scene_at(scene, t + k * h * period, viewer, viewer_motion) for k in (-2, -1, 0, 1, 2)]
     arrays = [s.flatten() for s in scenes]
@@ -264,7 +267,7 @@ def render_with_motion(
                       np.ascontiguousarray(projs[2]), np.ascontiguousarray(vd))
     dcol = colour_derivatives(lin, h) if colour_motion else None
     obj = _object_map(vis, arrays[2].triangle_polygon, arrays[2].polygon_object)
-    frame = Frame(colour=colour, depth=vis.depth, stats={"t": t})
+    frame = Frame(colour=colour, depth=vis.depth, stats=stats)
     points = projs[2][..., :2].reshape(-1, 2)
     pder = vd[..., :2].reshape(3, -1, 2)
     return RenderedUpdate(frame, der, dcol, obj, viewer_motion or MotionState(), points, pder)

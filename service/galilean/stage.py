@@ -34,7 +34,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean.fixed_point import FixedPoint, bit_budget, propagate_points
-from service.galilean.galpixmap import GalileanError, Galpixmap, build
+from service.galilean.galpixmap import FIELDS, GalileanError, Galpixmap, build
 from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import check_points, graft
 from service.galilean.motion_field import RenderedUpdate
@@ -524,11 +524,7 @@ class GalileanStage:
     def _graft(self, p: _Pending) -> None:
         self._map_changed()
         if p.objects is None:
-            for name, arr in zip(
-                ("colour", "depth", "frac", "motion", "zmotion", "dcolour", "debris", "obj"),
-                p.buffer.arrays(),
-                strict=True,
-            ):
+            for name, arr in zip(FIELDS, p.buffer.arrays(), strict=True):
                 np.copyto(getattr(self.map, name), arr)
             if self.cache is not None:
                 self.cache[0].debris.fill(1)

@@ -7,6 +7,7 @@ extension  format                                            module
 ``.ply``   PLY, ascii or binary                              :mod:`.ply`
 ``.obj``   Wavefront OBJ (v and f lines)                     :mod:`.obj`
 ``.toml``  scene file: objects, materials, motion, lights    :mod:`.scene_file`
+``.hbc``   billboard cloud (a scene, or a scene's object)    :mod:`service.simplify.cloud_file`
 =========  ================================================  ==========================
 
 Every format is described in ``docs/file-formats.md``.  A bad file raises
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.billboard_render import BillboardObject
 from service.errors import MeshFileError
 from service.loaders.obj import load_obj, save_obj
 from service.loaders.ply import load_ply, save_ply
@@ -27,6 +29,7 @@ from service.loaders.scene_file import load_scene_file
 from service.loaders.thesis_object import load_thesis_object, save_thesis_object
 from service.mesh import Mesh
 from service.scene import Light, Material, Scene, SceneObject, Transform
+from service.simplify.cloud_file import load_cloud
 
 MESH_LOADERS = {".hobj": load_thesis_object, ".ply": load_ply, ".obj": load_obj}
 """Mesh readers by lower-case file extension."""
@@ -95,6 +98,11 @@ def load_scene(path: str | Path, strict: bool = False) -> Scene:
     path = Path(path)
     if path.suffix.lower() in SCENE_EXTENSIONS:
         return load_scene_file(path, partial(load_mesh, strict=strict))
+    if path.suffix.lower() == ".hbc":  # a lone billboard cloud, placed as a lone mesh is
+        cloud = load_cloud(path)
+        box = Mesh.from_triangles(cloud.corners.reshape(-1, 3), [[0, 1, 2]])
+        obj = BillboardObject(cloud, Material(), fit_transform(box), name=path.stem)
+        return Scene(objects=[], lights=[Light()], billboards=[obj])
     mesh = load_mesh(path, strict)
     obj = SceneObject(mesh, Material(), fit_transform(mesh), name=mesh.name)
     return Scene(objects=[obj], lights=[Light()])

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.billboard_render import BillboardObject
 from service.errors import MeshFileError, SettingsError
 from service.loaders._build import decode_text, read_bytes
 from service.mesh import Mesh
@@ -31,6 +32,7 @@ from service.scene import (
     Transform,
     euler_quaternion,
 )
+from service.simplify.cloud_file import load_cloud
 
 TOP_KEYS = {"ambient", "light", "object", "quality"}
 QUALITY_KEYS = ("mode", "max_error")
@@ -128,8 +130,10 @@ def _object(path: Path, i: int, spec: object, load_mesh: Callable) -> SceneObjec
     if unknown:
         reason = f"unknown key {unknown[0]!r} (known: {sorted(OBJECT_KEYS)})"
         raise MeshFileError(str(path), where, reason)
-    mesh = _object_mesh(path, where, spec, load_mesh)
     material = _table(path, f"{where}, material", spec.get("material", {}), MATERIAL_KEYS)
+    if _is_cloud(spec):
+        return _billboard_object(path, where, spec, material, name)
+    mesh = _object_mesh(path, where, spec, load_mesh)
     motion = _table(path, f"{where}, motion", spec.get("motion", {}), MOTION_KEYS)
     return SceneObject(
         mesh=mesh,
@@ -138,6 +142,23 @@ def _object(path: Path, i: int, spec: object, load_mesh: Callable) -> SceneObjec
         motion=_make(path, f"{where}, motion", MotionState, **motion),
         name=name,
     )
+
+
+def _is_cloud(spec: dict) -> bool:
+    """Whether an object names a billboard-cloud file (``.hbc``) instead of a mesh."""
+    return isinstance(spec.get("file"), str) and spec["file"].lower().endswith(".hbc")
+
+
+def _billboard_object(path: Path, where: str, spec: dict, material: dict,
+                      name: str) -> BillboardObject:
+    """An object drawn as a billboard cloud (:mod:`service.billboard_render`)."""
+    if "motion" in spec or "primitive" in spec:
+        raise MeshFileError(str(path), where, "a billboard cloud takes no 'motion' or "
+                            "'primitive' (it is drawn where it is placed)")
+    cloud = load_cloud(path.parent / spec["file"])
+    return BillboardObject(cloud=cloud,
+                           material=_make(path, f"{where}, material", Material, **material),
+                           transform=_transform(path, where, spec), name=name)
 
 
 def _light(path: Path, i: int, spec: object) -> Light:
@@ -197,12 +218,15 @@ def load_scene_file(path: str | Path, load_mesh: Callable[[Path], Mesh]) -> Scen
     if unknown:
         reason = f"unknown top-level key {unknown[0]!r} (known: {sorted(TOP_KEYS)})"
         raise MeshFileError(str(path), "", reason)
-    objects = [_object(path, i, s, load_mesh) for i, s in enumerate(_array(path, doc, "object"), 1)]
-    if not objects:
+    items = [_object(path, i, s, load_mesh) for i, s in enumerate(_array(path, doc, "object"), 1)]
+    objects = [o for o in items if isinstance(o, SceneObject)]
+    billboards = [o for o in items if isinstance(o, BillboardObject)]
+    if not items:
         raise MeshFileError(str(path), "", "the scene has no [[object]] tables")
     lights = [_light(path, i, s) for i, s in enumerate(_array(path, doc, "light"), 1)]
     ambient = _value(path, "ambient", "ambient", doc.get("ambient", 1.0), 0)
     return Scene(objects=objects, lights=lights or [Light()], ambient=float(ambient),
+                 billboards=billboards,
                  quality=_quality(path, doc.get("quality", {})))
 
 

@@ -14,11 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.simplify.billboard_kernel import shoot_texture
+from service.simplify.billboard_kernel import dilate_texture, shoot_texture
 from service.simplify.errors import SimplifyError
 from service.simplify.planes import PlaneSettings, choose_planes
 from service.simplify.quadric import check_triangles
 from service.simplify.rectangle import min_area_rectangle
+
+LAYERS = 2
+"""Texture layers per billboard: faces on the plane normal's side, then the others."""
 
 
 @dataclass(frozen=True)
@@ -35,9 +38,13 @@ class BillboardCloud:
     tex_shape : ndarray, shape (P, 2), int64
         Texture rows and columns of each billboard.
     tex_offset : ndarray, shape (P + 1,), int64
-        Where each billboard's texels start in the flat texel arrays.
+        Where each billboard's texels start in the flat texel arrays; each billboard
+        has ``LAYERS`` layers of rows x cols texels: first the faces whose normal points
+        to the plane normal's side, then the faces facing the other way (so both sides
+        of a thin part collapsed onto one plane keep their own texels).
     rgba : ndarray, shape (N, 4), uint8
-        Colour and alpha (0 or 255) of every texel, billboard after billboard, row-major.
+        Colour and alpha (0 or 255) of every texel, billboard after billboard, layer
+        after layer, row-major.
     normal : ndarray, shape (N, 3), int8
         Surface normal at each texel, scaled to -127..127 (0 where alpha is 0).
     eps : float
@@ -64,10 +71,11 @@ class BillboardCloud:
         return int(self.planes.shape[0])
 
     def texture(self, p: int) -> tuple[np.ndarray, np.ndarray]:
-        """Billboard ``p``'s texture (H, W, 4) uint8 and normals (H, W, 3) int8."""
+        """Billboard ``p``'s textures (LAYERS, H, W, 4) uint8 and normals (LAYERS, H, W, 3)."""
         h, w = self.tex_shape[p]
         sl = slice(self.tex_offset[p], self.tex_offset[p + 1])
-        return self.rgba[sl].reshape(h, w, 4), self.normal[sl].reshape(h, w, 3)
+        return (self.rgba[sl].reshape(LAYERS, h, w, 4),
+                self.normal[sl].reshape(LAYERS, h, w, 3))
 
 
 def _basis(n: np.ndarray) -> np.ndarray:
@@ -97,7 +105,7 @@ def _billboard(v: np.ndarray, f: np.ndarray, ids: np.ndarray, plane: np.ndarray,
 
 def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res: int = 256,
                 colours: np.ndarray | None = None,
-                settings: PlaneSettings | None = None) -> BillboardCloud:
+                settings: PlaneSettings | None = None, dilate: float = 0.5) -> BillboardCloud:
     """Build a billboard cloud of a triangle mesh.
 
     Parameters
@@ -113,6 +121,9 @@ def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res
         Face colours (default white: the object's material gives the colour).
     settings : PlaneSettings, optional
         Plane-choice knobs (``eps`` is taken from the argument).
+    dilate : float
+        Grow each texture's opaque texels by this many ``eps`` (closes the cracks
+        between neighbouring billboards seen off their normals; widens silhouettes).
 
     Raises
     ------
@@ -131,6 +142,7 @@ def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res
     planes, owner = choose_planes(v, f, s)
     diag = float(np.linalg.norm(v.max(0) - v.min(0))) or 1.0
     texel = diag / int(texture_res)
+    grow = int(np.ceil(dilate * eps / texel))
     a = v[f]
     fn = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
@@ -139,14 +151,19 @@ def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res
     for p in range(planes.shape[0]):
         ids = np.flatnonzero(owner == p)
         c, uv, (rows, cols) = _billboard(v, f, ids, planes[p], texel)
-        tex = np.zeros((rows, cols, 4), np.uint8)
-        tn = np.zeros((rows, cols, 3), np.int8)
-        shoot_texture(uv, f, ids, nrm, col.astype(np.uint8), tex, tn)
+        tex = np.zeros((LAYERS, rows, cols, 4), np.uint8)
+        tn = np.zeros((LAYERS, rows, cols, 3), np.int8)
+        front = fn[ids] @ planes[p, :3] >= 0
+        up = a.mean(axis=1) @ planes[p, :3]  # face heights along the plane normal
+        for layer, which in enumerate((ids[front], ids[~front])):
+            shoot_texture(uv, f, which, nrm, col.astype(np.uint8), up if layer == 0 else -up,
+                          tex[layer], tn[layer])
+            dilate_texture(tex[layer], tn[layer], grow)
         corners.append(c)
         shapes.append((rows, cols))
         rgba.append(tex.reshape(-1, 4))
         normal.append(tn.reshape(-1, 3))
-    sizes = np.array([r * c for r, c in shapes], np.int64)
+    sizes = np.array([LAYERS * r * c for r, c in shapes], np.int64)
     return BillboardCloud(
         corners=np.array(corners), planes=planes, tex_shape=np.array(shapes, np.int64),
         tex_offset=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),

@@ -140,8 +140,11 @@ def face_distance(v: np.ndarray, faces: np.ndarray, ids: np.ndarray, d: np.ndarr
 
 @nb.njit(cache=True, nogil=True)
 def _cover(i: int, j: int, f: int, nrm: np.ndarray, colour: np.ndarray, tex: np.ndarray,
-           normal: np.ndarray) -> None:
-    """Texel (i, j) shows face ``f``."""
+           normal: np.ndarray, height: np.ndarray, top: np.ndarray) -> None:
+    """Texel (i, j) shows face ``f`` if it is the highest there so far."""
+    if tex[i, j, 3] and top[i, j] >= height[f]:
+        return
+    top[i, j] = height[f]
     tex[i, j, 3] = 255
     for k in range(3):
         tex[i, j, k] = colour[f, k]
@@ -150,7 +153,8 @@ def _cover(i: int, j: int, f: int, nrm: np.ndarray, colour: np.ndarray, tex: np.
 
 @nb.njit(cache=True, nogil=True)
 def shoot_texture(uv: np.ndarray, faces: np.ndarray, ids: np.ndarray, nrm: np.ndarray,
-                  colour: np.ndarray, tex: np.ndarray, normal: np.ndarray) -> None:
+                  colour: np.ndarray, height: np.ndarray, tex: np.ndarray,
+                  normal: np.ndarray) -> None:
     """Orthographic texture shoot of faces ``ids`` onto one billboard.
 
     Parameters
@@ -162,6 +166,9 @@ def shoot_texture(uv: np.ndarray, faces: np.ndarray, ids: np.ndarray, nrm: np.nd
     nrm : ndarray, shape (F, 3), int8
         Face normals scaled to -127..127.
     colour : ndarray, shape (F, 3), uint8
+    height : ndarray, shape (F,), float64
+        Each face's height toward the viewer the layer is for: where faces overlap
+        on the plane, the highest is kept (the depth test of the shoot).
     tex : ndarray, shape (H, W, 4), uint8
         Colour and alpha (0 or 255), zeroed by the caller, filled here.
     normal : ndarray, shape (H, W, 3), int8
@@ -173,6 +180,7 @@ def shoot_texture(uv: np.ndarray, faces: np.ndarray, ids: np.ndarray, nrm: np.nd
     one texel.
     """
     h, w = tex.shape[0], tex.shape[1]
+    top = np.empty((h, w))
     for q in range(ids.shape[0]):
         f = ids[q]
         x = np.empty(3)
@@ -199,4 +207,33 @@ def shoot_texture(uv: np.ndarray, faces: np.ndarray, ids: np.ndarray, nrm: np.nd
                         break
                 if inside and (x.min() - 0.5 <= j + 1 and j <= x.max() + 0.5
                                and y.min() - 0.5 <= i + 1 and i <= y.max() + 0.5):
-                    _cover(i, j, f, nrm, colour, tex, normal)
+                    _cover(i, j, f, nrm, colour, tex, normal, height, top)
+
+
+@nb.njit(cache=True, nogil=True)
+def dilate_texture(tex: np.ndarray, normal: np.ndarray, steps: int) -> None:
+    """Grow the opaque texels of ``tex`` (H, W, 4) by ``steps`` texels (4-neighbours).
+
+    A new texel copies the colour and ``normal`` (H, W, 3) of an opaque neighbour.
+    This closes the cracks a view ray finds between neighbouring billboards: a face
+    is shot along its plane's normal, so seen along another direction its texels sit
+    up to ``EPS * tan(angle)`` away from where the ray meets the plane.
+    """
+    h, w = tex.shape[0], tex.shape[1]
+    src = np.empty((h, w), np.bool_)
+    for _ in range(steps):
+        for i in range(h):
+            for j in range(w):
+                src[i, j] = tex[i, j, 3] != 0
+        for i in range(h):
+            for j in range(w):
+                if src[i, j]:
+                    continue
+                for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                    a, b = i + di, j + dj
+                    if 0 <= a < h and 0 <= b < w and src[a, b]:
+                        for k in range(4):
+                            tex[i, j, k] = tex[a, b, k]
+                        for k in range(3):
+                            normal[i, j, k] = normal[a, b, k]
+                        break

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from service.errors import MeshFileError
-from service.simplify.billboard import BillboardCloud
+from service.simplify.billboard import LAYERS, BillboardCloud
 
 FORMAT = "holo-billboard-cloud"
 VERSION = 1
@@ -36,6 +36,7 @@ ARRAYS = {
 def save_cloud(cloud: BillboardCloud, path: str | Path) -> None:
     """Write ``cloud`` to ``path`` (an ``.hbc`` file)."""
     header = {"format": FORMAT, "version": VERSION, "billboards": cloud.n_billboards,
+              "layers": LAYERS,
               "eps": cloud.eps, "source_faces": cloud.source_faces, "build_s": cloud.build_s,
               "arrays": list(ARRAYS)}
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as z:
@@ -59,6 +60,8 @@ def _header(z: zipfile.ZipFile, path: str) -> dict:
     if header.get("version") != VERSION:
         raise MeshFileError(path, "header.json",
                             f"version {header.get('version')!r} (this reader knows {VERSION})")
+    if header.get("layers", LAYERS) != LAYERS:
+        raise MeshFileError(path, "header.json", f"layers must be {LAYERS}")
     for key in ("billboards", "source_faces"):
         if not isinstance(header.get(key), int) or header[key] < 0:
             raise MeshFileError(path, "header.json", f"{key} must be a whole number >= 0")
@@ -90,7 +93,7 @@ def _check(path: str, c: dict) -> None:
     """Arrays that parse but disagree with each other."""
     if not (np.isfinite(c["corners"]).all() and np.isfinite(c["planes"]).all()):
         raise MeshFileError(path, "corners.npy", "non-finite coordinates")
-    sizes = c["tex_shape"].prod(axis=1) if c["tex_shape"].size else np.zeros(0, np.int64)
+    sizes = LAYERS * c["tex_shape"].prod(axis=1) if c["tex_shape"].size else np.zeros(0, np.int64)
     if (c["tex_shape"] < 1).any() or c["tex_offset"][0] != 0 or not np.array_equal(
             np.diff(c["tex_offset"]), sizes):
         raise MeshFileError(path, "tex_offset.npy", "does not match tex_shape")

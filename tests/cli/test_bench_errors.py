@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 import pytest
-from cli_helpers import ROOT
+from testkit import ROOT
 
 from service import cli_bench
 

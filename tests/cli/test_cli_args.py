@@ -13,6 +13,7 @@ from drivers import cli_devices, cli_replay, cli_view
 from drivers.publisher import Publisher
 from service import cli_service
 from service.addresses import DEFAULT_PORTS, check_endpoint, default_address
+from service.builtin_scenes import SCENES, builtin_scene, canonical_scene_name, scene_name
 from service.cli_args import (
     add_size_option,
     comma_list,
@@ -23,7 +24,6 @@ from service.cli_args import (
     size,
 )
 from service.errors import SettingsError
-from service.scenes import SCENES, builtin_scene, canonical_scene_name, scene_name
 from service.server import DEFAULT_WORKER_ADDRESS
 
 

@@ -14,7 +14,7 @@ import time
 
 import pytest
 import serial
-from cli_helpers import ROOT, SIGNALS, STATUS, catches, linux_only, posix_only, wait_for
+from testkit import ROOT, SIGNALS, STATUS, catches, linux_only, posix_only, wait_for
 
 from drivers.cli_devices import log_devices
 from drivers.protocols import hatire

@@ -12,7 +12,7 @@ import re
 import tomllib
 
 import pytest
-from cli_helpers import ROOT
+from testkit import ROOT
 
 from service.cli_bench import BENCHES
 

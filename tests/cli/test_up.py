@@ -8,7 +8,7 @@ import sys
 
 import pytest
 import zmq
-from cli_helpers import (
+from testkit import (
     ROOT,
     SIGNALS,
     STATUS,

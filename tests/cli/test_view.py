@@ -11,7 +11,7 @@ import time
 import tty
 
 import pytest
-from cli_helpers import SIGNALS, STATUS, catches, linux_only, posix_only, wait_for
+from testkit import SIGNALS, STATUS, catches, linux_only, posix_only, wait_for
 
 from drivers import cli_view
 from drivers.events import ButtonEvent, DialEvent, PoseEvent

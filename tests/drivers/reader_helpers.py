@@ -1,4 +1,4 @@
-"""Helpers of the reader tests: a condition wait and a thread-safe event sink.
+"""Helpers of the reader tests: a thread-safe event sink.
 
 A module of its own (not ``conftest``) so test files import it by a name no other
 test folder uses.
@@ -6,26 +6,10 @@ test folder uses.
 
 from __future__ import annotations
 
-import sys
 import threading
-import time
 from collections.abc import Callable
 
-import pytest
-
 from drivers.events import PoseEvent, StatusEvent
-
-posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
-
-
-def wait_for(pred: Callable[[], bool], timeout: float = 10.0, what: str = "condition") -> None:
-    """Wait on a condition (polling every few ms); fail after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    tick = threading.Event()
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not met within {timeout} s")
-        tick.wait(0.005)
 
 
 class Collector:

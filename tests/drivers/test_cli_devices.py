@@ -6,84 +6,22 @@ import json
 import os
 import select
 import signal
-import subprocess
-import sys
-import threading
-import time
 import tty
-from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 from drivers_fixtures import MISSING, hatire_capture
+from testkit import posix_only
 
 from drivers import cli_devices
 from drivers.recording import LogReader
 from drivers.subscriber import DeviceSubscriber
 
-ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = hatire_capture()
-posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
 POSE_KEYS = {"t", "device", "kind", "yaw", "pitch", "roll", "x", "y", "z", "seq"}
 KIND_KEYS = {"pose": POSE_KEYS,
              "dial": {"t", "device", "kind", "index", "delta", "value", "turns"},
              "button": {"t", "device", "kind", "index", "pressed"},
              "status": {"t", "device", "kind", "event", "details"}}
-
-
-class Proc:
-    """A subprocess whose stdout / stderr lines are collected by threads."""
-
-    def __init__(self, *args: str) -> None:
-        self.p = subprocess.Popen([sys.executable, "-m", *args], cwd=ROOT, text=True,
-                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        self.out: list[str] = []
-        self.err: list[str] = []
-        self._threads = [threading.Thread(target=self._pump, args=(s, lst), daemon=True)
-                         for s, lst in ((self.p.stdout, self.out), (self.p.stderr, self.err))]
-        for t in self._threads:
-            t.start()
-
-    @staticmethod
-    def _pump(stream, lines: list[str]) -> None:
-        for line in stream:
-            lines.append(line.rstrip("\n"))
-
-    def wait_lines(self, pred: Callable[[], bool], timeout: float = 15.0) -> None:
-        deadline = time.monotonic() + timeout
-        tick = threading.Event()
-        while not pred():
-            if time.monotonic() > deadline or (self.p.poll() is not None and not pred()):
-                raise AssertionError(f"condition not met; rc={self.p.poll()}, "
-                                     f"stderr={self.err[-5:]}")
-            tick.wait(0.01)
-
-    def finish(self, timeout: float = 15.0) -> int:
-        rc = self.p.wait(timeout)
-        for t in self._threads:
-            t.join(timeout)
-        return rc
-
-    def kill(self) -> None:
-        if self.p.poll() is None:
-            self.p.kill()
-            self.p.wait(10)
-
-
-@pytest.fixture
-def procs():
-    started: list[Proc] = []
-
-    def start(*args: str) -> Proc:
-        proc = Proc(*args)
-        started.append(proc)
-        return proc
-
-    try:
-        yield start
-    finally:
-        for proc in started:
-            proc.kill()
 
 
 def kinds(lines: list[str]) -> list[str]:

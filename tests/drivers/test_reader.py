@@ -7,7 +7,8 @@ import threading
 import time
 
 import pytest
-from reader_helpers import Collector, posix_only, wait_for
+from reader_helpers import Collector
+from testkit import posix_only, wait_for
 
 from drivers.dialbox_driver import DialBoxDriver
 from drivers.events import ButtonEvent, DialEvent, PoseEvent

@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from reader_helpers import Collector, posix_only, wait_for
+from reader_helpers import Collector
+from testkit import posix_only, wait_for
 
 from drivers import cli_devices
 from drivers.events import PoseEvent, StatusEvent

@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from service.builtin_scenes import game_scene
 from service.display import DisplaySettings
 from service.galilean.galpixmap import RGB_TO_ABC
 from service.galilean.motion_field import (
@@ -16,7 +17,6 @@ from service.galilean.motion_field import (
 from service.pipeline import Renderer, RenderSettings
 from service.scene import MotionState
 from service.scene_motion import scene_at
-from service.scenes import game_scene
 
 
 def reference_interpolate(tri_map, triangles, proj, vd):

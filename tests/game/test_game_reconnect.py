@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
+from testkit import free_port
 
 from game.backends import BackendSettings, ServiceBackend
 from game.client_loop import GameClient, LoopSettings
@@ -19,12 +19,6 @@ from service.display import DisplaySettings
 from service.errors import ServiceError
 
 BANNER = (255, 220, 90)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def start_service(control: str, frames: str) -> subprocess.Popen:

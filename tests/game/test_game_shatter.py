@@ -2,24 +2,18 @@
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 import time
 
 import pytest
+from testkit import free_port
 
 from game.backends import BackendSettings, ServiceBackend
 from game.rules import GameSettings, new_game
 from game.scene import game_scene, object_states
 from service.client import ServiceClient
 from service.display import DisplaySettings
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def frames_after(backend: ServiceBackend, render_id: int, count: int, timeout: float) -> list:

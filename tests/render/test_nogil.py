@@ -6,9 +6,9 @@ import threading
 import numpy as np
 from numba.core.registry import CPUDispatcher
 
+from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.pipeline import Renderer
-from service.scenes import builtin_scene
 
 RENDER_MODULES = (
     "service.raster",

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from service.builtin_scenes import builtin_scene
 from service.cull import CullSettings, cull
 from service.depth_sort import average_z, sort_polygons
 from service.display import DisplaySettings
@@ -11,7 +12,6 @@ from service.light import LightSettings
 from service.mesh import Mesh
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings
 from service.scene import Scene, SceneObject
-from service.scenes import builtin_scene
 
 SMALL = DisplaySettings(zones=5, angle_deg=16.0, cols=96, rows=72)
 
@@ -251,7 +251,7 @@ def test_zone_cost_rows_and_chart(tmp_path):
 
 
 def test_render_reuses_its_triangle_map_and_visibility_returns_fresh_ones():
-    from service.scenes import builtin_scene
+    from service.builtin_scenes import builtin_scene
 
     scene = builtin_scene("threaded")
     d = DisplaySettings(zones=3, cols=64, rows=48)
@@ -268,7 +268,7 @@ def test_render_reuses_its_triangle_map_and_visibility_returns_fresh_ones():
 
 
 def test_subclass_with_the_old_visibility_signature_renders():
-    from service.scenes import builtin_scene
+    from service.builtin_scenes import builtin_scene
 
     class Counting(Renderer):
         calls = 0

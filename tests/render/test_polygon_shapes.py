@@ -6,10 +6,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import service.mesh as mesh_module
+from service.builtin_scenes import SCENES, c_shape
 from service.errors import MeshError
 from service.mesh import CONVEX, PLANAR, SHAPE_TOL, Mesh, polygon_shape_faults
 from service.primitives import PRIMITIVES
-from service.scenes import SCENES, c_shape
 
 TRIANGLE = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
 BAD = {  # polygon 1 of a two-polygon mesh; polygon 0 is TRIANGLE

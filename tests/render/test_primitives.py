@@ -3,6 +3,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from service.builtin_scenes import c_shape
 from service.errors import SettingsError
 from service.mesh import Mesh
 from service.primitives import (
@@ -16,7 +17,6 @@ from service.primitives import (
     sphere,
     torus,
 )
-from service.scenes import c_shape
 
 
 def directed_edges(mesh: Mesh) -> Counter:

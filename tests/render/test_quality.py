@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.pipeline import Renderer
@@ -17,7 +18,6 @@ from service.quality import (
     render_auto,
 )
 from service.scene_motion import advance_scene
-from service.scenes import builtin_scene
 
 SMALL = DisplaySettings(zones=5, angle_deg=16.0, cols=64, rows=48)
 
@@ -179,3 +179,16 @@ def test_scene_file_quality_table(tmp_path, capsys):
         scene.write_text(f"[quality]\n{table}\n" + body)
         code, err = _render_json(capsys, str(scene), "--out", str(tmp_path))
         assert code == 2 and "s.toml" in err and word in err, err
+
+
+def test_fit_recovers_costs_and_never_predicts_negative_work():
+    from service.quality import fit
+
+    rng = np.random.default_rng(1)
+    x = [np.array([1.0, *rng.uniform(0, 10, 3)]) for _ in range(40)]
+    truth = np.array([0.5, 0.2, 3.0, 0.0])
+    coef = fit([(f, float(f @ truth) + rng.normal(0, 1e-3)) for f in x])
+    assert np.allclose(coef, truth, atol=0.01)
+    # a cost that falls with the work (noise) gets no negative slope
+    coef = fit([(f, 5.0 - 0.3 * f[1]) for f in x])
+    assert min(coef) >= 0.0

@@ -3,10 +3,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from service.builtin_scenes import SCENES, builtin_scene
 from service.errors import MeshFileError, SettingsError
 from service.loaders import load_scene
 from service.scene import Scene
-from service.scenes import SCENES, builtin_scene
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "file-formats.md"
 

@@ -7,7 +7,7 @@ from service.bench import targets_bench as tb
 
 
 def test_targets_rows_and_files(tmp_path):
-    rows = [tb.zones_target((48, 36), 2), tb.refresh_target((48, 36), 2)]
+    rows = [tb.zones_target((48, 36), 2, rounds=2), tb.refresh_target((48, 36), 2)]
     rows += tb.premise_target((48, 36), 2, counts=(0, 3000))
     assert [r["target"] for r in rows] == ["zones", "refresh", "premise-flat", "premise-10x"]
     z = rows[0]

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
+from service.builtin_scenes import builtin_scene
 from service.cull import CullSettings, cull, zone_mask
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
 from service.occlusion.zbuffer import rows_shared, zbuffer
 from service.projection import project
 from service.raster import row_bands, shared_rows, triangle_setup, zbuffer_zones_kernel
-from service.scenes import builtin_scene
 
 
 def inputs(name: str, display: DisplaySettings, per_zone: bool = True):

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from service_helpers import ROOT
+from testkit import ROOT
 
 from service.cli_service import build_parser
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from testkit import TINY_DISPLAY
 
 from service.client import ServiceClient
 from service.errors import ServiceError
@@ -13,7 +14,7 @@ from service.scene import MotionState, Scene, SceneObject, Transform
 
 
 def test_library_calls(service_factory, tmp_path):
-    svc = service_factory("--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0")
+    svc = service_factory(*TINY_DISPLAY)
     mesh = Mesh.from_triangles([[-0.3, -0.3, 0], [0.3, -0.3, 0], [0, 0.3, 0.1]], [[0, 1, 2]])
     path = tmp_path / "tri.obj"
     save_obj(path, mesh)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from service_helpers import ROOT, free_port, raw_request, wait_until
+from testkit import ROOT, free_port, raw_request, wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

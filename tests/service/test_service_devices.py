@@ -6,7 +6,7 @@ import json
 import time
 
 import zmq
-from service_helpers import free_port, wait_until
+from testkit import free_port, wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

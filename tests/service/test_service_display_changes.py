@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 import pytest
-from service_helpers import wait_until
+from testkit import wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

@@ -7,18 +7,18 @@ import json
 import time
 
 import numpy as np
+import pytest
 import zmq
-from service_helpers import wait_until
+from testkit import TINY_DISPLAY, wait_until
 
 from service import protocol
 from service.client import ServiceClient
 
 
-def test_frame_stream_sends_heartbeats_without_frames(service_factory):
+@pytest.mark.parametrize("refresh_hz", [30, 1])
+def test_frame_stream_sends_heartbeats_without_frames(service_factory, refresh_hz):
     # no scene: nothing is rendered, so no frame is ever published
-    svc = service_factory(
-        "--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0", "--refresh", "30"
-    )
+    svc = service_factory(*TINY_DISPLAY, "--refresh", str(refresh_hz))
     with ServiceClient(svc.control) as c:
         hello = c.hello()
     sub = zmq.Context.instance().socket(zmq.SUB)
@@ -27,22 +27,24 @@ def test_frame_stream_sends_heartbeats_without_frames(service_factory):
     sub.connect(svc.frames)
     got = []
     try:
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 8.0
         while len(got) < 4 and time.monotonic() < deadline:
             if sub.poll(200):
                 topic, head = sub.recv_multipart()[:2]
                 got.append((time.monotonic(), topic, json.loads(head)))
     finally:
         sub.close(0)
-    assert len(got) >= 4, f"{len(got)} messages in 5 s"
+    assert len(got) >= 4, f"{len(got)} messages in 8 s"
     assert {t for _, t, _ in got} == {b"hb"}, "no frame without a scene"
     for _, _, h in got:
         assert h["kind"] == "hb" and h["v"] == 1 and h["session"] == hello["session"]
         assert h["seq"] == 0 and "arrays" not in h
-    beat = hello["heartbeat_s"] * 1e3
+    beat, tick = hello["heartbeat_s"] * 1e3, 1e3 / refresh_hz
     sent = np.diff([h["t_ns"] / 1e6 for _, _, h in got])
-    # one per heartbeat_s (within a refresh period): a quiet service, not a dead one
-    assert np.all(np.abs(sent - beat) < 100), sent
+    # docs/protocol.md 1.7: a message at least every heartbeat_s (the refresh loop
+    # checks once a tick, so within a tick of jitter), and not a flood either
+    assert np.all(sent <= beat + 150), sent
+    assert np.all(sent >= min(beat / 2, tick) - 50), sent
     received = np.diff([t for t, _, _ in got])
     assert received.max() < 3 * hello["heartbeat_s"]
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import zmq
-from service_helpers import raw_request, start_service
+from testkit import SMALL_SERVICE, raw_request, start_service
 
 HELLO = {"v": 1, "type": "hello", "id": 1, "versions": [1]}
 
@@ -15,20 +15,7 @@ HELLO = {"v": 1, "type": "hello", "id": 1, "versions": [1]}
 @pytest.fixture(scope="module")
 def shared_service():
     """One service for every case of this module (each case checks it still serves)."""
-    svc = start_service(
-        "--scene",
-        "game",
-        "--zones",
-        "2",
-        "--cols",
-        "32",
-        "--rows",
-        "24",
-        "--workers",
-        "0",
-        "--refresh",
-        "30",
-    )
+    svc = start_service(*SMALL_SERVICE)
     try:
         yield svc
     finally:

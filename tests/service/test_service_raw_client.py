@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import zmq
-from service_helpers import raw_request, wait_until
+from testkit import TINY_DISPLAY, raw_request, wait_until
 
 
 class RawClient:
@@ -39,9 +39,7 @@ class RawClient:
 
 
 def test_raw_client_full_session(service_factory):
-    svc = service_factory(
-        "--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0", "--refresh", "30"
-    )
+    svc = service_factory(*TINY_DISPLAY, "--refresh", "30")
     c = RawClient(svc.control)
     sub = zmq.Context.instance().socket(zmq.SUB)
     sub.setsockopt(zmq.LINGER, 0)

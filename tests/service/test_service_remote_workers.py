@@ -11,7 +11,7 @@ import subprocess
 import sys
 
 import pytest
-from service_helpers import ROOT, free_port, wait_until
+from testkit import ROOT, free_port, wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 import zmq
-from service_helpers import start_service
+from testkit import SMALL_SERVICE, start_service
 
 from service import protocol
 from service.client import RequestTooLargeError, ServiceClient
@@ -17,10 +17,7 @@ from service.client import RequestTooLargeError, ServiceClient
 @pytest.fixture(scope="module")
 def svc():
     """One small in-process service for the module."""
-    s = start_service(
-        "--scene", "game", "--zones", "2", "--cols", "32", "--rows", "24",
-        "--workers", "0", "--refresh", "30",
-    )  # fmt: skip
+    s = start_service(*SMALL_SERVICE)
     try:
         yield s
     finally:

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import signal
 
-from service_helpers import free_port, start_service, wait_until
+from testkit import TINY_DISPLAY, free_port, start_service, wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 
 
 def test_client_reconnects_after_restart():
-    ports = (free_port(), free_port(), free_port())
-    args = ("--scene", "game", "--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0")
-    first = start_service(*args, ports=ports)
+    args = ("--scene", "game", *TINY_DISPLAY)
+    first = start_service(*args)
     second = None
     client = ServiceClient(first.control, timeout_s=1.0, retries=20)
     frames = FrameSubscriber(first.frames)
@@ -22,7 +21,7 @@ def test_client_reconnects_after_restart():
         assert frames.session == old
         first.proc.send_signal(signal.SIGKILL)
         first.proc.wait(10)
-        second = start_service(*args, ports=ports)
+        second = start_service(*args, "--control", first.control, "--frames", first.frames)
         info = client.hello()  # Lazy Pirate: fresh socket, resend, until it answers
         assert info["session"] != old and client.restarted
         assert client.stats()["session"] == info["session"]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from service_helpers import wait_until
+from testkit import wait_until
 
 from service.client import ServiceClient
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 
 import zmq
-from service_helpers import rss_kb, wait_until
+from testkit import rss_kb, wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

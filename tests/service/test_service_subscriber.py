@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import zmq
-from service_helpers import wait_until
+from testkit import wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

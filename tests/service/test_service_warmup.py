@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 import zmq
-from service_helpers import ROOT, free_port, raw_request, wait_until
+from testkit import ROOT, free_port, raw_request, wait_until
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from service import protocol, wire
+from service.builtin_scenes import builtin_scene
 from service.errors import MessageError
-from service.scenes import builtin_scene
 
 
 def _body(frames: list) -> list[bytes]:
@@ -70,7 +70,7 @@ def test_scene_round_trip_shares_meshes():
                 b'{"v": 1, "type": "ping", "arrays": [{"dtype": "float64", "shape": [1,1,1,1,1]}]}',
                 b"\0" * 8,
             ],
-            "bad_array",
+            "too_large",
         ),
         (
             [

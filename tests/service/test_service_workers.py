@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import signal
 
-from service_helpers import wait_until
+from testkit import wait_until
 
 from service.client import FrameSubscriber, ServiceClient
 

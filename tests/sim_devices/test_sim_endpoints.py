@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import os
 import sys
-import threading
 import time
 from collections.abc import Callable
 
 import pytest
 import serial
+from testkit import wait_for
 
 from drivers.events import ButtonEvent, DialEvent, PoseEvent, StatusEvent
 from drivers.protocols import make_decoder
@@ -24,16 +24,6 @@ from sim_devices.motion import make_motion
 from sim_devices.tracker import TrackerSim
 
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
-
-
-def wait_for(pred: Callable[[], bool], timeout: float = 5.0) -> None:
-    """Wait on a condition, checking every few ms, failing after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    tick = threading.Event()
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not met in time")
-        tick.wait(0.005)
 
 
 def read_until(port, dec, done: Callable[[list], bool], timeout: float = 5.0,

@@ -1,0 +1,337 @@
+"""Level-of-detail benchmark (``holo-bench lod``): triangles vs image error vs frame time.
+
+Part 1, per mesh (the bunny fixture, a torus and the game's spiky attacker at high
+detail), fitted to 1.6 world units like ``holo-render`` fits a lone mesh: every level
+of its LOD chain (:mod:`service.lod`: the full mesh and quadric levels) rendered in
+``--zones`` zones at ``--size`` (z-buffer, Blinn per polygon), timed (median of
+``--repeats`` whole renders), and compared with the full mesh's render:
+
+* ``depth_diff_pct``: % of pixels (of those either render covers) whose depth
+  differs by more than ``--depth-tol`` world units, coverage changes included;
+* ``depth_diff_pct_all``: the same over every pixel of every zone;
+* ``psnr_db``: colour PSNR over every pixel;
+* ``predicted_px``: the level's predicted screen error (error x scale x pixels/unit).
+
+The chain's ``build_ms`` (decimation plus error measurement, no cache) is charted too.
+Billboard clouds (issue 13B) are not in this benchmark yet.
+
+Part 2, a crowd of ``--crowd`` copies of one mesh, their depths (-z) spread over 10x
+(0.1 to 1.0), rendered with LOD off and on (``--lod-error``): frame milliseconds
+(median, after a warm frame) and the same image errors.  Two crowds, because the
+zones are parallel projections and depth alone does not shrink an object here
+(see :mod:`service.lod`): ``by-depth`` gives each copy a size proportional to
+1 / depth (how a perspective picture of a crowd looks, composed for this display),
+``uniform`` gives all the same size (about 20 px wide), so its gain comes only from
+the copies being small on screen.
+
+Writes ``lod_levels.csv``, ``lod_crowd.csv``, ``lod_bench.json``, ``lod_levels.png``
+(image error, PSNR and CPU ms against triangles, one line per mesh, log x; and the
+measured silhouette error against the predicted one, ``measured_px``: how far a
+pixel covered by one render only lies from the other's cover, city-block steps),
+``lod_build.png`` and ``lod_crowd.png`` (CPU ms and % pixels differing, LOD off vs on).
+Charts use CPU milliseconds (this process, all threads): on a shared machine wall
+time mostly measures the other processes; both are in the CSV.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.cli_args import add_size_option, float_range, int_range, plain_help
+from service.display import DisplaySettings
+from service.light import LightSettings
+from service.loaders import fit_transform, load_mesh
+from service.lod import LodSettings, build_chain, pixels_per_unit
+from service.mesh import Mesh
+from service.pipeline import Renderer, RenderSettings, warm_up
+from service.primitives import attacker, torus
+from service.scene import Light, Material, Scene, SceneObject, Transform, euler_quaternion
+from service.signals import EXIT_RULE
+
+BUNNY = Path(__file__).resolve().parents[2] / ".." / "shared" / "fixtures" / "meshes" / "bunny.ply"
+#: Built-in benchmark meshes by name (a path to a .ply/.obj works too).
+MESHES = {
+    "bunny": lambda: load_mesh(BUNNY),
+    "torus": lambda: torus(0.5, 0.15, 96, 48),
+    "spiky": lambda: attacker(24, radius=0.3, spike=0.9),
+}
+LIGHTS = [Light("directional", np.array([0.4, 0.6, 1.0]), (1.0, 1.0, 1.0), 0.9)]
+MATERIAL = Material((0.8, 0.7, 0.55), 0.2, 0.7, 0.4, 5.0)
+SETTINGS = RenderSettings(method="zbuffer", light=LightSettings("blinn", "polygon"))
+
+
+def _mesh(name: str) -> Mesh:
+    if name in MESHES:
+        return MESHES[name]()
+    return load_mesh(name)
+
+
+def _grow(mask: np.ndarray) -> np.ndarray:
+    """``mask`` (Z, R, C) grown by one pixel up, down, left and right in every zone."""
+    out = mask.copy()
+    out[:, 1:] |= mask[:, :-1]
+    out[:, :-1] |= mask[:, 1:]
+    out[:, :, 1:] |= mask[:, :, :-1]
+    out[:, :, :-1] |= mask[:, :, 1:]
+    return out
+
+
+def silhouette_px(a: np.ndarray, b: np.ndarray, limit: int = 64) -> float:
+    """Measured screen error, px: the largest over both ways and all zones.
+
+    How far a pixel covered by one render only lies from the other render's cover, in
+    city-block steps (4-neighbour growth), which are never shorter than the Euclidean
+    distance, so the measure errs high; ``limit`` (inf beyond) bounds the work.
+    """
+    worst = 0
+    for one, other in ((a, b), (b, a)):
+        lone, reach, r = one & ~other, other, 0
+        while (lone & ~reach).any():
+            if r == limit:
+                return float("inf")
+            reach, r = _grow(reach), r + 1
+        worst = max(worst, r)
+    return float(worst)
+
+
+def image_error(full, other, depth_tol: float) -> dict:
+    """Depth and colour difference of two frames (see the module doc)."""
+    da, db = full.depth, other.depth
+    fa, fb = np.isfinite(da), np.isfinite(db)
+    with np.errstate(invalid="ignore"):
+        differs = (fa != fb) | (fa & fb & (np.abs(da - db) > depth_tol))
+    union = int((fa | fb).sum())
+    mse = float(np.mean((full.colour.astype(np.float64) - other.colour) ** 2))
+    return {
+        "depth_diff_pct": 100.0 * int(differs.sum()) / max(union, 1),
+        "depth_diff_pct_all": 100.0 * float(differs.mean()),
+        "psnr_db": 99.0 if mse == 0 else 10.0 * math.log10(255.0**2 / mse),
+        "measured_px": silhouette_px(fa, fb),
+    }
+
+
+def _timed(renderer: Renderer, scene: Scene, display: DisplaySettings,
+           settings: RenderSettings, repeats: int):
+    """The last frame, and the median wall and CPU milliseconds of ``repeats`` renders.
+
+    CPU time (this process, all threads) is reported beside wall time because the
+    benchmark often shares its cores; with one numba thread the two agree when idle.
+    """
+    wall, cpu, frame = [], [], None
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        frame = renderer.render(scene, display, settings)
+        wall.append((time.perf_counter() - t0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return frame, float(np.median(wall)), float(np.median(cpu))
+
+
+def level_rows(name: str, display: DisplaySettings, args: argparse.Namespace) -> list[dict]:
+    """One row per level of one mesh's chain."""
+    mesh = _mesh(name)
+    t0 = time.perf_counter()
+    chain = build_chain(mesh, cache=False)
+    build_ms = (time.perf_counter() - t0) * 1e3
+    place = fit_transform(mesh)
+    place = Transform(place.position, euler_quaternion(0.4, 0.25, 0.0), place.scale)
+    ppu = pixels_per_unit(display)
+    frames = []
+    for level in chain.levels:
+        scene = Scene([SceneObject(level, MATERIAL, place)], LIGHTS, 1.0)
+        frames.append(_timed(Renderer(), scene, display, SETTINGS, args.repeats))
+    rows = []
+    for k, (frame, ms, cpu_ms) in enumerate(frames):
+        rows.append({
+            "mesh": name, "level": k, "kind": chain.kinds[k],
+            "triangles": int(chain.triangles[k]), "error_world": float(chain.errors[k]),
+            "predicted_px": float(chain.errors[k] * place.scale * ppu), "ms": ms,
+            "cpu_ms": cpu_ms,
+            **image_error(frames[0][0], frame, args.depth_tol), "build_ms": build_ms,
+        })
+    return rows
+
+
+def crowd_scene(mesh: Mesh, n: int, sized_by_depth: bool, seed: int = 0) -> Scene:
+    """``n`` copies of ``mesh`` at depths 0.1 to 1.0, spread over the display.
+
+    ``sized_by_depth``: width 0.25 x 0.1 / depth world units (0.25 nearest, 0.025
+    farthest); otherwise 0.12 for every copy (about 20 px at 320 columns).
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    extent = float(np.max(hi - lo)) or 1.0
+    depth = np.geomspace(0.1, 1.0, n)
+    objs = []
+    for i, d in enumerate(depth):
+        width = 0.25 * 0.1 / d if sized_by_depth else 0.12
+        s = width / extent
+        pos = np.array([rng.uniform(-0.9, 0.9), rng.uniform(-0.65, 0.65), -d])
+        q = euler_quaternion(*rng.uniform(-np.pi, np.pi, 3))
+        objs.append(SceneObject(mesh, MATERIAL, Transform(pos - (lo + hi) / 2 * s, q, s),
+                                name=f"copy{i}"))
+    return Scene(objs, LIGHTS, 1.0)
+
+
+def crowd_rows(display: DisplaySettings, args: argparse.Namespace) -> list[dict]:
+    """LOD off and on for the two crowds."""
+    mesh = _mesh(args.crowd_mesh)
+    build_chain(mesh)  # into the cache, outside the timings
+    lod = RenderSettings(method="zbuffer", light=SETTINGS.light,
+                         lod=LodSettings(error_px=args.lod_error))
+    rows = []
+    for crowd in ("by-depth", "uniform"):
+        scene = crowd_scene(mesh, args.crowd, crowd == "by-depth")
+        plain = Renderer()
+        plain.render(scene, display, SETTINGS)  # the static parts built, as in a game
+        off, off_ms, off_cpu = _timed(plain, scene, display, SETTINGS, args.repeats)
+        renderer = Renderer()
+        renderer.render(scene, display, lod)  # levels settle, chain read
+        on, on_ms, on_cpu = _timed(renderer, scene, display, lod, args.repeats)
+        report = on.stats["lod"]
+        for mode, frame, ms, cpu in (("off", off, off_ms, off_cpu), ("on", on, on_ms, on_cpu)):
+            rows.append({
+                "crowd": crowd, "lod": mode, "objects": args.crowd, "ms": ms, "cpu_ms": cpu,
+                "triangles": int(frame.stats["polygons"]["in"]),
+                "speedup": off_ms / ms, "cpu_speedup": off_cpu / cpu,
+                **image_error(off, frame, args.depth_tol),
+                "select_ms": report["select_ms"] if mode == "on" else 0.0,
+                "max_predicted_px": max(report["predicted_px"]) if mode == "on" else 0.0,
+                "levels_used": (json.dumps(np.bincount(report["levels"]).tolist())
+                                if mode == "on" else ""),
+            })
+    return rows
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def charts(levels: list[dict], crowd: list[dict], out: Path) -> None:
+    """``lod_levels.png``, ``lod_build.png`` and ``lod_crowd.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(dict.fromkeys(r["mesh"] for r in levels))
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.5))
+    for name in names:
+        rs = [r for r in levels if r["mesh"] == name]
+        tri = [r["triangles"] for r in rs]
+        axes[0].plot(tri, [r["depth_diff_pct"] for r in rs], "o-", label=name)
+        axes[1].plot(tri, [min(r["psnr_db"], 60) for r in rs], "o-", label=name)
+        axes[2].plot(tri, [r["cpu_ms"] for r in rs], "o-", label=name)
+        axes[3].plot([r["predicted_px"] for r in rs], [r["measured_px"] for r in rs], "o",
+                     label=name)
+    top = max([r["predicted_px"] for r in levels] + [1.0])
+    axes[3].plot([0, top], [1, top + 1], "k--", lw=1, label="predicted + 1 px")
+    axes[3].set_xlabel("predicted screen error, px")
+    axes[3].set_ylabel("measured silhouette error, px (city-block)")
+    axes[3].grid(alpha=0.3)
+    axes[3].legend()
+    for ax, label in zip(axes[:3], ("% covered pixels whose depth differs", "colour PSNR, dB "
+                                "(99 capped at 60)", "CPU ms per frame (all zones)"), strict=True):
+        ax.set_xscale("log")
+        ax.set_xlabel("triangles (log)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.suptitle("LOD chain levels vs the full mesh (quadric edge collapse)")
+    fig.tight_layout()
+    fig.savefig(out / "lod_levels.png", dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    builds = [next(r["build_ms"] for r in levels if r["mesh"] == n) / 1e3 for n in names]
+    ax.bar(names, builds)
+    ax.set_ylabel("chain build, s (decimation + error, no cache)")
+    fig.tight_layout()
+    fig.savefig(out / "lod_build.png", dpi=110)
+    plt.close(fig)
+    if crowd:
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        kinds = list(dict.fromkeys(r["crowd"] for r in crowd))
+        x = np.arange(len(kinds))
+        for j, mode in enumerate(("off", "on")):
+            rs = [next(r for r in crowd if r["crowd"] == k and r["lod"] == mode) for k in kinds]
+            axes[0].bar(x + 0.4 * j, [r["cpu_ms"] for r in rs], 0.4, label=f"LOD {mode}")
+            axes[1].bar(x + 0.4 * j, [r["depth_diff_pct"] for r in rs], 0.4, label=f"LOD {mode}")
+        axes[0].set_ylabel("CPU ms per frame (all zones)")
+        axes[1].set_ylabel("% covered pixels differing from LOD off")
+        axes[1].axhline(1.0, color="r", ls="--", lw=1, label="1 % target")
+        for ax in axes:
+            ax.set_xticks(x + 0.2, kinds)
+            ax.legend()
+        fig.tight_layout()
+        fig.savefig(out / "lod_crowd.png", dpi=110)
+        plt.close(fig)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``holo-bench lod``."""
+    p = argparse.ArgumentParser(
+        prog="holo-bench lod",
+        description="Level of detail: every LOD chain level of the bunny, a torus and the "
+        "spiky attacker against the full mesh (triangles vs % pixels whose depth differs, "
+        "colour PSNR, CPU ms per frame, build time), and a crowd of 200 bunnies at depths "
+        "0.1-1.0 with LOD off and on. Writes lod_levels.csv, lod_crowd.csv, lod_bench.json "
+        "and lod_levels.png, lod_build.png, lod_crowd.png (README, Benchmarks).",
+        epilog=plain_help(EXIT_RULE),
+    )
+    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
+    p.add_argument("--meshes", default="bunny,torus,spiky",
+                   help="comma list: bunny, torus, spiky or mesh files (default all three)")
+    add_size_option(p, (320, 240), "pixels per zone image")
+    p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones (default 5)")
+    p.add_argument("--repeats", type=int_range(1, 100), default=3, help="renders timed (3)")
+    p.add_argument("--crowd", type=int_range(0, 5000), default=200,
+                   help="copies in the crowd scene, 0 to skip it (default 200)")
+    p.add_argument("--crowd-mesh", default="bunny", help="the crowd's mesh (default bunny)")
+    p.add_argument("--lod-error", type=float_range(0, None, lo_open=True), default=0.5,
+                   metavar="PX", help="the crowd's LOD error budget, pixels (default 0.5)")
+    p.add_argument("--depth-tol", type=float_range(0, None, lo_open=True), default=0.01,
+                   help="depth difference counted as a wrong pixel, world units (0.01)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark; write CSV, JSON and charts."""
+    args = build_parser().parse_args(argv)
+    cols, rows = args.size
+    display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    warm_up(SETTINGS)
+    levels = []
+    for name in [n for n in args.meshes.split(",") if n]:
+        levels += level_rows(name, display, args)
+        print(f"{name}: {len(levels)} level rows so far", file=sys.stderr)
+    crowd = crowd_rows(display, args) if args.crowd else []
+    _write_csv(out / "lod_levels.csv", levels)
+    if crowd:
+        _write_csv(out / "lod_crowd.csv", crowd)
+    (out / "lod_bench.json").write_text(json.dumps(
+        {"display": [args.zones, cols, rows], "depth_tol": args.depth_tol,
+         "lod_error": args.lod_error, "levels": levels, "crowd": crowd}, indent=1))
+    charts(levels, crowd, out)
+    for r in crowd:
+        print(f"crowd {r['crowd']:8s} LOD {r['lod']:3s}: {r['ms']:8.1f} ms "
+              f"x{r['speedup']:.1f} (CPU {r['cpu_ms']:.1f} ms x{r['cpu_speedup']:.1f}), "
+              f"{r['triangles']} triangles, "
+              f"{r['depth_diff_pct']:.2f} % covered pixels differ "
+              f"({r['depth_diff_pct_all']:.2f} % of all), PSNR {r['psnr_db']:.1f} dB")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,89 @@
+"""Fixtures of every test: started processes and services, and a check for leftovers.
+
+After each test, :func:`no_leftovers` waits briefly for the threads, child
+processes and sockets of ``zmq.Context.instance()`` the test started to end, and
+fails the test's teardown naming any still there: a test that leaves a service
+running or a thread spinning slows or breaks the tests after it.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import zmq
+
+sys.path.insert(0, str(Path(__file__).parent))  # ``import testkit`` from any folder
+
+from testkit import Proc, ServiceProcess, children_of, start_service, wait_until  # noqa: E402
+
+#: Seconds a test's threads, children and sockets get to end after it.
+LEFTOVER_GRACE_S = 5.0
+
+
+#: Threads libraries keep for the life of the process (pyzmq's zero-copy garbage collector).
+LIFELONG_THREAD_MODULES = ("zmq.",)
+
+
+def _threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate()
+            if t.is_alive() and not type(t).__module__.startswith(LIFELONG_THREAD_MODULES)}
+
+
+def _sockets() -> set[zmq.Socket]:
+    return {s for s in list(zmq.Context.instance()._sockets) if not s.closed}
+
+
+def _leftovers(threads: set, children: set, sockets: set) -> list[str]:
+    found = [f"thread {t.name!r}" for t in _threads() - threads]
+    found += [f"child process {pid}" for pid in children_of(os.getpid()) - children]
+    found += [f"open ZeroMQ socket {s.type!r}" for s in _sockets() - sockets]
+    return found
+
+
+@pytest.fixture(autouse=True)
+def no_leftovers() -> Iterator[None]:
+    """Fail a test that leaves threads, child processes or ZeroMQ sockets behind."""
+    before = (_threads(), children_of(os.getpid()), _sockets())
+    yield
+    left = wait_until(lambda: not _leftovers(*before), LEFTOVER_GRACE_S)
+    if not left:
+        pytest.fail("left behind: " + ", ".join(_leftovers(*before)), pytrace=False)
+
+
+@pytest.fixture
+def procs() -> Iterator[Callable[..., Proc]]:
+    """Start processes with ``procs(module, *args)``; every one is killed at the end."""
+    started: list[Proc] = []
+
+    def start(*args: str, **kw) -> Proc:
+        proc = Proc(*args, **kw)
+        started.append(proc)
+        return proc
+
+    try:
+        yield start
+    finally:
+        for proc in started:
+            proc.kill()
+
+
+@pytest.fixture
+def service_factory() -> Iterator[Callable[..., ServiceProcess]]:
+    """Start services with ``service_factory(*args)``; every one is stopped at the end."""
+    started: list[ServiceProcess] = []
+
+    def make(*args: str, **kw) -> ServiceProcess:
+        svc = start_service(*args, **kw)
+        started.append(svc)
+        return svc
+
+    try:
+        yield make
+    finally:
+        for svc in started:
+            svc.stop()

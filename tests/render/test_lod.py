@@ -1,0 +1,251 @@
+"""Level of detail (service/lod.py): the selector's promises, the cache, the pipeline hook.
+
+Where it can fail: a level over the error budget, a measured screen error larger than
+the predicted one, flicker at a threshold, a stale or corrupt cache file, bad settings.
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from service.display import DisplaySettings
+from service.errors import SettingsError
+from service.lod import (
+    LodSettings,
+    build_chain,
+    degrade_to_budget,
+    pixels_per_unit,
+    select_levels,
+)
+from service.pipeline import Renderer, RenderSettings
+from service.primitives import torus
+from service.scene import Scene, SceneObject, Transform, euler_quaternion
+
+
+@pytest.fixture(scope="module")
+def ring():
+    """A torus of ~2,300 triangles and its chain (built once, in a temporary cache)."""
+    return torus(0.5, 0.15, 48, 24)
+
+
+@pytest.fixture(scope="module")
+def chain(ring, tmp_path_factory):
+    return build_chain(ring, cache=tmp_path_factory.mktemp("lod"))
+
+
+def _errors(draw_rows: int, draw_levels: int, rng: np.random.Generator) -> np.ndarray:
+    steps = rng.exponential(1e-3, size=(draw_rows, draw_levels - 1))
+    return np.concatenate([np.zeros((draw_rows, 1)), np.cumsum(steps, axis=1)], axis=1)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**31), rows=st.integers(1, 40), levels=st.integers(1, 8),
+       budget=st.floats(0.01, 5.0), ppu=st.floats(1.0, 2000.0), hyst=st.floats(0.0, 0.9))
+def test_the_selector_never_picks_a_level_over_budget(seed, rows, levels, budget, ppu, hyst):
+    rng = np.random.default_rng(seed)
+    errors = _errors(rows, levels, rng)
+    previous = rng.integers(-1, levels, size=rows)
+    level, predicted = select_levels(errors, ppu, budget, previous, hyst)
+    assert np.all(predicted <= budget)
+    np.testing.assert_allclose(predicted, errors[np.arange(rows), level] * ppu)
+    # and it is the coarsest such level when there is no history and no hysteresis
+    fresh, _ = select_levels(errors, ppu, budget, hysteresis=0.0)
+    within = errors * ppu <= budget
+    assert np.all(fresh == within.sum(axis=1) - 1)
+
+
+def test_hysteresis_stops_flicker_at_a_threshold():
+    errors = np.array([[0.0, 1e-3, 4e-3]])
+    threshold = 0.5 / 1e-3  # ppu where level 1 predicts exactly 0.5 px
+    wobble = threshold * (1 + 0.04 * np.sin(np.arange(200)))  # +-4 % around it
+    changes = {}
+    for h in (0.0, 0.25):
+        prev, seen = None, []
+        for ppu in wobble:
+            level, predicted = select_levels(errors, ppu, 0.5, prev, h)
+            assert predicted[0] <= 0.5
+            seen.append(int(level[0]))
+            prev = level
+        changes[h] = int(np.count_nonzero(np.diff(seen)))
+    assert changes[0.0] > 50  # without hysteresis it flickers every other frame
+    assert changes[0.25] <= 1  # with it, at most the one step down
+
+
+def test_degrade_to_budget_takes_the_smallest_first():
+    tris = np.array([[1000, 500, 100]] * 3)
+    level = degrade_to_budget(np.zeros(3, np.int64), tris, np.array([2.0, 0.0, 1.0]), 2600)
+    assert level.tolist() == [0, 1, 0]  # object 1 (lowest priority) gave 500 triangles
+    level = degrade_to_budget(np.zeros(3, np.int64), tris, np.array([2.0, 0.0, 1.0]), 10)
+    assert level.tolist() == [2, 2, 2]  # cannot go lower than the coarsest
+
+
+def test_chain_is_ordered_and_cached(ring, chain, tmp_path):
+    assert chain.levels[0] is ring and chain.errors[0] == 0
+    assert np.all(np.diff(chain.errors) >= 0) and np.all(np.diff(chain.triangles) < 0)
+    assert len(chain.levels) >= 4
+    first = build_chain(ring, cache=tmp_path)
+    again = build_chain(ring, cache=tmp_path)
+    assert again.build_ms == 0.0 and first.build_ms > 0  # the second read the files
+    np.testing.assert_array_equal(again.errors, first.errors)
+    np.testing.assert_array_equal(again.levels[-1].triangles, first.levels[-1].triangles)
+    header = json.loads((tmp_path / f"{first.key}.json").read_text())
+    assert header["format"] == "holo-lod-chain" and header["levels"] == len(first.levels)
+
+
+@pytest.mark.parametrize("damage", ["truncate-npz", "garbage-json", "missing-array"])
+def test_a_corrupt_cache_file_is_rebuilt_not_fatal(ring, tmp_path, damage):
+    chain = build_chain(ring, cache=tmp_path)
+    npz, js = tmp_path / f"{chain.key}.npz", tmp_path / f"{chain.key}.json"
+    if damage == "truncate-npz":
+        npz.write_bytes(npz.read_bytes()[:100])
+    elif damage == "garbage-json":
+        js.write_text("{not json")
+    else:
+        head = json.loads(js.read_text())
+        head["levels"] += 1
+        js.write_text(json.dumps(head))
+    again = build_chain(ring, cache=tmp_path)
+    assert again.build_ms > 0 and len(again.levels) == len(chain.levels)
+    assert build_chain(ring, cache=tmp_path).build_ms == 0.0  # and the file was rewritten
+
+
+@pytest.mark.parametrize("kwargs", [{"error_px": 0}, {"error_px": -1}, {"error_px": np.nan},
+                                    {"budget_ms": 0}, {"hysteresis": 1.0},
+                                    {"fractions": (0.5, 1.5)}])
+def test_bad_settings_are_a_clear_error(kwargs):
+    with pytest.raises(SettingsError, match="LOD"):
+        LodSettings(**kwargs)
+
+
+@pytest.mark.parametrize("args", [["--lod-error", "0"], ["--lod-error", "-0.5"],
+                                  ["--lod-error", "nan"], ["--budget-ms", "0"],
+                                  ["--lod", "maybe"]])
+def test_holo_render_refuses_bad_lod_options(args, tmp_path):
+    run = subprocess.run(
+        [sys.executable, "-m", "service.cli_render", "builtin:game", "--out", str(tmp_path),
+         *args], capture_output=True, text=True, timeout=60,
+    )
+    assert run.returncode == 2
+    assert "Traceback" not in run.stderr and "--" in run.stderr.strip().splitlines()[-1]
+
+
+def _silhouette_error(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest distance (px) from a pixel covered by one image only to the other's cover."""
+    worst = 0.0
+    for one, other in ((a, b), (b, a)):
+        lone = np.argwhere(one & ~other)
+        if lone.size == 0:
+            continue
+        cover = np.argwhere(other)
+        if cover.size == 0:
+            return np.inf
+        d2 = ((lone[:, None, :] - cover[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+        worst = max(worst, float(np.sqrt(d2.max())))
+    return worst
+
+
+def test_measured_screen_error_stays_within_the_prediction(ring, chain):
+    """Random views: no pixel is further from the full mesh's picture than predicted.
+
+    A silhouette moved by e px turns pixels whose centres lie within e of it; such a
+    pixel is at most e + 1 px (one pixel of sampling) from the other picture's cover.
+    """
+    display = DisplaySettings(zones=5, cols=96, rows=72)
+    ppu = pixels_per_unit(display)
+    renderer = Renderer()
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(4):
+        q = euler_quaternion(*rng.uniform(-np.pi, np.pi, 3))
+        scale = rng.uniform(0.4, 1.6)
+        place = Transform(np.array([rng.uniform(-0.2, 0.2), 0.0, -rng.uniform(0, 1)]), q, scale)
+        depth = [renderer.render(Scene([SceneObject(m, transform=place)]), display).depth
+                 for m in chain.levels]
+        for lv in range(1, len(chain.levels)):
+            predicted = chain.errors[lv] * scale * ppu
+            for z in range(display.zones):
+                measured = _silhouette_error(np.isfinite(depth[0][z]), np.isfinite(depth[lv][z]))
+                assert measured <= predicted + 1.0, (lv, z, measured, predicted)
+                checked += 1
+    assert checked > 40
+
+
+def test_the_pipeline_draws_the_chosen_levels(ring, chain, monkeypatch, tmp_path):
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    display = DisplaySettings(zones=5, cols=160, rows=120)
+    scales = [1.0, 0.05]  # the small one can take the coarsest level
+    scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, -0.5]), scale=s),
+                               name=f"o{i}")
+                   for i, (x, s) in enumerate(zip([-0.5, 0.5], scales, strict=True))])
+    r = Renderer()
+    frame = r.render(scene, display, RenderSettings(lod=LodSettings(error_px=0.5)))
+    report = frame.stats["lod"]
+    assert report["levels"][1] >= 3 and report["levels"][1] > report["levels"][0]
+    assert all(p <= 0.5 for p in report["predicted_px"])
+    assert report["triangles"] < report["triangles_full"]
+    assert frame.stats["polygons"]["in"] == report["triangles"]
+    off = Renderer().render(scene, display, RenderSettings(lod=LodSettings(enabled=False)))
+    plain = Renderer().render(scene, display)
+    np.testing.assert_array_equal(off.depth, plain.depth)
+    assert "lod" not in off.stats
+
+
+def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp_path):
+    """render_with_motion (the service's workers and the game's local renderer) applies it."""
+    from service.galilean.motion_field import render_with_motion
+    from service.worker import render_settings_from
+
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    settings = render_settings_from({"method": "zbuffer", "light_model": "ambient",
+                                     "specular": "polygon", "lod_error": 0.5})
+    assert settings.lod is not None and settings.lod.error_px == 0.5
+    assert render_settings_from({"method": "zbuffer", "light_model": "ambient",
+                                 "specular": "polygon"}).lod is None
+    scene = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.5]), scale=0.05),
+                               name="far")])
+    display = DisplaySettings(zones=3, cols=64, rows=48)
+    up = render_with_motion(Renderer(), scene, display, 0.0, 60.0, settings)
+    assert up.frame.stats["lod"]["levels"][0] >= 3
+
+
+@pytest.mark.parametrize("hysteresis", [0.0, 0.25])
+def test_no_flicker_through_the_pipeline(ring, chain, monkeypatch, tmp_path, hysteresis):
+    """An object whose size wobbles 3 % around a level's threshold, frame after frame."""
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    display = DisplaySettings(zones=1, cols=48, rows=36)
+    k = 2
+    threshold = 0.5 / (chain.errors[k] * pixels_per_unit(display))  # level k at exactly 0.5 px
+    settings = RenderSettings(lod=LodSettings(error_px=0.5, hysteresis=hysteresis))
+    r, seen = Renderer(), []
+    for i in range(16):
+        s = threshold * (1 + 0.03 * (-1) ** i)
+        scene = Scene([SceneObject(ring, transform=Transform(np.zeros(3), scale=s), name="w")])
+        report = r.render(scene, display, settings).stats["lod"]
+        assert report["predicted_px"][0] <= 0.5
+        seen.append(report["levels"][0])
+    changes = int(np.count_nonzero(np.diff(seen)))
+    if hysteresis:
+        assert changes == 0, seen
+    else:
+        assert changes >= 10, seen  # the test can see flicker when there is some
+
+
+def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch, tmp_path):
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    display = DisplaySettings(zones=1, cols=64, rows=48)
+    scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, -0.3]), scale=s),
+                               name=f"o{i}")
+                   for i, (x, s) in enumerate(((-0.5, 1.0), (0.5, 0.5)))])
+    r = Renderer()
+    first = r.render(scene, display, RenderSettings(lod=LodSettings(budget_ms=1e-6)))
+    assert first.stats["lod"]["over_error"] == 0  # no cost measured yet: error rules
+    second = r.render(scene, display, RenderSettings(lod=LodSettings(budget_ms=1e-6)))
+    report = second.stats["lod"]
+    coarsest = len(chain.levels) - 1
+    assert report["levels"] == [coarsest, coarsest]
+    assert report["over_error"] >= 1 and max(report["predicted_px"]) > 0.5

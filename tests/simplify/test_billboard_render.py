@@ -1,0 +1,99 @@
+"""Billboard clouds in the pipeline: same depth as the mesh they stand for, z-tested
+against meshes in every zone, and stats that say how they were drawn."""
+
+import numpy as np
+import pytest
+
+from service.billboard_render import BillboardObject
+from service.display import DisplaySettings
+from service.errors import MeshFileError
+from service.loaders import load_scene
+from service.pipeline import Renderer, RenderSettings
+from service.primitives import cube, sphere
+from service.scene import Material, Scene, SceneObject, Transform, euler_quaternion
+from service.simplify.billboard import build_cloud
+from service.simplify.cloud_file import save_cloud
+
+DISPLAY = DisplaySettings(zones=3, cols=96, rows=72)
+TILT = Transform(orientation=euler_quaternion(0.5, 0.4, 0.1))
+
+
+@pytest.fixture(scope="module")
+def box():
+    m = cube(0.8)
+    return m, build_cloud(m.vertices, m.triangles, 0.004, texture_res=256)
+
+
+def _depths(mesh_scene, cloud_scene, method):
+    r = Renderer()
+    full = r.render(mesh_scene, DISPLAY, RenderSettings(method=method))
+    bb = r.render(cloud_scene, DISPLAY, RenderSettings(method=method))
+    return full, bb
+
+
+@pytest.mark.parametrize("method", ["zbuffer", "raycast"])
+def test_cloud_of_a_planar_mesh_renders_the_mesh_depth(box, method):
+    mesh, cloud = box
+    assert cloud.n_billboards == 6
+    full, bb = _depths(Scene([SceneObject(mesh, Material(), TILT)]),
+                       Scene([], billboards=[BillboardObject(cloud, Material(), TILT)]), method)
+    a, b = np.isfinite(full.depth), np.isfinite(bb.depth)
+    # the silhouettes agree but for a texel-wide rim (conservative coverage)
+    assert (a ^ b).sum() <= 0.03 * a.sum()
+    both = a & b
+    assert np.percentile(np.abs(full.depth[both] - bb.depth[both]), 99) < 0.01
+    assert bb.stats["billboards"]["drawn_with"] == method
+    assert bb.stats["billboards"]["quads"] == 6
+    # lit like the mesh: same faces, same normals (flat), same model
+    diff = np.abs(full.colour.astype(int) - bb.colour.astype(int))[both]
+    assert np.median(diff) <= 2
+
+
+def test_meshes_and_billboards_hide_each_other(box):
+    mesh, cloud = box
+    ball = sphere(0.3, 12, 24)
+    front = Transform(position=np.array([0.0, 0.0, 0.6]))
+    back = Transform(position=np.array([0.0, 0.0, -0.6]))
+    scene = Scene([SceneObject(ball, Material(colour=(1.0, 0.0, 0.0)), front)],
+                  billboards=[BillboardObject(cloud, Material(colour=(0.0, 0.0, 1.0)), back)])
+    f = Renderer().render(scene, DISPLAY)
+    centre = f.colour[:, DISPLAY.rows // 2, DISPLAY.cols // 2]
+    assert (centre[:, 0] > centre[:, 2]).all()  # the ball in front wins
+    scene = Scene([SceneObject(ball, Material(colour=(1.0, 0.0, 0.0)), back)],
+                  billboards=[BillboardObject(cloud, Material(colour=(0.0, 0.0, 1.0)), front)])
+    f = Renderer().render(scene, DISPLAY)
+    centre = f.colour[:, DISPLAY.rows // 2, DISPLAY.cols // 2]
+    assert (centre[:, 2] > centre[:, 0]).all()  # now the billboards do
+
+
+@pytest.mark.parametrize("method", ["runlength", "bsp"])
+def test_other_methods_say_billboards_were_z_buffered(box, method):
+    mesh, cloud = box
+    scene = Scene([SceneObject(sphere(0.2, 8, 16))],
+                  billboards=[BillboardObject(cloud, Material(), TILT)])
+    st = Renderer().render(scene, DISPLAY, RenderSettings(method=method)).stats["billboards"]
+    assert st["drawn_with"] == "zbuffer" and method in st["note"]
+    assert st["covered_pixels"] > 0
+
+
+def test_scene_file_names_a_cloud(tmp_path, box):
+    _, cloud = box
+    save_cloud(cloud, tmp_path / "box.hbc")
+    (tmp_path / "s.toml").write_text(
+        '[[object]]\nfile = "box.hbc"\nposition = [0, 0, -0.2]\nmaterial = {colour = [1, 0.5, 0]}\n'
+        '[[object]]\nprimitive = "sphere"\nparams = {radius = 0.1}\n')
+    scene = load_scene(tmp_path / "s.toml")
+    assert len(scene.objects) == 1 and len(scene.billboards) == 1
+    assert scene.billboards[0].material.colour == (1.0, 0.5, 0.0)
+    lone = load_scene(tmp_path / "box.hbc")
+    assert lone.billboards and not lone.objects
+    assert Renderer().render(lone, DISPLAY).stats["billboards"]["covered_pixels"] > 0
+
+
+def test_scene_file_refuses_a_moving_cloud(tmp_path, box):
+    _, cloud = box
+    save_cloud(cloud, tmp_path / "box.hbc")
+    (tmp_path / "s.toml").write_text(
+        '[[object]]\nfile = "box.hbc"\nmotion = {velocity = [1, 0, 0]}\n')
+    with pytest.raises(MeshFileError, match="motion"):
+        load_scene(tmp_path / "s.toml")

@@ -1,0 +1,274 @@
+"""What every test folder shares: waiting on conditions, child processes, services.
+
+Imported by name (``from testkit import ...``): the root ``conftest.py`` puts
+``tests/`` on ``sys.path``. Fixtures built on these live in ``tests/conftest.py``.
+
+Ports: a test never picks a port number for a process it starts. Services bind
+``tcp://127.0.0.1:*`` and :func:`start_service` reads the endpoints they bound
+from their ``holo-service: control ... frames ...`` line, so two tests (or two
+test runs) cannot race for one port. :func:`free_port` remains for the few places
+that need a number before anything binds (a client pointed at nothing, an address
+a restarted service must reuse); it binds, closes and returns, so it can race.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+import zmq
+
+from service.signals import end_process
+
+ROOT = Path(__file__).resolve().parents[1]
+posix_only = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and ptys")
+linux_only = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="/proc")
+
+SIGNALS = pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM],
+                                  ids=["SIGINT", "SIGTERM"])
+#: A small display served in process (no workers), for tests of the service's behaviour.
+TINY_DISPLAY = ("--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0")
+#: The game scene on :data:`TINY_DISPLAY` at 30 refreshes a second.
+SMALL_SERVICE = ("--scene", "game", *TINY_DISPLAY, "--refresh", "30")
+
+#: The rule of service.signals: the exit status after a clean stop on each signal.
+STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+def wait_until(predicate: Callable[[], object], timeout_s: float, step_s: float = 0.01) -> object:
+    """Poll ``predicate`` until it returns something truthy or the deadline passes.
+
+    Returns its last value (falsy on time-out), so callers can assert on it.
+    """
+    deadline = time.monotonic() + timeout_s
+    tick = threading.Event()  # never set: wait() is the poll interval
+    while time.monotonic() < deadline:
+        got = predicate()
+        if got:
+            return got
+        tick.wait(step_s)
+    return predicate()
+
+
+def wait_for(pred: Callable[[], object], timeout: float = 20.0, what: str = "condition") -> None:
+    """:func:`wait_until`, failing the test with ``what`` after ``timeout`` seconds."""
+    if not wait_until(pred, timeout):
+        raise AssertionError(f"{what} not met within {timeout} s")
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on right now (racy: prefer binding ``:*``)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def children_of(pid: int) -> set[int]:
+    """The process ids of ``pid``'s children, zombies included (Linux)."""
+    out: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            out.update(int(t) for t in (task / "children").read_text().split())
+        except OSError:  # the thread ended while we looked
+            continue
+    return out
+
+
+def alive(pid: int) -> bool:
+    """True while ``pid`` exists and is not a zombie."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def catches(pid: int, signum: int) -> bool:
+    """True once process ``pid`` has a handler for ``signum`` (Linux ``SigCgt`` mask)."""
+    try:
+        text = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    mask = next(int(ln.split()[1], 16) for ln in text.splitlines() if ln.startswith("SigCgt"))
+    return bool(mask >> (signum - 1) & 1)
+
+
+def rss_kb(pid: int) -> int:
+    """Resident set size of a process from /proc, kB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+class Proc:
+    """``python -m MODULE ARGS`` with its stdout / stderr lines collected by threads.
+
+    Parameters
+    ----------
+    args : str
+        The module and its arguments.
+    stdout : file descriptor, optional
+        Where stdout goes instead of a pipe (a pty's slave side).
+    env : dict, optional
+        Extra environment variables.
+    """
+
+    def __init__(self, *args: str, stdout: int | None = None,
+                 env: dict[str, str] | None = None) -> None:
+        self.p = subprocess.Popen([sys.executable, "-m", *args], cwd=ROOT, text=True,
+                                  stdout=subprocess.PIPE if stdout is None else stdout,
+                                  stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                                  env={**os.environ, **(env or {})})
+        self.out: list[str] = []
+        self.err: list[str] = []
+        streams = [(self.p.stderr, self.err)]
+        if stdout is None:
+            streams.append((self.p.stdout, self.out))
+        self._threads = [threading.Thread(target=self._pump, args=s, daemon=True)
+                         for s in streams]
+        for t in self._threads:
+            t.start()
+
+    @staticmethod
+    def _pump(stream, lines: list[str]) -> None:
+        for line in stream:
+            lines.append(line.rstrip("\n"))
+
+    def wait_lines(self, pred: Callable[[], bool], timeout: float = 30.0) -> None:
+        """Wait until ``pred()``; fail (with the last stderr lines) if the process ends."""
+        deadline = time.monotonic() + timeout
+        tick = threading.Event()
+        while not pred():
+            if time.monotonic() > deadline or self.p.poll() is not None:
+                if pred():
+                    return
+                raise AssertionError(f"condition not met; rc={self.p.poll()}, "
+                                     f"stderr={self.err[-8:]}")
+            tick.wait(0.01)
+
+    def signal(self, signum: int) -> None:
+        """Send ``signum`` to the process."""
+        self.p.send_signal(signum)
+
+    def finish(self, timeout: float = 30.0) -> int:
+        """Wait for the exit status; the output threads have finished after it."""
+        rc = self.p.wait(timeout)
+        for t in self._threads:
+            t.join(timeout)
+        return rc
+
+    def kill(self) -> None:
+        """Kill it if it still runs, and collect its output threads."""
+        if self.p.poll() is None:
+            self.p.kill()
+        self.finish(10)
+
+
+def raw_request(
+    address: str,
+    header: dict,
+    buffers: tuple = (),
+    timeout_ms: int = 5000,
+    ctx: zmq.Context | None = None,
+) -> dict | None:
+    """One request with a fresh DEALER (raw pyzmq, protocol doc layout); reply header."""
+    s = (ctx or zmq.Context.instance()).socket(zmq.DEALER)
+    s.setsockopt(zmq.LINGER, 0)
+    s.connect(address)
+    try:
+        s.send_multipart([b"", json.dumps(header).encode(), *buffers])
+        if not s.poll(timeout_ms):
+            return None
+        frames = s.recv_multipart()
+        return json.loads(frames[1])
+    finally:
+        s.close(0)
+
+
+def _is_ready(reply: dict | None) -> bool:
+    """A hello reply from a service that is ready (not warming up)."""
+    return reply is not None and reply.get("status", "ready") == "ready"
+
+
+_BOUND = re.compile(r"holo-service: control (\S+) frames (\S+)")
+
+
+@dataclass
+class ServiceProcess:
+    """A running ``holo-service``; its stderr goes to ``log`` (a temporary file)."""
+
+    proc: subprocess.Popen
+    log: Path
+    control: str = ""
+    frames: str = ""
+    _stopped: bool = field(default=False, repr=False)
+
+    def output(self) -> str:
+        """What it has written to stderr so far."""
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+    def bound(self) -> bool:
+        """Read the endpoints it bound from its start-up line; True once there."""
+        m = _BOUND.search(self.output())
+        if m:
+            self.control, self.frames = m.group(1), m.group(2)
+        return m is not None
+
+    def stop(self) -> None:
+        """End it (signal, then kill) and pass its stderr on to pytest's capture."""
+        if self._stopped:
+            return
+        self._stopped = True
+        end_process(self.proc)
+        sys.stderr.write(self.output())
+        self.log.unlink(missing_ok=True)
+
+
+def start_service(*args: str, ready_timeout_s: float = 60.0,
+                  env: dict[str, str] | None = None) -> ServiceProcess:
+    """Start ``holo-service`` on loopback ports of its own choosing; wait until it is ready.
+
+    Until its warm-up is over the service answers hello with ``status: warming_up``
+    (``docs/protocol.md`` 1.8); the tests want a service that renders.
+
+    Control, frames and (with local workers, not ``--workers 0``) the broker backend
+    bind ``tcp://127.0.0.1:*`` unless ``args`` name them; the bound endpoints come
+    back as ``control`` and ``frames``.
+    """
+    given = set(args)
+    no_workers = any(a == "--workers" and b == "0" for a, b in zip(args, args[1:], strict=False))
+    default = {"--control": "tcp://127.0.0.1:*", "--frames": "tcp://127.0.0.1:*"}
+    if not no_workers:  # a broker backend only for local workers, as the service does
+        default["--worker-address"] = "tcp://127.0.0.1:*"
+    extra = [x for k, v in default.items() if k not in given for x in (k, v)]
+    fd, name = tempfile.mkstemp(prefix="holo-service-", suffix=".log")
+    cmd = [sys.executable, "-m", "service.cli_service", *extra, *args]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stderr=fd,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
+    os.close(fd)
+    svc = ServiceProcess(proc, Path(name))
+    try:
+        hello = {"v": 1, "type": "hello", "id": 0, "versions": [1]}
+        ok = wait_until(lambda: proc.poll() is not None
+                        or (svc.bound() and _is_ready(raw_request(svc.control, hello, (), 500))),
+                        ready_timeout_s)
+        if not ok or proc.poll() is not None:
+            raise RuntimeError(f"holo-service did not start (rc {proc.poll()}): "
+                               f"{svc.output()[-2000:]}")
+    except BaseException:
+        svc.stop()
+        raise
+    return svc
