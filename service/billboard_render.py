@@ -144,13 +144,13 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                       rgba: np.ndarray, tnormal: np.ndarray, shears: np.ndarray, s: float,
                       hw: float, hh: float, views: np.ndarray, lights: tuple,
                       ambient: float, code: int, cull_back: bool, depth: np.ndarray,
-                      tri: np.ndarray, colour: np.ndarray, mask: np.ndarray) -> int:
+                      tri: np.ndarray, colour: np.ndarray, quad: np.ndarray) -> int:
     """Draw every quad into every zone (z-test against ``depth``, alpha test); see module.
 
     ``depth`` (Z, R, C) float32 and ``tri`` (Z, R, C) int32 are updated where a quad
-    wins (``tri`` set to -1: no mesh triangle); ``colour`` (Z, R, C, 3) uint8 and
-    ``mask`` (Z, R, C) bool receive the billboard's lit colour.  Returns the number of
-    pixel writes.
+    wins (``tri`` set to -1: no mesh triangle); ``colour`` (Z, R, C, 3) uint8 receives
+    the billboard's lit colour and ``quad`` (Z, R, C) int32 the quad's index + 1 (0
+    where no quad won).  Returns the number of pixel writes.
     """
     zones, rows, cols = depth.shape
     writes = 0
@@ -191,7 +191,7 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                         continue
                     depth[k, i, j] = -z
                     tri[k, i, j] = -1
-                    mask[k, i, j] = True
+                    quad[k, i, j] = q + 1
                     writes += 1
                     _shade_texel(q, t, x0 + z * sh, y, z, rot, material, rgba, tnormal,
                                  views[k], lights, ambient, code, mat, colour[k, i, j])
@@ -245,12 +245,18 @@ class BillboardPass:
     """What :func:`draw_billboards` drew: paint it over the shaded frame."""
 
     colour: np.ndarray  # (Z, R, C, 3) uint8
-    mask: np.ndarray    # (Z, R, C) bool
+    quad: np.ndarray    # (Z, R, C) int32: index + 1 of the quad seen, 0 for none
     stats: dict
+
+    @property
+    def mask(self) -> np.ndarray:
+        """Where a billboard won, (Z, R, C) bool."""
+        return self.quad > 0
 
     def paint(self, frame_colour: np.ndarray) -> None:
         """Write the billboards' colour into ``frame_colour`` (Z, R, C, 3) where they won."""
-        frame_colour[self.mask] = self.colour[self.mask]
+        mask = self.mask
+        frame_colour[mask] = self.colour[mask]
 
 
 def draw_billboards(objects: list[BillboardObject], display: DisplaySettings,
@@ -267,14 +273,15 @@ def draw_billboards(objects: list[BillboardObject], display: DisplaySettings,
     quads = pack_quads(objects)
     zrc = vis.depth.shape
     colour = np.zeros((*zrc, 3), np.uint8)
-    mask = np.zeros(zrc, np.bool_)
+    quad = np.zeros(zrc, np.int32)
     writes = draw_quads_kernel(
         quads.origin, quads.u, quads.v, quads.normal, quads.rot, quads.material, quads.tex,
         quads.rgba, quads.tnormal, display.shears(), display.pixel_size, display.width / 2,
         display.height / 2, display.view_vectors(), pack_lights(lights), float(ambient),
-        MODELS[light.model], cull_back, vis.depth, vis.triangle, colour, mask)
+        MODELS[light.model], cull_back, vis.depth, vis.triangle, colour, quad)
     stats = {"objects": len(objects), "quads": int(quads.origin.shape[0]), "pixels": int(writes),
-             "covered_pixels": int(mask.sum()), "drawn_with": DRAWN_WITH.get(method, "zbuffer")}
+             "covered_pixels": int((quad > 0).sum()),
+             "drawn_with": DRAWN_WITH.get(method, "zbuffer")}
     if DRAWN_WITH.get(method, "zbuffer") != method:
         stats["note"] = f"{method} cannot hold alpha-tested quads: billboards z-buffered"
-    return BillboardPass(colour, mask, stats)
+    return BillboardPass(colour, quad, stats)

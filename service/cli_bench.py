@@ -53,9 +53,17 @@ BENCHES = {
         "service.bench.lod_bench",
         "level of detail: triangles vs image error vs ms; a 200-object crowd, LOD on/off",
     ),
+    "billboard": (
+        "service.bench.billboard_bench",
+        "billboard clouds: planes and build time vs EPS; error close up and grazing",
+    ),
     "sird": (
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
+    ),
+    "report": (
+        "service.bench.report",
+        "every benchmark at one size into one self-contained OUT/index.html",
     ),
 }
 

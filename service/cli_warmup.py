@@ -8,7 +8,7 @@ holo-warmup --jsonl         # one JSON object per line on stdout (for a parent p
 Human mode writes one line per job to stderr, ``compiling kernels 7/15 render bsp
 (1.2 s)`` (``cached`` instead of the time when nothing had to be compiled), and a
 summary.  ``--jsonl`` writes ``{"event": "kernel", "done": i, "total": n, "name":
-..., "seconds": s, "cached": bool}`` per job, then ``{"event": "done", "total": n,
+..., "seconds": s, "cached": bool, "kernels": k}`` per job, then ``{"event": "done", "total": n,
 "compiled": k, "cached": m, "seconds": s, "kernels": K}``.  The kernels land in
 numba's cache (``NUMBA_CACHE_DIR`` if set) and every later process loads them.
 """
@@ -21,8 +21,10 @@ import os
 import sys
 from typing import TYPE_CHECKING
 
-from service.cli_args import plain_help
+from service.cli_args import int_range, plain_help
+from service.readiness import mark_warm
 from service.signals import EXIT_RULE, interruptible
+from service.warmup import JOBS, warm_up
 
 if TYPE_CHECKING:
     from service.warmup import WarmupStep
@@ -41,6 +43,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--jsonl", action="store_true",
                    help="one JSON object per line on stdout instead of progress on stderr")
+    p.add_argument("--processes", type=int_range(1, 2), default=2,
+                   help="2 (default): on an empty cache, compile the Galilean stage's "
+                   "kernels in a second process meanwhile; 1: one process")
+    p.add_argument("--job", action="append", choices=list(JOBS), metavar="NAME",
+                   help="run only this job (repeat it); one of: " + "; ".join(JOBS))
     return p
 
 
@@ -54,17 +61,14 @@ def _human(step: WarmupStep) -> None:
 def _jsonl(step: WarmupStep) -> None:
     print(json.dumps({"event": "kernel", "done": step.done, "total": step.total,
                       "name": step.name, "seconds": round(step.seconds, 3),
-                      "cached": step.cached}), flush=True)
+                      "cached": step.cached, "kernels": step.kernels}), flush=True)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from service.readiness import mark_warm
-    from service.warmup import warm_up
-
     if not args.jsonl:
         print("holo-warmup: compiling numba kernels (a few minutes the first time, "
               "seconds once cached)", file=sys.stderr, flush=True)
-    report = warm_up(_jsonl if args.jsonl else _human)
+    report = warm_up(_jsonl if args.jsonl else _human, args.processes, args.job)
     mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
     if args.jsonl:
         print(json.dumps({"event": "done", "total": report.total, "compiled": report.compiled,

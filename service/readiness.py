@@ -33,9 +33,11 @@ new numba or an emptied cache voids it.  ``holo-warmup`` writes it too.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -97,12 +99,17 @@ class Warmup:
         self._thread.start()
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """End the child (SIGTERM, then SIGKILL) and the thread; safe to call twice."""
+        """End the child and its own children (SIGTERM, then SIGKILL) and the thread.
+
+        The child runs in a process group of its own, so the second process
+        ``holo-warmup`` starts on an empty cache ends with it even when the child
+        must be killed.  Safe to call twice.
+        """
         self._stop.set()
         with self._lock:
             child = self.child
         if child is not None:
-            end_process(child, 3.0)
+            _end_group(child, 3.0)
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
 
@@ -158,7 +165,7 @@ class Warmup:
         try:
             proc = subprocess.Popen(
                 self.child_cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE, text=True, env=self.env,
+                stderr=subprocess.PIPE, text=True, env=self.env, start_new_session=True,
             )
         except OSError as exc:
             self._set(note=f"warm-up child did not start ({exc}); compiling in process")
@@ -166,7 +173,7 @@ class Warmup:
         with self._lock:
             self.child = proc
         if self._stop.is_set():  # stop() came before the child was known
-            end_process(proc, 3.0)
+            _end_group(proc, 3.0)
         for line in proc.stdout:
             self._child_line(line)
         err = proc.stderr.read()
@@ -208,6 +215,19 @@ class Warmup:
         report = warm_up(progress)
         self.load_s = time.monotonic() - t0
         return report.compiled
+
+
+def _end_group(proc: subprocess.Popen, timeout_s: float) -> None:
+    """SIGTERM the child's process group, then SIGKILL it if the child does not go."""
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        pass
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGKILL)  # and whatever it started
+    end_process(proc, timeout_s)
 
 
 def _job_count() -> int:

@@ -989,7 +989,9 @@ class Service:
                     render_id += int(done)
                     next_start = now + (self._cap_s() if done else 0.02)
                 elif remote and len(pipe.flights) < capacity and now >= next_start:
-                    aim = self._aim(render_id)
+                    # renders quicker than refreshes (a low refresh_hz) would otherwise be
+                    # aimed one rendezvous past the last, ever further into the future
+                    aim = None if self._ahead() else self._aim(render_id)
                     if aim is None:
                         next_start = now + 0.02
                     else:

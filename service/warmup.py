@@ -17,7 +17,10 @@ is the command; ``make venv`` runs it.
 
 from __future__ import annotations
 
+import json
+import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -26,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from service.display import DisplaySettings
+from service.signals import end_process
 
 __all__ = ["JOBS", "WarmupReport", "WarmupStep", "cache_counts", "dispatchers", "warm_up"]
 
@@ -111,6 +115,37 @@ def _scenes(kit: _Kit) -> None:
     for name in SCENES:
         kit.scene(name).flatten()
     ear_clip(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.5, 0.4], [0.0, 1.0]]))
+
+
+#: A mesh file with a concave and a non-planar polygon: loading repairs both by
+#: ear-clipping (``service.mesh_repair``), as a user's mesh would be.
+_OBJ = """v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0.5 0.3 0
+v 0 1 0
+v 2 0 0
+v 3 0 0.4
+v 3 1 0
+v 2 1 0.3
+f 1 2 3 4 5
+f 6 7 8 9
+"""
+
+
+def _mesh_files(kit: _Kit) -> None:
+    """A mesh file loaded as the service loads one (repair: ear-clipping)."""
+    import tempfile
+    import warnings
+    from pathlib import Path
+
+    from service.loaders import load_scene
+
+    with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the repair's own warning
+        path = Path(tmp) / "warmup.obj"
+        path.write_text(_OBJ)
+        load_scene(path).flatten()
 
 
 def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
@@ -210,24 +245,56 @@ def _galilean_variants(kit: _Kit) -> None:
         _stage_refreshes(stage, 4)
 
 
-#: The warm-up's jobs, in order: name -> job(kit).  Each runs the real code path
-#: on tiny inputs, so the kernels compile for the types they are really called with.
-JOBS: dict[str, Callable[[_Kit], None]] = {
-    "scenes: normals, triangulation": _scenes,
-    "render zbuffer": _render("zbuffer"),
-    "render runlength": _render("runlength"),
-    "render runlength, pixel fallback": _render("runlength", fallback="pixel"),
-    "render bsp": _render("bsp"),
-    "render raycast": _render("raycast"),
-    "light ambient": _render("zbuffer", "ambient"),
-    "light phong": _render("zbuffer", "phong"),
-    "light vertex (Gouraud)": _render("zbuffer", "blinn", "vertex"),
-    "light point (per pixel)": _render("zbuffer", "blinn", "point"),
-    "motion field": _motion(True, "blinn"),
-    "motion field, no colour motion": _motion(False, "ambient"),
-    "galilean: service refresh": _galilean_service,
-    "galilean: game refresh": _galilean_game,
-    "galilean: orders, cache, margin": _galilean_variants,
+def _galilean_local(kit: _Kit) -> None:
+    """Local updates (Flinders Street buffers with depth-only shadows), grafted."""
+    from service.galilean import GalileanSettings, GalileanStage
+    from service.galilean.local_update import render_local
+    from service.pipeline import Renderer
+
+    stage = GalileanStage(kit.display, GalileanSettings(order=2))
+    renderer = Renderer()
+    for shadow in ("depth", "full"):
+        local = render_local(renderer, kit.scene(), kit.display, [0], 0.1, 60.0, 2, stage.fixed,
+                             shadow=shadow)
+        stage.submit(local.buffer, None, (0,))
+        _stage_refreshes(stage)
+
+
+#: Where a job runs when :func:`warm_up` has two processes: ``FIRST`` jobs run
+#: before the split (the render path every Galilean job calls), then ``APART``
+#: jobs run in a second process while this one runs the ``HERE`` jobs.  The two
+#: groups compile disjoint kernels: numba numbers a kernel's cache entries by
+#: reading its index, so two processes adding different signatures of one kernel
+#: at once could both write entry 1.
+FIRST, HERE, APART = "first", "here", "apart"
+
+
+@dataclass(frozen=True)
+class _Job:
+    run: Callable[[_Kit], None]
+    part: str
+
+
+#: The warm-up's jobs, in order: name -> job.  Each runs the real code path on tiny
+#: inputs, so the kernels compile for the types they are really called with.
+JOBS: dict[str, _Job] = {
+    "scenes: normals, triangulation": _Job(_scenes, FIRST),
+    "render zbuffer": _Job(_render("zbuffer"), FIRST),
+    "light ambient": _Job(_render("zbuffer", "ambient"), FIRST),
+    "light phong": _Job(_render("zbuffer", "phong"), FIRST),
+    "motion field": _Job(_motion(True, "blinn"), FIRST),
+    "motion field, no colour motion": _Job(_motion(False, "ambient"), FIRST),
+    "galilean: service refresh": _Job(_galilean_service, APART),
+    "galilean: game refresh": _Job(_galilean_game, APART),
+    "galilean: orders, cache, margin": _Job(_galilean_variants, APART),
+    "galilean: local updates": _Job(_galilean_local, APART),
+    "mesh files: repair": _Job(_mesh_files, HERE),
+    "render runlength": _Job(_render("runlength"), HERE),
+    "render runlength, pixel fallback": _Job(_render("runlength", fallback="pixel"), HERE),
+    "render bsp": _Job(_render("bsp"), HERE),
+    "render raycast": _Job(_render("raycast"), HERE),
+    "light vertex (Gouraud)": _Job(_render("zbuffer", "blinn", "vertex"), HERE),
+    "light point (per pixel)": _Job(_render("zbuffer", "blinn", "point"), HERE),
 }
 
 
@@ -259,32 +326,101 @@ def cache_counts(prefix: str = "service") -> tuple[int, int, int]:
     return hits, misses, loaded
 
 
-def warm_up(progress: Callable[[WarmupStep], None] | None = None) -> WarmupReport:
+class _Progress:
+    """Numbers finished jobs (from this process or the second one) and reports them."""
+
+    def __init__(self, total: int, progress: Callable[[WarmupStep], None] | None) -> None:
+        self.total = total
+        self.steps: list[WarmupStep] = []
+        self._progress = progress
+        self._lock = threading.Lock()
+
+    def step(self, name: str, seconds: float, compiled: int) -> None:
+        with self._lock:
+            step = WarmupStep(len(self.steps) + 1, self.total, name, seconds, compiled == 0,
+                              compiled)
+            self.steps.append(step)
+            if self._progress is not None:
+                self._progress(step)
+
+
+def _run(name: str, kit: _Kit) -> tuple[float, int]:
+    """Run job ``name``: (seconds, kernel signatures it compiled)."""
+    misses0 = cache_counts()[1]
+    t0 = time.perf_counter()
+    JOBS[name].run(kit)
+    return time.perf_counter() - t0, cache_counts()[1] - misses0
+
+
+def _second_process(names: list[str], report: _Progress) -> tuple[Any, threading.Thread]:
+    """``holo-warmup --jsonl`` for ``names`` in a child; a thread reports its jobs."""
+    cmd = [sys.executable, "-m", "service.cli_warmup", "--jsonl", "--processes", "1",
+           *(f"--job={n}" for n in names)]
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+
+    def read() -> None:
+        for line in child.stdout:
+            ev = json.loads(line)
+            if ev.get("event") == "kernel":
+                report.step(ev["name"], ev["seconds"], ev.get("kernels", 0 if ev["cached"] else 1))
+
+    reader = threading.Thread(target=read, name="warmup-child", daemon=True)
+    reader.start()
+    return child, reader
+
+
+def warm_up(
+    progress: Callable[[WarmupStep], None] | None = None,
+    processes: int = 1,
+    only: list[str] | None = None,
+) -> WarmupReport:
     """Compile, or load from numba's cache, every kernel of :data:`JOBS`.
 
     Parameters
     ----------
     progress : callable, optional
-        Called with each :class:`WarmupStep` as its job finishes.
+        Called with each :class:`WarmupStep` as its job finishes (from a second
+        thread too when ``processes`` is 2: jobs are numbered as they finish).
+    processes : int
+        2: when the ``FIRST`` jobs had to compile (an empty cache), the ``APART``
+        jobs run in a second process at the same time as the ``HERE`` jobs, then
+        are run here again (loaded from the cache: a check that another process
+        finds them).  1: everything here, in order.
+    only : list of str, optional
+        Run just these jobs of :data:`JOBS`.
 
     Returns
     -------
     WarmupReport
     """
+    names = [n for n in JOBS if only is None or n in only]
     kit = _Kit()
-    steps: list[WarmupStep] = []
+    report = _Progress(len(names), progress)
     t_all = time.perf_counter()
-    total = len(JOBS)
-    for done, (name, job) in enumerate(JOBS.items(), 1):
-        misses0 = cache_counts()[1]
-        t0 = time.perf_counter()
-        job(kit)
-        seconds = time.perf_counter() - t0
-        compiled = cache_counts()[1] - misses0
-        step = WarmupStep(done, total, name, seconds, compiled == 0, compiled)
-        steps.append(step)
-        if progress is not None:
-            progress(step)
+    first = [n for n in names if JOBS[n].part == FIRST]
+    for name in first:
+        report.step(name, *_run(name, kit))
+    apart = [n for n in names if JOBS[n].part == APART]
+    cold = any(not s.cached for s in report.steps)
+    child = reader = None
+    if processes > 1 and cold and apart:
+        child, reader = _second_process(apart, report)
+    try:
+        for name in names:
+            if name not in first and (child is None or name not in apart):
+                report.step(name, *_run(name, kit))
+        if child is not None:
+            child.wait()
+            reader.join()
+            done = {s.name for s in report.steps}
+            for name in apart:  # loads what the child compiled (or compiles what it did not)
+                seconds, compiled = _run(name, kit)
+                if name not in done:
+                    report.step(name, seconds, compiled)
+    finally:
+        if child is not None:
+            end_process(child)
+    steps = tuple(report.steps)
     n_cached = sum(s.cached for s in steps)
-    return WarmupReport(total, total - n_cached, n_cached, time.perf_counter() - t_all,
-                        tuple(steps), cache_counts()[2])
+    return WarmupReport(len(steps), len(steps) - n_cached, n_cached,
+                        time.perf_counter() - t_all, steps, cache_counts()[2])
