@@ -35,7 +35,9 @@ import numpy as np
 
 from game.gameover import burst_derivatives, burst_records, explosion_scene
 from game.scene import apply_states
+from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.display import DisplaySettings
+from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.motion_field import render_with_motion
 from service.lod import LodSettings
@@ -61,6 +63,8 @@ class FrameView:
     latency_ms : float or None
         From the input the shown render was made from (object states or head pose)
         to this frame.
+    sird : ndarray, shape (R, C), uint8, or None
+        The frame's autostereogram (of the viewer's zone, or the centre one).
     """
 
     colour: np.ndarray
@@ -69,6 +73,7 @@ class FrameView:
     since_render: int
     zone: int | None = None
     latency_ms: float | None = None
+    sird: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -130,6 +135,9 @@ class LocalRenderer:
         self._render_id = -1
         self._grafted: tuple[int, float] = (-1, 0.0)
         self._lead = 0.1
+        self._sird = _sird_output(s.display)
+        #: set by the game while it shows the autostereogram: only then is one made
+        self.sird_wanted = False
         self._threads: list[threading.Thread] = []
 
     def start(self, scene: Scene) -> None:
@@ -194,6 +202,8 @@ class LocalRenderer:
             return self._version, self._records, self._records_t, burst
 
     def _render_loop(self) -> None:
+        if self._sird is not None:  # load the SIRD kernels here, not in the refresh thread
+            warm_up_sird(self._sird.settings.method)
         seen = -1
         while not self._stop.is_set():
             job = self._next_job(seen)
@@ -241,6 +251,8 @@ class LocalRenderer:
                 render_id=render_id,
                 since_render=out.index - graft_index,
                 latency_ms=(now - records_t) * 1e3 if records_t else None,
+                sird=self._sird.frame(out.depth[out.depth.shape[0] // 2])
+                if self._sird is not None and self.sird_wanted else None,
             )
             with self._cv:
                 self._latest = view
@@ -332,7 +344,7 @@ class ServiceBackend:
             light_model=s.light_model,
             galpixel_order=s.order,
             refresh_hz=s.refresh_hz,
-            encodings=["colour"],
+            encodings=["colour", "autostereogram"] if _sird_output(d) else ["colour"],
             **({"lod_error": s.lod_error} if s.lod_error > 0 else {}),
         )
         self.client.load_scene(scene=self._scene)
@@ -429,6 +441,14 @@ class ServiceBackend:
         self.client.close()
 
 
+def _sird_output(display: DisplaySettings) -> SirdOutput | None:
+    """The local renderer's autostereograms (centre zone), None for a display too narrow."""
+    try:
+        return SirdOutput(display.cols, display.rows, display.width, "tiw")
+    except SettingsError:
+        return None
+
+
 def _view(header: dict, arrays: dict) -> FrameView:
     pose_t = header.get("pose_t_ns")
     latency = (header["t_ns"] - pose_t) / 1e6 if pose_t else None
@@ -441,4 +461,5 @@ def _view(header: dict, arrays: dict) -> FrameView:
         since_render=int(header.get("since_render", 0)),
         zone=header.get("zone"),
         latency_ms=latency,
+        sird=arrays.get("autostereogram"),
     )

@@ -101,7 +101,7 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
         "--mode",
         default="head",
         choices=[*MODES, *UNAVAILABLE],
-        help="display mode (autostereogram: not available yet, shows head)",
+        help="display mode (autostereogram: a random-dot stereogram of the depth)",
     )
     p.add_argument(
         "--zone",

@@ -153,6 +153,7 @@ class GameClient:
                 f"zone {settings.zone} is not one of the display's {zones} zones (0 to {zones - 1})"
             )
         self.mode, self.notice = choose_mode(settings.mode)
+        self.backend.sird_wanted = self.mode == "autostereogram"
         self.zone, self.head_zone = settings.zone, zones // 2
         self.state: GameState = new_game(settings.game)
         self.over: GameOverSequence | None = None
@@ -160,6 +161,7 @@ class GameClient:
         self.scores: list[int] = []
         self.modes_shown: set[str] = set()
         self.colour: np.ndarray | None = None
+        self.sird: np.ndarray | None = None  # the frame's autostereogram, if it has one
         self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
         self.latencies: deque[float] = deque(maxlen=600)
         self.dial_events = self.disconnects = 0
@@ -189,6 +191,7 @@ class GameClient:
         is chosen.
         """
         self.mode, self.notice = choose_mode(mode, self.mode)
+        self.backend.sird_wanted = self.mode == "autostereogram"
 
     def _pause(self) -> None:
         self.state.paused = not self.state.paused
@@ -296,6 +299,7 @@ class GameClient:
         self.colour = frame.colour
         if self.first_frame_t is None:
             self.first_frame_t = now
+        self.sird = frame.sird
         self.refreshes.add(now)
         if frame.render_id != self._render_id:
             self._render_id = frame.render_id
@@ -330,7 +334,7 @@ class GameClient:
     def _draw(self, now: float) -> None:
         self.fps.add(now)
         self.modes_shown.add(self.mode)
-        self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now))
+        self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now), self.sird)
         connected = self.backend.connected
         warming = getattr(self.backend, "warming", None)
         if not connected and warming is not None:

@@ -173,7 +173,7 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
     ap.add_argument(
         "--lod-error", type=float_range(0, None, lo_open=True), default=None, metavar="PX",
         help="turn level of detail on: each object drawn with its cheapest simplified mesh "
-        "whose predicted screen error stays under PX pixels, e.g. 0.5 (default: off)",
+        "whose predicted screen error stays under PX pixels (e.g. 0.5) (default: off)",
     )
 
 
