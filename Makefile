@@ -26,19 +26,14 @@ demo: warmup
 	$(BIN)/python -m game.full_demo --out demo-out
 
 render-demo: warmup
-	$(BIN)/python -m service.demo --out demo-out
+	$(BIN)/python -m service.demo --out render-demo-out
 
 lint: $(STAMP)
 	$(BIN)/ruff check service drivers game sim_devices tests
 
 bench: $(STAMP)
-	$(BIN)/holo-bench render --out bench-out/render
-	$(BIN)/holo-bench light --out bench-out/light
-	$(BIN)/holo-bench filters --out bench-out/filters
-	$(BIN)/holo-bench decoders --out bench-out/decoders
-	$(BIN)/holo-bench latency --out bench-out/latency
-	$(BIN)/holo-bench galilean --sweep --out bench-out/galilean
-	$(BIN)/holo-bench sird --out bench-out/sird
+	$(BIN)/python -m pip install --quiet -e '.[peers]' || echo "make bench: the .[peers] extra did not install; the report names the peers it could not start"
+	$(BIN)/holo-bench report --out bench-out
 
 clean:
-	rm -rf $(VENV) demo-out bench-out
+	rm -rf $(VENV) demo-out render-demo-out bench-out

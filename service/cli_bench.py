@@ -61,6 +61,10 @@ BENCHES = {
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
     ),
+    "report": (
+        "service.bench.report",
+        "every benchmark at one size into one self-contained OUT/index.html",
+    ),
 }
 
 

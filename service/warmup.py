@@ -268,6 +268,14 @@ def _galilean_local(kit: _Kit) -> None:
         _stage_refreshes(stage)
 
 
+def _autostereograms(kit: _Kit) -> None:
+    """The autostereogram output's kernels (service encoding, game mode, holo-sird)."""
+    from service.autostereogram.output import warm_up_sird
+
+    for method in ("row", "interpolated", "tiw"):
+        warm_up_sird(method)
+
+
 #: Where a job runs when :func:`warm_up` has two processes: ``FIRST`` jobs run
 #: before the split (the render path every Galilean job calls), then ``APART``
 #: jobs run in a second process while this one runs the ``HERE`` jobs.  The two
@@ -303,6 +311,7 @@ JOBS: dict[str, _Job] = {
     "render raycast": _Job(_render("raycast"), HERE),
     "light vertex (Gouraud)": _Job(_render("zbuffer", "blinn", "vertex"), HERE),
     "light point (per pixel)": _Job(_render("zbuffer", "blinn", "point"), HERE),
+    "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE),
 }
 
 

@@ -220,14 +220,16 @@ def run_stage(truth, updates, display, gs: GalileanSettings, interval: int,
             "ms_per_refresh": float(np.median(ms)), "scored": len(ps)}
 
 
-def sweep(display: DisplaySettings, frames: int, settings: RenderSettings) -> list[dict]:
-    """All motions x orders x intervals."""
+def sweep(display: DisplaySettings, frames: int, settings: RenderSettings,
+          motions: tuple[str, ...] = MOTIONS, intervals: tuple[int, ...] = INTERVALS
+          ) -> list[dict]:
+    """Motions x orders x intervals (all of them unless ``motions`` / ``intervals`` say)."""
     rows = []
-    for motion in MOTIONS:
+    for motion in motions:
         print(f"galilean sweep: {motion}", file=sys.stderr, flush=True)
         truth, updates, _ = prepare(motion, display, frames, settings)
         for order in ORDERS:
-            for k in INTERVALS:
+            for k in intervals:
                 gs = GalileanSettings(order=order, refresh_hz=HZ)
                 rows.append({"motion": motion, "order": order, "interval": k,
                              **run_stage(truth, updates, display, gs, k)})
@@ -610,8 +612,9 @@ def chart_sweep(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(MOTIONS) + 1, figsize=(4.2 * (len(MOTIONS) + 1), 3.8))
-    for ax, motion in zip(axes, MOTIONS, strict=False):
+    motions = [m for m in MOTIONS if any(r["motion"] == m for r in rows)]
+    fig, axes = plt.subplots(1, len(motions) + 1, figsize=(4.2 * (len(motions) + 1), 3.8))
+    for ax, motion in zip(axes, motions, strict=False):
         for order in ORDERS:
             pts = [(r["interval"], r["psnr"]) for r in rows
                    if r["motion"] == motion and r["order"] == order and r["psnr"] is not None]
@@ -744,25 +747,38 @@ def print_case(res: dict) -> None:
 
 
 # -------------------------------------------------------------------- main
+#: ``--sweep --quick``: the motions and intervals swept (no variants, 3 complexity repeats).
+QUICK_MOTIONS, QUICK_INTERVALS = ("linear", "rotating-cube"), (1, 4, 16)
+
+
 def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[int, int],
-              counts: tuple[int, ...] = COMPLEXITY_COUNTS) -> None:
-    """Everything ``--sweep`` writes (``counts``: the complexity steps' extra triangles)."""
+              counts: tuple[int, ...] = COMPLEXITY_COUNTS, quick: bool = False) -> None:
+    """Everything ``--sweep`` writes (``counts``: the complexity steps' extra triangles).
+
+    ``quick`` sweeps :data:`QUICK_MOTIONS` x :data:`QUICK_INTERVALS` only, leaves the
+    variants out and times 3 complexity repeats (for ``holo-bench report --quick``).
+    """
     out.mkdir(parents=True, exist_ok=True)
     settings = RenderSettings(light=LightSettings("blinn"))
     warm_up(settings)
     display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
-    rows = sweep(display, frames, settings)
-    var = variants(display, frames, settings)
+    if quick:
+        rows = sweep(display, frames, settings, QUICK_MOTIONS, QUICK_INTERVALS)
+        var = []
+    else:
+        rows = sweep(display, frames, settings)
+        var = variants(display, frames, settings)
     te = thought_experiments()
     print("galilean sweep: timing", file=sys.stderr, flush=True)
     tm = run_timing(out, time_size)
-    cx = run_complexity(out, time_size, counts)
+    cx = run_complexity(out, time_size, counts, 3 if quick else 15)
     doc = {"size": f"{size[0]}x{size[1]}", "frames": frames, "refresh_hz": HZ,
            "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": var,
            "thought_experiments": te}
     (out / "galilean_sweep.json").write_text(json.dumps(doc, indent=1))
     write_rows(rows, out / "galilean_sweep.csv")
-    write_rows(var, out / "galilean_variants.csv")
+    if var:
+        write_rows(var, out / "galilean_variants.csv")
     chart_sweep(rows, out / "galilean_sweep.png")
     chart_thought(te, out / "galilean_thought.png")
     print(json.dumps({"timing": tm, "complexity": cx, "variants": var}, indent=1))
@@ -792,6 +808,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="refreshes to run (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--sweep", action="store_true", help="run the full sweep into --out")
+    p.add_argument("--quick", action="store_true",
+                   help="with --sweep: two motions, intervals 1,4,16, no variants")
     p.add_argument("--timing", action="store_true",
                    help="only the --time-size timing (refresh, render, shadow) into --out")
     p.add_argument("--complexity", action="store_true",
@@ -817,7 +835,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.sweep:
         run_sweep(Path(args.out), args.size, args.sweep_frames, args.time_size,
-                  args.complexity_counts)
+                  args.complexity_counts, args.quick)
         return 0
     res = scene_case(args.order, args.interval, args.frames) if args.case == "scene" else \
         thought_case(args.case, args.order, args.interval, args.frames)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from service.builtin_scenes import builtin_scene
-from service.cli_args import comma_list, plain_help, size
+from service.cli_args import add_size_option, comma_list, plain_help, size
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
@@ -310,7 +310,8 @@ def main(argv: list[str] | None = None) -> int:
                         "--quick: spheres-8k)")
     p.add_argument("--peer-sizes", type=comma_list(size), default=None,
                    help="sizes of the extra peer scenes (default: 320x240,640x480; "
-                        "--quick: 320x240)")
+                        "--quick: --size)")
+    add_size_option(p, (320, 240), "pixels per zone image")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -318,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.peers_only:
         run_peers(args, out, [])
         return 0
-    cost = zone_cost()
+    cost = zone_cost(size=args.size)
     write_rows(cost, out / "zone_cost")
     chart_zone_cost(cost, out / "zone_cost.png")
     print_zone_cost(cost)
@@ -333,22 +334,26 @@ def main(argv: list[str] | None = None) -> int:
     total = len(scenes) * len(zones)
     for i, (scene, z) in enumerate(((s, z) for s in scenes for z in zones), 1):
         print(f"[{i}/{total}] {scene}, {z} zones", file=sys.stderr, flush=True)
-        rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback="off")
+        rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback="off", size=args.size)
         for mode in ("frame", "pixel"):
             rows += [
                 dict(r, method=f"runlength+{mode}")
-                for r in measure(scene, z, 16.0, ["runlength"], reps, fallback=mode)
+                for r in measure(scene, z, 16.0, ["runlength"], reps, fallback=mode,
+                                 size=args.size)
             ]
     write_rows(rows, out / "render_bench")
     peer_rows = run_peers(args, out, rows) if args.peers else []
     chart_methods(rows, out / "render_bench.png", peer_rows)
     sweep = []
     for a in ANGLES if not args.quick else (8, 16, 32, 60):
-        sweep += measure("game", 5, float(a), ("runlength", "zbuffer"), reps, fallback="off")
+        sweep += measure("game", 5, float(a), ("runlength", "zbuffer"), reps, fallback="off",
+                         size=args.size)
     for z in zones:
-        sweep += measure("game", z, 32.0, ("runlength", "zbuffer"), reps, fallback="off")
+        sweep += measure("game", z, 32.0, ("runlength", "zbuffer"), reps, fallback="off",
+                         size=args.size)
     for r in sweep:
-        r["pct_differ_continuous"] = continuous_error("game", r["zones"], r["angle_deg"])
+        r["pct_differ_continuous"] = continuous_error("game", r["zones"], r["angle_deg"],
+                                                      args.size)
     write_rows(sweep, out / "runlength_sweep")
     chart_sweep(
         [r for r in sweep if r["zones"] == 5],
@@ -369,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
 def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
     """Time the peers beside our z-buffer; write ``peers.json``/``.csv`` and ``peers.png``.
 
-    The bench's scenes and zone counts at 320x240 (against the ray cast too, for the
+    The bench's scenes and zone counts at ``--size`` (against the ray cast too, for the
     chart's reference lines), then the big peer scenes at 1 and 5 zones and the peer
     sizes.  A peer that cannot start is named with its reason, and the rest go on.
     """
@@ -386,8 +391,8 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
     quick = args.quick
     zones = (1, 5) if quick else ZONES
     big = args.peer_scenes or (["spheres-8k"] if quick else list(pr.BIG_SCENES))
-    sizes = args.peer_sizes or ([(320, 240)] if quick else [(320, 240), (640, 480)])
-    configs = [(s, z, (320, 240), True) for s in args.scenes.split(",") for z in zones]
+    sizes = args.peer_sizes or ([args.size] if quick else [(320, 240), (640, 480)])
+    configs = [(s, z, args.size, True) for s in args.scenes.split(",") for z in zones]
     configs += [(s, z, wh, False) for s in big for z in (1, 5) for wh in sizes]
     peer_rows = []
     for i, (scene, z, wh, ref) in enumerate(configs, 1):

@@ -252,7 +252,7 @@ def render_with_motion(
     settings = settings or RenderSettings()
     stats: dict = {"t": t}
     if settings.lod is not None and settings.lod.enabled:  # each object at its level of detail
-        scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod)
+        scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod, clouds=False)
     period = 1.0 / refresh_hz
     scenes = [scene_at(scene, t + k * h * period, viewer, viewer_motion) for k in (-2, -1, 0, 1, 2)]
     arrays = [s.flatten() for s in scenes]

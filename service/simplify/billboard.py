@@ -139,13 +139,19 @@ def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res
     col = np.full((f.shape[0], 3), 255, np.uint8) if colours is None else np.asarray(colours)
     if col.shape != (f.shape[0], 3):
         raise SimplifyError(f"colours must have shape ({f.shape[0]}, 3), not {col.shape}")
-    planes, owner = choose_planes(v, f, s)
+    n_source = int(f.shape[0])
+    cover = choose_planes(v, f, s)
+    planes, owner = cover.planes, cover.owner
     diag = float(np.linalg.norm(v.max(0) - v.min(0))) or 1.0
     texel = diag / int(texture_res)
     grow = int(np.ceil(dilate * eps / texel))
     a = v[f]
     fn = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    # from here on, the faces on planes (pieces of cut faces keep their face's normal)
+    fn, col = fn[cover.parent], col[cover.parent]
+    v, f = cover.vertices, cover.faces
+    a = v[f]
     nrm = np.round(fn * 127).astype(np.int8)
     corners, shapes, rgba, normal = [], [], [], []
     for p in range(planes.shape[0]):
@@ -168,4 +174,4 @@ def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res
         corners=np.array(corners), planes=planes, tex_shape=np.array(shapes, np.int64),
         tex_offset=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
         rgba=np.concatenate(rgba), normal=np.concatenate(normal), eps=float(eps),
-        source_faces=int(f.shape[0]), build_s=time.perf_counter() - t0)
+        source_faces=n_source, build_s=time.perf_counter() - t0)

@@ -22,6 +22,7 @@ are all valid for other planes are dropped (merge), smallest first.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from service.simplify.billboard_kernel import (
     face_distance,
     hough_accumulate,
 )
+from service.simplify.clip import cut_faces
 from service.simplify.errors import SimplifyError
 
 
@@ -51,6 +53,9 @@ class PlaneSettings:
         Least-squares refits tried per plane.
     merge : bool
         Drop planes whose faces other planes can hold (tilting them).
+    cut : bool
+        Cut the faces on the rim of each plane's slab, giving it the part inside
+        (:mod:`.clip`), instead of leaving them whole to later planes.
     merge_tries : int
         Nearby planes tried for each plane dropped.
     absorb_step : float
@@ -60,10 +65,11 @@ class PlaneSettings:
     eps: float
     n_theta: int = 12
     n_phi: int = 48
-    penalty: float = 0.25
+    penalty: float = 0.5
     min_step: float = 0.002
     refits: int = 3
     merge: bool = True
+    cut: bool = True
     merge_tries: int = 8
     absorb_step: float = 0.13
 
@@ -173,8 +179,95 @@ def _choose(m: _Mesh, acc: np.ndarray, angles: np.ndarray, remaining: np.ndarray
     return _refit(m, ids, best, d, rho, s)[1:]
 
 
-def choose_planes(vertices: np.ndarray, faces: np.ndarray,
-                  s: PlaneSettings) -> tuple[np.ndarray, np.ndarray]:
+class PlaneCover(NamedTuple):
+    """The planes a greedy run chose and the faces (or pieces of faces) on each."""
+
+    planes: np.ndarray
+    """(P, 4) float64: unit ``n`` and ``rho`` of ``n . x = rho`` (mesh coordinates)."""
+    vertices: np.ndarray
+    """(V', 3) float64: the mesh's vertices, then those of the pieces cut."""
+    faces: np.ndarray
+    """(F', 3) int64: the faces on planes, whole or cut (every piece within EPS)."""
+    owner: np.ndarray
+    """(F',) int64: the plane each face lies on."""
+    parent: np.ndarray
+    """(F',) int64: the input face each one is (or is a piece of)."""
+
+
+class _Greedy:
+    """The mesh as the greedy loop cuts it: faces, their owners and the Hough bins."""
+
+    def __init__(self, m: _Mesh, s: PlaneSettings) -> None:
+        self.m, self.s = m, s
+        self.dirs, self.angles = _bin_directions(s)
+        self.drho = s.eps
+        nrho = int(np.ceil(2 * m.radius / self.drho)) + 3
+        self.rho0 = -0.5 * nrho * self.drho
+        self.acc = np.zeros((self.dirs.shape[0], nrho))
+        n = m.f.shape[0]
+        self.owner = np.full(n, -1, np.int64)  # -2: replaced by its pieces
+        self.parent = np.arange(n)
+        self.remaining = np.arange(n)
+        self._bins(self.remaining, 1.0)
+
+    def _bins(self, ids: np.ndarray, sign: float) -> None:
+        m, s = self.m, self.s
+        hough_accumulate(m.v, m.f, m.area, ids, self.dirs, self.rho0, self.drho, s.eps,
+                         s.penalty, sign, self.acc)
+
+    def collapse(self, p: int, d: np.ndarray, rho: float, held: np.ndarray) -> None:
+        """Give plane ``p`` the faces ``held`` (mask over remaining), cutting its rim."""
+        s = self.s
+        ids = self.remaining[held]
+        self.owner[ids] = p
+        self._bins(ids, -1.0)
+        rest = self.remaining[~held]
+        if s.cut and rest.shape[0]:
+            rest = self._cut_rim(p, d, rho, ids, rest)
+        self.remaining = rest
+
+    def _cut_rim(self, p: int, d: np.ndarray, rho: float, ids: np.ndarray,
+                 rest: np.ndarray) -> np.ndarray:
+        """Cut the faces next to the collapsed ones that the slab holds in part."""
+        m, s = self.m, self.s
+        touched = np.zeros(m.v.shape[0], bool)
+        touched[m.f[ids].ravel()] = True
+        dist = m.v[m.f[rest]] @ d - rho
+        partial = (np.abs(dist) <= s.eps).any(1) | ((dist.min(1) < -s.eps)
+                                                     & (dist.max(1) > s.eps))
+        rim = rest[partial & touched[m.f[rest]].any(1)]
+        if rim.shape[0] == 0:
+            return rest
+        corners, inside, parent, cut = cut_faces(m.v, m.f, rim, d, rho, s.eps,
+                                                 1e-12 * m.radius ** 2)
+        if not cut.any():
+            return rest
+        self._bins(rim[cut], -1.0)
+        self.owner[rim[cut]] = -2
+        first = m.f.shape[0]
+        k = corners.shape[0]
+        # a piece's corner that is a corner of its face keeps that vertex (so pieces
+        # stay connected to their neighbours); the cut points are new vertices
+        orig = m.f[parent]  # (K, 3)
+        same = (corners[:, :, None, :] == m.v[orig][:, None, :, :]).all(-1)  # (K, 3, 3)
+        fresh = ~same.any(-1)
+        ids = np.where(fresh, -1, orig[np.arange(k)[:, None], same.argmax(-1)])
+        ids[fresh] = m.v.shape[0] + np.arange(int(fresh.sum()))
+        v = np.concatenate([m.v, corners[fresh]])
+        f = np.concatenate([m.f, ids])
+        area = np.concatenate([m.area, 0.5 * np.cross(corners[:, 1] - corners[:, 0],
+                                                      corners[:, 2] - corners[:, 0])])
+        self.m = _Mesh(v, f, area, m.radius)
+        self.parent = np.concatenate([self.parent, self.parent[parent]])
+        new = first + np.arange(k)
+        self.owner = np.concatenate([self.owner, np.where(inside, p, -1)])
+        self._bins(new[~inside], 1.0)
+        keep = np.ones(rest.shape[0], bool)
+        keep[np.isin(rest, rim[cut])] = False
+        return np.concatenate([rest[keep], new[~inside]])
+
+
+def choose_planes(vertices: np.ndarray, faces: np.ndarray, s: PlaneSettings) -> PlaneCover:
     """Greedy billboard planes for a triangle mesh.
 
     Parameters
@@ -185,43 +278,35 @@ def choose_planes(vertices: np.ndarray, faces: np.ndarray,
 
     Returns
     -------
-    planes : ndarray, shape (P, 4), float64
-        ``n`` (unit) and ``rho`` of ``n . x = rho`` in the mesh's coordinates.
-    face_plane : ndarray, shape (F,), int64
-        The plane each face lies on (within ``eps``).
+    PlaneCover
+        With ``s.cut`` false, ``faces`` are the input faces and ``parent`` is
+        ``arange(F)``; with it, faces on a plane's rim are replaced by their pieces.
     """
     centre = 0.5 * (vertices.min(0) + vertices.max(0))
     v = np.ascontiguousarray(vertices - centre)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     a = v[f]
-    m = _Mesh(v, f, 0.5 * np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]),
-              float(np.linalg.norm(v, axis=1).max()))
-    dirs, angles = _bin_directions(s)
-    drho = s.eps
-    nrho = int(np.ceil(2 * m.radius / drho)) + 3
-    rho0 = -0.5 * nrho * drho
-    acc = np.zeros((dirs.shape[0], nrho))
-    remaining = np.arange(f.shape[0])
-    hough_accumulate(v, f, m.area, remaining, dirs, rho0, drho, s.eps, s.penalty, 1.0, acc)
+    g = _Greedy(_Mesh(v, f, 0.5 * np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]),
+                      float(np.linalg.norm(v, axis=1).max())), s)
     planes: list[tuple[np.ndarray, float]] = []
-    face_plane = np.full(f.shape[0], -1, np.int64)
-    while remaining.shape[0]:
-        d, rho = _choose(m, acc, angles, remaining, drho, rho0, s)
-        held = face_distance(v, f, remaining, d, rho) <= s.eps
+    while g.remaining.shape[0]:
+        m, rem = g.m, g.remaining
+        d, rho = _choose(m, g.acc, g.angles, rem, g.drho, g.rho0, s)
+        held = face_distance(m.v, m.f, rem, d, rho) <= s.eps
         if not held.any():
-            big = remaining[np.argmax(np.linalg.norm(m.area[remaining], axis=1))]
+            big = rem[np.argmax(np.linalg.norm(m.area[rem], axis=1))]
             d, rho = _own_plane(m, big)
-            held = remaining == big
-        face_plane[remaining[held]] = len(planes)
+            held = rem == big
+        g.collapse(len(planes), d, rho, held)
         planes.append((d, rho))
-        hough_accumulate(v, f, m.area, remaining[held], dirs, rho0, drho, s.eps, s.penalty,
-                         -1.0, acc)
-        remaining = remaining[~held]
     out = np.array([[*d, rho] for d, rho in planes])
+    on = np.flatnonzero(g.owner >= 0)
+    m = _Mesh(g.m.v, g.m.f[on], g.m.area[on], g.m.radius)
+    owner = g.owner[on]
     if s.merge:
-        out, face_plane = merge_planes(m, out, face_plane, s)
+        out, owner = merge_planes(m, out, owner, s)
     out[:, 3] += out[:, :3] @ centre
-    return out, face_plane
+    return PlaneCover(out, g.m.v + centre, m.f, owner, g.parent[on])
 
 
 def _angles(d: np.ndarray) -> tuple[float, float]:

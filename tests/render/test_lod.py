@@ -53,10 +53,15 @@ def test_the_selector_never_picks_a_level_over_budget(seed, rows, levels, budget
     level, predicted = select_levels(errors, ppu, budget, previous, hyst)
     assert np.all(predicted <= budget)
     np.testing.assert_allclose(predicted, errors[np.arange(rows), level] * ppu)
-    # and it is the coarsest such level when there is no history and no hysteresis
-    fresh, _ = select_levels(errors, ppu, budget, hysteresis=0.0)
-    within = errors * ppu <= budget
-    assert np.all(fresh == within.sum(axis=1) - 1)
+    # and it is the cheapest (last) such level when there is no history and no hysteresis,
+    # whether or not the errors grow along the chain
+    shuffled = errors.copy()
+    shuffled[:, 1:] = rng.permuted(errors[:, 1:], axis=1)
+    for table in (errors, shuffled):
+        fresh, got = select_levels(table, ppu, budget, hysteresis=0.0)
+        within = table * ppu <= budget
+        last = np.array([np.nonzero(row)[0].max() for row in within])
+        assert np.all(fresh == last) and np.all(got <= budget)
 
 
 def test_hysteresis_stops_flicker_at_a_threshold():
@@ -249,3 +254,65 @@ def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch,
     coarsest = len(chain.levels) - 1
     assert report["levels"] == [coarsest, coarsest]
     assert report["over_error"] >= 1 and max(report["predicted_px"]) > 0.5
+
+
+def test_an_unwritable_cache_warns_and_still_renders(ring, tmp_path, monkeypatch):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache folder should be")
+    from service.lod import LodCacheWarning
+
+    with pytest.warns(LodCacheWarning, match="not written"):
+        chain = build_chain(ring, cache=blocker / "lod")
+    assert len(chain.levels) >= 4
+
+
+def test_a_mesh_without_faces_has_a_one_level_chain(tmp_path):
+    from service.mesh import Mesh
+
+    empty = Mesh(np.zeros((3, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64))
+    chain = build_chain(empty, cache=tmp_path)
+    assert len(chain.levels) == 1 and chain.errors.tolist() == [0.0]
+    scene = Scene([SceneObject(empty, name="nothing")])
+    frame = Renderer().render(scene, DisplaySettings(zones=1, cols=8, rows=8),
+                              RenderSettings(lod=LodSettings()))
+    assert frame.stats["lod"]["levels"] == [0]
+
+
+def test_a_billboard_cloud_level_is_cached_drawn_and_kept_off_the_galilean_path(
+        ring, tmp_path, monkeypatch):
+    from service.galilean.motion_field import render_with_motion
+
+    settings = LodSettings(fractions=(0.5,), cloud_eps=(0.05,), texture_res=64)
+    chain = build_chain(ring, settings, cache=tmp_path)
+    assert chain.kinds[-1] == "billboard" and chain.triangles[-1] < chain.triangles[1]
+    assert list(tmp_path.glob("*.hbc"))
+    again = build_chain(ring, settings, cache=tmp_path)
+    assert again.build_ms == 0.0 and again.kinds == chain.kinds  # the .hbc read back
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    tiny = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.3]), scale=0.05),
+                              name="far")])
+    display = DisplaySettings(zones=2, cols=64, rows=48)
+    frame = Renderer().render(tiny, display, RenderSettings(lod=settings))
+    assert frame.stats["lod"]["billboards"] == 1
+    assert frame.stats["billboards"]["covered_pixels"] > 0
+    up = render_with_motion(Renderer(), tiny, display, 0.0, 60.0, RenderSettings(lod=settings))
+    assert up.frame.stats["lod"]["levels"][0] == 1  # the mesh level, not the cloud
+
+
+def test_holo_render_lod_json_report_and_quality_auto(tmp_path):
+    import os
+
+    env = {**os.environ, "HOLO_LOD_CACHE": str(tmp_path / "lod")}
+    for extra in ([], ["--quality", "auto"]):
+        run = subprocess.run(
+            [sys.executable, "-m", "service.cli_render", "builtin:demo", "--lod", "on",
+             "--size", "96x72", "--json", "--out", str(tmp_path / "out"), *extra],
+            capture_output=True, text=True, timeout=300, env=env,
+        )
+        assert run.returncode == 0, run.stderr
+        report = json.loads(run.stdout)
+        assert report["settings"]["lod"] == "on"
+        lod = report["lod"]
+        assert len(lod["levels"]) == len(lod["predicted_px"]) > 1
+        assert max(lod["predicted_px"]) <= 0.5 and lod["triangles"] <= lod["triangles_full"]
+        assert report["mesh"]["flatten_us_per_triangle"] > 0

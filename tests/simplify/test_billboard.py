@@ -19,25 +19,32 @@ def _distances(v, f, planes, owner):
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n_faces=st.integers(1, 40),
-       eps_frac=st.floats(0.002, 0.3))
-def test_greedy_leaves_no_face_uncovered(seed, n_faces, eps_frac):
+       eps_frac=st.floats(0.002, 0.3), cut=st.booleans())
+def test_greedy_leaves_no_face_uncovered(seed, n_faces, eps_frac, cut):
     rng = np.random.default_rng(seed)
     v = rng.normal(size=(n_faces * 2 + 3, 3))
     f = np.stack([rng.choice(v.shape[0], 3, replace=False) for _ in range(n_faces)])
     eps = eps_frac * np.linalg.norm(v.max(0) - v.min(0))
-    planes, owner = choose_planes(v, f, PlaneSettings(eps=eps, n_theta=4, n_phi=8))
-    assert owner.shape == (n_faces,) and owner.min() >= 0 and owner.max() < planes.shape[0]
+    cover = choose_planes(v, f, PlaneSettings(eps=eps, n_theta=4, n_phi=8, cut=cut))
+    planes, owner = cover.planes, cover.owner
+    assert owner.min() >= 0 and owner.max() < planes.shape[0]
     assert np.allclose(np.linalg.norm(planes[:, :3], axis=1), 1.0)
-    assert _distances(v, f, planes, owner).max() <= eps * (1 + 1e-9)
+    assert _distances(cover.vertices, cover.faces, planes, owner).max() <= eps * (1 + 1e-9)
     assert np.array_equal(np.unique(owner), np.arange(planes.shape[0]))  # no empty plane
+    # every face is covered: whole, or by pieces whose areas add up to its own
+    area = 0.5 * np.linalg.norm(np.cross(v[f][:, 1] - v[f][:, 0], v[f][:, 2] - v[f][:, 0]), axis=1)
+    pv = cover.vertices[cover.faces]
+    parea = 0.5 * np.linalg.norm(np.cross(pv[:, 1] - pv[:, 0], pv[:, 2] - pv[:, 0]), axis=1)
+    got = np.bincount(cover.parent, parea, minlength=n_faces)
+    assert np.allclose(got, area, rtol=1e-6, atol=1e-9 * area.max())
 
 
 def test_a_cube_needs_six_planes_and_a_sphere_more_as_eps_shrinks():
     c = cube(1.0)
-    planes, owner = choose_planes(c.vertices, c.triangles, PlaneSettings(eps=0.01))
+    planes = choose_planes(c.vertices, c.triangles, PlaneSettings(eps=0.01)).planes
     assert planes.shape[0] == 6
     s = sphere(0.5, 16, 32)
-    counts = [choose_planes(s.vertices, s.triangles, PlaneSettings(eps=e))[0].shape[0]
+    counts = [choose_planes(s.vertices, s.triangles, PlaneSettings(eps=e)).planes.shape[0]
               for e in (0.1, 0.03)]
     assert counts[0] < counts[1]
 
