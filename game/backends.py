@@ -13,6 +13,8 @@ call                what it does
 ``frame(timeout)``  the newest frame not yet taken (a :class:`FrameView`) or None
 ``connected``       False while the service is unreachable (the loop shows
                     "reconnecting" and keeps trying)
+``warming``         None, or the service's warm-up progress while it compiles
+                    its kernels (the loop shows "waiting for the render service")
 ``close()``         stop threads / close sockets
 ==================  ===================================================================
 
@@ -117,6 +119,7 @@ class LocalRenderer:
             s.display, GalileanSettings(order=s.order, refresh_hz=s.refresh_hz, colour_motion=False)
         )
         self.connected = True
+        self.warming: dict | None = None
         self._renderer = Renderer()
         self._cv = threading.Condition()
         self._stage_lock = threading.Lock()
@@ -297,6 +300,8 @@ class ServiceBackend:
         self._make_sub = FrameSubscriber
         self.sub: Any = None
         self.connected = False
+        #: the service's warm-up progress while it says "warming up", else None.
+        self.warming: dict | None = None
         self._scene: Scene | None = None
         self._records: list[dict] = []
         self._frozen = False
@@ -305,13 +310,28 @@ class ServiceBackend:
         self.reconnects = 0
 
     def start(self, scene: Scene) -> None:
-        """Load the scene and settings (raises if the service is not there)."""
+        """Load the scene and settings (raises if the service is not there).
+
+        A service that is warming up is not an error: ``warming`` says how far it is
+        and the loop keeps trying.
+        """
+        from service.client import WarmingUpError
+
         self._scene = scene
-        self._connect()
+        try:
+            self._connect()
+        except WarmingUpError as exc:
+            self.warming, self.connected = exc.warmup, False
 
     def _connect(self) -> None:
+        """Hello, then the display, scene and devices; not while the service warms up."""
         info = self.client.hello("holo-game")
         self.session = info["session"]
+        if info.get("status", "ready") != "ready":
+            self.warming = info.get("warmup") or {}
+            self.connected = False
+            return
+        self.warming = None
         s = self.settings
         d = s.display
         self.client.set_display(
@@ -350,6 +370,7 @@ class ServiceBackend:
             self._next_try = time.monotonic() + 0.5
 
     def _retry(self) -> None:
+        from service.client import WarmingUpError
         from service.errors import ServiceError
 
         if time.monotonic() < self._next_try:
@@ -357,7 +378,10 @@ class ServiceBackend:
         self._next_try = time.monotonic() + 0.5
         try:
             self._connect()
-            self.reconnects += 1
+            self.reconnects += int(self.connected)
+        except WarmingUpError as exc:  # it went back to warming up between two requests
+            self.warming = exc.warmup
+            self.connected = False
         except ServiceError:
             self.connected = False
 
