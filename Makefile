@@ -26,7 +26,7 @@ demo: warmup
 	$(BIN)/python -m game.full_demo --out demo-out
 
 render-demo: warmup
-	$(BIN)/python -m service.demo --out demo-out
+	$(BIN)/python -m service.demo --out render-demo-out
 
 lint: $(STAMP)
 	$(BIN)/ruff check service drivers game sim_devices tests
@@ -36,4 +36,4 @@ bench: $(STAMP)
 	$(BIN)/holo-bench report --out bench-out
 
 clean:
-	rm -rf $(VENV) demo-out bench-out
+	rm -rf $(VENV) demo-out render-demo-out bench-out

@@ -13,6 +13,8 @@ call                what it does
 ``frame(timeout)``  the newest frame not yet taken (a :class:`FrameView`) or None
 ``connected``       False while the service is unreachable (the loop shows
                     "reconnecting" and keeps trying)
+``warming``         None, or the service's warm-up progress while it compiles
+                    its kernels (the loop shows "waiting for the render service")
 ``close()``         stop threads / close sockets
 ==================  ===================================================================
 
@@ -33,7 +35,9 @@ import numpy as np
 
 from game.gameover import burst_derivatives, burst_records, explosion_scene
 from game.scene import apply_states
+from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.display import DisplaySettings
+from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.motion_field import render_with_motion
 from service.lod import LodSettings
@@ -59,6 +63,8 @@ class FrameView:
     latency_ms : float or None
         From the input the shown render was made from (object states or head pose)
         to this frame.
+    sird : ndarray, shape (R, C), uint8, or None
+        The frame's autostereogram (of the viewer's zone, or the centre one).
     """
 
     colour: np.ndarray
@@ -67,6 +73,7 @@ class FrameView:
     since_render: int
     zone: int | None = None
     latency_ms: float | None = None
+    sird: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,7 @@ class LocalRenderer:
             s.display, GalileanSettings(order=s.order, refresh_hz=s.refresh_hz, colour_motion=False)
         )
         self.connected = True
+        self.warming: dict | None = None
         self._renderer = Renderer()
         self._cv = threading.Condition()
         self._stage_lock = threading.Lock()
@@ -127,6 +135,9 @@ class LocalRenderer:
         self._render_id = -1
         self._grafted: tuple[int, float] = (-1, 0.0)
         self._lead = 0.1
+        self._sird = _sird_output(s.display)
+        #: set by the game while it shows the autostereogram: only then is one made
+        self.sird_wanted = False
         self._threads: list[threading.Thread] = []
 
     def start(self, scene: Scene) -> None:
@@ -191,6 +202,8 @@ class LocalRenderer:
             return self._version, self._records, self._records_t, burst
 
     def _render_loop(self) -> None:
+        if self._sird is not None:  # load the SIRD kernels here, not in the refresh thread
+            warm_up_sird(self._sird.settings.method)
         seen = -1
         while not self._stop.is_set():
             job = self._next_job(seen)
@@ -238,6 +251,8 @@ class LocalRenderer:
                 render_id=render_id,
                 since_render=out.index - graft_index,
                 latency_ms=(now - records_t) * 1e3 if records_t else None,
+                sird=self._sird.frame(out.depth[out.depth.shape[0] // 2])
+                if self._sird is not None and self.sird_wanted else None,
             )
             with self._cv:
                 self._latest = view
@@ -285,6 +300,8 @@ class ServiceBackend:
         self._make_sub = FrameSubscriber
         self.sub: Any = None
         self.connected = False
+        #: the service's warm-up progress while it says "warming up", else None.
+        self.warming: dict | None = None
         self._scene: Scene | None = None
         self._records: list[dict] = []
         self._frozen = False
@@ -293,13 +310,28 @@ class ServiceBackend:
         self.reconnects = 0
 
     def start(self, scene: Scene) -> None:
-        """Load the scene and settings (raises if the service is not there)."""
+        """Load the scene and settings (raises if the service is not there).
+
+        A service that is warming up is not an error: ``warming`` says how far it is
+        and the loop keeps trying.
+        """
+        from service.client import WarmingUpError
+
         self._scene = scene
-        self._connect()
+        try:
+            self._connect()
+        except WarmingUpError as exc:
+            self.warming, self.connected = exc.warmup, False
 
     def _connect(self) -> None:
+        """Hello, then the display, scene and devices; not while the service warms up."""
         info = self.client.hello("holo-game")
         self.session = info["session"]
+        if info.get("status", "ready") != "ready":
+            self.warming = info.get("warmup") or {}
+            self.connected = False
+            return
+        self.warming = None
         s = self.settings
         d = s.display
         self.client.set_display(
@@ -312,7 +344,7 @@ class ServiceBackend:
             light_model=s.light_model,
             galpixel_order=s.order,
             refresh_hz=s.refresh_hz,
-            encodings=["colour"],
+            encodings=["colour", "autostereogram"] if _sird_output(d) else ["colour"],
             **({"lod_error": s.lod_error} if s.lod_error > 0 else {}),
         )
         self.client.load_scene(scene=self._scene)
@@ -338,6 +370,7 @@ class ServiceBackend:
             self._next_try = time.monotonic() + 0.5
 
     def _retry(self) -> None:
+        from service.client import WarmingUpError
         from service.errors import ServiceError
 
         if time.monotonic() < self._next_try:
@@ -345,7 +378,10 @@ class ServiceBackend:
         self._next_try = time.monotonic() + 0.5
         try:
             self._connect()
-            self.reconnects += 1
+            self.reconnects += int(self.connected)
+        except WarmingUpError as exc:  # it went back to warming up between two requests
+            self.warming = exc.warmup
+            self.connected = False
         except ServiceError:
             self.connected = False
 
@@ -405,6 +441,14 @@ class ServiceBackend:
         self.client.close()
 
 
+def _sird_output(display: DisplaySettings) -> SirdOutput | None:
+    """The local renderer's autostereograms (centre zone), None for a display too narrow."""
+    try:
+        return SirdOutput(display.cols, display.rows, display.width, "tiw")
+    except SettingsError:
+        return None
+
+
 def _view(header: dict, arrays: dict) -> FrameView:
     pose_t = header.get("pose_t_ns")
     latency = (header["t_ns"] - pose_t) / 1e6 if pose_t else None
@@ -417,4 +461,5 @@ def _view(header: dict, arrays: dict) -> FrameView:
         since_render=int(header.get("since_render", 0)),
         zone=header.get("zone"),
         latency_ms=latency,
+        sird=arrays.get("autostereogram"),
     )

@@ -8,7 +8,8 @@ with the first frame: a service that starts slowly (a loaded machine) would
 otherwise leave the first modes without a picture to screenshot.  It also saves
 ``gameover.png`` during the spectacular display, ``score.png`` on the score
 screen and ``reconnecting.png`` when the service drops, and keeps a small frame
-every ``film_every_s`` for ``film.png`` (a grid of frames) and ``demo.gif``.
+every ``film_every_s`` from the first frame on for ``film.png`` (a grid of frames)
+and ``demo.gif``.
 The GIF is written with Pillow, which matplotlib already depends on; without it
 only the PNG strip is written.
 """
@@ -61,7 +62,7 @@ class Capture:
         self._home: str | None = None
         self._tour_start: float | None = None
         self._showing: str | None = None
-        self._next_film = start
+        self._next_film: float | None = None
         self._taken: set[str] = set()
 
     def __call__(self, client: Any) -> None:
@@ -75,7 +76,9 @@ class Capture:
             self._once(client, "score")
         if not client.backend.connected and now - self.start > 0.5:
             self._once(client, "reconnecting")
-        if now >= self._next_film and len(self.film) < FILM_FRAMES:
+        if self._next_film is None and client.colour is not None:
+            self._next_film = now  # the film too starts with the first frame
+        if self._next_film is not None and now >= self._next_film and len(self.film) < FILM_FRAMES:
             self._next_film = now + self.film_every_s
             small = pygame.transform.smoothscale(client.window.screen, FILM_SIZE)
             self.film.append(pygame.surfarray.array3d(small).swapaxes(0, 1).copy())

@@ -30,7 +30,7 @@ from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
 from service.lod_cli import add_lod_options, lod_settings
-from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, interruptible
+from service.signals import EXIT_FAILED, EXIT_OK, EXIT_RULE, EXIT_USAGE, interruptible
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
 
@@ -57,7 +57,20 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="attract mode: the bot stops dodging after S game seconds",
     )
-    p.add_argument("--seconds", type=float, default=None, help="stop after N seconds")
+    p.add_argument(
+        "--seconds",
+        type=float,
+        default=None,
+        help="stop after N seconds of play, counted from the first frame shown",
+    )
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=600.0,
+        metavar="S",
+        help="with --seconds: give up when no frame came within S seconds (a service "
+        "warming up on a first run compiles for minutes; default 600)",
+    )
     p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
     p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")
     p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
@@ -88,7 +101,7 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
         "--mode",
         default="head",
         choices=[*MODES, *UNAVAILABLE],
-        help="display mode (autostereogram: not available yet, shows head)",
+        help="display mode (autostereogram: a random-dot stereogram of the depth)",
     )
     p.add_argument(
         "--zone",
@@ -186,12 +199,16 @@ def run(args: argparse.Namespace) -> dict:
     capture = Capture(args.out, start) if args.out else None
     cols, rows = args.size
     where = "in process" if args.local else f"by {args.service}"
-    print(f"holo-game: playing, {args.mode} mode, {args.zones} zones of {cols}x{rows} "
+    print(f"holo-game: started, {args.mode} mode, {args.zones} zones of {cols}x{rows} "
           f"rendered {where}", file=sys.stderr, flush=True)
+    progress = Progress(args.seconds, start)
     try:
-        client.run(args.seconds, capture)
+        client.run(args.seconds, lambda c: progress(c, capture),
+                   args.wait if args.seconds is not None else None)
     finally:
-        stats = client.stats(time.monotonic() - start)
+        stats = client.stats(client.played_s())
+        stats["first_frame_s"] = (None if client.first_frame_t is None
+                                  else round(client.first_frame_t - start, 2))
         backend.close()
         if devices is not None:
             devices.close()
@@ -203,8 +220,55 @@ def run(args: argparse.Namespace) -> dict:
     return stats
 
 
+class Progress:
+    """Lines on stderr as a run goes: waiting for the service, first frame, play time.
+
+    Parameters
+    ----------
+    seconds : float or None
+        The run's play time (``--seconds``).
+    start : float
+        Monotonic clock reading at the start.
+    every_s : float
+        Seconds between lines.
+    """
+
+    def __init__(self, seconds: float | None, start: float, every_s: float = 5.0) -> None:
+        self.seconds, self.start, self.every_s = seconds, start, every_s
+        self._next = start + every_s
+        self._first = False
+
+    def __call__(self, client: object, capture: object = None) -> None:
+        """After each tick (calls ``capture(client)`` first when given)."""
+        if capture is not None:
+            capture(client)
+        now = time.monotonic()
+        if client.first_frame_t is not None and not self._first:
+            self._first = True
+            self._next = now + self.every_s
+            print(f"holo-game: first frame after {now - self.start:.1f} s; playing"
+                  + (f" {self.seconds:g} s" if self.seconds else ""), file=sys.stderr, flush=True)
+        if now < self._next:
+            return
+        self._next = now + self.every_s
+        if client.first_frame_t is None:
+            from game.client_loop import waiting_lines
+
+            warming = getattr(client.backend, "warming", None)
+            what = ("waiting for the render service: " + waiting_lines(warming)[0]
+                    if warming is not None else "waiting for the first frame")
+            print(f"holo-game: {what}", file=sys.stderr, flush=True)
+        elif self.seconds:
+            print(f"holo-game: playing {client.played_s():.0f}/{self.seconds:g} s",
+                  file=sys.stderr, flush=True)
+
+
 def _play(args: argparse.Namespace) -> int:
-    run(args)
+    stats = run(args)
+    if args.seconds is not None and stats.get("first_frame_s") is None:
+        print(f"holo-game: no frame came within {args.wait:g} s; see the service's output",
+              file=sys.stderr)
+        return EXIT_FAILED
     return EXIT_OK
 
 

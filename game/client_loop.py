@@ -7,7 +7,8 @@ the bot in attract mode), then the attackers move, then the new object states go
 to the renderer backend (:mod:`game.backends`: the service or the in-process
 renderer).  The newest frame is drawn in the current display mode with the HUD;
 while the backend is unreachable the window says "reconnecting" and the game is
-paused until the link is back.
+paused until the link is back.  While the service warms up (compiles its kernels
+on a first run) the window says "waiting for the render service: compiling (n/m)".
 
 Attract mode: the bot plays and games restart by themselves; a key or a gamepad
 button that makes a move or starts hands the game to the player.  The dial box does
@@ -94,6 +95,26 @@ class LoopSettings:
     bot_gives_up: float | None = None
 
 
+def waiting_lines(warming: dict) -> list[str]:
+    """The waiting screen's lines for a service's warm-up progress (``docs/protocol.md``).
+
+    Parameters
+    ----------
+    warming : dict
+        ``phase`` (``compiling``, ``loading``...), ``done``, ``total``, ``elapsed_s``.
+    """
+    phase = str(warming.get("phase") or "compiling")
+    done, total = warming.get("done", 0), warming.get("total", 0)
+    first = f"{phase} ({done}/{total})" if total else phase
+    elapsed = warming.get("elapsed_s")
+    lines = [first + (f", {float(elapsed):.0f} s" if elapsed is not None else "")]
+    return [
+        *lines,
+        "the first run compiles the renderer's kernels once",
+        "the game starts when it is ready",
+    ]
+
+
 class GameClient:
     """The game loop over a backend, a window and optional devices.
 
@@ -132,6 +153,7 @@ class GameClient:
                 f"zone {settings.zone} is not one of the display's {zones} zones (0 to {zones - 1})"
             )
         self.mode, self.notice = choose_mode(settings.mode)
+        self.backend.sird_wanted = self.mode == "autostereogram"
         self.zone, self.head_zone = settings.zone, zones // 2
         self.state: GameState = new_game(settings.game)
         self.over: GameOverSequence | None = None
@@ -139,12 +161,15 @@ class GameClient:
         self.scores: list[int] = []
         self.modes_shown: set[str] = set()
         self.colour: np.ndarray | None = None
+        self.sird: np.ndarray | None = None  # the frame's autostereogram, if it has one
         self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
         self.latencies: deque[float] = deque(maxlen=600)
         self.dial_events = self.disconnects = 0
         self.pads = Pads()
         self.pads.open_all()
         self.quit = False
+        #: clock reading when the first frame was shown (None before).
+        self.first_frame_t: float | None = None
         self._last = clock()
         self._render_id = -1
         self._was_connected = backend.connected
@@ -166,6 +191,7 @@ class GameClient:
         is chosen.
         """
         self.mode, self.notice = choose_mode(mode, self.mode)
+        self.backend.sird_wanted = self.mode == "autostereogram"
 
     def _pause(self) -> None:
         self.state.paused = not self.state.paused
@@ -271,6 +297,9 @@ class GameClient:
         if frame is None:
             return
         self.colour = frame.colour
+        if self.first_frame_t is None:
+            self.first_frame_t = now
+        self.sird = frame.sird
         self.refreshes.add(now)
         if frame.render_id != self._render_id:
             self._render_id = frame.render_id
@@ -305,9 +334,12 @@ class GameClient:
     def _draw(self, now: float) -> None:
         self.fps.add(now)
         self.modes_shown.add(self.mode)
-        self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now))
+        self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now), self.sird)
         connected = self.backend.connected
-        if not connected:
+        warming = getattr(self.backend, "warming", None)
+        if not connected and warming is not None:
+            self.window.banner("waiting for the render service", waiting_lines(warming))
+        elif not connected:
             self.window.banner(
                 "reconnecting",
                 ["the render service does not answer", "the game resumes when it is back"],
@@ -316,7 +348,7 @@ class GameClient:
             self.window.banner("GAME OVER", self._score_lines())
         elif self.state.paused:
             self.window.banner("paused", ["press P to go on"])
-        self.disconnects += int(self._was_connected and not connected)
+        self.disconnects += int(self._was_connected and not connected and warming is None)
         self._was_connected = connected
         self.window.flip()
 
@@ -333,14 +365,34 @@ class GameClient:
 
     # ------------------------------------------------------------------ run
     def run(
-        self, seconds: float | None = None, after_tick: Callable[[GameClient], None] | None = None
+        self,
+        seconds: float | None = None,
+        after_tick: Callable[[GameClient], None] | None = None,
+        wait_s: float | None = None,
     ) -> None:
-        """Tick until quit or ``seconds`` pass; ``after_tick(self)`` after each."""
-        end = None if seconds is None else self.clock() + seconds
-        while not self.quit and (end is None or self.clock() < end):
+        """Tick until quit or ``seconds`` pass; ``after_tick(self)`` after each.
+
+        With ``wait_s`` the ``seconds`` count from the first frame shown (a service
+        warming up may take minutes to send one), and the run gives up when no frame
+        came within ``wait_s``; without it they count from now.
+        """
+        start = self.clock()
+        end = None if seconds is None or wait_s is not None else start + seconds
+        while not self.quit:
+            now = self.clock()
+            if end is None and seconds is not None and self.first_frame_t is not None:
+                end = self.first_frame_t + seconds
+            if end is not None and now >= end:
+                break
+            if self.first_frame_t is None and wait_s is not None and now - start >= wait_s:
+                break
             self.tick()
             if after_tick is not None:
                 after_tick(self)
+
+    def played_s(self) -> float:
+        """Seconds since the first frame shown (0 before it)."""
+        return 0.0 if self.first_frame_t is None else self.clock() - self.first_frame_t
 
     def stats(self, elapsed_s: float) -> dict:
         """What the run did (the demo's ``stats.json``)."""

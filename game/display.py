@@ -10,10 +10,14 @@ mode               shows
                    without a tracker
 ``strip``          every zone side by side, zone 0 (leftmost viewer) leftmost
 ``zone``           one fixed zone (``[`` / ``]`` choose it)
-``autostereogram`` not available: the service has no autostereogram encoding yet
-                   (:data:`UNAVAILABLE`); choosing it shows a notice and keeps the
-                   current mode
+``autostereogram`` a single-image random-dot stereogram of the frame's depth (the
+                   service's ``autostereogram`` encoding, or the local renderer's,
+                   ``docs/autostereogram.md``): look through the screen until the
+                   dots fuse; the HUD gets a dark backing so it stays readable over
+                   the dots
 =================  ================================================================
+
+A mode in :data:`UNAVAILABLE` (none now) shows a notice and keeps the current mode.
 
 The HUD shows the score, the window's frames per second, the update (render) rate
 against the refresh rate, and the latency from the input a render was made from
@@ -35,9 +39,13 @@ from service.display import DisplaySettings
 from service.frame import view_strip
 
 #: Modes that can be shown, in the order the demo screenshots them.
-MODES = ("head", "strip", "zone")
-#: Modes named by the issue that have no encoding yet -> why.
-UNAVAILABLE = {"autostereogram": "the autostereogram encoding does not exist yet"}
+MODES = ("head", "strip", "zone", "autostereogram")
+#: Modes named but not available -> why (none: autostereogram landed with issue 12).
+UNAVAILABLE: dict[str, str] = {}
+#: HUD backing (RGBA) in modes whose picture is busy everywhere (random dots).
+HUD_BACKING = (0, 0, 0, 190)
+#: Modes whose HUD gets :data:`HUD_BACKING`.
+BUSY_MODES = frozenset({"autostereogram"})
 #: Assumed distance from the head to the display plane when mapping the tracker's
 #: x (mm) to a viewing angle.
 HEAD_DISTANCE_MM = 250.0
@@ -175,12 +183,21 @@ def _fit(size: tuple[int, int], box: pygame.Rect) -> pygame.Rect:
     return rect
 
 
-#: mode -> the image it shows from a frame's colour (Z, R, C, 3) and the zone.
+#: mode -> the image it shows from a frame's colour (Z, R, C, 3) and the zone
+#: (``autostereogram`` shows the frame's own stereogram when it has one: :meth:`GameWindow.draw`).
 IMAGES = {
     "head": lambda colour, zone: colour[zone],
     "zone": lambda colour, zone: colour[zone],
     "strip": lambda colour, zone: view_strip(colour, sep=4, sep_value=40),
+    "autostereogram": lambda colour, zone: colour[zone],
 }
+
+
+def _image(colour: np.ndarray, mode: str, zone: int, sird: np.ndarray | None) -> np.ndarray:
+    """The (R, C, 3) picture of a mode; a grey stereogram (R, C) is shown as RGB."""
+    if mode == "autostereogram" and sird is not None:
+        return np.repeat(sird[:, :, None], 3, axis=2)
+    return IMAGES[mode](colour, zone)
 
 
 class GameWindow:
@@ -200,16 +217,26 @@ class GameWindow:
         self.font = pygame.font.Font(None, 24)
         self.big = pygame.font.Font(None, 72)
 
-    def draw(self, colour: np.ndarray | None, mode: str, zone: int, hud: Hud) -> None:
-        """The frame in the given mode with the HUD over it."""
+    def draw(self, colour: np.ndarray | None, mode: str, zone: int, hud: Hud,
+             sird: np.ndarray | None = None) -> None:
+        """The frame in the given mode with the HUD over it.
+
+        ``sird`` is the frame's stereogram, (R, C) uint8, shown in ``autostereogram``
+        mode (the zone's colour image stands in while none has arrived).
+        """
         self.screen.fill(BACKGROUND)
         if colour is not None:
-            image = _surface(IMAGES[mode](colour, zone))
+            image = _surface(_image(colour, mode, zone, sird))
             area = self.screen.get_rect().inflate(-20, -90).move(0, 35)
             rect = _fit(image.get_size(), area)
             self.screen.blit(pygame.transform.scale(image, rect.size), rect)
         for k, line in enumerate(hud.text()):
-            self.screen.blit(self.font.render(line, True, HUD_COLOUR), (10, 8 + 20 * k))
+            text = self.font.render(line, True, HUD_COLOUR)
+            if mode in BUSY_MODES:
+                backing = pygame.Surface(text.get_rect().inflate(8, 4).size, pygame.SRCALPHA)
+                backing.fill(HUD_BACKING)
+                self.screen.blit(backing, (6, 6 + 20 * k))
+            self.screen.blit(text, (10, 8 + 20 * k))
 
     def banner(self, title: str, lines: list[str] = (), dim: bool = True) -> None:
         """A large centred title with lines under it, over a dimmed picture."""

@@ -4,8 +4,13 @@ Starts the render service, a simulated head tracker (swaying) and dial box
 (scripted turns and presses) on pty pairs, the device driver publishing their
 events (with the game's button lamps lit), and the game.  With a display the game
 opens its window in attract mode until a key; without one the bot plays headless
-for ``--seconds`` (20) and ``demo-out/`` gets screenshots of each mode, a film
-strip, a GIF and ``stats.json``, and a summary is printed.  Every process started
+for ``--seconds`` (20, counted from the first frame: on a first run the service
+first compiles its kernels, a minute or more, while the game shows "waiting for the
+render service") and ``demo-out/`` gets screenshots of each mode, a film strip, a
+GIF and ``stats.json``, and a summary is printed.  Progress goes to stderr as it
+happens (processes started, the service's warm-up n/m, play time).  The files a
+previous run wrote in ``--out`` are removed first (only those: see
+:data:`DEMO_FILES`; anything else there is left alone).  Every process started
 here is stopped at the end, on SIGINT (Ctrl-C) and SIGTERM (exit status 128 + the
 signal's number), and when one of them fails (exit status 1).  ``--local`` leaves
 the service out (the game renders in process).
@@ -29,6 +34,13 @@ from game.display import has_display, headless_env
 from service.signals import end_process, stop_on_signals
 
 ANY = "tcp://127.0.0.1:0"
+#: What a demo run writes in ``--out`` (glob patterns), removed at the start of the next.
+DEMO_FILES = (
+    "stats.json", "highscores.json", "film.png", "demo.gif", "mode-*.png", "gameover.png",
+    "score.png", "reconnecting.png",
+)  # fmt: skip
+#: Seconds the game waits for its first frame (the service's first warm-up).
+WAIT_S = 600.0
 #: Seconds between looks at a child while waiting for it.
 POLL_S = 0.02
 
@@ -77,6 +89,9 @@ class Proc:
     env : dict, optional
     check : callable, optional
         Called while waiting on the child; raises to stop waiting (a signal came).
+    echo : callable, optional
+        Called with each stderr line; lines it returns true for are shown on this
+        process's stderr (progress).
     """
 
     def __init__(
@@ -85,6 +100,7 @@ class Proc:
         args: list[str],
         env: dict | None = None,
         check: Callable[[], None] = lambda: None,
+        echo: Callable[[str], bool] = lambda line: False,
     ) -> None:
         self.name, self.check = name, check
         self.p = subprocess.Popen(
@@ -92,8 +108,9 @@ class Proc:
         )
         self.out: list[str] = []
         self.err: list[str] = []
-        for stream, lines in ((self.p.stdout, self.out), (self.p.stderr, self.err)):
-            threading.Thread(target=_pump, args=(stream, lines), daemon=True).start()
+        pumps = ((self.p.stdout, self.out, None), (self.p.stderr, self.err, echo))
+        for stream, lines, show in pumps:
+            threading.Thread(target=_pump, args=(stream, lines, show), daemon=True).start()
 
     def wait_line(self, lines: list[str], pred: Callable[[str], bool], timeout: float) -> str:
         """The first line satisfying ``pred``, polled until ``timeout`` seconds pass."""
@@ -127,9 +144,15 @@ class Children:
         self.procs: list[Proc] = []
         self.check = check
 
-    def start(self, name: str, args: list[str], env: dict | None = None) -> Proc:
-        """Start a child and keep it for :meth:`stop_all`."""
-        proc = Proc(name, args, env, self.check)
+    def start(
+        self,
+        name: str,
+        args: list[str],
+        env: dict | None = None,
+        echo: Callable[[str], bool] = lambda line: False,
+    ) -> Proc:
+        """Start a child and keep it for :meth:`stop_all` (``echo``: see :class:`Proc`)."""
+        proc = Proc(name, args, env, self.check, echo)
         self.procs.append(proc)
         return proc
 
@@ -164,9 +187,34 @@ class Children:
             proc.stop()
 
 
-def _pump(stream: object, lines: list[str]) -> None:
+def _pump(stream: object, lines: list[str], echo: Callable[[str], bool] | None) -> None:
     for line in stream:
         lines.append(line.rstrip("\n"))
+        if echo is not None and echo(lines[-1]):
+            say(lines[-1])
+
+
+def say(line: str) -> None:
+    """One progress line on stderr, ``holo-demo: ...``."""
+    print(f"holo-demo: {line}", file=sys.stderr, flush=True)
+
+
+def clean_out(out: Path) -> list[Path]:
+    """Remove what an earlier demo run wrote in ``out`` (:data:`DEMO_FILES` only)."""
+    gone = [p for pattern in DEMO_FILES for p in sorted(out.glob(pattern)) if p.is_file()]
+    for p in gone:
+        p.unlink()
+    return gone
+
+
+def _service_progress(line: str) -> bool:
+    return line.startswith("holo-service: ") and any(
+        word in line for word in ("warming up", "ready", "stopped")
+    )
+
+
+def _game_progress(line: str) -> bool:
+    return line.startswith("holo-game: ")
 
 
 def _script(name: str) -> list[str]:
@@ -197,11 +245,13 @@ def start_devices(children: Children, seconds: float) -> str:
         ],
     )  # fmt: skip
     line = devices.wait_line(devices.err, lambda ln: "publishing on" in ln, 20)
+    say(f"devices: simulated tracker {t_path} and dial box {d_path}, events on {line.split()[-1]}")
     return line.split()[-1]
 
 
 def start_service(children: Children, extra: Sequence[str] = ()) -> str:
     """holo-service on free ports (plus ``extra`` arguments); returns its control address."""
+    say("starting holo-service")
     svc = children.start(
         "holo-service",
         [
@@ -211,8 +261,10 @@ def start_service(children: Children, extra: Sequence[str] = ()) -> str:
             "--worker-address", ANY,
             *extra,
         ],
+        echo=_service_progress,
     )  # fmt: skip
     line = svc.wait_line(svc.err, lambda ln: ln.startswith("holo-service: control"), 30)
+    say(f"holo-service listening on {line.split()[2]}")
     return line.split()[2]
 
 
@@ -233,6 +285,7 @@ def game_args(
             "--seconds", str(args.seconds),
             "--out", args.out,
             "--bot-gives-up", str(args.gives_up),
+            "--wait", str(args.wait),
         ]  # fmt: skip
     return cmd
 
@@ -241,7 +294,17 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line."""
     ap = argparse.ArgumentParser(prog="holo-demo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="demo-out")
-    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument(
+        "--seconds", type=float, default=20.0, help="seconds of play, from the first frame"
+    )
+    ap.add_argument(
+        "--wait",
+        type=float,
+        default=WAIT_S,
+        metavar="S",
+        help="give up when the game shows no frame within S seconds (the service's "
+        "first warm-up)",
+    )
     ap.add_argument("--gives-up", type=float, default=6.0, help="bot gives up after S s")
     ap.add_argument("--local", action="store_true", help="no service: render in the game")
     ap.add_argument("--headless", action="store_true", help="even with a display")
@@ -257,11 +320,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace, children: Children, headless: bool) -> int:
     """Start every process, wait for the game; returns the exit status (0 or 1)."""
-    devices = start_devices(children, args.seconds)
+    say("starting the simulated head tracker, dial box and holo-devices")
+    devices = start_devices(children, args.seconds + args.wait)
     control = None if args.local else start_service(children, args.service_arg)
     env = headless_env() if headless else None
-    game = children.start("holo-game", game_args(args, control, devices, headless), env)
-    rc = children.wait_for(game, None if not headless else args.seconds + 120)
+    say("starting holo-game" + (f" (the bot plays {args.seconds:g} s from the first frame)"
+                                if headless else ""))
+    game = children.start(
+        "holo-game", game_args(args, control, devices, headless), env, echo=_game_progress
+    )
+    rc = children.wait_for(game, None if not headless else args.seconds + args.wait + 120)
     if rc != 0:
         print(f"holo-demo: holo-game exited {rc}: {game.err[-5:]}", file=sys.stderr)
         return 1
@@ -279,6 +347,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     headless = args.headless or not has_display()
     Path(args.out).mkdir(parents=True, exist_ok=True)
+    gone = clean_out(Path(args.out))
+    if gone:
+        say(f"removed {len(gone)} files of the last run from {args.out}/ (only the demo's own)")
     signals = Signals()
     children = Children(signals.check)
     with signals.caught():
@@ -302,6 +373,9 @@ def _summary(out: str, control: str | None) -> None:
         f"  {stats['refreshes']} refreshes ({stats['refresh_hz']} Hz), {stats['renders']} "
         f"renders ({stats['update_hz']} Hz), window {stats['fps']} fps"
     )
+    if stats.get("first_frame_s") is not None:
+        print(f"  first frame {stats['first_frame_s']} s after the game started (the "
+              f"service's warm-up); the rates count from it, over {stats['seconds']} s")
     print(f"  score {stats['score']} over {stats['games']} games, beeps {stats['beeps']}")
     print(f"  tracker poses {stats['tracker_events']}, dial-box events {stats['dial_events']}")
     print(

@@ -139,6 +139,29 @@ def _screen_box(o: np.ndarray, u: np.ndarray, v: np.ndarray, sh: float, s: float
 
 
 @nb.njit(cache=True, nogil=True)
+def _span(a0: float, da: float, b0: float, db: float, s: float, hw: float, c0: int,
+          c1: int) -> tuple[int, int]:
+    """Columns [j0, j1) of a row where ``0 <= a0 + da x < 1`` and ``0 <= b0 + db x < 1``.
+
+    ``x = (j + 0.5) s - hw``; one column of slack each side (the caller re-tests).
+    """
+    lo, hi = -np.inf, np.inf
+    for c0_, d_ in ((a0, da), (b0, db)):
+        if d_ == 0.0:
+            if c0_ < 0.0 or c0_ >= 1.0:
+                return 0, 0
+            continue
+        e0, e1 = -c0_ / d_, (1.0 - c0_) / d_
+        lo = max(lo, min(e0, e1))
+        hi = min(hi, max(e0, e1))
+    if hi < lo:
+        return 0, 0
+    j0 = max(int(np.floor((lo + hw) / s - 0.5)), c0)
+    j1 = min(int(np.ceil((hi + hw) / s - 0.5)) + 1, c1)
+    return j0, max(j1, j0)
+
+
+@nb.njit(cache=True, nogil=True)
 def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: np.ndarray,
                       rot: np.ndarray, material: np.ndarray, tex: np.ndarray,
                       rgba: np.ndarray, tnormal: np.ndarray, shears: np.ndarray, s: float,
@@ -168,16 +191,23 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
             rho = n[0] * o[0] + n[1] * o[1] + n[2] * o[2]
             near = 0 if _facing(q, rot, normal, views[k]) else 1
             r0, r1, c0, c1 = _screen_box(o, uq, vq, sh, s, hw, hh, cols, rows)
+            dzx = -n[0] / den  # z, and so a and b, are linear in x along a row
+            da = ((1.0 + dzx * sh) * uq[0] + dzx * uq[2]) / uu
+            db = ((1.0 + dzx * sh) * vq[0] + dzx * vq[2]) / vv
             for i in range(r0, r1):
                 y = hh - (i + 0.5) * s
-                for j in range(c0, c1):
+                z0 = (rho - n[1] * y) / den  # at x = 0
+                ex, ey, ez = z0 * sh - o[0], y - o[1], z0 - o[2]
+                a0 = (ex * uq[0] + ey * uq[1] + ez * uq[2]) / uu
+                b0 = (ex * vq[0] + ey * vq[1] + ez * vq[2]) / vv
+                j0, j1 = _span(a0, da, b0, db, s, hw, c0, c1)
+                for j in range(j0, j1):
                     x0 = (j + 0.5) * s - hw
-                    z = (rho - n[0] * x0 - n[1] * y) / den
+                    z = z0 + dzx * x0
                     if -z >= depth[k, i, j]:
                         continue
-                    dx, dy, dz = x0 + z * sh - o[0], y - o[1], z - o[2]
-                    a = (dx * uq[0] + dy * uq[1] + dz * uq[2]) / uu
-                    b = (dx * vq[0] + dy * vq[1] + dz * vq[2]) / vv
+                    a = a0 + da * x0
+                    b = b0 + db * x0
                     if a < 0.0 or a >= 1.0 or b < 0.0 or b >= 1.0:
                         continue
                     t = -1

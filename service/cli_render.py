@@ -211,7 +211,12 @@ def run(args: argparse.Namespace) -> dict:
     if quality.mode == "auto":
         chooser = QualityChooser(quality, CostModel.load(args.cost_model))
         warm_up(settings)
-        frame = render_auto(Renderer(), chooser, scene, display, args.light, settings.cull)
+        renderer, lod_report, shown = Renderer(), None, scene
+        if settings.lod is not None:  # levels first, then the methods for that scene
+            shown, lod_report = renderer.lod.apply(scene, display, settings.lod)
+        frame = render_auto(renderer, chooser, shown, display, args.light, settings.cull)
+        if lod_report is not None:
+            frame.stats["lod"] = lod_report
         q = frame.stats["quality"]
         settings = replace(settings, method=q["method"], painter_fallback="pixel",
                            light=LightSettings(args.light, q["specular"]))

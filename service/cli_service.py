@@ -1,13 +1,18 @@
 """``holo-service``: the render service (``docs/service.md``, ``docs/protocol.md``).
 
-::
+Usage::
 
     holo-service [--control ADDR] [--frames ADDR] [--devices ADDR] [--workers N]
                  [--refresh HZ] [--curve-keys DIR] [--scene NAME] ...
     holo-service --make-keys DIR        (same as holo-service-keys DIR)
 
-The first stderr line names the bound addresses; the service runs until a
-``shutdown`` request, SIGINT or SIGTERM.
+The first stderr line names the bound addresses (``holo-service: control ADDR
+frames ADDR session S``).  The service then warms up: a child process compiles
+every numba kernel into the cache (minutes on a first run, seconds after) while the
+service answers every request with "warming up n/m" and keeps sending heartbeats;
+``holo-service: ready ...`` follows when it renders.  ``--no-warmup`` skips that
+(kernels then compile when first used, stalling the service on an empty cache).
+The service runs until a ``shutdown`` request, SIGINT or SIGTERM.
 """
 
 from __future__ import annotations
@@ -17,16 +22,16 @@ import os
 import sys
 from collections.abc import Sequence
 
-from service.cli_args import float_range
+from service.cli_args import float_range, int_range, plain_help
 from service.curve_keys import make_keys
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
-from service.signals import stop_on_signals
+from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
 
-class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
-    """``--help`` with every default; an option whose default is None says so in words."""
+class _DefaultsHelp(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` as written, with every default; a None default is explained in words."""
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         if action.default is None:
@@ -37,7 +42,10 @@ class _DefaultsHelp(argparse.ArgumentDefaultsHelpFormatter):
 def build_parser() -> argparse.ArgumentParser:
     """The command line (``--help`` shows every default)."""
     ap = argparse.ArgumentParser(
-        prog="holo-service", description=__doc__.split("\n\n")[0], formatter_class=_DefaultsHelp
+        prog="holo-service",
+        description=plain_help(__doc__),
+        epilog=EXIT_RULE,
+        formatter_class=_DefaultsHelp,
     )
     _add_addresses(ap)
     _add_rendering(ap)
@@ -61,7 +69,7 @@ def _add_addresses(ap: argparse.ArgumentParser) -> None:
     )
     ap.add_argument(
         "--io-threads",
-        type=int,
+        type=int_range(1, 64),
         metavar="N",
         default=2,
         help="libzmq I/O threads (2: the frame stream gets one of its own, so frames do "
@@ -93,7 +101,7 @@ def _add_rendering(ap: argparse.ArgumentParser) -> None:
     """Workers, rates and timeouts."""
     ap.add_argument(
         "--workers",
-        type=int,
+        type=int_range(0),
         metavar="N",
         default=1,
         help="render worker processes behind the LRU broker (0: render in the service's "
@@ -106,17 +114,27 @@ def _add_rendering(ap: argparse.ArgumentParser) -> None:
         help="with workers: each renders whole updates for successive rendezvous, several "
         "in flight (frames), or every worker a band of hololines of each update (bands)",
     )
-    ap.add_argument("--refresh", type=float, default=60.0, metavar="HZ", help="refresh rate, Hz")
+    ap.add_argument(
+        "--refresh", type=float_range(1, 240), default=60.0, metavar="HZ", help="refresh rate, Hz"
+    )
     ap.add_argument(
         "--max-update-hz",
-        type=float,
+        type=float_range(0),
         metavar="HZ",
         default=0.0,
         help="cap on renders per second (0: as fast as possible)",
     )
     ap.add_argument(
+        "--no-warmup",
+        dest="warmup",
+        action="store_false",
+        default=True,
+        help="serve at once, without the warm-up child; kernels compile when first used "
+        "(the service stalls, heartbeats included, on an empty numba cache)",
+    )
+    ap.add_argument(
         "--render-timeout",
-        type=float,
+        type=float_range(0, lo_open=True),
         metavar="S",
         default=5.0,
         help="seconds before a render job is resent to another worker",
@@ -147,12 +165,15 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
         "--angle", type=float, default=16.0, help="view angle across the zones, degrees"
     )
     ap.add_argument(
-        "--pose-scale", type=float, default=0.001, help="world units per tracker position unit"
+        "--pose-scale",
+        type=float_range(0, lo_open=True),
+        default=0.001,
+        help="world units per tracker position unit",
     )
     ap.add_argument(
         "--lod-error", type=float_range(0, None, lo_open=True), default=None, metavar="PX",
         help="turn level of detail on: each object drawn with its cheapest simplified mesh "
-        "whose predicted screen error stays under PX pixels (e.g. 0.5); default off",
+        "whose predicted screen error stays under PX pixels (e.g. 0.5) (default: off)",
     )
 
 
@@ -187,26 +208,35 @@ def main(argv: Sequence[str] | None = None) -> int:
             pose_scale=args.pose_scale,
             lod_error=args.lod_error or 0.0,
             scene_dirs=tuple(args.scene_dir or ()),
+            warmup=args.warmup,
         )
-        service = Service(config)
+        service = Service(config, log=_log)
     except (HoloError, OSError) as exc:
         print(f"holo-service: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     except Exception as exc:  # zmq.ZMQError: address in use...
         print(f"holo-service: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 2
-    print(
-        f"holo-service: control {service.control_address} frames {service.stream.address} "
-        f"session {service.session}",
-        file=sys.stderr,
-        flush=True,
+        return EXIT_USAGE
+    _log(
+        f"control {service.control_address} frames {service.stream.address} "
+        f"session {service.session}"
     )
+    if not service.ready:
+        _log("warming up: numba kernels load or compile before the first frame; requests get "
+             "warming_up until ready")
     # The refresh thread must get the GIL soon after its tick: a 1 ms switch interval
     # (default 5 ms) bounds how long a busy thread holds it against a waiting one.
     sys.setswitchinterval(0.001)
-    with stop_on_signals(service.stop_event):
+    with stop_on_signals(service.stop_event) as received:
         service.run()
-    return 0
+    if received.signum is not None:
+        _log(f"stopped ({received.name})")
+    return received.exit_status(EXIT_OK)
+
+
+def _log(line: str) -> None:
+    """One line on stderr, ``holo-service: ...``."""
+    print(f"holo-service: {line}", file=sys.stderr, flush=True)
 
 
 def _print_keys(directory: str) -> int:

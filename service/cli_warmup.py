@@ -22,6 +22,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from service.cli_args import int_range, plain_help
+from service.readiness import mark_warm
 from service.signals import EXIT_RULE, interruptible
 from service.warmup import JOBS, warm_up
 
@@ -68,6 +69,7 @@ def _run(args: argparse.Namespace) -> int:
         print("holo-warmup: compiling numba kernels (a few minutes the first time, "
               "seconds once cached)", file=sys.stderr, flush=True)
     report = warm_up(_jsonl if args.jsonl else _human, args.processes, args.job)
+    mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
     if args.jsonl:
         print(json.dumps({"event": "done", "total": report.total, "compiled": report.compiled,
                           "cached": report.cached, "seconds": round(report.seconds, 3),

@@ -19,7 +19,10 @@ times, then :class:`~service.errors.ServiceUnavailableError` is raised; an error
 reply raises :class:`~service.errors.ServiceError` with the protocol's code.  A
 new ``session`` in a reply to :meth:`ServiceClient.hello` (or in frame headers)
 means the service restarted: ``restarted`` is set so the caller can load its
-scene again.  JSON and raw buffers only, never Python object serialisation.
+scene again.  A service still warming up (compiling its kernels) answers with
+``status: "warming_up"`` and its progress; a request it cannot serve yet raises
+:class:`WarmingUpError`, and :meth:`ServiceClient.wait_ready` waits for it.  JSON
+and raw buffers only, never Python object serialisation.
 """
 
 from __future__ import annotations
@@ -49,6 +52,21 @@ class RequestTooLargeError(ServiceError):
     ``ZMQ_MAXMSGSIZE`` that libzmq would answer by dropping the connection, never
     leaves the client.  Its ``code`` is ``too_large``.
     """
+
+
+class WarmingUpError(ServiceError):
+    """The service is still warming up (code ``warming_up``); retry when it is ready.
+
+    Attributes
+    ----------
+    warmup : dict
+        Its progress: ``phase``, ``done``, ``total``, ``step``, ``elapsed_s``
+        (``docs/protocol.md`` 1.8).
+    """
+
+    def __init__(self, message: str, warmup: dict[str, Any] | None = None) -> None:
+        super().__init__("warming_up", message)
+        self.warmup = warmup or {}
 
 
 def _curve_client(sock: zmq.Socket, keys_dir: str | Path | None) -> None:
@@ -172,7 +190,10 @@ class ServiceClient:
     def _check(header: dict[str, Any]) -> dict[str, Any]:
         if not header.get("ok"):
             err = header.get("error") or {}
-            raise ServiceError(str(err.get("code", "internal")), str(err.get("message", "")))
+            code, message = str(err.get("code", "internal")), str(err.get("message", ""))
+            if code == "warming_up":
+                raise WarmingUpError(message, header.get("warmup"))
+            raise ServiceError(code, message)
         return header
 
     # ----------------------------------------------------------- messages
@@ -185,6 +206,39 @@ class ServiceClient:
         if isinstance(got.get("limits"), dict):
             self.limits = protocol.Limits.from_dict(got["limits"])
         return got
+
+    def wait_ready(
+        self, timeout_s: float, progress: Any = None, poll_s: float = 0.25
+    ) -> dict[str, Any]:
+        """``hello`` until the service says ``status: ready``; returns that reply.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Give up after this long (a first start compiles for minutes on a slow machine).
+        progress : callable, optional
+            Called with each warming-up reply's ``warmup`` progress.
+        poll_s : float
+            Seconds between ``hello`` requests.
+
+        Raises
+        ------
+        WarmingUpError
+            Still warming up after ``timeout_s``.
+        ServiceUnavailableError
+            No reply at all.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            got = self.hello()
+            if got.get("status", "ready") == "ready":
+                return got
+            if progress is not None:
+                progress(got.get("warmup") or {})
+            if time.monotonic() + poll_s > deadline:
+                raise WarmingUpError(f"{self.address} still warming up after {timeout_s} s",
+                                     got.get("warmup"))
+            time.sleep(poll_s)
 
     def ping(self) -> dict[str, Any]:
         """One heartbeat round trip."""
@@ -310,6 +364,9 @@ class FrameSubscriber:
         self.frames = 0
         self.dropped = 0
         self.skipped = 0
+        #: the newest heartbeat's ``status`` (``ready`` or ``warming_up``) and progress.
+        self.status: str | None = None
+        self.warmup: dict[str, Any] | None = None
         self._last_seq: int | None = None
 
     def _open(self) -> zmq.Socket:
@@ -359,7 +416,9 @@ class FrameSubscriber:
             self._last_seq = None
         self.session = session
         if header.get("kind") != "frame":
+            self.status, self.warmup = header.get("status"), header.get("warmup")
             return None
+        self.status, self.warmup = "ready", None
         seq = int(header.get("seq", 0))
         if self._last_seq is not None and seq > self._last_seq + 1:
             self.dropped += seq - self._last_seq - 1

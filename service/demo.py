@@ -32,7 +32,9 @@ def _median_frame(renderer: Renderer, scene, display, settings, repeats: int):
 def main(argv: list[str] | None = None) -> int:
     """Render the demo scene; return the exit status."""
     p = argparse.ArgumentParser(prog="holo-demo", description=__doc__)
-    p.add_argument("--out", default="demo-out", help="output folder (default demo-out)")
+    p.add_argument(
+        "--out", default="render-demo-out", help="output folder (default render-demo-out)"
+    )
     p.add_argument("--scene", default="demo", help="built-in scene name (default demo)")
     p.add_argument("--repeats", type=int, default=5, help="renders per method for the median")
     args = p.parse_args(argv)

@@ -62,6 +62,8 @@ class FrameStream:
         self.session = session
         self.seq = 0
         self.published = 0
+        #: more keys for heartbeat headers (the service's ``status`` and ``warmup``).
+        self.extra: dict[str, Any] = {}
         self._last_send = 0.0
 
     def publish(self, header: dict[str, Any], arrays: list[np.ndarray], names: list[str]) -> int:
@@ -102,6 +104,7 @@ class FrameStream:
         if not force and time.monotonic() - self._last_send < protocol.HEARTBEAT_S / 2:
             return False
         head = {
+            **self.extra,
             "v": protocol.VERSION,
             "kind": "hb",
             "session": self.session,

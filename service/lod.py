@@ -65,7 +65,7 @@ DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
 #: Bump when the chain's contents or file layout change (old cache files are rebuilt).
-CHAIN_VERSION = 2
+CHAIN_VERSION = 3
 #: Environment variable naming the cache folder.
 CACHE_ENV = "HOLO_LOD_CACHE"
 #: Levels smaller than this many triangles are not built.
@@ -222,15 +222,18 @@ def _decimated(mesh: Mesh, fractions: tuple[float, ...]) -> list[tuple[Mesh, flo
 
 
 def cloud_error(eps: float, diagonal: float, texture_res: int) -> float:
-    """Geometric error bound of a billboard cloud, mesh units.
+    """Geometric error bound of a billboard cloud, mesh units: ``2 EPS`` + a texel diagonal.
 
     Every source face corner lies within ``eps`` of its billboard and is shot onto it
-    along the plane normal (a displacement of at most ``eps``); opaque texels are then
-    grown by ``CLOUD_DILATE x eps``; a texel (``diagonal / texture_res`` wide) is off by
-    up to half its diagonal.  What this bound leaves out is in ``docs/simplify.md``
-    (thin parts seen from their other side, grazing angles).
+    along the plane normal (a move of at most ``eps``); opaque texels are then grown
+    by ``CLOUD_DILATE x eps``; a texel is ``diagonal / texture_res`` wide.  The sum of
+    those (1.5 EPS + half a texel diagonal) was exceeded on screen (holo-bench lod, the
+    bunny: 9 px measured in city-block steps against 7.3 predicted), so the bound is
+    widened to 2 EPS + a whole texel diagonal, which held on the three benchmark
+    meshes.  What it still leaves out is in ``docs/simplify.md`` (thin parts seen from
+    their other side, grazing angles).
     """
-    return eps * (1.0 + CLOUD_DILATE) + np.sqrt(0.5) * diagonal / texture_res
+    return 2.0 * eps + np.sqrt(2.0) * diagonal / texture_res
 
 
 def _clouds(mesh: Mesh, settings: LodSettings) -> list[tuple[object, float]]:

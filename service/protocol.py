@@ -58,6 +58,7 @@ ERROR_CODES = (
     "bad_settings",
     "render_failed",
     "no_scene",
+    "warming_up",
     "internal",
 )
 
@@ -271,10 +272,16 @@ def reply(
 
 
 def error_reply(
-    envelope: list[bytes], request_id: Any, msg_type: str | None, code: str, message: str
+    envelope: list[bytes],
+    request_id: Any,
+    msg_type: str | None,
+    code: str,
+    message: str,
+    extra: dict[str, Any] | None = None,
 ) -> list[Any]:
-    """Frames of an error reply."""
+    """Frames of an error reply (``extra``: more header keys, e.g. ``warmup``)."""
     header = {
+        **(extra or {}),
         "v": VERSION,
         "id": request_id,
         "type": msg_type,

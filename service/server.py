@@ -45,6 +45,7 @@ from service.light import EVALUATIONS, MODELS
 from service.pipeline import METHOD_NAMES, Renderer
 from service.quality import MODES as QUALITY_MODES
 from service.quality import QualityChooser, QualitySettings, choose, parse_budget
+from service.readiness import Warmup
 from service.scene import MotionState, Scene, Transform, euler_quaternion
 from service.scene_motion import advance_scene
 from service.signals import end_process
@@ -59,6 +60,9 @@ DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
 VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
+#: What a warming-up service answers as usual (with its ``status``); every other
+#: request gets a ``warming_up`` error (``docs/protocol.md`` 1.8).
+WHILE_WARMING = frozenset({"hello", "ping", "stats", "shutdown"})
 
 
 @dataclass
@@ -91,6 +95,41 @@ class ServiceConfig:
     split: str = "frames"
     #: libzmq I/O threads; with 2 the frame PUB has one to itself.
     io_threads: int = 2
+    #: warm up before serving (:mod:`service.readiness`): compile the kernels in a child
+    #: process while answering "warming up"; False (library use, tests): ready at once,
+    #: kernels compile when first used.  ``holo-service`` warms up unless ``--no-warmup``.
+    warmup: bool = False
+
+
+#: (field, check, what it must be) for :func:`check_config`.
+_CONFIG_RULES: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("refresh_hz", lambda v: math.isfinite(v) and 1.0 <= v <= 240.0, "from 1 to 240 Hz"),
+    ("workers", lambda v: v >= 0, ">= 0"),
+    ("render_timeout_s", lambda v: math.isfinite(v) and v > 0, "> 0 seconds"),
+    ("max_update_hz", lambda v: math.isfinite(v) and v >= 0, ">= 0 (0: no cap)"),
+    ("io_threads", lambda v: 1 <= v <= 64, "from 1 to 64"),
+    ("pose_scale", lambda v: math.isfinite(v) and v > 0, "> 0"),
+    ("split", lambda v: v in ("frames", "bands"), "frames or bands"),
+)
+
+
+def check_config(config: ServiceConfig) -> None:
+    """Check every setting before anything starts (a bad one never reaches a thread).
+
+    Raises
+    ------
+    SettingsError
+        Naming the first bad setting and what it must be.
+    """
+    for name, ok, want in _CONFIG_RULES:
+        value = getattr(config, name)
+        if not ok(value):
+            raise SettingsError(f"{name} must be {want}, got {value!r}")
+    if config.scene is not None:
+        from service.builtin_scenes import canonical_scene_name
+
+        canonical_scene_name(config.scene)
+    GalileanSettings(order=2, refresh_hz=config.refresh_hz)
 
 
 @dataclass(frozen=True)
@@ -284,10 +323,19 @@ class Service:
     Parameters
     ----------
     config : ServiceConfig
+    log : callable, optional
+        Called with one line of text per warm-up step (the CLI prints them).
+
+    Raises
+    ------
+    SettingsError
+        A bad setting (:func:`check_config`), before any socket is bound.
     """
 
-    def __init__(self, config: ServiceConfig) -> None:
+    def __init__(self, config: ServiceConfig, log: Callable[[str], None] | None = None) -> None:
+        check_config(config)
         self.config = config
+        self.log = log or (lambda line: None)
         self.session = secrets.token_hex(4)
         # two I/O threads: the frame PUB gets one of its own (FrameStream sets the
         # affinity), so a worker's multi-MB reply never queues a frame behind it
@@ -318,9 +366,9 @@ class Service:
         self.broker: Broker | None = None
         self._auth = None
         self._open_sockets()
-        if config.scene:
-            self.state.scene = _builtin(config.scene)
-            self.state.scene_t = time.monotonic()
+        self.warmup: Warmup | None = Warmup(self.log) if config.warmup else None
+        if self.warmup is None:
+            self._prepare()
         self.handlers: dict[str, Callable[[dict[str, Any]], tuple | None]] = {
             "hello": self._hello,
             "ping": self._ping,
@@ -386,6 +434,12 @@ class Service:
         t = threading.Thread(target=self.broker.run, name="broker", daemon=True)
         t.start()
         self._threads.append(t)
+
+    def _start_workers(self) -> None:
+        """Start ``config.workers`` local workers (after the warm-up: they load its cache)."""
+        c = self.config
+        if self.broker is None or c.workers <= 0:
+            return
         cmd = [
             sys.executable,
             "-m",
@@ -403,22 +457,72 @@ class Service:
             subprocess.Popen(cmd, stdin=subprocess.DEVNULL, env=env) for _ in range(c.workers)
         ]
 
+    def _prepare(self) -> None:
+        """What needs the kernels: the ``--scene`` and the local workers."""
+        if self.config.scene:
+            self.state.scene = _builtin(self.config.scene)
+            self.state.scene_t = time.monotonic()
+        if not self.workers:
+            self._start_workers()
+
     # ------------------------------------------------------------- control
+    @property
+    def ready(self) -> bool:
+        """Whether the warm-up is over (always, without one)."""
+        return self.warmup is None or self.warmup.ready.is_set()
+
+    def status(self) -> dict[str, Any]:
+        """``status`` and, while warming up, ``warmup`` (``docs/protocol.md`` 1.8)."""
+        if self.ready:
+            return {"status": "ready"}
+        return {"status": "warming_up", "warmup": self.warmup.as_dict()}
+
     def run(self, deadline_s: float | None = None) -> None:
-        """Serve until ``shutdown`` (or ``deadline_s``); starts and joins the threads."""
-        for name, target in (("render", self._render_loop), ("refresh", self._refresh_loop)):
-            t = threading.Thread(target=target, name=name, daemon=True)
-            t.start()
-            self._threads.append(t)
+        """Serve until ``shutdown`` (or ``deadline_s``); starts and joins the threads.
+
+        With a warm-up the control loop first answers "warming up" and sends the
+        heartbeats itself until the kernels are ready, then starts the workers, the
+        render and the refresh threads.
+        """
         end = None if deadline_s is None else time.monotonic() + deadline_s
         try:
-            while not self._stop.is_set() and (end is None or time.monotonic() < end):
-                if self.router.poll(5):
-                    self._serve_one(self.router.recv_multipart(copy=False))
-                self._answer_renders()
-                self._forget_clients()
+            if self.warmup is not None:
+                self._warm(end)
+            if self._stop.is_set() or (end is not None and time.monotonic() >= end):
+                return
+            for name, target in (("render", self._render_loop), ("refresh", self._refresh_loop)):
+                t = threading.Thread(target=target, name=name, daemon=True)
+                t.start()
+                self._threads.append(t)
+            self.stream.extra = {"status": "ready"}
+            self._serve(end)
         finally:
             self.close()
+
+    def _warm(self, end: float | None) -> None:
+        """Answer requests and send heartbeats until the warm-up is over, then prepare."""
+        self.warmup.start()
+        while not self._stop.is_set() and (end is None or time.monotonic() < end):
+            if self.warmup.ready.wait(0):
+                break
+            self.stream.extra = self.status()
+            self.stream.heartbeat()
+            if not self.workers and self.warmup.phase == "loading":
+                self._start_workers()  # the cache is full: they load it while this does
+            if self.router.poll(20):
+                self._serve_one(self.router.recv_multipart(copy=False))
+            self._forget_clients()
+        if self.warmup.ready.is_set() and not self._stop.is_set():
+            self.log(f"ready after {self.warmup.summary()}")
+            self._prepare()
+
+    def _serve(self, end: float | None) -> None:
+        """The control loop of a ready service."""
+        while not self._stop.is_set() and (end is None or time.monotonic() < end):
+            if self.router.poll(5):
+                self._serve_one(self.router.recv_multipart(copy=False))
+            self._answer_renders()
+            self._forget_clients()
 
     def _serve_one(self, frames: list[zmq.Frame]) -> None:
         envelope, body = protocol.split_envelope([f.buffer for f in frames])
@@ -429,6 +533,9 @@ class Service:
         try:
             req = protocol.parse_request(body, self.limits)
             rid, mtype = req.get("id"), req["type"]
+            if not self.ready and mtype not in WHILE_WARMING:  # never cached: retry later
+                self._send(self._warming_reply(envelope, rid, mtype))
+                return
             key = self.replies.key(envelope, req)
             cached = self.replies.get(key)
             if cached is not None:  # a resend (Lazy Pirate): the same answer, not applied twice
@@ -453,6 +560,16 @@ class Service:
         if key is not None:
             self.replies.put(key, frames_out[len(envelope) :])
         self._send(frames_out)
+
+    def _warming_reply(self, envelope: list[bytes], rid: Any, mtype: str) -> list[Any]:
+        """The ``warming_up`` error reply, with the progress (``docs/protocol.md`` 1.8)."""
+        self.counters.n["errors"] += 1
+        w = self.warmup.as_dict()
+        message = (
+            f"warming up: {w['phase']} {w['done']}/{w['total']}; "
+            "retry when hello, ping or a heartbeat says status ready"
+        )
+        return protocol.error_reply(envelope, rid, mtype, "warming_up", message, self.status())
 
     def _error(
         self, envelope: list[bytes], rid: Any, mtype: str | None, code: str, message: str
@@ -492,11 +609,12 @@ class Service:
                 "heartbeat_s": protocol.HEARTBEAT_S,
                 "frames": self.stream.address,
                 "limits": self.limits.as_dict(),
+                **self.status(),
             },
         )
 
     def _ping(self, req: dict[str, Any]) -> tuple:
-        return ({"t_ns": time.monotonic_ns()},)
+        return ({"t_ns": time.monotonic_ns(), **self.status()},)
 
     def _load_scene(self, req: dict[str, Any]) -> tuple:
         sources = [k for k in ("builtin", "path", "scene") if k in req]
@@ -619,6 +737,7 @@ class Service:
             last_render_error=self.last_render_error,
             last_refresh_error=self.last_refresh_error,
             session=self.session,
+            **self.status(),
         )
         return ({"stats": s},)
 
@@ -939,6 +1058,8 @@ class Service:
         still open closed with LINGER 0), so closing never waits forever.
         """
         self._stop.set()
+        if self.warmup is not None:
+            self.warmup.stop()
         if self.broker is not None:
             self.broker.stop()
         for t in self._threads:

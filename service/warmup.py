@@ -150,7 +150,14 @@ def _mesh_files(kit: _Kit) -> None:
 
 def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
             fallback: str = "frame") -> Callable:
+    """A render job: frames and renders with motion.
+
+    ``Renderer.render`` as holo-render and the game call it (light into uint8), and
+    ``render_with_motion`` as the service's workers do (light into float32 too).
+    """
+
     def job(kit: _Kit) -> None:
+        from service.galilean.motion_field import render_with_motion
         from service.light import LightSettings
         from service.pipeline import Renderer, RenderSettings
 
@@ -159,6 +166,7 @@ def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
         renderer = Renderer()
         for name in ("game", "cyclic"):  # cyclic: the painter's fallback too
             renderer.render(kit.scene(name), kit.display, settings)
+            render_with_motion(renderer, kit.scene(name), kit.display, 0.1, 60.0, settings)
 
     return job
 
@@ -260,6 +268,14 @@ def _galilean_local(kit: _Kit) -> None:
         _stage_refreshes(stage)
 
 
+def _autostereograms(kit: _Kit) -> None:
+    """The autostereogram output's kernels (service encoding, game mode, holo-sird)."""
+    from service.autostereogram.output import warm_up_sird
+
+    for method in ("row", "interpolated", "tiw"):
+        warm_up_sird(method)
+
+
 #: Where a job runs when :func:`warm_up` has two processes: ``FIRST`` jobs run
 #: before the split (the render path every Galilean job calls), then ``APART``
 #: jobs run in a second process while this one runs the ``HERE`` jobs.  The two
@@ -295,6 +311,7 @@ JOBS: dict[str, _Job] = {
     "render raycast": _Job(_render("raycast"), HERE),
     "light vertex (Gouraud)": _Job(_render("zbuffer", "blinn", "vertex"), HERE),
     "light point (per pixel)": _Job(_render("zbuffer", "blinn", "point"), HERE),
+    "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE),
 }
 
 

@@ -198,6 +198,11 @@ def raw_request(
         s.close(0)
 
 
+def _is_ready(reply: dict | None) -> bool:
+    """A hello reply from a service that is ready (not warming up)."""
+    return reply is not None and reply.get("status", "ready") == "ready"
+
+
 _BOUND = re.compile(r"holo-service: control (\S+) frames (\S+)")
 
 
@@ -234,7 +239,10 @@ class ServiceProcess:
 
 def start_service(*args: str, ready_timeout_s: float = 60.0,
                   env: dict[str, str] | None = None) -> ServiceProcess:
-    """Start ``holo-service`` on loopback ports of its own choosing; wait until it answers.
+    """Start ``holo-service`` on loopback ports of its own choosing; wait until it is ready.
+
+    Until its warm-up is over the service answers hello with ``status: warming_up``
+    (``docs/protocol.md`` 1.8); the tests want a service that renders.
 
     Control, frames and (with local workers, not ``--workers 0``) the broker backend
     bind ``tcp://127.0.0.1:*`` unless ``args`` name them; the bound endpoints come
@@ -255,7 +263,7 @@ def start_service(*args: str, ready_timeout_s: float = 60.0,
     try:
         hello = {"v": 1, "type": "hello", "id": 0, "versions": [1]}
         ok = wait_until(lambda: proc.poll() is not None
-                        or (svc.bound() and raw_request(svc.control, hello, (), 500)),
+                        or (svc.bound() and _is_ready(raw_request(svc.control, hello, (), 500))),
                         ready_timeout_s)
         if not ok or proc.poll() is not None:
             raise RuntimeError(f"holo-service did not start (rc {proc.poll()}): "

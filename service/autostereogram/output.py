@@ -59,3 +59,12 @@ class SirdOutput:
         image, _ = stereogram(depth, self.settings, self.pattern, self.work)
         self.last_ms = (time.perf_counter() - t0) * 1e3
         return image[:, :, 0]
+
+
+def warm_up_sird(method: str) -> None:
+    """Compile (or load from numba's cache) one method's kernels on a tiny grey frame.
+
+    The first call in a process costs a few hundred milliseconds; a display thread
+    should not pay it.
+    """
+    SirdOutput(64, 2, 2.0, method, eye_sep=20.0).frame(np.full((2, 64), np.inf, np.float32))

@@ -89,38 +89,66 @@ def _right_bound(zr: np.ndarray, step: float, rb: np.ndarray) -> float:
 
 
 @nb.njit(cache=True)
+def _link_flat(sr: np.ndarray, same: np.ndarray, y: int) -> int:
+    """TIW's constraint loop over a row with nothing above the far plane (no occlusion).
+
+    Returns the constraints made.  The common case, a ``left`` not linked yet, is
+    tested inline before :func:`_link`'s general search.
+    """
+    w = sr.shape[0]
+    par = y & 1
+    ncons = 0
+    for x in range(w):
+        s = sr[x]
+        left = x - ((s + (s & par)) >> 1)
+        right = left + s
+        if left < 0 or right >= w:
+            continue
+        ncons += 1
+        if same[left] == left:
+            same[left] = right
+        else:
+            _link(same, left, right)
+    return ncons
+
+
+@nb.njit(cache=True)
 def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, rb: np.ndarray, y: int,
               zmax: float, eye_sep: float, mu: float) -> tuple[int, int]:
     """TIW's constraint loop over one row; returns (constraints, hidden points).
 
-    ``sr`` holds ``s(z)``; ``rb`` is :func:`_right_bound`'s output when ``zmax > 0``.
-    With the smallest sight-line slope ``step0 (2 - mu)``, ``lb`` (running, left) and
-    ``rb`` bound every possible occluder, so the exact search (:func:`_hidden`) runs
-    only where they reach the point's height.
+    ``sr`` holds ``s(z)``; ``rb`` is :func:`_right_bound`'s output when ``zmax > 0``
+    (else :func:`_link_flat` does the row).  With the smallest sight-line slope
+    ``step0 (2 - mu)``, ``lb`` (running, left) and ``rb`` bound every possible
+    occluder, so the exact search (:func:`_hidden`) runs only where they reach the
+    point's height.
     """
+    if zmax <= 0.0:
+        return _link_flat(sr, same, y), 0
     w = zr.shape[0]
     step0 = 2.0 / (mu * eye_sep)
     smin = np.float32(step0 * (2.0 - mu))
+    par = y & 1
     lb = np.float32(-1.0)
     ncons = 0
     nhid = 0
     for x in range(w):
         s = sr[x]
-        left = x - ((s + (s & y & 1)) >> 1)
+        z = zr[x]
+        left = x - ((s + (s & par)) >> 1)
         right = left + s
+        near = z < zmax and (lb >= z or rb[x] >= z)
+        lb = max(lb, z) - smin
         if left < 0 or right >= w:
-            if zmax > 0.0:
-                lb = max(lb, zr[x]) - smin
             continue
-        if zmax > 0.0:
-            z = zr[x]
-            near = z < zmax and (lb >= z or rb[x] >= z)
-            lb = max(lb, z) - smin
-            if near and _hidden(zr, x, z, zmax, step0 * (2.0 - mu * z)):
-                nhid += 1
-                continue
+        if near and _hidden(zr, x, z, zmax, step0 * (2.0 - mu * z)):
+            nhid += 1
+            continue
         ncons += 1
-        _link(same, left, right)
+        if same[left] == left:
+            same[left] = right
+        else:
+            _link(same, left, right)
     return ncons, nhid
 
 
@@ -130,6 +158,12 @@ def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> N
     pw = prow.shape[0]
     w = same.shape[0]
     u = (w - 1) % pw
+    if nc == 1:  # grey: one byte a pixel, the loop LLVM can keep tight
+        for x in range(w - 1, -1, -1):
+            k = same[x]
+            o[x] = prow[u, 0] if k == x else o[k]
+            u = u - 1 if u > 0 else pw - 1
+        return
     for x in range(w - 1, -1, -1):
         k = same[x]
         if k == x:

@@ -53,33 +53,43 @@ CHECK_SCENES = ("game", "sphere-torus", "cyclic", "threaded", "demo")
 BUDGETS = ("0.1%", "2%", "30dB")
 
 
-def _median_ms(fn, repeats: int) -> tuple[float, object]:
+def _best_ms(fn, repeats: int) -> tuple[float, object]:
+    """Best milliseconds of ``repeats`` calls after one warm-up, and the last result.
+
+    The best, not the median: on a shared machine the median measures the
+    neighbours (memory-bound passes suffer most), the best what the work costs.
+    """
     out, ms = fn(), []
     for _ in range(repeats):
         t0 = time.perf_counter()
         out = fn()
         ms.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(ms)), out
+    return float(np.min(ms)), out
 
 
 def _time_occlusion(arrays, display: DisplaySettings, method: str, repeats: int):
-    """(median stages 1-4 ms, first Visibility (BSP: with its build), projection)."""
+    """(best stages 1-4 ms, first Visibility (BSP: with its build), projection)."""
     r, s = Renderer(), RenderSettings(method, painter_fallback="pixel")
     first, _, proj = r.visibility(arrays, display, s)  # a BSP tree is built here
-    ms, _ = _median_ms(lambda: r.visibility(arrays, display, s, StageClock({})), repeats)
+    ms, _ = _best_ms(lambda: r.visibility(arrays, display, s, StageClock({})), repeats)
     return ms, first, proj
 
 
 def _time_light(scene, arrays, proj, vis, display: DisplaySettings, evaluation: str,
                 repeats: int) -> float:
-    """Median light-stage ms of one evaluation (Blinn)."""
+    """Best light-stage ms of one evaluation (Blinn)."""
     st = LightSettings("blinn", evaluation)
-    return _median_ms(lambda: shade(arrays, proj, vis, display, scene.lights, scene.ambient, st),
+    return _best_ms(lambda: shade(arrays, proj, vis, display, scene.lights, scene.ambient, st),
                       repeats)[0]
 
 
-def calibrate(repeats: int = 3, galilean_frames: int = 17) -> CostModel:
-    """Measure and fit the cost model (see the module notes)."""
+def calibrate(repeats: int = 5, galilean_frames: int = 17,
+              galilean: list[dict] | None = None) -> CostModel:
+    """Measure and fit the cost model (see the module notes).
+
+    ``galilean``: a sweep table to keep (from an earlier model) instead of running
+    the sweep again (most of the calibration's time).
+    """
     occ: dict[str, list] = {m: [] for m in OCCLUSION}
     light: dict[str, list] = {e: [] for e in SPECULAR}
     build = []
@@ -105,7 +115,7 @@ def calibrate(repeats: int = 3, galilean_frames: int = 17) -> CostModel:
         occlusion={m: fit(rows) for m, rows in occ.items()},
         bsp_build=fit(build)[:2],
         light={e: fit(rows) for e, rows in light.items()},
-        galilean=galilean_table(galilean_frames),
+        galilean=galilean if galilean is not None else galilean_table(galilean_frames),
         meta={"measured": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "machine": platform.platform(), "processor": platform.machine(),
               "scenes": list(CAL_SCENES), "zones": list(CAL_ZONES),
@@ -121,12 +131,11 @@ def update_factor(repeats: int, size: tuple[int, int] = (160, 120)) -> float:
 
     scene, d, r = builtin_scene("game"), DisplaySettings(zones=1, cols=size[0], rows=size[1]), \
         Renderer()
-    ratios = []
+    plain, full = [], []
     for _ in range(repeats + 2):  # interleaved, so a busy moment hits both
-        plain, _ = _median_ms(lambda: r.render(scene, d), 1)
-        full, _ = _median_ms(lambda: render_with_motion(r, scene, d, 0.0, 60.0), 1)
-        ratios.append(full / plain)
-    return round(float(np.median(ratios)), 3)
+        plain.append(_best_ms(lambda: r.render(scene, d), 1)[0])
+        full.append(_best_ms(lambda: render_with_motion(r, scene, d, 0.0, 60.0), 1)[0])
+    return round(min(full) / min(plain), 3)
 
 
 def galilean_table(frames: int, size: tuple[int, int] = (64, 48)) -> list[dict]:
@@ -193,6 +202,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--calibrate", action="store_true", help="measure and write the cost model")
     p.add_argument("--model", default=None, help="cost model JSON to write or read")
+    p.add_argument("--galilean-from", default=None, metavar="PATH",
+                   help="--calibrate: keep this model's Galilean sweep table instead of "
+                   "running the sweep again")
     p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
     add_size_option(p, (160, 120), "pixels per zone image of the budget check")
     p.add_argument("--quick", action="store_true", help="fewer repeats and frames")
@@ -206,7 +218,9 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     warm_up(RenderSettings("runlength"))
     if args.calibrate:
-        model = calibrate(repeats=2 if args.quick else 3, galilean_frames=9 if args.quick else 17)
+        kept = CostModel.load(args.galilean_from).galilean if args.galilean_from else None
+        model = calibrate(repeats=3 if args.quick else 5,
+                          galilean_frames=9 if args.quick else 17, galilean=kept)
         path = Path(args.model) if args.model else out / "quality_model.json"
         path.write_text(model.to_json())
         print(f"wrote {path}")

@@ -122,7 +122,8 @@ def premise_target(size: tuple[int, int], repeats: int,
         print(f"targets: premise, {extra} triangles", file=sys.stderr, flush=True)
         steps.append(_complexity_step(r, scene, display, settings, repeats))
     flat = steps[-1]["refresh_ms"] / steps[0]["refresh_ms"]
-    big = [s for s in steps if s["triangles"] >= 100_000]
+    # steps asked for 100k triangles or more (the scene's grid lands a little short)
+    big = [s for s, extra in zip(steps, counts, strict=True) if extra >= 100_000]
     worst = min(s["update_ratio"] for s in big) if big else None
     where = f"{size[0]}x{size[1]}, one zone"
     return [
@@ -133,7 +134,7 @@ def premise_target(size: tuple[int, int], repeats: int,
          "triangles": [s["triangles"] for s in steps], "figure": round(flat, 3),
          "goal": 1.2, "met": flat <= 1.2},
         {"target": "premise-10x", "what": f"render_with_motion / G(2) refresh, worst of the "
-         f"steps >= 100k triangles, {where}",
+         f"steps of 100k triangles and more, {where}",
          "update_ms": [round(s["render_with_motion_ms"], 3) for s in big],
          "refresh_ms": [round(s["refresh_ms"], 3) for s in big],
          "triangles": [s["triangles"] for s in big],

@@ -65,7 +65,7 @@ class PlaneSettings:
     eps: float
     n_theta: int = 12
     n_phi: int = 48
-    penalty: float = 0.25
+    penalty: float = 0.5
     min_step: float = 0.002
     refits: int = 3
     merge: bool = True

@@ -7,16 +7,16 @@ import os
 import select
 import signal
 import tty
-from pathlib import Path
 
 import pytest
+from drivers_fixtures import MISSING, hatire_capture
 from testkit import posix_only
 
 from drivers import cli_devices
 from drivers.recording import LogReader
 from drivers.subscriber import DeviceSubscriber
 
-FIXTURE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
+FIXTURE = hatire_capture()
 POSE_KEYS = {"t", "device", "kind", "yaw", "pitch", "roll", "x", "y", "z", "seq"}
 KIND_KEYS = {"pose": POSE_KEYS,
              "dial": {"t", "device", "kind", "index", "delta", "value", "turns"},
@@ -78,7 +78,7 @@ def test_live_dump_equals_replay_dump_and_sigterm_closes_the_log(procs, tmp_path
 def test_clean_stop_reports_the_torn_last_frame_as_replay_does(procs, tmp_path):
     """The Hatire capture written into a pty: SIGTERM flushes the decoder (truncated)."""
     if not FIXTURE.is_file():
-        pytest.skip("fixture not present")
+        pytest.skip(MISSING)
     capture = FIXTURE.read_bytes()
     master, slave = os.openpty()
     tty.setraw(slave)

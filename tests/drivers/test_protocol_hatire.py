@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import struct
 from collections import Counter
-from pathlib import Path
 
 import pytest
+from drivers_fixtures import MISSING, hatire_capture
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -21,8 +21,7 @@ from drivers.protocols.hatire import (
 )
 from service.errors import ProtocolError
 
-FIXTURE = (Path(__file__).resolve().parents[2].parent / "shared" / "fixtures" / "hatire"
-           / "opentrack-putty-capture.log")
+FIXTURE = hatire_capture()
 
 
 def feed_split(dec, data: bytes, cuts: list[int], t_ns: int = 0) -> list:
@@ -44,7 +43,7 @@ def poses(events) -> list[PoseEvent]:
 @pytest.fixture(scope="module")
 def capture() -> bytes:
     if not FIXTURE.is_file():
-        pytest.skip(f"real Hatire capture not found at {FIXTURE} (shared fixtures absent)")
+        pytest.skip(MISSING)
     return FIXTURE.read_bytes()
 
 

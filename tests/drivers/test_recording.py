@@ -9,6 +9,7 @@ import warnings
 from pathlib import Path
 
 import pytest
+from drivers_fixtures import MISSING, hatire_capture
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -26,7 +27,7 @@ from drivers.recording import (
 from service.errors import LogFileError, SettingsError
 
 ROOT = Path(__file__).resolve().parents[2]
-HATIRE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
+HATIRE = hatire_capture()
 
 
 def header() -> LogHeader:
@@ -240,7 +241,7 @@ def test_raw_capture_reader_chunks_with_line_rate_times(tmp_path):
     assert r.header.devices[0].serial.baudrate == 9600
 
 
-@pytest.mark.skipif(not HATIRE.is_file(), reason="shared Hatire fixture not present")
+@pytest.mark.skipif(not HATIRE.is_file(), reason=MISSING)
 def test_raw_capture_reader_on_hatire_fixture():
     recs = list(RawCaptureReader(HATIRE, protocol="hatire", chunk_size=30, skip_bytes=79))
     data = b"".join(r.data for r in recs)
@@ -249,7 +250,7 @@ def test_raw_capture_reader_on_hatire_fixture():
     assert recs[-1].t_ns == pytest.approx(len(data) * 10 / 115200 * 1e9, abs=1)
 
 
-@pytest.mark.skipif(not HATIRE.is_file(), reason="shared Hatire fixture not present")
+@pytest.mark.skipif(not HATIRE.is_file(), reason=MISSING)
 def test_raw_capture_replays_through_the_hatire_decoder():
     hatire = pytest.importorskip("drivers.protocols.hatire")
     dec = hatire.HatireDecoder(angle_limit=360.0)

@@ -14,6 +14,7 @@ import tty
 from pathlib import Path
 
 import pytest
+from drivers_fixtures import MISSING, hatire_capture
 
 from drivers import cli_replay
 from drivers.cli_devices import header_extra, log_devices
@@ -25,7 +26,7 @@ from drivers.recording import LogHeader, LogWriter
 from drivers.subscriber import DeviceSubscriber
 
 ROOT = Path(__file__).resolve().parents[2]
-FIXTURE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
+FIXTURE = hatire_capture()
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
 T0 = 5_000_000_000
 
@@ -50,7 +51,7 @@ def dump(capsys, *argv: str) -> list[dict]:
 
 def test_hatire_fixture_as_fast_as_possible_gives_4765_pose_lines():
     if not FIXTURE.is_file():
-        pytest.skip("fixture not present")
+        pytest.skip(MISSING)
     out = subprocess.run([sys.executable, "-m", "drivers.cli_replay", str(FIXTURE),
                           "--protocol", "hatire", "--as-fast-as-possible", "--dump"],
                          cwd=ROOT, capture_output=True, text=True, timeout=60)

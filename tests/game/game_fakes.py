@@ -36,7 +36,8 @@ class RecordingBackend:
         d = self.settings.display
         grey = 40 * (np.arange(d.zones) + 1)[:, None, None, None]
         colour = np.broadcast_to(grey, (d.zones, d.rows, d.cols, 3)).astype(np.uint8)
-        return FrameView(colour, self.seq, len(self.updates), 0, None, 5.0)
+        sird = np.broadcast_to(np.arange(d.cols, dtype=np.uint8) * 7, (d.rows, d.cols))
+        return FrameView(colour, self.seq, len(self.updates), 0, None, 5.0, sird)
 
     def close(self) -> None:
         pass

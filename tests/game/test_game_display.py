@@ -38,8 +38,8 @@ def test_every_mode_draws_its_zones(pygame_headless, mode, tmp_path):
     assert window.screenshot(tmp_path / "s.png").stat().st_size > 0
 
 
-def test_autostereogram_is_listed_unavailable_and_hud_text():
-    assert "autostereogram" in UNAVAILABLE and "autostereogram" not in IMAGES
+def test_autostereogram_is_a_mode_and_hud_text():
+    assert "autostereogram" in MODES and "autostereogram" in IMAGES and not UNAVAILABLE
     text = Hud(score=5, latency_ms=None).text()
     assert text[0].startswith("score 5") and "latency -" in text[1]
 
@@ -68,4 +68,4 @@ def test_choose_mode_keeps_the_current_mode_for_an_unavailable_one():
     for mode in (*UNAVAILABLE, "no-such-mode"):
         shown, notice = choose_mode(mode, "zone")
         assert shown == "zone" and "not available" in notice and mode in notice
-    assert choose_mode("autostereogram")[0] == MODES[0]
+    assert choose_mode("autostereogram") == ("autostereogram", "")

@@ -30,7 +30,8 @@ def test_full_loop_with_simulated_devices_and_a_real_service(tmp_path, capsys):
     assert stats["refreshes"] > 50 and stats["renders"] > 3
     assert stats["tracker_events"] > 50 and stats["dial_events"] > 5
     assert stats["beeps"] == 3 and stats["scores"]  # the bot gave up: one game over
-    assert stats["modes"] == ["head", "strip", "zone"]
-    for name in ("mode-head.png", "mode-strip.png", "mode-zone.png", "film.png", "gameover.png"):
+    assert stats["modes"] == ["autostereogram", "head", "strip", "zone"]
+    for name in ("mode-head.png", "mode-strip.png", "mode-zone.png", "mode-autostereogram.png",
+                 "film.png", "gameover.png"):
         assert (out / name).stat().st_size > 1000
     assert "holo-service at tcp://127.0.0.1:" in capsys.readouterr().out

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pygame
 import pytest
 from game_fakes import RecordingBackend
@@ -30,16 +31,15 @@ def holo_game(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
     )
 
 
-def test_unavailable_mode_on_the_command_line_falls_back_to_head(tmp_path):
+def test_autostereogram_mode_on_the_command_line_shows_dots(tmp_path):
     run = holo_game(
         "--local", "--headless", "--mode", "autostereogram", "--seconds", "3",
         "--size", "80x60", "--highscores", str(tmp_path / "hs.json"),
     )  # fmt: skip
     assert run.returncode == 0, run.stderr
-    assert "Traceback" not in run.stderr
-    assert "autostereogram mode is not available" in run.stderr and "showing head" in run.stderr
+    assert "Traceback" not in run.stderr and "not available" not in run.stderr
     stats = json.loads(run.stdout.splitlines()[-1])
-    assert stats["modes"] == ["head"] and stats["refreshes"] > 0  # frames drawn in head mode
+    assert stats["modes"] == ["autostereogram"] and stats["refreshes"] > 0
 
 
 @pytest.mark.parametrize("zone", ["9", "5", "-1"])
@@ -70,16 +70,21 @@ def press(client: GameClient, key: int) -> None:
     client.tick()
 
 
-def test_unavailable_mode_key_keeps_the_mode_and_says_so_in_the_hud(pygame_headless):
+def test_the_autostereogram_key_shows_the_frames_stereogram_with_a_readable_hud(
+        pygame_headless):
     client = client_with(LoopSettings(GameSettings(), mode="strip"))
     client.tick()
     press(client, pygame.K_4)  # mode_autostereogram
-    assert client.mode == "strip" and client.modes_shown == {"strip"}
-    hud = client.hud(0.0).text()
-    assert any("autostereogram mode is not available" in line for line in hud)
-    assert any("showing strip" in line for line in hud)
-    press(client, pygame.K_3)  # a mode that can be shown clears the notice
-    assert client.mode == "zone" and not client.notice
+    assert client.mode == "autostereogram" and not client.notice
+    assert client.modes_shown == {"strip", "autostereogram"}
+    # the fake frame's stereogram is a ramp: the picture shows it, not the grey zones
+    pixels = client.window.pixels()
+    assert len(np.unique(pixels[150:250, 200:440, 0])) > 20
+    # the HUD's dark backing: its text is light on near-black behind every line
+    hud_box = pixels[6:20, 6:200]
+    assert (hud_box.max(axis=2) < 60).mean() > 0.5 and (hud_box > 200).any()
+    press(client, pygame.K_3)
+    assert client.mode == "zone"
 
 
 @pytest.mark.parametrize("mode", [*UNAVAILABLE, "no-such-mode"])

@@ -297,3 +297,22 @@ def test_a_billboard_cloud_level_is_cached_drawn_and_kept_off_the_galilean_path(
     assert frame.stats["billboards"]["covered_pixels"] > 0
     up = render_with_motion(Renderer(), tiny, display, 0.0, 60.0, RenderSettings(lod=settings))
     assert up.frame.stats["lod"]["levels"][0] == 1  # the mesh level, not the cloud
+
+
+def test_holo_render_lod_json_report_and_quality_auto(tmp_path):
+    import os
+
+    env = {**os.environ, "HOLO_LOD_CACHE": str(tmp_path / "lod")}
+    for extra in ([], ["--quality", "auto"]):
+        run = subprocess.run(
+            [sys.executable, "-m", "service.cli_render", "builtin:demo", "--lod", "on",
+             "--size", "96x72", "--json", "--out", str(tmp_path / "out"), *extra],
+            capture_output=True, text=True, timeout=300, env=env,
+        )
+        assert run.returncode == 0, run.stderr
+        report = json.loads(run.stdout)
+        assert report["settings"]["lod"] == "on"
+        lod = report["lod"]
+        assert len(lod["levels"]) == len(lod["predicted_px"]) > 1
+        assert max(lod["predicted_px"]) <= 0.5 and lod["triangles"] <= lod["triangles_full"]
+        assert report["mesh"]["flatten_us_per_triangle"] > 0

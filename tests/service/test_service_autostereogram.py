@@ -13,7 +13,7 @@ from service.errors import HoloError
 
 def test_frames_carry_a_stereogram_of_their_own_depth(service_factory):
     svc = service_factory("--scene", "game", "--zones", "3", "--cols", "96", "--rows", "64",
-                          "--workers", "0", "--refresh", "30", "--max-update-hz", "5")
+                          "--workers", "0", "--refresh", "20", "--max-update-hz", "2")
     with FrameSubscriber(svc.frames, hwm=100) as frames, ServiceClient(svc.control) as c:
         shown = c.set_display(encodings=["depth", "autostereogram"], sird_method="row")
         assert shown["encodings"] == ["depth", "autostereogram"]

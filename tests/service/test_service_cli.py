@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from testkit import ROOT
 
 from service.cli_service import build_parser
@@ -47,3 +48,28 @@ def test_help_shows_every_default():
         # a None default is explained in words ("default: none", or what happens)
         shown = "default:" if action.default is None else f"default: {action.default}"
         assert shown in entries[option], f"{option}: {shown!r} not in {entries[option]!r}"
+
+
+def test_bad_settings_are_refused_before_the_service_says_it_runs():
+    """``--refresh 0`` and friends: one error line, exit 2, no ready line, no traceback."""
+    for bad in (["--refresh", "0"], ["--refresh", "-1"], ["--render-timeout", "0"],
+                ["--workers", "-1"], ["--scene", "nosuch"]):
+        out = subprocess.run(
+            [sys.executable, "-m", "service.cli_service", "--control", "tcp://127.0.0.1:0",
+             "--frames", "tcp://127.0.0.1:0", *bad],
+            cwd=ROOT, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert out.returncode == 2, (bad, out.stderr)
+        assert "Traceback" not in out.stderr and "control tcp" not in out.stderr, out.stderr
+        assert bad[0] in out.stderr or bad[1] in out.stderr, out.stderr
+        errors = [ln for ln in out.stderr.splitlines() if not ln.startswith(("usage", " "))]
+        assert len(errors) == 1, out.stderr
+
+
+def test_a_bad_setting_from_python_is_refused_before_any_socket():
+    from service.errors import SettingsError
+    from service.server import Service, ServiceConfig
+
+    with pytest.raises(SettingsError, match="refresh_hz"):
+        Service(ServiceConfig(control="tcp://127.0.0.1:0", frames="tcp://127.0.0.1:0",
+                              refresh_hz=0.0))

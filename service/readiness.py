@@ -1,0 +1,279 @@
+"""Warm-up of ``holo-service`` before it is ready: kernels compiled in a child process.
+
+On an empty numba cache the kernels take tens of seconds to compile (minutes on a
+slow machine).  Compiled lazily inside the service they held up its refresh loop
+and even its heartbeats, so clients took it for dead.  Instead:
+
+1. the service binds its sockets and answers requests at once, saying it is
+   *warming up* (``docs/protocol.md`` 1.8); its control loop keeps sending
+   heartbeats;
+2. :class:`Warmup` runs ``python -m service.cli_warmup --jsonl`` as a **child
+   process** that fills numba's cache (``NUMBA_CACHE_DIR`` or ``__pycache__``) and
+   reports one JSON line per warm-up job; the service's progress follows it
+   (``compiling n/m``).  A child, not a thread: a compile holds the GIL for long
+   stretches and cannot be interrupted, whereas a child is ended at once (SIGTERM)
+   when the service is asked to stop, with no LLVM left half-way in this process;
+3. when the child is done, the same jobs run **in this process** (a thread), which
+   now loads every kernel from the cache (``loading n/m``, a second or two);
+4. then the service is ready and starts its workers and loops.
+
+If the child fails (it crashed, or ``service.cli_warmup`` is missing), step 3
+compiles in process instead (slower, but the service still gets ready and its
+heartbeats go on).  :meth:`Warmup.as_dict` is what replies and heartbeats carry.
+
+**A warm cache skips the child.**  Starting a Python process that imports numba and
+loads 60 kernels costs seconds (14 s on a loaded 2-core machine), on every start.
+So once a warm-up has found every kernel in the cache, :func:`mark_warm` writes a
+small JSON stamp beside the cache (``holo-warmup-stamp.json`` in ``NUMBA_CACHE_DIR``,
+else in ``service/__pycache__``) naming the sources (every ``service`` module's
+size and mtime), numba's and Python's versions.  While the stamp matches
+(:func:`is_warm`), the service goes straight to step 3.  Any edit of a module, a
+new numba or an emptied cache voids it.  ``holo-warmup`` writes it too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from service.signals import end_process
+
+#: The phases in order; ``ready`` and ``failed`` are final.
+PHASES = ("starting", "compiling", "loading", "ready", "failed")
+#: The child's command (``holo-warmup --jsonl``).
+CHILD = (sys.executable, "-m", "service.cli_warmup", "--jsonl")
+
+
+class _Abort(Exception):  # noqa: N818 -- control flow, never leaves this module
+    """Raised from the progress callback to end the in-process warm-up early."""
+
+
+class Warmup:
+    """The warm-up of one service: a child process, then an in-process load.
+
+    Parameters
+    ----------
+    log : callable, optional
+        Called with one line of progress text per step (the CLI prints it).
+    child : sequence of str
+        The child's command line (default :data:`CHILD`).
+    env : dict, optional
+        The child's environment (default: this process's).
+    """
+
+    def __init__(
+        self,
+        log: Callable[[str], None] | None = None,
+        child: tuple[str, ...] = CHILD,
+        env: dict[str, str] | None = None,
+    ) -> None:
+        self.log = log or (lambda line: None)
+        self.child_cmd, self.env = tuple(child), env
+        self.phase = "starting"
+        self.done, self.total = 0, _job_count()
+        self.step = ""
+        self.note = ""
+        self.t0 = time.monotonic()
+        self.compile_s: float | None = None
+        self.load_s: float | None = None
+        self.child: subprocess.Popen | None = None
+        self.ready = threading.Event()
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------ control
+    def start(self) -> None:
+        """Start the warm-up thread (it starts the child)."""
+        self._thread = threading.Thread(target=self._run, name="warmup", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """End the child and its own children (SIGTERM, then SIGKILL) and the thread.
+
+        The child runs in a process group of its own, so the second process
+        ``holo-warmup`` starts on an empty cache ends with it even when the child
+        must be killed.  Safe to call twice.
+        """
+        self._stop.set()
+        with self._lock:
+            child = self.child
+        if child is not None:
+            _end_group(child, 3.0)
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout_s)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The progress as replies and heartbeats carry it (``docs/protocol.md`` 1.8)."""
+        with self._lock:
+            return {
+                "phase": self.phase,
+                "done": self.done,
+                "total": self.total,
+                "step": self.step,
+                "elapsed_s": round(time.monotonic() - self.t0, 2),
+                "child_pid": None if self.child is None else self.child.pid,
+                "note": self.note,
+            }
+
+    def summary(self) -> str:
+        """One line for the log once ready."""
+        comp = "" if self.compile_s is None else f"child {self.compile_s:.1f} s, "
+        load = "" if self.load_s is None else f"in process {self.load_s:.1f} s"
+        note = f"; {self.note}" if self.note else ""
+        return f"{self.total} warm-up jobs ({comp}{load}){note}"
+
+    # ------------------------------------------------------------- thread
+    def _run(self) -> None:
+        try:
+            ok = True if is_warm() else self._child()
+            if self._stop.is_set():
+                return
+            if not ok:
+                self._set(phase="compiling", done=0, note=self.note)
+            if self._in_process("loading" if ok else "compiling") == 0:
+                mark_warm()
+        except _Abort:
+            return
+        except Exception as exc:  # noqa: BLE001 -- the service still gets ready
+            self._set(note=f"warm-up failed ({type(exc).__name__}: {exc}); "
+                      "kernels compile when first used")
+            self.log(f"warming up: {self.note}")
+        if not self._stop.is_set():
+            self._set(phase="ready", done=self.total)
+            self.ready.set()
+
+    def _set(self, **fields: Any) -> None:
+        with self._lock:
+            for k, v in fields.items():
+                setattr(self, k, v)
+
+    def _child(self) -> bool:
+        """Run the child to the end; True when it filled the cache (exit 0)."""
+        t0 = time.monotonic()
+        self._set(phase="compiling")
+        try:
+            proc = subprocess.Popen(
+                self.child_cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE, text=True, env=self.env, start_new_session=True,
+            )
+        except OSError as exc:
+            self._set(note=f"warm-up child did not start ({exc}); compiling in process")
+            return False
+        with self._lock:
+            self.child = proc
+        if self._stop.is_set():  # stop() came before the child was known
+            _end_group(proc, 3.0)
+        for line in proc.stdout:
+            self._child_line(line)
+        err = proc.stderr.read()
+        rc = proc.wait()
+        self.compile_s = time.monotonic() - t0
+        if rc != 0 and not self._stop.is_set():
+            last = (err.strip().splitlines() or [""])[-1][:200]
+            self._set(note=f"warm-up child exited {rc} ({last}); compiling in process")
+            self.log(f"warming up: {self.note}")
+        return rc == 0
+
+    def _child_line(self, line: str) -> None:
+        try:
+            ev = json.loads(line)
+        except ValueError:
+            return
+        if not isinstance(ev, dict) or ev.get("event") != "kernel":
+            return
+        self._set(done=int(ev.get("done", 0)), total=int(ev.get("total", self.total)),
+                  step=str(ev.get("name", "")))
+        how = "cached" if ev.get("cached") else f"{float(ev.get('seconds', 0)):.1f} s"
+        self.log(f"warming up: compiling {self.done}/{self.total} {self.step} ({how})")
+
+    def _in_process(self, phase: str) -> int:
+        """The warm-up's jobs in this process (loads from the cache the child filled).
+
+        Returns the number of jobs that had to compile (0: all came from the cache).
+        """
+        from service.warmup import warm_up
+
+        t0 = time.monotonic()
+        self._set(phase=phase, done=0)
+
+        def progress(step: Any) -> None:
+            if self._stop.is_set():
+                raise _Abort
+            self._set(done=step.done, total=step.total, step=step.name)
+
+        report = warm_up(progress)
+        self.load_s = time.monotonic() - t0
+        return report.compiled
+
+
+def _end_group(proc: subprocess.Popen, timeout_s: float) -> None:
+    """SIGTERM the child's process group, then SIGKILL it if the child does not go."""
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        pass
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGKILL)  # and whatever it started
+    end_process(proc, timeout_s)
+
+
+def _job_count() -> int:
+    """The number of warm-up jobs (0 when :mod:`service.warmup` is missing)."""
+    try:
+        from service.warmup import JOBS
+    except ImportError:
+        return 0
+    return len(JOBS)
+
+
+# ------------------------------------------------------------------ stamp
+def stamp_path() -> Path:
+    """Where the warm-cache stamp lives: beside numba's cache."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    base = Path(root) if root else Path(__file__).resolve().parent / "__pycache__"
+    return base / "holo-warmup-stamp.json"
+
+
+def fingerprint() -> dict[str, str]:
+    """What the cache was filled for: the ``service`` sources, numba and Python."""
+    import numba
+
+    pkg = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(pkg.rglob("*.py")):
+        st = path.stat()
+        h.update(f"{path.relative_to(pkg)}:{st.st_mtime_ns}:{st.st_size}\n".encode())
+    return {"sources": h.hexdigest(), "numba": numba.__version__, "python": sys.version}
+
+
+def is_warm() -> bool:
+    """Whether a warm-up found every kernel cached since the sources last changed."""
+    try:
+        return json.loads(stamp_path().read_text()) == fingerprint()
+    except (OSError, ValueError):
+        return False
+
+
+def mark_warm() -> None:
+    """Write the stamp (after a warm-up that filled, or found, every kernel cached)."""
+    path = stamp_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(fingerprint()))
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only cache: the next start goes through the child again

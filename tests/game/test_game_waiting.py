@@ -1,0 +1,163 @@
+"""While the render service warms up, the game says so; its play time counts from the first frame.
+
+With SDL's dummy drivers.  One test talks to a real ``holo-service`` on an empty
+numba cache (a temp ``NUMBA_CACHE_DIR``), stopped mid-compile.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from game.backends import BackendSettings, ServiceBackend
+from game.client_loop import GameClient, LoopSettings, waiting_lines
+from game.display import GameWindow
+from game.rules import GameSettings
+from game.scene import game_scene
+from service.display import DisplaySettings
+from service.errors import ServiceError
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+
+
+class SeenWindow(GameWindow):
+    """A real window that also remembers the banners it drew."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.banners: list[tuple[str, list[str]]] = []
+
+    def banner(self, title: str, lines=(), dim: bool = True) -> None:
+        self.banners.append((title, list(lines)))
+        super().banner(title, lines, dim)
+
+
+class WarmingThenReady:
+    """A backend that warms up for ``ticks`` frame requests, then gives grey frames."""
+
+    def __init__(self, ticks: int, total: int = 15) -> None:
+        self.settings = BackendSettings(DisplaySettings(zones=3, cols=32, rows=24))
+        self.ticks, self.total, self.seq = ticks, total, 0
+        self.connected = False
+        self.warming: dict | None = {"phase": "compiling", "done": 0, "total": total}
+
+    def update(self, records) -> None:
+        pass
+
+    def frame(self, timeout_s: float = 0.0):
+        from game.backends import FrameView
+
+        self.seq += 1
+        if self.seq <= self.ticks:
+            self.warming = {"phase": "compiling", "done": self.seq * self.total // self.ticks,
+                            "total": self.total, "elapsed_s": 0.1 * self.seq}
+            return None
+        self.connected, self.warming = True, None
+        d = self.settings.display
+        return FrameView(np.full((d.zones, d.rows, d.cols, 3), 90, np.uint8), self.seq, 1, 0)
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_waiting_screen_shows_the_progress_then_the_game(pygame_headless):
+    backend = WarmingThenReady(ticks=5)
+    client = GameClient(backend, SeenWindow((320, 240)), LoopSettings(attract=True))
+    client.tick()
+    title, lines = client.window.banners[-1]
+    assert title == "waiting for the render service"
+    assert lines[0].startswith("compiling (3/15)"), lines
+    t0 = client.state.t
+    for _ in range(4):
+        client.tick()
+    assert client.state.t == t0  # the game waits with the service
+    assert client.colour is None and client.first_frame_t is None
+    client.tick()
+    assert client.colour is not None and client.first_frame_t is not None
+    n = len(client.window.banners)
+    client.tick()
+    assert len(client.window.banners) == n  # no banner once frames come
+    assert client.disconnects == 0  # waiting for a warm-up is not a disconnect
+
+
+def test_waiting_lines_name_the_phase_and_count():
+    assert waiting_lines({"phase": "loading", "done": 2, "total": 15, "elapsed_s": 61.4})[0] \
+        == "loading (2/15), 61 s"
+    assert waiting_lines({})[0] == "compiling"
+
+
+def test_play_time_counts_from_the_first_frame(pygame_headless):
+    now = [0.0]
+
+    def clock() -> float:
+        now[0] += 0.05  # each look at the clock is 50 ms later
+        return now[0]
+
+    backend = WarmingThenReady(ticks=40)
+    client = GameClient(backend, GameWindow((320, 240)), LoopSettings(attract=True),
+                        clock=clock)
+    client.run(seconds=1.0, wait_s=60.0)
+    assert client.first_frame_t is not None and client.first_frame_t > 1.0
+    assert 1.0 <= client.played_s() < 1.5
+    assert client.refreshes.count >= 3
+
+
+def test_no_frame_within_the_wait_ends_the_run(pygame_headless):
+    now = [0.0]
+
+    def clock() -> float:
+        now[0] += 0.05
+        return now[0]
+
+    client = GameClient(WarmingThenReady(ticks=10**6), GameWindow((320, 240)),
+                        LoopSettings(attract=True), clock=clock)
+    client.run(seconds=1.0, wait_s=2.0)
+    assert client.first_frame_t is None and client.played_s() == 0.0
+    assert now[0] < 3.0
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.timeout(90)
+def test_a_real_cold_service_shows_the_waiting_screen(pygame_headless, tmp_path):
+    control, frames = f"tcp://127.0.0.1:{_port()}", f"tcp://127.0.0.1:{_port()}"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli_service", "--control", control, "--frames", frames,
+         "--worker-address", f"tcp://127.0.0.1:{_port()}"],
+        env=env, stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    backend = None
+    try:
+        settings = BackendSettings(DisplaySettings(zones=3, cols=80, rows=60))
+        backend = ServiceBackend(control, frames, settings=settings, timeout_s=0.5)
+        try:
+            backend.start(game_scene(6))
+        except ServiceError:
+            pass  # not listening yet: the loop keeps trying
+        client = GameClient(backend, SeenWindow((320, 240)),
+                            LoopSettings(GameSettings(difficulty="easy"), attract=True))
+        deadline = time.monotonic() + 45
+        while not client.window.banners or client.window.banners[-1][0] == "reconnecting":
+            assert time.monotonic() < deadline, "the game never heard the service warm up"
+            client.tick()
+        title, lines = client.window.banners[-1]
+        assert title == "waiting for the render service"
+        assert lines[0].startswith("compiling ("), lines
+        assert not backend.connected and client.colour is None
+    finally:
+        if backend is not None:
+            backend.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(20) == 128 + signal.SIGTERM

@@ -1,0 +1,149 @@
+"""A ``holo-service`` on an empty numba cache says it is warming up (``docs/protocol.md`` 1.8).
+
+Real processes on 127.0.0.1 with a fresh ``NUMBA_CACHE_DIR``: while its warm-up
+child compiles, the service keeps sending heartbeats (``status: warming_up`` with
+the progress), answers ``hello`` / ``stats`` and refuses every other request with a
+``warming_up`` reply, and stops cleanly (exit 143, child ended, no traceback) on
+SIGTERM or at once on a ``shutdown`` request.  The tests stop it mid-compile, so
+they never pay for a whole cold compile.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zmq
+from testkit import ROOT, free_port, raw_request, wait_until
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+
+#: The protocol's rule: a subscriber that hears nothing for 3 s takes the service for gone.
+SILENCE_S = 3.0
+
+
+def _cold_service(tmp_path: Path) -> tuple[subprocess.Popen, str, str]:
+    control, frames = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache"),
+           "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli_service", "--control", control, "--frames", frames,
+         "--worker-address", f"tcp://127.0.0.1:{free_port()}", "--scene", "game"],
+        cwd=ROOT, env=env, stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    return proc, control, frames
+
+
+def _request(control: str, mtype: str, **fields) -> dict:
+    got = raw_request(control, {"v": 1, "type": mtype, "id": 1, **fields}, (), 5000)
+    assert got is not None, f"no reply to {mtype}"
+    return got
+
+
+def _alive(pid: int) -> bool:
+    stat = Path(f"/proc/{pid}/stat")
+    try:
+        return stat.read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+class Heartbeats:
+    """The frame stream's messages, with the longest silence between two."""
+
+    def __init__(self, address: str) -> None:
+        self.sock = zmq.Context.instance().socket(zmq.SUB)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sock.connect(address)
+        self.heard: list[dict] = []
+        self.last: float | None = None
+        self.longest = 0.0
+
+    def listen(self, seconds: float) -> list[dict]:
+        """Every message header heard within ``seconds``."""
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            if self.sock.poll(int(left * 1000) + 1):
+                topic, head, *_ = self.sock.recv_multipart()
+                now = time.monotonic()
+                if self.last is not None:
+                    self.longest = max(self.longest, now - self.last)
+                self.last = now
+                self.heard.append({"topic": topic.decode(), **json.loads(head)})
+        return self.heard
+
+    def close(self) -> None:
+        self.sock.close(0)
+
+
+@pytest.mark.timeout(150)
+def test_a_cold_service_keeps_its_heartbeats_says_warming_up_and_stops_on_sigterm(tmp_path):
+    proc, control, frames = _cold_service(tmp_path)
+    hb = Heartbeats(frames)
+    try:
+        hello = wait_until(lambda: raw_request(control, {"v": 1, "type": "hello", "id": 0}, (),
+                                               500), 30)
+        assert hello and hello["ok"] and hello["status"] == "warming_up", hello
+        assert hello["warmup"]["total"] > 0 and hello["warmup"]["phase"] == "compiling"
+        child = hello["warmup"]["child_pid"]
+        assert child and _alive(child)
+        # the heartbeats go on while the child compiles, and the progress moves
+        def progressed() -> bool:
+            hb.listen(1.0)
+            return any(h.get("warmup", {}).get("done", 0) >= 1 for h in hb.heard)
+
+        assert wait_until(progressed, 90, step_s=0), "no warm-up progress in heartbeats"
+        hb.listen(1.5)
+        assert hb.heard and all(h["topic"] == "hb" for h in hb.heard)
+        assert all(h["status"] == "warming_up" for h in hb.heard)
+        assert hb.longest < SILENCE_S, f"{hb.longest:.1f} s without a heartbeat"
+        last = hb.heard[-1]["warmup"]
+        assert last["phase"] == "compiling" and 1 <= last["done"] < last["total"], last
+        # every request is answered: read-only ones as usual, the rest "warming up"
+        assert _request(control, "ping")["status"] == "warming_up"
+        stats = _request(control, "stats")
+        assert stats["ok"] and stats["stats"]["status"] == "warming_up"
+        for mtype, fields in (("load_scene", {"builtin": "game"}), ("render", {}),
+                              ("set_display", {"zones": 3}),
+                              ("update_objects", {"objects": [{"index": 0}]})):
+            got = _request(control, mtype, **fields)
+            assert not got["ok"] and got["error"]["code"] == "warming_up", got
+            assert got["status"] == "warming_up" and got["warmup"]["done"] >= 1, got
+            assert f"/{got['warmup']['total']}" in got["error"]["message"]
+        # SIGTERM mid-compile: a clean stop, the child ended, the rule's status
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(20) == 128 + signal.SIGTERM
+        err = proc.stderr.read()
+        assert "Traceback" not in err and "LLVM" not in err and "stopped (SIGTERM)" in err, err
+        assert wait_until(lambda: not _alive(child), 10), "the warm-up child outlived the service"
+    finally:
+        hb.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+
+
+@pytest.mark.timeout(60)
+def test_a_shutdown_request_while_warming_up_stops_at_once(tmp_path):
+    proc, control, _frames = _cold_service(tmp_path)
+    try:
+        hello = wait_until(lambda: raw_request(control, {"v": 1, "type": "hello", "id": 0}, (),
+                                               500), 30)
+        assert hello and hello["status"] == "warming_up"
+        child = hello["warmup"]["child_pid"] or wait_until(
+            lambda: _request(control, "ping")["warmup"]["child_pid"], 10)
+        assert _request(control, "shutdown")["ok"]
+        assert proc.wait(15) == 0
+        assert "Traceback" not in proc.stderr.read()
+        assert wait_until(lambda: not _alive(child), 10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
