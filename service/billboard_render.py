@@ -210,6 +210,8 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                     b = b0 + db * x0
                     if a < 0.0 or a >= 1.0 or b < 0.0 or b >= 1.0:
                         continue
+                    # the texel choice stays written out here: as a helper function
+                    # (even inline="always") the kernel measured 1.4-1.5x slower
                     t = -1
                     for layer in (near, 1 - near):  # the layer facing the viewer first
                         c = _texel(q, a, b, tex, layer)

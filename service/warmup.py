@@ -150,7 +150,14 @@ def _mesh_files(kit: _Kit) -> None:
 
 def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
             fallback: str = "frame") -> Callable:
+    """A render job: frames and renders with motion.
+
+    ``Renderer.render`` as holo-render and the game call it (light into uint8), and
+    ``render_with_motion`` as the service's workers do (light into float32 too).
+    """
+
     def job(kit: _Kit) -> None:
+        from service.galilean.motion_field import render_with_motion
         from service.light import LightSettings
         from service.pipeline import Renderer, RenderSettings
 
@@ -159,6 +166,7 @@ def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
         renderer = Renderer()
         for name in ("game", "cyclic"):  # cyclic: the painter's fallback too
             renderer.render(kit.scene(name), kit.display, settings)
+            render_with_motion(renderer, kit.scene(name), kit.display, 0.1, 60.0, settings)
 
     return job
 
@@ -268,6 +276,27 @@ def _autostereograms(kit: _Kit) -> None:
         warm_up_sird(method)
 
 
+def _level_of_detail(kit: _Kit) -> None:
+    """Level of detail (``--lod``): decimation errors, billboard clouds built and drawn."""
+    from dataclasses import replace
+
+    from service.billboard_render import BillboardObject
+    from service.lod import LodSettings, LodState, build_chain
+    from service.pipeline import Renderer, RenderSettings
+
+    scene = kit.scene()
+    lod = LodSettings(error_px=1e6, fractions=(0.5,), cloud_eps=(0.2,), texture_res=16)
+    renderer = Renderer()
+    renderer.lod = LodState(cache=False)  # no chain written to the user's LOD cache
+    renderer.render(scene, kit.display, RenderSettings(lod=lod))
+    chain = build_chain(scene.objects[-1].mesh, lod, cache=False)
+    boards = [BillboardObject(level) for level, kind in zip(chain.levels, chain.kinds,
+                                                            strict=True) if kind == "billboard"]
+    for method in ("zbuffer", "runlength", "bsp", "raycast"):
+        renderer.render(replace(scene, billboards=boards), kit.display,
+                        RenderSettings(method=method))
+
+
 #: Where a job runs when :func:`warm_up` has two processes: ``FIRST`` jobs run
 #: before the split (the render path every Galilean job calls), then ``APART``
 #: jobs run in a second process while this one runs the ``HERE`` jobs.  The two
@@ -304,6 +333,7 @@ JOBS: dict[str, _Job] = {
     "light vertex (Gouraud)": _Job(_render("zbuffer", "blinn", "vertex"), HERE),
     "light point (per pixel)": _Job(_render("zbuffer", "blinn", "point"), HERE),
     "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE),
+    "level of detail, billboard clouds": _Job(_level_of_detail, HERE),
 }
 
 
@@ -368,9 +398,12 @@ def _second_process(names: list[str], report: _Progress) -> tuple[Any, threading
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
 
     def read() -> None:
-        for line in child.stdout:
-            ev = json.loads(line)
-            if ev.get("event") == "kernel":
+        for line in child.stdout:  # read to the end, whatever comes: never block the child
+            try:
+                ev = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(ev, dict) and ev.get("event") == "kernel":
                 report.step(ev["name"], ev["seconds"], ev.get("kernels", 0 if ev["cached"] else 1))
 
     reader = threading.Thread(target=read, name="warmup-child", daemon=True)

@@ -92,8 +92,8 @@ def test_a_cold_service_keeps_its_heartbeats_says_warming_up_and_stops_on_sigter
                                                500), 30)
         assert hello and hello["ok"] and hello["status"] == "warming_up", hello
         assert hello["warmup"]["total"] > 0 and hello["warmup"]["phase"] == "compiling"
-        child = hello["warmup"]["child_pid"]
-        assert child and _alive(child)
+        child = wait_until(lambda: _request(control, "ping")["warmup"]["child_pid"], 10)
+        assert child and _alive(child)  # (hello may come before the child is started)
         # the heartbeats go on while the child compiles, and the progress moves
         def progressed() -> bool:
             hb.listen(1.0)
