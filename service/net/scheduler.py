@@ -202,19 +202,6 @@ class Scheduler:
             return None
 
     # ------------------------------------------------- pipelined whole frames
-    def _to_workers(self) -> bool:
-        """Whether renders go through the broker rather than run in process.
-
-        They do when the broker knows a worker (ready or busy), and always when this
-        service started local workers (they say ``READY`` once warmed up; jobs wait
-        for them).  With only remote workers expected (``--workers 0`` and a
-        ``--worker-address``), renders run in process while none is connected.
-        """
-        b = self.st.broker
-        if b is None:
-            return False
-        return self.st.config.workers > 0 or len(b.ready) + len(b.busy) > 0
-
     def capacity(self) -> int:
         """Renders to keep in flight: one per worker the broker knows (at least one)."""
         b = self.st.broker
