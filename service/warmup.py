@@ -150,7 +150,14 @@ def _mesh_files(kit: _Kit) -> None:
 
 def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
             fallback: str = "frame") -> Callable:
+    """A render job: frames and renders with motion.
+
+    ``Renderer.render`` as holo-render and the game call it (light into uint8), and
+    ``render_with_motion`` as the service's workers do (light into float32 too).
+    """
+
     def job(kit: _Kit) -> None:
+        from service.galilean.motion_field import render_with_motion
         from service.light import LightSettings
         from service.pipeline import Renderer, RenderSettings
 
@@ -159,6 +166,7 @@ def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
         renderer = Renderer()
         for name in ("game", "cyclic"):  # cyclic: the painter's fallback too
             renderer.render(kit.scene(name), kit.display, settings)
+            render_with_motion(renderer, kit.scene(name), kit.display, 0.1, 60.0, settings)
 
     return job
 

@@ -693,410 +693,460 @@ CHUNK = 32
 BATCH = 4096
 
 
-def _make_scatter_bands(still: bool):
-    """:func:`scatter_bands` with (``still``) or without its still-galpixel bookkeeping.
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _scatter_bands_body(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    reach: int,
+    bands: int,
+    stats: np.ndarray,
+    reach_out: np.ndarray,
+    same_in: np.ndarray,
+    same_out: np.ndarray,
+    use_same: bool,
+    record: bool,
+    bookkeeping: bool,
+) -> None:
+    """The body of :func:`scatter_bands` and :func:`scatter_bands_plain`.
 
-    ``STILL`` is a closure constant, so numba compiles the kernel without the
-    bookkeeping's branches and stores when it is False (:data:`scatter_bands_plain`:
-    what a refresh runs when it neither uses nor records ``same``; with it, the
-    first refresh after every change was 15-20 % slower).
+    ``bookkeeping`` is a constant where the two kernels inline this body, so numba
+    prunes the still-galpixel branches and stores from :func:`scatter_bands_plain`
+    (with them, the first refresh after every change was 15-20 % slower).  Two
+    module-level kernels, not one built by a factory: each has its own entry in
+    numba's cache (``holo-warmup`` compiles both; a second process loads both).
     """
-    STILL = still  # noqa: N806 (a compile-time constant for numba)
-
-    @nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-    def scatter_bands(
-        old: tuple,
-        new: tuple,
-        src_idx: np.ndarray,
-        shape: tuple,
-        order: int,
-        fp: int,
-        fm: int,
-        ncol: int,
-        track: bool,
-        reach: int,
-        bands: int,
-        stats: np.ndarray,
-        reach_out: np.ndarray,
-        same_in: np.ndarray,
-        same_out: np.ndarray,
-        use_same: bool,
-        record: bool,
-    ) -> None:
-        """First sweep without its debris arm or cache, the new rows in parallel bands.
-
-        Bit for bit the result of :func:`sweep` without cache, the debris arm left to
-        :func:`finish`.  Maps are :func:`planes`; ``new``'s debris all 1 on entry.
-
-        Each batch of old rows (about :data:`BATCH` pixels) is done in three steps:
-
-        1. *advance* (plain element-wise loops, SIMD): every galpixel's landing pixel,
-           new fraction, motion and depth into batch buffers;
-        2. *z-test* (the only sequential part, in scan order like the paper's scan):
-           each landing galpixel against the new map's debris flag and depth, which it
-           writes when it wins; winners from consecutive old pixels that land on
-           consecutive new pixels are gathered into runs;
-        3. *copy*: each field, plane by plane, run by run (contiguous, SIMD).
-
-        Within every plane the writes keep scan order, so a pixel that two winners
-        land on ends up with the later one, as in the one-pass scan; the z-test only
-        reads the flags and depths that step 2 keeps current.
-
-        Band ``b`` owns the new rows
-        ``[b H / bands, (b + 1) H / bands)`` of every zone: it advances, in scan order,
-        the old rows a galpixel landing there can come from (its own rows and
-        ``reach`` rows either side) and runs the z-test and the copy only for the
-        galpixels that land in its rows.  Each new pixel thus sees its candidates in
-        the one-pass scan's order, from one thread; no two bands write one pixel.
-
-        Parameters
-        ----------
-        old, new : tuple
-            The old and new maps as :func:`planes`.
-        src_idx : ndarray, shape (N,), int32
-            Out (when ``track``): for each new pixel, ``r * W + c`` of the old galpixel
-            that landed there (pixels nothing lands on are left as they were).
-        shape : tuple
-            (Z, H, W).
-        order, fp, fm : int
-            Galpixel order; fractional bits of position and of motion.
-        ncol : int
-            Colour-derivative planes the map holds (:attr:`Galpixmap.colour_planes`: 4 or 0).
-        track : bool
-            Record ``src_idx`` (needed by the expansion sweep).
-        reach : int
-            A bound on the rows any galpixel of ``old`` moves this refresh
-            (:func:`map_reach`, or :func:`reach_of` of the previous call's
-            ``reach_out``).  A galpixel moving farther could be missed: callers must
-            pass a true bound (``H`` is always one).
-        bands : int
-            Number of bands (any count gives the same result).
-        stats : ndarray, shape (bands, 3), int64
-            Accumulated per band: propagated, clashes, dropped (of its own old rows).
-        reach_out : ndarray, shape (bands, 3), int64
-            Out: per band the largest ``|vy|``, ``|ay|``, ``|jy|`` it wrote.
-        same_in : ndarray, shape (N,), uint8
-            1 where ``new`` already holds, bit for bit, the galpixel ``old`` holds and
-            that galpixel is static (see below); read only when ``use_same``.
-        same_out : ndarray, shape (N,), uint8
-            Out, when ``record``: ``same_in`` for the next refresh, at every pixel a
-            galpixel lands on (:func:`finish` writes the others).
-        use_same : bool
-            Whether ``same_in`` holds what the last refresh recorded (False after any
-            other change to either map: a graft, a head-motion update).
-        record : bool
-            Whether to record ``same_out`` (it costs about a fifth of a refresh that
-            cannot use it; the caller turns it off when the maps keep changing).
-
-        Notes
-        -----
-        *Static galpixels are not rewritten.*  A galpixel with no motion, z motion or
-        colour motion that lands on its own pixel (its fraction then unchanged) is a
-        copy of itself.  ``same_in`` marks those that won their own pixel in the
-        previous refresh too (when the maps were the other way round), so that the
-        new map holds them already.  Step 1 skips whole chunks of such pixels
-        (:data:`CHUNK`) and step 2, for one that is the first to land on its pixel,
-        only clears the pixel's debris flag: its planes are neither read nor copied.
-        A later galpixel that wins the pixel overwrites it as usual; one that landed
-        first makes it a normal clash (its depth read, and copied if it wins).
-        ``same_out`` records for the next refresh 1 where a pixel's winner is its own
-        static galpixel, 0 where another galpixel won (pixels nothing lands on are
-        left to :func:`finish`, which clears them).  The origin (``src_idx``) of a
-        pixel left in place is not rewritten either: the previous refresh wrote the
-        same.  The one difference from the one-pass scan is the sign of a zero: a
-        static galpixel's colour of -0.0 stays -0.0 where the scan's ``colour + 0.0``
-        writes +0.0.
-        """
-        nz, h, w = shape
-        o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
-        n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
-        sh = fm - fp
-        half = np.int64(1) << (fp - 1)
-        rows = max(1, min(h, BATCH // w))
-        size = rows * w
-        # batch buffers, one row per band (allocated outside the parallel loop)
-        qb_all = np.empty((bands, size), np.int64)  # landing pixel; -1 debris, -2 off the map
-        db_all = np.empty((bands, size), np.int64)  # new depth
-        fxb_all = np.empty((bands, size), np.int16)
-        fyb_all = np.empty((bands, size), np.int16)
-        vxb_all = np.empty((bands, size), np.int32)
-        vyb_all = np.empty((bands, size), np.int32)
-        axb_all = np.empty((bands, size), np.int32)
-        ayb_all = np.empty((bands, size), np.int32)
-        run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
-        run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
-        run_n_all = np.empty((bands, size), np.int64)  # its length
-        sb_all = np.zeros((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
-        for band in nb.prange(bands):
-            lo, hi = band * h // bands, (band + 1) * h // bands
-            r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
-            qb = qb_all[band]
-            db = db_all[band]
-            fxb = fxb_all[band]
-            fyb = fyb_all[band]
-            vxb = vxb_all[band]
-            vyb = vyb_all[band]
-            axb = axb_all[band]
-            ayb = ayb_all[band]
-            run_i = run_i_all[band]
-            run_q = run_q_all[band]
-            run_n = run_n_all[band]
-            sb = sb_all[band]
-            n_prop = n_clash = n_drop = np.int64(0)
-            mvy = may = mjy = np.int64(0)
-            for z in range(nz):
-                zb = z * h * w
-                q_lo, q_hi = zb + lo * w, zb + hi * w  # this band's new pixels
-                for r0 in range(r_lo, r_hi, rows):
-                    nr = min(rows, r_hi - r0)
-                    b0 = zb + r0 * w  # flat index of the batch's first pixel
-                    own_lo, own_hi = (lo - r0) * w, (hi - r0) * w  # batch indices of own rows
-                    # 1. advance (one loop per order: a loop-invariant branch inside
-                    #    would keep LLVM from vectorising it)
-                    for rr in range(nr):
-                        r = r0 + rr
-                        p0 = zb + r * w
-                        i0 = rr * w
-                        y0 = np.int64(r) << fp
-                        # stretches of whole chunks known static (left to step 2) and
-                        # the stretches between them (long loops: each loop entry
-                        # checks aliasing)
-                        ce = 0
-                        while ce < w:
-                            ca = cb = ce
-                            if not (STILL and use_same):
-                                cb = ce = w
-                            while cb < w and not _all_set(same_in, p0 + cb,
-                                                          p0 + min(w, cb + CHUNK)):
-                                cb = min(w, cb + CHUNK)
-                            ce = max(ce, cb)
-                            while ce < w and _all_set(same_in, p0 + ce, p0 + min(w, ce + CHUNK)):
-                                ce = min(w, ce + CHUNK)
-                            if order == 0:
-                                for c in range(ca, cb):
-                                    p, i = _u(p0 + c), _u(i0 + c)
-                                    x = (np.int64(c) << fp) + o_frac[0][p]
-                                    y = y0 + o_frac[1][p]
-                                    qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                                    fxb[i] = x - (((x + half) >> fp) << fp)
-                                    fyb[i] = y - (((y + half) >> fp) << fp)
-                                    db[i] = o_dep[p]
-                                    if STILL:
-                                        sb[i] = qb[i] == p0 + c
-                            elif order == 1:
-                                for c in range(ca, cb):
-                                    p, i = _u(p0 + c), _u(i0 + c)
-                                    vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                                    rh = np.int64(1) << (sh - 1)
-                                    x = (np.int64(c) << fp) + o_frac[0][p] + ((vx + rh) >> sh)
-                                    y = y0 + o_frac[1][p] + ((vy + rh) >> sh)
-                                    qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                                    fxb[i] = x - (((x + half) >> fp) << fp)
-                                    fyb[i] = y - (((y + half) >> fp) << fp)
-                                    db[i] = o_dep[p] + ((np.int64(o_zm[0][p]) + rh) >> sh)
-                                    vxb[i] = vx
-                                    vyb[i] = vy
-                                    if STILL:
-                                        sb[i] = (qb[i] == p0 + c) & ((vx | vy | o_zm[0][p]) == 0)
-                            elif order == 2:
-                                for c in range(ca, cb):
-                                    p, i = _u(p0 + c), _u(i0 + c)
-                                    vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                                    ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
-                                    x = (
-                                        (np.int64(c) << fp)
-                                        + o_frac[0][p]
-                                        + ((2 * vx + ax + (1 << sh)) >> (sh + 1))
+    nz, h, w = shape
+    o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
+    n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
+    sh = fm - fp
+    half = np.int64(1) << (fp - 1)
+    rows = max(1, min(h, BATCH // w))
+    size = rows * w
+    # batch buffers, one row per band (allocated outside the parallel loop)
+    qb_all = np.empty((bands, size), np.int64)  # landing pixel; -1 debris, -2 off the map
+    db_all = np.empty((bands, size), np.int64)  # new depth
+    fxb_all = np.empty((bands, size), np.int16)
+    fyb_all = np.empty((bands, size), np.int16)
+    vxb_all = np.empty((bands, size), np.int32)
+    vyb_all = np.empty((bands, size), np.int32)
+    axb_all = np.empty((bands, size), np.int32)
+    ayb_all = np.empty((bands, size), np.int32)
+    run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
+    run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
+    run_n_all = np.empty((bands, size), np.int64)  # its length
+    sb_all = np.zeros((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
+    for band in nb.prange(bands):
+        lo, hi = band * h // bands, (band + 1) * h // bands
+        r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
+        qb = qb_all[band]
+        db = db_all[band]
+        fxb = fxb_all[band]
+        fyb = fyb_all[band]
+        vxb = vxb_all[band]
+        vyb = vyb_all[band]
+        axb = axb_all[band]
+        ayb = ayb_all[band]
+        run_i = run_i_all[band]
+        run_q = run_q_all[band]
+        run_n = run_n_all[band]
+        sb = sb_all[band]
+        n_prop = n_clash = n_drop = np.int64(0)
+        mvy = may = mjy = np.int64(0)
+        for z in range(nz):
+            zb = z * h * w
+            q_lo, q_hi = zb + lo * w, zb + hi * w  # this band's new pixels
+            for r0 in range(r_lo, r_hi, rows):
+                nr = min(rows, r_hi - r0)
+                b0 = zb + r0 * w  # flat index of the batch's first pixel
+                own_lo, own_hi = (lo - r0) * w, (hi - r0) * w  # batch indices of own rows
+                # 1. advance (one loop per order: a loop-invariant branch inside
+                #    would keep LLVM from vectorising it)
+                for rr in range(nr):
+                    r = r0 + rr
+                    p0 = zb + r * w
+                    i0 = rr * w
+                    y0 = np.int64(r) << fp
+                    # stretches of whole chunks known static (left to step 2) and
+                    # the stretches between them (long loops: each loop entry
+                    # checks aliasing)
+                    ce = 0
+                    while ce < w:
+                        ca = cb = ce
+                        if not (bookkeeping and use_same):
+                            cb = ce = w
+                        while cb < w and not _all_set(same_in, p0 + cb,
+                                                      p0 + min(w, cb + CHUNK)):
+                            cb = min(w, cb + CHUNK)
+                        ce = max(ce, cb)
+                        while ce < w and _all_set(same_in, p0 + ce, p0 + min(w, ce + CHUNK)):
+                            ce = min(w, ce + CHUNK)
+                        if order == 0:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                x = (np.int64(c) << fp) + o_frac[0][p]
+                                y = y0 + o_frac[1][p]
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = o_dep[p]
+                                if bookkeeping:
+                                    sb[i] = qb[i] == p0 + c
+                        elif order == 1:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                                rh = np.int64(1) << (sh - 1)
+                                x = (np.int64(c) << fp) + o_frac[0][p] + ((vx + rh) >> sh)
+                                y = y0 + o_frac[1][p] + ((vy + rh) >> sh)
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = o_dep[p] + ((np.int64(o_zm[0][p]) + rh) >> sh)
+                                vxb[i] = vx
+                                vyb[i] = vy
+                                if bookkeeping:
+                                    sb[i] = (qb[i] == p0 + c) & ((vx | vy | o_zm[0][p]) == 0)
+                        elif order == 2:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                                ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                                x = (
+                                    (np.int64(c) << fp)
+                                    + o_frac[0][p]
+                                    + ((2 * vx + ax + (1 << sh)) >> (sh + 1))
+                                )
+                                y = y0 + o_frac[1][p] + ((2 * vy + ay + (1 << sh)) >> (sh + 1))
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = o_dep[p] + (
+                                    (2 * np.int64(o_zm[0][p]) + o_zm[1][p] + (1 << sh))
+                                    >> (sh + 1)
+                                )
+                                vxb[i] = vx + ax
+                                vyb[i] = vy + ay
+                                axb[i] = ax
+                                ayb[i] = ay
+                                if bookkeeping:
+                                    sb[i] = (qb[i] == p0 + c) & (
+                                        (vx | vy | ax | ay | o_zm[0][p] | o_zm[1][p]) == 0
                                     )
-                                    y = y0 + o_frac[1][p] + ((2 * vy + ay + (1 << sh)) >> (sh + 1))
-                                    qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                                    fxb[i] = x - (((x + half) >> fp) << fp)
-                                    fyb[i] = y - (((y + half) >> fp) << fp)
-                                    db[i] = o_dep[p] + (
-                                        (2 * np.int64(o_zm[0][p]) + o_zm[1][p] + (1 << sh))
-                                        >> (sh + 1)
-                                    )
-                                    vxb[i] = vx + ax
-                                    vyb[i] = vy + ay
-                                    axb[i] = ax
-                                    ayb[i] = ay
-                                    if STILL:
-                                        sb[i] = (qb[i] == p0 + c) & (
-                                            (vx | vy | ax | ay | o_zm[0][p] | o_zm[1][p]) == 0
-                                        )
-                            else:
-                                for c in range(ca, cb):
-                                    p, i = _u(p0 + c), _u(i0 + c)
-                                    x, vx, ax = advance(
-                                        (np.int64(c) << fp) + o_frac[0][p],
-                                        np.int64(o_mot[0][p]),
-                                        np.int64(o_mot[2][p]),
-                                        np.int64(o_mot[4][p]),
-                                        3,
-                                        fp,
-                                        fm,
-                                    )
-                                    y, vy, ay = advance(
-                                        y0 + o_frac[1][p],
-                                        np.int64(o_mot[1][p]),
-                                        np.int64(o_mot[3][p]),
-                                        np.int64(o_mot[5][p]),
-                                        3,
-                                        fp,
-                                        fm,
-                                    )
-                                    qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
-                                    fxb[i] = x - (((x + half) >> fp) << fp)
-                                    fyb[i] = y - (((y + half) >> fp) << fp)
-                                    db[i] = advance(
-                                        np.int64(o_dep[p]),
-                                        np.int64(o_zm[0][p]),
-                                        np.int64(o_zm[1][p]),
-                                        np.int64(o_zm[2][p]),
-                                        3,
-                                        fp,
-                                        fm,
-                                    )[0]
-                                    vxb[i] = vx
-                                    vyb[i] = vy
-                                    axb[i] = ax
-                                    ayb[i] = ay
-                                    if STILL:
-                                        still = (o_mot[0][p] | o_mot[1][p] | o_mot[2][p]
-                                                 | o_mot[3][p] | o_mot[4][p] | o_mot[5][p]) == 0
-                                        zstill = (o_zm[0][p] | o_zm[1][p] | o_zm[2][p]) == 0
-                                        sb[i] = (qb[i] == p0 + c) & still & zstill
-                    # 2. z-test in scan order; the open run is kept in registers
-                    runs = 0
-                    ri = rq = rn = np.int64(0)
-                    for i in range(nr * w):
-                        p = _u(b0 + i)
-                        known = STILL and use_same and same_in[p] != 0  # still, new holds it
-                        q = b0 + i if known else qb[i]
-                        own = own_lo <= i < own_hi
-                        if q < 0 or q < q_lo or q >= q_hi:
-                            if q != -1 and own:
-                                n_prop += 1
-                                n_drop += q == -2
-                            if rn:
-                                run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                                runs += 1
-                                rn = 0
-                            continue
-                        n_prop += own
-                        fresh = n_deb[_u(q)] != 0
-                        if known and fresh:
-                            # the first to land on its own pixel, which holds it already
-                            n_deb[_u(q)] = 0
-                            if STILL and record:
-                                same_out[_u(q)] = 1
-                            if rn:
-                                run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                                runs += 1
-                                rn = 0
-                            continue
-                        d = np.int64(o_dep[p]) if known else db[i]
-                        if not fresh:
-                            n_clash += 1
-                            if d >= n_dep[_u(q)]:
-                                if rn:
-                                    run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                                    runs += 1
-                                    rn = 0
-                                continue
-                        n_dep[_u(q)] = d
+                        else:
+                            for c in range(ca, cb):
+                                p, i = _u(p0 + c), _u(i0 + c)
+                                x, vx, ax = advance(
+                                    (np.int64(c) << fp) + o_frac[0][p],
+                                    np.int64(o_mot[0][p]),
+                                    np.int64(o_mot[2][p]),
+                                    np.int64(o_mot[4][p]),
+                                    3,
+                                    fp,
+                                    fm,
+                                )
+                                y, vy, ay = advance(
+                                    y0 + o_frac[1][p],
+                                    np.int64(o_mot[1][p]),
+                                    np.int64(o_mot[3][p]),
+                                    np.int64(o_mot[5][p]),
+                                    3,
+                                    fp,
+                                    fm,
+                                )
+                                qb[i] = _landing(x, y, o_deb[p], z, h, w, half, fp)
+                                fxb[i] = x - (((x + half) >> fp) << fp)
+                                fyb[i] = y - (((y + half) >> fp) << fp)
+                                db[i] = advance(
+                                    np.int64(o_dep[p]),
+                                    np.int64(o_zm[0][p]),
+                                    np.int64(o_zm[1][p]),
+                                    np.int64(o_zm[2][p]),
+                                    3,
+                                    fp,
+                                    fm,
+                                )[0]
+                                vxb[i] = vx
+                                vyb[i] = vy
+                                axb[i] = ax
+                                ayb[i] = ay
+                                if bookkeeping:
+                                    still = (o_mot[0][p] | o_mot[1][p] | o_mot[2][p]
+                                             | o_mot[3][p] | o_mot[4][p] | o_mot[5][p]) == 0
+                                    zstill = (o_zm[0][p] | o_zm[1][p] | o_zm[2][p]) == 0
+                                    sb[i] = (qb[i] == p0 + c) & still & zstill
+                # 2. z-test in scan order; the open run is kept in registers
+                runs = 0
+                ri = rq = rn = np.int64(0)
+                for i in range(nr * w):
+                    p = _u(b0 + i)
+                    known = bookkeeping and use_same and same_in[p] != 0  # still, new holds it
+                    q = b0 + i if known else qb[i]
+                    own = own_lo <= i < own_hi
+                    if q < 0 or q < q_lo or q >= q_hi:
+                        if q != -1 and own:
+                            n_prop += 1
+                            n_drop += q == -2
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                    n_prop += own
+                    fresh = n_deb[_u(q)] != 0
+                    if known and fresh:
+                        # the first to land on its own pixel, which holds it already
                         n_deb[_u(q)] = 0
-                        if known:  # step 1 skipped it: its batch entries for the copy
-                            _unmoved(p, _u(i), o_frac, fxb, fyb, vxb, vyb, axb, ayb)
-                        if STILL and record:
-                            still = known or (sb[i] != 0 and _no_colour_motion(o_dc, ncol, p))
-                            same_out[_u(q)] = still
-                        if rn and q == rq + rn:
-                            rn += 1
-                        else:
+                        if bookkeeping and record:
+                            same_out[_u(q)] = 1
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                    d = np.int64(o_dep[p]) if known else db[i]
+                    if not fresh:
+                        n_clash += 1
+                        if d >= n_dep[_u(q)]:
                             if rn:
                                 run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
                                 runs += 1
-                            ri, rq, rn = i, q, 1
-                    if rn:
-                        run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                        runs += 1
-                    # 3. copy, plane by plane, run by run
-                    for k in range(runs):
-                        i0, q0, m = run_i[k], run_q[k], run_n[k]
-                        s0 = b0 + i0
-                        if ncol == 4:
-                            for j in range(m):
-                                p, q = _u(s0 + j), _u(q0 + j)
-                                da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
-                                sa = da + 0.5 * d2a
-                                n_col[0][q] = o_col[0][p] + (sa + dbb)
-                                n_col[1][q] = o_col[1][p] + (sa - dcc)
-                                n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
-                                n_dc[0][q] = da + d2a
-                                n_dc[1][q] = dbb
-                                n_dc[2][q] = dcc
-                                n_dc[3][q] = d2a
-                        else:
-                            for j in range(m):
-                                p, q = _u(s0 + j), _u(q0 + j)
-                                n_col[0][q] = o_col[0][p]
-                                n_col[1][q] = o_col[1][p]
-                                n_col[2][q] = o_col[2][p]
+                                rn = 0
+                            continue
+                    n_dep[_u(q)] = d
+                    n_deb[_u(q)] = 0
+                    if known:  # step 1 skipped it: its batch entries for the copy
+                        _unmoved(p, _u(i), o_frac, fxb, fyb, vxb, vyb, axb, ayb)
+                    if bookkeeping and record:
+                        still = known or (sb[i] != 0 and _no_colour_motion(o_dc, ncol, p))
+                        same_out[_u(q)] = still
+                    if rn and q == rq + rn:
+                        rn += 1
+                    else:
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                        ri, rq, rn = i, q, 1
+                if rn:
+                    run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                    runs += 1
+                # 3. copy, plane by plane, run by run
+                for k in range(runs):
+                    i0, q0, m = run_i[k], run_q[k], run_n[k]
+                    s0 = b0 + i0
+                    if ncol == 4:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
+                            sa = da + 0.5 * d2a
+                            n_col[0][q] = o_col[0][p] + (sa + dbb)
+                            n_col[1][q] = o_col[1][p] + (sa - dcc)
+                            n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
+                            n_dc[0][q] = da + d2a
+                            n_dc[1][q] = dbb
+                            n_dc[2][q] = dcc
+                            n_dc[3][q] = d2a
+                    else:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            n_col[0][q] = o_col[0][p]
+                            n_col[1][q] = o_col[1][p]
+                            n_col[2][q] = o_col[2][p]
+                    for j in range(m):
+                        b, q = _u(i0 + j), _u(q0 + j)
+                        n_frac[0][q] = fxb[b]
+                        n_frac[1][q] = fyb[b]
+                    for j in range(m):
+                        n_obj[_u(q0 + j)] = o_obj[_u(s0 + j)]
+                    if track:
+                        for j in range(m):
+                            src_idx[_u(q0 + j)] = s0 - zb + j
+                    if order >= 1:
                         for j in range(m):
                             b, q = _u(i0 + j), _u(q0 + j)
-                            n_frac[0][q] = fxb[b]
-                            n_frac[1][q] = fyb[b]
+                            n_mot[0][q] = vxb[b]
+                            n_mot[1][q] = vyb[b]
+                            mvy = max(mvy, abs(np.int64(vyb[b])))
+                    if order >= 2:
                         for j in range(m):
-                            n_obj[_u(q0 + j)] = o_obj[_u(s0 + j)]
-                        if track:
-                            for j in range(m):
-                                src_idx[_u(q0 + j)] = s0 - zb + j
-                        if order >= 1:
-                            for j in range(m):
-                                b, q = _u(i0 + j), _u(q0 + j)
-                                n_mot[0][q] = vxb[b]
-                                n_mot[1][q] = vyb[b]
-                                mvy = max(mvy, abs(np.int64(vyb[b])))
-                        if order >= 2:
-                            for j in range(m):
-                                b, q = _u(i0 + j), _u(q0 + j)
-                                n_mot[2][q] = axb[b]
-                                n_mot[3][q] = ayb[b]
-                                may = max(may, abs(np.int64(ayb[b])))
-                        if order == 3:
-                            for j in range(m):
-                                p, q = _u(s0 + j), _u(q0 + j)
-                                n_mot[4][q] = o_mot[4][p]
-                                n_mot[5][q] = o_mot[5][p]
-                                mjy = max(mjy, abs(np.int64(o_mot[5][p])))
-                        if order == 1:
-                            for j in range(m):
-                                n_zm[0][_u(q0 + j)] = o_zm[0][_u(s0 + j)]
-                        elif order == 2:
-                            for j in range(m):
-                                p, q = _u(s0 + j), _u(q0 + j)
-                                n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
-                                n_zm[1][q] = o_zm[1][p]
-                        elif order == 3:
-                            for j in range(m):
-                                p, q = _u(s0 + j), _u(q0 + j)
-                                z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
-                                n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
-                                n_zm[1][q] = z1 + z2
-                                n_zm[2][q] = z2
-            stats[band, 0] += n_prop
-            stats[band, 1] += n_clash
-            stats[band, 2] += n_drop
-            reach_out[band, 0] = mvy
-            reach_out[band, 1] = may
-            reach_out[band, 2] = mjy
-
-    return scatter_bands
+                            b, q = _u(i0 + j), _u(q0 + j)
+                            n_mot[2][q] = axb[b]
+                            n_mot[3][q] = ayb[b]
+                            may = max(may, abs(np.int64(ayb[b])))
+                    if order == 3:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            n_mot[4][q] = o_mot[4][p]
+                            n_mot[5][q] = o_mot[5][p]
+                            mjy = max(mjy, abs(np.int64(o_mot[5][p])))
+                    if order == 1:
+                        for j in range(m):
+                            n_zm[0][_u(q0 + j)] = o_zm[0][_u(s0 + j)]
+                    elif order == 2:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
+                            n_zm[1][q] = o_zm[1][p]
+                    elif order == 3:
+                        for j in range(m):
+                            p, q = _u(s0 + j), _u(q0 + j)
+                            z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
+                            n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
+                            n_zm[1][q] = z1 + z2
+                            n_zm[2][q] = z2
+        stats[band, 0] += n_prop
+        stats[band, 1] += n_clash
+        stats[band, 2] += n_drop
+        reach_out[band, 0] = mvy
+        reach_out[band, 1] = may
+        reach_out[band, 2] = mjy
 
 
-scatter_bands = _make_scatter_bands(True)
-scatter_bands_plain = _make_scatter_bands(False)
+@nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def scatter_bands(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    reach: int,
+    bands: int,
+    stats: np.ndarray,
+    reach_out: np.ndarray,
+    same_in: np.ndarray,
+    same_out: np.ndarray,
+    use_same: bool,
+    record: bool,
+) -> None:
+    """First sweep without its debris arm or cache, the new rows in parallel bands.
+
+    Bit for bit the result of :func:`sweep` without cache, the debris arm left to
+    :func:`finish`.  Maps are :func:`planes`; ``new``'s debris all 1 on entry.
+
+    Each batch of old rows (about :data:`BATCH` pixels) is done in three steps:
+
+    1. *advance* (plain element-wise loops, SIMD): every galpixel's landing pixel,
+       new fraction, motion and depth into batch buffers;
+    2. *z-test* (the only sequential part, in scan order like the paper's scan):
+       each landing galpixel against the new map's debris flag and depth, which it
+       writes when it wins; winners from consecutive old pixels that land on
+       consecutive new pixels are gathered into runs;
+    3. *copy*: each field, plane by plane, run by run (contiguous, SIMD).
+
+    Within every plane the writes keep scan order, so a pixel that two winners
+    land on ends up with the later one, as in the one-pass scan; the z-test only
+    reads the flags and depths that step 2 keeps current.
+
+    Band ``b`` owns the new rows
+    ``[b H / bands, (b + 1) H / bands)`` of every zone: it advances, in scan order,
+    the old rows a galpixel landing there can come from (its own rows and
+    ``reach`` rows either side) and runs the z-test and the copy only for the
+    galpixels that land in its rows.  Each new pixel thus sees its candidates in
+    the one-pass scan's order, from one thread; no two bands write one pixel.
+
+    Parameters
+    ----------
+    old, new : tuple
+        The old and new maps as :func:`planes`.
+    src_idx : ndarray, shape (N,), int32
+        Out (when ``track``): for each new pixel, ``r * W + c`` of the old galpixel
+        that landed there (pixels nothing lands on are left as they were).
+    shape : tuple
+        (Z, H, W).
+    order, fp, fm : int
+        Galpixel order; fractional bits of position and of motion.
+    ncol : int
+        Colour-derivative planes the map holds (:attr:`Galpixmap.colour_planes`: 4 or 0).
+    track : bool
+        Record ``src_idx`` (needed by the expansion sweep).
+    reach : int
+        A bound on the rows any galpixel of ``old`` moves this refresh
+        (:func:`map_reach`, or :func:`reach_of` of the previous call's
+        ``reach_out``).  A galpixel moving farther could be missed: callers must
+        pass a true bound (``H`` is always one).
+    bands : int
+        Number of bands (any count gives the same result).
+    stats : ndarray, shape (bands, 3), int64
+        Accumulated per band: propagated, clashes, dropped (of its own old rows).
+    reach_out : ndarray, shape (bands, 3), int64
+        Out: per band the largest ``|vy|``, ``|ay|``, ``|jy|`` it wrote.
+    same_in : ndarray, shape (N,), uint8
+        1 where ``new`` already holds, bit for bit, the galpixel ``old`` holds and
+        that galpixel is static (see below); read only when ``use_same``.
+    same_out : ndarray, shape (N,), uint8
+        Out, when ``record``: ``same_in`` for the next refresh, at every pixel a
+        galpixel lands on (:func:`finish` writes the others).
+    use_same : bool
+        Whether ``same_in`` holds what the last refresh recorded (False after any
+        other change to either map: a graft, a head-motion update).
+    record : bool
+        Whether to record ``same_out`` (it costs about a fifth of a refresh that
+        cannot use it; the caller turns it off when the maps keep changing).
+
+    Notes
+    -----
+    *Static galpixels are not rewritten.*  A galpixel with no motion, z motion or
+    colour motion that lands on its own pixel (its fraction then unchanged) is a
+    copy of itself.  ``same_in`` marks those that won their own pixel in the
+    previous refresh too (when the maps were the other way round), so that the
+    new map holds them already.  Step 1 skips whole chunks of such pixels
+    (:data:`CHUNK`) and step 2, for one that is the first to land on its pixel,
+    only clears the pixel's debris flag: its planes are neither read nor copied.
+    A later galpixel that wins the pixel overwrites it as usual; one that landed
+    first makes it a normal clash (its depth read, and copied if it wins).
+    ``same_out`` records for the next refresh 1 where a pixel's winner is its own
+    static galpixel, 0 where another galpixel won (pixels nothing lands on are
+    left to :func:`finish`, which clears them).  The origin (``src_idx``) of a
+    pixel left in place is not rewritten either: the previous refresh wrote the
+    same.  The one difference from the one-pass scan is the sign of a zero: a
+    static galpixel's colour of -0.0 stays -0.0 where the scan's ``colour + 0.0``
+    writes +0.0.
+    """
+    _scatter_bands_body(
+        old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
+        same_in, same_out, use_same, record, True
+    )
+
+
+@nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def scatter_bands_plain(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    reach: int,
+    bands: int,
+    stats: np.ndarray,
+    reach_out: np.ndarray,
+    same_in: np.ndarray,
+    same_out: np.ndarray,
+    use_same: bool,
+    record: bool,
+) -> None:
+    """:func:`scatter_bands` without its still-galpixel bookkeeping (compiled out).
+
+    What a refresh runs when it neither uses nor records ``same``: ``use_same`` and
+    ``record`` are ignored (taken as False).
+    """
+    _scatter_bands_body(
+        old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
+        same_in, same_out, use_same, record, False
+    )
 
 
 @nb.njit(cache=True, inline="always")

@@ -103,6 +103,33 @@ def _billboard(v: np.ndarray, f: np.ndarray, ids: np.ndarray, plane: np.ndarray,
     return corners, uv, (rows, cols)
 
 
+@dataclass(frozen=True)
+class _Shoot:
+    """What the texture shoot of every billboard needs: the faces on planes and more."""
+
+    v: np.ndarray       # (V, 3) vertices of the faces on planes
+    f: np.ndarray       # (F, 3) faces (or pieces) on planes
+    fn: np.ndarray      # (F, 3) unit normals
+    nrm: np.ndarray     # (F, 3) int8: the same times 127
+    centroid: np.ndarray  # (F, 3)
+    colour: np.ndarray  # (F, 3) uint8
+    texel: float
+    grow: int           # dilation, texels
+
+    def billboard(self, ids: np.ndarray, plane: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Corners (4, 3), texture (LAYERS, H, W, 4) and normals of faces ``ids``' plane."""
+        c, uv, (rows, cols) = _billboard(self.v, self.f, ids, plane, self.texel)
+        tex = np.zeros((LAYERS, rows, cols, 4), np.uint8)
+        tn = np.zeros((LAYERS, rows, cols, 3), np.int8)
+        front = self.fn[ids] @ plane[:3] >= 0
+        up = self.centroid @ plane[:3]  # face heights along the plane normal
+        for layer, which in enumerate((ids[front], ids[~front])):
+            shoot_texture(uv, self.f, which, self.nrm, self.colour, up if layer == 0 else -up,
+                          tex[layer], tn[layer])
+            dilate_texture(tex[layer], tn[layer], self.grow)
+        return c, tex, tn
+
+
 def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res: int = 256,
                 colours: np.ndarray | None = None,
                 settings: PlaneSettings | None = None, dilate: float = 0.5) -> BillboardCloud:
@@ -141,32 +168,22 @@ def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res
         raise SimplifyError(f"colours must have shape ({f.shape[0]}, 3), not {col.shape}")
     n_source = int(f.shape[0])
     cover = choose_planes(v, f, s)
-    planes, owner = cover.planes, cover.owner
     diag = float(np.linalg.norm(v.max(0) - v.min(0))) or 1.0
     texel = diag / int(texture_res)
-    grow = int(np.ceil(dilate * eps / texel))
     a = v[f]
     fn = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
     # from here on, the faces on planes (pieces of cut faces keep their face's normal)
-    fn, col = fn[cover.parent], col[cover.parent]
-    v, f = cover.vertices, cover.faces
-    a = v[f]
-    nrm = np.round(fn * 127).astype(np.int8)
+    fn = fn[cover.parent]
+    shoot = _Shoot(cover.vertices, cover.faces, fn, np.round(fn * 127).astype(np.int8),
+                   cover.vertices[cover.faces].mean(axis=1), col[cover.parent].astype(np.uint8),
+                   texel, int(np.ceil(dilate * eps / texel)))
+    planes = cover.planes
     corners, shapes, rgba, normal = [], [], [], []
     for p in range(planes.shape[0]):
-        ids = np.flatnonzero(owner == p)
-        c, uv, (rows, cols) = _billboard(v, f, ids, planes[p], texel)
-        tex = np.zeros((LAYERS, rows, cols, 4), np.uint8)
-        tn = np.zeros((LAYERS, rows, cols, 3), np.int8)
-        front = fn[ids] @ planes[p, :3] >= 0
-        up = a.mean(axis=1) @ planes[p, :3]  # face heights along the plane normal
-        for layer, which in enumerate((ids[front], ids[~front])):
-            shoot_texture(uv, f, which, nrm, col.astype(np.uint8), up if layer == 0 else -up,
-                          tex[layer], tn[layer])
-            dilate_texture(tex[layer], tn[layer], grow)
+        c, tex, tn = shoot.billboard(np.flatnonzero(cover.owner == p), planes[p])
         corners.append(c)
-        shapes.append((rows, cols))
+        shapes.append(tex.shape[1:3])
         rgba.append(tex.reshape(-1, 4))
         normal.append(tn.reshape(-1, 3))
     sizes = np.array([LAYERS * r * c for r, c in shapes], np.int64)

@@ -28,8 +28,9 @@ import pytest
 from service.signals import end_process
 
 ROOT = Path(__file__).resolve().parents[2]
-#: A cold warm-up took 200 s here on 2 idle cores, 684 s beside 6 busy helpers.
-COLD_TIMEOUT_S = 1500
+#: A cold warm-up took 200 s here on 2 quiet cores, 684-1237 s with the machine
+#: 5-7x oversubscribed.
+COLD_TIMEOUT_S = 2400
 #: From launch to the 60th frame of a service whose kernels are cached (24 s here
 #: with the machine 5x oversubscribed); a compiling service needed 124 s for its
 #: first 120 frames on a quiet one.  The decisive check is the cache's: the
@@ -95,11 +96,10 @@ def test_second_process_reuses_every_cache_entry(warmed):
     assert not missed, f"compiled again: {missed}"
     hits = {k: v[0] for k, v in got["dispatchers"].items() if v[0]}
     assert len(hits) >= 20, hits
-    # both kernels the scatter factory builds (with and without the still-galpixel
-    # bookkeeping; one name, told apart by the closure constant in numba's index key)
-    # come from the cache
-    scatter = [k for k in hits if k.endswith("scatter_bands")]
-    assert len(scatter) == 1 and hits[scatter[0]] >= 2, hits
+    # both scatter kernels (one inlined body, with and without the still-galpixel
+    # bookkeeping; a factory's closures until issue 11) come from the cache
+    for kernel in ("scatter_bands", "scatter_bands_plain"):
+        assert hits.get(f"service.galilean.propagate.{kernel}", 0) >= 1, hits
     assert _snapshot(cache) == before, "the second process wrote to the cache"
 
 
