@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # Compile every numba kernel ahead, with progress (minutes once per clone, then
-# about 2 s: everything loads from numba's cache).
+# a few seconds: everything loads from numba's cache).
 warmup: $(STAMP)
 	$(BIN)/holo-warmup
 

@@ -139,22 +139,6 @@ def _screen_box(o: np.ndarray, u: np.ndarray, v: np.ndarray, sh: float, s: float
 
 
 @nb.njit(cache=True, nogil=True)
-def _pick_texel(q: int, a: float, b: float, near: int, tex: np.ndarray, rgba: np.ndarray,
-                rot: np.ndarray, tnormal: np.ndarray, view: np.ndarray,
-                cull_back: bool) -> int:
-    """The texel shown at (a, b) of quad ``q``, or -1 if neither layer shows one.
-
-    The layer facing the viewer is tried first; a texel must pass the alpha test
-    and (with ``cull_back``) not be a back face.
-    """
-    for layer in (near, 1 - near):
-        c = _texel(q, a, b, tex, layer)
-        if rgba[c, 3] >= ALPHA_OPAQUE and not (cull_back and _back(q, c, rot, tnormal, view)):
-            return c
-    return -1
-
-
-@nb.njit(cache=True, nogil=True)
 def _span(a0: float, da: float, b0: float, db: float, s: float, hw: float, c0: int,
           c1: int) -> tuple[int, int]:
     """Columns [j0, j1) of a row where ``0 <= a0 + da x < 1`` and ``0 <= b0 + db x < 1``.
@@ -226,7 +210,15 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                     b = b0 + db * x0
                     if a < 0.0 or a >= 1.0 or b < 0.0 or b >= 1.0:
                         continue
-                    t = _pick_texel(q, a, b, near, tex, rgba, rot, tnormal, views[k], cull_back)
+                    # the texel choice stays written out here: as a helper function
+                    # (even inline="always") the kernel measured 1.4-1.5x slower
+                    t = -1
+                    for layer in (near, 1 - near):  # the layer facing the viewer first
+                        c = _texel(q, a, b, tex, layer)
+                        if rgba[c, 3] >= ALPHA_OPAQUE and not (
+                                cull_back and _back(q, c, rot, tnormal, views[k])):
+                            t = c
+                            break
                     if t < 0:
                         continue
                     depth[k, i, j] = -z

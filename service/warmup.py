@@ -276,6 +276,27 @@ def _autostereograms(kit: _Kit) -> None:
         warm_up_sird(method)
 
 
+def _level_of_detail(kit: _Kit) -> None:
+    """Level of detail (``--lod``): decimation errors, billboard clouds built and drawn."""
+    from dataclasses import replace
+
+    from service.billboard_render import BillboardObject
+    from service.lod import LodSettings, LodState, build_chain
+    from service.pipeline import Renderer, RenderSettings
+
+    scene = kit.scene()
+    lod = LodSettings(error_px=1e6, fractions=(0.5,), cloud_eps=(0.2,), texture_res=16)
+    renderer = Renderer()
+    renderer.lod = LodState(cache=False)  # no chain written to the user's LOD cache
+    renderer.render(scene, kit.display, RenderSettings(lod=lod))
+    chain = build_chain(scene.objects[-1].mesh, lod, cache=False)
+    boards = [BillboardObject(level) for level, kind in zip(chain.levels, chain.kinds,
+                                                            strict=True) if kind == "billboard"]
+    for method in ("zbuffer", "runlength", "bsp", "raycast"):
+        renderer.render(replace(scene, billboards=boards), kit.display,
+                        RenderSettings(method=method))
+
+
 #: Where a job runs when :func:`warm_up` has two processes: ``FIRST`` jobs run
 #: before the split (the render path every Galilean job calls), then ``APART``
 #: jobs run in a second process while this one runs the ``HERE`` jobs.  The two
@@ -312,6 +333,7 @@ JOBS: dict[str, _Job] = {
     "light vertex (Gouraud)": _Job(_render("zbuffer", "blinn", "vertex"), HERE),
     "light point (per pixel)": _Job(_render("zbuffer", "blinn", "point"), HERE),
     "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE),
+    "level of detail, billboard clouds": _Job(_level_of_detail, HERE),
 }
 
 

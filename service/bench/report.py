@@ -111,13 +111,14 @@ PLANS = (
          (("--quick", "--size", "{size}"),), (("--size", "{size}"),), {}, "quality"),
     Plan("targets", "Speed targets (issue 14)", (("--quick",),), ((),), {}, "generic"),
     Plan("sird", "Autostereograms (SIRD)",
-         (("--sizes", "{size}", "--repeats", "3", "--scenes", "sphere,slope"),),
+         (("--sizes", "{size}", "--repeats", "3", "--scenes", "slope"),),
          (("--sizes", "{size}"),),
          {"sird_bench.png": "ms per frame against decoded-depth accuracy and the streak "
           "fraction, one point per method, scene and size."},
          "sird"),
     Plan("lod", "Level of detail",
-         (("--size", "{size}", "--repeats", "1", "--crowd", "40"),), (("--size", "{size}"),),
+         (("--size", "{size}", "--repeats", "1", "--crowd", "20", "--meshes", "torus,spiky",
+           "--crowd-mesh", "torus"),), (("--size", "{size}"),),
          {"lod_levels.png": "Per mesh, each LOD level's image error, PSNR and ms against its "
           "triangles (log x): the knee is the level worth rendering.",
           "lod_build.png": "What building each LOD chain costs (decimation and error "
@@ -165,6 +166,7 @@ class Outcome:
     out: Path
     ok: bool = False
     seconds: float = 0.0
+    cpu_s: float = 0.0
     reason: str = ""
 
 
@@ -185,7 +187,7 @@ def run_plan(plan: Plan, benches: dict, out: Path, quick: bool, size: str) -> Ou
         res.reason = "not built: no holo-bench benchmark of that name yet"
         return res
     res.out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
     try:
         module = importlib.import_module(benches[name][0])
         with (res.out / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
@@ -200,6 +202,7 @@ def run_plan(plan: Plan, benches: dict, out: Path, quick: bool, size: str) -> Ou
     except Exception as exc:  # noqa: BLE001 - one failing benchmark must not end the report
         res.reason = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
     res.seconds = time.perf_counter() - t0
+    res.cpu_s = cpu_seconds() - cpu0
     return res
 
 
@@ -404,9 +407,14 @@ FAILURES = (
             ("tests/autostereogram/test_sird_stage.py::test_decoder_recovers_the_sphere",),
             needs="service.autostereogram"),
     Failure("billboard clouds", "parallax: a flat billboard shows no depth within itself "
-            "across zones", (), (), needs="service.billboard_render"),
-    Failure("level of detail", "a level chosen too coarse shows a different silhouette",
-            (), (), needs="service.lod"),
+            "across zones, worst close up and at grazing angles (holo-bench billboard "
+            "measures it)", (), (), needs="service.billboard_render"),
+    Failure("level of detail", "a level too coarse for its size on screen changes the "
+            "silhouette; under a time budget it is pushed past the error budget",
+            ("tests/render/test_lod.py::test_measured_screen_error_stays_within_the_prediction",),
+            ("tests/render/test_lod.py::test_the_selector_never_picks_a_level_over_budget",
+             "tests/render/test_lod.py::test_budget_ms_degrades_past_the_error_and_says_so"),
+            needs="service.lod"),
 )
 
 
@@ -482,7 +490,7 @@ def section_html(res: Outcome) -> str:
         if res.name is None or not res.out.is_dir():
             return "".join(parts)
     else:
-        parts.append(f'<p class="note">Ran in {res.seconds:.1f} s.</p>')
+        parts.append(f'<p class="note">Ran in {res.seconds:.1f} s (CPU {res.cpu_s:.1f} s).</p>')
     charts = sorted(res.out.glob("*.png"), key=lambda p: (p.name not in res.plan.charts,
                                                           list(res.plan.charts).index(p.name)
                                                           if p.name in res.plan.charts else 0,
@@ -511,7 +519,8 @@ def page(results: list[Outcome], meta: dict, root: Path) -> str:
                   "system detects it"], failure_rows(root),
                  "Node ids are pytest's: run one with `pytest 'NODE_ID'`.")
     head = (f"<p>{html.escape(meta['what'])}. Wall time {meta['wall_s']:.0f} s, CPU time "
-            f"{meta['cpu_s']:.0f} s (user + system, this process and its children).</p>"
+            f"{meta['cpu_s']:.0f} s (user + system, this process and its children). "
+            f"{html.escape(meta.get('warmup', ''))}</p>"
             f'<p class="note">{html.escape(meta["machine"])}</p>')
     return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
             f"<title>Holo-realizer benchmark report</title><style>{CSS}</style></head><body>"
@@ -528,12 +537,28 @@ def cpu_seconds() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
+def compile_ahead() -> str:
+    """Compile (or load) the numba kernels ahead, in two processes; one line on what it did.
+
+    On an empty cache the kernels compile about twice as fast on two cores as one
+    benchmark after another would (:func:`service.warmup.warm_up`); cached, seconds.
+    """
+    from service.warmup import warm_up
+
+    print("[report] numba kernels: compiling or loading ahead", file=sys.stderr, flush=True)
+    rep = warm_up(processes=2)
+    return (f"Numba kernels compiled ahead in two processes: {rep.compiled} of {rep.total} "
+            f"warm-up jobs compiled, {rep.cached} loaded from the cache, {rep.seconds:.0f} s.")
+
+
 def main(argv: list[str] | None = None) -> int:
     """``holo-bench report``; returns the exit status."""
     p = argparse.ArgumentParser(prog="holo-bench report", description=plain_help(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
     p.add_argument("--quick", action="store_true", help="small settings (about 3 minutes)")
+    p.add_argument("--no-warmup", dest="warmup", action="store_false",
+                   help="do not compile the numba kernels ahead in two processes")
     p.add_argument("--only", default=None,
                    help="comma-separated benchmark names to run (default: all)")
     p.add_argument("--size", type=size_type, default=None, metavar="WxH",
@@ -549,6 +574,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     wall0, cpu0 = time.perf_counter(), cpu_seconds()
     size = f"{args.size[0]}x{args.size[1]}"
+    warm = compile_ahead() if args.warmup else "Kernels not compiled ahead (--no-warmup)."
     results = []
     for i, plan in enumerate(plans, 1):
         print(f"[report {i}/{len(plans)}] {plan.bench}", file=sys.stderr, flush=True)
@@ -559,14 +585,16 @@ def main(argv: list[str] | None = None) -> int:
         results.append(res)
     meta = {"what": f"holo-bench report{' --quick' if args.quick else ''} at {size}",
             "wall_s": time.perf_counter() - wall0, "cpu_s": cpu_seconds() - cpu0,
-            "machine": machine_line()}
+            "machine": machine_line(), "warmup": warm}
     root = Path(__file__).resolve().parents[2]
     (out / "index.html").write_text(page(results, meta, root))
     (out / "report.json").write_text(json.dumps(
         {**meta, "benches": {r.plan.bench: {"ran": r.ok, "seconds": round(r.seconds, 2),
-                                            "reason": r.reason} for r in results}}, indent=1))
+                                            "cpu_s": round(r.cpu_s, 2), "reason": r.reason}
+                             for r in results}}, indent=1))
     for r in results:
-        state = f"ok {r.seconds:.1f} s" if r.ok else f"not run: {r.reason}"
+        state = f"ok {r.seconds:.1f} s (CPU {r.cpu_s:.1f} s)" if r.ok else \
+            f"not run: {r.reason}"
         print(f"  {r.plan.bench:11s} {state}")
     print(f"wrote {out / 'index.html'} in {meta['wall_s']:.0f} s (CPU {meta['cpu_s']:.0f} s)")
     return 0 if any(r.ok for r in results) else 1

@@ -13,8 +13,8 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 def test_a_tiny_report_writes_every_section_with_valid_inline_images(tmp_path, capsys):
     out = tmp_path / "rep"
-    status = report.main(["--quick", "--only", "light,decoders", "--size", "32x24",
-                          "--out", str(out)])
+    status = report.main(["--quick", "--no-warmup", "--only", "light,decoders",
+                          "--size", "32x24", "--out", str(out)])
     assert status == 0
     page = (out / "index.html").read_text()
     for section in ("light", "decoders", "failure-map"):
