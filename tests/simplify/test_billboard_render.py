@@ -140,3 +140,15 @@ def test_billboards_follow_the_viewer_and_stay_put_in_time(box):
     seen = view_scene(scene, viewer)
     assert np.allclose(seen.billboards[0].transform.position, TILT.position - [0.3, 0, 0])
     assert Renderer().render(seen, DISPLAY).stats["billboards"]["covered_pixels"] > 0
+
+
+def test_the_service_refuses_billboard_scenes_in_one_line(tmp_path, box):
+    """Its workers receive scenes over the wire, which carries no billboards yet."""
+    from service.errors import MessageError
+    from service.server import _load_path
+
+    _, cloud = box
+    save_cloud(cloud, tmp_path / "box.hbc")
+    with pytest.raises(MessageError, match="not served yet") as info:
+        _load_path(str(tmp_path / "box.hbc"))
+    assert info.value.code == "bad_settings"
