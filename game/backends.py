@@ -306,6 +306,7 @@ class ServiceBackend:
         self._records: list[dict] = []
         self._frozen = False
         self._next_try = 0.0
+        self._idle = threading.Event()  # never set: paces frame() while unconnected
         self.session: str | None = None
         self.reconnects = 0
 
@@ -419,9 +420,16 @@ class ServiceBackend:
         self._frozen = False
 
     def frame(self, timeout_s: float = 0.0) -> FrameView | None:
-        """The next frame from the stream, or None; a restarted service is reloaded."""
+        """The next frame from the stream, or None; a restarted service is reloaded.
+
+        Unconnected (the service is away or warming up) it tries to connect, then
+        waits out ``timeout_s``, so the loop keeps its pace instead of spinning.
+        """
         if not self.connected:
+            t0 = time.monotonic()
             self._retry()
+            if not self.connected:
+                self._idle.wait(max(0.0, timeout_s - (time.monotonic() - t0)))
             return None
         got = self.sub.next(max(timeout_s, 0.001))
         if not self.sub.alive:

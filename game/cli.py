@@ -66,10 +66,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--wait",
         type=float,
-        default=600.0,
+        default=1200.0,
         metavar="S",
         help="with --seconds: give up when no frame came within S seconds (a service "
-        "warming up on a first run compiles for minutes; default 600)",
+        "warming up on a first run compiles for minutes: 8 on a loaded 2-core machine; "
+        "default 1200)",
     )
     p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
     p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")

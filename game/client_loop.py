@@ -291,8 +291,6 @@ class GameClient:
     def _take_frame(self, now: float) -> None:
         period = 1.0 / self.settings.tick_hz
         wait = max(0.0, period - (self.clock() - now))
-        if not self.backend.connected:
-            wait = 0.0
         frame = self.backend.frame(wait)
         if frame is None:
             return
@@ -332,7 +330,8 @@ class GameClient:
         )
 
     def _draw(self, now: float) -> None:
-        self.fps.add(now)
+        if self.first_frame_t is not None:  # the window's rate counts from the first frame
+            self.fps.add(now)
         self.modes_shown.add(self.mode)
         self.window.draw(self.colour, self.mode, self.shown_zone(), self.hud(now), self.sird)
         connected = self.backend.connected

@@ -40,7 +40,7 @@ DEMO_FILES = (
     "score.png", "reconnecting.png",
 )  # fmt: skip
 #: Seconds the game waits for its first frame (the service's first warm-up).
-WAIT_S = 600.0
+WAIT_S = 1200.0
 #: Seconds between looks at a child while waiting for it.
 POLL_S = 0.02
 

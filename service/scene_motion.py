@@ -83,7 +83,9 @@ def advance_scene(scene: Scene, dt: float) -> Scene:
         m2 = MotionState(m.velocity + m.acceleration * dt, m.acceleration,
                          m.angular_velocity + m.angular_acceleration * dt, m.angular_acceleration)
         objs.append(replace(o, transform=advance_transform(o.transform, m, dt), motion=m2))
-    return Scene(objects=objs, lights=list(scene.lights), ambient=scene.ambient)
+    # billboard clouds carry no motion: they stay where they are
+    return Scene(objects=objs, lights=list(scene.lights), ambient=scene.ambient,
+                 billboards=list(scene.billboards))
 
 
 def view_scene(scene: Scene, viewer: Transform) -> Scene:
@@ -94,17 +96,20 @@ def view_scene(scene: Scene, viewer: Transform) -> Scene:
     """
     rt = quaternion_matrix(viewer.orientation).T
     qc = viewer.orientation * np.array([1.0, -1.0, -1.0, -1.0])
-    objs = []
-    for o in scene.objects:
+
+    def seen(o: object) -> object:  # a mesh or billboard-cloud object, moved into view
         t = o.transform
         pos = rt @ (t.position - viewer.position)
-        ori = quaternion_multiply(qc, t.orientation)
-        objs.append(replace(o, transform=Transform(pos, ori, t.scale)))
+        return replace(o, transform=Transform(pos, quaternion_multiply(qc, t.orientation),
+                                              t.scale))
+
+    objs = [seen(o) for o in scene.objects]
+    boards = [seen(b) for b in scene.billboards]
     lights = []
     for li in scene.lights:
         vec = rt @ (li.vector - viewer.position) if li.kind == "point" else rt @ li.vector
         lights.append(replace(li, vector=vec))
-    return Scene(objects=objs, lights=lights, ambient=scene.ambient)
+    return Scene(objects=objs, lights=lights, ambient=scene.ambient, billboards=boards)
 
 
 def scene_at(

@@ -398,9 +398,12 @@ def _second_process(names: list[str], report: _Progress) -> tuple[Any, threading
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
 
     def read() -> None:
-        for line in child.stdout:
-            ev = json.loads(line)
-            if ev.get("event") == "kernel":
+        for line in child.stdout:  # read to the end, whatever comes: never block the child
+            try:
+                ev = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(ev, dict) and ev.get("event") == "kernel":
                 report.step(ev["name"], ev["seconds"], ev.get("kernels", 0 if ev["cached"] else 1))
 
     reader = threading.Thread(target=read, name="warmup-child", daemon=True)

@@ -178,6 +178,11 @@ def bench_transport(n: int) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------ real services
+#: Longest wait for a started service to finish warming up (a cold cache on a loaded
+#: 2-core machine took 485 s).
+WARMUP_WAIT_S = 900.0
+
+
 class Running:
     """A ``holo-service`` subprocess on free ports (killed on exit)."""
 
@@ -201,8 +206,8 @@ class Running:
         self.client = ServiceClient(self.control, timeout_s=2.0, retries=30)
 
     def __enter__(self) -> Running:
-        try:
-            self.client.hello()
+        try:  # a service that has to compile answers "warming up" until it is ready
+            self.client.wait_ready(timeout_s=WARMUP_WAIT_S)
         except BaseException:
             self.__exit__()
             raise

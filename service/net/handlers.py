@@ -247,9 +247,13 @@ def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
     if not Path(path).is_file():
         raise MessageError("not_found", f"no such file: {path}")
     try:
-        return load_scene(path)
+        scene = load_scene(path)
     except MeshFileError as exc:
         raise MessageError("not_found", str(exc)) from exc
+    if scene.billboards:  # the wire to the workers does not carry them yet
+        raise MessageError("bad_settings", f"{path}: billboard clouds (.hbc) are not served "
+                           "yet (workers receive meshes only); render them with holo-render")
+    return scene
 
 
 def _object_index(u: Any, objs: list, i: int) -> int:

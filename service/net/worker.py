@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -90,7 +91,10 @@ def _shift_scene(scene: Scene, dy: float) -> Scene:
         )
         for lt in scene.lights
     ]
-    return Scene(objects, lights, scene.ambient)
+    boards = [replace(b, transform=Transform(b.transform.position + shift,
+                                             b.transform.orientation, b.transform.scale))
+              for b in scene.billboards]
+    return Scene(objects, lights, scene.ambient, billboards=boards)
 
 
 def band_setup(

@@ -125,3 +125,30 @@ def test_depth_error_grows_at_grazing_angles():
     assert head_on.size > 100 and grazing.size > 20
     assert np.percentile(head_on, 90) < 1.5  # within about EPS facing the viewer
     assert np.percentile(grazing, 90) > np.percentile(head_on, 90)
+
+
+def test_billboards_follow_the_viewer_and_stay_put_in_time(box):
+    """Head tracking and scene time keep a scene's billboard clouds (not just its meshes)."""
+    from service.scene_motion import advance_scene, view_scene
+
+    _, cloud = box
+    scene = Scene([SceneObject(sphere(0.2, 8, 16))],
+                  billboards=[BillboardObject(cloud, Material(), TILT)])
+    later = advance_scene(scene, 0.5)
+    assert len(later.billboards) == 1 and later.billboards[0].transform is TILT
+    viewer = Transform(position=np.array([0.3, 0.0, 0.0]))
+    seen = view_scene(scene, viewer)
+    assert np.allclose(seen.billboards[0].transform.position, TILT.position - [0.3, 0, 0])
+    assert Renderer().render(seen, DISPLAY).stats["billboards"]["covered_pixels"] > 0
+
+
+def test_the_service_refuses_billboard_scenes_in_one_line(tmp_path, box):
+    """Its workers receive scenes over the wire, which carries no billboards yet."""
+    from service.errors import MessageError
+    from service.net.handlers import _load_path
+
+    _, cloud = box
+    save_cloud(cloud, tmp_path / "box.hbc")
+    with pytest.raises(MessageError, match="not served yet") as info:
+        _load_path(str(tmp_path / "box.hbc"))
+    assert info.value.code == "bad_settings"
