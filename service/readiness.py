@@ -40,6 +40,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -69,6 +70,8 @@ class Warmup:
         The child's command line (default :data:`CHILD`).
     env : dict, optional
         The child's environment (default: this process's).
+    trust_stamp : bool
+        Skip the child when :func:`is_warm` (default); False always runs it.
     """
 
     def __init__(
@@ -76,8 +79,10 @@ class Warmup:
         log: Callable[[str], None] | None = None,
         child: tuple[str, ...] = CHILD,
         env: dict[str, str] | None = None,
+        trust_stamp: bool = True,
     ) -> None:
         self.log = log or (lambda line: None)
+        self.trust_stamp = trust_stamp
         self.child_cmd, self.env = tuple(child), env
         self.phase = "starting"
         self.done, self.total = 0, _job_count()
@@ -136,7 +141,7 @@ class Warmup:
     # ------------------------------------------------------------- thread
     def _run(self) -> None:
         try:
-            ok = True if is_warm() else self._child()
+            ok = True if self.trust_stamp and is_warm() else self._child()
             if self._stop.is_set():
                 return
             if not ok:
@@ -162,22 +167,28 @@ class Warmup:
         """Run the child to the end; True when it filled the cache (exit 0)."""
         t0 = time.monotonic()
         self._set(phase="compiling")
+        # stderr to a file, not a pipe: warnings there must never fill a pipe and stall it
+        err_file = tempfile.TemporaryFile("w+")
         try:
             proc = subprocess.Popen(
                 self.child_cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE, text=True, env=self.env, start_new_session=True,
+                stderr=err_file, text=True, env=self.env, start_new_session=True,
             )
         except OSError as exc:
+            err_file.close()
             self._set(note=f"warm-up child did not start ({exc}); compiling in process")
             return False
         with self._lock:
             self.child = proc
         if self._stop.is_set():  # stop() came before the child was known
             _end_group(proc, 3.0)
-        for line in proc.stdout:
-            self._child_line(line)
-        err = proc.stderr.read()
+        with proc.stdout:
+            for line in proc.stdout:
+                self._child_line(line)
         rc = proc.wait()
+        with err_file:
+            err_file.seek(0)
+            err = err_file.read()
         self.compile_s = time.monotonic() - t0
         if rc != 0 and not self._stop.is_set():
             last = (err.strip().splitlines() or [""])[-1][:200]

@@ -147,3 +147,21 @@ def test_a_shutdown_request_while_warming_up_stops_at_once(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
+
+
+@pytest.mark.timeout(120)
+def test_a_failed_warmup_child_falls_back_to_the_service_process():
+    """The child dies: the warm-up loads (here: from the warm cache) in process, says why."""
+    from service.readiness import Warmup
+
+    lines: list[str] = []
+    warmup = Warmup(lines.append, child=(sys.executable, "-c", "import sys; sys.exit(3)"),
+                    trust_stamp=False)
+    warmup.start()
+    try:
+        assert warmup.ready.wait(100), warmup.as_dict()
+        state = warmup.as_dict()
+        assert state["phase"] == "ready" and state["done"] == state["total"] > 0
+        assert "exited 3" in state["note"] and any("exited 3" in ln for ln in lines)
+    finally:
+        warmup.stop()

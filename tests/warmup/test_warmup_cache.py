@@ -111,7 +111,7 @@ def _free_port() -> int:
 
 def _count_frames(address: str, want: int, deadline: float) -> int:
     """Frames received on ``address`` until ``want`` or the deadline (monotonic)."""
-    from service.client import FrameSubscriber
+    from service.net.client import FrameSubscriber
 
     n = 0
     with FrameSubscriber(address, hwm=1000) as frames:
