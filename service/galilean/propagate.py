@@ -793,23 +793,26 @@ def _scatter_bands_body(
                         if order == 0:
                             for c in range(ca, cb):
                                 p, i = _u(p0 + c), _u(i0 + c)
-                                qr, qc, fxb[i], fyb[i], db[i] = _step(
+                                deb = o_deb[p]  # every load before the first store
+                                qr, qc, fx, fy, d = _step(
                                     r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
                                     k0, k0, k0, k0, k0, k0, k0, k0, k0, 0, fp, fm,
                                 )[:5]  # fmt: skip
-                                qb[i] = _landing(qr, qc, o_deb[p], z, h, w)
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i] = fx, fy, d
                                 if bookkeeping:
                                     sb[i] = qb[i] == p0 + c
                         elif order == 1:
                             for c in range(ca, cb):
                                 p, i = _u(p0 + c), _u(i0 + c)
                                 vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                                vz = np.int64(o_zm[0][p])
-                                qr, qc, fxb[i], fyb[i], db[i], vxb[i], vyb[i] = _step(
+                                vz, deb = np.int64(o_zm[0][p]), o_deb[p]
+                                qr, qc, fx, fy, d, vx1, vy1 = _step(
                                     r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
                                     vx, vy, k0, k0, k0, k0, vz, k0, k0, 1, fp, fm,
                                 )[:7]  # fmt: skip
-                                qb[i] = _landing(qr, qc, o_deb[p], z, h, w)
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i], vxb[i], vyb[i] = fx, fy, d, vx1, vy1
                                 if bookkeeping:
                                     sb[i] = (qb[i] == p0 + c) & ((vx | vy | vz) == 0)
                         elif order == 2:
@@ -818,12 +821,14 @@ def _scatter_bands_body(
                                 vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
                                 ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
                                 vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
-                                (qr, qc, fxb[i], fyb[i], db[i],
-                                 vxb[i], vyb[i], axb[i], ayb[i]) = _step(
+                                deb = o_deb[p]
+                                qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = _step(
                                     r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
                                     vx, vy, ax, ay, k0, k0, vz, az, k0, 2, fp, fm,
                                 )[:9]  # fmt: skip
-                                qb[i] = _landing(qr, qc, o_deb[p], z, h, w)
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i] = fx, fy, d
+                                vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
                                 if bookkeeping:
                                     still = (vx | vy | ax | ay | vz | az) == 0
                                     sb[i] = (qb[i] == p0 + c) & still
@@ -835,12 +840,14 @@ def _scatter_bands_body(
                                 jx, jy = np.int64(o_mot[4][p]), np.int64(o_mot[5][p])
                                 vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
                                 jz = np.int64(o_zm[2][p])
-                                (qr, qc, fxb[i], fyb[i], db[i],
-                                 vxb[i], vyb[i], axb[i], ayb[i]) = _step(
+                                deb = o_deb[p]
+                                qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = _step(
                                     r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
                                     vx, vy, ax, ay, jx, jy, vz, az, jz, 3, fp, fm,
                                 )[:9]  # fmt: skip
-                                qb[i] = _landing(qr, qc, o_deb[p], z, h, w)
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i] = fx, fy, d
+                                vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
                                 if bookkeeping:
                                     still = (vx | vy | ax | ay | jx | jy | vz | az | jz) == 0
                                     sb[i] = (qb[i] == p0 + c) & still
