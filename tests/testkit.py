@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -272,3 +273,35 @@ def start_service(*args: str, ready_timeout_s: float = 60.0,
         svc.stop()
         raise
     return svc
+
+
+class ColdWarmup:
+    """``holo-warmup --jsonl`` into an empty ``NUMBA_CACHE_DIR``, run in the background.
+
+    The cold compile takes minutes, most of them on one core; started when the
+    tests are collected, at a lower priority, it overlaps the rest of the suite
+    on the other core instead of adding its minutes to ``make test``.
+    """
+
+    def __init__(self) -> None:
+        self.folder = Path(tempfile.mkdtemp(prefix="holo-cold-warmup-"))
+        self.cache = self.folder / "numba-cache"
+        self.cache.mkdir()
+        self.env = {**os.environ, "NUMBA_CACHE_DIR": str(self.cache), "PYTHONUNBUFFERED": "1"}
+        with (self.folder / "out").open("w") as out, (self.folder / "err").open("w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "service.cli_warmup", "--jsonl"], cwd=ROOT,
+                env=self.env, stdin=subprocess.DEVNULL, stdout=out, stderr=err,
+                preexec_fn=lambda: os.nice(10),
+            )
+
+    def result(self, timeout_s: float) -> tuple[int, list[dict], str]:
+        """Wait for it: exit status, its JSON events, the tail of its stderr."""
+        rc = self.proc.wait(timeout_s)
+        events = [json.loads(line) for line in (self.folder / "out").read_text().splitlines()]
+        return rc, events, (self.folder / "err").read_text()[-2000:]
+
+    def close(self) -> None:
+        """Stop it if it still runs and remove its folder."""
+        end_process(self.proc)
+        shutil.rmtree(self.folder, ignore_errors=True)
