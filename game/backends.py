@@ -18,7 +18,7 @@ call                what it does
 ``close()``         stop threads / close sockets
 ==================  ===================================================================
 
-:class:`ServiceBackend` talks to ``holo-service`` through :mod:`service.client`
+:class:`ServiceBackend` talks to ``holo-service`` through :mod:`service.net.client`
 (``docs/protocol.md``); :class:`LocalRenderer` runs the render pipeline and the
 Galilean stage on two threads of this process (renders as fast as they go,
 refreshes at a fixed rate), so the game also runs with no service (``--local``).
@@ -262,7 +262,7 @@ class LocalRenderer:
 
 
 class ServiceBackend:
-    """``holo-service`` through :mod:`service.client` (``docs/protocol.md``).
+    """``holo-service`` through :mod:`service.net.client` (``docs/protocol.md``).
 
     Parameters
     ----------
@@ -290,7 +290,7 @@ class ServiceBackend:
         timeout_s: float = 0.5,
         shatter: bool = True,
     ) -> None:
-        from service.client import FrameSubscriber, ServiceClient
+        from service.net.client import FrameSubscriber, ServiceClient
 
         self.settings = settings or BackendSettings()
         self.devices = devices
@@ -316,7 +316,7 @@ class ServiceBackend:
         A service that is warming up is not an error: ``warming`` says how far it is
         and the loop keeps trying.
         """
-        from service.client import WarmingUpError
+        from service.net.client import WarmingUpError
 
         self._scene = scene
         try:
@@ -371,8 +371,8 @@ class ServiceBackend:
             self._next_try = time.monotonic() + 0.5
 
     def _retry(self) -> None:
-        from service.client import WarmingUpError
         from service.errors import ServiceError
+        from service.net.client import WarmingUpError
 
         if time.monotonic() < self._next_try:
             return

@@ -170,6 +170,7 @@ class GameClient:
         self.quit = False
         #: clock reading when the first frame was shown (None before).
         self.first_frame_t: float | None = None
+        self._hold_for_frame = False
         self._last = clock()
         self._render_id = -1
         self._was_connected = backend.connected
@@ -261,6 +262,8 @@ class GameClient:
     def _play(self, got: actions.Input, dt: float, now: float) -> None:
         if not self.backend.connected:
             return  # frozen while reconnecting
+        if self._hold_for_frame and self.first_frame_t is None:
+            return  # a timed run's game starts with its first frame too
         moves = [a for a in got.actions if a in MOVES]
         if self.attract:
             moves = self.bot.act(self.state, dt)
@@ -372,11 +375,13 @@ class GameClient:
         """Tick until quit or ``seconds`` pass; ``after_tick(self)`` after each.
 
         With ``wait_s`` the ``seconds`` count from the first frame shown (a service
-        warming up may take minutes to send one), and the run gives up when no frame
-        came within ``wait_s``; without it they count from now.
+        warming up may take minutes to send one), the game itself starts then too,
+        and the run gives up when no frame came within ``wait_s``; without it they
+        count from now.
         """
         start = self.clock()
         end = None if seconds is None or wait_s is not None else start + seconds
+        self._hold_for_frame = wait_s is not None
         while not self.quit:
             now = self.clock()
             if end is None and seconds is not None and self.first_frame_t is not None:

@@ -7,10 +7,9 @@
   :mod:`.png` (6); :mod:`.pipeline` wires them; :mod:`.display` is the display model
   (zones, hololines); :mod:`.scene_motion` moves a scene in time; :mod:`.normals_kernel`.
 * **Galilean stage** (seed 002): :mod:`.galilean`.
-* **ZeroMQ render service**: :mod:`.server` (sockets, handlers, refresh loop),
-  :mod:`.broker` and :mod:`.worker` (render processes), :mod:`.protocol` and
-  :mod:`.wire` (messages and arrays), :mod:`.frame_stream`, :mod:`.client` (the client
-  library), :mod:`.curve_keys` (CurveZMQ keys).
+* **ZeroMQ render service**: :mod:`.net` (server, state, request handlers, render
+  scheduler, refresh loop, broker and workers, protocol and wire, frame stream, client
+  library, CurveZMQ keys; its ``__init__`` lists them); its command is :mod:`.cli_service`.
 * **Base** (imported by every package; imports nothing above it): :mod:`.errors`,
   :mod:`.signals`, :mod:`.heap`, :mod:`.addresses`, :mod:`.cli_args`.
 * **Commands and benchmarks**: ``cli_*.py``, :mod:`.demo`, :mod:`.bench`.

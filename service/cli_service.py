@@ -23,10 +23,10 @@ import sys
 from collections.abc import Sequence
 
 from service.cli_args import float_range, int_range, plain_help
-from service.curve_keys import make_keys
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
+from service.net.curve_keys import make_keys
 from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
 
@@ -188,7 +188,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     # before the first parallel kernel loads libgomp; workers inherit it.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     keep_freed_memory()  # frame-sized arrays reuse freed pages (service.heap)
-    from service.server import Service, ServiceConfig
+    from service.net.server import Service
+    from service.net.state import ServiceConfig
 
     try:
         config = ServiceConfig(

@@ -208,9 +208,9 @@ def _galilean_game(kit: _Kit) -> None:
 def _galilean_service(kit: _Kit) -> None:
     """The service's path: band renders (``render_job``), stitched, submitted, refreshed."""
     from service.galilean import GalileanSettings, GalileanStage
+    from service.net.worker import render_job, stitch
     from service.pipeline import Renderer
     from service.scene import MotionState
-    from service.worker import render_job, stitch
 
     d = kit.display
     stage = GalileanStage(d, GalileanSettings(order=2, refresh_hz=60.0))

@@ -67,7 +67,7 @@ def _imports(tree: ast.Module) -> set[str]:
 def _is_command(name: str, tree: ast.Module, scripts: set[str]) -> bool:
     """A console script's module, or a ``python -m`` one named as a command (cli, demo).
 
-    ``service.worker`` also runs as ``python -m``, but it is the service's own worker
+    ``service.net.worker`` also runs as ``python -m``, but it is the service's own worker
     process, started by the service: not a command.
     """
     runs = any(isinstance(n, ast.If) and "__main__" in ast.unparse(n.test) for n in tree.body)
@@ -112,7 +112,7 @@ def _within(name: str, prefixes: tuple[str, ...]) -> bool:
 
 
 def test_every_module_is_read():
-    assert {"service.server", "drivers.reader", "sim_devices.tracker", "game.rules"} <= set(
+    assert {"service.net.server", "drivers.reader", "sim_devices.tracker", "game.rules"} <= set(
         MODULES)
     assert layer("service.cli_render") == "top" and layer("service.errors") == "base"
 

@@ -9,8 +9,8 @@ subprocesses, killed at the end):
 
 ``transport``
     One frame (colour + depth of the default display, 5 x 120 x 160) published and
-    received in lockstep, ours (:class:`~service.frame_stream.FrameStream` +
-    :func:`~service.protocol.parse_reply`) against raw pyzmq zero-copy
+    received in lockstep, ours (:class:`~service.net.frame_stream.FrameStream` +
+    :func:`~service.net.protocol.parse_reply`) against raw pyzmq zero-copy
     ``send_multipart`` of the same buffers.  Target: ours / raw <= 1.5 (p50).
 ``round_trip``
     ``ping`` and a 7-object ``update_objects`` through :class:`ServiceClient`, p50 / p99.
@@ -45,10 +45,10 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service import protocol
 from service.cli_args import comma_list, float_range, int_range, plain_help
-from service.client import FrameSubscriber, ServiceClient
-from service.frame_stream import FrameStream
+from service.net import protocol
+from service.net.client import FrameSubscriber, ServiceClient
+from service.net.frame_stream import FrameStream
 from service.signals import end_process
 
 TRANSPORT_TARGET = 1.5

@@ -430,6 +430,29 @@ class GalileanStage:
             cold = cnew = new
         # the Poisson threshold in fixed-point depth units
         thr = s.poisson_threshold * 2.0**self.fixed.fz if s.poisson else -1.0
+        self._sweeps(new, cold, cnew, thr, counters, shown)
+        self.map, self._spare = new, self.map
+        if self.cache is not None:
+            self.cache = (cnew, cold)
+        return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
+
+    def _sweeps(
+        self,
+        new: Galpixmap,
+        cold: Galpixmap,
+        cnew: Galpixmap,
+        thr: float,
+        counters: np.ndarray,
+        shown: tuple | None,
+    ) -> None:
+        """The kernels of one refresh, ``self.map`` into ``new`` (debris all set).
+
+        ``cold``/``cnew`` are the old and new obscuration caches (``new`` twice
+        when off), ``thr`` the Poisson threshold in fixed-point depth units (< 0:
+        no expansion); ``counters`` (:data:`STAT_NAMES`) accumulate; ``shown`` is
+        filled unless None.  Tests override this to run the reference kernels.
+        """
+        s = self.settings
         src = self._src.reshape(-1)
         old_p, new_p = planes(self.map.arrays()), planes(new.arrays())
         ncol = self.map.colour_planes
@@ -512,14 +535,10 @@ class GalileanStage:
         if shown is not None:
             zs = 2.0**-self.fixed.fz
             show_bands(new_p, self.shape, s.margin, *(a.reshape(-1) for a in shown), zs)
-        self.map, self._spare = new, self.map
         self._reach = next_reach
         self._same = self._same[::-1]
         self._same_valid = record
         self._steady += 1
-        if self.cache is not None:
-            self.cache = (cnew, cold)
-        return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
 
     def _graft(self, p: _Pending) -> None:
         self._map_changed()

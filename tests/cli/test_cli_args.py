@@ -24,7 +24,7 @@ from service.cli_args import (
     size,
 )
 from service.errors import SettingsError
-from service.server import DEFAULT_WORKER_ADDRESS
+from service.net.state import DEFAULT_WORKER_ADDRESS
 
 
 @given(st.integers(1, 8192), st.integers(1, 8192))

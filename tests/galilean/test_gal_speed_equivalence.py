@@ -49,17 +49,16 @@ class ReferenceStage(GalileanStage):
             2.0**-self.fixed.fz,
         )
 
-    def _propagate(self, shown: tuple | None) -> dict:
+    def _sweeps(
+        self,
+        new: Galpixmap,
+        cold: Galpixmap,
+        cnew: Galpixmap,
+        thr: float,
+        counters: np.ndarray,
+        shown: tuple | None,
+    ) -> None:
         s = self.settings
-        new = self._spare
-        new.debris.fill(1)
-        counters = np.zeros(len(STAT_NAMES), np.int64)
-        if self.cache is not None:
-            cold, cnew = self.cache
-            cnew.debris.fill(1)
-        else:
-            cold = cnew = new
-        thr = s.poisson_threshold * 2.0**self.fixed.fz if s.poisson else -1.0
         sweep(
             flat(self.map.arrays()),
             flat(new.arrays()),
@@ -94,10 +93,6 @@ class ReferenceStage(GalileanStage):
             counters,
             2.0**-self.fixed.fz,
         )
-        self.map, self._spare = new, self.map
-        if self.cache is not None:
-            self.cache = (cnew, cold)
-        return dict(zip(STAT_NAMES, counters.tolist(), strict=True))
 
 
 def random_map(stage: GalileanStage, rng: np.random.Generator, debris: float = 0.08) -> Galpixmap:

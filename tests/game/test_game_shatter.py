@@ -12,8 +12,8 @@ from testkit import free_port
 from game.backends import BackendSettings, ServiceBackend
 from game.rules import GameSettings, new_game
 from game.scene import game_scene, object_states
-from service.client import ServiceClient
 from service.display import DisplaySettings
+from service.net.client import ServiceClient
 
 
 def frames_after(backend: ServiceBackend, render_id: int, count: int, timeout: float) -> list:

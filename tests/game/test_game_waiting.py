@@ -105,6 +105,7 @@ def test_play_time_counts_from_the_first_frame(pygame_headless):
                         clock=clock)
     client.run(seconds=1.0, wait_s=60.0)
     assert client.first_frame_t is not None and client.first_frame_t > 1.0
+    assert client.state.t <= 1.5  # the game too started with the first frame
     assert 1.0 <= client.played_s() < 1.5
     assert client.refreshes.count >= 3
 
@@ -161,3 +162,22 @@ def test_a_real_cold_service_shows_the_waiting_screen(pygame_headless, tmp_path)
             backend.close()
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(20) == 128 + signal.SIGTERM
+
+
+def test_a_timed_game_waits_for_its_first_frame_even_when_connected(pygame_headless):
+    """Service ready, but its first frame not there yet: the game clock does not run."""
+    now = [0.0]
+
+    def clock() -> float:
+        now[0] += 0.05
+        return now[0]
+
+    backend = WarmingThenReady(ticks=100)
+    backend.connected, backend.warming = True, None
+    backend.frame = lambda timeout_s=0.0, f=backend.frame: (f(timeout_s), setattr(
+        backend, "warming", None))[0]  # connected all along: never "warming"
+    client = GameClient(backend, GameWindow((320, 240)), LoopSettings(attract=True),
+                        clock=clock)
+    client.run(seconds=1.0, wait_s=60.0)
+    assert client.first_frame_t is not None and client.first_frame_t > 5.0
+    assert client.state.t <= 1.5, client.state.t  # not the 5+ s spent waiting

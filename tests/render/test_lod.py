@@ -203,7 +203,7 @@ def test_the_pipeline_draws_the_chosen_levels(ring, chain, monkeypatch, tmp_path
 def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp_path):
     """render_with_motion (the service's workers and the game's local renderer) applies it."""
     from service.galilean.motion_field import render_with_motion
-    from service.worker import render_settings_from
+    from service.net.worker import render_settings_from
 
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
     settings = render_settings_from({"method": "zbuffer", "light_model": "ambient",

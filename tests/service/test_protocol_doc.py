@@ -13,7 +13,7 @@ import pytest
 import zmq
 from testkit import ROOT, SMALL_SERVICE, raw_request, start_service
 
-from service import protocol
+from service.net import protocol
 
 DOC = (ROOT / "docs" / "protocol.md").read_text()
 UNITS = {"MiB": 1 << 20, "KiB": 1 << 10}

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from service.client import ServiceClient
+from service.net.client import ServiceClient
 
 COLS, ROWS, WIDTH = 64, 48, 2.0
 PX = COLS / WIDTH  # pixels per world unit (one zone at angle 0: x maps linearly)

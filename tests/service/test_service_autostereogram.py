@@ -7,8 +7,8 @@ import pytest
 from testkit import wait_until
 
 from service.autostereogram import SirdSettings, default_eye_sep, separation_map
-from service.client import FrameSubscriber, ServiceClient
 from service.errors import HoloError
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def test_frames_carry_a_stereogram_of_their_own_depth(service_factory):

@@ -68,7 +68,8 @@ def test_bad_settings_are_refused_before_the_service_says_it_runs():
 
 def test_a_bad_setting_from_python_is_refused_before_any_socket():
     from service.errors import SettingsError
-    from service.server import Service, ServiceConfig
+    from service.net.server import Service
+    from service.net.state import ServiceConfig
 
     with pytest.raises(SettingsError, match="refresh_hz"):
         Service(ServiceConfig(control="tcp://127.0.0.1:0", frames="tcp://127.0.0.1:0",

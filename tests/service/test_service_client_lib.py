@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from testkit import TINY_DISPLAY
 
-from service.client import ServiceClient
 from service.errors import ServiceError
 from service.loaders.obj import save_obj
 from service.mesh import Mesh
+from service.net.client import ServiceClient
 from service.scene import MotionState, Scene, SceneObject, Transform
 
 

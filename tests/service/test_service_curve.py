@@ -7,7 +7,7 @@ import sys
 
 from testkit import ROOT, free_port, raw_request, wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def test_make_keys_and_curve_service(tmp_path):

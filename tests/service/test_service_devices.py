@@ -8,7 +8,7 @@ import time
 import zmq
 from testkit import free_port, wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 class FakeDevices:

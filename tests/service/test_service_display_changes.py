@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from testkit import wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def _service(service_factory):

@@ -7,7 +7,7 @@ import json
 import zmq
 from testkit import raw_request
 
-from service.client import ServiceClient
+from service.net.client import ServiceClient
 
 
 def _send(address: str, frames: list[bytes]) -> dict | None:

@@ -7,7 +7,7 @@ import time
 import pytest
 from testkit import wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def test_frames_at_refresh_rate_between_renders(service_factory):

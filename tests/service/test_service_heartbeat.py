@@ -11,8 +11,8 @@ import pytest
 import zmq
 from testkit import TINY_DISPLAY, wait_until
 
-from service import protocol
-from service.client import ServiceClient
+from service.net import protocol
+from service.net.client import ServiceClient
 
 
 @pytest.mark.parametrize("refresh_hz", [30, 1])

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from service.client import ServiceClient
 from service.errors import ServiceError
+from service.net.client import ServiceClient
 
 
 def test_lod_error_turns_level_of_detail_on_and_off(service_factory, tmp_path, monkeypatch):

@@ -6,8 +6,8 @@ import json
 
 import zmq
 
-from service import wire
-from service.broker import FramePipe
+from service.net import wire
+from service.net.broker import FramePipe
 
 
 def _serve_one(router: zmq.Socket) -> tuple[list[bytes], dict]:

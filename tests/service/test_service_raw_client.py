@@ -1,4 +1,4 @@
-"""A client written from docs/protocol.md alone (raw pyzmq, not service.client)."""
+"""A client written from docs/protocol.md alone (raw pyzmq, not service.net.client)."""
 
 from __future__ import annotations
 

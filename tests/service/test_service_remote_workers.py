@@ -13,7 +13,7 @@ import sys
 import pytest
 from testkit import ROOT, free_port, wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def _worker_pids(c: ServiceClient) -> list[int]:
@@ -33,7 +33,7 @@ def _frame_of(frames: FrameSubscriber, render_id: int) -> bool:
 
 
 def _start_worker(backend: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "service.worker", "--connect", backend, "--warm-up"]
+    cmd = [sys.executable, "-m", "service.net.worker", "--connect", backend, "--warm-up"]
     return subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.DEVNULL)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from testkit import wait_until
 
-from service.client import ServiceClient
+from service.net.client import ServiceClient
 
 
 def test_in_process_renders_are_aimed_near_the_present(small_service):

@@ -10,8 +10,8 @@ import pytest
 import zmq
 from testkit import SMALL_SERVICE, start_service
 
-from service import protocol
-from service.client import RequestTooLargeError, ServiceClient
+from service.net import protocol
+from service.net.client import RequestTooLargeError, ServiceClient
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import signal
 
 from testkit import TINY_DISPLAY, free_port, start_service, wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def test_client_reconnects_after_restart():

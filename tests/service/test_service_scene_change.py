@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from testkit import wait_until
 
-from service.client import ServiceClient
+from service.net.client import ServiceClient
 
 
 def _counts(c: ServiceClient) -> tuple[int, int]:

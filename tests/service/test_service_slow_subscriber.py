@@ -7,7 +7,7 @@ import time
 import zmq
 from testkit import rss_kb, wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 FRAME_BYTES = 5 * 120 * 160 * 3 + 5 * 120 * 160 * 4  # colour + depth, 672 kB
 

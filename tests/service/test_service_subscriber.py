@@ -5,7 +5,7 @@ from __future__ import annotations
 import zmq
 from testkit import wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def test_latest_returns_the_newest_queued_frame(small_service):

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from service import protocol, wire
 from service.builtin_scenes import builtin_scene
 from service.errors import MessageError
+from service.net import protocol, wire
 
 
 def _body(frames: list) -> list[bytes]:

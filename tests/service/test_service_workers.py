@@ -7,7 +7,7 @@ import signal
 
 from testkit import wait_until
 
-from service.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber, ServiceClient
 
 
 def _busy_pid(c: ServiceClient, known: list[int]) -> int | None:

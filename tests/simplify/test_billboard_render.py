@@ -145,7 +145,7 @@ def test_billboards_follow_the_viewer_and_stay_put_in_time(box):
 def test_the_service_refuses_billboard_scenes_in_one_line(tmp_path, box):
     """Its workers receive scenes over the wire, which carries no billboards yet."""
     from service.errors import MessageError
-    from service.server import _load_path
+    from service.net.handlers import _load_path
 
     _, cloud = box
     save_cloud(cloud, tmp_path / "box.hbc")

@@ -103,7 +103,7 @@ def test_second_process_reuses_every_cache_entry(warmed):
 
 def _count_frames(address: str, want: int, deadline: float) -> int:
     """Frames received on ``address`` until ``want`` or the deadline (monotonic)."""
-    from service.client import FrameSubscriber
+    from service.net.client import FrameSubscriber
 
     n = 0
     with FrameSubscriber(address, hwm=1000) as frames:

@@ -4,7 +4,7 @@ Frames are a latest-value stream, so a subscriber that cannot keep up should los
 frames, not make the service queue them: the socket's ``SNDHWM`` is 2 messages per
 subscriber and a frame's buffers are sent zero-copy (they stay alive only while
 libzmq still holds them).  A heartbeat message goes out whenever no frame has been
-published for :data:`service.protocol.HEARTBEAT_S`, so subscribers can tell a
+published for :data:`service.net.protocol.HEARTBEAT_S`, so subscribers can tell a
 quiet service from a dead one.
 """
 
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service import protocol, wire
+from service.net import protocol, wire
 
 SNDHWM = 2
 #: kernel socket buffers of the frame stream (both ends): a whole 672 kB frame fits,

@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from service import wire
 from service.errors import MessageError
+from service.net import wire
 
 VERSION = 1
 SUPPORTED_VERSIONS = (1,)

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service import protocol, wire
-from service.worker import READY
+from service.net import protocol, wire
+from service.net.worker import READY
 
 
 class Broker:

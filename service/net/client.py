@@ -2,7 +2,7 @@
 
 ::
 
-    from service.client import ServiceClient, FrameSubscriber
+    from service.net.client import ServiceClient, FrameSubscriber
 
     with ServiceClient("tcp://127.0.0.1:5555") as svc:
         info = svc.hello()                       # version, session, frames address...
@@ -37,9 +37,9 @@ import numpy as np
 import zmq
 import zmq.auth
 
-from service import protocol, wire
 from service.errors import MessageError, ServiceError, ServiceUnavailableError
-from service.frame_stream import SOCKET_BUFFER
+from service.net import protocol, wire
+from service.net.frame_stream import SOCKET_BUFFER
 from service.scene import Scene, SceneObject
 
 LINGER_MS = 0

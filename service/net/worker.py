@@ -1,6 +1,6 @@
 """Render workers: one update (a whole frame, or a band of its hololines), in its own process.
 
-A worker connects a DEALER to the broker's backend (``service/broker.py``), says
+A worker connects a DEALER to the broker's backend (``service/net/broker.py``), says
 ``READY`` (and again every heartbeat while idle, so the broker can forget dead
 ones), and answers each job with the arrays of its rows (all of them for a
 whole-frame job, the default) and the render's stats.  A job is a JSON header plus
@@ -17,7 +17,7 @@ parallel, so a translation moves the picture without changing it.  With a viewer
 pose the viewer is moved down instead (exact unless the viewer rotates between
 the difference steps).
 
-Run: ``python -m service.worker --connect tcp://HOST:5557 [--curve-keys DIR]``.
+Run: ``python -m service.net.worker --connect tcp://HOST:5557 [--curve-keys DIR]``.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service import protocol, wire
 from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.galpixmap import FIELDS, Galpixmap, build
@@ -40,6 +39,7 @@ from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.heap import keep_freed_memory
 from service.light import LightSettings
 from service.lod import LodSettings
+from service.net import protocol, wire
 from service.pipeline import Renderer, RenderSettings, StageClock
 from service.scene import (
     Light,
@@ -277,7 +277,7 @@ class Worker:
     """
 
     def __init__(self, address: str, curve_keys: str | None = None) -> None:
-        from service.client import _curve_client
+        from service.net.client import _curve_client
 
         self.ctx = zmq.Context()
         self.sock = self.ctx.socket(zmq.DEALER)
@@ -332,7 +332,7 @@ def split_job(frames: list[Any]) -> tuple[list[bytes], list[Any] | None]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m service.worker``."""
+    """Entry point of ``python -m service.net.worker``."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.cli_service.main
     keep_freed_memory()  # see service.heap
     ap = argparse.ArgumentParser(prog="holo-service-worker")

@@ -1,0 +1,307 @@
+"""Render scheduling: the render thread aims renders at rendezvous and hands them on.
+
+Renders are aimed a little in the future (a rendezvous: a refresh index of the
+Galilean stage, :meth:`Scheduler.aim`), in process, as bands of hololines through the
+broker (``split: bands``), or as whole frames to worker processes, one in flight per
+worker (``split: frames``, :meth:`Scheduler.pipeline_loop`); a job past its deadline
+is re-aimed and resent (:meth:`Scheduler.retry`).  A finished render goes to the
+refresh thread (``ServiceState.updates``) and to waiting ``render`` requests
+(``ServiceState.render_results``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from service.errors import HoloError
+from service.net import wire
+from service.net.broker import BandClient, Flight, FramePipe, split_rows
+from service.net.state import Aim, Ready, ServiceState, Settings
+from service.net.worker import StatsRenderer, render_job, stitch
+from service.pipeline import Renderer
+from service.quality import QualityChooser, QualitySettings, choose, parse_budget
+from service.scene import MotionState, Scene
+
+
+class Scheduler:
+    """The render thread of a :class:`ServiceState` (:meth:`run`)."""
+
+    def __init__(self, st: ServiceState) -> None:
+        self.st = st
+        self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
+        self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
+
+    def run(self) -> None:
+        """Render until the service stops."""
+        if self.st.broker is not None and self.st.config.split == "frames":
+            self.pipeline_loop()
+            return
+        renderer = StatsRenderer()
+        bands = None
+        if self.st.broker is not None:
+            bands = BandClient(
+                self.st.ctx,
+                "inproc://holo-broker",
+                self.st.config.render_timeout_s,
+                stop=self.st.stop,
+                has_workers=self.st.to_workers,
+            )
+        render_id = 0
+        last_start = 0.0
+        try:
+            while not self.st.stop.is_set():
+                if self.st.config.max_update_hz > 0:
+                    wait = last_start + 1.0 / self.st.config.max_update_hz - time.monotonic()
+                    if wait > 0 and self.st.stop.wait(wait):
+                        break
+                last_start = time.monotonic()
+                if self.render_once(renderer, bands if self.st.to_workers() else None, render_id):
+                    render_id += 1
+                elif self.st.stop.wait(0.02):
+                    break
+        finally:
+            if bands is not None:
+                bands.close()
+
+    def aim(self, render_id: int) -> Aim | None:
+        """Snapshot the scene and aim a render at a rendezvous after every earlier one."""
+        state = self.st.state
+        with state.lock:
+            scene, scene_t, settings = state.scene, state.scene_t, state.settings
+            viewer = state.viewer.render_spec()
+            version = state.scene_version
+        if scene is None or not scene.objects:
+            return None
+        index, t_index, gen, fixed, order = self.st.clock
+        if gen != settings.generation:
+            return None
+        hz = settings.refresh_hz
+        lead = _lead_s(self.st.counters.render_ms)
+        rendezvous = index + math.ceil(lead * hz) + 1
+        if gen == self._last_aim[0]:
+            rendezvous = max(rendezvous, self._last_aim[1] + 1)  # one render per rendezvous
+        self._last_aim = (gen, rendezvous)
+        t_target = t_index + (rendezvous - index) / hz
+        job = {
+            "job": render_id,
+            "t": t_target - scene_t,
+            "refresh_hz": hz,
+            "display": settings.as_dict(),
+            "render": settings.as_dict(),
+            "viewer": viewer,
+            "order": order,
+        }
+        if settings.quality == "auto":
+            self.auto(job, scene, settings)
+        return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns())
+
+    def auto(self, job: dict[str, Any], scene: Scene, settings: Settings) -> None:
+        """``quality: "auto"``: this render's method and specular, and the choice in the job."""
+        gen = settings.generation
+        if self._chooser is None or self._chooser[0] != gen:
+            self._chooser = (gen, QualityChooser(
+                QualitySettings("auto", parse_budget(settings.max_error))))
+        q = choose(self._chooser[1], scene, settings.display, settings.light_model)
+        job["render"] = {**job["render"], "method": q.method, "specular": q.specular}
+        job["quality"] = q.as_dict()
+
+    def ahead(self) -> bool:
+        """Whether the last render is aimed past the rendezvous one started now would get.
+
+        Renders one at a time (in process, or in bands) wait for the refresh clock
+        then: aiming each at the last rendezvous + 1 while renders are quicker than
+        refreshes would queue them ever further ahead (latency and memory growing
+        without bound).
+        """
+        index, _t, gen, _fixed, _order = self.st.clock
+        if gen != self._last_aim[0]:
+            return False
+        hz = self.st.state.settings.refresh_hz
+        return self._last_aim[1] >= index + math.ceil(_lead_s(self.st.counters.render_ms) * hz) + 1
+
+    def render_once(self, renderer: Renderer, bands: BandClient | None, render_id: int) -> bool:
+        """Render one update in process or in bands; False when none was due or it failed."""
+        if self.ahead():
+            return False
+        aim = self.aim(render_id)
+        if aim is None:
+            return False
+        got = self.run_job(renderer, bands, aim)
+        if got is None:
+            self.st.counters.render_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
+            self.st.counters.n["render_failures"] += 1
+            return False
+        self.finish(aim, *got)
+        return True
+
+    def finish(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict[str, Any]) -> None:
+        """Stitch a finished render, hand it to the refresh thread and to render requests."""
+        t_stitch = time.perf_counter()
+        rendered, buf = stitch(parts, _viewer_motion(aim.job), aim.fixed, aim.job["order"])
+        wall = (time.monotonic_ns() - aim.t0) / 1e6
+        self.st.counters.render_ms.append(wall)
+        stats = {
+            **stats,
+            "wall_ms": round(wall, 3),
+            "stitch_ms": round((time.perf_counter() - t_stitch) * 1e3, 3),
+            "rendezvous": aim.rendezvous,
+        }
+        if "quality" in aim.job:
+            stats["quality"] = aim.job["quality"]
+            self.observe(aim, parts, stats)
+        self.st.counters.n["renders"] += 1
+        self.st.updates.append(
+            Ready(
+                aim.render_id,
+                aim.settings.generation,
+                aim.rendezvous,
+                buf,
+                rendered,
+                aim.t0,
+                aim.scene_version,
+            )
+        )
+        mark = (aim.settings.generation, aim.scene_version)
+        self.st.render_results.put((aim.render_id, aim.t0, rendered.frame, mark, stats))
+
+    def observe(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict) -> None:
+        """Tell the quality chooser what the render showed (out-of-order points, coverage)."""
+        chooser = self._chooser
+        if chooser is None or chooser[0] != aim.settings.generation:
+            return
+        bands = stats.get("bands") or [stats]
+        bad = sum(int(b.get("inconsistent_pixels", 0)) for b in bands)
+        covered = sum(int(np.isfinite(p["depth"]).sum()) for p in parts if "depth" in p)
+        chooser[1].observe(aim.job["render"]["method"], {"inconsistent_pixels": bad}, covered)
+
+    def run_job(
+        self, renderer: Renderer, bands: BandClient | None, aim: Aim
+    ) -> tuple[list[dict[str, np.ndarray]], dict[str, Any]] | None:
+        """Render in process or as bands through the broker: (parts, stats) or None."""
+        job, settings = aim.job, aim.settings
+        try:
+            if bands is None:
+                job["rows"] = [0, settings.display.rows]
+                out, stats = render_job(renderer, job, aim.scene)
+                return [out], {**stats, "mode": "in_process"}
+            spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
+            n = max(1, len(self.st.broker.ready) + len(self.st.broker.busy), self.st.config.workers)
+            got = bands.run({**job, "scene": spec}, arrays, split_rows(settings.display.rows, n))
+            self.st.band_retries = bands.resent
+            if got is None:
+                return None
+            per_band = [g.pop("_stats", {}) for g in got]
+            return got, {"mode": "bands", "method": settings.method, "bands": per_band}
+        except (HoloError, ValueError) as exc:
+            self.st.last_render_error = str(exc)
+            return None
+
+    # ------------------------------------------------- pipelined whole frames
+    def capacity(self) -> int:
+        """Renders to keep in flight: one per worker the broker knows (at least one)."""
+        b = self.st.broker
+        return max(1, len(b.ready) + len(b.busy)) if b is not None else 1
+
+    def cap_s(self) -> float:
+        """The shortest time between render starts (``--max-update-hz``; 0: no cap)."""
+        hz = self.st.config.max_update_hz
+        return 1.0 / hz if hz > 0 else 0.0
+
+    def spacing_s(self, capacity: int) -> float:
+        """Time between dispatches: a render's time over the workers (and the cap)."""
+        cap = self.cap_s()
+        recent = list(self.st.counters.render_ms)[-20:]
+        spread = float(np.median(recent)) / 1e3 / capacity if recent else 0.0
+        return max(cap, spread)
+
+    def pipeline_loop(self) -> None:
+        """Whole-frame renders for successive rendezvous, one in flight per worker.
+
+        With no local workers and none connected (``--workers 0`` with a
+        ``--worker-address``; see :meth:`ServiceState.to_workers`) it renders in process, so
+        renders never wait for a worker that may never come.
+        """
+        pipe = FramePipe(self.st.ctx, "inproc://holo-broker", self.st.config.render_timeout_s)
+        self.st.pipe = pipe
+        local: StatsRenderer | None = None
+        render_id, next_start = 0, 0.0
+        try:
+            while not self.st.stop.is_set():
+                capacity, remote = self.capacity(), self.st.to_workers()
+                now = time.monotonic()
+                if not remote and now >= next_start:
+                    local = local or StatsRenderer()
+                    done = self.render_once(local, None, render_id)
+                    render_id += int(done)
+                    next_start = now + (self.cap_s() if done else 0.02)
+                elif remote and len(pipe.flights) < capacity and now >= next_start:
+                    # renders quicker than refreshes (a low refresh_hz) would otherwise be
+                    # aimed one rendezvous past the last, ever further into the future
+                    aim = None if self.ahead() else self.aim(render_id)
+                    if aim is None:
+                        next_start = now + 0.02
+                    else:
+                        self.dispatch(pipe, aim, 0)
+                        render_id += 1
+                        next_start = now + self.spacing_s(capacity)
+                full = remote and len(pipe.flights) >= capacity
+                wait = 50 if full else (next_start - time.monotonic()) * 1000
+                for flight, head in pipe.poll(min(50, max(0, int(wait)))):
+                    self.landed(flight, head)
+                for flight in pipe.expired():
+                    self.retry(pipe, flight)
+        finally:
+            pipe.close()
+
+    def dispatch(self, pipe: FramePipe, aim: Aim, attempt: int) -> None:
+        """Send a whole-frame job (the aim's scene and settings) to the workers."""
+        spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
+        job = {**aim.job, "rows": [0, aim.settings.display.rows], "scene": spec}
+        pipe.send(job, arrays, aim, attempt)
+
+    def landed(self, flight: Flight, head: dict[str, Any]) -> None:
+        """A worker's whole-frame reply: stitch and hand it on (or count the failure)."""
+        if not head.get("ok") or not isinstance(head.get("arrays"), dict):
+            self.st.counters.n["render_failures"] += 1
+            self.st.last_render_error = str(head.get("error", "bad worker reply"))
+            return
+        stats = {**(head.get("stats") or {}), "mode": "frames", "attempt": flight.attempt}
+        try:
+            self.finish(flight.meta, [head["arrays"]], stats)
+        except (HoloError, ValueError, KeyError) as exc:
+            self.st.counters.n["render_failures"] += 1
+            self.st.last_render_error = f"{type(exc).__name__}: {exc}"
+
+    def retry(self, pipe: FramePipe, flight: Flight) -> None:
+        """A job past its deadline (its worker died or stalled): re-aim it and resend.
+
+        The resend is aimed at a new rendezvous from the present, so the render is
+        never grafted late; after 3 resends, or when the broker knows no worker any
+        more, the render counts as failed.
+        """
+        self.st.band_retries += 1
+        retry = flight.attempt < 3 and self.st.to_workers()  # none: renders run in process
+        aim = self.aim(flight.meta.render_id) if retry else None
+        if aim is None:
+            self.st.counters.n["render_failures"] += 1
+            self.st.last_render_error = f"render {flight.meta.render_id}: no worker answered"
+            return
+        self.dispatch(pipe, aim, flight.attempt + 1)
+
+
+def _lead_s(render_ms: deque[float]) -> float:
+    """How far ahead to aim a render: its 90th percentile time plus a little."""
+    if not render_ms:
+        return 0.5
+    return float(np.percentile(list(render_ms)[-50:], 90)) / 1e3 * 1.2 + 0.01
+
+
+def _viewer_motion(job: dict[str, Any]) -> MotionState:
+    """The viewer's motion a job was rendered with (for the Galilean stage)."""
+    spec = job.get("viewer") or {}
+    return MotionState(**{k: np.asarray(v) for k, v in spec.items() if k in wire.MOTION_FIELDS})
