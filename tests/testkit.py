@@ -40,7 +40,7 @@ linux_only = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="
 SIGNALS = pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM],
                                   ids=["SIGINT", "SIGTERM"])
 #: A small display served in process (no workers), for tests of the service's behaviour.
-TINY_DISPLAY = ("--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0")
+TINY_DISPLAY = ("--zones", "2", "--size", "32x24", "--workers", "0")
 #: The game scene on :data:`TINY_DISPLAY` at 30 refreshes a second.
 SMALL_SERVICE = ("--scene", "game", *TINY_DISPLAY, "--refresh", "30")
 
