@@ -22,7 +22,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from service.cli_args import float_range, int_range, plain_help
+from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.heap import keep_freed_memory
@@ -159,8 +159,8 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
         "default: none, so any file the service can read)",
     )
     ap.add_argument("--zones", type=int, default=5, help="view zones")
-    ap.add_argument("--cols", type=int, default=160, help="galpixel columns per zone")
-    ap.add_argument("--rows", type=int, default=120, help="hololines (rows) per zone")
+    add_size_option(ap, (160, 120), "galpixel columns x hololines per zone",
+                    old_cols_rows=True)
     ap.add_argument(
         "--angle", type=float, default=16.0, help="view angle across the zones, degrees"
     )
@@ -205,7 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             io_threads=args.io_threads,
             max_update_hz=args.max_update_hz,
             scene=args.scene,
-            display=DisplaySettings(args.zones, args.angle, args.cols, args.rows),
+            display=DisplaySettings(args.zones, args.angle, *args.size),
             pose_scale=args.pose_scale,
             lod_error=args.lod_error or 0.0,
             scene_dirs=tuple(args.scene_dir or ()),

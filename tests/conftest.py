@@ -19,10 +19,42 @@ import zmq
 
 sys.path.insert(0, str(Path(__file__).parent))  # ``import testkit`` from any folder
 
-from testkit import Proc, ServiceProcess, children_of, start_service, wait_until  # noqa: E402
+from testkit import (  # noqa: E402
+    ColdWarmup,
+    Proc,
+    ServiceProcess,
+    children_of,
+    start_service,
+    wait_until,
+)
 
 #: Seconds a test's threads, children and sockets get to end after it.
 LEFTOVER_GRACE_S = 5.0
+#: Tests that need a cold warm-up (:class:`testkit.ColdWarmup`), started at collection.
+COLD_WARMUP_TESTS = "tests/warmup/test_warmup_cache.py"
+_COLD = pytest.StashKey[ColdWarmup]()
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Start the cold warm-up in the background if any selected test needs it."""
+    if any(item.nodeid.startswith(COLD_WARMUP_TESTS) for item in session.items):
+        session.config.stash[_COLD] = ColdWarmup()
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """Stop the cold warm-up (if it still runs) and remove its cache."""
+    cold = session.config.stash.get(_COLD, None)
+    if cold is not None:
+        cold.close()
+
+
+@pytest.fixture(scope="session")
+def cold_warmup(request: pytest.FixtureRequest) -> ColdWarmup:
+    """The background cold warm-up (started now if collection did not start it)."""
+    cold = request.config.stash.get(_COLD, None)
+    if cold is None:
+        cold = request.config.stash[_COLD] = ColdWarmup()
+    return cold
 
 
 #: Threads libraries keep for the life of the process (pyzmq's zero-copy garbage collector).

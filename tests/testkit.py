@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -39,7 +40,7 @@ linux_only = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="
 SIGNALS = pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM],
                                   ids=["SIGINT", "SIGTERM"])
 #: A small display served in process (no workers), for tests of the service's behaviour.
-TINY_DISPLAY = ("--zones", "2", "--cols", "32", "--rows", "24", "--workers", "0")
+TINY_DISPLAY = ("--zones", "2", "--size", "32x24", "--workers", "0")
 #: The game scene on :data:`TINY_DISPLAY` at 30 refreshes a second.
 SMALL_SERVICE = ("--scene", "game", *TINY_DISPLAY, "--refresh", "30")
 
@@ -272,3 +273,35 @@ def start_service(*args: str, ready_timeout_s: float = 60.0,
         svc.stop()
         raise
     return svc
+
+
+class ColdWarmup:
+    """``holo-warmup --jsonl`` into an empty ``NUMBA_CACHE_DIR``, run in the background.
+
+    The cold compile takes minutes, most of them on one core; started when the
+    tests are collected, at a lower priority, it overlaps the rest of the suite
+    on the other core instead of adding its minutes to ``make test``.
+    """
+
+    def __init__(self) -> None:
+        self.folder = Path(tempfile.mkdtemp(prefix="holo-cold-warmup-"))
+        self.cache = self.folder / "numba-cache"
+        self.cache.mkdir()
+        self.env = {**os.environ, "NUMBA_CACHE_DIR": str(self.cache), "PYTHONUNBUFFERED": "1"}
+        with (self.folder / "out").open("w") as out, (self.folder / "err").open("w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "service.cli_warmup", "--jsonl"], cwd=ROOT,
+                env=self.env, stdin=subprocess.DEVNULL, stdout=out, stderr=err,
+                preexec_fn=lambda: os.nice(10),
+            )
+
+    def result(self, timeout_s: float) -> tuple[int, list[dict], str]:
+        """Wait for it: exit status, its JSON events, the tail of its stderr."""
+        rc = self.proc.wait(timeout_s)
+        events = [json.loads(line) for line in (self.folder / "out").read_text().splitlines()]
+        return rc, events, (self.folder / "err").read_text()[-2000:]
+
+    def close(self) -> None:
+        """Stop it if it still runs and remove its folder."""
+        end_process(self.proc)
+        shutil.rmtree(self.folder, ignore_errors=True)

@@ -14,7 +14,9 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need 
 
 def test_full_loop_with_simulated_devices_and_a_real_service(tmp_path, capsys):
     out = tmp_path / "demo-out"
-    rc = full_demo.main(["--out", str(out), "--seconds", "9", "--gives-up", "1.5", "--headless"])
+    # the loop, not the look: the lightest look, so the rates hold on a busy machine
+    rc = full_demo.main(["--out", str(out), "--seconds", "9", "--gives-up", "1.5", "--headless",
+                         "--light", "ambient", "--size", "160x120"])
     assert rc == 0, capsys.readouterr().err
     stats = json.loads((out / "stats.json").read_text())
     assert set(stats) >= {
@@ -34,4 +36,31 @@ def test_full_loop_with_simulated_devices_and_a_real_service(tmp_path, capsys):
     for name in ("mode-head.png", "mode-strip.png", "mode-zone.png", "mode-autostereogram.png",
                  "film.png", "gameover.png"):
         assert (out / name).stat().st_size > 1000
-    assert "holo-service at tcp://127.0.0.1:" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "holo-service at tcp://127.0.0.1:" in said
+    assert "ambient light at 160x120 per zone" in said
+
+
+def test_the_demo_shows_lit_zones_by_default_and_says_so():
+    args = full_demo.build_parser().parse_args([])
+    cmd = full_demo.game_args(args, "tcp://127.0.0.1:5555", "tcp://127.0.0.1:5560", True)
+    assert "--full-light" in cmd and cmd[cmd.index("--size") + 1] == "240x180"
+    lighter = full_demo.build_parser().parse_args(["--light", "ambient", "--size", "96x64"])
+    cmd = full_demo.game_args(lighter, None, "tcp://127.0.0.1:5560", True)
+    assert "--full-light" not in cmd and cmd[cmd.index("--size") + 1] == "96x64"
+
+
+@pytest.mark.parametrize(
+    ("refresh_hz", "update_hz", "warned"),
+    [(0.0, 0.0, "never got a frame"), (41.8, 7.7, "41.8 refreshes/s (meant: 50) and 7.7 "
+     "renders/s (meant: 10)"), (59.9, 4.0, "4.0 renders/s"), (59.9, 15.0, None)],
+)
+def test_the_summary_warns_when_the_rates_fall_short(refresh_hz, update_hz, warned):
+    args = full_demo.build_parser().parse_args([])
+    stats = {"refreshes": int(refresh_hz * 20), "refresh_hz": refresh_hz, "update_hz": update_hz}
+    lines = full_demo.rate_warnings(stats, args)
+    if warned is None:
+        assert lines == []
+    else:
+        assert len(lines) == 1 and warned in lines[0]
+        assert refresh_hz == 0 or "--light ambient or --size 160x120" in lines[0]

@@ -34,7 +34,7 @@ def _centre_x(depth: np.ndarray) -> float:
 
 def test_accelerating_object_moves_quadratically(service_factory):
     svc = service_factory(
-        "--zones", "1", "--angle", "0", "--cols", str(COLS), "--rows", str(ROWS),
+        "--zones", "1", "--angle", "0", "--size", f"{COLS}x{ROWS}",
         "--workers", "0", "--refresh", "30",
     )  # fmt: skip
     with ServiceClient(svc.control, timeout_s=20) as c:

@@ -12,7 +12,7 @@ from service.net.client import FrameSubscriber, ServiceClient
 
 
 def test_frames_carry_a_stereogram_of_their_own_depth(service_factory):
-    svc = service_factory("--scene", "game", "--zones", "3", "--cols", "96", "--rows", "64",
+    svc = service_factory("--scene", "game", "--zones", "3", "--size", "96x64",
                           "--workers", "0", "--refresh", "20", "--max-update-hz", "2")
     with FrameSubscriber(svc.frames, hwm=100) as frames, ServiceClient(svc.control) as c:
         shown = c.set_display(encodings=["depth", "autostereogram"], sird_method="row")
@@ -41,7 +41,7 @@ def test_frames_carry_a_stereogram_of_their_own_depth(service_factory):
 
 
 def test_a_display_too_narrow_to_fuse_is_refused(service_factory):
-    svc = service_factory("--scene", "game", "--zones", "1", "--cols", "64", "--rows", "48",
+    svc = service_factory("--scene", "game", "--zones", "1", "--size", "64x48",
                           "--workers", "0", "--refresh", "30")
     with ServiceClient(svc.control) as c:
         with pytest.raises(HoloError, match="autostereogram"):

@@ -42,8 +42,8 @@ def test_help_shows_the_default_addresses_and_refresh_rate():
 def test_help_shows_every_default():
     entries = _help_entries()
     for action in build_parser()._actions:
-        if action.default is argparse.SUPPRESS:
-            continue  # --help itself
+        if action.default is argparse.SUPPRESS or action.help is argparse.SUPPRESS:
+            continue  # --help itself, and the hidden --cols/--rows aliases of --size
         option = action.option_strings[0]
         # a None default is explained in words ("default: none", or what happens)
         shown = "default:" if action.default is None else f"default: {action.default}"

@@ -54,7 +54,7 @@ def test_paths_limited_to_scene_dirs(service_factory, tmp_path):
     save_obj(inside / "ok.obj", mesh)
     save_obj(outside / "no.obj", mesh)
     svc = service_factory(
-        "--workers", "0", "--zones", "1", "--cols", "16", "--rows", "12", "--scene-dir", str(inside)
+        "--workers", "0", "--zones", "1", "--size", "16x12", "--scene-dir", str(inside)
     )
     with ServiceClient(svc.control, timeout_s=10) as c:
         assert c.load_scene(path=str(inside / "ok.obj"))["polygons"] == 1

@@ -51,7 +51,7 @@ def test_set_viewer_switches_device_source(service_factory):
     a, b = Source("left"), Source("right")
     try:
         svc = service_factory(
-            "--scene", "game", "--zones", "5", "--cols", "32", "--rows", "24",
+            "--scene", "game", "--zones", "5", "--size", "32x24",
             "--workers", "0", "--refresh", "30",
         )  # fmt: skip
         with FrameSubscriber(svc.frames) as frames, ServiceClient(svc.control) as c:

@@ -13,7 +13,7 @@ from service.net.client import FrameSubscriber, ServiceClient
 
 def _service(service_factory):
     return service_factory(
-        "--scene", "game", "--zones", "3", "--cols", "32", "--rows", "24",
+        "--scene", "game", "--zones", "3", "--size", "32x24",
         "--workers", "0", "--refresh", "30", "--angle", "0",
     )  # fmt: skip
 

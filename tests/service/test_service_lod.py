@@ -11,7 +11,7 @@ from service.net.client import ServiceClient
 def test_lod_error_turns_level_of_detail_on_and_off(service_factory, tmp_path, monkeypatch):
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
     svc = service_factory(
-        "--scene", "game", "--zones", "3", "--cols", "32", "--rows", "24",
+        "--scene", "game", "--zones", "3", "--size", "32x24",
         "--workers", "0", "--refresh", "30", "--lod-error", "0.5",
     )  # fmt: skip
     with ServiceClient(svc.control, timeout_s=30) as c:

@@ -41,7 +41,7 @@ def _start_worker(backend: str) -> subprocess.Popen:
 def test_workers_zero_with_a_worker_address_serves_remote_workers(service_factory, split):
     backend = f"tcp://127.0.0.1:{free_port()}"
     svc = service_factory(
-        "--scene", "game", "--zones", "2", "--cols", "32", "--rows", "24", "--split", split,
+        "--scene", "game", "--zones", "2", "--size", "32x24", "--split", split,
         "--workers", "0", "--worker-address", backend, "--refresh", "30", "--render-timeout", "2",
     )  # fmt: skip
     with ServiceClient(svc.control, timeout_s=30) as c, FrameSubscriber(svc.frames) as frames:

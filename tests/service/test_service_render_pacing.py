@@ -27,7 +27,7 @@ def test_worker_renders_at_one_refresh_a_second_are_grafted(service_factory):
     # one worker rendering a tiny frame in ~10 ms against a refresh every second: it
     # used to be handed a render per rendezvous, each aimed one past the last, so by
     # the time a frame could show its render was minutes in the future (no update)
-    svc = service_factory("--scene", "game", "--zones", "2", "--cols", "32", "--rows", "24",
+    svc = service_factory("--scene", "game", "--zones", "2", "--size", "32x24",
                           "--workers", "1", "--refresh", "2")
     with ServiceClient(svc.control, timeout_s=20) as c:
         assert wait_until(lambda: c.stats()["updates"] >= 3, 60), c.stats()

@@ -24,10 +24,8 @@ def test_worker_killed_mid_render(service_factory):
         "game",
         "--zones",
         "5",
-        "--cols",
-        "160",
-        "--rows",
-        "120",
+        "--size",
+        "160x120",
         "--workers",
         "2",
         "--render-timeout",
@@ -61,7 +59,7 @@ def test_worker_killed_mid_render(service_factory):
 def test_workers_render_whole_frames_in_flight_together(service_factory):
     """Two workers keep two whole-frame renders in flight (pipelining), not two bands."""
     svc = service_factory(
-        "--scene", "game", "--zones", "2", "--cols", "64", "--rows", "48",
+        "--scene", "game", "--zones", "2", "--size", "64x48",
         "--workers", "2", "--refresh", "30",
     )  # fmt: skip
     with ServiceClient(svc.control, timeout_s=5) as c:

@@ -16,18 +16,14 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
+from testkit import ROOT, start_service
 
-from service.signals import end_process
-
-ROOT = Path(__file__).resolve().parents[2]
 #: A cold warm-up took 200 s here on 2 quiet cores, 684-1237 s with the machine
 #: 5-7x oversubscribed.
 COLD_TIMEOUT_S = 2400
@@ -64,13 +60,15 @@ def _snapshot(cache: Path) -> dict[str, tuple[int, int]]:
 
 
 @pytest.fixture(scope="module")
-def warmed(tmp_path_factory) -> tuple[Path, list[dict]]:
-    """A cache filled by one cold ``holo-warmup --jsonl``; its events."""
-    cache = tmp_path_factory.mktemp("numba-cache")
-    p = subprocess.run([sys.executable, "-m", "service.cli_warmup", "--jsonl"], cwd=ROOT,
-                       env=_env(cache), capture_output=True, text=True, timeout=COLD_TIMEOUT_S)
-    assert p.returncode == 0, p.stderr[-2000:]
-    return cache, [json.loads(line) for line in p.stdout.splitlines()]
+def warmed(cold_warmup) -> tuple[Path, list[dict]]:
+    """A cache filled by one cold ``holo-warmup --jsonl``; its events.
+
+    The warm-up started in the background when the tests were collected (the root
+    ``conftest.py``), so its minutes overlap the rest of the suite.
+    """
+    rc, events, err = cold_warmup.result(COLD_TIMEOUT_S)
+    assert rc == 0, err
+    return cold_warmup.cache, events
 
 
 @pytest.mark.timeout(COLD_TIMEOUT_S + 120)
@@ -103,12 +101,6 @@ def test_second_process_reuses_every_cache_entry(warmed):
     assert _snapshot(cache) == before, "the second process wrote to the cache"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _count_frames(address: str, want: int, deadline: float) -> int:
     """Frames received on ``address`` until ``want`` or the deadline (monotonic)."""
     from service.net.client import FrameSubscriber
@@ -125,23 +117,14 @@ def _count_frames(address: str, want: int, deadline: float) -> int:
 def test_service_on_a_warm_cache_publishes_60_frames_at_once(warmed):
     cache, _ = warmed
     before = _snapshot(cache)
-    control, frames = (f"tcp://127.0.0.1:{_free_port()}" for _ in range(2))
-    backend = f"tcp://127.0.0.1:{_free_port()}"
-    cmd = [sys.executable, "-m", "service.cli_service", "--control", control, "--frames",
-           frames, "--worker-address", backend, "--scene", "game"]
     t0 = time.monotonic()
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(cache), stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    err: list[str] = []
-    reader = threading.Thread(target=lambda: err.extend(proc.stderr), daemon=True)
-    reader.start()
+    svc = start_service("--scene", "game", env=_env(cache), ready_timeout_s=FRAMES_DEADLINE_S)
     try:
-        n = _count_frames(frames, 60, t0 + FRAMES_DEADLINE_S)
+        n = _count_frames(svc.frames, 60, t0 + FRAMES_DEADLINE_S)
         took = time.monotonic() - t0
-        assert proc.poll() is None, f"holo-service ended ({proc.returncode}): {''.join(err)}"
+        assert svc.proc.poll() is None, f"holo-service ended: {svc.output()[-2000:]}"
     finally:
-        end_process(proc, timeout=30)
-    reader.join(5)
+        svc.stop()
     assert n == 60, f"{n} frames in {FRAMES_DEADLINE_S} s (a compiling service is this slow)"
     assert took < FRAMES_DEADLINE_S
     added = sorted(set(_snapshot(cache)) - set(before))
