@@ -20,3 +20,34 @@ def pygame_headless():
         yield pygame
     finally:
         pygame.quit()
+
+
+@pytest.fixture
+def setup_from_args(tmp_path, monkeypatch):
+    """Parse a ``holo-game --local --headless`` command line and run ``cli._setup`` on it.
+
+    ``setup(*extra)`` returns ``(game, backend)``; every backend is closed at the end.
+    The level-of-detail cache goes to a temporary folder.
+    """
+    from game import cli
+
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "lod"))
+    opened = []
+
+    def setup(*extra: str):
+        parser = cli.build_parser()
+        args = parser.parse_args(["--local", "--headless", "--size", "120x90",
+                                  "--highscores", str(tmp_path / "hs.json"), *extra])
+        cli.check_args(parser, args)
+        game, backend, *_ = cli._setup(args)
+        opened.append(backend)
+        return game, backend
+
+    try:
+        yield setup
+    finally:
+        import pygame
+
+        for backend in opened:
+            backend.close()
+        pygame.quit()

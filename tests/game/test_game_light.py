@@ -7,46 +7,13 @@ frames from the real renderer with those settings (issue 6, thesis 5.1.1).
 from __future__ import annotations
 
 import numpy as np
-import pygame
 import pytest
 
-from game import cli
 from game.backends import LocalRenderer
 from game.rules import new_game
 from game.scene import apply_states, object_states
 from service.pipeline import Renderer
 from service.scene import Scene
-
-
-@pytest.fixture
-def setup_from_args(tmp_path):
-    """Parse a command line and run ``cli._setup`` on it; closes what it opened."""
-    opened = []
-
-    def setup(*extra: str):
-        parser = cli.build_parser()
-        args = parser.parse_args(
-            [
-                "--local",
-                "--headless",
-                "--size",
-                "120x90",
-                "--highscores",
-                str(tmp_path / "hs.json"),
-                *extra,
-            ]
-        )
-        cli.check_args(parser, args)
-        game, backend, *_ = cli._setup(args)
-        opened.append(backend)
-        return game, backend
-
-    try:
-        yield setup
-    finally:
-        for backend in opened:
-            backend.close()
-        pygame.quit()
 
 
 def _player_only(backend: LocalRenderer, game) -> Scene:

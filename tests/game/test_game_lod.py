@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import pygame
 import pytest
 
 from game import cli
@@ -11,30 +10,8 @@ from game.rules import new_game
 from game.scene import object_states
 
 
-@pytest.fixture
-def backend_from(tmp_path, monkeypatch):
-    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "lod"))
-    opened = []
-
-    def setup(*extra: str):
-        parser = cli.build_parser()
-        args = parser.parse_args(["--local", "--headless", "--size", "120x90",
-                                  "--highscores", str(tmp_path / "hs.json"), *extra])
-        cli.check_args(parser, args)
-        game, backend, *_ = cli._setup(args)
-        opened.append(backend)
-        return game, backend
-
-    try:
-        yield setup
-    finally:
-        for backend in opened:
-            backend.close()
-        pygame.quit()
-
-
-def test_lod_on_reaches_the_local_renderer(backend_from, tmp_path):
-    game, backend = backend_from("--lod-error", "0.75")
+def test_lod_on_reaches_the_local_renderer(setup_from_args, tmp_path):
+    game, backend = setup_from_args("--lod-error", "0.75")
     assert isinstance(backend, LocalRenderer)
     assert backend.render_settings.lod is not None
     assert backend.render_settings.lod.error_px == 0.75
@@ -50,8 +27,8 @@ def test_lod_on_reaches_the_local_renderer(backend_from, tmp_path):
     assert any((tmp_path / "lod").glob("*.json"))  # the attackers' chain was cached
 
 
-def test_lod_off_by_default_and_bad_budget_refused(backend_from, capsys):
-    _, backend = backend_from()
+def test_lod_off_by_default_and_bad_budget_refused(setup_from_args, capsys):
+    _, backend = setup_from_args()
     assert backend.render_settings.lod is None
     with pytest.raises(SystemExit) as stop:
         cli.build_parser().parse_args(["--lod-error", "0"])
