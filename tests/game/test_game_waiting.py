@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
+from testkit import free_port
 
 from game.backends import BackendSettings, ServiceBackend
 from game.client_loop import GameClient, LoopSettings, waiting_lines
@@ -124,19 +124,13 @@ def test_no_frame_within_the_wait_ends_the_run(pygame_headless):
     assert now[0] < 3.0
 
 
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.timeout(90)
 def test_a_real_cold_service_shows_the_waiting_screen(pygame_headless, tmp_path):
-    control, frames = f"tcp://127.0.0.1:{_port()}", f"tcp://127.0.0.1:{_port()}"
+    control, frames = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
     proc = subprocess.Popen(
         [sys.executable, "-m", "service.cli_service", "--control", control, "--frames", frames,
-         "--worker-address", f"tcp://127.0.0.1:{_port()}"],
+         "--worker-address", f"tcp://127.0.0.1:{free_port()}"],
         env=env, stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     backend = None
