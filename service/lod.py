@@ -55,7 +55,7 @@ from service.mesh import Mesh
 from service.scene import Scene, SceneObject
 
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
-DEFAULT_FRACTIONS = (0.5, 0.25, 0.12, 0.06, 0.03, 0.015, 0.007)
+DEFAULT_FRACTIONS = tuple(round(0.7 * 0.8 ** k, 4) for k in range(21))
 #: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.  None
 #: by default: drawing a cloud (a ray per pixel per quad box, service.billboard_render)
 #: measured dearer than the meshes it stands for (the torus at 320x240 x 5 zones, one
@@ -65,7 +65,7 @@ DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
 #: Bump when the chain's contents or file layout change (old cache files are rebuilt).
-CHAIN_VERSION = 3
+CHAIN_VERSION = 4
 #: Environment variable naming the cache folder.
 CACHE_ENV = "HOLO_LOD_CACHE"
 #: Levels smaller than this many triangles are not built.
@@ -218,7 +218,23 @@ def _decimated(mesh: Mesh, fractions: tuple[float, ...]) -> list[tuple[Mesh, flo
             continue
         out.append((Mesh.from_triangles(v, f, f"{mesh.name}@{f.shape[0]}"), float(err)))
         last = f.shape[0]
-    return out
+    return _pareto(out)
+
+
+def _pareto(levels: list[tuple[Mesh, float]]) -> list[tuple[Mesh, float]]:
+    """Only the levels with less error than every coarser one (finest first).
+
+    A sampled Hausdorff error comes in plateaus (one feature sets it over a range of
+    fractions, the bunny's 0.00187 from 30 % down to 20 % of its triangles); a
+    finer level on a plateau costs more for the same predicted error and would
+    never be chosen, so each plateau keeps its coarsest level.
+    """
+    out, best = [], np.inf
+    for m, e in reversed(levels):
+        if e < best:
+            out.append((m, e))
+            best = e
+    return out[::-1]
 
 
 def cloud_error(eps: float, diagonal: float, texture_res: int) -> float:
@@ -417,12 +433,16 @@ def select_levels(
     pred = errors * np.asarray(ppu, np.float64).reshape(-1, 1)
     n, width = pred.shape
     rows = np.arange(n)
-    # the cheapest (last) level within the stricter bound; level 0 (error 0) always is
-    strict = pred <= error_px * (1.0 - hysteresis)
-    level = width - 1 - np.argmax(strict[:, ::-1], axis=1)
+    # the cheapest (last) level within the bound; level 0 (error 0) always is.  An
+    # object with a level already coarsens only under the stricter bound; a new one
+    # (no previous level) has nothing to flicker from and takes the whole budget
+    fresh = np.ones(n, np.bool_) if previous is None else np.asarray(previous) < 0
+    bound = np.where(fresh, error_px, error_px * (1.0 - hysteresis))
+    within = pred <= bound[:, None]
+    level = width - 1 - np.argmax(within[:, ::-1], axis=1)
     if previous is not None:
         prev = np.clip(previous, 0, pred.shape[1] - 1)
-        keep = (previous >= 0) & (prev > level) & (pred[rows, prev] <= error_px)
+        keep = ~fresh & (prev > level) & (pred[rows, prev] <= error_px)
         level = np.where(keep, prev, level)
     return level.astype(np.int64), pred[rows, level]
 
