@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from service.billboard_render import draw_billboards
 from service.display import DisplaySettings
 from service.frame import Frame
 from service.galilean.galpixmap import RGB_TO_ABC
@@ -258,10 +259,17 @@ def render_with_motion(
     arrays = [s.flatten() for s in scenes]
     projs = np.stack([project(a.vertices, display) for a in arrays])
     vis, _, _ = renderer.visibility(arrays[2], display, settings)
+    boards = None
+    if scenes[2].billboards:  # into the same depth buffer, as Renderer.render draws them
+        boards = draw_billboards(scenes[2].billboards, display, vis, settings.method,
+                                 scenes[2].lights, scenes[2].ambient, settings.light)
+        stats["billboards"] = boards.stats
     lin = [shade_linear(arrays[i], projs[i], vis, display, scenes[i].lights, scenes[i].ambient,
                         settings.light) for i in (1, 2, 3)]
     colour = shade(arrays[2], projs[2], vis, display, scenes[2].lights, scenes[2].ambient,
                    settings.light)  # quantised exactly as Renderer.render does
+    if boards is not None:  # billboard pixels: no triangle, so no motion (they have none)
+        boards.paint(colour)
     vd = vertex_derivatives(projs, h)
     der = interpolate(np.ascontiguousarray(vis.triangle, np.int32), arrays[2].triangles,
                       np.ascontiguousarray(projs[2]), np.ascontiguousarray(vd))

@@ -158,7 +158,8 @@ def render_job(
     reply (``docs/protocol.md`` 1.5): ``ms`` per stage (``project``, ``cull``,
     ``sort``, ``occlusion`` of the visibility pass; ``motion``: the whole render
     with its four difference renders; ``galpixmap``; ``total``), ``polygons``
-    (``in``, ``culled``, ``kept``, ``drawn``), ``method`` and ``rows``.
+    (``in``, ``culled``, ``kept``, ``drawn``), ``method`` and ``rows``; with billboard
+    clouds in the scene ``billboards`` (how they were drawn: ``drawn_with``, ``note``).
 
     Returns
     -------
@@ -202,8 +203,9 @@ def render_job(
         "rows": list(rows),
         "inconsistent_pixels": int(getattr(renderer, "last_inconsistent", 0)),
     }
-    if "lod" in up.frame.stats:
-        stats["lod"] = up.frame.stats["lod"]
+    for key in ("lod", "billboards"):  # billboards: how they were drawn (docs/simplify.md)
+        if key in up.frame.stats:
+            stats[key] = up.frame.stats[key]
     return out, stats
 
 
