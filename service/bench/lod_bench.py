@@ -19,7 +19,9 @@ clouds are off in the default chain (their drawing costs more than the triangles
 
 Part 2, a crowd of ``--crowd`` copies of one mesh, their depths (-z) spread over 10x
 (0.1 to 1.0), rendered with LOD off and on (``--lod-error``): frame milliseconds
-(median, after a warm frame) and the same image errors.  Two crowds, because the
+(median, after a warm frame), the same image errors over covered pixels and over
+all pixels (the issue's "<= 1 % of pixels" read both ways; both are printed), the
+LOD choice's and the whole LOD step's milliseconds (best of the repeats).  Two crowds, because the
 zones are parallel projections and depth alone does not shrink an object here
 (see :mod:`service.lod`): ``by-depth`` gives each copy a size proportional to
 1 / depth (how a perspective picture of a crowd looks, composed for this display),
@@ -137,13 +139,17 @@ def _timed(renderer: Renderer, scene: Scene, display: DisplaySettings,
     CPU time (this process, all threads) is reported beside wall time because the
     benchmark often shares its cores; with one numba thread the two agree when idle.
     """
-    wall, cpu = [], []
+    wall, cpu, lod = [], [], []
     frame = renderer.render(scene, display, settings)  # kernels compiled, caches built
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
         frame = renderer.render(scene, display, settings)
         wall.append((time.perf_counter() - t0) * 1e3)
         cpu.append((time.process_time() - c0) * 1e3)
+        if "lod" in frame.stats:
+            lod.append((frame.stats["lod"]["select_ms"], frame.stats["ms"]["lod"]))
+    if lod:  # best of the repeats: a sub-millisecond step on a shared machine
+        frame.stats["lod_best_ms"] = np.min(np.array(lod), axis=0).tolist()
     return frame, float(np.median(wall)), float(np.median(cpu))
 
 
@@ -215,7 +221,8 @@ def crowd_rows(display: DisplaySettings, args: argparse.Namespace) -> list[dict]
                 "triangles": int(frame.stats["polygons"]["in"]),
                 "speedup": off_ms / ms, "cpu_speedup": off_cpu / cpu,
                 **image_error(off, frame, args.depth_tol),
-                "select_ms": report["select_ms"] if mode == "on" else 0.0,
+                "select_ms": frame.stats["lod_best_ms"][0] if mode == "on" else 0.0,
+                "lod_ms": frame.stats["lod_best_ms"][1] if mode == "on" else 0.0,
                 "max_predicted_px": max(report["predicted_px"]) if mode == "on" else 0.0,
                 "levels_used": (json.dumps(np.bincount(report["levels"]).tolist())
                                 if mode == "on" else ""),
@@ -353,6 +360,15 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['triangles']} triangles, "
               f"{r['depth_diff_pct']:.2f} % covered pixels differ "
               f"({r['depth_diff_pct_all']:.2f} % of all), PSNR {r['psnr_db']:.1f} dB")
+    for r in (r for r in crowd if r["lod"] == "on"):
+        print(f"target {r['crowd']:8s}: x{r['cpu_speedup']:.1f} CPU (>= 5: "
+              f"{'met' if r['cpu_speedup'] >= 5 else 'NOT met'}), "
+              f"{r['depth_diff_pct_all']:.2f} % of all pixels differ (<= 1: "
+              f"{'met' if r['depth_diff_pct_all'] <= 1 else 'NOT met'}), "
+              f"{r['depth_diff_pct']:.2f} % of covered (<= 1: "
+              f"{'met' if r['depth_diff_pct'] <= 1 else 'NOT met'}); LOD choice "
+              f"{r['select_ms']:.3f} ms, whole LOD step {r['lod_ms']:.3f} ms "
+              f"for {r['objects']} objects (best of {args.repeats})")
     return 0
 
 

@@ -19,6 +19,7 @@ d2A (equations 17-18) in 0..255 units.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numba as nb
@@ -252,8 +253,10 @@ def render_with_motion(
     """
     settings = settings or RenderSettings()
     stats: dict = {"t": t}
-    if settings.lod is not None and settings.lod.enabled:  # each object at its level of detail
+    lod = settings.lod is not None and settings.lod.enabled
+    if lod:  # each object at its level of detail
         scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod, clouds=False)
+    t0 = time.perf_counter()
     period = 1.0 / refresh_hz
     scenes = [scene_at(scene, t + k * h * period, viewer, viewer_motion) for k in (-2, -1, 0, 1, 2)]
     arrays = [s.flatten() for s in scenes]
@@ -275,6 +278,8 @@ def render_with_motion(
                       np.ascontiguousarray(projs[2]), np.ascontiguousarray(vd))
     dcol = colour_derivatives(lin, h) if colour_motion else None
     obj = _object_map(vis, arrays[2].triangle_polygon, arrays[2].polygon_object)
+    if lod:  # the LOD time budget's cost model learns from this render's cost
+        renderer.lod.observe(arrays[2].triangles.shape[0], (time.perf_counter() - t0) * 1e3)
     frame = Frame(colour=colour, depth=vis.depth, stats=stats)
     points = projs[2][..., :2].reshape(-1, 2)
     pder = vd[..., :2].reshape(3, -1, 2)

@@ -334,6 +334,8 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         _check_sird(disp["cols"], kw.get("sird_eye_sep", s.sird_eye_sep))
     if "lod_error" in req:  # pixels; 0 turns level of detail off
         kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
+    if "lod_budget_ms" in req:  # ms per render; 0: no time budget
+        kw["lod_budget_ms"] = wire.number(req["lod_budget_ms"], "lod_budget_ms", 0.0, 1e6)
     kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")
