@@ -434,7 +434,7 @@ def cloud_from_wire(spec: Any, name: str) -> Any:
         problem = array_problem(key, arr, planes.shape[0])
         if problem is not None:
             raise MessageError("bad_array", f"{name}.{key}: {problem}")
-        arrays[key] = arr
+        arrays[key] = np.array(arr)  # writable: the kernels are compiled for those
     if arrays["rgba"].shape[0] > MAX_TEXELS:
         raise MessageError("too_large", f"{name} has more than {MAX_TEXELS} texels")
     problem = arrays_problem(arrays)
