@@ -597,6 +597,7 @@ class LodState:
     scene: Scene | None = None
     cache: Path | None | bool = True
     display_key: tuple = ()
+    _last: tuple | None = None
 
     def chain(self, mesh: Mesh, settings: LodSettings) -> LodChain:
         """The chain of ``mesh`` (built or read once per renderer)."""
@@ -677,18 +678,7 @@ class LodState:
             predicted = errors[np.arange(len(objs)), level] * scale * ppu
         select_ms = (time.perf_counter_ns() - t0) / 1e6
         self.previous = level
-        out, boards = [], list(getattr(scene, "billboards", []))
-        for o, lv, j in zip(objs, level.tolist(), tab["which"].tolist(), strict=True):
-            chain = tab["chains"][j]
-            if lv == 0:
-                out.append(o)
-            elif chain.kinds[lv] == "billboard":
-                from service.billboard_render import BillboardObject
-
-                boards.append(BillboardObject(chain.levels[lv], o.material, o.transform, o.name))
-            else:
-                out.append(SceneObject(chain.levels[lv], o.material, o.transform, o.motion,
-                                       o.name))
+        out, boards = self._objects(scene, tab, level)
         if self.scene is None:
             self.scene = Scene([], [], scene.ambient)
         self.scene.objects, self.scene.lights = out, scene.lights
@@ -714,6 +704,35 @@ class LodState:
                           predicted_ms=(round(self.cost.predict(report["triangles"]), 3)
                                         if self.cost.ready else None))
         return self.scene, report
+
+    def _objects(self, scene: Scene, tab: dict, level: np.ndarray) -> tuple[list, list]:
+        """The objects at their levels, and the billboards (the scene's, then clouds).
+
+        When the scene's objects are the very same ones as last frame and no level
+        changed, last frame's list is handed back (objects are immutable), which
+        spares building ~200 objects a frame (0.15 ms of a 0.25 ms LOD step).
+        """
+        objs = scene.objects
+        last = self._last
+        if (last is not None and last[4] is tab and len(last[0]) == len(objs)
+                and np.array_equal(last[1], level)
+                and all(a is b for a, b in zip(last[0], objs, strict=True))
+                and not getattr(scene, "billboards", None)):
+            return last[2], list(last[3])
+        out, boards = [], list(getattr(scene, "billboards", []))
+        for o, lv, j in zip(objs, level.tolist(), tab["which"].tolist(), strict=True):
+            chain = tab["chains"][j]
+            if lv == 0:
+                out.append(o)
+            elif chain.kinds[lv] == "billboard":
+                from service.billboard_render import BillboardObject
+
+                boards.append(BillboardObject(chain.levels[lv], o.material, o.transform, o.name))
+            else:
+                out.append(SceneObject(chain.levels[lv], o.material, o.transform, o.motion,
+                                       o.name))
+        self._last = (list(objs), level.copy(), out, list(boards), tab)
+        return out, boards
 
     def _degrade(self, objs: list, tab: dict, level: np.ndarray, size_px: np.ndarray,
                  budget_ms: float, clouds: bool) -> np.ndarray:
