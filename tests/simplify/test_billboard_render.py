@@ -142,13 +142,10 @@ def test_billboards_follow_the_viewer_and_stay_put_in_time(box):
     assert Renderer().render(seen, DISPLAY).stats["billboards"]["covered_pixels"] > 0
 
 
-def test_the_service_refuses_billboard_scenes_in_one_line(tmp_path, box):
-    """Its workers receive scenes over the wire, which carries no billboards yet."""
-    from service.errors import MessageError
-    from service.net.handlers import _load_path
+def test_the_service_loads_a_cloud_as_a_scene(tmp_path, box):
+    """(tests/service/test_service_billboards.py serves one.)"""
+    from service.net import handlers
 
     _, cloud = box
     save_cloud(cloud, tmp_path / "box.hbc")
-    with pytest.raises(MessageError, match="not served yet") as info:
-        _load_path(str(tmp_path / "box.hbc"))
-    assert info.value.code == "bad_settings"
+    assert len(handlers._load_path(str(tmp_path / "box.hbc")).billboards) == 1
