@@ -66,10 +66,12 @@ STEADY_MIN = 3.0
 #: Share of the map's galpixels that must be still (recorded by the first
 #: recording refresh after a change) for a refresh to keep recording them: a
 #: map in which (almost) every galpixel moves, as after a head turn, gains
-#: nothing from the record, which cost such a G(2) refresh at 640x480 a tenth
-#: to a quarter of its time.  Still galpixels stay still and moving ones keep
-#: moving until the map changes, so one count per change decides.
-STILL_MIN = 0.5
+#: nothing from the record, which cost such a G(2) refresh at 640x480 about
+#: 0.6 ms of 8 (CPU time, loaded machine); a 90 % still map gains 1.2 ms from
+#: it, so it pays from about a third still (0.25 leaves a margin).  Still
+#: galpixels stay still and moving ones keep moving until the map changes, so
+#: one count per change decides.
+STILL_MIN = 0.25
 
 
 @dataclass(frozen=True)
