@@ -40,7 +40,7 @@ from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.motion_field import render_with_motion
-from service.lod import LodSettings
+from service.lod import lod_from
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
@@ -90,6 +90,9 @@ class BackendSettings:
         Galpixel order of the Galilean stage.
     lod_error : float
         Level-of-detail error budget in pixels (:mod:`service.lod`); 0: off.
+    lod_budget_ms : float
+        Level-of-detail time budget per render, ms (``--budget-ms``); 0: none.  Alone
+        it turns level of detail on at 0.5 px.
     """
 
     display: DisplaySettings = DisplaySettings(zones=5, angle_deg=16.0, cols=200, rows=150)
@@ -97,6 +100,7 @@ class BackendSettings:
     refresh_hz: float = 60.0
     order: int = 2
     lod_error: float = 0.0
+    lod_budget_ms: float = 0.0
 
 
 class LocalRenderer:
@@ -113,7 +117,7 @@ class LocalRenderer:
         self.settings = s = settings or BackendSettings()
         self.render_settings = RenderSettings(
             method="zbuffer", light=LightSettings(s.light_model),
-            lod=LodSettings(error_px=s.lod_error) if s.lod_error > 0 else None,
+            lod=lod_from(s.lod_error, s.lod_budget_ms),
         )
         self.stage = GalileanStage(
             s.display, GalileanSettings(order=s.order, refresh_hz=s.refresh_hz, colour_motion=False)
@@ -347,6 +351,7 @@ class ServiceBackend:
             refresh_hz=s.refresh_hz,
             encodings=["colour", "autostereogram"] if _sird_output(d) else ["colour"],
             **({"lod_error": s.lod_error} if s.lod_error > 0 else {}),
+            **({"lod_budget_ms": s.lod_budget_ms} if s.lod_budget_ms > 0 else {}),
         )
         self.client.load_scene(scene=self._scene)
         if self.devices:

@@ -75,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
     p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")
     p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
-    add_lod_options(p, budget=False)
+    add_lod_options(p)
     p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--attackers", default=None, help="attacker mesh file (.obj, .ply, ...)")
@@ -155,7 +155,8 @@ def _setup(args: argparse.Namespace) -> tuple:
     light = "blinn" if args.full_light else "ambient"
     lod = lod_settings(args)
     settings = BackendSettings(display, light, args.refresh,
-                               lod_error=lod.error_px if lod is not None else 0.0)
+                               lod_error=lod.error_px if lod is not None else 0.0,
+                               lod_budget_ms=(lod.budget_ms or 0.0) if lod is not None else 0.0)
     game = GameSettings(seed=args.seed, difficulty=args.difficulty)
     scene = game_scene(
         len(new_game(game).attackers),

@@ -4,8 +4,12 @@ A scene's ``billboards`` (:class:`BillboardObject`: a
 :class:`~service.simplify.billboard.BillboardCloud` with a material and a placement)
 are drawn after the occlusion stage, into the same depth buffer, for every view zone:
 each pixel's ray (the zone's sheared orthographic ray, :mod:`service.projection`) is
-intersected with each quad's plane inside the quad's screen box, the texel there is
-alpha-tested (opaque from 128), and the nearer of quad and mesh wins.  That is a
+intersected with each quad's plane inside the quad's screen box (nearest quads first,
+each row clipped to the quad's span), the depth test comes first, then the texel is
+alpha-tested (opaque from 128), and the nearer of quad and mesh wins.  Lighting is
+deferred: the draw leaves the winning quad and texel per pixel, and
+:meth:`BillboardPass.paint` lights each shown pixel once, inside the box the quads
+touched (not once per quad drawn over it, nor over the whole frame).  That is a
 z-buffer of quads with ray casting per pixel, so the ``zbuffer`` and ``raycast``
 methods hold billboards exactly.  Run-length and BSP occlusion cannot (a quad's
 alpha-tested outline is no polygon edge list, and it crosses other objects'
@@ -13,7 +17,7 @@ polygons freely), so for those methods billboards take the same z-buffered pass
 over the method's own depth buffer, and the stats say so
 (``stats["billboards"]["drawn_with"]``).
 
-Light per texel uses the object's material, the texel's colour and the normal of
+Light per shown pixel (its texel) uses the object's material, the texel's colour and the normal of
 the face shot into the texel, with the same Phong / Blinn model per zone as meshes
 (:func:`service.light._light_rgb`).  **What a billboard loses** (``docs/simplify.md``):
 
@@ -40,7 +44,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.light import MODELS, LightSettings, _light_rgb, pack_lights
 from service.occlusion import Visibility
-from service.scene import Light, Material, Transform, quaternion_matrix
+from service.scene import Light, Material, Transform, quaternion_matrices
 from service.simplify.billboard import BillboardCloud
 
 ALPHA_OPAQUE = 128
@@ -62,7 +66,7 @@ class BillboardObject:
 
 @dataclass(frozen=True)
 class _Quads:
-    """Every billboard of a scene in world coordinates, packed for the kernel."""
+    """Every billboard of a scene in world coordinates, packed for the kernels."""
 
     origin: np.ndarray   # (Q, 3)
     u: np.ndarray        # (Q, 3) full edge along texture rows
@@ -75,41 +79,65 @@ class _Quads:
     tnormal: np.ndarray  # (N, 3) int8
 
 
-def pack_quads(objects: list[BillboardObject]) -> _Quads:
-    """World-space quads of every billboard object (see :class:`_Quads`)."""
-    parts: dict[str, list] = {k: [] for k in _Quads.__dataclass_fields__}
-    base = 0
-    for obj in objects:
-        c, t = obj.cloud, obj.transform
-        rot = quaternion_matrix(t.orientation)
-        w = c.corners.reshape(-1, 3) @ (rot * t.scale).T + t.position
-        w = w.reshape(-1, 4, 3)
-        n = c.planes[:, :3] @ rot.T
-        m = obj.material
-        q = c.n_billboards
-        parts["origin"].append(w[:, 0])
-        parts["u"].append(w[:, 1] - w[:, 0])
-        parts["v"].append(w[:, 3] - w[:, 0])
-        parts["normal"].append(n / np.linalg.norm(n, axis=1, keepdims=True))
-        parts["rot"].append(np.broadcast_to(rot, (q, 3, 3)))
-        row = [*m.colour, m.ambient, m.diffuse, m.specular, m.shininess]
-        parts["material"].append(np.tile(np.array(row, np.float64), (q, 1)))
-        parts["tex"].append(np.stack([c.tex_offset[:-1] + base, c.tex_shape[:, 0],
-                                      c.tex_shape[:, 1]], axis=1))
-        parts["rgba"].append(c.rgba)
-        parts["tnormal"].append(c.normal)
+def _textures(objects: list[BillboardObject]) -> tuple[np.ndarray, np.ndarray, dict[int, int]]:
+    """The texels of every distinct cloud (each once) and each cloud's first texel.
+
+    One distinct cloud (a crowd of copies, or one object) is used as it is, without a
+    copy: the textures are megabytes and a frame needs them only to read.
+    """
+    clouds = list({id(o.cloud): o.cloud for o in objects}.values())
+    if len(clouds) == 1:
+        c = clouds[0]
+        return (np.ascontiguousarray(c.rgba, np.uint8), np.ascontiguousarray(c.normal, np.int8),
+                {id(c): 0})
+    base, offsets = 0, {}
+    for c in clouds:
+        offsets[id(c)] = base
         base += int(c.tex_offset[-1])
-    shapes = {"origin": (0, 3), "u": (0, 3), "v": (0, 3), "normal": (0, 3), "rot": (0, 3, 3),
-              "material": (0, 7), "tex": (0, 3), "rgba": (0, 4), "tnormal": (0, 3)}
-    out = {}
-    for k, items in parts.items():
-        ref = items[0] if items else np.zeros(shapes[k])
-        out[k] = np.ascontiguousarray(np.concatenate(items) if items else ref,
-                                      dtype=ref.dtype if items else np.float64)
-    out["tex"] = out["tex"].astype(np.int64)
-    out["rgba"] = out["rgba"].astype(np.uint8)
-    out["tnormal"] = out["tnormal"].astype(np.int8)
-    return _Quads(**out)
+    if not clouds:
+        return np.zeros((0, 4), np.uint8), np.zeros((0, 3), np.int8), offsets
+    return (np.concatenate([c.rgba for c in clouds]).astype(np.uint8, copy=False),
+            np.concatenate([c.normal for c in clouds]).astype(np.int8, copy=False), offsets)
+
+
+def pack_quads(objects: list[BillboardObject]) -> _Quads:
+    """World-space quads of every billboard object (see :class:`_Quads`).
+
+    Quads are numbered object after object, each cloud's billboards in order.  The
+    objects sharing a cloud (a crowd) are transformed together, a few array
+    operations per cloud rather than per object.
+    """
+    rgba, tnormal, first = _textures(objects)
+    counts = np.array([o.cloud.n_billboards for o in objects], np.int64)
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    total = int(start[-1])
+    corners = np.empty((total, 4, 3))
+    normal = np.empty((total, 3))
+    rot = np.empty((total, 3, 3))
+    material = np.empty((total, 7))
+    tex = np.empty((total, 3), np.int64)
+    rots = quaternion_matrices(np.array([o.transform.orientation for o in objects]))
+    groups: dict[int, list[int]] = {}
+    for k, o in enumerate(objects):
+        groups.setdefault(id(o.cloud), []).append(k)
+    for ks in groups.values():
+        c = objects[ks[0]].cloud
+        ids = np.array(ks)
+        scale = np.array([objects[k].transform.scale for k in ks], np.float64)
+        pos = np.array([objects[k].transform.position for k in ks], np.float64).reshape(-1, 3)
+        r = rots[ids]
+        w = np.einsum("ord,pcd->opcr", r * scale[:, None, None], c.corners) + pos[:, None, None]
+        n = np.einsum("ord,pd->opr", r, c.planes[:, :3])
+        n /= np.linalg.norm(n, axis=2, keepdims=True)
+        t = np.stack([c.tex_offset[:-1] + first[id(c)], c.tex_shape[:, 0], c.tex_shape[:, 1]], 1)
+        for m, k in enumerate(ks):
+            sl = slice(start[k], start[k + 1])
+            corners[sl], normal[sl], rot[sl], tex[sl] = w[m], n[m], r[m], t
+            mt = objects[k].material
+            material[sl] = (*mt.colour, mt.ambient, mt.diffuse, mt.specular, mt.shininess)
+    return _Quads(origin=np.ascontiguousarray(corners[:, 0]),
+                  u=corners[:, 1] - corners[:, 0], v=corners[:, 3] - corners[:, 0],
+                  normal=normal, rot=rot, material=material, tex=tex, rgba=rgba, tnormal=tnormal)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -124,7 +152,11 @@ def _texel(q: int, a: float, b: float, tex: np.ndarray, layer: int) -> int:
 @nb.njit(cache=True, nogil=True)
 def _screen_box(o: np.ndarray, u: np.ndarray, v: np.ndarray, sh: float, s: float,
                 hw: float, hh: float, cols: int, rows: int) -> tuple[int, int, int, int]:
-    """Pixel rows and columns [r0, r1) x [c0, c1) the quad's projection can touch."""
+    """Pixel rows and columns [r0, r1) x [c0, c1) whose centres the quad's projection can hold.
+
+    Only pixel centres are sampled, so a quad a pixel or two across gets the one or
+    two rows whose centres it spans (with 1e-6 pixel of slack), not four.
+    """
     x0, x1, y0, y1 = np.inf, -np.inf, np.inf, -np.inf
     for ca in range(2):
         for cb in range(2):
@@ -134,8 +166,8 @@ def _screen_box(o: np.ndarray, u: np.ndarray, v: np.ndarray, sh: float, s: float
             sx = (px - pz * sh + hw) / s
             sy = (hh - py) / s
             x0, x1, y0, y1 = min(x0, sx), max(x1, sx), min(y0, sy), max(y1, sy)
-    return (max(int(np.floor(y0)), 0), min(int(np.ceil(y1)) + 1, rows),
-            max(int(np.floor(x0)), 0), min(int(np.ceil(x1)) + 1, cols))
+    return (max(int(np.ceil(y0 - 0.5 - 1e-6)), 0), min(int(np.floor(y1 - 0.5 + 1e-6)) + 1, rows),
+            max(int(np.ceil(x0 - 0.5 - 1e-6)), 0), min(int(np.floor(x1 - 0.5 + 1e-6)) + 1, cols))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -148,13 +180,13 @@ def _span(a0: float, da: float, b0: float, db: float, s: float, hw: float, c0: i
     lo, hi = -np.inf, np.inf
     for c0_, d_ in ((a0, da), (b0, db)):
         if d_ == 0.0:
-            if c0_ < 0.0 or c0_ >= 1.0:
+            if not (0.0 <= c0_ < 1.0):
                 return 0, 0
             continue
         e0, e1 = -c0_ / d_, (1.0 - c0_) / d_
         lo = max(lo, min(e0, e1))
         hi = min(hi, max(e0, e1))
-    if hi < lo:
+    if not hi >= lo:  # also NaN
         return 0, 0
     j0 = max(int(np.floor((lo + hw) / s - 0.5)), c0)
     j1 = min(int(np.ceil((hi + hw) / s - 0.5)) + 1, c1)
@@ -162,25 +194,40 @@ def _span(a0: float, da: float, b0: float, db: float, s: float, hw: float, c0: i
 
 
 @nb.njit(cache=True, nogil=True)
+def _nearest_first(origin: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Quad indices (Q,) by their nearest corner's z, nearest first (early depth rejects)."""
+    key = np.empty(origin.shape[0])
+    for q in range(origin.shape[0]):
+        z = origin[q, 2] + max(u[q, 2], 0.0) + max(v[q, 2], 0.0)
+        key[q] = -z
+    return np.argsort(key)
+
+
+@nb.njit(cache=True, nogil=True)
 def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: np.ndarray,
-                      rot: np.ndarray, material: np.ndarray, tex: np.ndarray,
-                      rgba: np.ndarray, tnormal: np.ndarray, shears: np.ndarray, s: float,
-                      hw: float, hh: float, views: np.ndarray, lights: tuple,
-                      ambient: float, code: int, cull_back: bool, depth: np.ndarray,
-                      tri: np.ndarray, colour: np.ndarray, quad: np.ndarray) -> int:
+                      rot: np.ndarray, tex: np.ndarray, rgba: np.ndarray, tnormal: np.ndarray,
+                      shears: np.ndarray, s: float, hw: float, hh: float,
+                      views: np.ndarray, cull_back: bool, depth: np.ndarray, tri: np.ndarray,
+                      quad: np.ndarray, texel: np.ndarray, boxes: np.ndarray) -> tuple[int, int]:
     """Draw every quad into every zone (z-test against ``depth``, alpha test); see module.
 
-    ``depth`` (Z, R, C) float32 and ``tri`` (Z, R, C) int32 are updated where a quad
-    wins (``tri`` set to -1: no mesh triangle); ``colour`` (Z, R, C, 3) uint8 receives
-    the billboard's lit colour and ``quad`` (Z, R, C) int32 the quad's index + 1 (0
-    where no quad won).  Returns the number of pixel writes.
+    Nearest quads first, so farther ones mostly fail the depth test before any texel
+    is read.  ``rot`` (Q, 3, 3) is each quad's object rotation (texel normals are in
+    the object's frame: the back-face test takes the view into it).  ``depth`` (Z, R, C) float32 and
+    ``tri`` (Z, R, C) int32 are updated where a quad wins (``tri`` set to -1: no mesh
+    triangle); ``quad`` (Z, R, C) int32 receives the quad's index + 1 and ``texel``
+    the texel's flat index there (both only where a quad won; zero elsewhere on
+    entry).  ``boxes`` (Z, 4) int64 receives each zone's rows and columns
+    ``[r0, r1) x [c0, c1)`` holding every write.  Returns the number of pixel writes
+    and of pixels a quad won (each counted once).
     """
     zones, rows, cols = depth.shape
-    writes = 0
-    mat = np.empty(7)
+    writes, covered = 0, 0
+    order = _nearest_first(origin, u, v)
     for k in range(zones):
         sh = shears[k]
-        for q in range(origin.shape[0]):
+        boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3] = rows, 0, cols, 0
+        for q in order:
             n = normal[q]
             den = n[0] * sh + n[2]
             if abs(den) < 1e-9:
@@ -189,7 +236,11 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
             uu = uq[0] * uq[0] + uq[1] * uq[1] + uq[2] * uq[2]
             vv = vq[0] * vq[0] + vq[1] * vq[1] + vq[2] * vq[2]
             rho = n[0] * o[0] + n[1] * o[1] + n[2] * o[2]
-            near = 0 if _facing(q, rot, normal, views[k]) else 1
+            view = views[k]
+            near = 0 if n[0] * view[0] + n[1] * view[1] + n[2] * view[2] >= 0.0 else 1
+            vx = rot[q, 0, 0] * view[0] + rot[q, 1, 0] * view[1] + rot[q, 2, 0] * view[2]
+            vy = rot[q, 0, 1] * view[0] + rot[q, 1, 1] * view[1] + rot[q, 2, 1] * view[2]
+            vz = rot[q, 0, 2] * view[0] + rot[q, 1, 2] * view[1] + rot[q, 2, 2] * view[2]
             r0, r1, c0, c1 = _screen_box(o, uq, vq, sh, s, hw, hh, cols, rows)
             dzx = -n[0] / den  # z, and so a and b, are linear in x along a row
             da = ((1.0 + dzx * sh) * uq[0] + dzx * uq[2]) / uu
@@ -208,76 +259,94 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                         continue
                     a = a0 + da * x0
                     b = b0 + db * x0
-                    if a < 0.0 or a >= 1.0 or b < 0.0 or b >= 1.0:
+                    if not (0.0 <= a < 1.0 and 0.0 <= b < 1.0):  # NaN too
                         continue
                     # the texel choice stays written out here: as a helper function
                     # (even inline="always") the kernel measured 1.4-1.5x slower
                     t = -1
                     for layer in (near, 1 - near):  # the layer facing the viewer first
                         c = _texel(q, a, b, tex, layer)
-                        if rgba[c, 3] >= ALPHA_OPAQUE and not (
-                                cull_back and _back(q, c, rot, tnormal, views[k])):
+                        if rgba[c, 3] >= ALPHA_OPAQUE and not (cull_back and (
+                                tnormal[c, 0] * vx + tnormal[c, 1] * vy
+                                + tnormal[c, 2] * vz < 0.0)):
                             t = c
                             break
                     if t < 0:
                         continue
                     depth[k, i, j] = -z
                     tri[k, i, j] = -1
+                    covered += quad[k, i, j] == 0
                     quad[k, i, j] = q + 1
+                    texel[k, i, j] = t
                     writes += 1
-                    _shade_texel(q, t, x0 + z * sh, y, z, rot, material, rgba, tnormal,
-                                 views[k], lights, ambient, code, mat, colour[k, i, j])
-    return writes
+                    boxes[k, 0], boxes[k, 1] = min(boxes[k, 0], i), max(boxes[k, 1], i + 1)
+                    boxes[k, 2], boxes[k, 3] = min(boxes[k, 2], j), max(boxes[k, 3], j + 1)
+    return writes, covered
 
 
 @nb.njit(cache=True, nogil=True)
-def _facing(q: int, rot: np.ndarray, normal: np.ndarray, view: np.ndarray) -> bool:
-    """Whether the zone's viewer is on the side quad ``q``'s layer 0 faces.
+def shade_quads_kernel(quad: np.ndarray, texel: np.ndarray, depth: np.ndarray,
+                       boxes: np.ndarray, rot: np.ndarray, material: np.ndarray,
+                       rgba: np.ndarray, tnormal: np.ndarray, shears: np.ndarray, s: float,
+                       hw: float, hh: float, views: np.ndarray, lights: tuple,
+                       ambient: float, code: int, colour: np.ndarray) -> int:
+    """Light every pixel a quad won, once, into ``colour`` (Z, R, C, 3) uint8.
 
-    Layer 0 holds faces whose normal points to the cloud's plane normal side; that
-    normal in the world is the object's rotation of it, which ``normal`` holds.
+    Deferred: :func:`draw_quads_kernel` leaves the winning quad and texel per pixel;
+    the lit point is the pixel's ray at its depth.  Returns the pixels lit.
     """
-    return normal[q, 0] * view[0] + normal[q, 1] * view[1] + normal[q, 2] * view[2] >= 0.0
+    mat = np.empty(7)
+    lit = 0
+    for k in range(quad.shape[0]):
+        sh, view = shears[k], views[k]
+        for i in range(boxes[k, 0], boxes[k, 1]):
+            y = hh - (i + 0.5) * s
+            for j in range(boxes[k, 2], boxes[k, 3]):
+                q = quad[k, i, j] - 1
+                if q < 0:
+                    continue
+                t = texel[k, i, j]
+                z = -np.float64(depth[k, i, j])
+                for c in range(7):
+                    mat[c] = material[q, c]
+                for c in range(3):
+                    mat[c] *= rgba[t, c] / 255.0
+                nx, ny, nz = _texel_normal(q, t, rot, tnormal, view)
+                rgb = _light_rgb((j + 0.5) * s - hw + z * sh, y, z, nx, ny, nz, mat, view,
+                                 lights, ambient, code)
+                for c in range(3):
+                    colour[k, i, j, c] = np.uint8(np.float64(np.float32(rgb[c])) * 255.0 + 0.5)
+                lit += 1
+    return lit
 
 
-@nb.njit(cache=True, nogil=True)
-def _back(q: int, t: int, rot: np.ndarray, tnormal: np.ndarray, view: np.ndarray) -> bool:
-    """Whether texel ``t``'s face looks away from the zone's viewer (a back face)."""
-    d = 0.0
-    for r in range(3):
-        w = 0.0
-        for c in range(3):
-            w += rot[q, r, c] * tnormal[t, c]
-        d += w * view[r]
-    return d < 0.0
-
-
-@nb.njit(cache=True, nogil=True)
-def _shade_texel(q: int, t: int, px: float, py: float, pz: float, rot: np.ndarray,
-                 material: np.ndarray, rgba: np.ndarray, tnormal: np.ndarray,
-                 view: np.ndarray, lights: tuple, ambient: float, code: int,
-                 mat: np.ndarray, out: np.ndarray) -> None:
-    """Light one texel seen at world point p into ``out`` (3,) uint8."""
-    for c in range(7):
-        mat[c] = material[q, c]
-    for c in range(3):
-        mat[c] *= rgba[t, c] / 255.0
-    nx = rot[q, 0, 0] * tnormal[t, 0] + rot[q, 0, 1] * tnormal[t, 1] + rot[q, 0, 2] * tnormal[t, 2]
-    ny = rot[q, 1, 0] * tnormal[t, 0] + rot[q, 1, 1] * tnormal[t, 1] + rot[q, 1, 2] * tnormal[t, 2]
-    nz = rot[q, 2, 0] * tnormal[t, 0] + rot[q, 2, 1] * tnormal[t, 1] + rot[q, 2, 2] * tnormal[t, 2]
+@nb.njit(cache=True, nogil=True, inline="always")
+def _texel_normal(q: int, t: int, rot: np.ndarray, tnormal: np.ndarray,
+                  view: np.ndarray) -> tuple[float, float, float]:
+    """Texel ``t``'s normal in the world (unnormalised), turned toward the viewer."""
+    a, b, c = np.float64(tnormal[t, 0]), np.float64(tnormal[t, 1]), np.float64(tnormal[t, 2])
+    nx = rot[q, 0, 0] * a + rot[q, 0, 1] * b + rot[q, 0, 2] * c
+    ny = rot[q, 1, 0] * a + rot[q, 1, 1] * b + rot[q, 1, 2] * c
+    nz = rot[q, 2, 0] * a + rot[q, 2, 1] * b + rot[q, 2, 2] * c
     if nx * view[0] + ny * view[1] + nz * view[2] < 0.0:
-        nx, ny, nz = -nx, -ny, -nz
-    rgb = _light_rgb(px, py, pz, nx, ny, nz, mat, view, lights, ambient, code)
-    for c in range(3):
-        out[c] = np.uint8(np.float64(np.float32(rgb[c])) * 255.0 + 0.5)
+        return -nx, -ny, -nz
+    return nx, ny, nz
 
 
 @dataclass
 class BillboardPass:
-    """What :func:`draw_billboards` drew: paint it over the shaded frame."""
+    """What :func:`draw_billboards` drew; :meth:`paint` lights it into the shaded frame.
 
-    colour: np.ndarray  # (Z, R, C, 3) uint8
-    quad: np.ndarray    # (Z, R, C) int32: index + 1 of the quad seen, 0 for none
+    Lighting is deferred to :meth:`paint`, so each pixel a billboard shows is lit once
+    (not once per quad drawn over it), and only inside the zones' ``boxes``.
+    """
+
+    quad: np.ndarray     # (Z, R, C) int32: index + 1 of the quad seen, 0 for none
+    texel: np.ndarray    # (Z, R, C) int32: the texel seen (where quad > 0)
+    depth: np.ndarray    # (Z, R, C) float32: the visibility pass's depth buffer
+    boxes: np.ndarray    # (Z, 4) int64: rows r0, r1 and columns c0, c1 holding the quads
+    quads: _Quads
+    light: tuple         # display, lights, ambient, light settings
     stats: dict
 
     @property
@@ -286,9 +355,14 @@ class BillboardPass:
         return self.quad > 0
 
     def paint(self, frame_colour: np.ndarray) -> None:
-        """Write the billboards' colour into ``frame_colour`` (Z, R, C, 3) where they won."""
-        mask = self.mask
-        frame_colour[mask] = self.colour[mask]
+        """Light the billboards' pixels into ``frame_colour`` (Z, R, C, 3) uint8."""
+        display, lights, ambient, settings = self.light
+        qd = self.quads
+        shade_quads_kernel(self.quad, self.texel, self.depth, self.boxes, qd.rot, qd.material,
+                           qd.rgba, qd.tnormal, display.shears(), display.pixel_size,
+                           display.width / 2, display.height / 2, display.view_vectors(),
+                           pack_lights(lights), float(ambient), MODELS[settings.model],
+                           frame_colour)
 
 
 def draw_billboards(objects: list[BillboardObject], display: DisplaySettings,
@@ -299,21 +373,23 @@ def draw_billboards(objects: list[BillboardObject], display: DisplaySettings,
     Returns
     -------
     BillboardPass
-        Their lit colour and where they won; ``stats``: ``objects``, ``quads``,
-        ``pixels`` (writes), ``covered_pixels`` (pixels they show) and ``drawn_with``.
+        Where they won (lit by its :meth:`~BillboardPass.paint`); ``stats``:
+        ``objects``, ``quads``, ``pixels`` (writes), ``covered_pixels`` (pixels they
+        show) and ``drawn_with``.
     """
     quads = pack_quads(objects)
     zrc = vis.depth.shape
-    colour = np.zeros((*zrc, 3), np.uint8)
-    quad = np.zeros(zrc, np.int32)
-    writes = draw_quads_kernel(
-        quads.origin, quads.u, quads.v, quads.normal, quads.rot, quads.material, quads.tex,
-        quads.rgba, quads.tnormal, display.shears(), display.pixel_size, display.width / 2,
-        display.height / 2, display.view_vectors(), pack_lights(lights), float(ambient),
-        MODELS[light.model], cull_back, vis.depth, vis.triangle, colour, quad)
+    quad = np.zeros(zrc, np.int32)  # calloc: pages outside the quads are never touched
+    texel = np.zeros(zrc, np.int32)
+    boxes = np.zeros((zrc[0], 4), np.int64)
+    writes, covered = draw_quads_kernel(
+        quads.origin, quads.u, quads.v, quads.normal, quads.rot, quads.tex, quads.rgba,
+        quads.tnormal, display.shears(), display.pixel_size, display.width / 2,
+        display.height / 2, display.view_vectors(), cull_back, vis.depth, vis.triangle, quad,
+        texel, boxes)
     stats = {"objects": len(objects), "quads": int(quads.origin.shape[0]), "pixels": int(writes),
-             "covered_pixels": int((quad > 0).sum()),
-             "drawn_with": DRAWN_WITH.get(method, "zbuffer")}
+             "covered_pixels": int(covered), "drawn_with": DRAWN_WITH.get(method, "zbuffer")}
     if DRAWN_WITH.get(method, "zbuffer") != method:
         stats["note"] = f"{method} cannot hold alpha-tested quads: billboards z-buffered"
-    return BillboardPass(colour, quad, stats)
+    return BillboardPass(quad, texel, vis.depth, boxes, quads, (display, lights, ambient, light),
+                         stats)

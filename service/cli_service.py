@@ -175,6 +175,12 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
         help="turn level of detail on: each object drawn with its cheapest simplified mesh "
         "whose predicted screen error stays under PX pixels (e.g. 0.5) (default: off)",
     )
+    ap.add_argument(
+        "--budget-ms", type=float_range(0, None, lo_open=True), default=None, metavar="MS",
+        help="level of detail with a time budget per render: when the measured cost model "
+        "predicts more, the smallest and farthest objects go coarser than --lod-error "
+        "(0.5 px unless given) allows (default: none)",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -208,6 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             display=DisplaySettings(args.zones, args.angle, *args.size),
             pose_scale=args.pose_scale,
             lod_error=args.lod_error or 0.0,
+            lod_budget_ms=args.budget_ms or 0.0,
             scene_dirs=tuple(args.scene_dir or ()),
             warmup=args.warmup,
         )

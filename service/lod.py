@@ -31,9 +31,11 @@ level, so a scale or zoom hovering at a threshold does not flicker.  The chosen
 level never predicts more than ``error_px`` unless ``budget_ms`` forced it.
 
 **Time budget.** With ``budget_ms``, when the triangles chosen would cost more than
-the budget (at the milliseconds per triangle the last frames measured), objects are
-stepped to coarser levels, the smallest on screen first and, among equals, the
-farthest; such objects are reported ``over_error``.
+the budget, objects are stepped to coarser levels, the smallest on screen first and,
+among equals, the farthest; such objects are reported ``over_error``.  The cost is
+predicted by a *measured* model (:class:`FrameCost`): a line ``fixed + per triangle``
+fitted to the renderer's own last frames (their triangles and render milliseconds),
+not a constant; the first frame, with nothing measured, is chosen by error alone.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ from service.mesh import Mesh
 from service.scene import Scene, SceneObject
 
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
-DEFAULT_FRACTIONS = (0.5, 0.25, 0.12, 0.06, 0.03, 0.015, 0.007)
+DEFAULT_FRACTIONS = tuple(round(0.7 * 0.8 ** k, 4) for k in range(21))
 #: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.  None
 #: by default: drawing a cloud (a ray per pixel per quad box, service.billboard_render)
 #: measured dearer than the meshes it stands for (the torus at 320x240 x 5 zones, one
@@ -65,9 +67,13 @@ DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
 #: Bump when the chain's contents or file layout change (old cache files are rebuilt).
-CHAIN_VERSION = 3
+CHAIN_VERSION = 5
 #: Environment variable naming the cache folder.
 CACHE_ENV = "HOLO_LOD_CACHE"
+#: An error this many times the finer level's is a jump whose plateau end is sought.
+PLATEAU_JUMP = 1.5
+#: Decimations spent seeking each such plateau end (bisection on the fraction).
+PLATEAU_STEPS = 3
 #: Levels smaller than this many triangles are not built.
 MIN_TRIANGLES = 8
 
@@ -134,6 +140,19 @@ class LodSettings:
         fr = ",".join(f"{f:.6g}" for f in self.fractions)
         ce = ",".join(f"{f:.6g}" for f in self.cloud_eps)
         return f"q[{fr}]b[{ce}]t{self.texture_res}"
+
+
+def lod_from(error_px: float | None, budget_ms: float | None) -> LodSettings | None:
+    """Settings from an error budget (px) and a time budget (ms), as the service sends them.
+
+    0 or None means not set; neither set: None (level of detail off); a time budget
+    alone turns it on at the default 0.5 px.
+    """
+    error_px, budget_ms = float(error_px or 0.0), float(budget_ms or 0.0)
+    if error_px <= 0 and budget_ms <= 0:
+        return None
+    return LodSettings(error_px=error_px if error_px > 0 else 0.5,
+                       budget_ms=budget_ms if budget_ms > 0 else None)
 
 
 @dataclass(frozen=True)
@@ -208,16 +227,70 @@ def _decimated(mesh: Mesh, fractions: tuple[float, ...]) -> list[tuple[Mesh, flo
     except ImportError as exc:  # fast-simplification missing
         raise LodError(f"level of detail needs the quadric simplifier: {exc}") from None
     full_tris = mesh.triangles
-    out: list[tuple[Mesh, float]] = []
+
+    def level(frac: float) -> tuple[Mesh, float, float]:
+        v, f, err = decimate(mesh.vertices, full_tris, frac)
+        return Mesh.from_triangles(v, f, f"{mesh.name}@{f.shape[0]}"), float(err), frac
+
+    out: list[tuple[Mesh, float, float]] = []
     last = full_tris.shape[0]
     for frac in sorted(fractions, reverse=True):
         if frac * full_tris.shape[0] < MIN_TRIANGLES:
             break
-        v, f, err = decimate(mesh.vertices, full_tris, frac)
-        if f.shape[0] >= last or f.shape[0] == 0:
+        got = level(frac)
+        if got[0].n_polygons >= last or got[0].n_polygons == 0:
             continue
-        out.append((Mesh.from_triangles(v, f, f"{mesh.name}@{f.shape[0]}"), float(err)))
-        last = f.shape[0]
+        out.append(got)
+        last = got[0].n_polygons
+    front = _pareto(out)
+    return [(m, e) for m, e, _ in _plateau_ends(front, level)]
+
+
+def _pareto(levels: list) -> list:
+    """Only the levels with less error than every coarser one (finest first).
+
+    ``levels``: ``(mesh, error, ...)`` tuples.  A sampled Hausdorff error comes in
+    plateaus (one feature sets it over a range of fractions, the bunny's 0.00187
+    from 30 % down to 20 % of its triangles); a finer level on a plateau costs more
+    for the same predicted error and would never be chosen, so each plateau keeps
+    its coarsest level.
+    """
+    out, best = [], np.inf
+    for lv in reversed(levels):
+        if lv[1] < best:
+            out.append(lv)
+            best = lv[1]
+    return out[::-1]
+
+
+def _plateau_ends(front: list, level, jump: float = PLATEAU_JUMP,
+                  steps: int = PLATEAU_STEPS) -> list:
+    """Each level before an error jump pushed towards its plateau's coarse end.
+
+    Where the next coarser level's error is ``jump`` times this one's or more, the
+    fraction between the two is bisected (geometrically, ``steps`` decimations) for
+    the fewest triangles that keep this level's error: an object at that jump's
+    threshold then draws the fewest triangles its budget allows.
+
+    Parameters
+    ----------
+    front : list of (Mesh, float, float)
+        Levels (mesh, error, fraction), finest first, errors increasing.
+    level : callable
+        ``level(fraction) -> (Mesh, error, fraction)``.
+    """
+    out = list(front)
+    for i in range(len(out) - 1):
+        (_, err, hi), (_, nxt, lo) = out[i], out[i + 1]
+        if nxt < jump * err:
+            continue
+        for _ in range(steps):
+            mid = float(np.sqrt(hi * lo))
+            got = level(mid)
+            if got[1] <= err and got[0].n_polygons < out[i][0].n_polygons:
+                out[i], hi = got, mid
+            else:
+                lo = mid
     return out
 
 
@@ -417,12 +490,16 @@ def select_levels(
     pred = errors * np.asarray(ppu, np.float64).reshape(-1, 1)
     n, width = pred.shape
     rows = np.arange(n)
-    # the cheapest (last) level within the stricter bound; level 0 (error 0) always is
-    strict = pred <= error_px * (1.0 - hysteresis)
-    level = width - 1 - np.argmax(strict[:, ::-1], axis=1)
+    # the cheapest (last) level within the bound; level 0 (error 0) always is.  An
+    # object with a level already coarsens only under the stricter bound; a new one
+    # (no previous level) has nothing to flicker from and takes the whole budget
+    fresh = np.ones(n, np.bool_) if previous is None else np.asarray(previous) < 0
+    bound = np.where(fresh, error_px, error_px * (1.0 - hysteresis))
+    within = pred <= bound[:, None]
+    level = width - 1 - np.argmax(within[:, ::-1], axis=1)
     if previous is not None:
         prev = np.clip(previous, 0, pred.shape[1] - 1)
-        keep = (previous >= 0) & (prev > level) & (pred[rows, prev] <= error_px)
+        keep = ~fresh & (prev > level) & (pred[rows, prev] <= error_px)
         level = np.where(keep, prev, level)
     return level.astype(np.int64), pred[rows, level]
 
@@ -465,21 +542,104 @@ def degrade_to_budget(
 
 
 @dataclass
+class FrameCost:
+    """Measured cost model of one renderer's frames: ``ms = fixed_ms + per_triangle x T``.
+
+    Fitted by least squares to the last ``window`` frames' (triangles, milliseconds)
+    as the renderer measured them (:meth:`observe`); frames more than three median
+    deviations off the first fit are dropped and the line fitted again (a frame slowed
+    by another process).  Until the frames span triangle counts at least 25 % apart
+    (or when the fit says triangles cost nothing) the model is proportional,
+    ``ms = per_triangle x T`` with the median of the frames' ratios: with a time
+    budget that changes the triangle count, so the next frames span a range.
+
+    Attributes
+    ----------
+    window : int
+        Frames kept.
+    samples : list of (int, float)
+        (triangles, ms) of the frames kept, oldest first.
+    fixed_ms, per_triangle : float
+        The fitted line (0 until a frame is observed).
+    """
+
+    window: int = 32
+    samples: list = field(default_factory=list)
+    fixed_ms: float = 0.0
+    per_triangle: float = 0.0
+
+    @property
+    def ready(self) -> bool:
+        """Whether a frame has been measured."""
+        return self.per_triangle > 0
+
+    def observe(self, triangles: int, ms: float) -> None:
+        """Add a frame's triangles and milliseconds and refit."""
+        if not (triangles > 0 and np.isfinite(ms) and ms > 0):
+            return
+        self.samples.append((int(triangles), float(ms)))
+        del self.samples[:-self.window]
+        self.fixed_ms, self.per_triangle = fit_cost(np.array(self.samples, np.float64))
+
+    def predict(self, triangles: float) -> float:
+        """Predicted milliseconds of a frame of ``triangles`` triangles."""
+        return self.fixed_ms + self.per_triangle * triangles
+
+    def max_triangles(self, budget_ms: float) -> float:
+        """Most triangles a frame may have to take at most ``budget_ms`` (0 if none)."""
+        return max(budget_ms - self.fixed_ms, 0.0) / self.per_triangle
+
+    def as_dict(self) -> dict:
+        """The model as the LOD report carries it."""
+        return {"fixed_ms": round(self.fixed_ms, 3),
+                "us_per_triangle": round(self.per_triangle * 1e3, 5),
+                "frames": len(self.samples)}
+
+
+def fit_cost(samples: np.ndarray) -> tuple[float, float]:
+    """``(fixed_ms, ms_per_triangle)`` fitted to frames (see :class:`FrameCost`).
+
+    Parameters
+    ----------
+    samples : ndarray, shape (N, 2), float64
+        Triangles and milliseconds per frame, N >= 1, triangles > 0.
+    """
+    t, ms = samples[:, 0], samples[:, 1]
+    if len(t) >= 3 and t.max() >= 1.25 * t.min():
+        keep = np.ones(len(t), np.bool_)
+        for _ in range(2):  # fit, drop the far outliers, fit again
+            b, a = np.polyfit(t[keep], ms[keep], 1)
+            resid = np.abs(ms - (a + b * t))
+            mad = float(np.median(resid[keep])) or 1e-9
+            new = resid <= 3.0 * 1.4826 * mad
+            if new.sum() < 3 or t[new].max() < 1.25 * t[new].min() or np.all(new == keep):
+                break
+            keep = new
+        if b > 0 and a >= 0:
+            return float(a), float(b)
+        if b > 0:  # a negative intercept: the line through the origin instead
+            return 0.0, float((t[keep] * ms[keep]).sum() / (t[keep] ** 2).sum())
+    return 0.0, float(np.median(ms / t))
+
+
+@dataclass
 class LodState:
     """What level of detail keeps between frames of one renderer.
 
-    Chains by mesh identity, last levels per object (hysteresis), the milliseconds per
-    triangle the last frames measured (budget), and one scene whose objects are
-    replaced each frame, so the flattened scene's static parts stay cached while no
-    level changes.
+    Chains by mesh identity, last levels per object (hysteresis), the measured cost
+    model of the frames (:class:`FrameCost`, for ``budget_ms``; reset when the display
+    changes), and one scene whose objects are replaced each frame, so the flattened
+    scene's static parts stay cached while no level changes.
     """
 
     chains: dict = field(default_factory=dict)
     previous: np.ndarray | None = None
     names: tuple = ()
-    ms_per_triangle: float = 0.0
+    cost: FrameCost = field(default_factory=FrameCost)
     scene: Scene | None = None
     cache: Path | None | bool = True
+    display_key: tuple = ()
+    _last: tuple | None = None
 
     def chain(self, mesh: Mesh, settings: LodSettings) -> LodChain:
         """The chain of ``mesh`` (built or read once per renderer)."""
@@ -489,11 +649,8 @@ class LodState:
         return got[1]
 
     def observe(self, triangles: int, ms: float) -> None:
-        """Fold a frame's triangles and render milliseconds into the cost estimate."""
-        if triangles > 0 and ms > 0:
-            rate = ms / triangles
-            self.ms_per_triangle = rate if not self.ms_per_triangle else (
-                0.7 * self.ms_per_triangle + 0.3 * rate)
+        """A frame's triangles and render milliseconds (the LOD step not included)."""
+        self.cost.observe(triangles, ms)
 
     def _tables(self, scene: Scene, settings: LodSettings) -> dict:
         """Per-object chain tables, rebuilt only when the scene's meshes change."""
@@ -549,23 +706,61 @@ class LodState:
         names = tuple(o.name for o in objs)
         if self.previous is None or names != self.names or self.previous.size != len(objs):
             self.previous, self.names = np.full(len(objs), -1, np.int64), names
+        key = (display.zones, display.rows, display.cols, display.pixel_size)
+        if key != self.display_key:  # another display: the frames cost something else
+            self.cost, self.display_key = FrameCost(), key
         t0 = time.perf_counter_ns()
         scale = np.fromiter((o.transform.scale for o in objs), np.float64, len(objs))
         ppu = pixels_per_unit(display)
         errors = tab["errors"] if clouds else tab["mesh_errors"]
         level, predicted = select_levels(errors * scale[:, None], ppu,
                                          settings.error_px, self.previous, settings.hysteresis)
-        if settings.budget_ms is not None and self.ms_per_triangle > 0 and len(objs):
-            depth = -np.fromiter((o.transform.position[2] for o in objs), np.float64, len(objs))
-            order = np.lexsort((-depth, tab["radius"] * scale * ppu))
-            priority = np.empty(len(objs))
-            priority[order] = np.arange(len(objs))
-            level = degrade_to_budget(level, tab["triangles"], priority,
-                                      settings.budget_ms / self.ms_per_triangle,
-                                      tab["last"] if clouds else tab["last_mesh"])
+        if settings.budget_ms is not None and self.cost.ready and len(objs):
+            level = self._degrade(objs, tab, level, scale * ppu, settings.budget_ms, clouds)
             predicted = errors[np.arange(len(objs)), level] * scale * ppu
         select_ms = (time.perf_counter_ns() - t0) / 1e6
         self.previous = level
+        out, boards = self._objects(scene, tab, level)
+        if self.scene is None:
+            self.scene = Scene([], [], scene.ambient)
+        self.scene.objects, self.scene.lights = out, scene.lights
+        self.scene.ambient = scene.ambient
+        if boards:
+            self.scene.billboards = boards
+        elif hasattr(self.scene, "billboards"):
+            self.scene.billboards = []
+        rows = np.arange(len(objs))
+        report = {
+            "error_px": settings.error_px,
+            "levels": level.tolist(),
+            "predicted_px": np.round(predicted, 4).tolist(),
+            "triangles": int(tab["triangles"][rows, level].sum()),
+            "triangles_full": int(tab["triangles"][:, 0].sum()),
+            "over_error": int((predicted > settings.error_px).sum()),
+            "billboards": len(boards) - len(getattr(scene, "billboards", [])),
+            "select_ms": round(select_ms, 4),
+            "pixels_per_unit": round(ppu, 3),
+        }
+        if settings.budget_ms is not None:
+            report.update(budget_ms=settings.budget_ms, cost_model=self.cost.as_dict(),
+                          predicted_ms=(round(self.cost.predict(report["triangles"]), 3)
+                                        if self.cost.ready else None))
+        return self.scene, report
+
+    def _objects(self, scene: Scene, tab: dict, level: np.ndarray) -> tuple[list, list]:
+        """The objects at their levels, and the billboards (the scene's, then clouds).
+
+        When the scene's objects are the very same ones as last frame and no level
+        changed, last frame's list is handed back (objects are immutable), which
+        spares building ~200 objects a frame (0.15 ms of a 0.25 ms LOD step).
+        """
+        objs = scene.objects
+        last = self._last
+        if (last is not None and last[4] is tab and len(last[0]) == len(objs)
+                and np.array_equal(last[1], level)
+                and all(a is b for a, b in zip(last[0], objs, strict=True))
+                and not getattr(scene, "billboards", None)):
+            return last[2], list(last[3])
         out, boards = [], list(getattr(scene, "billboards", []))
         for o, lv, j in zip(objs, level.tolist(), tab["which"].tolist(), strict=True):
             chain = tab["chains"][j]
@@ -578,23 +773,20 @@ class LodState:
             else:
                 out.append(SceneObject(chain.levels[lv], o.material, o.transform, o.motion,
                                        o.name))
-        if self.scene is None:
-            self.scene = Scene([], [], scene.ambient)
-        self.scene.objects, self.scene.lights = out, scene.lights
-        self.scene.ambient = scene.ambient
-        if boards:
-            self.scene.billboards = boards
-        elif hasattr(self.scene, "billboards"):
-            self.scene.billboards = []
-        rows = np.arange(len(objs))
-        return self.scene, {
-            "error_px": settings.error_px,
-            "levels": level.tolist(),
-            "predicted_px": np.round(predicted, 4).tolist(),
-            "triangles": int(tab["triangles"][rows, level].sum()),
-            "triangles_full": int(tab["triangles"][:, 0].sum()),
-            "over_error": int((predicted > settings.error_px).sum()),
-            "billboards": len(boards) - len(getattr(scene, "billboards", [])),
-            "select_ms": round(select_ms, 4),
-            "pixels_per_unit": round(ppu, 3),
-        }
+        self._last = (list(objs), level.copy(), out, list(boards), tab)
+        return out, boards
+
+    def _degrade(self, objs: list, tab: dict, level: np.ndarray, size_px: np.ndarray,
+                 budget_ms: float, clouds: bool) -> np.ndarray:
+        """Levels stepped coarser until the cost model predicts ``budget_ms`` or less.
+
+        The smallest on screen (chain radius x scale x pixels per unit) go first and,
+        among equals, the farthest (largest ``-z``).
+        """
+        depth = -np.fromiter((o.transform.position[2] for o in objs), np.float64, len(objs))
+        order = np.lexsort((-depth, tab["radius"] * size_px))
+        priority = np.empty(len(objs))
+        priority[order] = np.arange(len(objs))
+        return degrade_to_budget(level, tab["triangles"], priority,
+                                 self.cost.max_triangles(budget_ms),
+                                 tab["last"] if clouds else tab["last_mesh"])

@@ -164,7 +164,9 @@ class Renderer:
         stats["ms"]["total"] = float(sum(ms.values()))
         if lod is not None:
             stats["lod"] = lod_report
-            self.lod.observe(arrays.triangles.shape[0], stats["ms"]["total"])
+            # the budget's cost model: the frame's cost without the LOD step itself
+            # (whose first call builds or reads the chains)
+            self.lod.observe(arrays.triangles.shape[0], stats["ms"]["total"] - ms["lod"])
         return Frame(colour=colour, depth=vis.depth, stats=stats)
 
     def visibility(

@@ -19,11 +19,13 @@ d2A (equations 17-18) in 0..255 units.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
+from service.billboard_render import draw_billboards
 from service.display import DisplaySettings
 from service.frame import Frame
 from service.galilean.galpixmap import RGB_TO_ABC
@@ -86,10 +88,26 @@ def vertex_derivatives(projections: np.ndarray, h: float) -> np.ndarray:
         Per refresh, per refresh^2, per refresh^3.
     """
     p = np.asarray(projections, np.float64)
-    d1 = np.tensordot(STENCIL[0], p, axes=1) / h
-    d2 = np.tensordot(STENCIL[1], p, axes=1) / h**2
+    d1 = _weighted(STENCIL[0], p) / h
+    d2 = _weighted(STENCIL[1], p) / h**2
     d3 = (p[4] - 2 * p[3] + 2 * p[1] - p[0]) / (2 * h**3)
     return np.stack([d1, d2, d3])
+
+
+def _weighted(weights: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``sum_k weights[k] p[k]`` over the leading axis, in element-wise numpy.
+
+    Not ``np.tensordot``: that is a BLAS matrix-vector product, which OpenBLAS
+    runs on its own threads for a large scene; those threads then spin for up to
+    0.1 s waiting for more work (OpenBLAS's thread timeout), on the cores the
+    renderer's and the Galilean stage's numba threads need next.  Beside a 100k
+    triangle render that made the following G(2) refresh take 1.7x its CPU time.
+    """
+    out = weights[0] * p[0]
+    for k in range(1, len(weights)):
+        if weights[k] != 0.0:
+            out += weights[k] * p[k]
+    return out
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -251,22 +269,33 @@ def render_with_motion(
     """
     settings = settings or RenderSettings()
     stats: dict = {"t": t}
-    if settings.lod is not None and settings.lod.enabled:  # each object at its level of detail
+    lod = settings.lod is not None and settings.lod.enabled
+    if lod:  # each object at its level of detail
         scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod, clouds=False)
+    t0 = time.perf_counter()
     period = 1.0 / refresh_hz
     scenes = [scene_at(scene, t + k * h * period, viewer, viewer_motion) for k in (-2, -1, 0, 1, 2)]
     arrays = [s.flatten() for s in scenes]
     projs = np.stack([project(a.vertices, display) for a in arrays])
     vis, _, _ = renderer.visibility(arrays[2], display, settings)
+    boards = None
+    if scenes[2].billboards:  # into the same depth buffer, as Renderer.render draws them
+        boards = draw_billboards(scenes[2].billboards, display, vis, settings.method,
+                                 scenes[2].lights, scenes[2].ambient, settings.light)
+        stats["billboards"] = boards.stats
     lin = [shade_linear(arrays[i], projs[i], vis, display, scenes[i].lights, scenes[i].ambient,
                         settings.light) for i in (1, 2, 3)]
     colour = shade(arrays[2], projs[2], vis, display, scenes[2].lights, scenes[2].ambient,
                    settings.light)  # quantised exactly as Renderer.render does
+    if boards is not None:  # billboard pixels: no triangle, so no motion (they have none)
+        boards.paint(colour)
     vd = vertex_derivatives(projs, h)
     der = interpolate(np.ascontiguousarray(vis.triangle, np.int32), arrays[2].triangles,
                       np.ascontiguousarray(projs[2]), np.ascontiguousarray(vd))
     dcol = colour_derivatives(lin, h) if colour_motion else None
     obj = _object_map(vis, arrays[2].triangle_polygon, arrays[2].polygon_object)
+    if lod:  # the LOD time budget's cost model learns from this render's cost
+        renderer.lod.observe(arrays[2].triangles.shape[0], (time.perf_counter() - t0) * 1e3)
     frame = Frame(colour=colour, depth=vis.depth, stats=stats)
     points = projs[2][..., :2].reshape(-1, 2)
     pder = vd[..., :2].reshape(3, -1, 2)

@@ -93,6 +93,9 @@ def load_object(st: ServiceState, req: dict[str, Any]) -> tuple:
         from service.scene import SceneObject
 
         mesh_scene = _load_path(wire.string(req["path"], "path"), st.config.scene_dirs)
+        if not mesh_scene.objects:  # a lone billboard cloud (.hbc) has no mesh object
+            raise MessageError("bad_message", f"{req['path']}: no mesh to add as an object "
+                               "(a billboard cloud loads with load_scene)")
         obj = mesh_scene.objects[0]
         if "name" in req:
             obj = SceneObject(
@@ -112,7 +115,8 @@ def load_object(st: ServiceState, req: dict[str, Any]) -> tuple:
             )
         advance_locked(st.state, time.monotonic())
         scene = st.state.scene or Scene()
-        st.state.scene = Scene([*scene.objects, obj], scene.lights, scene.ambient)
+        st.state.scene = Scene([*scene.objects, obj], scene.lights, scene.ambient,
+                               billboards=scene.billboards)
         st.state.scene_version += 1
         return ({"index": len(st.state.scene.objects) - 1},)
 
@@ -145,7 +149,7 @@ def update_objects(st: ServiceState, req: dict[str, Any]) -> tuple:
         for k, new in changed:
             objs[k] = replace(new, transform=new.transform, motion=new.motion)
         sc = st.state.scene
-        st.state.scene = Scene(objs, sc.lights, sc.ambient)
+        st.state.scene = Scene(objs, sc.lights, sc.ambient, billboards=sc.billboards)
         st.state.scene_version += 1
     return ({"updated": len(changed)},)
 
@@ -199,6 +203,7 @@ def stats(st: ServiceState, req: dict[str, Any]) -> tuple:
         max_in_flight=st.pipe.max_in_flight if st.pipe is not None else None,
         last_render_error=st.last_render_error,
         last_refresh_error=st.last_refresh_error,
+        lod=st.last_lod,
         session=st.session,
         **st.status(),
     )
@@ -250,9 +255,6 @@ def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
         scene = load_scene(path)
     except MeshFileError as exc:
         raise MessageError("not_found", str(exc)) from exc
-    if scene.billboards:  # the wire to the workers does not carry them yet
-        raise MessageError("bad_settings", f"{path}: billboard clouds (.hbc) are not served "
-                           "yet (workers receive meshes only); render them with holo-render")
     return scene
 
 
@@ -333,6 +335,8 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         _check_sird(disp["cols"], kw.get("sird_eye_sep", s.sird_eye_sep))
     if "lod_error" in req:  # pixels; 0 turns level of detail off
         kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
+    if "lod_budget_ms" in req:  # ms per render; 0: no time budget
+        kw["lod_budget_ms"] = wire.number(req["lod_budget_ms"], "lod_budget_ms", 0.0, 1e6)
     kw.update(_quality_fields(req))
     if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
         raise MessageError("too_large", "display has more than 64 Mi pixels")

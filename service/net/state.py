@@ -71,6 +71,8 @@ class ServiceConfig:
     pose_scale: float = 0.001
     #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
     lod_error: float = 0.0
+    #: level-of-detail time budget per render, ms (0: none; alone it turns LOD on)
+    lod_budget_ms: float = 0.0
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -130,6 +132,9 @@ class Settings:
     sird_eye_sep: float = 0.0
     #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
     lod_error: float = 0.0
+    #: level-of-detail time budget per render in ms (:mod:`service.lod`); 0: none.
+    #: Given without ``lod_error`` it turns level of detail on at 0.5 px.
+    lod_budget_ms: float = 0.0
     generation: int = 0
     #: "auto": each render's method and specular chosen within ``max_error``
     #: (service.quality); "fixed": as set.
@@ -154,6 +159,7 @@ class Settings:
             "sird_method": self.sird_method,
             "sird_eye_sep": self.sird_eye_sep,
             "lod_error": self.lod_error,
+            "lod_budget_ms": self.lod_budget_ms,
             "quality": self.quality,
             "max_error": self.max_error,
         }
@@ -335,6 +341,8 @@ class ServiceState:
     band_retries: int = 0
     last_render_error: str = ""
     last_refresh_error: str = ""
+    #: the last finished render's level-of-detail report (None: LOD off), for ``stats``
+    last_lod: dict | None = None
     ctx: zmq.Context | None = None
     stream: FrameStream | None = None
     broker: Broker | None = None
@@ -382,7 +390,8 @@ def service_state(config: ServiceConfig) -> ServiceState:
     """
     check_config(config)
     state = State(
-        Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error),
+        Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error,
+                 lod_budget_ms=config.lod_budget_ms),
         devices=config.devices,
     )
     state.viewer.scale = config.pose_scale

@@ -6,7 +6,9 @@ An array travels as one raw little-endian buffer frame, described in the header'
 The only serialisations are JSON and raw buffers (never Python object serialisation).
 
 Scenes are encoded inline with the same mechanism (:func:`scene_to_wire`,
-:func:`scene_from_wire`); meshes shared by several objects travel once.
+:func:`scene_from_wire`); meshes shared by several objects travel once, and so do
+billboard clouds (``billboards``: textures and quads as arrays, see
+:func:`billboard_from_wire`).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ ZERO_COPY_BYTES = 65536
 #: wire dtype name -> numpy dtype (little endian only).
 DTYPES: dict[str, np.dtype] = {
     "uint8": np.dtype("<u1"),
+    "int8": np.dtype("|i1"),
     "bool": np.dtype("|b1"),
     "int16": np.dtype("<i2"),
     "int32": np.dtype("<i4"),
@@ -333,9 +336,8 @@ def material_from_wire(spec: Any, name: str) -> Material:
         raise MessageError("bad_message", f"{name}: {exc}") from exc
 
 
-def apply_fields(obj: SceneObject, spec: dict[str, Any], name: str) -> SceneObject:
-    """The object with the pose/motion fields of ``spec`` applied (others kept)."""
-    t, m = obj.transform, obj.motion
+def transform_from_wire(spec: dict[str, Any], name: str, t: Transform) -> Transform:
+    """``t`` with the ``position``, ``orientation`` and ``scale`` of ``spec`` applied."""
     pos = vector(spec["position"], f"{name}.position", 3) if "position" in spec else t.position
     q = t.orientation
     if "orientation" in spec:
@@ -345,12 +347,17 @@ def apply_fields(obj: SceneObject, spec: dict[str, Any], name: str) -> SceneObje
             raise MessageError("bad_message", f"{name}.orientation must be a unit quaternion")
         q = q / norm
     scale = number(spec["scale"], f"{name}.scale", 1e-9, 1e9) if "scale" in spec else t.scale
+    return Transform(pos, q, scale)
+
+
+def apply_fields(obj: SceneObject, spec: dict[str, Any], name: str) -> SceneObject:
+    """The object with the pose/motion fields of ``spec`` applied (others kept)."""
+    m = obj.motion
     motion = {
         k: vector(spec[k], f"{name}.{k}", 3) if k in spec else getattr(m, k) for k in MOTION_FIELDS
     }
-    return SceneObject(
-        obj.mesh, obj.material, Transform(pos, q, scale), MotionState(**motion), obj.name
-    )
+    return SceneObject(obj.mesh, obj.material, transform_from_wire(spec, name, obj.transform),
+                       MotionState(**motion), obj.name)
 
 
 def object_from_wire(spec: Any, name: str) -> SceneObject:
@@ -389,8 +396,90 @@ def _list(v: Any, name: str, max_len: int) -> list:
     return v
 
 
+#: The arrays of a billboard cloud on the wire (those of the ``.hbc`` file).
+CLOUD_ARRAYS = ("corners", "planes", "tex_shape", "tex_offset", "rgba", "normal")
+MAX_BILLBOARDS = 65536
+MAX_TEXELS = 64_000_000
+
+
+def cloud_from_wire(spec: Any, name: str) -> Any:
+    """A :class:`~service.simplify.billboard.BillboardCloud` from its inline form.
+
+    ``{"corners", "planes", "tex_shape", "tex_offset", "rgba", "normal"}`` (arrays of
+    the dtypes and shapes of ``docs/file-formats.md``'s ``.hbc`` arrays, ``normal``
+    int8) plus ``eps`` and ``source_faces``.  The arrays are checked as the file
+    reader checks them (shapes, offsets against texture sizes, finite unit planes),
+    so the renderer's texel indexing stays inside them.
+
+    Raises
+    ------
+    MessageError
+        ``bad_message`` / ``bad_array`` / ``too_large`` naming the field.
+    """
+    from service.simplify.billboard import BillboardCloud
+    from service.simplify.cloud_file import array_problem, arrays_problem
+
+    if not isinstance(spec, dict):
+        raise MessageError("bad_message", f"{name} must be an object")
+    planes = spec.get("planes")
+    if not isinstance(planes, np.ndarray) or planes.ndim != 2:
+        raise MessageError("bad_array", f"{name}.planes must be a float64 array of shape (P, 4)")
+    if planes.shape[0] > MAX_BILLBOARDS:
+        raise MessageError("too_large", f"{name} has more than {MAX_BILLBOARDS} billboards")
+    arrays = {}
+    for key in CLOUD_ARRAYS:
+        arr = spec.get(key)
+        if not isinstance(arr, np.ndarray):
+            raise MessageError("bad_array", f"{name}.{key} must be an array")
+        problem = array_problem(key, arr, planes.shape[0])
+        if problem is not None:
+            raise MessageError("bad_array", f"{name}.{key}: {problem}")
+        arrays[key] = np.array(arr)  # writable: the kernels are compiled for those
+    if arrays["rgba"].shape[0] > MAX_TEXELS:
+        raise MessageError("too_large", f"{name} has more than {MAX_TEXELS} texels")
+    problem = arrays_problem(arrays)
+    if problem is not None:
+        raise MessageError("bad_array", f"{name}.{problem[0]}: {problem[1]}")
+    return BillboardCloud(**arrays, eps=number(spec.get("eps"), f"{name}.eps", 1e-300),
+                          source_faces=integer(spec.get("source_faces", 0),
+                                               f"{name}.source_faces", 0, MAX_POLYGONS))
+
+
+def billboard_from_wire(spec: Any, name: str, clouds: dict[int, Any]) -> Any:
+    """A billboard-cloud object: ``cloud`` (or ``cloud_ref``), ``material``, ``name``, pose.
+
+    ``cloud_ref`` names an earlier entry of ``billboards`` whose cloud it shares.
+    Billboard clouds carry no motion.
+    """
+    from service.billboard_render import BillboardObject
+
+    if not isinstance(spec, dict):
+        raise MessageError("bad_message", f"{name} must be an object")
+    if "cloud_ref" in spec:
+        ref = spec["cloud_ref"]
+        if isinstance(ref, bool) or not (isinstance(ref, int) and ref in clouds):
+            raise MessageError("bad_message", f"{name}.cloud_ref must name an earlier billboard")
+        cloud = clouds[ref]
+    else:
+        cloud = cloud_from_wire(spec.get("cloud"), f"{name}.cloud")
+    return BillboardObject(cloud, material_from_wire(spec.get("material"), f"{name}.material"),
+                           transform_from_wire(spec, name, Transform()),
+                           string(spec.get("name", ""), f"{name}.name", MAX_NAME))
+
+
+def _billboards_from_wire(spec: dict[str, Any]) -> list:
+    boards = _list(spec.get("billboards", []), "scene.billboards", MAX_OBJECTS)
+    clouds: dict[int, Any] = {}
+    out = []
+    for i, b in enumerate(boards):
+        obj = billboard_from_wire(b, f"scene.billboards[{i}]", clouds)
+        clouds[i] = obj.cloud
+        out.append(obj)
+    return out
+
+
 def scene_from_wire(spec: Any) -> Scene:
-    """A :class:`Scene` from the inline form ``{"objects", "lights", "ambient"}``."""
+    """A :class:`Scene` from the inline form ``{"objects", "lights", "ambient", "billboards"}``."""
     if not isinstance(spec, dict):
         raise MessageError("bad_message", "scene must be an object")
     objs = _list(spec.get("objects", []), "scene.objects", MAX_OBJECTS)
@@ -411,10 +500,12 @@ def scene_from_wire(spec: Any) -> Scene:
         objects,
         [light_from_wire(x, f"scene.lights[{i}]") for i, x in enumerate(lights)],
         number(spec.get("ambient", 1.0), "scene.ambient", 0.0, 1.0),
+        billboards=_billboards_from_wire(spec),
     )
 
 
-def _fields(o: SceneObject) -> dict[str, Any]:
+def _pose(o: Any) -> dict[str, Any]:
+    """Name, pose and material of a mesh or billboard-cloud object."""
     m = o.material
     return {
         "name": o.name,
@@ -428,15 +519,36 @@ def _fields(o: SceneObject) -> dict[str, Any]:
             "specular": m.specular,
             "shininess": m.shininess,
         },
-        **{k: getattr(o.motion, k).tolist() for k in MOTION_FIELDS},
     }
+
+
+def _fields(o: SceneObject) -> dict[str, Any]:
+    return {**_pose(o), **{k: getattr(o.motion, k).tolist() for k in MOTION_FIELDS}}
+
+
+def billboards_to_wire(boards: list) -> list[dict[str, Any]]:
+    """The inline form of billboard-cloud objects; a shared cloud travels once."""
+    first: dict[int, int] = {}
+    out = []
+    for i, b in enumerate(boards):
+        spec = _pose(b)
+        c = b.cloud
+        if id(c) in first:
+            spec["cloud_ref"] = first[id(c)]
+        else:
+            first[id(c)] = i
+            spec["cloud"] = {**{k: getattr(c, k) for k in CLOUD_ARRAYS}, "eps": float(c.eps),
+                             "source_faces": int(c.source_faces)}
+        out.append(spec)
+    return out
 
 
 def scene_to_wire(scene: Scene) -> dict[str, Any]:
     """The inline form of a scene (arrays as ndarrays; see :func:`extract`).
 
     A mesh shared by several objects is sent once: later objects carry
-    ``mesh_ref`` (the index of the first object with it) instead of ``mesh``.
+    ``mesh_ref`` (the index of the first object with it) instead of ``mesh``;
+    billboard-cloud objects likewise (``billboards``, ``cloud_ref``).
     """
     first: dict[int, int] = {}
     objects = []
@@ -461,4 +573,7 @@ def scene_to_wire(scene: Scene) -> dict[str, Any]:
         }
         for lt in scene.lights
     ]
-    return {"objects": objects, "lights": lights, "ambient": float(scene.ambient)}
+    out = {"objects": objects, "lights": lights, "ambient": float(scene.ambient)}
+    if scene.billboards:
+        out["billboards"] = billboards_to_wire(scene.billboards)
+    return out

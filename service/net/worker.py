@@ -38,7 +38,7 @@ from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.heap import keep_freed_memory
 from service.light import LightSettings
-from service.lod import LodSettings
+from service.lod import lod_from
 from service.net import protocol, wire
 from service.pipeline import Renderer, RenderSettings, StageClock
 from service.scene import (
@@ -62,14 +62,14 @@ def display_from(d: dict[str, Any]) -> DisplaySettings:
 
 
 def render_settings_from(d: dict[str, Any]) -> RenderSettings:
-    """RenderSettings from ``{"method", "light_model", "specular", "lod_error"}``.
+    """RenderSettings from ``{"method", "light_model", "specular", "lod_error", ...}``.
 
-    ``lod_error`` is optional: pixels of level-of-detail error, 0 or absent for off.
+    ``lod_error`` is optional: pixels of level-of-detail error, 0 or absent for off;
+    so is ``lod_budget_ms`` (a render-time budget, ms; alone it turns LOD on at 0.5 px).
     """
-    lod = float(d.get("lod_error") or 0.0)
     return RenderSettings(
         method=d["method"], light=LightSettings(model=d["light_model"], evaluation=d["specular"]),
-        lod=LodSettings(error_px=lod) if lod > 0 else None,
+        lod=lod_from(d.get("lod_error"), d.get("lod_budget_ms")),
     )
 
 
@@ -158,7 +158,8 @@ def render_job(
     reply (``docs/protocol.md`` 1.5): ``ms`` per stage (``project``, ``cull``,
     ``sort``, ``occlusion`` of the visibility pass; ``motion``: the whole render
     with its four difference renders; ``galpixmap``; ``total``), ``polygons``
-    (``in``, ``culled``, ``kept``, ``drawn``), ``method`` and ``rows``.
+    (``in``, ``culled``, ``kept``, ``drawn``), ``method`` and ``rows``; with billboard
+    clouds in the scene ``billboards`` (how they were drawn: ``drawn_with``, ``note``).
 
     Returns
     -------
@@ -202,8 +203,9 @@ def render_job(
         "rows": list(rows),
         "inconsistent_pixels": int(getattr(renderer, "last_inconsistent", 0)),
     }
-    if "lod" in up.frame.stats:
-        stats["lod"] = up.frame.stats["lod"]
+    for key in ("lod", "billboards"):  # billboards: how they were drawn (docs/simplify.md)
+        if key in up.frame.stats:
+            stats[key] = up.frame.stats[key]
     return out, stats
 
 

@@ -71,34 +71,71 @@ def _header(z: zipfile.ZipFile, path: str) -> dict:
     return header
 
 
-def _array(z: zipfile.ZipFile, path: str, name: str, sizes: dict) -> np.ndarray:
+#: Largest texture side (rows or columns) of one billboard a reader accepts.
+MAX_SIDE = 1 << 16
+
+
+def array_problem(name: str, arr: np.ndarray, n_billboards: int) -> str | None:
+    """What is wrong with one cloud array's dtype or shape (None: nothing).
+
+    ``n_billboards`` is P; the texel count N of ``rgba`` and ``normal`` is theirs.
+    """
     dtype, shape = ARRAYS[name]
+    if arr.dtype != dtype:
+        return f"dtype {arr.dtype}, want {np.dtype(dtype)}"
+    sizes = {-1: n_billboards, -2: n_billboards + 1}
+    want = tuple(sizes.get(s, s) for s in shape)
+    if -3 in want:  # the texel count comes from tex_offset
+        want = tuple(arr.shape[0] if s == -3 and arr.ndim else s for s in want)
+    if arr.shape != want:
+        return f"shape {arr.shape}, want {want}"
+    return None
+
+
+def arrays_problem(c: dict) -> tuple[str, str] | None:
+    """Arrays that parse but disagree with each other: (array name, what), or None.
+
+    Checks finite corners and planes, unit plane normals, non-degenerate rectangles,
+    texture sides in 1..:data:`MAX_SIDE` and offsets that match them and the texel
+    arrays, so that a renderer indexing texels by them stays inside the arrays.
+    """
+    if not (np.isfinite(c["corners"]).all() and np.isfinite(c["planes"]).all()):
+        return "corners", "non-finite coordinates"
+    if c["planes"].size and np.abs(np.linalg.norm(c["planes"][:, :3], axis=1) - 1).max() > 1e-3:
+        return "planes", "plane normals are not unit vectors"
+    corners = c["corners"]
+    sides = np.stack([corners[:, 1] - corners[:, 0], corners[:, 3] - corners[:, 0]], axis=1)
+    if (np.linalg.norm(sides, axis=2) <= 0).any():
+        return "corners", "a billboard rectangle has a zero-length side"
+    shape = c["tex_shape"]
+    if (shape < 1).any() or (shape > MAX_SIDE).any():
+        return "tex_offset", f"tex_shape sides must be 1-{MAX_SIDE}"
+    sizes = LAYERS * shape.prod(axis=1) if shape.size else np.zeros(0, np.int64)
+    if c["tex_offset"][0] != 0 or not np.array_equal(np.diff(c["tex_offset"]), sizes):
+        return "tex_offset", "does not match tex_shape"
+    if c["tex_offset"][-1] != c["rgba"].shape[0] or c["rgba"].shape[0] != c["normal"].shape[0]:
+        return "rgba", "texel count does not match tex_offset"
+    return None
+
+
+def _array(z: zipfile.ZipFile, path: str, name: str, n_billboards: int) -> np.ndarray:
     try:
         arr = np.lib.format.read_array(io.BytesIO(z.read(f"{name}.npy")), allow_pickle=False)
     except KeyError:
         raise MeshFileError(path, f"{name}.npy", "missing") from None
     except (ValueError, OSError, EOFError) as exc:
         raise MeshFileError(path, f"{name}.npy", f"unreadable array ({exc})") from None
-    if arr.dtype != dtype:
-        raise MeshFileError(path, f"{name}.npy", f"dtype {arr.dtype}, want {np.dtype(dtype)}")
-    want = tuple(sizes.get(s, s) for s in shape)
-    if -3 in want:  # the texel count comes from tex_offset
-        want = tuple(arr.shape[0] if s == -3 else s for s in want)
-    if arr.shape != want:
-        raise MeshFileError(path, f"{name}.npy", f"shape {arr.shape}, want {want}")
+    problem = array_problem(name, arr, n_billboards)
+    if problem is not None:
+        raise MeshFileError(path, f"{name}.npy", problem)
     return arr
 
 
 def _check(path: str, c: dict) -> None:
     """Arrays that parse but disagree with each other."""
-    if not (np.isfinite(c["corners"]).all() and np.isfinite(c["planes"]).all()):
-        raise MeshFileError(path, "corners.npy", "non-finite coordinates")
-    sizes = LAYERS * c["tex_shape"].prod(axis=1) if c["tex_shape"].size else np.zeros(0, np.int64)
-    if (c["tex_shape"] < 1).any() or c["tex_offset"][0] != 0 or not np.array_equal(
-            np.diff(c["tex_offset"]), sizes):
-        raise MeshFileError(path, "tex_offset.npy", "does not match tex_shape")
-    if c["tex_offset"][-1] != c["rgba"].shape[0] or c["rgba"].shape[0] != c["normal"].shape[0]:
-        raise MeshFileError(path, "rgba.npy", "texel count does not match tex_offset")
+    problem = arrays_problem(c)
+    if problem is not None:
+        raise MeshFileError(path, f"{problem[0]}.npy", problem[1])
 
 
 def load_cloud(path: str | Path) -> BillboardCloud:
@@ -113,8 +150,7 @@ def load_cloud(path: str | Path) -> BillboardCloud:
     try:
         with zipfile.ZipFile(path) as z:
             header = _header(z, p)
-            sizes = {-1: header["billboards"], -2: header["billboards"] + 1}
-            arrays = {name: _array(z, p, name, sizes) for name in ARRAYS}
+            arrays = {name: _array(z, p, name, header["billboards"]) for name in ARRAYS}
     except zipfile.BadZipFile as exc:
         raise MeshFileError(p, "", f"not a billboard-cloud zip or truncated ({exc})") from None
     except (zipfile.LargeZipFile, EOFError) as exc:

@@ -27,6 +27,7 @@ def setup_from_args(tmp_path, monkeypatch):
     """Parse a ``holo-game --local --headless`` command line and run ``cli._setup`` on it.
 
     ``setup(*extra)`` returns ``(game, backend)``; every backend is closed at the end.
+    ``local=False`` leaves ``--local`` out (the game then uses ``--service``).
     The level-of-detail cache goes to a temporary folder.
     """
     from game import cli
@@ -34,9 +35,10 @@ def setup_from_args(tmp_path, monkeypatch):
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "lod"))
     opened = []
 
-    def setup(*extra: str):
+    def setup(*extra: str, local: bool = True):
         parser = cli.build_parser()
-        args = parser.parse_args(["--local", "--headless", "--size", "120x90",
+        args = parser.parse_args([*(["--local"] if local else []), "--headless", "--size",
+                                  "120x90",
                                   "--highscores", str(tmp_path / "hs.json"), *extra])
         cli.check_args(parser, args)
         game, backend, *_ = cli._setup(args)

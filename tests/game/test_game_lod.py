@@ -34,3 +34,33 @@ def test_lod_off_by_default_and_bad_budget_refused(setup_from_args, capsys):
         cli.build_parser().parse_args(["--lod-error", "0"])
     assert stop.value.code == 2
     assert "--lod-error" in capsys.readouterr().err
+
+
+def test_budget_ms_reaches_the_local_renderer_and_its_cost_model(setup_from_args):
+    game, backend = setup_from_args("--budget-ms", "40")
+    lod = backend.render_settings.lod
+    assert lod is not None and lod.budget_ms == 40 and lod.error_px == 0.5  # alone: on
+    backend.update(object_states(new_game(game)))
+    for _ in range(200):  # the render thread measures each render for the cost model
+        backend.frame(timeout_s=1.0)
+        if backend._renderer.lod.cost.samples:
+            break
+    else:
+        pytest.fail("no render was measured")
+    assert backend._renderer.lod.cost.ready
+
+
+def test_budget_ms_reaches_the_service(service_factory, setup_from_args, tmp_path,
+                                       monkeypatch):
+    from game.backends import ServiceBackend
+    from service.net.client import ServiceClient
+
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "svc-lod"))
+    svc = service_factory("--scene", "game", "--zones", "3", "--size", "32x24",
+                          "--workers", "0", "--refresh", "30")
+    game, backend = setup_from_args("--service", svc.control, "--budget-ms", "30",
+                                    "--lod-error", "0.75", local=False)
+    assert isinstance(backend, ServiceBackend) and backend.connected
+    with ServiceClient(svc.control, timeout_s=30) as c:
+        lod = c.render_once()[0]["stats"]["lod"]
+    assert lod["budget_ms"] == 30 and lod["error_px"] == 0.75

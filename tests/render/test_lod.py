@@ -16,7 +16,9 @@ from hypothesis import strategies as st
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.lod import (
+    FrameCost,
     LodSettings,
+    LodState,
     build_chain,
     degrade_to_budget,
     pixels_per_unit,
@@ -214,8 +216,17 @@ def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp
     scene = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.5]), scale=0.05),
                                name="far")])
     display = DisplaySettings(zones=3, cols=64, rows=48)
-    up = render_with_motion(Renderer(), scene, display, 0.0, 60.0, settings)
+    renderer = Renderer()
+    up = render_with_motion(renderer, scene, display, 0.0, 60.0, settings)
     assert up.frame.stats["lod"]["levels"][0] >= 3
+    # with a time budget the renders there feed the cost model, and the budget acts
+    budget = render_settings_from({"method": "zbuffer", "light_model": "ambient",
+                                   "specular": "polygon", "lod_budget_ms": 1e-6})
+    assert budget.lod.budget_ms == 1e-6 and budget.lod.error_px == 0.5  # alone: LOD on
+    near = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.5])), name="near")])
+    for _ in range(2):
+        up = render_with_motion(renderer, near, display, 0.0, 60.0, budget)
+    assert len(renderer.lod.cost.samples) == 3 and up.frame.stats["lod"]["over_error"] == 1
 
 
 @pytest.mark.parametrize("hysteresis", [0.0, 0.25])
@@ -254,6 +265,59 @@ def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch,
     coarsest = len(chain.levels) - 1
     assert report["levels"] == [coarsest, coarsest]
     assert report["over_error"] >= 1 and max(report["predicted_px"]) > 0.5
+    # the report carries the measured cost model and its prediction for these levels
+    assert report["budget_ms"] == 1e-6 and report["cost_model"]["frames"] == 1
+    assert report["predicted_ms"] > 0 and len(r.lod.cost.samples) == 2  # now frame 2 too
+    assert first.stats["lod"]["predicted_ms"] is None  # nothing measured before frame 1
+    # another display costs something else: the model starts again
+    r.render(scene, DisplaySettings(zones=1, cols=32, rows=24),
+             RenderSettings(lod=LodSettings(budget_ms=1e-6)))
+    assert len(r.lod.cost.samples) == 1
+
+
+def test_the_cost_model_is_the_line_the_frames_measured():
+    rng = np.random.default_rng(3)
+    tris = rng.integers(1_000, 50_000, 24)
+    ms = 4.0 + 2e-4 * tris + rng.normal(0, 0.05, 24)
+    ms[5] *= 10  # a frame slowed by another process
+    cost = FrameCost()
+    for t, m in zip(tris, ms, strict=True):
+        cost.observe(int(t), float(m))
+    assert cost.fixed_ms == pytest.approx(4.0, abs=0.2)
+    assert cost.per_triangle == pytest.approx(2e-4, rel=0.03)
+    assert cost.max_triangles(4.0 + 2e-4 * 10_000) == pytest.approx(10_000, rel=0.05)
+    assert cost.max_triangles(1.0) == 0.0  # under the fixed cost: nothing fits
+    # one triangle count (nothing to fit a line to): proportional, the median ratio
+    flat = FrameCost()
+    for m in (10.0, 11.0, 30.0):
+        flat.observe(1_000, m)
+    assert (flat.fixed_ms, flat.per_triangle) == (0.0, pytest.approx(0.011))
+    flat.observe(0, 5.0)  # no triangles, no information
+    flat.observe(1_000, float("nan"))
+    assert len(flat.samples) == 3
+    assert len(FrameCost(window=4).samples) == 0 and not FrameCost().ready
+
+
+def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path):
+    """Four rings: big near, big far, small near, small far; a budget one triangle short."""
+    display = DisplaySettings(zones=3, cols=160, rows=120)
+    places = [(-0.6, -0.2, 1.0), (-0.2, -2.0, 1.0), (0.2, -0.2, 0.3), (0.6, -2.0, 0.3)]
+    scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, z]), scale=s),
+                               name=f"o{i}") for i, (x, z, s) in enumerate(places)])
+    state = LodState(cache=tmp_path)
+    free = LodSettings(error_px=0.5)
+    _, report = state.apply(scene, display, free)
+    levels = list(report["levels"])
+    for t in (1_000, 2_000, 3_000):  # measured frames: 2 ms + 1 us per triangle
+        state.observe(t, 2.0 + 1e-3 * t)
+    tight = LodSettings(error_px=0.5, budget_ms=2.0 + 1e-3 * (report["triangles"] - 1))
+    _, got = state.apply(scene, display, tight)
+    assert got["levels"] == levels[:3] + [levels[3] + 1]  # only the small far one went
+    assert got["predicted_ms"] <= tight.budget_ms
+    assert got["cost_model"] == {"fixed_ms": 2.0, "us_per_triangle": 1.0, "frames": 3}
+    _, none = state.apply(scene, display, LodSettings(error_px=0.5, budget_ms=1.0))
+    assert none["levels"] == [len(state.chain(ring, free).levels) - 1] * 4
+    assert none["over_error"] == 4
 
 
 def test_an_unwritable_cache_warns_and_still_renders(ring, tmp_path, monkeypatch):
@@ -316,3 +380,69 @@ def test_holo_render_lod_json_report_and_quality_auto(tmp_path):
         assert len(lod["levels"]) == len(lod["predicted_px"]) > 1
         assert max(lod["predicted_px"]) <= 0.5 and lod["triangles"] <= lod["triangles_full"]
         assert report["mesh"]["flatten_us_per_triangle"] > 0
+
+
+def test_unchanged_objects_and_levels_reuse_the_frame_and_a_move_does_not(ring, tmp_path):
+    display = DisplaySettings(zones=1, cols=64, rows=48)
+    state, lod = LodState(cache=tmp_path), LodSettings()
+    objs = [SceneObject(ring, transform=Transform(np.array([0.0, 0, -0.5]), scale=0.05),
+                        name="a")]
+    scene = Scene(objs)
+    first = list(state.apply(scene, display, lod)[0].objects)
+    again = state.apply(scene, display, lod)[0].objects
+    assert [a is b for a, b in zip(first, again, strict=True)] == [True]
+    moved = Scene([SceneObject(ring, transform=Transform(np.array([0.3, 0, -0.5]), scale=0.05),
+                               name="a")])
+    shown = state.apply(moved, display, lod)[0].objects
+    assert shown[0].transform.position[0] == 0.3 and shown[0].mesh is first[0].mesh
+
+
+def test_the_chosen_levels_stay_within_their_prediction_supersampled(tmp_path):
+    """Random views of the spiky attacker (thin spikes): the selector's choice at 0.5 px.
+
+    Rendered at 4x the resolution it was chosen for, so the sampling allowance is a
+    quarter pixel (one fine pixel's diagonal, sqrt(2) / 4) instead of a whole one:
+    measured silhouette error <= predicted + sqrt(2) / 4, in the chosen display's px.
+    """
+    from service.bench.lod_bench import silhouette_px
+    from service.primitives import attacker
+
+    spiky = attacker(16, radius=0.3, spike=0.9)
+    base = DisplaySettings(zones=3, cols=48, rows=36)
+    fine = DisplaySettings(zones=3, cols=192, rows=144)
+    centre = (spiky.vertices.min(axis=0) + spiky.vertices.max(axis=0)) / 2
+    rng = np.random.default_rng(11)
+    state, lod, renderer = LodState(cache=tmp_path), LodSettings(error_px=0.5), Renderer()
+    chosen = set()
+    for i in range(8):
+        s = float(np.exp(rng.uniform(np.log(0.05), np.log(1.5))))
+        place = Transform(np.array([rng.uniform(-0.3, 0.3), 0.0, -0.3]) - centre * s,
+                          euler_quaternion(*rng.uniform(-np.pi, np.pi, 3)), s)
+        full = Scene([SceneObject(spiky, transform=place, name=f"v{i}")])
+        shown, report = state.apply(full, base, lod)
+        assert report["predicted_px"][0] <= 0.5
+        chosen.add(report["levels"][0])
+        a = renderer.render(full, fine).depth
+        b = renderer.render(shown, fine).depth
+        measured = silhouette_px(np.isfinite(a), np.isfinite(b)) / 4
+        assert measured <= report["predicted_px"][0] + np.sqrt(2) / 4, (i, s, report, measured)
+    assert len(chosen) >= 3  # several levels were put to the test
+
+
+def test_a_level_before_an_error_jump_goes_to_its_plateau_end():
+    """Error 1 down to 20 % of the triangles, then 3: the 40 % level moves towards 20 %."""
+    from service.lod import _plateau_ends
+    from service.mesh import Mesh
+
+    def level(frac: float):
+        n = int(round(frac * 1000))
+        v = np.random.default_rng(n).normal(size=(n + 2, 3))
+        tris = np.stack([np.zeros(n, int), np.arange(1, n + 1), np.arange(2, n + 2)], axis=1)
+        return Mesh.from_triangles(v, tris), (1.0 if frac >= 0.2 else 3.0), frac
+
+    front = [level(0.8), level(0.4), level(0.1)]
+    calls = []
+    got = _plateau_ends(front, lambda f: calls.append(f) or level(f), jump=1.5, steps=4)
+    assert [g[1] for g in got] == [1.0, 1.0, 3.0] and len(calls) == 4  # only at the jump
+    assert got[0] is front[0] and got[2] is front[2]
+    assert 0.2 <= got[1][2] < 0.24 and got[1][0].n_polygons < front[1][0].n_polygons
