@@ -127,11 +127,14 @@ PLANS = (
          "generic"),
     Plan("billboards", "Billboard clouds",
          (("--eps", "1,4", "--zoom", "1,4", "--yaws", "0,90", "--texture-res", "128",
+           "--cost-meshes", "torus", "--cost-sizes", "20,80", "--repeats", "3",
            "--size", "{size}"),), (("--size", "{size}"),),
-         {"billboard_bench.png": "Left: billboards and build CPU seconds against EPS; middle: "
-          "close up (zoom), the silhouette error in pixels grows with EPS in pixels; right: "
+         {"billboard_bench.png": "First: billboards and build CPU seconds against EPS; second: "
+          "close up (zoom), the silhouette error in pixels grows with EPS in pixels; third: "
           "depth error / EPS against the angle between ray and billboard, growing as 1 / cos "
-          "toward grazing. Lower is better in the middle and right panels."}, "generic"),
+          "toward grazing; fourth: CPU ms per frame of the full mesh, its cloud and the "
+          "quadric level LOD picks, against on-screen size. Lower is better in all but the "
+          "first."}, "generic"),
     Plan("service", "Render service",
          (("--quick", "--seconds", "0.5", "--workers", "1,2", "--rounds", "1"),),
          ((),), {"service.png": "Transport overhead, round trip, worker scaling and "
