@@ -20,6 +20,12 @@ from service.autostereogram.row import row_kernel
 from service.autostereogram.tiw import tiw_kernel
 from service.errors import SettingsError
 
+#: Rows per chunk of the kernels' parallel loops, handed out as threads come free: a
+#: thread that another process stalls leaves the rest of the frame to the others
+#: (numba's default splits the rows evenly up front).  Set around the call, since a
+#: kernel that sets it itself cannot be cached.
+ROW_CHUNK = 8
+
 
 class SirdWorkspace:
     """Buffers of one image size and channel count, reused across frames.
@@ -32,10 +38,10 @@ class SirdWorkspace:
         The same pixels, one flat row per image row (what the kernels write).
     sep : ndarray, shape (H, W), int32
         ``row``'s separations, ``interpolated``'s (1/256 pixel) or ``tiw``'s links (``same[]``).
-    fbuf, bound : ndarray, shape (H, W), float32
-        ``tiw``'s heights and occluder bounds.
-    sbuf : ndarray, shape (H, W), int32
-        ``tiw``'s separations.
+    heights : ndarray, shape (threads, W), float32
+        ``tiw``'s per-thread row of heights.
+    scratch : ndarray, shape (threads, 2, W), int32
+        ``tiw``'s per-thread rows: separations, where to search for occluders.
     counts : ndarray, shape (H, 3), int64
         Per row: constraints, hidden points, NaN depths.
     """
@@ -44,9 +50,9 @@ class SirdWorkspace:
         self.out = np.zeros((rows, cols, channels), np.uint8)
         self.flat = self.out.reshape(rows, cols * channels)
         self.sep = np.zeros((rows, cols), np.int32)
-        self.fbuf = np.zeros((rows, cols), np.float32)
-        self.bound = np.zeros((rows, cols), np.float32)
-        self.sbuf = np.zeros((rows, cols), np.int32)
+        threads = nb.config.NUMBA_NUM_THREADS  # numba.get_thread_id() stays below it
+        self.heights = np.zeros((threads, cols), np.float32)
+        self.scratch = np.zeros((threads, 2, cols), np.int32)
         self.counts = np.zeros((rows, 3), np.int64)
 
     def fresh_output(self) -> None:
@@ -89,7 +95,7 @@ def _run_interpolated(depth, args, pattern, work):
 
 
 def _run_tiw(depth, args, pattern, work):
-    tiw_kernel(depth, *args, pattern, work.flat, work.fbuf, work.sbuf, work.sep, work.bound,
+    tiw_kernel(depth, *args, pattern, work.flat, work.sep, work.heights, work.scratch,
                work.counts)
 
 
@@ -143,7 +149,11 @@ def stereogram(depth: np.ndarray, settings: SirdSettings, pattern: np.ndarray,
         work = SirdWorkspace(d.shape[0], d.shape[1], pattern.shape[2])
     args = (float(settings.far), 1.0 / (settings.far - settings.near),
             float(settings.eye_sep), float(settings.mu))
-    METHODS[settings.method](np.ascontiguousarray(d), args, pattern, work)
+    before = nb.set_parallel_chunksize(ROW_CHUNK)
+    try:
+        METHODS[settings.method](np.ascontiguousarray(d), args, pattern, work)
+    finally:
+        nb.set_parallel_chunksize(before)
     totals = work.counts.sum(axis=0)
     if totals[2]:
         raise SettingsError(f"depth map holds {int(totals[2])} NaN values")

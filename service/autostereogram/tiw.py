@@ -18,6 +18,18 @@ Per row (the paper's figure, in its variable names):
 
 Every constraint holds by construction (0 broken); the kernel counts constraints
 (visible, in-row pairs) and hidden points.
+
+Speed: the exact occlusion search runs only where a cheap bound says a neighbour
+might block.  Every sight line rises at least ``c = step(z)`` per pixel for a point
+at or below ``z``, so ``max over t >= 1 of z(x - t) - c t`` (and the same to the
+right) bounds what can block it.  With the heights tilted, ``z(u) + c u``, that
+bound is a running maximum: a chain of one ``max`` per pixel instead of a
+subtraction and a maximum, and four such chains (left and right, for ``c`` the
+slope at ``z = BAND_Z`` and at ``z = 1``) run side by side in one loop.  The second
+slope keeps the exact search away from the points of a slope that rises as fast as
+the flattest sight line (the seed's streak case), which the ``z = 1`` bound cannot
+tell from hidden ones.  Scratch rows are per thread, so a frame touches no
+image-sized buffers besides depth, links and output.
 """
 
 from __future__ import annotations
@@ -25,23 +37,37 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from service.autostereogram.geometry import separation_rows
+#: Points at or below this height need a rise as steep as their band's sight line.
+BAND_Z = 0.75
+#: Slack on the float32 occluder bounds (their rounding over a sight line's reach is less).
+BOUND_SLACK = 4e-6
 
 
 @nb.njit(cache=True)
-def _hidden(zr: np.ndarray, x: int, z: float, zmax: float, step: float) -> bool:
-    """True if a nearer neighbour blocks a line of sight from (x, z); ``step`` = dzt/dt."""
+def _occluder(zr: np.ndarray, x: int, z: float, zmax: float, step: float, direction: int,
+              last: int) -> int:
+    """A neighbour on one side (``direction`` -1 or +1) that blocks the sight line, or -1.
+
+    The line rises ``step`` per pixel from ``(x, z)``; ``z(x + direction t) >= z + step t``
+    for some ``t >= 1`` with ``z + step t <= zmax`` hides the point (TIW's loop).
+    ``last``, the occluder found for an earlier point (or -1), is tried first: the
+    points in one shadow share it, so a run of hidden points costs one test each.
+    """
     w = zr.shape[0]
+    if last >= 0:
+        t = (last - x) * direction
+        if t >= 1 and zr[last] >= z + step * t:
+            return last
     t = 1
     zt = z + step
-    while zt <= zmax:
-        if x - t >= 0 and zr[x - t] >= zt:
-            return True
-        if x + t < w and zr[x + t] >= zt:
-            return True
+    xt = x + direction
+    while zt <= zmax and 0 <= xt < w:
+        if zr[xt] >= zt:
+            return xt
         t += 1
         zt = z + step * t
-    return False
+        xt += direction
+    return -1
 
 
 @nb.njit(cache=True)
@@ -60,31 +86,59 @@ def _link(same: np.ndarray, left: int, right: int) -> None:
     same[left] = right
 
 
-@nb.njit(cache=True)
-def _heights(drow: np.ndarray, far: float, inv_range: float, zr: np.ndarray) -> None:
-    """``z`` of one row into ``zr`` (rows with something above the far plane only)."""
+@nb.njit(cache=True, inline="always")
+def _row_geometry(drow: np.ndarray, far: float, inv_range: float, eye_sep: float, mu: float,
+                  zr: np.ndarray, sr: np.ndarray) -> tuple[int, int]:
+    """``z`` and ``s(z)`` of one row into ``zr`` and ``sr``; returns (pixels above, NaNs).
+
+    The float32 arithmetic of :func:`service.autostereogram.geometry.separation_rows`
+    (so :func:`~service.autostereogram.geometry.separation_map` names the separations
+    drawn), in loops with no loop-carried dependence (inlined, so they vectorise).
+    """
+    e = np.float32(eye_sep)
+    m = np.float32(mu)
     f = np.float32(far)
     k = np.float32(inv_range)
-    for x in range(drow.shape[0]):
-        z = (f - drow[x]) * k
-        z = z if z > np.float32(0.0) else np.float32(0.0)
+    above = 0
+    bad = 0
+    w = drow.shape[0]
+    for x in range(w):
+        d = drow[x]
+        bad += d != d
+        z = (f - d) * k
+        z = z if z > np.float32(0.0) else np.float32(0.0)  # NaN and -inf -> 0
+        above += z > np.float32(0.0)
         zr[x] = z if z < np.float32(1.0) else np.float32(1.0)
+    for x in range(w):  # one output per loop: it vectorises
+        t = m * zr[x]
+        sr[x] = np.int32((np.float32(1.0) - t) * e / (np.float32(2.0) - t) + np.float32(0.5))
+    return above, bad
 
 
 @nb.njit(cache=True)
-def _right_bound(zr: np.ndarray, step: float, rb: np.ndarray) -> float:
-    """``rb[x] = max over t >= 1 of zr[x + t] - step t`` (a bound on right occluders).
+def _look_right(zr: np.ndarray, c_band: float, c_min: float, look: np.ndarray) -> float:
+    """``look[x]`` = 1 where a neighbour to the right might block ``x``; returns the row's max.
 
-    Returns the row's largest ``z``.
+    ``acc = max over t >= 1 of z(x + t) - c t`` bounds the right occluders of every
+    point whose sight line rises at least ``c`` per pixel: ``c_band`` for points at or
+    below ``BAND_Z``, ``c_min`` (the flattest sight line) for any.  Two independent
+    chains in one loop (one subtraction and one maximum a pixel each).
     """
     w = zr.shape[0]
-    acc = np.float32(-1.0)
+    cb = np.float32(c_band)
+    cm = np.float32(c_min)
+    bz = np.float32(BAND_Z)
+    slack = np.float32(BOUND_SLACK)
+    acc_b = np.float32(-1.0)
+    acc_m = np.float32(-1.0)
     zmax = np.float32(0.0)
     for x in range(w - 1, -1, -1):
-        rb[x] = acc
-        zx = zr[x]
-        zmax = max(zmax, zx)
-        acc = max(acc, zx) - step
+        z = zr[x]
+        bound = acc_b if z <= bz else acc_m
+        look[x] = bound + slack >= z
+        zmax = max(zmax, z)
+        acc_b = max(acc_b, z) - cb
+        acc_m = max(acc_m, z) - cm
     return zmax
 
 
@@ -113,37 +167,51 @@ def _link_flat(sr: np.ndarray, same: np.ndarray, y: int) -> int:
 
 
 @nb.njit(cache=True)
-def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, rb: np.ndarray, y: int,
+def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray, y: int,
               zmax: float, eye_sep: float, mu: float) -> tuple[int, int]:
-    """TIW's constraint loop over one row; returns (constraints, hidden points).
+    """TIW's constraint loop over a row with something above the far plane.
 
-    ``sr`` holds ``s(z)``; ``rb`` is :func:`_right_bound`'s output when ``zmax > 0``
-    (else :func:`_link_flat` does the row).  With the smallest sight-line slope
-    ``step0 (2 - mu)``, ``lb`` (running, left) and ``rb`` bound every possible
-    occluder, so the exact search (:func:`_hidden`) runs only where they reach the
-    point's height.
+    Returns (constraints, hidden points).  The exact search (:func:`_occluder`)
+    runs to the right where :func:`_look_right` says so, and to the left where the
+    mirror bound (two chains kept here as ``x`` moves right) reaches the point.
     """
-    if zmax <= 0.0:
-        return _link_flat(sr, same, y), 0
     w = zr.shape[0]
     step0 = 2.0 / (mu * eye_sep)
-    smin = np.float32(step0 * (2.0 - mu))
+    cb = np.float32(step0 * (2.0 - mu * BAND_Z))
+    cm = np.float32(step0 * (2.0 - mu))
+    bz = np.float32(BAND_Z)
+    slack = np.float32(BOUND_SLACK)
+    acc_b = np.float32(-1.0)
+    acc_m = np.float32(-1.0)
     par = y & 1
-    lb = np.float32(-1.0)
     ncons = 0
     nhid = 0
+    occ_l = -1  # the last occluders found on each side
+    occ_r = -1
     for x in range(w):
         s = sr[x]
         z = zr[x]
+        bound = acc_b if z <= bz else acc_m
+        look_left = bound + slack >= z
+        acc_b = max(acc_b, z) - cb
+        acc_m = max(acc_m, z) - cm
         left = x - ((s + (s & par)) >> 1)
         right = left + s
-        near = z < zmax and (lb >= z or rb[x] >= z)
-        lb = max(lb, z) - smin
         if left < 0 or right >= w:
             continue
-        if near and _hidden(zr, x, z, zmax, step0 * (2.0 - mu * z)):
-            nhid += 1
-            continue
+        look_right = look[x] != 0
+        if (look_left or look_right) and z < zmax:
+            step = step0 * (2.0 - mu * z)
+            if look_left:
+                occ_l = _occluder(zr, x, z, zmax, step, -1, occ_l)
+                if occ_l >= 0:
+                    nhid += 1
+                    continue
+            if look_right:
+                occ_r = _occluder(zr, x, z, zmax, step, 1, occ_r)
+                if occ_r >= 0:
+                    nhid += 1
+                    continue
         ncons += 1
         if same[left] == left:
             same[left] = right
@@ -177,9 +245,12 @@ def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> N
 
 @nb.njit(cache=True, parallel=True, nogil=True)
 def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, mu: float,
-               pattern: np.ndarray, out: np.ndarray, zbuf: np.ndarray, sbuf: np.ndarray,
-               links: np.ndarray, bound: np.ndarray, counts: np.ndarray) -> None:
+               pattern: np.ndarray, out: np.ndarray, links: np.ndarray, heights: np.ndarray,
+               scratch: np.ndarray, counts: np.ndarray) -> None:
     """Draw a SIRD by symmetric constraints with hidden-surface removal, rows in parallel.
+
+    One parallel loop over rows (heights and separations, occlusion, links, colours),
+    so a frame pays for one fork and join of the threads.
 
     Parameters
     ----------
@@ -189,29 +260,35 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
     pattern : ndarray, shape (Hp, Wp, C), uint8
     out : ndarray, shape (H, W * C), uint8
         Written.
-    zbuf, bound : ndarray, shape (H, W), float32
-        Scratch: ``z`` per pixel and the right-occluder bound.
-    sbuf : ndarray, shape (H, W), int32
-        Scratch: ``s(z)`` per pixel.
     links : ndarray, shape (H, W), int32
         Written: ``same[]`` per row (``links[y, x] > x`` links x to it, ``== x`` none).
+    heights : ndarray, shape (threads, W), float32
+        Per-thread scratch: ``z`` of the row (``threads`` >= numba's thread count).
+    scratch : ndarray, shape (threads, 2, W), int32
+        Per-thread scratch: ``s(z)`` of the row, and where to search to the right.
     counts : ndarray, shape (H, 3), int64
         Written per row: constraints, hidden points, NaN depths.
     """
     h, w = depth.shape
     ph, pw, nc = pattern.shape
-    smin = np.float32(2.0 / (mu * eye_sep) * (2.0 - mu))
-    separation_rows(depth, far, inv_range, eye_sep, mu, sbuf, counts)
+    step0 = 2.0 / (mu * eye_sep)
+    c_band = step0 * (2.0 - mu * BAND_Z)
+    c_min = step0 * (2.0 - mu)
     for y in nb.prange(h):
-        zr = zbuf[y]
+        tid = nb.get_thread_id()
+        zr = heights[tid]
+        sr = scratch[tid, 0]
+        look = scratch[tid, 1]
         same = links[y]
+        above, bad = _row_geometry(depth[y], far, inv_range, eye_sep, mu, zr, sr)
         for x in range(w):
             same[x] = x
-        zmax = 0.0
-        if counts[y, 0] > 0:
-            _heights(depth[y], far, inv_range, zr)
-            zmax = _right_bound(zr, smin, bound[y])
-        ncons, nhid = _link_row(zr, sbuf[y], same, bound[y], y, zmax, eye_sep, mu)
+        if above > 0:
+            zmax = _look_right(zr, c_band, c_min, look)
+            ncons, nhid = _link_row(zr, sr, same, look, y, zmax, eye_sep, mu)
+        else:
+            ncons, nhid = _link_flat(sr, same, y), 0
         _colour_row(out[y], same, pattern[y % ph], nc)
         counts[y, 0] = ncons
         counts[y, 1] = nhid
+        counts[y, 2] = bad
