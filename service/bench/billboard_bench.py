@@ -213,6 +213,11 @@ def _write_csv(path: Path, rows: list) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; write CSV, JSON and the chart."""
     args = build_parser().parse_args(argv)
+    names = [] if args.cost_meshes == "none" else args.cost_meshes.split(",")
+    unknown = [n for n in names if n not in billboard_cost.MESHES]
+    if unknown:
+        build_parser().error(f"--cost-meshes: unknown {unknown}; one of "
+                             f"{sorted(billboard_cost.MESHES)} or none")
     cols, rows = args.size
     display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
     out = Path(args.out)
@@ -226,11 +231,6 @@ def main(argv: list[str] | None = None) -> int:
     fit = fit_transform(mesh)
     zoom = zoom_rows(mesh, cloud, fit, display, args)
     grazing = grazing_rows(mesh, cloud, fit, display, args)
-    names = [] if args.cost_meshes == "none" else args.cost_meshes.split(",")
-    unknown = [n for n in names if n not in billboard_cost.MESHES]
-    if unknown:
-        build_parser().error(f"--cost-meshes: unknown {unknown}; one of "
-                             f"{sorted(billboard_cost.MESHES)} or none")
     cost = billboard_cost.cost_rows(display, names, args.cost_sizes, args.lod_error, args.repeats)
     for name, data in (("build", build), ("zoom", zoom), ("grazing", grazing), ("cost", cost)):
         _write_csv(out / f"billboard_{name}.csv", data)
