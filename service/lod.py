@@ -59,17 +59,21 @@ from service.scene import Scene, SceneObject
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
 DEFAULT_FRACTIONS = tuple(round(0.7 * 0.8 ** k, 4) for k in range(21))
 #: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.  None
-#: by default: drawing a cloud (a ray per pixel per quad box, service.billboard_render)
-#: measured dearer than the meshes it stands for (the torus at 320x240 x 5 zones, one
-#: thread: its 47-quad cloud 50 ms CPU, the full 9,216 triangles 5.8 ms), so the
-#: triangle-count cost proxy would choose it wrongly; opt in with e.g. (0.01,).
+#: by default: where LOD may choose a cloud (about 10 px across at EPS 1 %) it costs
+#: 2-6x less than the full mesh but 2-4x more than the quadric level of the same
+#: predicted error (holo-bench billboard part 4, docs/simplify.md "Cost"), and in the
+#: crowd it saved no time while raising the image error; opt in with e.g. (0.01,).
 DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
 #: Bump when the chain's contents or file layout change (old cache files are rebuilt).
-CHAIN_VERSION = 4
+CHAIN_VERSION = 5
 #: Environment variable naming the cache folder.
 CACHE_ENV = "HOLO_LOD_CACHE"
+#: An error this many times the finer level's is a jump whose plateau end is sought.
+PLATEAU_JUMP = 1.5
+#: Decimations spent seeking each such plateau end (bisection on the fraction).
+PLATEAU_STEPS = 3
 #: Levels smaller than this many triangles are not built.
 MIN_TRIANGLES = 8
 
@@ -223,33 +227,71 @@ def _decimated(mesh: Mesh, fractions: tuple[float, ...]) -> list[tuple[Mesh, flo
     except ImportError as exc:  # fast-simplification missing
         raise LodError(f"level of detail needs the quadric simplifier: {exc}") from None
     full_tris = mesh.triangles
-    out: list[tuple[Mesh, float]] = []
+
+    def level(frac: float) -> tuple[Mesh, float, float]:
+        v, f, err = decimate(mesh.vertices, full_tris, frac)
+        return Mesh.from_triangles(v, f, f"{mesh.name}@{f.shape[0]}"), float(err), frac
+
+    out: list[tuple[Mesh, float, float]] = []
     last = full_tris.shape[0]
     for frac in sorted(fractions, reverse=True):
         if frac * full_tris.shape[0] < MIN_TRIANGLES:
             break
-        v, f, err = decimate(mesh.vertices, full_tris, frac)
-        if f.shape[0] >= last or f.shape[0] == 0:
+        got = level(frac)
+        if got[0].n_polygons >= last or got[0].n_polygons == 0:
             continue
-        out.append((Mesh.from_triangles(v, f, f"{mesh.name}@{f.shape[0]}"), float(err)))
-        last = f.shape[0]
-    return _pareto(out)
+        out.append(got)
+        last = got[0].n_polygons
+    front = _pareto(out)
+    return [(m, e) for m, e, _ in _plateau_ends(front, level)]
 
 
-def _pareto(levels: list[tuple[Mesh, float]]) -> list[tuple[Mesh, float]]:
+def _pareto(levels: list) -> list:
     """Only the levels with less error than every coarser one (finest first).
 
-    A sampled Hausdorff error comes in plateaus (one feature sets it over a range of
-    fractions, the bunny's 0.00187 from 30 % down to 20 % of its triangles); a
-    finer level on a plateau costs more for the same predicted error and would
-    never be chosen, so each plateau keeps its coarsest level.
+    ``levels``: ``(mesh, error, ...)`` tuples.  A sampled Hausdorff error comes in
+    plateaus (one feature sets it over a range of fractions, the bunny's 0.00187
+    from 30 % down to 20 % of its triangles); a finer level on a plateau costs more
+    for the same predicted error and would never be chosen, so each plateau keeps
+    its coarsest level.
     """
     out, best = [], np.inf
-    for m, e in reversed(levels):
-        if e < best:
-            out.append((m, e))
-            best = e
+    for lv in reversed(levels):
+        if lv[1] < best:
+            out.append(lv)
+            best = lv[1]
     return out[::-1]
+
+
+def _plateau_ends(front: list, level, jump: float = PLATEAU_JUMP,
+                  steps: int = PLATEAU_STEPS) -> list:
+    """Each level before an error jump pushed towards its plateau's coarse end.
+
+    Where the next coarser level's error is ``jump`` times this one's or more, the
+    fraction between the two is bisected (geometrically, ``steps`` decimations) for
+    the fewest triangles that keep this level's error: an object at that jump's
+    threshold then draws the fewest triangles its budget allows.
+
+    Parameters
+    ----------
+    front : list of (Mesh, float, float)
+        Levels (mesh, error, fraction), finest first, errors increasing.
+    level : callable
+        ``level(fraction) -> (Mesh, error, fraction)``.
+    """
+    out = list(front)
+    for i in range(len(out) - 1):
+        (_, err, hi), (_, nxt, lo) = out[i], out[i + 1]
+        if nxt < jump * err:
+            continue
+        for _ in range(steps):
+            mid = float(np.sqrt(hi * lo))
+            got = level(mid)
+            if got[1] <= err and got[0].n_polygons < out[i][0].n_polygons:
+                out[i], hi = got, mid
+            else:
+                lo = mid
+    return out
 
 
 def cloud_error(eps: float, diagonal: float, texture_res: int) -> float:

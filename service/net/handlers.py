@@ -203,6 +203,7 @@ def stats(st: ServiceState, req: dict[str, Any]) -> tuple:
         max_in_flight=st.pipe.max_in_flight if st.pipe is not None else None,
         last_render_error=st.last_render_error,
         last_refresh_error=st.last_refresh_error,
+        lod=st.last_lod,
         session=st.session,
         **st.status(),
     )

@@ -155,6 +155,9 @@ class Scheduler:
             stats["quality"] = aim.job["quality"]
             self.observe(aim, parts, stats)
         self.st.counters.n["renders"] += 1
+        lod = stats.get("lod") or next((b["lod"] for b in stats.get("bands", ()) if "lod" in b),
+                                       None)  # bands: the first band's (each band its own)
+        self.st.last_lod = {"render_id": aim.render_id, **lod} if lod else None
         self.st.updates.append(
             Ready(
                 aim.render_id,

@@ -341,6 +341,8 @@ class ServiceState:
     band_retries: int = 0
     last_render_error: str = ""
     last_refresh_error: str = ""
+    #: the last finished render's level-of-detail report (None: LOD off), for ``stats``
+    last_lod: dict | None = None
     ctx: zmq.Context | None = None
     stream: FrameStream | None = None
     broker: Broker | None = None

@@ -427,3 +427,22 @@ def test_the_chosen_levels_stay_within_their_prediction_supersampled(tmp_path):
         measured = silhouette_px(np.isfinite(a), np.isfinite(b)) / 4
         assert measured <= report["predicted_px"][0] + np.sqrt(2) / 4, (i, s, report, measured)
     assert len(chosen) >= 3  # several levels were put to the test
+
+
+def test_a_level_before_an_error_jump_goes_to_its_plateau_end():
+    """Error 1 down to 20 % of the triangles, then 3: the 40 % level moves towards 20 %."""
+    from service.lod import _plateau_ends
+    from service.mesh import Mesh
+
+    def level(frac: float):
+        n = int(round(frac * 1000))
+        v = np.random.default_rng(n).normal(size=(n + 2, 3))
+        tris = np.stack([np.zeros(n, int), np.arange(1, n + 1), np.arange(2, n + 2)], axis=1)
+        return Mesh.from_triangles(v, tris), (1.0 if frac >= 0.2 else 3.0), frac
+
+    front = [level(0.8), level(0.4), level(0.1)]
+    calls = []
+    got = _plateau_ends(front, lambda f: calls.append(f) or level(f), jump=1.5, steps=4)
+    assert [g[1] for g in got] == [1.0, 1.0, 3.0] and len(calls) == 4  # only at the jump
+    assert got[0] is front[0] and got[2] is front[2]
+    assert 0.2 <= got[1][2] < 0.24 and got[1][0].n_polygons < front[1][0].n_polygons

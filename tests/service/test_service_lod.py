@@ -19,8 +19,11 @@ def test_lod_error_turns_level_of_detail_on_and_off(service_factory, tmp_path, m
         lod = header["stats"]["lod"]
         assert lod["error_px"] == 0.5 and len(lod["levels"]) == len(lod["predicted_px"]) == 7
         assert all(p <= 0.5 for p in lod["predicted_px"])
+        polled = c.stats()["lod"]  # the last finished render's levels, without a render
+        assert polled["render_id"] >= header["render_id"] and len(polled["levels"]) == 7
         assert c.set_display(lod_error=0.0)["lod_error"] == 0.0
         assert "lod" not in c.render_once()[0]["stats"]
+        assert c.stats()["lod"] is None
         with pytest.raises(ServiceError) as info:
             c.set_display(lod_error=-1)
         assert info.value.code == "bad_message" and "lod_error" in str(info.value)
