@@ -64,15 +64,33 @@ def _zone_mask_kernel(
             out[z, t] = faces[p, z] or not closed[p]
 
 
-def _modified(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
-    return _rows_any(normals @ display.view_vectors().T > 0.0)
+def facing(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
+    """Which zones each polygon faces: ``n . v_k > 0``.
+
+    Both :func:`cull` (the modified cull) and :func:`zone_mask` need this table; a
+    caller that runs both computes it once and passes it to each.
+
+    Parameters
+    ----------
+    normals : ndarray, shape (P, 3)
+    display : DisplaySettings
+
+    Returns
+    -------
+    ndarray, shape (P, Z), bool
+    """
+    return normals @ display.view_vectors().T > 0.0
 
 
-def _plain(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
+def _modified(normals: np.ndarray, display: DisplaySettings, faces: np.ndarray) -> np.ndarray:
+    return _rows_any(faces)
+
+
+def _plain(normals: np.ndarray, display: DisplaySettings, faces: np.ndarray) -> np.ndarray:
     return normals[:, 2] > 0.0
 
 
-def _none(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
+def _none(normals: np.ndarray, display: DisplaySettings, faces: np.ndarray) -> np.ndarray:
     return np.ones(normals.shape[0], dtype=bool)
 
 
@@ -80,7 +98,10 @@ CULLS = {"modified": _modified, "plain": _plain, "none": _none}
 
 
 def cull(
-    normals: np.ndarray, display: DisplaySettings, settings: CullSettings | None = None
+    normals: np.ndarray,
+    display: DisplaySettings,
+    settings: CullSettings | None = None,
+    faces: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Decide which polygons to keep.
 
@@ -91,6 +112,8 @@ def cull(
         which are always culled).
     display : DisplaySettings
     settings : CullSettings, optional
+    faces : ndarray, shape (P, Z), bool, optional
+        :func:`facing` of these normals, if the caller has it already.
 
     Returns
     -------
@@ -99,7 +122,9 @@ def cull(
         ``{"in": P, "culled": ..., "kept": ...}``.
     """
     settings = settings or CullSettings()
-    keep = CULLS[settings.mode](normals, display) & _rows_any(normals != 0.0)
+    if faces is None and settings.mode == "modified":
+        faces = facing(normals, display)
+    keep = CULLS[settings.mode](normals, display, faces) & _rows_any(normals != 0.0)
     kept = int(keep.sum())
     return keep, {"in": int(normals.shape[0]), "culled": int(normals.shape[0] - kept), "kept": kept}
 
@@ -110,6 +135,7 @@ def zone_mask(
     closed: np.ndarray,
     display: DisplaySettings,
     settings: CullSettings | None = None,
+    faces: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per zone, which triangles may be drawn.
 
@@ -125,6 +151,8 @@ def zone_mask(
     closed : ndarray, shape (P,), bool
     display : DisplaySettings
     settings : CullSettings, optional
+    faces : ndarray, shape (P, Z), bool, optional
+        :func:`facing` of these normals, if the caller has it already.
 
     Returns
     -------
@@ -133,7 +161,8 @@ def zone_mask(
     settings = settings or CullSettings()
     if not settings.per_zone:
         return np.ones((display.zones, triangle_polygon.shape[0]), dtype=bool)
-    faces = normals @ display.view_vectors().T > 0.0  # (P, Z)
+    if faces is None:
+        faces = facing(normals, display)
     out = np.empty((display.zones, triangle_polygon.shape[0]), np.bool_)
     _zone_mask_kernel(
         np.ascontiguousarray(triangle_polygon),

@@ -59,10 +59,10 @@ from service.scene import Scene, SceneObject
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
 DEFAULT_FRACTIONS = tuple(round(0.7 * 0.8 ** k, 4) for k in range(21))
 #: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.  None
-#: by default: drawing a cloud (a ray per pixel per quad box, service.billboard_render)
-#: measured dearer than the meshes it stands for (the torus at 320x240 x 5 zones, one
-#: thread: its 47-quad cloud 50 ms CPU, the full 9,216 triangles 5.8 ms), so the
-#: triangle-count cost proxy would choose it wrongly; opt in with e.g. (0.01,).
+#: by default: where LOD may choose a cloud (about 10 px across at EPS 1 %) it costs
+#: 2-6x less than the full mesh but 2-4x more than the quadric level of the same
+#: predicted error (holo-bench billboard part 4, docs/simplify.md "Cost"), and in the
+#: crowd it saved no time while raising the image error; opt in with e.g. (0.01,).
 DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5

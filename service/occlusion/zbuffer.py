@@ -2,9 +2,10 @@
 
 The default path draws every zone in one pass over the triangles
 (:func:`service.raster.zbuffer_zones_kernel`, bands of rows in parallel): a triangle's
-rows are the same in every zone, so that work is shared.  A projection whose rows
-differ between zones (not one :func:`service.projection.project` makes) takes the
-per-zone kernel; both give bit-identical buffers.
+rows, depths and corner order are the same in every zone, so that work is shared.  A
+projection whose rows or depths differ between zones (not one
+:func:`service.projection.project` makes) takes the per-zone kernel; both give
+bit-identical buffers.
 """
 
 from __future__ import annotations
@@ -19,8 +20,24 @@ from service.scene import SceneArrays
 
 
 def rows_shared(proj: np.ndarray) -> bool:
-    """Whether every zone of ``proj`` (Z, V, 3) puts each vertex on the same row."""
-    return bool(np.array_equal(proj[:, :, 1], np.broadcast_to(proj[:1, :, 1], proj.shape[:2])))
+    """Whether every zone of ``proj`` (Z, V, 3) puts each vertex on the same row and depth.
+
+    True for every projection :func:`service.projection.project` makes (zones differ
+    only by a shear in x) of finite vertices; the one-pass kernel reads rows and
+    depths from zone 0.  A NaN never equals itself, so a projection holding one is
+    not shared (as ``np.array_equal`` says).
+    """
+    return bool(_rows_shared(proj))
+
+
+@nb.njit(cache=True, nogil=True)
+def _rows_shared(proj: np.ndarray) -> bool:
+    """Numba body of :func:`rows_shared`: no temporary arrays, stops at the first miss."""
+    for z in range(proj.shape[0]):
+        for v in range(proj.shape[1]):
+            if proj[z, v, 1] != proj[0, v, 1] or proj[z, v, 2] != proj[0, v, 2]:
+                return False
+    return True
 
 
 def zbuffer(
@@ -31,6 +48,8 @@ def zbuffer(
     draw: np.ndarray | None = None,
     shared: bool = True,
     tri_out: np.ndarray | None = None,
+    item: np.ndarray | None = None,
+    n_items: int = 0,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -51,6 +70,12 @@ def zbuffer(
     tri_out : ndarray, shape (Z, R, C), int32, optional
         Buffer to reuse for ``Visibility.triangle`` (contents ignored): a renderer
         that keeps it between frames saves the page faults of a fresh one.
+    item : ndarray, shape (T,), optional
+        Item of each triangle (e.g. ``SceneArrays.triangle_polygon``), each below
+        ``n_items``: the one-pass kernel then also fills ``Visibility.shown``
+        (:func:`service.light.mark_shown`, at a fraction of its cost); the per-zone
+        kernel leaves it None.
+    n_items : int
 
     Returns
     -------
@@ -70,7 +95,13 @@ def zbuffer(
         return vis
     vis = Visibility(tri, np.empty(zrc, np.float32))
     bands = row_bands(display.rows, nb.get_num_threads())
+    if item is None:
+        item, n_items = np.zeros(0, np.int64), 0
+    vis.shown = np.zeros((display.zones, n_items), np.bool_)
     zbuffer_zones_kernel(
-        proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle, vis.depth
+        proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle,
+        vis.depth, item, vis.shown,
     )
+    if n_items == 0:
+        vis.shown = None
     return vis

@@ -372,3 +372,36 @@ def test_still_galpixels_are_recorded_only_while_the_map_stays_steady() -> None:
     assert all(recorded[1:6])  # steady from the start
     assert not any(recorded[14:24])  # a graft every second refresh: not worth recording
     assert all(recorded[27:])  # steady again for three refreshes: recording again
+
+
+def test_recording_stops_while_almost_every_galpixel_moves() -> None:
+    """After a head turn (every galpixel moves) one refresh records, then none until a graft.
+
+    The first refresh after the change measures the still share; under
+    ``STILL_MIN`` the stage stops recording; a mostly still map grafted later is
+    recorded again.  The refreshes stay byte for byte those of the reference.
+    """
+    display = DisplaySettings(zones=1, cols=48, rows=32)
+    gs = GalileanSettings(order=2, refresh_hz=50.0)
+    fast, ref = GalileanStage(display, gs), ReferenceStage(display, gs)
+    rng = np.random.default_rng(9)
+    gp = mostly_static_map(fast, rng)
+    for st in (fast, ref):
+        st.submit(gp.copy(), 0)
+    recorded, still = [], []
+    for k in range(28):
+        if k == 8:
+            vm = MotionState(velocity=[0.05, 0.0, 0.0], angular_velocity=[0.0, 0.2, 0.0])
+            fast.viewer(vm)
+            ref.viewer(vm)
+        if k == 18:
+            nxt = mostly_static_map(fast, rng)
+            for st in (fast, ref):
+                assert st.submit(nxt.copy(), st.index)
+        assert_identical(fast, ref, k)
+        recorded.append(fast._same_valid)
+        still.append(fast._still)
+    assert all(recorded[1:9]) and still[1] > stage_module.STILL_MIN  # steady, mostly still
+    assert still[8] < stage_module.STILL_MIN  # measured once after the head turn
+    assert not any(recorded[9:18])  # then not recorded while everything moves
+    assert all(recorded[19:]) and still[19] > stage_module.STILL_MIN  # grafted: again
