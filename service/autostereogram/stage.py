@@ -41,7 +41,8 @@ class SirdWorkspace:
     heights : ndarray, shape (threads, W), float32
         ``tiw``'s per-thread row of heights.
     scratch : ndarray, shape (threads, 2, W), int32
-        ``tiw``'s per-thread rows: separations, where to search for occluders.
+        Per-thread rows: ``tiw``'s separations and where to search for occluders;
+        ``interpolated``'s partners.
     counts : ndarray, shape (H, 3), int64
         Per row: constraints, hidden points, NaN depths.
     """
@@ -91,7 +92,8 @@ def _run_row(depth, args, pattern, work):
 
 
 def _run_interpolated(depth, args, pattern, work):
-    interpolated_kernel(depth, *args, pattern, work.flat, work.sep, work.counts)
+    interpolated_kernel(depth, *args, pattern, work.flat, work.sep,
+                        work.scratch.reshape(-1, work.scratch.shape[2]), work.counts)
 
 
 def _run_tiw(depth, args, pattern, work):

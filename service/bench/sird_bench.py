@@ -35,7 +35,6 @@ from service.autostereogram import (
     default_eye_sep,
     finite_range,
     random_dots,
-    separation_map,
     stereogram,
 )
 from service.autostereogram.decode import (
@@ -44,6 +43,7 @@ from service.autostereogram.decode import (
     accuracy,
     decode,
     edge_free,
+    expected_separation,
     streak_fraction,
 )
 from service.autostereogram.depth_scenes import seed_slope, sphere, steps
@@ -90,7 +90,7 @@ def measure(method: str, scene: str, cols: int, rows: int, repeats: int) -> dict
     wall, cpu = time_ms(lambda: stereogram(depth, s, pattern, work), repeats)
     img, stats = stereogram(depth, s, pattern, work)
     conv = METHOD_CONVENTION[method]
-    expected = separation_map(depth, s)
+    expected = expected_separation(depth, s)
     tol, sub = METHOD_DECODE[method]
     decoded = decode(img, s.min_sep - 2, s.max_sep + 2, convention=conv, tol=tol, sub=sub)
     reach = (s.max_sep if conv == "left" else s.max_sep // 2) + 4
