@@ -546,9 +546,9 @@ class FrameCost:
     """Measured cost model of one renderer's frames: ``ms = fixed_ms + per_triangle x T``.
 
     Fitted by least squares to the last ``window`` frames' (triangles, milliseconds)
-    as the renderer measured them (:meth:`observe`); frames more than three median
-    deviations off the first fit are dropped and the line fitted again (a frame slowed
-    by another process).  Until the frames span triangle counts at least 25 % apart
+    as the renderer measured them (:meth:`observe`; :func:`fit_cost`): far outliers
+    dropped (a frame slowed by another process), the fixed part at most the cheapest
+    frame's cost.  Until the frames span triangle counts at least 25 % apart
     (or when the fit says triangles cost nothing) the model is proportional,
     ``ms = per_triangle x T`` with the median of the frames' ratios: with a time
     budget that changes the triangle count, so the next frames span a range.
@@ -599,6 +599,12 @@ class FrameCost:
 def fit_cost(samples: np.ndarray) -> tuple[float, float]:
     """``(fixed_ms, ms_per_triangle)`` fitted to frames (see :class:`FrameCost`).
 
+    A least-squares line; with 8 frames or more, those over three median deviations
+    off it are dropped and it is fitted again.  The fixed part is then held to
+    ``[0, the cheapest frame's ms]`` (no frame can cost less than the fixed part: on
+    a loaded machine a few slow frames can otherwise tilt the line into a fixed cost
+    larger than whole frames measured) and the slope refitted through it.
+
     Parameters
     ----------
     samples : ndarray, shape (N, 2), float64
@@ -607,18 +613,17 @@ def fit_cost(samples: np.ndarray) -> tuple[float, float]:
     t, ms = samples[:, 0], samples[:, 1]
     if len(t) >= 3 and t.max() >= 1.25 * t.min():
         keep = np.ones(len(t), np.bool_)
-        for _ in range(2):  # fit, drop the far outliers, fit again
-            b, a = np.polyfit(t[keep], ms[keep], 1)
+        b, a = np.polyfit(t, ms, 1)
+        if len(t) >= 8:  # enough frames to tell an outlier from the line
             resid = np.abs(ms - (a + b * t))
-            mad = float(np.median(resid[keep])) or 1e-9
-            new = resid <= 3.0 * 1.4826 * mad
-            if new.sum() < 3 or t[new].max() < 1.25 * t[new].min() or np.all(new == keep):
-                break
-            keep = new
-        if b > 0 and a >= 0:
-            return float(a), float(b)
-        if b > 0:  # a negative intercept: the line through the origin instead
-            return 0.0, float((t[keep] * ms[keep]).sum() / (t[keep] ** 2).sum())
+            new = resid <= 3.0 * 1.4826 * (float(np.median(resid)) or 1e-9)
+            if new.sum() >= 6 and t[new].max() >= 1.25 * t[new].min():
+                keep = new
+                b, a = np.polyfit(t[keep], ms[keep], 1)
+        a = min(max(float(a), 0.0), float(ms[keep].min()))
+        b = float(((ms[keep] - a) * t[keep]).sum() / (t[keep] ** 2).sum())
+        if b > 0:
+            return a, b
     return 0.0, float(np.median(ms / t))
 
 

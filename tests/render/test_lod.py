@@ -296,6 +296,12 @@ def test_the_cost_model_is_the_line_the_frames_measured():
     flat.observe(1_000, float("nan"))
     assert len(flat.samples) == 3
     assert len(FrameCost(window=4).samples) == 0 and not FrameCost().ready
+    # a loaded machine: the dearer frames ran alone, the cheaper ones beside others; the
+    # line through them would have a fixed part dearer than the cheapest whole frame
+    loaded = FrameCost()
+    for t, m in ((600_000, 500.0), (300_000, 450.0), (150_000, 420.0), (26_000, 45.0)):
+        loaded.observe(t, m)
+    assert 0 <= loaded.fixed_ms <= 45.0 and loaded.predict(26_000) < 100
 
 
 def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path):
