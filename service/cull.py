@@ -57,11 +57,11 @@ def _rows_any(a: np.ndarray) -> np.ndarray:
 def _zone_mask_kernel(
     triangle_polygon: np.ndarray, faces: np.ndarray, closed: np.ndarray, out: np.ndarray
 ) -> None:
-    """``out[z, t] = faces[p, z] or not closed[p]`` with ``p = triangle_polygon[t]``."""
+    """``out[t, z] = faces[p, z] or not closed[p]`` with ``p = triangle_polygon[t]``."""
     for t in range(triangle_polygon.shape[0]):
         p = triangle_polygon[t]
-        for z in range(out.shape[0]):
-            out[z, t] = faces[p, z] or not closed[p]
+        for z in range(out.shape[1]):
+            out[t, z] = faces[p, z] or not closed[p]
 
 
 def facing(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
@@ -136,6 +136,7 @@ def zone_mask(
     display: DisplaySettings,
     settings: CullSettings | None = None,
     faces: np.ndarray | None = None,
+    by_triangle: bool = False,
 ) -> np.ndarray:
     """Per zone, which triangles may be drawn.
 
@@ -153,21 +154,26 @@ def zone_mask(
     settings : CullSettings, optional
     faces : ndarray, shape (P, Z), bool, optional
         :func:`facing` of these normals, if the caller has it already.
+    by_triangle : bool
+        Return the mask by triangle, (T, Z), the layout the one-pass z-buffer reads
+        (:func:`service.occlusion.zbuffer.zbuffer`'s ``draw_t``): transposing a
+        5-zone mask of the game scene cost 0.05 ms.
 
     Returns
     -------
-    ndarray, shape (Z, T), bool
+    ndarray, shape (Z, T) (or (T, Z) by triangle), bool, C-contiguous
     """
     settings = settings or CullSettings()
+    shape = (triangle_polygon.shape[0], display.zones)
     if not settings.per_zone:
-        return np.ones((display.zones, triangle_polygon.shape[0]), dtype=bool)
+        return np.ones(shape if by_triangle else shape[::-1], dtype=bool)
     if faces is None:
         faces = facing(normals, display)
-    out = np.empty((display.zones, triangle_polygon.shape[0]), np.bool_)
+    out = np.empty(shape, np.bool_)
     _zone_mask_kernel(
         np.ascontiguousarray(triangle_polygon),
         faces,
         np.ascontiguousarray(closed, np.bool_),
         out,
     )
-    return out
+    return out if by_triangle else np.ascontiguousarray(out.T)

@@ -50,6 +50,7 @@ def zbuffer(
     tri_out: np.ndarray | None = None,
     item: np.ndarray | None = None,
     n_items: int = 0,
+    draw_t: np.ndarray | None = None,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -76,6 +77,9 @@ def zbuffer(
         (:func:`service.light.mark_shown`, at a fraction of its cost); the per-zone
         kernel leaves it None.
     n_items : int
+    draw_t : ndarray, shape (T, Z), bool, optional
+        ``draw`` by triangle (:func:`service.cull.zone_mask` with ``by_triangle``),
+        the layout the one-pass kernel reads; given, it replaces ``draw``.
 
     Returns
     -------
@@ -84,13 +88,16 @@ def zbuffer(
     """
     zrc = (display.zones, display.rows, display.cols)
     order = np.ascontiguousarray(order)
-    if draw is None:
+    if draw_t is not None:
+        draw = draw_t.T
+    elif draw is None:
         draw = np.ones((display.zones, scene.triangles.shape[0]), np.bool_)
     usable = tri_out is not None and tri_out.shape == zrc and tri_out.dtype == np.int32
     tri = tri_out if usable and tri_out.flags.c_contiguous else np.empty(zrc, np.int32)
     if not (shared and rows_shared(proj)):
         vis = Visibility(tri, np.full(zrc, np.inf, np.float32))
         vis.triangle.fill(-1)
+        draw = np.ascontiguousarray(draw)
         zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
         return vis
     vis = Visibility(tri, np.empty(zrc, np.float32))

@@ -108,6 +108,8 @@ def test_both_culls_from_one_facing_table_equal_their_own(mode):
     assert np.array_equal(own, shared) and own_counts == counts
     args = (a.triangle_polygon, a.normals, a.polygon_closed, SMALL, settings)
     assert np.array_equal(zone_mask(*args), zone_mask(*args, faces))
+    by_triangle = zone_mask(*args, faces, by_triangle=True)
+    assert by_triangle.flags.c_contiguous and np.array_equal(by_triangle.T, zone_mask(*args))
 
 
 def test_sort_is_nearest_first_and_ties_keep_object_order():

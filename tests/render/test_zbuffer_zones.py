@@ -137,6 +137,8 @@ def test_the_polygons_shown_are_found_while_drawing(name, zones):
     want = mark_shown(vis.triangle, arrays.triangle_polygon, arrays.n_polygons)
     assert want.any() and np.array_equal(vis.shown, want)
     assert zbuffer(arrays, proj, d, order, draw).shown is None  # not asked for
+    by_triangle = zbuffer(arrays, proj, d, order, draw_t=np.ascontiguousarray(draw.T))
+    assert_same(by_triangle, vis)
     assert zbuffer(arrays, proj, d, order, draw, shared=False, item=arrays.triangle_polygon,
                    n_items=arrays.n_polygons).shown is None  # the per-zone kernel: not found
 
