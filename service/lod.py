@@ -611,7 +611,7 @@ def fit_cost(samples: np.ndarray) -> tuple[float, float]:
         Triangles and milliseconds per frame, N >= 1, triangles > 0.
     """
     t, ms = samples[:, 0], samples[:, 1]
-    if len(t) >= 3 and t.max() >= 1.25 * t.min():
+    if len(t) >= 2 and t.max() >= 1.25 * t.min():
         keep = np.ones(len(t), np.bool_)
         b, a = np.polyfit(t, ms, 1)
         if len(t) >= 8:  # enough frames to tell an outlier from the line
