@@ -57,22 +57,40 @@ def _rows_any(a: np.ndarray) -> np.ndarray:
 def _zone_mask_kernel(
     triangle_polygon: np.ndarray, faces: np.ndarray, closed: np.ndarray, out: np.ndarray
 ) -> None:
-    """``out[z, t] = faces[p, z] or not closed[p]`` with ``p = triangle_polygon[t]``."""
+    """``out[t, z] = faces[p, z] or not closed[p]`` with ``p = triangle_polygon[t]``."""
     for t in range(triangle_polygon.shape[0]):
         p = triangle_polygon[t]
-        for z in range(out.shape[0]):
-            out[z, t] = faces[p, z] or not closed[p]
+        for z in range(out.shape[1]):
+            out[t, z] = faces[p, z] or not closed[p]
 
 
-def _modified(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
-    return _rows_any(normals @ display.view_vectors().T > 0.0)
+def facing(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
+    """Which zones each polygon faces: ``n . v_k > 0``.
+
+    Both :func:`cull` (the modified cull) and :func:`zone_mask` need this table; a
+    caller that runs both computes it once and passes it to each.
+
+    Parameters
+    ----------
+    normals : ndarray, shape (P, 3)
+    display : DisplaySettings
+
+    Returns
+    -------
+    ndarray, shape (P, Z), bool
+    """
+    return normals @ display.view_vectors().T > 0.0
 
 
-def _plain(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
+def _modified(normals: np.ndarray, display: DisplaySettings, faces: np.ndarray) -> np.ndarray:
+    return _rows_any(faces)
+
+
+def _plain(normals: np.ndarray, display: DisplaySettings, faces: np.ndarray) -> np.ndarray:
     return normals[:, 2] > 0.0
 
 
-def _none(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
+def _none(normals: np.ndarray, display: DisplaySettings, faces: np.ndarray) -> np.ndarray:
     return np.ones(normals.shape[0], dtype=bool)
 
 
@@ -80,7 +98,10 @@ CULLS = {"modified": _modified, "plain": _plain, "none": _none}
 
 
 def cull(
-    normals: np.ndarray, display: DisplaySettings, settings: CullSettings | None = None
+    normals: np.ndarray,
+    display: DisplaySettings,
+    settings: CullSettings | None = None,
+    faces: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Decide which polygons to keep.
 
@@ -91,6 +112,8 @@ def cull(
         which are always culled).
     display : DisplaySettings
     settings : CullSettings, optional
+    faces : ndarray, shape (P, Z), bool, optional
+        :func:`facing` of these normals, if the caller has it already.
 
     Returns
     -------
@@ -99,7 +122,9 @@ def cull(
         ``{"in": P, "culled": ..., "kept": ...}``.
     """
     settings = settings or CullSettings()
-    keep = CULLS[settings.mode](normals, display) & _rows_any(normals != 0.0)
+    if faces is None and settings.mode == "modified":
+        faces = facing(normals, display)
+    keep = CULLS[settings.mode](normals, display, faces) & _rows_any(normals != 0.0)
     kept = int(keep.sum())
     return keep, {"in": int(normals.shape[0]), "culled": int(normals.shape[0] - kept), "kept": kept}
 
@@ -110,6 +135,8 @@ def zone_mask(
     closed: np.ndarray,
     display: DisplaySettings,
     settings: CullSettings | None = None,
+    faces: np.ndarray | None = None,
+    by_triangle: bool = False,
 ) -> np.ndarray:
     """Per zone, which triangles may be drawn.
 
@@ -125,20 +152,28 @@ def zone_mask(
     closed : ndarray, shape (P,), bool
     display : DisplaySettings
     settings : CullSettings, optional
+    faces : ndarray, shape (P, Z), bool, optional
+        :func:`facing` of these normals, if the caller has it already.
+    by_triangle : bool
+        Return the mask by triangle, (T, Z), the layout the one-pass z-buffer reads
+        (:func:`service.occlusion.zbuffer.zbuffer`'s ``draw_t``): transposing a
+        5-zone mask of the game scene cost 0.05 ms.
 
     Returns
     -------
-    ndarray, shape (Z, T), bool
+    ndarray, shape (Z, T) (or (T, Z) by triangle), bool, C-contiguous
     """
     settings = settings or CullSettings()
+    shape = (triangle_polygon.shape[0], display.zones)
     if not settings.per_zone:
-        return np.ones((display.zones, triangle_polygon.shape[0]), dtype=bool)
-    faces = normals @ display.view_vectors().T > 0.0  # (P, Z)
-    out = np.empty((display.zones, triangle_polygon.shape[0]), np.bool_)
+        return np.ones(shape if by_triangle else shape[::-1], dtype=bool)
+    if faces is None:
+        faces = facing(normals, display)
+    out = np.empty(shape, np.bool_)
     _zone_mask_kernel(
         np.ascontiguousarray(triangle_polygon),
         faces,
         np.ascontiguousarray(closed, np.bool_),
         out,
     )
-    return out
+    return out if by_triangle else np.ascontiguousarray(out.T)

@@ -59,10 +59,10 @@ from service.scene import Scene, SceneObject
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
 DEFAULT_FRACTIONS = tuple(round(0.7 * 0.8 ** k, 4) for k in range(21))
 #: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.  None
-#: by default: drawing a cloud (a ray per pixel per quad box, service.billboard_render)
-#: measured dearer than the meshes it stands for (the torus at 320x240 x 5 zones, one
-#: thread: its 47-quad cloud 50 ms CPU, the full 9,216 triangles 5.8 ms), so the
-#: triangle-count cost proxy would choose it wrongly; opt in with e.g. (0.01,).
+#: by default: where LOD may choose a cloud (about 10 px across at EPS 1 %) it costs
+#: 2-6x less than the full mesh but 2-4x more than the quadric level of the same
+#: predicted error (holo-bench billboard part 4, docs/simplify.md "Cost"), and in the
+#: crowd it saved no time while raising the image error; opt in with e.g. (0.01,).
 DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
@@ -546,9 +546,9 @@ class FrameCost:
     """Measured cost model of one renderer's frames: ``ms = fixed_ms + per_triangle x T``.
 
     Fitted by least squares to the last ``window`` frames' (triangles, milliseconds)
-    as the renderer measured them (:meth:`observe`); frames more than three median
-    deviations off the first fit are dropped and the line fitted again (a frame slowed
-    by another process).  Until the frames span triangle counts at least 25 % apart
+    as the renderer measured them (:meth:`observe`; :func:`fit_cost`): far outliers
+    dropped (a frame slowed by another process), the fixed part at most the cheapest
+    frame's cost.  Until the frames span triangle counts at least 25 % apart
     (or when the fit says triangles cost nothing) the model is proportional,
     ``ms = per_triangle x T`` with the median of the frames' ratios: with a time
     budget that changes the triangle count, so the next frames span a range.
@@ -599,26 +599,31 @@ class FrameCost:
 def fit_cost(samples: np.ndarray) -> tuple[float, float]:
     """``(fixed_ms, ms_per_triangle)`` fitted to frames (see :class:`FrameCost`).
 
+    A least-squares line; with 8 frames or more, those over three median deviations
+    off it are dropped and it is fitted again.  The fixed part is then held to
+    ``[0, the cheapest frame's ms]`` (no frame can cost less than the fixed part: on
+    a loaded machine a few slow frames can otherwise tilt the line into a fixed cost
+    larger than whole frames measured) and the slope refitted through it.
+
     Parameters
     ----------
     samples : ndarray, shape (N, 2), float64
         Triangles and milliseconds per frame, N >= 1, triangles > 0.
     """
     t, ms = samples[:, 0], samples[:, 1]
-    if len(t) >= 3 and t.max() >= 1.25 * t.min():
+    if len(t) >= 2 and t.max() >= 1.25 * t.min():
         keep = np.ones(len(t), np.bool_)
-        for _ in range(2):  # fit, drop the far outliers, fit again
-            b, a = np.polyfit(t[keep], ms[keep], 1)
+        b, a = np.polyfit(t, ms, 1)
+        if len(t) >= 8:  # enough frames to tell an outlier from the line
             resid = np.abs(ms - (a + b * t))
-            mad = float(np.median(resid[keep])) or 1e-9
-            new = resid <= 3.0 * 1.4826 * mad
-            if new.sum() < 3 or t[new].max() < 1.25 * t[new].min() or np.all(new == keep):
-                break
-            keep = new
-        if b > 0 and a >= 0:
-            return float(a), float(b)
-        if b > 0:  # a negative intercept: the line through the origin instead
-            return 0.0, float((t[keep] * ms[keep]).sum() / (t[keep] ** 2).sum())
+            new = resid <= 3.0 * 1.4826 * (float(np.median(resid)) or 1e-9)
+            if new.sum() >= 6 and t[new].max() >= 1.25 * t[new].min():
+                keep = new
+                b, a = np.polyfit(t[keep], ms[keep], 1)
+        a = min(max(float(a), 0.0), float(ms[keep].min()))
+        b = float(((ms[keep] - a) * t[keep]).sum() / (t[keep] ** 2).sum())
+        if b > 0:
+            return a, b
     return 0.0, float(np.median(ms / t))
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from service.billboard_render import draw_billboards
-from service.cull import CullSettings, cull, zone_mask
+from service.cull import CullSettings, cull, facing, zone_mask
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
 from service.errors import SettingsError
@@ -185,36 +185,45 @@ class Renderer:
         scratch = getattr(self._scratch, "active", None)
         with clock("project"):
             proj = project(arrays.vertices, display)
+        name = settings.method
+        if name == "runlength" and settings.painter_fallback == "pixel":
+            name = "runlength-repair"
+        by_triangle = name == "zbuffer"  # the one-pass z-buffer reads the mask as (T, Z)
         with clock("cull"):
-            keep, counts = cull(arrays.normals, display, settings.cull)
+            need = settings.cull.mode == "modified" or settings.cull.per_zone
+            faces = facing(arrays.normals, display) if need else None  # (P, Z): both culls'
+            keep, counts = cull(arrays.normals, display, settings.cull, faces)
             draw = zone_mask(
                 arrays.triangle_polygon,
                 arrays.normals,
                 arrays.polygon_closed,
                 display,
                 settings.cull,
+                faces,
+                by_triangle,
             )
         with clock("sort"):
             poly_order = sort_polygons(
                 average_z(arrays.vertices, arrays.polygons, arrays.counts), keep
             )
             order = triangle_order(poly_order, arrays.triangle_polygon)
-        name = settings.method
-        if name == "runlength" and settings.painter_fallback == "pixel":
-            name = "runlength-repair"
         extra = {"draw": draw} if name in MASKED_METHODS else {}
-        if name == "zbuffer":
-            extra["tri_out"] = scratch
+        if name == "zbuffer":  # it also finds the polygons shown (Visibility.shown)
+            extra = {"draw_t": draw, "tri_out": scratch, "item": arrays.triangle_polygon,
+                     "n_items": arrays.n_polygons}
         with clock("occlusion"):
             vis = self._methods[name](arrays, proj, display, order, **extra)
         bad = vis.stats.get("inconsistent_pixels", 0)
         if settings.painter_fallback == "frame" and bad > settings.painter_tolerance:
             with clock("fallback"):
-                redo = zbuffer(arrays, proj, display, order, draw, tri_out=scratch)
+                mask = {"draw_t": draw} if by_triangle else {"draw": draw}
+                redo = zbuffer(arrays, proj, display, order, tri_out=scratch,
+                               item=arrays.triangle_polygon, n_items=arrays.n_polygons, **mask)
             redo.stats = {**vis.stats, "fallback": "zbuffer"}
             vis = redo
         with clock("occlusion"):  # the count of polygons seen is part of the stage's cost
-            vis.shown = mark_shown(vis.triangle, arrays.triangle_polygon, arrays.n_polygons)
+            if vis.shown is None:  # the z-buffer's one-pass kernel finds it as it draws
+                vis.shown = mark_shown(vis.triangle, arrays.triangle_polygon, arrays.n_polygons)
             counts["drawn"] = int(vis.shown.any(axis=0).sum())
         return vis, counts, proj
 

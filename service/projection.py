@@ -50,13 +50,15 @@ def _project_kernel(
     """Fill ``out`` (Z, V, 3) from ``vertices`` (V, 3) and ``shears`` (Z,) (see :func:`project`).
 
     Written out per element with numpy's evaluation order, so the values equal
-    ``((x - z * shear) + half_width) / s`` etc. bit for bit.
+    ``((x - z * shear) + half_width) / s`` etc. bit for bit.  Zones differ only in
+    the column: each vertex's row and depth are computed once and copied.
     """
-    for k in range(shears.shape[0]):
-        for v in range(vertices.shape[0]):
-            x, y, z = vertices[v, 0], vertices[v, 1], vertices[v, 2]
+    for v in range(vertices.shape[0]):
+        x, y, z = vertices[v, 0], vertices[v, 1], vertices[v, 2]
+        row = (half_height - y) / s
+        for k in range(shears.shape[0]):
             out[k, v, 0] = (x - z * shears[k] + half_width) / s
-            out[k, v, 1] = (half_height - y) / s
+            out[k, v, 1] = row
             out[k, v, 2] = -z
 
 

@@ -10,6 +10,8 @@ projected vertices, exact for the parallel projection used by every zone.
 
 from __future__ import annotations
 
+import functools
+
 import numba as nb
 import numpy as np
 
@@ -221,39 +223,74 @@ def _zbuffer_band(
     hi: int,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
+    item: np.ndarray,
+    shown: np.ndarray,
 ) -> None:
-    """Clear rows ``lo..hi`` of every zone and z-buffer the triangles that reach them.
+    """Clear rows ``lo..hi`` of every zone, z-buffer them, mark the items in sight.
 
-    Each triangle is set up once per zone, then drawn row by row with every zone's
-    span of that row in turn: the zones' rows ``r`` are drawn together while they
-    are in cache, instead of each zone's whole triangle in turn (5 zones x 320x240:
-    1.5 -> 1.1 ms, best of 100).  A pixel sees the triangles in the same order as
-    before, so the buffers are the same bit for bit.
+    The items of the triangles left in sight go into ``shown`` (:func:`_mark_band`).
+    Each triangle is set up for every zone at once (:func:`_setup_zones`: what the
+    zones share, its rows and the order of its corners, is found once), then drawn
+    row by row with every zone's span of that row in turn (:func:`_zone_spans`, one
+    loop over the zones with no branch, which the compiler can vectorise), so the
+    zones' rows ``r`` are drawn while they are in cache.  Every float operation is
+    :func:`setup_xyz`'s and :func:`row_span`'s, in the same order, and a pixel sees
+    the triangles in the same order as in :func:`zbuffer_kernel`: the buffers are the
+    same bit for bit.
     """
     zones, rows, cols = tri_out.shape
     r_first, r_last = extent
     for z in range(zones):
         tri_out[z, lo : hi + 1] = -1
         depth_out[z, lo : hi + 1] = np.inf
-    if zones == 1:  # nothing to interleave: the plain loop, without the set-up table
-        _zbuffer_band_one(proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out)
-        return
-    st = np.empty((zones, 9))  # per zone: ax, ay, bx, by, cx, cy, dz0, dzdx, dzdy
+    drawn = np.empty((2, zones, hi - lo + 1), np.int64)  # columns written, per zone and row
+    drawn[0] = cols
+    drawn[1] = -1
+    if zones == 1:  # nothing to share: the plain loop, without the set-up table
+        _zbuffer_band_one(proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, drawn)
+    else:
+        _zbuffer_band_zones(proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, drawn)
+    _mark_band(tri_out, drawn, lo, item, shown)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _zbuffer_band_zones(
+    proj: np.ndarray,
+    tris: np.ndarray,
+    order: np.ndarray,
+    draw_t: np.ndarray,
+    extent: tuple,
+    lo: int,
+    hi: int,
+    tri_out: np.ndarray,
+    depth_out: np.ndarray,
+    drawn: np.ndarray,
+) -> None:
+    """:func:`_zbuffer_band`'s drawing for several zones (buffers already cleared)."""
+    zones, cols = tri_out.shape[0], tri_out.shape[2]
+    r_first, r_last = extent
+    xs = np.zeros((3, zones))  # per zone: x of corners a, b, c (sorted by row)
+    plane = np.empty((3, zones))  # per zone: dz0, dzdx, dzdy
+    spans = np.empty((2, zones), np.int64)  # per zone: first and last column of a row
     live = np.zeros(zones, np.bool_)
     for i in range(order.shape[0]):
-        if r_last[i] < lo or r_first[i] > hi:
-            continue  # the y-extent is shared: skip the triangle in every zone at once
+        if r_last[i] < lo or r_first[i] > hi or r_first[i] > r_last[i]:
+            continue  # the rows are shared: skip the triangle in every zone at once
         t = order[i]
-        r0, r1 = _setup_zones(proj, tris[t, 0], tris[t, 1], tris[t, 2], draw_t, t, rows, st, live)
-        for r in range(max(r0, lo), min(r1, hi) + 1):
+        ay, by, cy = _setup_zones(proj, tris[t], draw_t[t], xs, plane, live)
+        if not live.any():
+            continue
+        for r in range(max(r_first[i], lo), min(r_last[i], hi) + 1):
             y = r + 0.5
+            _zone_spans(xs, ay, by, cy, y, cols, spans)
             for z in range(zones):
-                if not live[z]:
+                c0, c1 = spans[0, z], spans[1, z]
+                if not live[z] or c0 > c1:
                     continue
-                c0, c1 = row_span(st[z, 0], st[z, 1], st[z, 2], st[z, 3], st[z, 4], st[z, 5], r,
-                                  cols)
+                drawn[0, z, r - lo] = min(drawn[0, z, r - lo], c0)
+                drawn[1, z, r - lo] = max(drawn[1, z, r - lo], c1)
                 for c in range(c0, c1 + 1):
-                    d = st[z, 6] + st[z, 7] * (c + 0.5) + st[z, 8] * y
+                    d = plane[0, z] + plane[1, z] * (c + 0.5) + plane[2, z] * y
                     if d < depth_out[z, r, c]:
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t
@@ -270,8 +307,9 @@ def _zbuffer_band_one(
     hi: int,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
+    drawn: np.ndarray,
 ) -> None:
-    """:func:`_zbuffer_band` for one zone (buffers already cleared)."""
+    """:func:`_zbuffer_band`'s drawing for one zone (buffers already cleared)."""
     rows, cols = tri_out.shape[1], tri_out.shape[2]
     r_first, r_last = extent
     for i in range(order.shape[0]):
@@ -291,6 +329,10 @@ def _zbuffer_band_one(
             continue
         for r in range(max(st[1], lo), min(st[2], hi) + 1):
             c0, c1 = row_span(st[3], st[4], st[5], st[6], st[7], st[8], r, cols)
+            if c0 > c1:
+                continue
+            drawn[0, 0, r - lo] = min(drawn[0, 0, r - lo], c0)
+            drawn[1, 0, r - lo] = max(drawn[1, 0, r - lo], c1)
             y = r + 0.5
             for c in range(c0, c1 + 1):
                 d = st[9] + st[10] * (c + 0.5) + st[11] * y
@@ -300,34 +342,103 @@ def _zbuffer_band_one(
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _setup_zones(
-    proj: np.ndarray, i0: int, i1: int, i2: int, draw_t: np.ndarray, t: int, rows: int,
-    st: np.ndarray, live: np.ndarray,
-) -> tuple:
-    """:func:`setup_xyz` of triangle ``t`` in every zone it is drawn in.
+def _mark_band(
+    tri_out: np.ndarray, drawn: np.ndarray, lo: int, item: np.ndarray, shown: np.ndarray
+) -> None:
+    """Mark ``shown[z, item[t]]`` for each triangle ``t`` seen in the band's rows.
 
-    Fills ``st`` (Z, 9) with each zone's set-up (sorted corners, depth plane) and
-    ``live`` (Z,) with whether it draws there; returns the rows (first, last) it
-    covers in any zone (the same in every zone; empty if none).
+    :func:`service.light.mark_shown`'s result, from the columns each row had drawn
+    (``drawn`` (2, Z, rows of the band)) instead of every column: the rest of a row
+    is empty.  Bands mark in parallel; they only ever write True.
     """
-    r0, r1 = rows, -1
-    for z in range(st.shape[0]):
+    if shown.shape[1] == 0:
+        return
+    for z in range(drawn.shape[1]):
+        for k in range(drawn.shape[2]):
+            for c in range(drawn[0, z, k], drawn[1, z, k] + 1):
+                t = tri_out[z, lo + k, c]
+                if t >= 0:
+                    shown[z, item[t]] = True
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _corner_order(
+    y0: float, y1: float, y2: float, x0: float, x1: float, x2: float
+) -> tuple[int, int, int]:
+    """Which corners (0-2) :func:`setup_xyz` makes a, b and c: sorted by y, then x."""
+    ia, ib, ic = 0, 1, 2
+    ax, ay, bx, by, cx, cy = x0, y0, x1, y1, x2, y2
+    if by < ay or (by == ay and bx < ax):
+        ia, ib = ib, ia
+        ax, ay, bx, by = bx, by, ax, ay
+    if cy < by or (cy == by and cx < bx):
+        ib, ic = ic, ib
+        bx, by = cx, cy
+        if by < ay or (by == ay and bx < ax):
+            ia, ib = ib, ia
+    return ia, ib, ic
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _setup_zones(
+    proj: np.ndarray, tri: np.ndarray, draw: np.ndarray, xs: np.ndarray, plane: np.ndarray,
+    live: np.ndarray,
+) -> tuple[float, float, float]:
+    """:func:`setup_xyz` of one triangle in every zone it is drawn in.
+
+    Zones share each corner's row and depth (only x is sheared), so the order of the
+    corners is found once, unless two share a row (then x breaks the tie, per zone).
+    Fills ``xs`` (3, Z) with the sorted corners' x, ``plane`` (3, Z) with the depth
+    plane and ``live`` (Z,) with whether the triangle draws in that zone; returns the
+    sorted corners' y (the same in every zone).
+    """
+    i0, i1, i2 = tri[0], tri[1], tri[2]
+    y0, y1, y2 = proj[0, i0, 1], proj[0, i1, 1], proj[0, i2, 1]
+    tie = y0 == y1 or y1 == y2 or y0 == y2
+    ia, ib, ic = _corner_order(y0, y1, y2, 0.0, 0.0, 0.0)
+    idx = (i0, i1, i2)
+    ay, by, cy = proj[0, idx[ia], 1], proj[0, idx[ib], 1], proj[0, idx[ic], 1]
+    for z in range(xs.shape[1]):
         live[z] = False
-        if not draw_t[t, z]:
+        xs[0, z] = xs[1, z] = xs[2, z] = 0.0  # finite, for the spans of dead zones
+        if not draw[z]:
             continue
-        s = setup_xyz(
-            proj[z, i0, 0], proj[z, i0, 1], proj[z, i0, 2],
-            proj[z, i1, 0], proj[z, i1, 1], proj[z, i1, 2],
-            proj[z, i2, 0], proj[z, i2, 1], proj[z, i2, 2],
-            rows,
-        )
-        if not s[0]:
+        if tie:
+            ia, ib, ic = _corner_order(y0, y1, y2, proj[z, i0, 0], proj[z, i1, 0], proj[z, i2, 0])
+        a, b, c = idx[ia], idx[ib], idx[ic]
+        ax, bx, cx = proj[z, a, 0], proj[z, b, 0], proj[z, c, 0]
+        az, bz, cz = proj[0, a, 2], proj[0, b, 2], proj[0, c, 2]
+        det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+        if det == 0.0 or not np.isfinite(det):
             continue
+        dzdx = ((bz - az) * (cy - ay) - (cz - az) * (by - ay)) / det
+        dzdy = ((cz - az) * (bx - ax) - (bz - az) * (cx - ax)) / det
+        plane[0, z], plane[1, z], plane[2, z] = az - dzdx * ax - dzdy * ay, dzdx, dzdy
+        xs[0, z], xs[1, z], xs[2, z] = ax, bx, cx
         live[z] = True
-        st[z, 0], st[z, 1], st[z, 2], st[z, 3], st[z, 4] = s[3], s[4], s[5], s[6], s[7]
-        st[z, 5], st[z, 6], st[z, 7], st[z, 8] = s[8], s[9], s[10], s[11]
-        r0, r1 = min(r0, s[1]), max(r1, s[2])
-    return r0, r1
+    return ay, by, cy
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _zone_spans(
+    xs: np.ndarray, ay: float, by: float, cy: float, y: float, cols: int, spans: np.ndarray
+) -> None:
+    """:func:`row_span` of one row in every zone: ``spans`` (2, Z) first and last column.
+
+    Which short edge the row crosses depends on y alone, so it is chosen once; the
+    loop over zones has no branch left and its divisions run side by side.
+    """
+    upper = y < by
+    s0 = 0 if upper else 1  # the short edge: a-b above corner b, b-c below
+    ys0 = ay if upper else by
+    ys1 = by if upper else cy
+    for z in range(xs.shape[1]):
+        x_long = xs[0, z] + (xs[2, z] - xs[0, z]) * (y - ay) / (cy - ay)
+        x_short = xs[s0, z] + (xs[s0 + 1, z] - xs[s0, z]) * (y - ys0) / (ys1 - ys0)
+        xl = min(x_long, x_short)
+        xr = max(x_long, x_short)
+        spans[0, z] = max(int(np.ceil(xl - 0.5)), 0)
+        spans[1, z] = min(int(np.ceil(xr - 0.5)) - 1, cols - 1)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -339,6 +450,8 @@ def zbuffer_zones_kernel(
     bands: np.ndarray,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
+    item: np.ndarray,
+    shown: np.ndarray,
 ) -> None:
     """Z-buffer every zone in one pass over the triangles, bands of rows in parallel.
 
@@ -365,14 +478,22 @@ def zbuffer_zones_kernel(
         Out; need not be initialised (-1 where empty).
     depth_out : ndarray, shape (Z, R, C), float32
         Out; need not be initialised (+inf where empty).
+    item : ndarray, shape (T,), int
+        Item of each triangle (e.g. its polygon), for ``shown``.
+    shown : ndarray, shape (Z, P), bool, filled with False
+        Out: ``shown[z, p]`` where zone z shows an item p (what
+        :func:`service.light.mark_shown` finds in the buffers, found while each band
+        is fresh and only in the columns it drew).  Shape (Z, 0): not wanted.
     """
     extent = shared_rows(proj, tris, order, tri_out.shape[1])
     for b in nb.prange(bands.shape[0]):
+        lo, hi = bands[b, 0], bands[b, 1]
         _zbuffer_band(
-            proj, tris, order, draw_t, extent, bands[b, 0], bands[b, 1], tri_out, depth_out
+            proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown
         )
 
 
+@functools.lru_cache(maxsize=64)
 def row_bands(rows: int, threads: int, per_thread: int = 3) -> np.ndarray:
     """Bands of rows for :func:`zbuffer_zones_kernel`, interleaved across threads.
 
@@ -393,11 +514,14 @@ def row_bands(rows: int, threads: int, per_thread: int = 3) -> np.ndarray:
     Returns
     -------
     ndarray, shape (B, 2), int64
-        ``[first_row, last_row]`` of each band.
+        ``[first_row, last_row]`` of each band; read-only (one array per arguments,
+        kept: building it cost more than a 5-zone frame's triangle set-up).
     """
     n = 1 if threads <= 1 else min(rows, threads * per_thread)  # one thread: no band edges
     edges = np.linspace(0, rows, n + 1).astype(np.int64)
     bands = np.stack([edges[:-1], edges[1:] - 1], axis=1)
     bands = bands[bands[:, 0] <= bands[:, 1]]
     perm = np.concatenate([np.arange(k, bands.shape[0], threads) for k in range(threads)])
-    return np.ascontiguousarray(bands[perm])
+    bands = np.ascontiguousarray(bands[perm])
+    bands.flags.writeable = False
+    return bands

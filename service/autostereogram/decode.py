@@ -29,6 +29,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.autostereogram.geometry import SirdSettings, separation_map
+
 #: Pair conventions: name -> code in the kernel.
 CONVENTIONS: dict[str, int] = {"left": 0, "centre": 1}
 
@@ -36,6 +38,21 @@ CONVENTIONS: dict[str, int] = {"left": 0, "centre": 1}
 METHOD_CONVENTION: dict[str, str] = {"row": "left", "interpolated": "left", "tiw": "centre"}
 #: Decoder settings per method: (tolerance in grey levels, candidates per pixel).
 METHOD_DECODE: dict[str, tuple[int, int]] = {"row": (0, 1), "interpolated": (2, 4), "tiw": (0, 1)}
+
+
+def expected_separation(depth: np.ndarray, settings: SirdSettings) -> np.ndarray:
+    """The separation each pixel's pair should decode to, shape (H, W) int32.
+
+    ``row`` and ``tiw``: :func:`~service.autostereogram.geometry.separation_map` (``row``
+    indexes a pair by its left pixel and reads the depth there; ``tiw``'s decoder
+    indexes pairs by their centre).  ``interpolated`` indexes a pair by its left pixel
+    ``L`` but takes the separation of the point at its centre: ``s(L + s(L) / 2)``.
+    """
+    sep = separation_map(depth, settings)
+    if settings.method != "interpolated":
+        return sep
+    cols = np.minimum(np.arange(sep.shape[1]) + sep // 2, sep.shape[1] - 1)
+    return np.take_along_axis(sep, cols, axis=1)
 
 
 @nb.njit(cache=True)

@@ -29,7 +29,7 @@ slope at ``z = BAND_Z`` and at ``z = 1``) run side by side in one loop.  The sec
 slope keeps the exact search away from the points of a slope that rises as fast as
 the flattest sight line (the seed's streak case), which the ``z = 1`` bound cannot
 tell from hidden ones.  Scratch rows are per thread, so a frame touches no
-image-sized buffers besides depth, links and output.
+image-sized buffers besides depth and output (and the links, when kept).
 """
 
 from __future__ import annotations
@@ -245,8 +245,8 @@ def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> N
 
 @nb.njit(cache=True, parallel=True, nogil=True)
 def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, mu: float,
-               pattern: np.ndarray, out: np.ndarray, links: np.ndarray, heights: np.ndarray,
-               scratch: np.ndarray, counts: np.ndarray) -> None:
+               pattern: np.ndarray, out: np.ndarray, links: np.ndarray, keep_links: bool,
+               heights: np.ndarray, scratch: np.ndarray, counts: np.ndarray) -> None:
     """Draw a SIRD by symmetric constraints with hidden-surface removal, rows in parallel.
 
     One parallel loop over rows (heights and separations, occlusion, links, colours),
@@ -260,8 +260,11 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
     pattern : ndarray, shape (Hp, Wp, C), uint8
     out : ndarray, shape (H, W * C), uint8
         Written.
-    links : ndarray, shape (H, W), int32
-        Written: ``same[]`` per row (``links[y, x] > x`` links x to it, ``== x`` none).
+    links : ndarray, shape (H, W) or (threads, W), int32
+        ``same[]`` per row (``links[y, x] > x`` links x to it, ``== x`` none): written
+        per row if ``keep_links``, else per-thread scratch (a frame then writes no
+        image-sized buffer but its output: 4 bytes a pixel less memory traffic).
+    keep_links : bool
     heights : ndarray, shape (threads, W), float32
         Per-thread scratch: ``z`` of the row (``threads`` >= numba's thread count).
     scratch : ndarray, shape (threads, 2, W), int32
@@ -279,7 +282,7 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         zr = heights[tid]
         sr = scratch[tid, 0]
         look = scratch[tid, 1]
-        same = links[y]
+        same = links[y] if keep_links else links[tid]
         above, bad = _row_geometry(depth[y], far, inv_range, eye_sep, mu, zr, sr)
         for x in range(w):
             same[x] = x

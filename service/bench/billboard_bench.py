@@ -20,8 +20,13 @@ billboard's normal: median and 95th percentile of ``|depth difference| / EPS`` a
 share beyond 2 EPS.  The depth of a point off its plane by ``d`` is off by
 ``d / cos(angle)`` along the ray, so errors grow toward 90 degrees.
 
+Part 4, cost (:mod:`service.bench.billboard_cost`): CPU ms per frame of the full mesh,
+its cloud and the quadric level LOD picks, at several on-screen sizes, for the
+``holo-bench lod`` meshes (``--cost-meshes``; ``none`` skips it).
+
 Writes ``billboard_build.csv``, ``billboard_zoom.csv``, ``billboard_grazing.csv``,
-``billboard_bench.json`` and ``billboard_bench.png`` (three panels).
+``billboard_cost.csv``, ``billboard_bench.json`` and ``billboard_bench.png`` (four
+panels).
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench import billboard_cost
 from service.bench.lod_bench import BUNNY, LIGHTS, MATERIAL, image_error
 from service.billboard_render import BillboardObject, draw_billboards
 from service.cli_args import add_size_option, comma_list, float_range, int_range, plain_help
@@ -127,14 +133,14 @@ def _rotation(t: Transform) -> np.ndarray:
     return quaternion_matrix(t.orientation)
 
 
-def charts(build: list, zoom: list, grazing: list, out: Path) -> None:
-    """Three panels: build, error vs zoom, error vs grazing angle."""
+def charts(build: list, zoom: list, grazing: list, cost: list, out: Path) -> None:
+    """Four panels: build, error vs zoom, error vs grazing angle, cost vs size."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, ax = plt.subplots(1, 4, figsize=(20, 4.2))
     e = [r["eps_pct"] for r in build]
     ax[0].plot(e, [r["billboards"] for r in build], "o-", label="billboards")
     ax[0].axhline(50, ls=":", c="grey", label="target at 1 %: 50")
@@ -158,6 +164,8 @@ def charts(build: list, zoom: list, grazing: list, out: Path) -> None:
     ax[2].set(xlabel="angle between ray and billboard normal, degrees", yscale="log",
               title="Grazing: depth error grows as 1 / cos")
     ax[2].legend()
+    if cost:
+        billboard_cost.chart(ax[3], cost)
     fig.tight_layout()
     fig.savefig(out / "billboard_bench.png", dpi=110)
     plt.close(fig)
@@ -182,6 +190,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="texels across the diagonal (default 512)")
     p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones (default 5)")
     add_size_option(p, (320, 240), "pixels per zone image")
+    p.add_argument("--cost-meshes", default="bunny,torus,spiky",
+                   help="part 4's meshes (holo-bench lod's names, or none; bunny,torus,spiky)")
+    p.add_argument("--cost-sizes", type=comma_list(float_range(1, 8192)), default="10,20,40,80,240",
+                   help="part 4's on-screen sizes, px (10,20,40,80,240)")
+    p.add_argument("--lod-error", type=float_range(0, None, lo_open=True), default=0.5,
+                   help="part 4's LOD budget, px (0.5)")
+    p.add_argument("--repeats", type=int_range(1, 100), default=7,
+                   help="part 4: renders per case, best taken (7)")
     p.add_argument("--out", default="bench-out/billboard", help="output folder")
     return p
 
@@ -197,6 +213,11 @@ def _write_csv(path: Path, rows: list) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; write CSV, JSON and the chart."""
     args = build_parser().parse_args(argv)
+    names = [] if args.cost_meshes == "none" else args.cost_meshes.split(",")
+    unknown = [n for n in names if n not in billboard_cost.MESHES]
+    if unknown:
+        build_parser().error(f"--cost-meshes: unknown {unknown}; one of "
+                             f"{sorted(billboard_cost.MESHES)} or none")
     cols, rows = args.size
     display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
     out = Path(args.out)
@@ -210,12 +231,13 @@ def main(argv: list[str] | None = None) -> int:
     fit = fit_transform(mesh)
     zoom = zoom_rows(mesh, cloud, fit, display, args)
     grazing = grazing_rows(mesh, cloud, fit, display, args)
-    for name, data in (("build", build), ("zoom", zoom), ("grazing", grazing)):
+    cost = billboard_cost.cost_rows(display, names, args.cost_sizes, args.lod_error, args.repeats)
+    for name, data in (("build", build), ("zoom", zoom), ("grazing", grazing), ("cost", cost)):
         _write_csv(out / f"billboard_{name}.csv", data)
     (out / "billboard_bench.json").write_text(json.dumps(
         {"mesh": args.mesh, "display": [args.zones, cols, rows], "view_eps_pct": args.view_eps,
-         "build": build, "zoom": zoom, "grazing": grazing}, indent=1))
-    charts(build, zoom, grazing, out)
+         "build": build, "zoom": zoom, "grazing": grazing, "cost": cost}, indent=1))
+    charts(build, zoom, grazing, cost, out)
     for r in zoom:
         print(f"zoom {r['zoom']:4g}: EPS {r['eps_px']:.1f} px, silhouette "
               f"{r['measured_px']:.0f} px, {r['depth_diff_pct']:.1f} % pixels beyond 2 EPS, "
@@ -223,6 +245,12 @@ def main(argv: list[str] | None = None) -> int:
     for r in grazing:
         print(f"{r['angle_lo']:2d}-{r['angle_hi']:2d} deg: median {r['median_err_eps']:.2f} EPS, "
               f"95th {r['p95_err_eps']:.2f} EPS, {r['beyond_2eps_pct']:.1f} % beyond 2 EPS")
+    for r in cost:
+        print(f"{r['mesh']} at {r['size_px']:g} px: full {r['full_ms']:.2f} ms, cloud "
+              f"{r['cloud_ms']:.2f} ms ({r['cloud_predicted_px']:.2f} px), LOD's "
+              f"{r['lod_mesh_triangles']}-triangle level {r['lod_mesh_ms']:.2f} ms "
+              f"({r['lod_mesh_predicted_px']:.2f} px); LOD with clouds picks the "
+              f"{'cloud' if r['lod_picks_cloud'] else 'mesh'}")
     return 0
 
 

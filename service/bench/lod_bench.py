@@ -273,10 +273,18 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 
 def charts(levels: list[dict], crowd: list[dict], out: Path) -> None:
-    """``lod_levels.png``, ``lod_build.png`` and ``lod_crowd.png``."""
+    """``lod_levels.png`` and ``lod_build.png`` (with level rows), ``lod_crowd.png``."""
     import matplotlib
 
     matplotlib.use("Agg")
+    if levels:
+        level_charts(levels, out)
+    if crowd:
+        crowd_chart(crowd, out)
+
+
+def level_charts(levels: list[dict], out: Path) -> None:
+    """``lod_levels.png`` and ``lod_build.png``."""
     import matplotlib.pyplot as plt
 
     names = list(dict.fromkeys(r["mesh"] for r in levels))
@@ -323,27 +331,34 @@ def charts(levels: list[dict], crowd: list[dict], out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / "lod_build.png", dpi=110)
     plt.close(fig)
-    if crowd:
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        kinds = list(dict.fromkeys(r["crowd"] for r in crowd))
-        x = np.arange(len(kinds))
-        for j, mode in enumerate(("off", "on", "budget")):
-            rs = [next(r for r in crowd if r["crowd"] == k and r["lod"] == mode) for k in kinds]
-            label = "LOD on + budget (half LOD on)" if mode == "budget" else f"LOD {mode}"
-            axes[0].bar(x + 0.27 * j, [r["cpu_ms"] for r in rs], 0.27, label=label)
-            axes[1].bar(x + 0.27 * j, [r["depth_diff_pct"] for r in rs], 0.27,
-                        label=f"{label}, of covered")
-            axes[1].bar(x + 0.27 * j, [r["depth_diff_pct_all"] for r in rs], 0.27,
-                        fill=False, hatch="//", label=f"{label}, of all" if j == 2 else None)
-        axes[0].set_ylabel("CPU ms per frame (all zones)")
-        axes[1].set_ylabel("% pixels differing from LOD off (hatched: of all pixels)")
-        axes[1].axhline(1.0, color="r", ls="--", lw=1, label="1 % target")
-        for ax in axes:
-            ax.set_xticks(x + 0.27, kinds)
-            ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "lod_crowd.png", dpi=110)
-        plt.close(fig)
+
+
+def crowd_chart(crowd: list[dict], out: Path) -> None:
+    """``lod_crowd.png``: CPU ms and % pixels differing, LOD off, on, on with a budget."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    kinds = list(dict.fromkeys(r["crowd"] for r in crowd))
+    x = np.arange(len(kinds))
+    for j, mode in enumerate(("off", "on", "budget")):
+        rs = [next(r for r in crowd if r["crowd"] == k and r["lod"] == mode) for k in kinds]
+        label = "LOD on + budget (half LOD on)" if mode == "budget" else f"LOD {mode}"
+        colour = f"C{j}"
+        axes[0].bar(x + 0.27 * j, [r["cpu_ms"] for r in rs], 0.27, label=label, color=colour)
+        axes[1].bar(x + 0.27 * j, [r["depth_diff_pct"] for r in rs], 0.27,
+                    label=f"{label}, of covered pixels", color=colour)
+        axes[1].bar(x + 0.27 * j, [r["depth_diff_pct_all"] for r in rs], 0.27,
+                    fill=False, hatch="//", edgecolor="k",
+                    label="hatched: of all pixels" if j == 2 else None)
+    axes[0].set_ylabel("CPU ms per frame (all zones)")
+    axes[1].set_ylabel("% pixels differing from LOD off (hatched: of all pixels)")
+    axes[1].axhline(1.0, color="r", ls="--", lw=1, label="1 % target")
+    for ax in axes:
+        ax.set_xticks(x + 0.27, kinds)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "lod_crowd.png", dpi=110)
+    plt.close(fig)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -359,7 +374,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
     p.add_argument("--meshes", default="bunny,torus,spiky",
-                   help="comma list: bunny, torus, spiky or mesh files (default all three)")
+                   help="comma list: bunny, torus, spiky or mesh files (default all three; "
+                   "an empty string for the crowd only)")
     add_size_option(p, (320, 240), "pixels per zone image")
     p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones (default 5)")
     p.add_argument("--repeats", type=int_range(1, 100), default=3, help="renders timed (3)")
@@ -389,7 +405,8 @@ def main(argv: list[str] | None = None) -> int:
         levels += level_rows(name, display, args)
         print(f"{name}: {len(levels)} level rows so far", file=sys.stderr)
     crowd = crowd_rows(display, args) if args.crowd else []
-    _write_csv(out / "lod_levels.csv", levels)
+    if levels:
+        _write_csv(out / "lod_levels.csv", levels)
     if crowd:
         _write_csv(out / "lod_crowd.csv", crowd)
     (out / "lod_bench.json").write_text(json.dumps(

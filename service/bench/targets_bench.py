@@ -1,7 +1,9 @@
 """``holo-bench targets``: the open speed targets, each a ratio measured side by side.
 
 * ``zones``: stages 1-4 (project, cull, sort, occlusion) of 5 zones over 1 zone, the
-  game scene, renders of both counts interleaved (target <= 2).
+  game scene, renders of both counts interleaved (target <= 2); the figure is the
+  scene frozen, as before, and the scene moving as the game shows it is timed beside
+  it (``ratio_moving``; see :func:`zones_target`).
 * ``refresh``: a G(2) refresh at 640x480 (one zone) after a head turn, so that
   every galpixel moves, beside a refresh of the same update without one (target
   <= 4 ms); both re-updated every 15 refreshes, as ``holo-bench galilean`` times
@@ -41,6 +43,7 @@ from service.galilean.motion_field import render_with_motion
 from service.galilean.stage import GalileanSettings, GalileanStage
 from service.light import LightSettings
 from service.pipeline import Renderer, RenderSettings, StageClock, warm_up
+from service.scene_motion import advance_scene
 
 STAGES_1_4 = ("project", "cull", "sort", "occlusion", "fallback")
 
@@ -54,30 +57,42 @@ def zones_target(size: tuple[int, int], repeats: int, scene_name: str = "game",
     own buffers warm, as a render loop at that count would; ``figure`` is the ratio
     of the medians over all rounds, ``ratio_min`` that of the best frames (what an
     idle machine would show; a loaded one inflates memory-bound 5-zone passes most).
+
+    The same scene frozen is rendered again and again there, and a CPU learns a
+    repeated frame: one zone's z-buffer pass, the same branches every frame, ran
+    2.7x faster than on a scene that moves (0.15 against 0.40 ms).  The ``moving``
+    keys time the scene as the game shows it, moving along its own motion (16
+    frames, 1/30 s apart, flattened before timing), in the same interleaved rounds.
     """
-    arrays = builtin_scene(scene_name).flatten()
+    scene = builtin_scene(scene_name)
+    still = [scene.flatten()]
+    moving = [advance_scene(scene, k / 30).flatten() for k in range(16)]
+    displays = {z: DisplaySettings(zones=z, cols=size[0], rows=size[1]) for z in (1, 5)}
     r, s = Renderer(), RenderSettings()
-    ms: dict[int, list[float]] = {1: [], 5: []}
-    cpu: dict[int, list[float]] = {1: [], 5: []}  # process CPU ms: less hurt by a busy machine
-    displays = {z: DisplaySettings(zones=z, cols=size[0], rows=size[1]) for z in ms}
+    ms: dict[tuple, list[float]] = {}
+    cpu: dict[tuple, list[float]] = {}  # process CPU ms: less hurt by a busy machine
     for _ in range(rounds):
-        for z, d in displays.items():
-            r.visibility(arrays, d, s)  # not timed: the first after the other count
-            for _ in range(repeats):
-                clock: dict[str, float] = {}
-                c0 = time.process_time()
-                r.visibility(arrays, d, s, StageClock(clock))
-                cpu[z].append((time.process_time() - c0) * 1e3)
-                ms[z].append(sum(clock.get(k, 0.0) for k in STAGES_1_4))
-    one, five = float(np.median(ms[1])), float(np.median(ms[5]))
-    best = min(ms[5]) / min(ms[1])
-    cpu_ratio = float(np.median(cpu[5]) / np.median(cpu[1]))
+        for kind, frames in (("still", still), ("moving", moving)):
+            for z, d in displays.items():
+                r.visibility(frames[0], d, s)  # not timed: the first after the other count
+                for i in range(repeats):
+                    clock: dict[str, float] = {}
+                    c0 = time.process_time()
+                    r.visibility(frames[i % len(frames)], d, s, StageClock(clock))
+                    cpu.setdefault((kind, z), []).append((time.process_time() - c0) * 1e3)
+                    ms.setdefault((kind, z), []).append(sum(clock.get(k, 0.0) for k in STAGES_1_4))
+    med = {k: float(np.median(v)) for k, v in ms.items()}
+    one, five = med["still", 1], med["still", 5]
     return {"target": "zones", "what": f"stages 1-4, 5 zones / 1 zone, {scene_name}, "
             f"{size[0]}x{size[1]}, medians", "ms_1": round(one, 3), "ms_5": round(five, 3),
-            "ms_1_min": round(min(ms[1]), 3), "ms_5_min": round(min(ms[5]), 3),
-            "ratio_min": round(best, 3), "ratio_cpu": round(cpu_ratio, 3),
-            "figure": round(five / one, 3), "goal": 2.0,
-            "met": five / one <= 2.0}
+            "ms_1_min": round(min(ms["still", 1]), 3), "ms_5_min": round(min(ms["still", 5]), 3),
+            "ratio_min": round(min(ms["still", 5]) / min(ms["still", 1]), 3),
+            "ratio_cpu": round(float(np.median(cpu["still", 5]) / np.median(cpu["still", 1])), 3),
+            "ms_1_moving": round(med["moving", 1], 3), "ms_5_moving": round(med["moving", 5], 3),
+            "ratio_moving": round(med["moving", 5] / med["moving", 1], 3),
+            "ratio_moving_cpu": round(float(np.median(cpu["moving", 5])
+                                            / np.median(cpu["moving", 1])), 3),
+            "figure": round(five / one, 3), "goal": 2.0, "met": five / one <= 2.0}
 
 
 def _regraft(st: GalileanStage, up, head: bool) -> None:
@@ -222,7 +237,8 @@ def main(argv: list[str] | None = None) -> int:
         rows += premise_target(args.size, reps, counts)
     write(rows, out)
     for r in rows:
-        extra = (f" (best frames {r['ratio_min']}, CPU time {r['ratio_cpu']})"
+        extra = (f" (best frames {r['ratio_min']}, CPU time {r['ratio_cpu']}; scene moving "
+                 f"{r['ratio_moving']}, CPU time {r['ratio_moving_cpu']})"
                  if "ratio_min" in r else "")
         extra += (f" (best {r['ms_moving_min']} ms, CPU {r['cpu_ms_moving']} ms)"
                   if "ms_moving_min" in r else "")

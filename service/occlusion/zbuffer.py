@@ -2,9 +2,10 @@
 
 The default path draws every zone in one pass over the triangles
 (:func:`service.raster.zbuffer_zones_kernel`, bands of rows in parallel): a triangle's
-rows are the same in every zone, so that work is shared.  A projection whose rows
-differ between zones (not one :func:`service.projection.project` makes) takes the
-per-zone kernel; both give bit-identical buffers.
+rows, depths and corner order are the same in every zone, so that work is shared.  A
+projection whose rows or depths differ between zones (not one
+:func:`service.projection.project` makes) takes the per-zone kernel; both give
+bit-identical buffers.
 """
 
 from __future__ import annotations
@@ -19,8 +20,24 @@ from service.scene import SceneArrays
 
 
 def rows_shared(proj: np.ndarray) -> bool:
-    """Whether every zone of ``proj`` (Z, V, 3) puts each vertex on the same row."""
-    return bool(np.array_equal(proj[:, :, 1], np.broadcast_to(proj[:1, :, 1], proj.shape[:2])))
+    """Whether every zone of ``proj`` (Z, V, 3) puts each vertex on the same row and depth.
+
+    True for every projection :func:`service.projection.project` makes (zones differ
+    only by a shear in x) of finite vertices; the one-pass kernel reads rows and
+    depths from zone 0.  A NaN never equals itself, so a projection holding one is
+    not shared (as ``np.array_equal`` says).
+    """
+    return bool(_rows_shared(proj))
+
+
+@nb.njit(cache=True, nogil=True)
+def _rows_shared(proj: np.ndarray) -> bool:
+    """Numba body of :func:`rows_shared`: no temporary arrays, stops at the first miss."""
+    for z in range(proj.shape[0]):
+        for v in range(proj.shape[1]):
+            if proj[z, v, 1] != proj[0, v, 1] or proj[z, v, 2] != proj[0, v, 2]:
+                return False
+    return True
 
 
 def zbuffer(
@@ -31,6 +48,9 @@ def zbuffer(
     draw: np.ndarray | None = None,
     shared: bool = True,
     tri_out: np.ndarray | None = None,
+    item: np.ndarray | None = None,
+    n_items: int = 0,
+    draw_t: np.ndarray | None = None,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -51,6 +71,15 @@ def zbuffer(
     tri_out : ndarray, shape (Z, R, C), int32, optional
         Buffer to reuse for ``Visibility.triangle`` (contents ignored): a renderer
         that keeps it between frames saves the page faults of a fresh one.
+    item : ndarray, shape (T,), optional
+        Item of each triangle (e.g. ``SceneArrays.triangle_polygon``), each below
+        ``n_items``: the one-pass kernel then also fills ``Visibility.shown``
+        (:func:`service.light.mark_shown`, at a fraction of its cost); the per-zone
+        kernel leaves it None.
+    n_items : int
+    draw_t : ndarray, shape (T, Z), bool, optional
+        ``draw`` by triangle (:func:`service.cull.zone_mask` with ``by_triangle``),
+        the layout the one-pass kernel reads; given, it replaces ``draw``.
 
     Returns
     -------
@@ -59,18 +88,27 @@ def zbuffer(
     """
     zrc = (display.zones, display.rows, display.cols)
     order = np.ascontiguousarray(order)
-    if draw is None:
+    if draw_t is not None:
+        draw = draw_t.T
+    elif draw is None:
         draw = np.ones((display.zones, scene.triangles.shape[0]), np.bool_)
     usable = tri_out is not None and tri_out.shape == zrc and tri_out.dtype == np.int32
     tri = tri_out if usable and tri_out.flags.c_contiguous else np.empty(zrc, np.int32)
     if not (shared and rows_shared(proj)):
         vis = Visibility(tri, np.full(zrc, np.inf, np.float32))
         vis.triangle.fill(-1)
+        draw = np.ascontiguousarray(draw)
         zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
         return vis
     vis = Visibility(tri, np.empty(zrc, np.float32))
     bands = row_bands(display.rows, nb.get_num_threads())
+    if item is None:
+        item, n_items = np.zeros(0, np.int64), 0
+    vis.shown = np.zeros((display.zones, n_items), np.bool_)
     zbuffer_zones_kernel(
-        proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle, vis.depth
+        proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle,
+        vis.depth, item, vis.shown,
     )
+    if n_items == 0:
+        vis.shown = None
     return vis

@@ -11,6 +11,7 @@ from service.autostereogram import (
     SirdSettings,
     SirdWorkspace,
     broken_constraints,
+    default_eye_sep,
     random_dots,
     separation_map,
     stereogram,
@@ -136,15 +137,51 @@ def test_decoder_recovers_the_sphere(method):
         assert stats.hidden > 0
 
 
-def test_streaks_on_the_seed_slope_interpolated_leaves_a_tenth_of_rows():
-    s = SirdSettings(eye_sep=90.0)
-    depth = seed_slope(320, 40, s.max_sep - s.min_sep)
+@pytest.mark.parametrize("cols", [320, 640])
+def test_streaks_on_the_seed_slope_interpolated_leaves_a_tenth_of_rows(cols):
+    # the benchmark's sizes and default eye separations: 320 px -> E = 106 (the
+    # separation there shrinks 10.6 px over the 11 px rise: the seed's left-read blend
+    # stalled), 640 px -> E = 180
+    eye = default_eye_sep(cols)
+    s = SirdSettings(eye_sep=eye)
+    depth = seed_slope(cols, 24, s.max_sep - s.min_sep)
     fractions = {}
     for method in ("row", "interpolated"):
-        img = _draw(method, depth, 90.0, random_dots(s.max_sep, seed=2))[0]
+        img = _draw(method, depth, eye, random_dots(s.max_sep, seed=2))[0]
         fractions[method] = streak_fraction(img)
     assert fractions["row"] > 0.3  # the seed's streaks
     assert fractions["interpolated"] <= fractions["row"] / 10
+
+
+def _symmetric_partners(fsep_row: np.ndarray) -> np.ndarray:
+    """``interpolated``'s constraints, literally: point x names L = round(x - sf/2)."""
+    part = np.full(fsep_row.shape[0], -1, np.int64)
+    for x, sf in enumerate(fsep_row.tolist()):
+        left = (x * 256 - sf // 2 + 128) // 256
+        if left >= 0 and (part[left] < 0 or left * 256 + sf < part[left]):
+            part[left] = left * 256 + sf
+    return part
+
+
+@settings(max_examples=40, deadline=None)
+@given(depth=depth_maps, eye_sep=st.sampled_from([8.0, 12.0, 18.0, 24.0]), seed=st.integers(0, 9))
+def test_interpolated_keeps_its_symmetric_blends(depth, eye_sep, seed):
+    # every left pixel a point names equals the blend at its floating-point partner;
+    # no point names a free pixel, which shows the pattern at its own column
+    pattern = random_dots(int(np.floor(eye_sep / 2 + 0.5)), 8, seed=seed)
+    img, stats, s, work = _draw("interpolated", depth, eye_sep, pattern)
+    w = depth.shape[1]
+    kept = 0
+    for y in range(depth.shape[0]):
+        row = img[y, :, 0].astype(np.int64)
+        for left, r in enumerate(_symmetric_partners(work.sep[y]).tolist()):
+            i, f = divmod(r, 256)
+            if r < 0:
+                assert row[left] == pattern[y % 8, left % s.max_sep, 0]
+            elif i + 1 < w:
+                kept += 1
+                assert row[left] == row[i] + (((row[i + 1] - row[i]) * f + 128) >> 8)
+    assert kept == stats.constraints
 
 
 def test_steps_decode_away_from_their_edges():

@@ -296,6 +296,12 @@ def test_the_cost_model_is_the_line_the_frames_measured():
     flat.observe(1_000, float("nan"))
     assert len(flat.samples) == 3
     assert len(FrameCost(window=4).samples) == 0 and not FrameCost().ready
+    # a loaded machine: the dearer frames ran alone, the cheaper ones beside others; the
+    # line through them would have a fixed part dearer than the cheapest whole frame
+    loaded = FrameCost()
+    for t, m in ((600_000, 500.0), (300_000, 450.0), (150_000, 420.0), (26_000, 45.0)):
+        loaded.observe(t, m)
+    assert 0 <= loaded.fixed_ms <= 45.0 and loaded.predict(26_000) < 100
 
 
 def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path):
@@ -446,3 +452,19 @@ def test_a_level_before_an_error_jump_goes_to_its_plateau_end():
     assert [g[1] for g in got] == [1.0, 1.0, 3.0] and len(calls) == 4  # only at the jump
     assert got[0] is front[0] and got[2] is front[2]
     assert 0.2 <= got[1][2] < 0.24 and got[1][0].n_polygons < front[1][0].n_polygons
+
+
+def test_holo_render_budget_measures_before_the_frame_it_writes(tmp_path):
+    import os
+
+    env = {**os.environ, "HOLO_LOD_CACHE": str(tmp_path / "lod")}
+    run = subprocess.run(
+        [sys.executable, "-m", "service.cli_render", "builtin:demo", "--budget-ms", "0.001",
+         "--size", "96x72", "--json", "--out", str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=300, env=env,
+    )
+    assert run.returncode == 0, run.stderr
+    lod = json.loads(run.stdout)["lod"]
+    assert lod["frames_measured"] == 2 and lod["cost_model"]["frames"] == 2
+    assert lod["budget_ms"] == 0.001 and lod["predicted_ms"] > 0.001  # nothing fits
+    assert lod["over_error"] >= 1 and lod["triangles"] < lod["triangles_full"]

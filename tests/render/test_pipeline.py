@@ -94,6 +94,24 @@ def test_modified_cull_keeps_polygons_that_face_any_zone():
     assert plain.tolist() == [False, False, False, True, False]
 
 
+@pytest.mark.parametrize("mode", ["modified", "plain", "none"])
+def test_both_culls_from_one_facing_table_equal_their_own(mode):
+    from service.cull import facing as facing_table
+    from service.cull import zone_mask
+
+    a = builtin_scene("game").flatten()
+    settings = CullSettings(mode)
+    faces = facing_table(a.normals, SMALL)
+    assert faces.shape == (a.normals.shape[0], SMALL.zones)
+    own, own_counts = cull(a.normals, SMALL, settings)
+    shared, counts = cull(a.normals, SMALL, settings, faces)
+    assert np.array_equal(own, shared) and own_counts == counts
+    args = (a.triangle_polygon, a.normals, a.polygon_closed, SMALL, settings)
+    assert np.array_equal(zone_mask(*args), zone_mask(*args, faces))
+    by_triangle = zone_mask(*args, faces, by_triangle=True)
+    assert by_triangle.flags.c_contiguous and np.array_equal(by_triangle.T, zone_mask(*args))
+
+
 def test_sort_is_nearest_first_and_ties_keep_object_order():
     z = np.array([0.0, 0.5, 0.5, -1.0, 0.5])
     assert sort_polygons(z).tolist() == [1, 2, 4, 0, 3]

@@ -12,6 +12,8 @@ def test_targets_rows_and_files(tmp_path):
     assert [r["target"] for r in rows] == ["zones", "refresh", "premise-flat", "premise-10x"]
     z = rows[0]
     assert abs(z["figure"] - z["ms_5"] / z["ms_1"]) < 0.01 * z["figure"] + 2e-3
+    moving = z["ms_5_moving"] / z["ms_1_moving"]
+    assert abs(z["ratio_moving"] - moving) < 0.01 * moving + 2e-3 and z["ratio_moving_cpu"] > 0
     assert rows[1]["ms_moving"] > 0 and rows[1]["met"] == (rows[1]["figure"] <= 4.0)
     assert rows[2]["triangles"][0] < rows[2]["triangles"][1]
     assert rows[3]["figure"] is None and not rows[3]["met"]  # no step reached 100k

@@ -7,6 +7,7 @@ from service.builtin_scenes import builtin_scene
 from service.cull import CullSettings, cull, zone_mask
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
+from service.light import mark_shown
 from service.occlusion.zbuffer import rows_shared, zbuffer
 from service.projection import project
 from service.raster import row_bands, shared_rows, triangle_setup, zbuffer_zones_kernel
@@ -67,6 +68,17 @@ def test_rows_that_differ_between_zones_take_the_per_zone_kernel():
     assert not np.array_equal(got.triangle[1], got.triangle[0])
 
 
+def test_depths_that_differ_between_zones_take_the_per_zone_kernel():
+    d = DisplaySettings(zones=3, angle_deg=16.0, cols=80, rows=60)
+    arrays, proj, order, draw = inputs("threaded", d)
+    proj = proj.copy()
+    proj[2, :, 2] = -proj[2, :, 2]  # zone 2 seen from behind: the one-pass kernel can't
+    assert not rows_shared(proj)
+    got = zbuffer(arrays, proj, d, order, draw)
+    assert_same(got, zbuffer(arrays, proj, d, order, draw, shared=False))
+    assert not np.array_equal(got.triangle[2], got.triangle[1])
+
+
 def test_shared_rows_match_the_setup_of_every_zone():
     d = DisplaySettings(zones=5, angle_deg=60.0, cols=160, rows=120)
     arrays, proj, order, _ = inputs("game", d)
@@ -105,8 +117,55 @@ def test_any_banding_gives_the_same_buffers(threads, per_thread):
     tri = np.empty((d.zones, d.rows, d.cols), np.int32)
     depth = np.empty((d.zones, d.rows, d.cols), np.float32)
     bands = row_bands(d.rows, threads, per_thread)
+    shown = np.zeros((d.zones, arrays.n_polygons), bool)
     zbuffer_zones_kernel(
-        proj, arrays.triangles, order, np.ascontiguousarray(draw.T), bands, tri, depth
+        proj, arrays.triangles, order, np.ascontiguousarray(draw.T), bands, tri, depth,
+        arrays.triangle_polygon, shown,
     )
     assert np.array_equal(tri, want.triangle)
     assert np.array_equal(depth, want.depth)
+    assert np.array_equal(shown, mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons))
+
+
+@pytest.mark.parametrize("name", ["game", "threaded", "demo"])
+@pytest.mark.parametrize("zones", [1, 5])
+def test_the_polygons_shown_are_found_while_drawing(name, zones):
+    d = DisplaySettings(zones=zones, angle_deg=16.0, cols=160, rows=120)
+    arrays, proj, order, draw = inputs(name, d)
+    vis = zbuffer(arrays, proj, d, order, draw, item=arrays.triangle_polygon,
+                  n_items=arrays.n_polygons)
+    want = mark_shown(vis.triangle, arrays.triangle_polygon, arrays.n_polygons)
+    assert want.any() and np.array_equal(vis.shown, want)
+    assert zbuffer(arrays, proj, d, order, draw).shown is None  # not asked for
+    by_triangle = zbuffer(arrays, proj, d, order, draw_t=np.ascontiguousarray(draw.T))
+    assert_same(by_triangle, vis)
+    assert zbuffer(arrays, proj, d, order, draw, shared=False, item=arrays.triangle_polygon,
+                   n_items=arrays.n_polygons).shown is None  # the per-zone kernel: not found
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_corners_on_one_row_whose_x_order_differs_between_zones(seed):
+    # corners on a few shared rows at scattered depths: across 60 degrees the shear
+    # swaps the x order of corners on the same row, so each zone orders them itself
+    from types import SimpleNamespace
+
+    d = DisplaySettings(zones=7, angle_deg=60.0, cols=64, rows=48)
+    rng = np.random.default_rng(seed)
+    v = np.column_stack([
+        rng.uniform(-0.5, 0.5, 600),
+        rng.choice(np.linspace(-0.3, 0.3, 5), 600),
+        rng.uniform(-0.6, 0.6, 600),
+    ])
+    tris = rng.integers(0, 600, (400, 3)).astype(np.int32)
+    proj = project(v, d)
+    swapped = 0
+    for a, b in ((0, 1), (1, 2), (0, 2)):
+        same_row = proj[0, tris[:, a], 1] == proj[0, tris[:, b], 1]
+        left = proj[:, tris[:, a], 0] < proj[:, tris[:, b], 0]
+        swapped += int((same_row & left.any(axis=0) & ~left.all(axis=0)).sum())
+    assert swapped > 10
+    order = np.arange(tris.shape[0], dtype=np.int64)
+    draw = np.ones((d.zones, tris.shape[0]), bool)
+    scene = SimpleNamespace(triangles=tris)
+    want = zbuffer(scene, proj, d, order, draw, shared=False)
+    assert_same(zbuffer(scene, proj, d, order, draw), want)
