@@ -243,6 +243,29 @@ def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> N
         u = u - 1 if u > 0 else pw - 1
 
 
+@nb.njit(cache=True)
+def _empty_row(o: np.ndarray, same: np.ndarray, keep_links: bool, prow: np.ndarray,
+               nc: int) -> int:
+    """A row on the far plane, where the pattern is ``s(0)`` wide: the pattern, tiled.
+
+    Every point links ``x`` to ``x + s(0)``, so each pixel copies the pixel ``s(0)`` to
+    its right and the right-most ``s(0)`` take ``prow[x mod Wp]``: with ``Wp = s(0)``
+    every pixel is ``prow[x mod Wp]``, no link or colour pass needed.  The links are
+    written only if kept.  Returns the constraints (``W - s(0)``).
+    """
+    w = same.shape[0]
+    pw = prow.shape[0]
+    u = 0
+    for x in range(w):
+        for c in range(nc):
+            o[x * nc + c] = prow[u, c]
+        u = u + 1 if u + 1 < pw else 0
+    if keep_links:
+        for x in range(w):
+            same[x] = x + pw if x < w - pw else x
+    return w - pw
+
+
 @nb.njit(cache=True, parallel=True, nogil=True)
 def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, mu: float,
                pattern: np.ndarray, out: np.ndarray, links: np.ndarray, keep_links: bool,
@@ -284,6 +307,11 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         look = scratch[tid, 1]
         same = links[y] if keep_links else links[tid]
         above, bad = _row_geometry(depth[y], far, inv_range, eye_sep, mu, zr, sr)
+        counts[y, 2] = bad
+        if above == 0 and sr[0] == pw:
+            counts[y, 0] = _empty_row(out[y], same, keep_links, pattern[y % ph], nc)
+            counts[y, 1] = 0
+            continue
         for x in range(w):
             same[x] = x
         if above > 0:
@@ -294,4 +322,3 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         _colour_row(out[y], same, pattern[y % ph], nc)
         counts[y, 0] = ncons
         counts[y, 1] = nhid
-        counts[y, 2] = bad
