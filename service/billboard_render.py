@@ -140,6 +140,51 @@ def pack_quads(objects: list[BillboardObject]) -> _Quads:
                   normal=normal, rot=rot, material=material, tex=tex, rgba=rgba, tnormal=tnormal)
 
 
+def quad_points(objects: list[BillboardObject]) -> np.ndarray:
+    """Each quad's origin, origin + U and origin + V in the world, (3Q, 3), quad order.
+
+    The motion of a billboard pixel is affine over its (rigid, planar) quad, so the
+    derivatives of these three points give every pixel's (:meth:`BillboardPass.write_motion`).
+    """
+    if not objects:
+        return np.zeros((0, 3))
+    rots = quaternion_matrices(np.array([o.transform.orientation for o in objects]))
+    out = [o.cloud.corners[:, (0, 1, 3)].reshape(-1, 3) @ (r * o.transform.scale).T
+           + o.transform.position for o, r in zip(objects, rots, strict=True)]
+    return np.ascontiguousarray(np.concatenate(out))
+
+
+@nb.njit(cache=True, nogil=True)
+def quad_motion_kernel(quad: np.ndarray, depth: np.ndarray, boxes: np.ndarray,
+                       origin: np.ndarray, u: np.ndarray, v: np.ndarray, shears: np.ndarray,
+                       s: float, hw: float, hh: float, cd: np.ndarray, der: np.ndarray) -> None:
+    """Motion derivatives of the pixels quads won, from their quads' points' derivatives.
+
+    ``cd`` (3, Z, 3Q, 3): derivatives 1..3 of x, y (px) and depth of each quad's
+    :func:`quad_points` per zone; a pixel at quad coordinates (a, b) gets
+    ``d0 + a (dU - d0) + b (dV - d0)`` in ``der`` (3, 3, Z, R, C) float32.
+    """
+    for k in range(quad.shape[0]):
+        sh = shears[k]
+        for i in range(boxes[k, 0], boxes[k, 1]):
+            y = hh - (i + 0.5) * s
+            for j in range(boxes[k, 2], boxes[k, 3]):
+                q = quad[k, i, j] - 1
+                if q < 0:
+                    continue
+                z = -np.float64(depth[k, i, j])
+                ex, ey, ez = (j + 0.5) * s - hw + z * sh - origin[q, 0], y - origin[q, 1], \
+                    z - origin[q, 2]
+                uq, vq = u[q], v[q]
+                a = (ex * uq[0] + ey * uq[1] + ez * uq[2]) / (uq[0] ** 2 + uq[1] ** 2 + uq[2] ** 2)
+                b = (ex * vq[0] + ey * vq[1] + ez * vq[2]) / (vq[0] ** 2 + vq[1] ** 2 + vq[2] ** 2)
+                for n in range(3):
+                    for d in range(3):
+                        c0 = cd[n, k, 3 * q, d]
+                        der[n, d, k, i, j] = c0 + a * (cd[n, k, 3 * q + 1, d] - c0) + \
+                            b * (cd[n, k, 3 * q + 2, d] - c0)
+
+
 @nb.njit(cache=True, nogil=True)
 def _texel(q: int, a: float, b: float, tex: np.ndarray, layer: int) -> int:
     """Flat index of the texel at quad coordinates (a, b) in [0, 1)^2 of quad ``q``."""
@@ -363,6 +408,19 @@ class BillboardPass:
                            display.width / 2, display.height / 2, display.view_vectors(),
                            pack_lights(lights), float(ambient), MODELS[settings.model],
                            frame_colour)
+
+
+    def write_motion(self, point_derivs: np.ndarray, der: np.ndarray) -> None:
+        """Fill the motion derivatives ``der`` (3, 3, Z, R, C) at the pixels quads won.
+
+        ``point_derivs`` (3, Z, 3Q, 3) are the derivatives of :func:`quad_points`
+        (x, y in px and depth, per refresh^n), as ``vertex_derivatives`` gives them.
+        """
+        display, qd = self.light[0], self.quads
+        quad_motion_kernel(self.quad, self.depth, self.boxes, qd.origin, qd.u, qd.v,
+                           display.shears(), display.pixel_size, display.width / 2,
+                           display.height / 2, np.ascontiguousarray(point_derivs, np.float64),
+                           der)
 
 
 def draw_billboards(objects: list[BillboardObject], display: DisplaySettings,

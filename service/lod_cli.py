@@ -9,7 +9,16 @@ from __future__ import annotations
 import argparse
 
 from service.cli_args import float_range
+from service.display import DisplaySettings
+from service.frame import Frame
 from service.lod import LodSettings
+from service.pipeline import Renderer, RenderSettings
+from service.scene import Scene
+
+#: Frames ``holo-render`` draws when given ``--budget-ms``: a render with nothing
+#: measured is chosen by error alone, so the first ones measure the renderer's cost
+#: model (:class:`service.lod.FrameCost`) and the last one is written.
+BUDGET_FRAMES = 3
 
 
 def add_lod_options(p: argparse.ArgumentParser, budget: bool = True) -> None:
@@ -45,3 +54,20 @@ def lod_settings(args: argparse.Namespace) -> LodSettings | None:
     return LodSettings(
         error_px=0.5 if args.lod_error is None else args.lod_error, budget_ms=args.budget_ms
     )
+
+
+def budget_frames(renderer: Renderer, scene: Scene, display: DisplaySettings,
+                  settings: RenderSettings, frame: Frame) -> Frame:
+    """The frame to write: ``frame`` again after :data:`BUDGET_FRAMES` renders in all.
+
+    Only with a time budget (``settings.lod.budget_ms``): the frames before the last
+    measure the cost model the budget is predicted with.  ``renderer`` is the
+    :class:`service.pipeline.Renderer` that drew ``frame`` (its first).
+    """
+    lod = settings.lod
+    if lod is None or not lod.enabled or lod.budget_ms is None:
+        return frame
+    for _ in range(BUDGET_FRAMES - 1):
+        frame = renderer.render(scene, display, settings)
+    frame.stats["lod"]["frames_measured"] = BUDGET_FRAMES - 1
+    return frame

@@ -277,10 +277,14 @@ def _autostereograms(kit: _Kit) -> None:
 
 
 def _level_of_detail(kit: _Kit) -> None:
-    """Level of detail (``--lod``): decimation errors, billboard clouds built and drawn."""
+    """Level of detail (``--lod``): decimation errors, billboard clouds built and drawn.
+
+    Clouds are drawn by the pipeline and by the service's Galilean render (with motion).
+    """
     from dataclasses import replace
 
     from service.billboard_render import BillboardObject
+    from service.galilean.motion_field import render_with_motion
     from service.lod import LodSettings, LodState, build_chain
     from service.pipeline import Renderer, RenderSettings
 
@@ -295,6 +299,8 @@ def _level_of_detail(kit: _Kit) -> None:
     for method in ("zbuffer", "runlength", "bsp", "raycast"):
         renderer.render(replace(scene, billboards=boards), kit.display,
                         RenderSettings(method=method))
+    # the service's workers draw clouds inside the Galilean render, with their motion
+    render_with_motion(renderer, replace(scene, billboards=boards), kit.display, 0.0, 60.0)
 
 
 #: Where a job runs when :func:`warm_up` has two processes: ``FIRST`` jobs run

@@ -45,7 +45,7 @@ class SirdOutput:
                                      near=-span, far=span)
         self.settings.check_width(cols)
         self.pattern = random_dots(self.settings.max_sep, seed=seed)
-        self.work = SirdWorkspace(rows, cols, 1)
+        self.work = SirdWorkspace(rows, cols, 1, keep_links=False)
         self.last_ms = 0.0
 
     def frame(self, depth: np.ndarray) -> np.ndarray:

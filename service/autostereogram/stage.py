@@ -45,15 +45,21 @@ class SirdWorkspace:
         ``interpolated``'s partners.
     counts : ndarray, shape (H, 3), int64
         Per row: constraints, hidden points, NaN depths.
+    keep_links : bool
+        Whether ``tiw`` keeps its links in :attr:`sep` (for :func:`broken_constraints`);
+        without, it links each row in :attr:`thread_links`, a per-thread row that
+        stays in cache (the service's choice).
     """
 
-    def __init__(self, rows: int, cols: int, channels: int) -> None:
+    def __init__(self, rows: int, cols: int, channels: int, keep_links: bool = True) -> None:
         self.out = np.zeros((rows, cols, channels), np.uint8)
         self.flat = self.out.reshape(rows, cols * channels)
         self.sep = np.zeros((rows, cols), np.int32)
         threads = nb.config.NUMBA_NUM_THREADS  # numba.get_thread_id() stays below it
         self.heights = np.zeros((threads, cols), np.float32)
         self.scratch = np.zeros((threads, 2, cols), np.int32)
+        self.keep_links = keep_links
+        self.thread_links = np.zeros((threads, cols), np.int32)
         self.counts = np.zeros((rows, 3), np.int64)
 
     def fresh_output(self) -> None:
@@ -97,8 +103,9 @@ def _run_interpolated(depth, args, pattern, work):
 
 
 def _run_tiw(depth, args, pattern, work):
-    tiw_kernel(depth, *args, pattern, work.flat, work.sep, work.heights, work.scratch,
-               work.counts)
+    links = work.sep if work.keep_links else work.thread_links
+    tiw_kernel(depth, *args, pattern, work.flat, links, work.keep_links, work.heights,
+               work.scratch, work.counts)
 
 
 #: Method name -> runner (depth, kernel args, pattern, workspace).
@@ -190,6 +197,8 @@ def broken_constraints(image: np.ndarray, settings: SirdSettings, work: SirdWork
     """
     if settings.method == "interpolated":
         return 0
+    if settings.method == "tiw" and not work.keep_links:
+        raise SettingsError("tiw's links were not kept (SirdWorkspace keep_links=False)")
     if settings.method == "tiw":
         return int(_broken_pairs(image, work.sep))
     w = image.shape[1]

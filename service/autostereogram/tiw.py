@@ -29,7 +29,7 @@ slope at ``z = BAND_Z`` and at ``z = 1``) run side by side in one loop.  The sec
 slope keeps the exact search away from the points of a slope that rises as fast as
 the flattest sight line (the seed's streak case), which the ``z = 1`` bound cannot
 tell from hidden ones.  Scratch rows are per thread, so a frame touches no
-image-sized buffers besides depth, links and output.
+image-sized buffers besides depth and output (and the links, when kept).
 """
 
 from __future__ import annotations
@@ -243,10 +243,33 @@ def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> N
         u = u - 1 if u > 0 else pw - 1
 
 
+@nb.njit(cache=True)
+def _empty_row(o: np.ndarray, same: np.ndarray, keep_links: bool, prow: np.ndarray,
+               nc: int) -> int:
+    """A row on the far plane, where the pattern is ``s(0)`` wide: the pattern, tiled.
+
+    Every point links ``x`` to ``x + s(0)``, so each pixel copies the pixel ``s(0)`` to
+    its right and the right-most ``s(0)`` take ``prow[x mod Wp]``: with ``Wp = s(0)``
+    every pixel is ``prow[x mod Wp]``, no link or colour pass needed.  The links are
+    written only if kept.  Returns the constraints (``W - s(0)``).
+    """
+    w = same.shape[0]
+    pw = prow.shape[0]
+    u = 0
+    for x in range(w):
+        for c in range(nc):
+            o[x * nc + c] = prow[u, c]
+        u = u + 1 if u + 1 < pw else 0
+    if keep_links:
+        for x in range(w):
+            same[x] = x + pw if x < w - pw else x
+    return w - pw
+
+
 @nb.njit(cache=True, parallel=True, nogil=True)
 def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, mu: float,
-               pattern: np.ndarray, out: np.ndarray, links: np.ndarray, heights: np.ndarray,
-               scratch: np.ndarray, counts: np.ndarray) -> None:
+               pattern: np.ndarray, out: np.ndarray, links: np.ndarray, keep_links: bool,
+               heights: np.ndarray, scratch: np.ndarray, counts: np.ndarray) -> None:
     """Draw a SIRD by symmetric constraints with hidden-surface removal, rows in parallel.
 
     One parallel loop over rows (heights and separations, occlusion, links, colours),
@@ -260,8 +283,11 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
     pattern : ndarray, shape (Hp, Wp, C), uint8
     out : ndarray, shape (H, W * C), uint8
         Written.
-    links : ndarray, shape (H, W), int32
-        Written: ``same[]`` per row (``links[y, x] > x`` links x to it, ``== x`` none).
+    links : ndarray, shape (H, W) or (threads, W), int32
+        ``same[]`` per row (``links[y, x] > x`` links x to it, ``== x`` none): written
+        per row if ``keep_links``, else per-thread scratch (a frame then writes no
+        image-sized buffer but its output: 4 bytes a pixel less memory traffic).
+    keep_links : bool
     heights : ndarray, shape (threads, W), float32
         Per-thread scratch: ``z`` of the row (``threads`` >= numba's thread count).
     scratch : ndarray, shape (threads, 2, W), int32
@@ -279,8 +305,13 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         zr = heights[tid]
         sr = scratch[tid, 0]
         look = scratch[tid, 1]
-        same = links[y]
+        same = links[y] if keep_links else links[tid]
         above, bad = _row_geometry(depth[y], far, inv_range, eye_sep, mu, zr, sr)
+        counts[y, 2] = bad
+        if above == 0 and sr[0] == pw:
+            counts[y, 0] = _empty_row(out[y], same, keep_links, pattern[y % ph], nc)
+            counts[y, 1] = 0
+            continue
         for x in range(w):
             same[x] = x
         if above > 0:
@@ -291,4 +322,3 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         _colour_row(out[y], same, pattern[y % ph], nc)
         counts[y, 0] = ncons
         counts[y, 1] = nhid
-        counts[y, 2] = bad

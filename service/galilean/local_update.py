@@ -111,7 +111,13 @@ def obscurers(
 
 
 def _subscene(scene: Scene, keep: list[int]) -> Scene:
-    return Scene([scene.objects[i] for i in keep], list(scene.lights), scene.ambient)
+    """Objects ``keep`` of the scene, with all its billboard clouds.
+
+    The clouds may hide them; their pixels carry no object, so a Flinders Street
+    buffer keeps them as shadow.
+    """
+    return Scene([scene.objects[i] for i in keep], list(scene.lights), scene.ambient,
+                 billboards=list(scene.billboards))
 
 
 def flinders_buffer(

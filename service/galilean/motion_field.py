@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from service.billboard_render import draw_billboards
+from service.billboard_render import draw_billboards, quad_points
 from service.display import DisplaySettings
 from service.frame import Frame
 from service.galilean.galpixmap import RGB_TO_ABC
@@ -287,11 +287,14 @@ def render_with_motion(
                         settings.light) for i in (1, 2, 3)]
     colour = shade(arrays[2], projs[2], vis, display, scenes[2].lights, scenes[2].ambient,
                    settings.light)  # quantised exactly as Renderer.render does
-    if boards is not None:  # billboard pixels: no triangle, so no motion (they have none)
+    if boards is not None:
         boards.paint(colour)
     vd = vertex_derivatives(projs, h)
     der = interpolate(np.ascontiguousarray(vis.triangle, np.int32), arrays[2].triangles,
                       np.ascontiguousarray(projs[2]), np.ascontiguousarray(vd))
+    if boards is not None:  # billboard pixels move with their (rigid, planar) quads
+        corners = [project(quad_points(s.billboards), display) for s in scenes]
+        boards.write_motion(vertex_derivatives(np.stack(corners), h), der)
     dcol = colour_derivatives(lin, h) if colour_motion else None
     obj = _object_map(vis, arrays[2].triangle_polygon, arrays[2].polygon_object)
     if lod:  # the LOD time budget's cost model learns from this render's cost

@@ -12,7 +12,8 @@ from service import cli_bench
 
 def test_a_small_run_writes_csv_json_and_chart(tmp_path, capsys):
     assert cli_bench.main(["sird", "--sizes", "200x60", "--scenes", "sphere,slope",
-                           "--repeats", "1", "--out", str(tmp_path)]) == 0
+                           "--repeats", "1", "--service-size", "160x120",
+                           "--out", str(tmp_path)]) == 0
     rows = list(csv.DictReader((tmp_path / "sird_bench.csv").open()))
     assert {(r["method"], r["scene"]) for r in rows} == {
         (m, s) for m in ("row", "interpolated", "tiw") for s in ("sphere", "slope")}
@@ -21,7 +22,13 @@ def test_a_small_run_writes_csv_json_and_chart(tmp_path, capsys):
     assert [r["method"] for r in data["stability"]] == ["row", "interpolated", "tiw"]
     assert all(r["changed_per_frame"] < 0.05 for r in data["stability"])
     assert (tmp_path / "sird_bench.png").stat().st_size > 10_000
-    assert "stability tiw" in capsys.readouterr().out
+    service = list(csv.DictReader((tmp_path / "sird_service.csv").open()))
+    assert [r["method"] for r in service] == ["row", "interpolated", "tiw"]
+    assert all(0 < float(r["sird_ms_best"]) <= float(r["sird_ms_p50"]) for r in service)
+    ratios = {(r["method"], r["scene"]): r["of_row"] for r in data["streak_ratios"]}
+    assert ratios[("interpolated", "slope")] <= 0.1
+    out = capsys.readouterr().out
+    assert "stability tiw" in out and "service tiw" in out
 
 
 @pytest.mark.parametrize("argv, words", [(["--methods", "nosuch"], "--methods: want one of"),

@@ -10,6 +10,7 @@ from service.display import DisplaySettings
 from service.errors import ServiceError
 from service.light import LightSettings
 from service.loaders import load_scene
+from service.net import wire
 from service.net.client import ServiceClient
 from service.pipeline import Renderer, RenderSettings
 from service.primitives import sphere
@@ -53,8 +54,13 @@ def test_service_renders_a_scene_with_a_billboard_cloud(service_factory, scene_f
         assert np.array_equal(arrays["colour"], local.colour)
         assert np.array_equal(arrays["depth"], local.depth)
         assert c.stats()["last_render_error"] == ""
-        if workers == "0":  # a cloud is no mesh object: one clear line, the scene kept
+        if workers == "0":  # bad input is one clear line, and the scene is kept
             with pytest.raises(ServiceError, match="load_scene") as info:
-                c.load_object(path=str(scene_file.parent / "ball.hbc"))
+                c.load_object(path=str(scene_file.parent / "ball.hbc"))  # no mesh in it
             assert info.value.code == "bad_message"
+            spec = wire.scene_to_wire(load_scene(scene_file))
+            spec["billboards"][0]["cloud"]["tex_offset"] = \
+                spec["billboards"][0]["cloud"]["tex_offset"] + 7  # texels past the end
+            with pytest.raises(ServiceError, match=r"billboards\[0\]\.cloud\.tex_offset"):
+                c.load_scene(scene=spec)
             assert np.array_equal(c.render_once()[1]["colour"], local.colour)

@@ -121,3 +121,52 @@ def test_the_service_loads_a_cloud_as_a_scene(tmp_path, box):
     _, cloud = box
     save_cloud(cloud, tmp_path / "box.hbc")
     assert len(handlers._load_path(str(tmp_path / "box.hbc")).billboards) == 1
+
+
+def test_billboard_pixels_move_like_the_mesh_they_stand_for_when_the_viewer_moves(box):
+    """The Galilean stage advances pixels by their motion derivatives between renders;
+    a billboard pixel's come from its quad (rigid and planar: affine over it), so a
+    cube's cloud moves on screen as the cube does under a translating, turning viewer."""
+    from service.galilean.motion_field import render_with_motion
+    from service.scene import MotionState
+
+    mesh, cloud = box
+    motion = MotionState(velocity=np.array([0.2, -0.1, 0.05]),
+                         angular_velocity=np.array([0.1, 0.4, 0.2]))
+    viewer = Transform(position=np.array([0.05, 0.0, 0.1]))
+
+    def derivatives(scene):
+        up = render_with_motion(Renderer(), scene, DISPLAY, 0.0, 60.0, viewer=viewer,
+                                viewer_motion=motion)
+        return up.derivatives, np.isfinite(up.frame.depth)
+
+    d_mesh, a = derivatives(Scene([SceneObject(mesh, Material(), TILT)]))
+    d_cloud, b = derivatives(Scene([], billboards=[BillboardObject(cloud, Material(), TILT)]))
+    both = a & b
+    vel_mesh, vel_cloud = d_mesh[0][:, both], d_cloud[0][:, both]  # (3, N): x, y px; depth
+    assert np.abs(vel_mesh[:2]).max() > 0.05  # the picture does move
+    assert np.abs(vel_cloud - vel_mesh).max() < 0.01 * np.abs(vel_mesh).max() + 1e-4
+    assert np.allclose(d_cloud[1][:, both], d_mesh[1][:, both], atol=1e-3)
+
+
+def test_a_local_update_behind_a_cloud_stays_behind_it(box):
+    """update_objects re-renders one object alone (service/galilean/local_update.py); a
+    billboard cloud in front of it must still hide it there, as a mesh would."""
+    from service.galilean.fixed_point import FixedPoint, bit_budget
+    from service.galilean.local_update import render_local
+
+    _, cloud = box
+    ball = sphere(0.3, 12, 24)
+    scene = Scene([SceneObject(ball, Material(colour=(1.0, 0.0, 0.0)),
+                               Transform(position=np.array([0.5, 0.0, -0.6])))],
+                  billboards=[BillboardObject(cloud, Material(), Transform(
+                      position=np.array([0.0, 0.0, 0.6])))])
+    fixed = FixedPoint.for_order(bit_budget(max(DISPLAY.cols, DISPLAY.rows), 16, 16), 2)
+    local = render_local(Renderer(), scene, DISPLAY, [0], 0.0, 60.0, 2, fixed).buffer
+    full = Renderer().render(scene, DISPLAY)
+    alone = Renderer().render(Scene(scene.objects), DISPLAY)
+    hidden = np.isfinite(alone.depth) & (full.depth < 0)  # the ball, behind the cloud
+    assert hidden.sum() > 100
+    assert (local.debris[hidden] == 1).all()  # no ball pixel grafted over the cloud
+    shown = (local.debris == 0)
+    assert shown.sum() > 0 and not (shown & hidden).any()
