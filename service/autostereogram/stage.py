@@ -37,12 +37,12 @@ class SirdWorkspace:
     flat : ndarray, shape (H, W * C), uint8
         The same pixels, one flat row per image row (what the kernels write).
     sep : ndarray, shape (H, W), int32
-        ``row``'s separations, ``interpolated``'s (1/256 pixel) or ``tiw``'s links (``same[]``).
+        ``row``'s separations or ``tiw``'s links (``same[]``, when kept).
     heights : ndarray, shape (threads, W), float32
         ``tiw``'s per-thread row of heights.
     scratch : ndarray, shape (threads, 3, W), int32
         Per-thread rows: ``tiw``'s separations, where to search for occluders and the
-        spans steep steps reach; ``interpolated``'s partners.
+        spans steep steps reach; ``interpolated``'s separations and partners.
     edges : ndarray, shape (threads, W rounded up to 8), uint8
         ``tiw``'s per-thread row of steep steps.
     counts : ndarray, shape (H, 3), int64
@@ -101,8 +101,7 @@ def _run_row(depth, args, pattern, work):
 
 
 def _run_interpolated(depth, args, pattern, work):
-    interpolated_kernel(depth, *args, pattern, work.flat, work.sep,
-                        work.scratch.reshape(-1, work.scratch.shape[2]), work.counts)
+    interpolated_kernel(depth, *args, pattern, work.flat, work.scratch, work.counts)
 
 
 def _run_tiw(depth, args, pattern, work):
