@@ -57,7 +57,7 @@ from service.mesh import Mesh
 from service.scene import Scene, SceneObject
 
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
-DEFAULT_FRACTIONS = tuple(round(0.7 * 0.8 ** k, 4) for k in range(21))
+DEFAULT_FRACTIONS = tuple(round(0.7 ** k, 4) for k in range(1, 15))
 #: Billboard-cloud levels: EPS as fractions of the mesh's bounding-box diagonal.  None
 #: by default: where LOD may choose a cloud (about 10 px across at EPS 1 %) it costs
 #: 2-6x less than the full mesh but 2-4x more than the quadric level of the same
@@ -67,7 +67,7 @@ DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
 #: Bump when the chain's contents or file layout change (old cache files are rebuilt).
-CHAIN_VERSION = 5
+CHAIN_VERSION = 6
 #: Environment variable naming the cache folder.
 CACHE_ENV = "HOLO_LOD_CACHE"
 #: An error this many times the finer level's is a jump whose plateau end is sought.
@@ -561,12 +561,18 @@ class FrameCost:
         (triangles, ms) of the frames kept, oldest first.
     fixed_ms, per_triangle : float
         The fitted line (0 until a frame is observed).
+    skip_first : bool
+        Leave out the first frame observed: it pays one-off costs (first calls into
+        the kernels, first touch of the buffers); in the service a first render of
+        the bunny scene measured 12 us per triangle against 2-5 after it, and the
+        budget degraded a frame for it.
     """
 
     window: int = 32
     samples: list = field(default_factory=list)
     fixed_ms: float = 0.0
     per_triangle: float = 0.0
+    skip_first: bool = True
 
     @property
     def ready(self) -> bool:
@@ -576,6 +582,9 @@ class FrameCost:
     def observe(self, triangles: int, ms: float) -> None:
         """Add a frame's triangles and milliseconds and refit."""
         if not (triangles > 0 and np.isfinite(ms) and ms > 0):
+            return
+        if self.skip_first:  # a cold frame: first calls, first touch of its buffers
+            self.skip_first = False
             return
         self.samples.append((int(triangles), float(ms)))
         del self.samples[:-self.window]
@@ -622,9 +631,26 @@ def fit_cost(samples: np.ndarray) -> tuple[float, float]:
                 b, a = np.polyfit(t[keep], ms[keep], 1)
         a = min(max(float(a), 0.0), float(ms[keep].min()))
         b = float(((ms[keep] - a) * t[keep]).sum() / (t[keep] ** 2).sum())
-        if b > 0:
+        if b > 0 and _slope_known(t[keep], ms[keep], a, b):
             return a, b
     return 0.0, float(np.median(ms / t))
+
+
+def _slope_known(t: np.ndarray, ms: np.ndarray, a: float, b: float) -> bool:
+    """Whether the frames pin the slope down: its standard error under 25 % of it.
+
+    Frames of nearly one triangle count on a busy machine give a line whose slope is
+    noise (the service measured 9-12 us per triangle against 2 from a wider spread);
+    the proportional model is right near the frames measured, which is where the
+    budget's next choice lies, and the frames it causes widen the spread.
+    """
+    n = len(t)
+    if n < 3:
+        return True  # two frames 25 % apart: no noise estimate, take the line
+    resid = ms - (a + b * t)
+    spread = float(((t - t.mean()) ** 2).sum())
+    se = float(np.sqrt((resid ** 2).sum() / (n - 2) / spread)) if spread > 0 else np.inf
+    return se < 0.25 * b
 
 
 @dataclass
