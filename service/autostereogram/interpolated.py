@@ -39,32 +39,34 @@ import numpy as np
 FRAC_BITS = 8
 
 
-@nb.njit(cache=True, parallel=True, nogil=True)
-def fixed_separation_rows(depth: np.ndarray, far: float, inv_range: float, eye_sep: float,
-                          mu: float, fsep: np.ndarray, counts: np.ndarray) -> None:
-    """Unrounded ``s(z)`` in 1/256 pixel of every pixel into ``fsep`` (H, W) int32.
+@nb.njit(cache=True, inline="always")
+def fixed_separation_row(drow: np.ndarray, far: float, inv_range: float, eye_sep: float,
+                         mu: float, frow: np.ndarray) -> int:
+    """Unrounded ``s(z)`` in 1/256 pixel of one row into ``frow``; returns its NaN count.
 
-    NaN depths count into ``counts[:, 2]`` (their ``z`` is 0); ``counts[:, :2]`` are zeroed.
+    No loop-carried dependence (inlined in the parallel loop's body, it vectorises).
     """
-    h, w = depth.shape
     e = np.float32(eye_sep * 256.0)
     m = np.float32(mu)
     f = np.float32(far)
     k = np.float32(inv_range)
-    for y in nb.prange(h):
-        drow = depth[y]
-        srow = fsep[y]
-        bad = 0
-        for x in range(w):
-            d = drow[x]
-            bad += d != d
-            z = (f - d) * k
-            z = z if z > np.float32(0.0) else np.float32(0.0)
-            t = m * (z if z < np.float32(1.0) else np.float32(1.0))
-            srow[x] = np.int32((np.float32(1.0) - t) * e / (np.float32(2.0) - t) + np.float32(0.5))
-        counts[y, 0] = 0
-        counts[y, 1] = 0
-        counts[y, 2] = bad
+    bad = 0
+    for x in range(drow.shape[0]):
+        d = drow[x]
+        bad += d != d
+        z = (f - d) * k
+        z = z if z > np.float32(0.0) else np.float32(0.0)
+        t = m * (z if z < np.float32(1.0) else np.float32(1.0))
+        frow[x] = np.int32((np.float32(1.0) - t) * e / (np.float32(2.0) - t) + np.float32(0.5))
+    return bad
+
+
+@nb.njit(cache=True, parallel=True)
+def fixed_separation_map(depth: np.ndarray, far: float, inv_range: float, eye_sep: float,
+                         mu: float, fsep: np.ndarray) -> None:
+    """Every row's :func:`fixed_separation_row` into ``fsep`` (H, W) int32 (tests, tools)."""
+    for y in nb.prange(depth.shape[0]):
+        fixed_separation_row(depth[y], far, inv_range, eye_sep, mu, fsep[y])
 
 
 #: A left pixel no point names (its partner slot).
@@ -154,8 +156,8 @@ def _row(o: np.ndarray, frow: np.ndarray, part: np.ndarray, prow: np.ndarray, nc
 
 @nb.njit(cache=True, parallel=True, nogil=True)
 def interpolated_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float,
-                        mu: float, pattern: np.ndarray, out: np.ndarray, fsep: np.ndarray,
-                        part: np.ndarray, counts: np.ndarray) -> None:
+                        mu: float, pattern: np.ndarray, out: np.ndarray, scratch: np.ndarray,
+                        counts: np.ndarray) -> None:
     """Draw a SIRD with symmetric floating-point constraints and linear interpolation.
 
     Parameters
@@ -166,17 +168,18 @@ def interpolated_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep
     pattern : ndarray, shape (Hp, Wp, C), uint8
     out : ndarray, shape (H, W * C), uint8
         Written.
-    fsep : ndarray, shape (H, W), int32
-        Scratch: separation per pixel in 1/256 pixel.
-    part : ndarray, shape (threads, W), int32
-        Per-thread scratch: each left pixel's partner (1/256 pixel) or :data:`FREE`.
+    scratch : ndarray, shape (threads, >= 2, W), int32
+        Per-thread scratch: the row's separations in 1/256 pixel, and each left pixel's
+        partner (1/256 pixel) or :data:`FREE`.
     counts : ndarray, shape (H, 3), int64
         Written per row: constraints (blended copies), hidden (0), NaN depths.
     """
     h, w = depth.shape
     ph, pw, nc = pattern.shape
-    fixed_separation_rows(depth, far, inv_range, eye_sep, mu, fsep, counts)
     scale = pw / (eye_sep / 2.0) / 256.0
     for y in nb.prange(h):
-        counts[y, 0] = _row(out[y], fsep[y], part[nb.get_thread_id()], pattern[y % ph], nc,
+        frow = scratch[nb.get_thread_id(), 0]
+        counts[y, 2] = fixed_separation_row(depth[y], far, inv_range, eye_sep, mu, frow)
+        counts[y, 0] = _row(out[y], frow, scratch[nb.get_thread_id(), 1], pattern[y % ph], nc,
                             scale)
+        counts[y, 1] = 0

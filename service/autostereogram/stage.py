@@ -37,12 +37,14 @@ class SirdWorkspace:
     flat : ndarray, shape (H, W * C), uint8
         The same pixels, one flat row per image row (what the kernels write).
     sep : ndarray, shape (H, W), int32
-        ``row``'s separations, ``interpolated``'s (1/256 pixel) or ``tiw``'s links (``same[]``).
+        ``row``'s separations or ``tiw``'s links (``same[]``, when kept).
     heights : ndarray, shape (threads, W), float32
         ``tiw``'s per-thread row of heights.
-    scratch : ndarray, shape (threads, 2, W), int32
-        Per-thread rows: ``tiw``'s separations and where to search for occluders;
-        ``interpolated``'s partners.
+    scratch : ndarray, shape (threads, 3, W), int32
+        Per-thread rows: ``tiw``'s separations, where to search for occluders and the
+        spans steep steps reach; ``interpolated``'s separations and partners.
+    edges : ndarray, shape (threads, W rounded up to 8), uint8
+        ``tiw``'s per-thread row of steep steps.
     counts : ndarray, shape (H, 3), int64
         Per row: constraints, hidden points, NaN depths.
     keep_links : bool
@@ -57,7 +59,8 @@ class SirdWorkspace:
         self.sep = np.zeros((rows, cols), np.int32)
         threads = nb.config.NUMBA_NUM_THREADS  # numba.get_thread_id() stays below it
         self.heights = np.zeros((threads, cols), np.float32)
-        self.scratch = np.zeros((threads, 2, cols), np.int32)
+        self.scratch = np.zeros((threads, 3, cols), np.int32)
+        self.edges = np.zeros((threads, (cols + 7) // 8 * 8), np.uint8)
         self.keep_links = keep_links
         self.thread_links = np.zeros((threads, cols), np.int32)
         self.counts = np.zeros((rows, 3), np.int64)
@@ -98,14 +101,13 @@ def _run_row(depth, args, pattern, work):
 
 
 def _run_interpolated(depth, args, pattern, work):
-    interpolated_kernel(depth, *args, pattern, work.flat, work.sep,
-                        work.scratch.reshape(-1, work.scratch.shape[2]), work.counts)
+    interpolated_kernel(depth, *args, pattern, work.flat, work.scratch, work.counts)
 
 
 def _run_tiw(depth, args, pattern, work):
     links = work.sep if work.keep_links else work.thread_links
     tiw_kernel(depth, *args, pattern, work.flat, links, work.keep_links, work.heights,
-               work.scratch, work.counts)
+               work.scratch, work.edges, work.counts)
 
 
 #: Method name -> runner (depth, kernel args, pattern, workspace).

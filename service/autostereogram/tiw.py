@@ -20,16 +20,20 @@ Every constraint holds by construction (0 broken); the kernel counts constraints
 (visible, in-row pairs) and hidden points.
 
 Speed: the exact occlusion search runs only where a cheap bound says a neighbour
-might block.  Every sight line rises at least ``c = step(z)`` per pixel for a point
-at or below ``z``, so ``max over t >= 1 of z(x - t) - c t`` (and the same to the
-right) bounds what can block it.  With the heights tilted, ``z(u) + c u``, that
-bound is a running maximum: a chain of one ``max`` per pixel instead of a
-subtraction and a maximum, and four such chains (left and right, for ``c`` the
-slope at ``z = BAND_Z`` and at ``z = 1``) run side by side in one loop.  The second
-slope keeps the exact search away from the points of a slope that rises as fast as
-the flattest sight line (the seed's streak case), which the ``z = 1`` bound cannot
-tell from hidden ones.  Scratch rows are per thread, so a frame touches no
-image-sized buffers besides depth and output (and the links, when kept).
+might block.  First, a point can be hidden only within ``reach`` (``zmax / c_min``)
+pixels of a step ``|z(v + 1) - z(v)|`` at least as steep as the flattest sight line
+``c_min``: heights cannot climb faster on average than their steepest step.  On a
+row with few such steps (smooth surfaces, silhouettes) the bounds and searches run
+only in the spans those steps reach; the rest links as a flat row.  Within a span
+(or on a row full of steep steps, the seed's slope) every sight line of a point at
+or below ``z`` rises at least ``c = step(z)`` per pixel, so ``max over t >= 1 of
+z(x - t) - c t`` (and the same to the right) bounds what can block it: running
+maxima, two per side (``c`` at ``z = BAND_Z`` and at ``z = 1``; the seed slope rises
+exactly as fast as the flattest sight line, which the ``z = 1`` bound cannot tell
+from hidden points); a shadow's points try the last occluder found first.  A row
+on the far plane with a pattern ``s(0)`` wide is the pattern tiled.  Scratch rows
+are per thread, so a frame touches no image-sized buffers besides depth and output
+(and the links, when kept).
 """
 
 from __future__ import annotations
@@ -41,6 +45,10 @@ import numpy as np
 BAND_Z = 0.75
 #: Slack on the float32 occluder bounds (their rounding over a sight line's reach is less).
 BOUND_SLACK = 4e-6
+#: Slack on the steepness test (float32 differences of heights in [0, 1] round by less).
+EDGE_SLACK = 1e-6
+#: A row with more than W / DENSE_EDGES steep steps is bounded pixel by pixel, not in spans.
+DENSE_EDGES = 16
 
 
 @nb.njit(cache=True)
@@ -142,9 +150,94 @@ def _look_right(zr: np.ndarray, c_band: float, c_min: float, look: np.ndarray) -
     return zmax
 
 
+@nb.njit(cache=True, inline="always")
+def _steep_edges(zr: np.ndarray, c_min: float, edges: np.ndarray) -> tuple[int, float]:
+    """Flag the steps steep enough to hide; returns (their number, a bound on the row's max).
+
+    ``edges[v]`` = 1 where ``|z(v + 1) - z(v)| >= c_min`` (0 for the last pixel and the
+    padding).  The bound is ``(m + 1) / 2^24`` with ``m`` the largest ``z 2^24``
+    truncated, just above the row's largest ``z`` (an integer maximum vectorises, a
+    float one does not).  No loop-carried dependence but the reductions (inlined in
+    the parallel loop's body, the loops vectorise).
+    """
+    w = zr.shape[0]
+    em = np.float32(c_min - EDGE_SLACK)
+    n = 0
+    m = 0
+    for v in range(w - 1):
+        e = abs(zr[v + 1] - zr[v]) >= em
+        edges[v] = np.uint8(e)
+        n += e
+    for v in range(w - 1, edges.shape[0]):
+        edges[v] = 0
+    for x in range(w):
+        m = max(m, np.int32(zr[x] * np.float32(16777216.0)))
+    return n, (m + 1) / 16777216.0
+
+
 @nb.njit(cache=True)
-def _link_flat(sr: np.ndarray, same: np.ndarray, y: int) -> int:
-    """TIW's constraint loop over a row with nothing above the far plane (no occlusion).
+def _spans(edges: np.ndarray, w: int, reach: int, spans: np.ndarray) -> int:
+    """The pixels a steep edge can reach, as merged spans ``spans[2k] .. spans[2k + 1]``.
+
+    A point at ``z`` is hidden to its left only if ``z(x - t) >= z + step(z) t`` for some
+    ``t <= reach``; then some fall ``z(v) - z(v + 1)`` with ``x - t <= v < x`` is at least
+    ``step(z) >= c_min`` (the heights cannot climb faster on average than their
+    steepest step).  So only ``x`` in ``v + 1 .. v + reach`` of a steep edge ``v`` can
+    hide to the left, ``v + 1 - reach .. v`` to the right.  Edges are read eight at
+    a time (they are rare on smooth surfaces).  Returns the number of spans.
+    """
+    words = edges.view(np.uint64)
+    n = 0
+    end = -2
+    for i in range(words.shape[0]):
+        if words[i] == 0:
+            continue
+        last = 8 * i + 7
+        while edges[last] == 0:
+            last -= 1
+        hi = min(w - 1, last + reach)
+        if n > 0 and 8 * i + 1 - reach <= end + 1:  # every edge here joins the open span
+            spans[2 * n - 1] = hi
+        else:
+            first = 8 * i
+            while edges[first] == 0:
+                first += 1
+            spans[2 * n] = max(0, first + 1 - reach)
+            spans[2 * n + 1] = hi
+            n += 1
+        end = hi
+    return n
+
+
+@nb.njit(cache=True)
+def _look_right_span(zr: np.ndarray, lo: int, hi: int, reach: int, c_band: float, c_min: float,
+                look: np.ndarray) -> None:
+    """``look[x]`` = 1 for ``x`` in ``lo .. hi`` where a neighbour to the right might block.
+
+    ``acc = max over t >= 1 of z(x + t) - c t`` bounds the right occluders of every
+    point whose sight line rises at least ``c`` per pixel: ``c_band`` for points at or
+    below ``BAND_Z``, ``c_min`` (the flattest sight line) for any.  Two independent
+    chains in one loop (one subtraction and one maximum a pixel each), started
+    ``reach`` pixels to the right of ``hi`` (no occluder further away counts).
+    """
+    w = zr.shape[0]
+    cb = np.float32(c_band)
+    cm = np.float32(c_min)
+    bz = np.float32(BAND_Z)
+    slack = np.float32(BOUND_SLACK)
+    acc_b = np.float32(-1.0)
+    acc_m = np.float32(-1.0)
+    for x in range(min(w - 1, hi + reach), lo - 1, -1):
+        z = zr[x]
+        bound = acc_b if z <= bz else acc_m
+        look[x] = bound + slack >= z
+        acc_b = max(acc_b, z) - cb
+        acc_m = max(acc_m, z) - cm
+
+
+@nb.njit(cache=True)
+def _link_flat(sr: np.ndarray, same: np.ndarray, y: int, lo: int, hi: int) -> int:
+    """TIW's constraint loop over points ``lo .. hi - 1`` that nothing can hide.
 
     Returns the constraints made.  The common case, a ``left`` not linked yet, is
     tested inline before :func:`_link`'s general search.
@@ -152,7 +245,7 @@ def _link_flat(sr: np.ndarray, same: np.ndarray, y: int) -> int:
     w = sr.shape[0]
     par = y & 1
     ncons = 0
-    for x in range(w):
+    for x in range(lo, hi):
         s = sr[x]
         left = x - ((s + (s & par)) >> 1)
         right = left + s
@@ -221,6 +314,100 @@ def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray
 
 
 @nb.njit(cache=True)
+def _link_span(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray, y: int,
+               lo: int, hi: int, reach: int, zmax: float, eye_sep: float,
+               mu: float) -> tuple[int, int]:
+    """TIW's constraint loop over ``lo .. hi``, a span a steep edge can reach.
+
+    Returns (constraints, hidden points).  The exact search (:func:`_occluder`)
+    runs to the right where :func:`_look_right_span` says so, and to the left where the
+    mirror bound (two chains kept here as ``x`` moves right, started ``reach``
+    pixels before ``lo``) reaches the point.
+    """
+    w = zr.shape[0]
+    step0 = 2.0 / (mu * eye_sep)
+    cb = np.float32(step0 * (2.0 - mu * BAND_Z))
+    cm = np.float32(step0 * (2.0 - mu))
+    bz = np.float32(BAND_Z)
+    slack = np.float32(BOUND_SLACK)
+    acc_b = np.float32(-1.0)
+    acc_m = np.float32(-1.0)
+    for x in range(max(0, lo - reach), lo):
+        z = zr[x]
+        acc_b = max(acc_b, z) - cb
+        acc_m = max(acc_m, z) - cm
+    par = y & 1
+    ncons = 0
+    nhid = 0
+    occ_l = -1  # the last occluders found on each side
+    occ_r = -1
+    for x in range(lo, hi + 1):
+        s = sr[x]
+        z = zr[x]
+        bound = acc_b if z <= bz else acc_m
+        look_left = bound + slack >= z
+        acc_b = max(acc_b, z) - cb
+        acc_m = max(acc_m, z) - cm
+        left = x - ((s + (s & par)) >> 1)
+        right = left + s
+        if left < 0 or right >= w:
+            continue
+        look_right = look[x] != 0
+        if (look_left or look_right) and z < zmax:
+            step = step0 * (2.0 - mu * z)
+            if look_left:
+                occ_l = _occluder(zr, x, z, zmax, step, -1, occ_l)
+                if occ_l >= 0:
+                    nhid += 1
+                    continue
+            if look_right:
+                occ_r = _occluder(zr, x, z, zmax, step, 1, occ_r)
+                if occ_r >= 0:
+                    nhid += 1
+                    continue
+        ncons += 1
+        if same[left] == left:
+            same[left] = right
+        else:
+            _link(same, left, right)
+    return ncons, nhid
+
+
+@nb.njit(cache=True)
+def _link_sparse(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, rows: np.ndarray,
+              edges: np.ndarray, y: int, zmax: float, eye_sep: float,
+              mu: float) -> tuple[int, int]:
+    """TIW's constraint loop over a row whose steep edges are few.
+
+    Occlusion is looked for only in the spans a steep edge can reach (:func:`_spans`);
+    between them the row links as a flat one (:func:`_link_flat`).  ``rows`` is the
+    thread's scratch: ``rows[1]`` the right bounds, ``rows[2]`` the spans.  ``zmax``
+    may exceed the row's largest ``z`` (the searches then look a little further and
+    find the same occluders: nothing higher than the row's largest ``z`` exists).
+    """
+    w = zr.shape[0]
+    step0 = 2.0 / (mu * eye_sep)
+    c_band = step0 * (2.0 - mu * BAND_Z)
+    c_min = step0 * (2.0 - mu)
+    reach = int(zmax / c_min) + 1  # no line of sight climbs past zmax further away
+    spans = rows[2]
+    nspans = _spans(edges, w, reach, spans)
+    ncons = 0
+    nhid = 0
+    done = 0
+    for k in range(nspans):
+        lo = spans[2 * k]
+        hi = spans[2 * k + 1]
+        ncons += _link_flat(sr, same, y, done, lo)
+        _look_right_span(zr, lo, hi, reach, c_band, c_min, rows[1])
+        c, h = _link_span(zr, sr, same, rows[1], y, lo, hi, reach, zmax, eye_sep, mu)
+        ncons += c
+        nhid += h
+        done = hi + 1
+    return ncons + _link_flat(sr, same, y, done, w), nhid
+
+
+@nb.njit(cache=True)
 def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> None:
     """Right to left: free pixels take ``prow[x mod Wp]``, linked ones their link's colour."""
     pw = prow.shape[0]
@@ -243,10 +430,34 @@ def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> N
         u = u - 1 if u > 0 else pw - 1
 
 
+@nb.njit(cache=True)
+def _empty_row(o: np.ndarray, same: np.ndarray, keep_links: bool, prow: np.ndarray,
+               nc: int) -> int:
+    """A row on the far plane, where the pattern is ``s(0)`` wide: the pattern, tiled.
+
+    Every point links ``x`` to ``x + s(0)``, so each pixel copies the pixel ``s(0)`` to
+    its right and the right-most ``s(0)`` take ``prow[x mod Wp]``: with ``Wp = s(0)``
+    every pixel is ``prow[x mod Wp]``, no link or colour pass needed.  The links are
+    written only if kept.  Returns the constraints (``W - s(0)``).
+    """
+    w = same.shape[0]
+    pw = prow.shape[0]
+    u = 0
+    for x in range(w):
+        for c in range(nc):
+            o[x * nc + c] = prow[u, c]
+        u = u + 1 if u + 1 < pw else 0
+    if keep_links:
+        for x in range(w):
+            same[x] = x + pw if x < w - pw else x
+    return w - pw
+
+
 @nb.njit(cache=True, parallel=True, nogil=True)
 def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, mu: float,
                pattern: np.ndarray, out: np.ndarray, links: np.ndarray, keep_links: bool,
-               heights: np.ndarray, scratch: np.ndarray, counts: np.ndarray) -> None:
+               heights: np.ndarray, scratch: np.ndarray, edges: np.ndarray,
+               counts: np.ndarray) -> None:
     """Draw a SIRD by symmetric constraints with hidden-surface removal, rows in parallel.
 
     One parallel loop over rows (heights and separations, occlusion, links, colours),
@@ -267,8 +478,10 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
     keep_links : bool
     heights : ndarray, shape (threads, W), float32
         Per-thread scratch: ``z`` of the row (``threads`` >= numba's thread count).
-    scratch : ndarray, shape (threads, 2, W), int32
-        Per-thread scratch: ``s(z)`` of the row, and where to search to the right.
+    scratch : ndarray, shape (threads, 3, W), int32
+        Per-thread scratch: ``s(z)`` of the row, where to search to the right, spans.
+    edges : ndarray, shape (threads, W8), uint8
+        Per-thread scratch: the row's steep steps (``W8``: ``W`` rounded up to 8).
     counts : ndarray, shape (H, 3), int64
         Written per row: constraints, hidden points, NaN depths.
     """
@@ -284,14 +497,23 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         look = scratch[tid, 1]
         same = links[y] if keep_links else links[tid]
         above, bad = _row_geometry(depth[y], far, inv_range, eye_sep, mu, zr, sr)
+        counts[y, 2] = bad
+        if above == 0 and sr[0] == pw:
+            counts[y, 0] = _empty_row(out[y], same, keep_links, pattern[y % ph], nc)
+            counts[y, 1] = 0
+            continue
         for x in range(w):
             same[x] = x
-        if above > 0:
-            zmax = _look_right(zr, c_band, c_min, look)
-            ncons, nhid = _link_row(zr, sr, same, look, y, zmax, eye_sep, mu)
+        if above == 0:
+            ncons, nhid = _link_flat(sr, same, y, 0, w), 0
         else:
-            ncons, nhid = _link_flat(sr, same, y), 0
+            nsteep, zbound = _steep_edges(zr, c_min, edges[tid])
+            if nsteep * DENSE_EDGES > w:  # a slope: bound every pixel
+                zmax = _look_right(zr, c_band, c_min, look)
+                ncons, nhid = _link_row(zr, sr, same, look, y, zmax, eye_sep, mu)
+            else:
+                ncons, nhid = _link_sparse(zr, sr, same, scratch[tid], edges[tid], y, zbound,
+                                           eye_sep, mu)
         _colour_row(out[y], same, pattern[y % ph], nc)
         counts[y, 0] = ncons
         counts[y, 1] = nhid
-        counts[y, 2] = bad

@@ -24,6 +24,7 @@ from service.autostereogram.decode import (
     streak_fraction,
 )
 from service.autostereogram.depth_scenes import seed_slope, sphere, steps
+from service.autostereogram.interpolated import fixed_separation_map
 from service.errors import HoloError, SettingsError
 
 #: One grey pattern row 10, 20, 30, 40 (width s(0) = 4 for E = 8).
@@ -171,10 +172,12 @@ def test_interpolated_keeps_its_symmetric_blends(depth, eye_sep, seed):
     pattern = random_dots(int(np.floor(eye_sep / 2 + 0.5)), 8, seed=seed)
     img, stats, s, work = _draw("interpolated", depth, eye_sep, pattern)
     w = depth.shape[1]
+    fsep = np.zeros(depth.shape, np.int32)
+    fixed_separation_map(depth, s.far, 1.0 / (s.far - s.near), s.eye_sep, s.mu, fsep)
     kept = 0
     for y in range(depth.shape[0]):
         row = img[y, :, 0].astype(np.int64)
-        for left, r in enumerate(_symmetric_partners(work.sep[y]).tolist()):
+        for left, r in enumerate(_symmetric_partners(fsep[y]).tolist()):
             i, f = divmod(r, 256)
             if r < 0:
                 assert row[left] == pattern[y % 8, left % s.max_sep, 0]

@@ -169,3 +169,35 @@ def test_corners_on_one_row_whose_x_order_differs_between_zones(seed):
     scene = SimpleNamespace(triangles=tris)
     want = zbuffer(scene, proj, d, order, draw, shared=False)
     assert_same(zbuffer(scene, proj, d, order, draw), want)
+
+
+def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
+    # the per-triangle set-up the one-pass kernel shares between zones, against
+    # setup_xyz run in each zone: same corners, same depth plane, to the last bit
+    # (the buffers alone would hide a last-bit difference behind the float32 store)
+    from service.raster import _setup_zones, setup_xyz, vertex_tables
+
+    d = DisplaySettings(zones=7, angle_deg=60.0, cols=64, rows=48)
+    rng = np.random.default_rng(3)
+    v = np.column_stack([
+        rng.uniform(-0.5, 0.5, 300),
+        rng.choice(np.linspace(-0.3, 0.3, 4), 300),  # many corners share a row
+        rng.uniform(-0.6, 0.6, 300),
+    ])
+    proj = project(v, d)
+    tables = vertex_tables(proj)
+    xs, plane = np.zeros((3, d.zones)), np.zeros((3, d.zones))
+    live = np.zeros(d.zones, bool)
+    draw = np.ones(d.zones, bool)
+    ties = 0
+    for tri in rng.integers(0, 300, (200, 3)).astype(np.int32):
+        ay, by, cy = _setup_zones(tables, tri, draw, xs, plane, live)
+        ties += len({proj[0, k, 1] for k in tri}) < 3
+        for z in range(d.zones):
+            st = setup_xyz(*proj[z, tri].ravel(), d.rows)
+            assert live[z] == st[0]
+            if st[0]:
+                assert (st[4], st[6], st[8]) == (ay, by, cy)
+                assert (st[3], st[5], st[7]) == tuple(xs[:, z])
+                assert (st[9], st[10], st[11]) == tuple(plane[:, z])
+    assert ties > 20
