@@ -425,7 +425,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"budget {r['crowd']:8s}: {r['budget_ms']:.1f} ms asked, model predicted "
               f"{r['predicted_ms']:.1f} ms, frame measured {r['measured_ms']:.1f} ms wall "
               f"({r['cpu_ms']:.1f} ms CPU), {r['triangles']} triangles, "
-              f"{r['over_error']} objects past the error budget")
+              f"{r['over_error']} objects past the error budget; LOD choice with the "
+              f"budget {r['select_ms']:.3f} ms (best of {LOD_STEP_CALLS} calls)")
     for r in (r for r in crowd if r["lod"] == "on"):
         print(f"target {r['crowd']:8s}: x{r['cpu_speedup']:.1f} CPU (>= 5: "
               f"{'met' if r['cpu_speedup'] >= 5 else 'NOT met'}), "
