@@ -219,7 +219,9 @@ def chart(rows: list[dict], service: list[dict], path: Path) -> None:
         ax.set_xticks(range(len(mine)), labels, fontsize=5)
         ax.set_ylabel("streak pixels (runs of 3+)")
     _service_panel(axes[0][-1], service, colours)
-    _ratio_panel(axes[1][-1], streak_ratios(rows), colours)
+    ratios = streak_ratios(rows)
+    on_slope = [r for r in ratios if r["scene"] == "slope"]
+    _ratio_panel(axes[1][-1], on_slope or ratios, colours)
     handles = [plt.Line2D([], [], marker="o", ls="", color=c, label=m) for m, c in colours.items()]
     fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
@@ -250,7 +252,7 @@ def _ratio_panel(ax, ratios: list[dict], colours: dict[str, str]) -> None:
     ax.set_yscale("log")
     ax.axhline(0.1, color="k", ls="--", lw=1)
     ax.set_ylabel("streak pixels / row's (log)")
-    ax.set_title("streaks relative to row (target on the slope: 1/10)", fontsize=8)
+    ax.set_title("streak pixels relative to row's (the slope's target: 1/10)", fontsize=8)
 
 
 def write(rows: list[dict], stable: list[dict], service: list[dict], meta: dict,

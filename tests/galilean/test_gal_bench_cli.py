@@ -76,3 +76,20 @@ def test_cli_timing(tmp_path, capsys):
         assert v["update_ratio"] == pytest.approx(
             doc["render_with_motion_ms"] / v["ms_per_refresh"])
     assert doc["shadow"]["shadow_depth_ms"] > 0
+
+
+def test_targets_refresh_and_premise_rows_print(tmp_path):
+    """The refresh and premise rows of holo-bench targets: side figures, and one line each."""
+    from service.bench import targets_bench as tb
+
+    rows = [tb.refresh_target((48, 36), 17)]  # past one re-update (every 15 refreshes)
+    rows += tb.premise_target((48, 36), 2, counts=(0, 3000))
+    ref, flat, tenx = rows
+    assert ref["ms_moving_min"] <= ref["ms_moving"] and ref["cpu_ms_moving"] > 0
+    assert flat["ratio_cpu"] == pytest.approx(
+        flat["refresh_cpu_ms"][-1] / flat["refresh_cpu_ms"][0], rel=0.01)
+    assert len(flat["moving_pct"]) == 2 and tenx["ratio_cpu"] is None  # no 100k step
+    lines = [tb.summary(r) for r in rows]
+    assert lines[1].startswith("premise-flat") and "CPU time" in lines[1]
+    met = [r["met"] for r in rows]
+    assert "CPU" in lines[0] and [("NOT met" not in x) for x in lines] == met
