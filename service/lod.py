@@ -74,6 +74,8 @@ CACHE_ENV = "HOLO_LOD_CACHE"
 PLATEAU_JUMP = 1.5
 #: Decimations spent seeking each such plateau end (bisection on the fraction).
 PLATEAU_STEPS = 3
+#: Dead band of the time budget, a fraction of it (:meth:`LodState._budget`).
+BUDGET_BAND = 0.1
 #: Levels smaller than this many triangles are not built.
 MIN_TRIANGLES = 8
 
@@ -747,7 +749,7 @@ class LodState:
         level, predicted = select_levels(errors * scale[:, None], ppu,
                                          settings.error_px, self.previous, settings.hysteresis)
         if settings.budget_ms is not None and self.cost.ready and len(objs):
-            level = self._degrade(objs, tab, level, scale * ppu, settings.budget_ms, clouds)
+            level = self._budget(objs, tab, level, scale * ppu, settings.budget_ms, clouds)
             predicted = errors[np.arange(len(objs)), level] * scale * ppu
         select_ms = (time.perf_counter_ns() - t0) / 1e6
         self.previous = level
@@ -806,6 +808,24 @@ class LodState:
                                        o.name))
         self._last = (list(objs), level.copy(), out, list(boards), tab)
         return out, boards
+
+    def _budget(self, objs: list, tab: dict, level: np.ndarray, size_px: np.ndarray,
+                budget_ms: float, clouds: bool) -> np.ndarray:
+        """The error's levels, degraded to the time budget with a dead band.
+
+        Last frame's degrading is held while its predicted cost stays within
+        ``[(1 - 2 BUDGET_BAND), 1] x budget``; over the budget the levels are planned
+        again for ``(1 - BUDGET_BAND) x budget``; once the error's own levels fit
+        ``(1 - 2 BUDGET_BAND) x budget`` they are taken back.  A frame cost (and a
+        model) that wobbles by a few % then moves no object between levels.
+        """
+        rows = np.arange(level.size)
+        cost = lambda lv: self.cost.predict(tab["triangles"][rows, lv].sum())  # noqa: E731
+        held = np.maximum(level, self.previous)  # last frame's degrading kept
+        if cost(held) > budget_ms:
+            return self._degrade(objs, tab, level, size_px,
+                                 (1 - BUDGET_BAND) * budget_ms, clouds)
+        return level if cost(level) <= (1 - 2 * BUDGET_BAND) * budget_ms else held
 
     def _degrade(self, objs: list, tab: dict, level: np.ndarray, size_px: np.ndarray,
                  budget_ms: float, clouds: bool) -> np.ndarray:
