@@ -14,6 +14,7 @@ import importlib
 import os
 import sys
 
+from service.blas import single_threaded_blas
 from service.errors import HoloError
 from service.heap import keep_freed_memory
 from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
@@ -93,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     # the measured code needs (see service.cli_service.main); set before numba loads
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     keep_freed_memory()  # as the service does (service.heap)
+    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
     prog = f"holo-bench {argv[0]}"
     return interruptible(prog, lambda: _run(prog, BENCHES[argv[0]][0], argv[1:]))
 

@@ -22,6 +22,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from service.blas import single_threaded_blas
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
@@ -194,6 +195,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # before the first parallel kernel loads libgomp; workers inherit it.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     keep_freed_memory()  # frame-sized arrays reuse freed pages (service.heap)
+    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
     from service.net.server import Service
     from service.net.state import ServiceConfig
 

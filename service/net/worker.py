@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from service.blas import single_threaded_blas
 from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.galpixmap import FIELDS, Galpixmap, build
@@ -337,6 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m service.net.worker``."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.cli_service.main
     keep_freed_memory()  # see service.heap
+    single_threaded_blas()  # see service.blas
     ap = argparse.ArgumentParser(prog="holo-service-worker")
     ap.add_argument("--connect", default="tcp://127.0.0.1:5557")
     ap.add_argument("--curve-keys", default=None)
