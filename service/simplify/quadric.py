@@ -42,8 +42,8 @@ def check_triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray
     return v, f.astype(np.int64)
 
 
-def decimate(vertices: np.ndarray, faces: np.ndarray,
-             target_fraction: float) -> tuple[np.ndarray, np.ndarray, float]:
+def decimate(vertices: np.ndarray, faces: np.ndarray, target_fraction: float,
+             agg: int = 7) -> tuple[np.ndarray, np.ndarray, float]:
     """Collapse edges until about ``target_fraction`` of the triangles remain.
 
     Parameters
@@ -52,6 +52,9 @@ def decimate(vertices: np.ndarray, faces: np.ndarray,
     faces : ndarray, shape (F, 3), int
     target_fraction : float
         In (0, 1]; 1 returns the mesh unchanged (error 0).
+    agg : int
+        fast-simplification's aggressiveness (its default 7; lower collapses more
+        carefully: the LOD chain uses 4, see :data:`service.lod.QUADRIC_AGG`).
 
     Returns
     -------
@@ -72,7 +75,7 @@ def decimate(vertices: np.ndarray, faces: np.ndarray,
     if target_fraction == 1.0:
         return v.copy(), f.copy(), 0.0
     vs, fs = fast_simplification.simplify(v, f.astype(np.int32),
-                                          target_reduction=1.0 - target_fraction)
+                                          target_reduction=1.0 - target_fraction, agg=agg)
     fs = np.asarray(fs, dtype=np.int64)
     if fs.shape[0] == 0:  # collapsed to nothing: keep the coarsest thing that is a mesh
         raise SimplifyError(f"target fraction {target_fraction} leaves no triangles")
