@@ -25,6 +25,7 @@ from pathlib import Path
 from game.actions import binding_help, lamp_mask
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
+from service.blas import single_threaded_blas
 from service.cli_args import add_size_option, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
@@ -283,6 +284,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if notice:
         print(f"holo-game: {notice}", file=sys.stderr)
     keep_freed_memory()  # every frame arrives in fresh buffers (service.heap)
+    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
     if args.print_lamps:
         print(f"0x{lamp_mask():08x}")
         return 0

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.blas import single_threaded_blas
 from service.builtin_scenes import SCENES, builtin_scene
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
@@ -294,6 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
     keep_freed_memory()  # see service.heap
+    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
     return interruptible("holo-render", lambda: _main(args))
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.blas import single_threaded_blas
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.frame import write_quilt, write_strip, write_zones
@@ -39,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=5, help="renders per method for the median")
     args = p.parse_args(argv)
     keep_freed_memory()  # see service.heap
+    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
     display = DisplaySettings(zones=5, angle_deg=16.0, cols=320, rows=240)
     scene = builtin_scene(args.scene)
     out = Path(args.out)
