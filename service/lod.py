@@ -66,8 +66,14 @@ DEFAULT_FRACTIONS = tuple(round(0.7 ** k, 4) for k in range(1, 15))
 DEFAULT_CLOUD_EPS: tuple[float, ...] = ()
 #: Billboard texels are grown by this many EPS to close cracks (service.simplify).
 CLOUD_DILATE = 0.5
+#: A cloud's cost in triangles per quad: a quad covers many pixels, each with a texel
+#: lookup, alpha and depth tests and its own light; holo-bench billboard part 4
+#: measured a quad at about 60-130 triangles' worth of frame time (5 zones, 320x240,
+#: bunny, torus and spiky attacker at 10 px).  Counting it as the two triangles it
+#: is drawn as let LOD pick a cloud that cost 1.9x the quadric level beside it.
+QUAD_TRIANGLES = 100
 #: Bump when the chain's contents or file layout change (old cache files are rebuilt).
-CHAIN_VERSION = 7
+CHAIN_VERSION = 8
 #: Environment variable naming the cache folder.
 CACHE_ENV = "HOLO_LOD_CACHE"
 #: An error this many times the finer level's is a jump whose plateau end is sought.
@@ -175,8 +181,8 @@ class LodChain:
         Geometric error of each level in mesh units, ``errors[0] == 0``,
         non-decreasing over the mesh levels (a cloud's is :func:`cloud_error`).
     triangles : ndarray, shape (L,), int64
-        Triangles of a mesh level; twice the quads of a cloud (a cost proxy: a quad
-        is drawn like two triangles, with a texel lookup per pixel).
+        Triangles of a mesh level; for a cloud, its quads times :data:`QUAD_TRIANGLES`
+        (the measured cost of a quad in triangles' worth of frame time).
     kinds : tuple of str
         ``"full"``, ``"quadric"`` or ``"billboard"`` per level.
     radius : float
@@ -362,7 +368,7 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
     parts = ([(mesh, 0.0, mesh.triangles.shape[0], "full")]
              + [(m, e, m.n_polygons, "quadric") for (m, _), e in zip(levels, errors[1:],
                                                                       strict=True)]
-             + [(c, e, 2 * c.n_billboards, "billboard") for c, e in clouds])
+             + [(c, e, QUAD_TRIANGLES * c.n_billboards, "billboard") for c, e in clouds])
     parts = parts[:1] + sorted(parts[1:], key=lambda p: -p[2])  # dearest first (stable)
     chain = LodChain(
         levels=tuple(p[0] for p in parts),
