@@ -156,7 +156,7 @@ def test_corners_on_one_row_whose_x_order_differs_between_zones(seed):
         rng.choice(np.linspace(-0.3, 0.3, 5), 600),
         rng.uniform(-0.6, 0.6, 600),
     ])
-    tris = rng.integers(0, 600, (400, 3)).astype(np.int32)
+    tris = rng.integers(0, 600, (400, 3)).astype(np.int64)  # the pipeline's dtype: no new compile
     proj = project(v, d)
     swapped = 0
     for a, b in ((0, 1), (1, 2), (0, 2)):

@@ -1,4 +1,4 @@
-"""A slow subscriber for 30 s: the service's memory stays flat, fast ones keep up."""
+"""A slow subscriber for 20 s: the service's memory stays flat, fast ones keep up."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def test_slow_subscriber_memory_flat(service_factory):
         samples, got_slow = [], 0
         start = time.monotonic()
         fast_frames = fast.frames
-        while time.monotonic() - start < 30.0:
+        while time.monotonic() - start < 20.0:
             if slow.poll(0):  # one message per second at most: a slow display
                 slow.recv_multipart()
                 got_slow += 1
@@ -54,7 +54,7 @@ def test_slow_subscriber_memory_flat(service_factory):
         assert produced_mb > 300, "the test needs the service to publish far more than the cap"
         assert grown_mb < 64, f"service RSS grew {grown_mb:.1f} MB with a slow subscriber"
         with ServiceClient(svc.control, timeout_s=5) as c:
-            assert c.stats()["frames_published"] > 1000
+            assert c.stats()["frames_published"] > 600
     finally:
         slow.close(0)
         fast.close()
