@@ -25,12 +25,16 @@ pixels of a step ``|z(v + 1) - z(v)|`` at least as steep as the flattest sight l
 ``c_min``: heights cannot climb faster on average than their steepest step.  On a
 row with few such steps (smooth surfaces, silhouettes) the bounds and searches run
 only in the spans those steps reach; the rest links as a flat row.  Within a span
-(or on a row full of steep steps, the seed's slope) every sight line of a point at
-or below ``z`` rises at least ``c = step(z)`` per pixel, so ``max over t >= 1 of
-z(x - t) - c t`` (and the same to the right) bounds what can block it: running
-maxima, two per side (``c`` at ``z = BAND_Z`` and at ``z = 1``; the seed slope rises
-exactly as fast as the flattest sight line, which the ``z = 1`` bound cannot tell
-from hidden points); a shadow's points try the last occluder found first.  A row
+every sight line of a point at or below ``z`` rises at least ``c = step(z)`` per
+pixel, so ``max over t >= 1 of z(x - t) - c t`` (and the same to the right) bounds
+what can block it: running maxima, two per side (``c`` at ``z = BAND_Z`` and at
+``z = 1``); a shadow's points try the last occluder found first.  On a row full of
+steep steps (the seed's slope) the left side needs no bound: only a strictly higher
+pixel can block, and past one that does not, only the next strictly higher one to
+its left, so a walk over those (each pixel's nearest strictly higher pixel, found
+by the usual stack walk) decides each point, on the slope in one test.  The right
+side keeps the two running maxima, in 24-bit fixed point (integer chains are
+shorter), the band at ``z = DENSE_BAND_Z`` (no slope point then needs a search).  A row
 on the far plane with a pattern ``s(0)`` wide is the pattern tiled.  Scratch rows
 are per thread, so a frame touches no image-sized buffers besides depth and output
 (and the links, when kept).
@@ -47,6 +51,12 @@ BAND_Z = 0.75
 BOUND_SLACK = 4e-6
 #: Slack on the steepness test (float32 differences of heights in [0, 1] round by less).
 EDGE_SLACK = 1e-6
+#: The band of the dense rows' right bounds (their left side needs none): points at or
+#: below it need a rise as steep as its sight line; on the seed's slope no point then
+#: needs a search.
+DENSE_BAND_Z = 0.95
+#: Fixed-point unit of the dense rows' right bounds (heights in [0, 1] as integers).
+FIXED_ONE = 16777216
 #: A row with more than W / DENSE_EDGES steep steps is bounded pixel by pixel, not in spans.
 DENSE_EDGES = 16
 
@@ -123,31 +133,47 @@ def _row_geometry(drow: np.ndarray, far: float, inv_range: float, eye_sep: float
     return above, bad
 
 
+@nb.njit(cache=True, inline="always")
+def _fixed_heights(zr: np.ndarray, q: np.ndarray) -> float:
+    """``q = trunc(z 2^24)`` (inlined: it vectorises); returns a bound on the row's max.
+
+    The bound is the largest ``z`` exactly where it is at least 1/2 (``z 2^24`` is
+    then an integer), else just above it: TIW's searches up to a higher bound find
+    the same occluders (nothing is higher than the row's largest ``z``).
+    """
+    m = 0
+    for x in range(zr.shape[0]):
+        v = np.int32(zr[x] * np.float32(FIXED_ONE))
+        q[x] = v
+        m = max(m, v)
+    return m / FIXED_ONE if m >= FIXED_ONE // 2 else (m + 1) / FIXED_ONE
+
+
 @nb.njit(cache=True)
-def _look_right(zr: np.ndarray, c_band: float, c_min: float, look: np.ndarray) -> float:
-    """``look[x]`` = 1 where a neighbour to the right might block ``x``; returns the row's max.
+def _look_right(q: np.ndarray, c_band: float, c_min: float, look: np.ndarray) -> None:
+    """``look[x]`` = 1 where a neighbour to the right might block ``x``.
 
     ``acc = max over t >= 1 of z(x + t) - c t`` bounds the right occluders of every
     point whose sight line rises at least ``c`` per pixel: ``c_band`` for points at or
-    below ``BAND_Z``, ``c_min`` (the flattest sight line) for any.  Two independent
-    chains in one loop (one subtraction and one maximum a pixel each).
+    below ``DENSE_BAND_Z``, ``c_min`` (the flattest sight line) for any.  Two
+    independent chains in one loop, in integers (``q = trunc(z 2^24)``, ``c`` rounded
+    down a unit, the slack two units wider): an integer maximum and subtraction
+    cost a cycle each, the float ones several, and the chains are the loop's
+    critical path.
     """
-    w = zr.shape[0]
-    cb = np.float32(c_band)
-    cm = np.float32(c_min)
-    bz = np.float32(BAND_Z)
-    slack = np.float32(BOUND_SLACK)
-    acc_b = np.float32(-1.0)
-    acc_m = np.float32(-1.0)
-    zmax = np.float32(0.0)
+    w = q.shape[0]
+    cb = np.int64(c_band * FIXED_ONE) - 1
+    cm = np.int64(c_min * FIXED_ONE) - 1
+    bz = np.int64(DENSE_BAND_Z * FIXED_ONE)
+    slack = np.int64(BOUND_SLACK * FIXED_ONE) + 2
+    acc_b = np.int64(-FIXED_ONE)
+    acc_m = np.int64(-FIXED_ONE)
     for x in range(w - 1, -1, -1):
-        z = zr[x]
-        bound = acc_b if z <= bz else acc_m
-        look[x] = bound + slack >= z
-        zmax = max(zmax, z)
-        acc_b = max(acc_b, z) - cb
-        acc_m = max(acc_m, z) - cm
-    return zmax
+        v = np.int64(q[x])
+        bound = acc_b if v <= bz else acc_m
+        look[x] = bound + slack >= v
+        acc_b = max(acc_b, v) - cb
+        acc_m = max(acc_m, v) - cm
 
 
 @nb.njit(cache=True)
@@ -259,47 +285,67 @@ def _link_flat(sr: np.ndarray, same: np.ndarray, y: int, lo: int, hi: int) -> in
     return ncons
 
 
+@nb.njit(cache=True, inline="always")
+def _hidden_left(zr: np.ndarray, pg: np.ndarray, x: int, z: float, zmax: float,
+                 step: float) -> bool:
+    """Whether a neighbour to the left blocks ``x`` (TIW's loop, over the candidates only).
+
+    ``pg[x]`` is the nearest pixel to the left strictly higher than ``z`` (-1 if none):
+    nothing between can block (it is no higher than ``z``, and the sight line is
+    above ``z``).  Past a candidate ``j`` that does not block, the next that can is
+    ``pg[j]``: everything between is no higher than ``z(j)``, and the line there is
+    higher than at ``j`` (``z + step t`` grows with ``t``, rounding included).  So the
+    walk tests the same pixels' heights against the same ``z + step t`` as the loop
+    over every ``t``, skipping only pixels that cannot block, and stops where that
+    loop does (``z + step t > zmax``).
+    """
+    j = pg[x]
+    while j >= 0:
+        zt = z + step * (x - j)
+        if zt > zmax:
+            return False
+        if zr[j] >= zt:
+            return True
+        j = pg[j]
+    return False
+
+
 @nb.njit(cache=True)
-def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray, y: int,
-              zmax: float, eye_sep: float, mu: float) -> tuple[int, int]:
+def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray,
+              pg: np.ndarray, y: int, zmax: float, eye_sep: float,
+              mu: float) -> tuple[int, int]:
     """TIW's constraint loop over a row with something above the far plane.
 
-    Returns (constraints, hidden points).  The exact search (:func:`_occluder`)
-    runs to the right where :func:`_look_right` says so, and to the left where the
-    mirror bound (two chains kept here as ``x`` moves right) reaches the point.
+    Returns (constraints, hidden points).  To the left, the walk over strictly
+    higher pixels (:func:`_hidden_left`; ``pg``, scratch, gets each pixel's nearest
+    strictly higher pixel to its left, the usual stack walk: amortised one step a
+    pixel) replaces a bound and a search: on the seed's slope it decides every point
+    in one test.  To the right, the exact search (:func:`_occluder`) runs where
+    :func:`_look_right` says so.
     """
     w = zr.shape[0]
     step0 = 2.0 / (mu * eye_sep)
-    cb = np.float32(step0 * (2.0 - mu * BAND_Z))
-    cm = np.float32(step0 * (2.0 - mu))
-    bz = np.float32(BAND_Z)
-    slack = np.float32(BOUND_SLACK)
-    acc_b = np.float32(-1.0)
-    acc_m = np.float32(-1.0)
     par = y & 1
     ncons = 0
     nhid = 0
-    occ_l = -1  # the last occluders found on each side
-    occ_r = -1
+    occ_r = -1  # the last occluder found to the right
     for x in range(w):
-        s = sr[x]
         z = zr[x]
-        bound = acc_b if z <= bz else acc_m
-        look_left = bound + slack >= z
-        acc_b = max(acc_b, z) - cb
-        acc_m = max(acc_m, z) - cm
+        j = x - 1
+        while j >= 0 and zr[j] <= z:
+            j = pg[j]
+        pg[x] = j
+        s = sr[x]
         left = x - ((s + (s & par)) >> 1)
         right = left + s
         if left < 0 or right >= w:
             continue
         look_right = look[x] != 0
-        if (look_left or look_right) and z < zmax:
+        if (j >= 0 or look_right) and z < zmax:
             step = step0 * (2.0 - mu * z)
-            if look_left:
-                occ_l = _occluder(zr, x, z, zmax, step, -1, occ_l)
-                if occ_l >= 0:
-                    nhid += 1
-                    continue
+            if j >= 0 and _hidden_left(zr, pg, x, z, zmax, step):
+                nhid += 1
+                continue
             if look_right:
                 occ_r = _occluder(zr, x, z, zmax, step, 1, occ_r)
                 if occ_r >= 0:
@@ -488,7 +534,7 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
     h, w = depth.shape
     ph, pw, nc = pattern.shape
     step0 = 2.0 / (mu * eye_sep)
-    c_band = step0 * (2.0 - mu * BAND_Z)
+    c_dense = step0 * (2.0 - mu * DENSE_BAND_Z)
     c_min = step0 * (2.0 - mu)
     for y in nb.prange(h):
         tid = nb.get_thread_id()
@@ -509,8 +555,10 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         else:
             nsteep, zbound = _steep_edges(zr, c_min, edges[tid])
             if nsteep * DENSE_EDGES > w:  # a slope: bound every pixel
-                zmax = _look_right(zr, c_band, c_min, look)
-                ncons, nhid = _link_row(zr, sr, same, look, y, zmax, eye_sep, mu)
+                free = scratch[tid, 2]  # the spans' row: fixed-point heights, then pg
+                zmax = _fixed_heights(zr, free)
+                _look_right(free, c_dense, c_min, look)
+                ncons, nhid = _link_row(zr, sr, same, look, free, y, zmax, eye_sep, mu)
             else:
                 ncons, nhid = _link_sparse(zr, sr, same, scratch[tid], edges[tid], y, zbound,
                                            eye_sep, mu)
