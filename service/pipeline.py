@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from service.billboard_render import draw_billboards
-from service.cull import CullSettings, cull, facing, zone_mask
+from service.cull import CullSettings, cull_zones
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
 from service.errors import SettingsError
@@ -189,19 +189,11 @@ class Renderer:
         if name == "runlength" and settings.painter_fallback == "pixel":
             name = "runlength-repair"
         by_triangle = name == "zbuffer"  # the one-pass z-buffer reads the mask as (T, Z)
-        with clock("cull"):
-            need = settings.cull.mode == "modified" or settings.cull.per_zone
-            faces = facing(arrays.normals, display) if need else None  # (P, Z): both culls'
-            keep, counts = cull(arrays.normals, display, settings.cull, faces)
-            draw = zone_mask(
-                arrays.triangle_polygon,
-                arrays.normals,
-                arrays.polygon_closed,
-                display,
-                settings.cull,
-                faces,
-                by_triangle,
-            )
+        with clock("cull"):  # both culls from one facing table, in one pass
+            keep, counts, draw = cull_zones(arrays.normals, arrays.triangle_polygon,
+                                            arrays.polygon_closed, display, settings.cull)
+            if not by_triangle:
+                draw = np.ascontiguousarray(draw.T)  # (Z, T)
         with clock("sort"):
             poly_order = sort_polygons(
                 average_z(arrays.vertices, arrays.polygons, arrays.counts), keep
