@@ -33,7 +33,7 @@ from service.frame import write_quilt, write_strip, write_zones
 from service.heap import keep_freed_memory
 from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
-from service.lod_cli import add_lod_options, budget_frames, lod_settings
+from service.lod_cli import add_lod_options, budget_frames, lod_settings, lod_state
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.quality import (
@@ -212,7 +212,7 @@ def run(args: argparse.Namespace) -> dict:
     if quality.mode == "auto":
         chooser = QualityChooser(quality, CostModel.load(args.cost_model))
         warm_up(settings)
-        renderer, lod_report, shown = Renderer(), None, scene
+        renderer, lod_report, shown = _renderer(), None, scene
         if settings.lod is not None:  # levels first, then the methods for that scene
             shown, lod_report = renderer.lod.apply(scene, display, settings.lod)
         frame = render_auto(renderer, chooser, shown, display, args.light, settings.cull)
@@ -224,10 +224,13 @@ def run(args: argparse.Namespace) -> dict:
                            light=LightSettings(args.light, q["specular"]))
     else:
         warm_up(settings)  # compile or load the numba kernels outside the timings
-        renderer = Renderer()
+        renderer = _renderer()
         frame = renderer.render(scene, display, settings)
         flatten_ms = frame.stats["ms"]["flatten"]  # the one-off build, not a warm frame's
         frame = budget_frames(renderer, scene, display, settings, frame)
+    renderer.lod.progress.end()
+    for note in frame.stats.get("lod", {}).get("chains", {}).get("notes", []):
+        print(f"holo-render: warning: {note}", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_zones(frame, out)
@@ -261,6 +264,13 @@ def run(args: argparse.Namespace) -> dict:
         **({"lod": frame.stats["lod"]} if "lod" in frame.stats else {}),
         "out": str(out),
     }
+
+
+def _renderer() -> Renderer:
+    """A renderer whose level-of-detail chain builds show their progress on stderr."""
+    renderer = Renderer()
+    renderer.lod = lod_state("holo-render")[0]
+    return renderer
 
 
 def occlusion_counters(stats: dict, depth: np.ndarray) -> dict:

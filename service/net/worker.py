@@ -39,7 +39,7 @@ from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.heap import keep_freed_memory
 from service.light import LightSettings
-from service.lod import lod_from
+from service.lod import LodState, lod_from
 from service.net import protocol, wire
 from service.pipeline import Renderer, RenderSettings, StageClock
 from service.scene import (
@@ -131,6 +131,8 @@ class StatsRenderer(Renderer):
 
     def __init__(self) -> None:
         super().__init__()
+        # a chain not cached yet is built in the background: no render waits for it
+        self.lod = LodState(background=True)
         self.last_ms: dict[str, float] = {}
         self.last_counts: dict[str, int] = {}
         self.last_inconsistent = 0  # run-length points out of sort order (for --quality auto)
