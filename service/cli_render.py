@@ -23,19 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-from service.blas import single_threaded_blas
 from service.builtin_scenes import SCENES, builtin_scene
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
-from service.heap import keep_freed_memory
 from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
 from service.lod_cli import add_lod_options, budget_frames, lod_settings, lod_state
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.process import setup_frame_process
 from service.quality import (
     MODES,
     CostModel,
@@ -304,8 +303,7 @@ def occlusion_counters(stats: dict, depth: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
-    keep_freed_memory()  # see service.heap
-    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
+    setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     return interruptible("holo-render", lambda: _main(args))
 
 
