@@ -487,6 +487,8 @@ def zbuffer_zones_kernel(
     depth_out: np.ndarray,
     item: np.ndarray,
     shown: np.ndarray,
+    xz: np.ndarray,
+    yd: np.ndarray,
 ) -> None:
     """Z-buffer every zone in one pass over the triangles, bands of rows in parallel.
 
@@ -519,12 +521,16 @@ def zbuffer_zones_kernel(
         Out: ``shown[z, p]`` where zone z shows an item p (what
         :func:`service.light.mark_shown` finds in the buffers, found while each band
         is fresh and only in the columns it drew).  Shape (Z, 0): not wanted.
+    xz, yd : ndarray, shape (V, Z) and (V, 2)
+        :func:`vertex_tables` of ``proj`` where the caller has them
+        (:func:`service.projection.project_tables`); with no rows the kernel makes
+        them (one zone reads ``proj`` as it is and needs none).
     """
     extent = shared_rows(proj, tris, order, tri_out.shape[1])
-    if tri_out.shape[0] > 1:  # several zones read the projection by vertex
+    if tri_out.shape[0] > 1 and xz.shape[0] == 0:  # several zones read proj by vertex
         tables = vertex_tables(proj)
-    else:  # one zone reads proj as it is
-        tables = (np.empty((0, 1)), np.empty((0, 2)))
+    else:  # given, or one zone (which reads proj as it is)
+        tables = (xz, yd)
     for b in nb.prange(bands.shape[0]):
         lo, hi = bands[b, 0], bands[b, 1]
         _zbuffer_band(
