@@ -20,7 +20,7 @@ import numpy as np
 
 from service.billboard_render import draw_billboards
 from service.cull import CullSettings, cull_zones
-from service.depth_sort import average_z, sort_polygons, triangle_order
+from service.depth_sort import depth_order
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.frame import Frame
@@ -195,11 +195,9 @@ class Renderer:
                                             arrays.polygon_closed, display, settings.cull)
             if not by_triangle:
                 draw = np.ascontiguousarray(draw.T)  # (Z, T)
-        with clock("sort"):
-            poly_order = sort_polygons(
-                average_z(arrays.vertices, arrays.polygons, arrays.counts), keep
-            )
-            order = triangle_order(poly_order, arrays.triangle_polygon)
+        with clock("sort"):  # every method reads it: ties in depth go to the earlier
+            order = depth_order(arrays.vertices, arrays.polygons, arrays.counts,
+                                arrays.triangle_polygon, keep)
         extra = {"draw": draw} if name in MASKED_METHODS else {}
         if name == "zbuffer":  # it also finds the polygons shown (Visibility.shown)
             extra = {"draw_t": draw, "tri_out": scratch, "item": arrays.triangle_polygon,
