@@ -51,6 +51,7 @@ def zbuffer(
     item: np.ndarray | None = None,
     n_items: int = 0,
     draw_t: np.ndarray | None = None,
+    tables: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -80,6 +81,11 @@ def zbuffer(
     draw_t : ndarray, shape (T, Z), bool, optional
         ``draw`` by triangle (:func:`service.cull.zone_mask` with ``by_triangle``),
         the layout the one-pass kernel reads; given, it replaces ``draw``.
+    tables : tuple of ndarray, optional
+        ``(xz, yd)`` of :func:`service.projection.project_tables` for this ``proj``:
+        its rows and depths are shared by construction, so the one-pass kernel runs
+        without :func:`rows_shared`'s check and reads these instead of laying the
+        projection out by vertex itself (0.03 ms of a 5-zone game frame).
 
     Returns
     -------
@@ -94,7 +100,7 @@ def zbuffer(
         draw = np.ones((display.zones, scene.triangles.shape[0]), np.bool_)
     usable = tri_out is not None and tri_out.shape == zrc and tri_out.dtype == np.int32
     tri = tri_out if usable and tri_out.flags.c_contiguous else np.empty(zrc, np.int32)
-    if not (shared and rows_shared(proj)):
+    if not (shared and (tables is not None or rows_shared(proj))):
         vis = Visibility(tri, np.full(zrc, np.inf, np.float32))
         vis.triangle.fill(-1)
         draw = np.ascontiguousarray(draw)
@@ -105,9 +111,10 @@ def zbuffer(
     if item is None:
         item, n_items = np.zeros(0, np.int64), 0
     vis.shown = np.zeros((display.zones, n_items), np.bool_)
+    xz, yd = tables if tables is not None else (np.empty((0, display.zones)), np.empty((0, 2)))
     zbuffer_zones_kernel(
         proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle,
-        vis.depth, item, vis.shown,
+        vis.depth, item, vis.shown, xz, yd,
     )
     if n_items == 0:
         vis.shown = None
