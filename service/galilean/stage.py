@@ -104,13 +104,12 @@ class GalileanSettings:
         Fall back to a lower order when it predicted the control points better.
     threads : int
         Threads a refresh may use (row bands of the scatter, the Poisson tests,
-        the display copy and the head-motion update); 0, the default: numba's
-        thread count; 1: serial.  With OpenMP
-        threads that sleep while waiting (``OMP_WAIT_POLICY=PASSIVE``, which
-        ``holo-service`` and ``holo-bench`` set) two threads were 1.2-1.5x faster
-        than one on this 2-core machine when idle and no slower beside a busy
-        render process; with spinning threads a busy neighbour made both 2.5x
-        slower.
+        the second pass with its display copy, and the head-motion update); 0,
+        the default: numba's thread count; 1: serial.  With OpenMP threads that
+        sleep while waiting (``OMP_WAIT_POLICY=PASSIVE``, which ``holo-service``
+        and ``holo-bench`` set) two threads were 1.2-1.5x faster than one on this
+        2-core machine when idle and no slower beside a busy render process; with
+        spinning threads a busy neighbour made both 2.5x slower.
     """
 
     order: int = 2
