@@ -281,20 +281,22 @@ def _zbuffer_band_zones(
         if r_last[i] < lo or r_first[i] > hi or r_first[i] > r_last[i]:
             continue  # the rows are shared: skip the triangle in every zone at once
         t = order[i]
-        ay, by, cy = _setup_zones(tables, tris[t], draw_t[t], xs, plane, live)
-        if not live.any():
+        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, live)
+        if not any_live:
             continue
         for r in range(max(r_first[i], lo), min(r_last[i], hi) + 1):
             y = r + 0.5
             _zone_spans(xs, ay, by, cy, y, cols, spans)
+            k = r - lo
             for z in range(zones):
                 c0, c1 = spans[0, z], spans[1, z]
-                if not live[z] or c0 > c1:
+                if c0 > c1:  # a zone the triangle does not draw in has every x 0: empty
                     continue
-                drawn[0, z, r - lo] = min(drawn[0, z, r - lo], c0)
-                drawn[1, z, r - lo] = max(drawn[1, z, r - lo], c1)
+                drawn[0, z, k] = min(drawn[0, z, k], c0)
+                drawn[1, z, k] = max(drawn[1, z, k], c1)
+                p0, p1, p2 = plane[0, z], plane[1, z], plane[2, z]
                 for c in range(c0, c1 + 1):
-                    d = plane[0, z] + plane[1, z] * (c + 0.5) + plane[2, z] * y
+                    d = p0 + p1 * (c + 0.5) + p2 * y
                     if d < depth_out[z, r, c]:
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t
@@ -384,45 +386,54 @@ def _corner_order(
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _pick(k: int, a: int, b: int, c: int) -> int:
+    """``(a, b, c)[k]`` without building a tuple to index at run time."""
+    return a if k == 0 else (b if k == 1 else c)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _setup_zones(
-    tables: tuple, tri: np.ndarray, draw: np.ndarray, xs: np.ndarray, plane: np.ndarray,
-    live: np.ndarray,
-) -> tuple[float, float, float]:
-    """:func:`setup_xyz` of one triangle in every zone it is drawn in.
+    tables: tuple, tris: np.ndarray, t: int, draw_t: np.ndarray, xs: np.ndarray,
+    plane: np.ndarray, live: np.ndarray,
+) -> tuple[float, float, float, bool]:
+    """:func:`setup_xyz` of triangle ``t`` in every zone it is drawn in.
 
     Zones share each corner's row and depth (only x is sheared), so the order of the
     corners is found once, unless two share a row (then x breaks the tie, per zone).
-    ``tables`` is :func:`vertex_tables` of the projection.  Fills ``xs`` (3, Z) with
-    the sorted corners' x, ``plane`` (3, Z) with the depth plane and ``live`` (Z,)
+    ``tables`` is :func:`vertex_tables` of the projection; ``tris`` (T, 3) and
+    ``draw_t`` (T, Z) are read by element (an array view per triangle cost a fifth
+    of the set-up).  Fills ``xs`` (3, Z) with the sorted corners' x (0 where the
+    triangle is not drawn), ``plane`` (3, Z) with the depth plane and ``live`` (Z,)
     with whether the triangle draws in that zone; returns the sorted corners' y (the
-    same in every zone).
+    same in every zone) and whether it draws in any zone.
     """
     xz, yd = tables
-    i0, i1, i2 = tri[0], tri[1], tri[2]
+    i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
     y0, y1, y2 = yd[i0, 0], yd[i1, 0], yd[i2, 0]
     tie = y0 == y1 or y1 == y2 or y0 == y2
     ia, ib, ic = _corner_order(y0, y1, y2, 0.0, 0.0, 0.0)
-    idx = (i0, i1, i2)
-    ay, by, cy = yd[idx[ia], 0], yd[idx[ib], 0], yd[idx[ic], 0]
+    a, b, c = _pick(ia, i0, i1, i2), _pick(ib, i0, i1, i2), _pick(ic, i0, i1, i2)
+    ay, by, cy = yd[a, 0], yd[b, 0], yd[c, 0]
+    az, bz, cz = yd[a, 1], yd[b, 1], yd[c, 1]
+    any_live = False
     for z in range(xs.shape[1]):
-        live[z] = False
-        xs[0, z] = xs[1, z] = xs[2, z] = 0.0  # finite, for the spans of dead zones
-        if not draw[z]:
-            continue
-        if tie:
-            ia, ib, ic = _corner_order(y0, y1, y2, xz[i0, z], xz[i1, z], xz[i2, z])
-        a, b, c = idx[ia], idx[ib], idx[ic]
+        if tie:  # the x order of two corners on one row may differ between zones
+            ja, jb, jc = _corner_order(y0, y1, y2, xz[i0, z], xz[i1, z], xz[i2, z])
+            a, b, c = _pick(ja, i0, i1, i2), _pick(jb, i0, i1, i2), _pick(jc, i0, i1, i2)
+            az, bz, cz = yd[a, 1], yd[b, 1], yd[c, 1]
         ax, bx, cx = xz[a, z], xz[b, z], xz[c, z]
-        az, bz, cz = yd[a, 1], yd[b, 1], yd[c, 1]
         det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
-        if det == 0.0 or not np.isfinite(det):
-            continue
-        dzdx = ((bz - az) * (cy - ay) - (cz - az) * (by - ay)) / det
-        dzdy = ((cz - az) * (bx - ax) - (bz - az) * (cx - ax)) / det
-        plane[0, z], plane[1, z], plane[2, z] = az - dzdx * ax - dzdy * ay, dzdx, dzdy
-        xs[0, z], xs[1, z], xs[2, z] = ax, bx, cx
-        live[z] = True
-    return ay, by, cy
+        ok = draw_t[t, z] and det != 0.0 and np.isfinite(det)
+        if ok:
+            dzdx = ((bz - az) * (cy - ay) - (cz - az) * (by - ay)) / det
+            dzdy = ((cz - az) * (bx - ax) - (bz - az) * (cx - ax)) / det
+            plane[0, z], plane[1, z], plane[2, z] = az - dzdx * ax - dzdy * ay, dzdx, dzdy
+            xs[0, z], xs[1, z], xs[2, z] = ax, bx, cx
+        else:  # finite, for the spans of dead zones (empty: every x is 0)
+            xs[0, z] = xs[1, z] = xs[2, z] = 0.0
+        live[z] = ok
+        any_live |= ok
+    return ay, by, cy, any_live
 
 
 @nb.njit(cache=True, nogil=True)

@@ -188,10 +188,12 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
     tables = vertex_tables(proj)
     xs, plane = np.zeros((3, d.zones)), np.zeros((3, d.zones))
     live = np.zeros(d.zones, bool)
-    draw = np.ones(d.zones, bool)
     ties = 0
-    for tri in rng.integers(0, 300, (200, 3)).astype(np.int32):
-        ay, by, cy = _setup_zones(tables, tri, draw, xs, plane, live)
+    tris = rng.integers(0, 300, (200, 3)).astype(np.int64)
+    draw_t = np.ones((tris.shape[0], d.zones), bool)
+    for t, tri in enumerate(tris):
+        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, live)
+        assert any_live == live.any()
         ties += len({proj[0, k, 1] for k in tri}) < 3
         for z in range(d.zones):
             st = setup_xyz(*proj[z, tri].ravel(), d.rows)
