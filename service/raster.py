@@ -500,6 +500,7 @@ def zbuffer_zones_kernel(
     shown: np.ndarray,
     xz: np.ndarray,
     yd: np.ndarray,
+    threads: int,
 ) -> None:
     """Z-buffer every zone in one pass over the triangles, bands of rows in parallel.
 
@@ -521,7 +522,9 @@ def zbuffer_zones_kernel(
         :func:`service.cull.zone_mask`).
     bands : ndarray, shape (B, 2), int64
         First and last row of each band; together they cover every row once.  Bands
-        run in parallel in the order given (interleave them to share the work).
+        run in parallel in the order given (interleave them to share the work).  No
+        rows (:func:`no_bands`): ``threads`` bands, cut where each gets the same
+        share of the frame's triangle rows (:func:`balanced_bands`).
     tri_out : ndarray, shape (Z, R, C), int32
         Out; need not be initialised (-1 where empty).
     depth_out : ndarray, shape (Z, R, C), float32
@@ -536,17 +539,91 @@ def zbuffer_zones_kernel(
         :func:`vertex_tables` of ``proj`` where the caller has them
         (:func:`service.projection.project_tables`); with no rows the kernel makes
         them (one zone reads ``proj`` as it is and needs none).
+    threads : int
+        Threads the kernel runs on (``numba.get_num_threads()``, which a kernel
+        cached on disk cannot call itself), for ``bands`` with no rows.
     """
     extent = shared_rows(proj, tris, order, tri_out.shape[1])
     if tri_out.shape[0] > 1 and xz.shape[0] == 0:  # several zones read proj by vertex
         tables = vertex_tables(proj)
     else:  # given, or one zone (which reads proj as it is)
         tables = (xz, yd)
-    for b in nb.prange(bands.shape[0]):
-        lo, hi = bands[b, 0], bands[b, 1]
+    if bands.shape[0] == 0:
+        rows, cols = tri_out.shape[1], tri_out.shape[2]
+        use = balanced_bands(extent[0], extent[1], rows, threads, cols // 64 + 1)
+    else:
+        use = bands.copy()  # writable, as balanced_bands' (one type for both)
+    for b in nb.prange(use.shape[0]):
+        lo, hi = use[b, 0], use[b, 1]
         _zbuffer_band(
             proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown, tables
         )
+
+
+@nb.njit(cache=True, nogil=True)
+def balanced_bands(
+    r_first: np.ndarray, r_last: np.ndarray, rows: int, n: int, base: int
+) -> np.ndarray:
+    """``n`` bands of rows, each holding about the same share of the work.
+
+    A row's work is the triangles whose rows cover it plus ``base`` (its clearing
+    and marking, in triangle rows).  Fixed bands gave one of two threads 57-63 % of
+    the game scene's rows drawn (its triangles crowd part of the screen); several
+    bands per thread even that out but set up every triangle that crosses a band
+    edge again.
+
+    Parameters
+    ----------
+    r_first, r_last : ndarray, shape (N,), int64
+        Rows of each triangle (:func:`shared_rows`; none where ``r_first > r_last``).
+    rows : int
+        Rows of the screen (>= 1).
+    n : int
+        Bands wanted (as many as threads); at most ``rows`` are made.
+    base : int
+        Work of an empty row, in triangle rows.
+
+    Returns
+    -------
+    ndarray, shape (min(n, rows), 2), int64
+        First and last row of each band, top to bottom; each band has a row, and
+        together they cover every row once.
+    """
+    n = max(1, min(n, rows))
+    diff = np.zeros(rows + 1, np.int64)
+    for i in range(r_first.shape[0]):
+        if r_first[i] <= r_last[i]:  # then 0 <= r_first <= r_last < rows
+            diff[r_first[i]] += 1
+            diff[r_last[i] + 1] -= 1
+    cum = np.empty(rows, np.int64)  # work of rows 0..r
+    covering, total = 0, 0
+    for r in range(rows):
+        covering += diff[r]
+        total += covering + base
+        cum[r] = total
+    bands = np.empty((n, 2), np.int64)
+    lo = 0
+    for b in range(n - 1):
+        target = total * (b + 1) // n
+        last = rows - (n - b)  # leaves a row for each band after this one
+        r = lo
+        while r < last and cum[r] < target:
+            r += 1
+        bands[b, 0], bands[b, 1] = lo, r
+        lo = r + 1
+    bands[n - 1, 0], bands[n - 1, 1] = lo, rows - 1
+    return bands
+
+
+@functools.lru_cache(maxsize=1)
+def no_bands() -> np.ndarray:
+    """An empty (0, 2) bands array: :func:`zbuffer_zones_kernel` balances its own.
+
+    Read-only, as :func:`row_bands`' arrays are, so both are one kernel signature.
+    """
+    bands = np.zeros((0, 2), np.int64)
+    bands.flags.writeable = False
+    return bands
 
 
 @functools.lru_cache(maxsize=64)

@@ -1,7 +1,8 @@
 """Occlusion by a z-buffer per view zone (numba kernels).
 
 The default path draws every zone in one pass over the triangles
-(:func:`service.raster.zbuffer_zones_kernel`, bands of rows in parallel): a triangle's
+(:func:`service.raster.zbuffer_zones_kernel`, a band of rows per thread, cut where the
+threads get equal work): a triangle's
 rows, depths and corner order are the same in every zone, so that work is shared.  A
 projection whose rows or depths differ between zones (not one
 :func:`service.projection.project` makes) takes the per-zone kernel; both give
@@ -15,7 +16,7 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.occlusion import Visibility
-from service.raster import row_bands, zbuffer_kernel, zbuffer_zones_kernel
+from service.raster import no_bands, zbuffer_kernel, zbuffer_zones_kernel
 from service.scene import SceneArrays
 
 
@@ -107,14 +108,13 @@ def zbuffer(
         zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
         return vis
     vis = Visibility(tri, np.empty(zrc, np.float32))
-    bands = row_bands(display.rows, nb.get_num_threads())
     if item is None:
         item, n_items = np.zeros(0, np.int64), 0
     vis.shown = np.zeros((display.zones, n_items), np.bool_)
     xz, yd = tables if tables is not None else (np.empty((0, display.zones)), np.empty((0, 2)))
     zbuffer_zones_kernel(
-        proj, scene.triangles, order, np.ascontiguousarray(draw.T), bands, vis.triangle,
-        vis.depth, item, vis.shown, xz, yd,
+        proj, scene.triangles, order, np.ascontiguousarray(draw.T), no_bands(), vis.triangle,
+        vis.depth, item, vis.shown, xz, yd, nb.get_num_threads(),
     )
     if n_items == 0:
         vis.shown = None

@@ -41,10 +41,23 @@ def test_radix_order_is_numpys_stable_order(values, seed):
     np.testing.assert_array_equal(sort_polygons(z, keep), sort_polygons_reference(z, keep))
 
 
-@pytest.mark.parametrize("z", [np.zeros(0), np.full(1000, 0.25), np.array([-0.0, 0.0] * 50),
-                               np.repeat(np.linspace(-1, 1, 7), 40)])
+_RNG = np.random.default_rng(7)
+#: keys equal in their high 32 bits (sign, exponent, 20 mantissa bits), distinct below
+_NEAR = 1.0 + _RNG.permutation(1000) * 2.0**-45
+
+
+@pytest.mark.parametrize("z", [
+    np.zeros(0), np.full(1000, 0.25), np.array([-0.0, 0.0] * 50),
+    np.repeat(np.linspace(-1, 1, 7), 40),
+    _NEAR,  # one long run of equal high bits: the insertion gives up, low passes run
+    np.repeat(_RNG.random(200), 5) + np.tile(np.arange(5) * 2.0**-50, 200),  # short runs
+    np.concatenate([_NEAR[:300], _NEAR[:300], -_NEAR[:300]]),  # runs with exact ties
+], ids=["empty", "all-equal", "signed-zeros", "few-values", "one-long-run", "short-runs",
+        "runs-with-ties"])
 def test_edge_cases_and_many_exact_ties(z):
     np.testing.assert_array_equal(sort_polygons(z), sort_polygons_reference(z))
+    keep = _RNG.random(z.size) < 0.5
+    np.testing.assert_array_equal(sort_polygons(z, keep), sort_polygons_reference(z, keep))
 
 
 def test_depth_order_is_the_reference_on_a_scene():

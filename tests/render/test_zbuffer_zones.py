@@ -120,7 +120,7 @@ def test_any_banding_gives_the_same_buffers(threads, per_thread):
     shown = np.zeros((d.zones, arrays.n_polygons), bool)
     zbuffer_zones_kernel(
         proj, arrays.triangles, order, np.ascontiguousarray(draw.T), bands, tri, depth,
-        arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)),
+        arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)), threads,
     )
     assert np.array_equal(tri, want.triangle)
     assert np.array_equal(depth, want.depth)
@@ -242,3 +242,69 @@ def test_the_z_buffer_given_the_tables_equals_the_per_zone_kernel(zones, broken)
     assert_same(got, want)
     assert np.array_equal(got.shown, mark_shown(got.triangle, arrays.triangle_polygon,
                                                  arrays.n_polygons))
+
+
+def covers_each_row_once(bands, rows):
+    assert (bands[:, 0] <= bands[:, 1]).all()
+    covered = np.concatenate([np.arange(a, b + 1) for a, b in bands])
+    assert np.array_equal(covered, np.arange(rows))  # top to bottom, each row once
+
+
+@pytest.mark.parametrize(("rows", "n"), [(1, 1), (1, 4), (3, 3), (7, 2), (240, 2), (240, 16)])
+@pytest.mark.parametrize("layout", ["none", "one row", "last row", "spread"])
+def test_balanced_bands_cover_every_row_once(rows, n, layout):
+    from service.raster import balanced_bands
+
+    rng = np.random.default_rng(rows * n)
+    if layout == "none":  # no triangle has a row: the bands split the rows evenly
+        r_first, r_last = np.array([5, 0], np.int64), np.array([4, -1], np.int64)
+    elif layout in ("one row", "last row"):  # all the work on one row
+        r = 0 if layout == "one row" else rows - 1
+        r_first = r_last = np.full(50, r, np.int64)
+    else:
+        r_first = rng.integers(0, rows, 200)
+        r_last = np.minimum(r_first + rng.integers(0, 4, 200), rows - 1)
+    bands = balanced_bands(r_first, r_last, rows, n, 1)
+    assert bands.shape == (min(n, rows), 2)
+    covers_each_row_once(bands, rows)
+
+
+def test_balanced_bands_share_the_game_scenes_rows():
+    from service.raster import balanced_bands
+
+    d = DisplaySettings(zones=5, angle_deg=16.0, cols=320, rows=240)
+    arrays, proj, order, _ = inputs("game", d)
+    r_first, r_last = shared_rows(proj, arrays.triangles, order, d.rows)
+    work = np.zeros(d.rows)
+    for a, b in zip(r_first, r_last, strict=True):
+        work[a : b + 1] += 1
+    bands = balanced_bands(r_first, r_last, d.rows, 2, 0)
+    share = work[: bands[0, 1] + 1].sum() / work.sum()
+    assert 0.48 <= share <= 0.52  # fixed interleaved bands gave one thread 0.57-0.63
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("zones", [1, 5])
+def test_the_kernels_own_bands_give_the_same_buffers(threads, zones):
+    import numba as nb
+
+    from service.raster import no_bands
+
+    d = DisplaySettings(zones=zones, angle_deg=16.0, cols=160, rows=120)
+    arrays, proj, order, draw = inputs("game", d)
+    want = zbuffer(arrays, proj, d, order, draw, shared=False)
+    tri = np.empty((d.zones, d.rows, d.cols), np.int32)
+    depth = np.empty((d.zones, d.rows, d.cols), np.float32)
+    shown = np.zeros((d.zones, arrays.n_polygons), bool)
+    before = nb.get_num_threads()
+    nb.set_num_threads(min(threads, nb.config.NUMBA_NUM_THREADS))
+    try:
+        zbuffer_zones_kernel(
+            proj, arrays.triangles, order, np.ascontiguousarray(draw.T), no_bands(), tri,
+            depth, arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)),
+            nb.get_num_threads(),
+        )
+    finally:
+        nb.set_num_threads(before)
+    assert np.array_equal(tri, want.triangle) and np.array_equal(depth, want.depth)
+    assert np.array_equal(shown, mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons))
