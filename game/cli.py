@@ -25,12 +25,11 @@ from pathlib import Path
 from game.actions import binding_help, lamp_mask
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
-from service.blas import single_threaded_blas
 from service.cli_args import add_size_option, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
-from service.heap import keep_freed_memory
 from service.lod_cli import add_lod_options, lod_settings
+from service.process import setup_frame_process
 from service.signals import EXIT_FAILED, EXIT_OK, EXIT_RULE, EXIT_USAGE, interruptible
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
@@ -283,8 +282,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.mode, notice = choose_mode(args.mode)
     if notice:
         print(f"holo-game: {notice}", file=sys.stderr)
-    keep_freed_memory()  # every frame arrives in fresh buffers (service.heap)
-    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
+    setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     if args.print_lamps:
         print(f"0x{lamp_mask():08x}")
         return 0

@@ -14,9 +14,8 @@ import importlib
 import os
 import sys
 
-from service.blas import single_threaded_blas
 from service.errors import HoloError
-from service.heap import keep_freed_memory
+from service.process import setup_frame_process
 from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
 
 BENCHES = {
@@ -93,8 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     # as holo-service does: OpenMP threads that spin while waiting steal the core
     # the measured code needs (see service.cli_service.main); set before numba loads
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    keep_freed_memory()  # as the service does (service.heap)
-    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
+    setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     prog = f"holo-bench {argv[0]}"
     return interruptible(prog, lambda: _run(prog, BENCHES[argv[0]][0], argv[1:]))
 

@@ -23,19 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-from service.blas import single_threaded_blas
 from service.builtin_scenes import SCENES, builtin_scene
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import write_quilt, write_strip, write_zones
-from service.heap import keep_freed_memory
 from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
-from service.lod_cli import add_lod_options, budget_frames, lod_settings
+from service.lod_cli import add_lod_options, budget_frames, lod_settings, lod_state
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.process import setup_frame_process
 from service.quality import (
     MODES,
     CostModel,
@@ -212,7 +211,7 @@ def run(args: argparse.Namespace) -> dict:
     if quality.mode == "auto":
         chooser = QualityChooser(quality, CostModel.load(args.cost_model))
         warm_up(settings)
-        renderer, lod_report, shown = Renderer(), None, scene
+        renderer, lod_report, shown = _renderer(), None, scene
         if settings.lod is not None:  # levels first, then the methods for that scene
             shown, lod_report = renderer.lod.apply(scene, display, settings.lod)
         frame = render_auto(renderer, chooser, shown, display, args.light, settings.cull)
@@ -224,10 +223,13 @@ def run(args: argparse.Namespace) -> dict:
                            light=LightSettings(args.light, q["specular"]))
     else:
         warm_up(settings)  # compile or load the numba kernels outside the timings
-        renderer = Renderer()
+        renderer = _renderer()
         frame = renderer.render(scene, display, settings)
         flatten_ms = frame.stats["ms"]["flatten"]  # the one-off build, not a warm frame's
         frame = budget_frames(renderer, scene, display, settings, frame)
+    renderer.lod.progress.end()
+    for note in frame.stats.get("lod", {}).get("chains", {}).get("notes", []):
+        print(f"holo-render: warning: {note}", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_zones(frame, out)
@@ -263,6 +265,13 @@ def run(args: argparse.Namespace) -> dict:
     }
 
 
+def _renderer() -> Renderer:
+    """A renderer whose level-of-detail chain builds show their progress on stderr."""
+    renderer = Renderer()
+    renderer.lod = lod_state("holo-render")[0]
+    return renderer
+
+
 def occlusion_counters(stats: dict, depth: np.ndarray) -> dict:
     """The occlusion counters of ``--json``, the same keys for every method first.
 
@@ -294,8 +303,7 @@ def occlusion_counters(stats: dict, depth: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
-    keep_freed_memory()  # see service.heap
-    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
+    setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     return interruptible("holo-render", lambda: _main(args))
 
 

@@ -22,12 +22,11 @@ import os
 import sys
 from collections.abc import Sequence
 
-from service.blas import single_threaded_blas
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
-from service.heap import keep_freed_memory
 from service.net.curve_keys import make_keys
+from service.process import setup_frame_process
 from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
 
@@ -194,8 +193,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # 16 ms spinning against 12 ms passive (unloaded, passive is ~1.2x slower).  Set
     # before the first parallel kernel loads libgomp; workers inherit it.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    keep_freed_memory()  # frame-sized arrays reuse freed pages (service.heap)
-    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
+    setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     from service.net.server import Service
     from service.net.state import ServiceConfig
 

@@ -78,8 +78,27 @@ def facing(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
     Returns
     -------
     ndarray, shape (P, Z), bool
+        ``n_x v_x + n_y v_y + n_z v_z > 0`` summed in that order, as
+        :func:`cull_zones` and the light (:mod:`service.light`) evaluate it.
     """
-    return normals @ display.view_vectors().T > 0.0
+    out = np.empty((normals.shape[0], display.zones), np.bool_)
+    _facing_kernel(np.ascontiguousarray(normals, np.float64), display.view_vectors(), out)
+    return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _faces(normals: np.ndarray, p: int, views: np.ndarray, z: int) -> bool:
+    """Whether polygon ``p`` faces zone ``z``: ``n . v_z > 0``, summed x, y, z."""
+    n = normals
+    return n[p, 0] * views[z, 0] + n[p, 1] * views[z, 1] + n[p, 2] * views[z, 2] > 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def _facing_kernel(normals: np.ndarray, views: np.ndarray, out: np.ndarray) -> None:
+    """``out[p, z]`` = :func:`_faces` for every polygon and zone."""
+    for p in range(normals.shape[0]):
+        for z in range(views.shape[0]):
+            out[p, z] = _faces(normals, p, views, z)
 
 
 def _modified(normals: np.ndarray, display: DisplaySettings, faces: np.ndarray) -> np.ndarray:
@@ -177,3 +196,90 @@ def zone_mask(
         out,
     )
     return out if by_triangle else np.ascontiguousarray(out.T)
+
+
+#: :func:`cull_zones`'s code for each cull mode (the kernel's table).
+CULL_CODES = {"modified": 0, "plain": 1, "none": 2}
+
+
+@nb.njit(cache=True, nogil=True)
+def _cull_zones_kernel(
+    normals: np.ndarray,
+    views: np.ndarray,
+    triangle_polygon: np.ndarray,
+    closed: np.ndarray,
+    mode: int,
+    per_zone: bool,
+    keep: np.ndarray,
+    draw_t: np.ndarray,
+) -> int:
+    """Fill ``keep`` (P,) and ``draw_t`` (T, Z) in one pass; return the polygons kept.
+
+    Each polygon's facing row (:func:`_faces` per zone) is found once and serves
+    both: ``mode`` is a :data:`CULL_CODES` value.
+    """
+    zones = views.shape[0]
+    faces = np.empty((normals.shape[0], zones), np.bool_)  # or not closed, with per_zone
+    kept = 0
+    for p in range(normals.shape[0]):
+        nx, ny, nz = normals[p, 0], normals[p, 1], normals[p, 2]
+        any_zone = False
+        open_or_all = (not closed[p]) or (not per_zone)
+        for z in range(zones):
+            f = _faces(normals, p, views, z)
+            faces[p, z] = f or open_or_all
+            any_zone = any_zone or f
+        nonzero = nx != 0.0 or ny != 0.0 or nz != 0.0
+        keep[p] = nonzero and (any_zone if mode == 0 else (nz > 0.0 if mode == 1 else True))
+        kept += keep[p]
+    for t in range(triangle_polygon.shape[0]):
+        p = triangle_polygon[t]
+        for z in range(zones):
+            draw_t[t, z] = faces[p, z]
+    return kept
+
+
+def cull_zones(
+    normals: np.ndarray,
+    triangle_polygon: np.ndarray,
+    closed: np.ndarray,
+    display: DisplaySettings,
+    settings: CullSettings | None = None,
+) -> tuple[np.ndarray, dict, np.ndarray]:
+    """:func:`cull` and :func:`zone_mask` (by triangle) in one numba pass.
+
+    What the pipeline runs: the two need the same facing table, and at 5 zones
+    numpy's table, the two masks and the transposes cost as much as the kernel's
+    whole pass several times over.  Equal to the two functions' results.
+
+    Parameters
+    ----------
+    normals : ndarray, shape (P, 3)
+    triangle_polygon : ndarray, shape (T,)
+    closed : ndarray, shape (P,), bool
+    display : DisplaySettings
+    settings : CullSettings, optional
+
+    Returns
+    -------
+    keep : ndarray, shape (P,), bool
+    counts : dict
+        As :func:`cull` gives.
+    draw_t : ndarray, shape (T, Z), bool, C-contiguous
+        :func:`zone_mask` with ``by_triangle``.
+    """
+    settings = settings or CullSettings()
+    keep = np.empty(normals.shape[0], np.bool_)
+    draw_t = np.empty((triangle_polygon.shape[0], display.zones), np.bool_)
+    kept = _cull_zones_kernel(
+        np.ascontiguousarray(normals, np.float64),
+        display.view_vectors(),
+        np.ascontiguousarray(triangle_polygon, np.int64),
+        np.ascontiguousarray(closed, np.bool_),
+        CULL_CODES[settings.mode],
+        settings.per_zone,
+        keep,
+        draw_t,
+    )
+    p = int(normals.shape[0])
+    return keep, {"in": p, "culled": p - int(kept), "kept": int(kept)}, draw_t

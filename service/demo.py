@@ -13,13 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from service.blas import single_threaded_blas
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.frame import write_quilt, write_strip, write_zones
-from service.heap import keep_freed_memory
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.process import setup_frame_process
 
 STAGES = ("flatten", "project", "cull", "sort", "occlusion", "light", "total")
 
@@ -39,8 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scene", default="demo", help="built-in scene name (default demo)")
     p.add_argument("--repeats", type=int, default=5, help="renders per method for the median")
     args = p.parse_args(argv)
-    keep_freed_memory()  # see service.heap
-    single_threaded_blas()  # no BLAS pool spinning on the cores numba needs (service.blas)
+    setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     display = DisplaySettings(zones=5, angle_deg=16.0, cols=320, rows=240)
     scene = builtin_scene(args.scene)
     out = Path(args.out)

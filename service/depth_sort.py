@@ -1,11 +1,23 @@
 """Stage 3: depth sort by average z, nearest first (thesis section 2.1.2).
 
-The thesis sorts with heapsort for its small memory use.  We use numpy's stable
-sort (``np.argsort(kind="stable")``, a radix/merge sort) instead: one vectorised call,
-and stability gives the thesis's tie rule for free: polygons with equal average z
-keep their list order, which is object order, so the earlier object takes
-precedence (thesis section 3.2).  One sort serves every zone: under the zones'
-parallel projections depth along every view ray is -z.
+The thesis sorts with heapsort for its small memory use.  We sort stably, and
+stability gives the thesis's tie rule for free: polygons with equal average z keep
+their list order, which is object order, so the earlier object takes precedence
+(thesis section 3.2).  One sort serves every zone: under the zones' parallel
+projections depth along every view ray is -z.
+
+Every occlusion method reads the order (run-length and BSP paint by it; the z-buffer
+and ray casting give a tie in depth to the triangle earlier in it), so it cannot be
+skipped without changing pixels at exact ties.  It is made cheap instead, giving
+exactly the permutation of ``np.argsort(-avg_z, kind="stable")`` (the reference,
+:func:`sort_polygons_reference`): the float64 keys become uint64 ones that sort the
+same way, LSD radix passes (11-bit digits, digits every key shares skipped) order
+them by their high 32 bits, and insertion finishes the short runs equal there
+(:func:`_radix_order`).  :func:`depth_order`, the pipeline's sort step, also averages
+z for the kept polygons only and, where every polygon is one triangle, needs no
+expansion to triangles.  On the 200-bunny LOD crowd (5 zones, 320x240; 122,000 of
+227,000 polygons kept) the step measured 3.7-4.4 ms against 13.1-13.7 ms of CPU
+(best and median of 40, interleaved in one process, one thread).
 """
 
 from __future__ import annotations
@@ -37,8 +49,67 @@ def average_z(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray) ->
     return out
 
 
+#: Bits per digit of the radix sort (2,048 buckets a pass).
+RADIX_BITS = 11
+#: The radix passes cover the key bits from this one up; runs of keys equal there are
+#: finished by insertion (:func:`_radix_order`).
+HIGH_BIT = 32
+#: Insertion moves per key allowed before the low bits get radix passes too.
+INSERTION_WORK = 4
+
+
 def sort_polygons(avg_z: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
     """Polygon indices from nearest (highest average z) to farthest.
+
+    The permutation of :func:`sort_polygons_reference` (``np.argsort`` of ``-avg_z``,
+    stable; -0.0 equal to 0.0; NaN last), by a radix sort.
+
+    Parameters
+    ----------
+    avg_z : ndarray, shape (P,)
+    keep : ndarray, shape (P,), bool, optional
+        Polygons that survived the cull; others are left out.
+
+    Returns
+    -------
+    ndarray, shape (N,), int64
+        Ties keep polygon (object) order.
+    """
+    keep = np.ones(avg_z.shape[0], np.bool_) if keep is None else keep
+    keys, idx = _sort_keys(np.ascontiguousarray(avg_z, np.float64),
+                           np.ascontiguousarray(keep, np.bool_))
+    return _radix_order(keys, idx, RADIX_BITS)
+
+
+def depth_order(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+                triangle_polygon: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The triangles of the kept polygons, nearest polygon (highest average z) first.
+
+    ``triangle_order(sort_polygons(average_z(...), keep), triangle_polygon)`` in one
+    call, averaging z only over the polygons kept.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+    polygons : ndarray, shape (P, K), padded with -1
+    counts : ndarray, shape (P,)
+    triangle_polygon : ndarray, shape (T,)
+        Polygon of each triangle; a polygon's triangles are contiguous.
+    keep : ndarray, shape (P,), bool
+
+    Returns
+    -------
+    ndarray, shape (M,), int64
+    """
+    keys, idx = _depth_keys(vertices, polygons, counts, np.ascontiguousarray(keep, np.bool_))
+    order = _radix_order(keys, idx, RADIX_BITS)
+    if triangle_polygon.shape[0] == polygons.shape[0]:  # one triangle each: polygon t is
+        return order  # triangle t (a polygon's triangles are contiguous, in order)
+    return triangle_order(order, triangle_polygon)
+
+
+def sort_polygons_reference(avg_z: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    """Polygon indices from nearest (highest average z) to farthest, by ``np.argsort``.
 
     Parameters
     ----------
@@ -94,3 +165,152 @@ def _triangle_order(polygon_order: np.ndarray, triangle_polygon: np.ndarray) -> 
             out[i] = t
             i += 1
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _to_keys(keys: np.ndarray) -> None:
+    """In place: float64 values (viewed as uint64 ``keys``) to keys that sort as they do.
+
+    -0.0 sorts as 0.0 and every NaN last, as ``np.argsort`` has them.
+    """
+    values = keys.view(np.float64)
+    top = np.uint64(1) << np.uint64(63)
+    for i in range(keys.shape[0]):
+        x = values[i]
+        if x != x:
+            keys[i] = np.uint64(0xFFFFFFFFFFFFFFFF)
+            continue
+        values[i] = x + 0.0  # -0.0 becomes 0.0
+        b = keys[i]
+        keys[i] = ~b if b & top else b | top
+
+
+@nb.njit(cache=True, nogil=True)
+def _sort_keys(avg_z: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Radix keys of ``-avg_z`` and the indices of the kept polygons, in index order."""
+    n = 0
+    for p in range(avg_z.shape[0]):
+        if keep[p]:
+            n += 1
+    keys, idx = np.empty(n, np.uint64), np.empty(n, np.int64)
+    values = keys.view(np.float64)  # keys stays C-contiguous (a view is typed 'A')
+    i = 0
+    for p in range(avg_z.shape[0]):
+        if keep[p]:
+            values[i], idx[i] = -avg_z[p], p
+            i += 1
+    _to_keys(keys)
+    return keys, idx
+
+
+@nb.njit(cache=True, nogil=True)
+def _depth_keys(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+                keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_sort_keys` of :func:`average_z`, for the kept polygons.
+
+    Every polygon's key is written and the write position moves on only for a kept
+    one: no branch on ``keep``, which a cull leaves in no pattern a CPU predicts.
+    """
+    n = 0
+    for p in range(polygons.shape[0]):
+        n += np.int64(keep[p])
+    keys, idx = np.empty(n + 1, np.uint64), np.empty(n + 1, np.int64)
+    values = keys.view(np.float64)  # keys stays C-contiguous (a view is typed 'A')
+    i = 0
+    for p in range(polygons.shape[0]):
+        s = 0.0  # the arithmetic of average_z, term for term
+        for k in range(counts[p]):
+            s += vertices[polygons[p, k], 2]
+        values[i], idx[i] = -(s / counts[p]), p
+        i += np.int64(keep[p])
+    keys, idx = keys[:n], idx[:n]
+    _to_keys(keys)
+    return keys, idx
+
+
+@nb.njit(cache=True, nogil=True)
+def _radix_order(keys: np.ndarray, idx: np.ndarray, bits: int) -> np.ndarray:
+    """``idx`` stably sorted by ``keys`` (consumes both arrays).
+
+    LSD radix passes over the high 32 bits of the keys, then an insertion sort of
+    each run of equal high bits by the whole key (runs are short: keys sharing their
+    sign, exponent and first 20 mantissa bits).  Should the runs be long (their
+    insertion work past :data:`INSERTION_WORK` moves per key), the passes over the
+    low 32 bits are run as well, which sorts whatever order the keys were left in.
+    Both steps are stable, so equal keys keep their order in ``idx``.
+    """
+    keys, idx = _radix_passes(keys, idx, bits, HIGH_BIT)
+    if _sort_runs(keys, idx, INSERTION_WORK * keys.shape[0] + 64):
+        return idx
+    return _radix_passes(keys, idx, bits, 0)[1]
+
+
+@nb.njit(cache=True, nogil=True)
+def _sort_runs(keys: np.ndarray, idx: np.ndarray, budget: int) -> bool:
+    """Insertion-sort runs of equal high 32 bits by the whole key; False past ``budget`` moves.
+
+    Stable (a key moves only past greater ones); on False the arrays are a
+    permutation of what they were, in no promised order.
+    """
+    high = np.uint64(HIGH_BIT)
+    start = 0
+    for j in range(1, keys.shape[0]):
+        k = keys[j]
+        if (k >> high) != (keys[j - 1] >> high):
+            start = j
+            continue
+        m = j
+        if keys[m - 1] <= k:
+            continue
+        i = idx[j]
+        while m > start and keys[m - 1] > k:
+            keys[m] = keys[m - 1]
+            idx[m] = idx[m - 1]
+            m -= 1
+            budget -= 1
+        keys[m] = k
+        idx[m] = i
+        if budget < 0:
+            return False
+    return True
+
+
+@nb.njit(cache=True, nogil=True)
+def _radix_passes(keys: np.ndarray, idx: np.ndarray, bits: int,
+                  lo_bit: int) -> tuple[np.ndarray, np.ndarray]:
+    """LSD radix passes over the key bits from ``lo_bit`` up: stable by those bits.
+
+    All digit histograms come from one read of the keys; a digit every key shares
+    moves nothing and its pass is skipped.  Returns the sorted keys and indices
+    (either the arrays given or two new ones).
+    """
+    n = keys.shape[0]
+    width = 1 << bits
+    mask = np.uint64(width - 1)
+    passes = (64 - lo_bit + bits - 1) // bits
+    hist = np.zeros((passes, width), np.int64)
+    for j in range(n):
+        k = keys[j]
+        for d in range(passes):
+            hist[d, (k >> np.uint64(lo_bit + d * bits)) & mask] += 1
+    k2, i2 = np.empty(n, np.uint64), np.empty(n, np.int64)
+    for d in range(passes):
+        h = hist[d]
+        shift = np.uint64(lo_bit + d * bits)
+        if n == 0 or h[(keys[0] >> shift) & mask] == n:
+            continue  # one bucket holds every key
+        start = 0
+        for b in range(width):
+            c = h[b]
+            h[b] = start
+            start += c
+        for j in range(n):
+            k = keys[j]
+            b = (k >> shift) & mask
+            pos = h[b]
+            h[b] = pos + 1
+            k2[pos] = k
+            i2[pos] = idx[j]
+        keys, k2 = k2, keys
+        idx, i2 = i2, idx
+    return keys, idx

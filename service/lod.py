@@ -36,17 +36,29 @@ among equals, the farthest; such objects are reported ``over_error``.  The cost 
 predicted by a *measured* model (:class:`FrameCost`): a line ``fixed + per triangle``
 fitted to the renderer's own last frames (their triangles and render milliseconds),
 not a constant; the first frame, with nothing measured, is chosen by error alone.
+
+**Building off the render path.**  A chain takes seconds to build (the bunny: 2 s
+quiet, 5-9 s on a loaded machine), longer than the service's render timeout.  A
+renderer whose :class:`LodState` has ``background`` (the service's and its workers')
+hands a chain that is not cached to a :class:`ChainBuilds` thread and draws that
+mesh in full meanwhile (exact, slower); the report's ``chains`` says how many are
+ready.  Processes sharing a cache folder build each chain once (a lock file).  A
+damaged or torn cache file is reported and rebuilt.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import threading
 import time
 import warnings
 import zipfile
-from dataclasses import dataclass, field
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +100,15 @@ QUADRIC_AGG = 4
 BUDGET_BAND = 0.1
 #: Levels smaller than this many triangles are not built.
 MIN_TRIANGLES = 8
+
+#: Chains a renderer keeps in memory by mesh hash (the least recently used go first).
+CHAINS_KEPT = 64
+#: Cache problems and failed builds a renderer keeps for its LOD report.
+NOTES_KEPT = 4
+#: Nice value a background chain build adds to its thread's (renders come first).
+BUILD_NICE = 5
+#: ``progress(done, planned)``: decimations done and planned of a chain's build.
+Progress = Callable[[int, int], None]
 
 
 class LodError(HoloError, ValueError):
@@ -191,6 +212,9 @@ class LodChain:
         Time it took to build (0 when read from the cache).
     key : str
         The mesh's hash (:func:`mesh_key`).
+    ready : bool
+        False for the stand-in of a chain still being built (or whose build failed):
+        the full mesh alone (:func:`full_only`).
     """
 
     levels: tuple[Mesh, ...]
@@ -200,6 +224,13 @@ class LodChain:
     radius: float
     build_ms: float = 0.0
     key: str = ""
+    ready: bool = True
+
+
+def full_only(mesh: Mesh, key: str = "") -> LodChain:
+    """The stand-in chain of ``mesh`` while its chain is built: the full mesh alone."""
+    return LodChain((mesh,), np.zeros(1), np.array([mesh.triangles.shape[0]], np.int64),
+                    ("full",), _radius(mesh), 0.0, key, ready=False)
 
 
 def mesh_key(mesh: Mesh, recipe: str) -> str:
@@ -232,16 +263,26 @@ def _radius(mesh: Mesh) -> float:
     return float(np.sqrt(((mesh.vertices - centre) ** 2).sum(axis=1).max()))
 
 
-def _decimated(mesh: Mesh, fractions: tuple[float, ...]) -> list[tuple[Mesh, float]]:
-    """The quadric levels of ``mesh`` and their errors, coarser each time, in order."""
+def _decimated(mesh: Mesh, fractions: tuple[float, ...],
+               progress: Progress | None = None) -> list[tuple[Mesh, float]]:
+    """The quadric levels of ``mesh`` and their errors, coarser each time, in order.
+
+    ``progress(done, planned)`` is called after each decimation (``planned`` grows
+    when a plateau's end is sought).
+    """
     try:
         from service.simplify.quadric import decimate
     except ImportError as exc:  # fast-simplification missing
         raise LodError(f"level of detail needs the quadric simplifier: {exc}") from None
     full_tris = mesh.triangles
+    count = [0, sum(f * full_tris.shape[0] >= MIN_TRIANGLES for f in fractions)]
 
     def level(frac: float) -> tuple[Mesh, float, float]:
         v, f, err = decimate(mesh.vertices, full_tris, frac, agg=QUADRIC_AGG)
+        count[0] += 1
+        count[1] = max(count)
+        if progress is not None:
+            progress(count[0], count[1])
         return Mesh.from_triangles(v, f, f"{mesh.name}@{f.shape[0]}"), float(err), frac
 
     out: list[tuple[Mesh, float, float]] = []
@@ -339,8 +380,15 @@ def _clouds(mesh: Mesh, settings: LodSettings) -> list[tuple[object, float]]:
 
 
 def build_chain(mesh: Mesh, settings: LodSettings | None = None,
-                cache: Path | None | bool = True) -> LodChain:
+                cache: Path | None | bool = True, notes: list | None = None,
+                progress: Progress | None = None) -> LodChain:
     """The LOD chain of ``mesh``, read from the cache or built (and then cached).
+
+    Builds of one chain are serialised across processes by a lock file
+    (``<key>.lock`` in the cache folder): a second process asking for a chain being
+    built waits for it and reads the cache instead of building it again.  A damaged
+    or torn cache file is reported (``notes``, else a :class:`LodCacheWarning`) and
+    rebuilt; an unwritable cache folder is reported and the chain used uncached.
 
     Parameters
     ----------
@@ -349,6 +397,11 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
         Its ``fractions`` set the levels.
     cache : Path, True or False
         The cache folder, True for :func:`cache_dir`, False for no cache.
+    notes : list of str, optional
+        Where to put what went wrong with the cache (instead of warnings: a
+        background build's thread must not touch the warnings filters).
+    progress : callable, optional
+        ``progress(done, planned)`` after each decimation of a build.
 
     Returns
     -------
@@ -357,20 +410,72 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
     settings = settings or LodSettings()
     key = mesh_key(mesh, settings.recipe)
     folder = cache_dir() if cache is True else (Path(cache) if cache else None)
-    if folder is not None:
-        chain = read_chain(folder, key, mesh)
+    if folder is None:
+        return _build(mesh, settings, key, progress)
+    chain, _problem = _read_cache(folder, key, mesh)
+    if chain is not None:
+        return chain
+    with _build_lock(folder, key):
+        chain, problem = _read_cache(folder, key, mesh)  # built meanwhile by another?
         if chain is not None:
             return chain
+        if problem:
+            _note(notes, f"level-of-detail cache {folder / key}.* is damaged ({problem}); "
+                  "rebuilding it")
+        chain = _build(mesh, settings, key, progress)
+        if len(chain.levels) > 1:
+            try:
+                write_chain(folder, chain)
+            except OSError as exc:  # a read-only or odd cache folder: go on without it
+                _note(notes, f"level-of-detail cache not written ({folder}): {exc}")
+    return chain
+
+
+def _note(notes: list | None, message: str) -> None:
+    """Report a cache problem: into ``notes`` when given, else as a warning."""
+    if notes is None:
+        warnings.warn(message, LodCacheWarning, stacklevel=3)
+    else:
+        notes.append(message)
+
+
+@contextlib.contextmanager
+def _build_lock(folder: Path, key: str) -> Iterator[None]:
+    """Hold ``<folder>/<key>.lock`` exclusively (``flock``) while building one chain.
+
+    Where the lock file cannot be made (no folder, no ``fcntl``) the build goes on
+    unlocked: at worst two processes build the same chain and the later rename wins.
+    The lock goes with the process, so a builder that dies frees it.
+    """
+    try:
+        import fcntl
+
+        folder.mkdir(parents=True, exist_ok=True)
+        fh = open(folder / f"{key}.lock", "ab")  # noqa: SIM115 (held across the yield)
+    except (ImportError, OSError):
+        yield
+        return
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        yield
+    finally:
+        fh.close()  # releases the lock
+
+
+def _build(mesh: Mesh, settings: LodSettings, key: str,
+           progress: Progress | None = None) -> LodChain:
+    """Build the chain of ``mesh`` (no cache)."""
     t0 = time.perf_counter()
-    levels = _decimated(mesh, settings.fractions) if mesh.triangles.shape[0] else []
-    clouds = _clouds(mesh, settings) if mesh.triangles.shape[0] >= MIN_TRIANGLES else []
+    n = mesh.triangles.shape[0]
+    levels = _decimated(mesh, settings.fractions, progress) if n else []
+    clouds = _clouds(mesh, settings) if n >= MIN_TRIANGLES else []
     errors = np.maximum.accumulate(np.array([0.0] + [e for _, e in levels]))
-    parts = ([(mesh, 0.0, mesh.triangles.shape[0], "full")]
+    parts = ([(mesh, 0.0, n, "full")]
              + [(m, e, m.n_polygons, "quadric") for (m, _), e in zip(levels, errors[1:],
                                                                       strict=True)]
              + [(c, e, QUAD_TRIANGLES * c.n_billboards, "billboard") for c, e in clouds])
     parts = parts[:1] + sorted(parts[1:], key=lambda p: -p[2])  # dearest first (stable)
-    chain = LodChain(
+    return LodChain(
         levels=tuple(p[0] for p in parts),
         errors=np.array([p[1] for p in parts], np.float64),
         triangles=np.array([p[2] for p in parts], np.int64),
@@ -379,13 +484,6 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
         build_ms=(time.perf_counter() - t0) * 1e3,
         key=key,
     )
-    if folder is not None and len(chain.levels) > 1:
-        try:
-            write_chain(folder, chain)
-        except OSError as exc:  # a read-only or odd cache folder: go on without it
-            warnings.warn(f"level-of-detail cache not written ({folder}): {exc}",
-                          LodCacheWarning, stacklevel=2)
-    return chain
 
 
 def write_chain(folder: Path, chain: LodChain) -> None:
@@ -424,39 +522,50 @@ def write_chain(folder: Path, chain: LodChain) -> None:
 
 
 def read_chain(folder: Path, key: str, mesh: Mesh) -> LodChain | None:
-    """The cached chain of ``mesh`` under ``key``, or None if absent, stale or corrupt.
+    """The cached chain of ``mesh`` under ``key``, or None if absent or damaged.
 
-    A bad cache file is never an error: the chain is rebuilt and the file rewritten.
+    A bad cache file is never an error: :func:`build_chain` reports it and rebuilds.
     """
-    npz, js = folder / f"{key}.npz", folder / f"{key}.json"
-    if not (npz.is_file() and js.is_file()):
-        return None
-    try:
-        head = json.loads(js.read_text())
-        if head.get("version") != CHAIN_VERSION or head.get("key") != key:
-            return None
-        n, kinds = int(head["levels"]), tuple(head["kinds"])
-        levels: list = [mesh]
-        with np.load(npz, allow_pickle=False) as data:
-            for k in range(1, n):
-                if kinds[k] == "billboard":
-                    from service.simplify.cloud_file import load_cloud
+    return _read_cache(folder, key, mesh)[0]
 
-                    levels.append(load_cloud(folder / f"{key}.b{k}.hbc"))
-                    continue
-                levels.append(Mesh.from_triangles(data[f"vertices_{k}"], data[f"faces_{k}"],
-                                                  f"{mesh.name}@{k}"))
-        errors = np.asarray(head["errors"], np.float64)
-        tris = np.asarray(head["triangles"], np.int64)
-        meshes = np.array([kind != "billboard" for kind in kinds])
-        if (errors.shape != (n,) or tris.shape != (n,) or len(kinds) != n
-                or not np.all(np.diff(errors[meshes]) >= 0)):
-            return None
-        return LodChain(tuple(levels), errors, tris, tuple(head["kinds"]),
-                        float(head["radius"]), 0.0, key)
+
+def _read_cache(folder: Path, key: str, mesh: Mesh) -> tuple[LodChain | None, str]:
+    """``(chain, "")``, ``(None, "")`` when not cached, or ``(None, what is wrong)``."""
+    npz, js = folder / f"{key}.npz", folder / f"{key}.json"
+    have = (npz.is_file(), js.is_file())
+    if have == (False, False):
+        return None, ""
+    if not all(have):  # the header is written last: a write cut short, or a file deleted
+        return None, f"{(js if have[0] else npz).name} is missing"
+    try:
+        return _parse_cache(folder, key, mesh, json.loads(js.read_text())), ""
     except (OSError, ValueError, KeyError, TypeError, IndexError, ImportError, HoloError,
-            EOFError, zipfile.BadZipFile):
-        return None
+            EOFError, zipfile.BadZipFile) as exc:
+        return None, f"{type(exc).__name__}: {exc}"[:200]
+
+
+def _parse_cache(folder: Path, key: str, mesh: Mesh, head: dict) -> LodChain:
+    """The chain from its header and arrays; ValueError (or another) when they disagree."""
+    if not isinstance(head, dict) or head.get("version") != CHAIN_VERSION or head.get("key") != key:
+        raise ValueError("the header is not this chain's (format version or key differ)")
+    n, kinds = int(head["levels"]), tuple(head["kinds"])
+    levels: list = [mesh]
+    with np.load(folder / f"{key}.npz", allow_pickle=False) as data:
+        for k in range(1, n):
+            if kinds[k] == "billboard":
+                from service.simplify.cloud_file import load_cloud
+
+                levels.append(load_cloud(folder / f"{key}.b{k}.hbc"))
+                continue
+            levels.append(Mesh.from_triangles(data[f"vertices_{k}"], data[f"faces_{k}"],
+                                              f"{mesh.name}@{k}"))
+    errors = np.asarray(head["errors"], np.float64)
+    tris = np.asarray(head["triangles"], np.int64)
+    meshes = np.array([kind != "billboard" for kind in kinds])
+    if (errors.shape != (n,) or tris.shape != (n,) or len(kinds) != n
+            or not np.all(np.diff(errors[meshes]) >= 0)):
+        raise ValueError("the header's levels, errors and triangles disagree")
+    return LodChain(tuple(levels), errors, tris, kinds, float(head["radius"]), 0.0, key)
 
 
 def pixels_per_unit(display: DisplaySettings) -> float:
@@ -665,14 +774,117 @@ def _slope_known(t: np.ndarray, ms: np.ndarray, a: float, b: float) -> bool:
     return se < 0.25 * b
 
 
+class ChainBuilds:
+    """Chains built off the render path: a daemon thread while any is queued, one at a time.
+
+    :meth:`LodState.chain` (with ``background``) hands a mesh whose chain is neither
+    in memory nor in the cache to :meth:`submit` and draws the full mesh meanwhile;
+    each frame it asks :meth:`take` whether the chain is done.  The thread runs at a
+    lower CPU priority (:data:`BUILD_NICE`, Linux: per thread) than the renders.  A
+    build that fails leaves the full mesh; its message goes to :attr:`notes`, as do
+    the cache's (a damaged file rebuilt, a folder not writable).
+
+    Parameters
+    ----------
+    cache : Path, True or False
+        As :func:`build_chain`'s ``cache``.
+    """
+
+    def __init__(self, cache: Path | None | bool = True) -> None:
+        self.cache = cache
+        self._lock = threading.Lock()
+        self._idle = threading.Condition(self._lock)
+        self._todo: deque = deque()
+        self._pending: set[str] = set()
+        self._done: dict[str, LodChain] = {}
+        #: key -> why its build failed (the mesh is drawn in full)
+        self.failed: dict[str, str] = {}
+        #: the last few cache problems and failed builds, oldest first
+        self.notes: deque[str] = deque(maxlen=NOTES_KEPT)
+        #: builds finished (or failed) so far: a frame that sees it change looks again
+        self.generation = 0
+        self._thread: threading.Thread | None = None
+
+    def submit(self, key: str, mesh: Mesh, settings: LodSettings) -> None:
+        """Build the chain of ``mesh`` (hash ``key``) unless it is built, failed or queued."""
+        with self._lock:
+            if key in self._pending or key in self._done or key in self.failed:
+                return
+            self._pending.add(key)
+            self._todo.append((key, mesh, settings))
+            if self._thread is None:  # the thread lives while there is work
+                self._thread = threading.Thread(target=self._run, name="lod-chains",
+                                                daemon=True)
+                self._thread.start()
+
+    def take(self, key: str) -> LodChain | None:
+        """The chain built for ``key`` (handed over once), or None."""
+        with self._lock:
+            return self._done.pop(key, None)
+
+    def building(self, key: str) -> bool:
+        """Whether ``key``'s chain is queued or being built."""
+        with self._lock:
+            return key in self._pending
+
+    def wait_idle(self, timeout_s: float) -> bool:
+        """Wait until no build is queued or running; False if still busy after ``timeout_s``."""
+        with self._idle:
+            return self._idle.wait_for(lambda: not self._pending, timeout_s)
+
+    def _run(self) -> None:
+        """The thread: build what is queued, then end (a daemon: a build dies with the process)."""
+        _lower_priority(BUILD_NICE)
+        while True:
+            with self._lock:
+                if not self._todo:
+                    self._thread = None
+                    return
+                key, mesh, settings = self._todo.popleft()
+            notes: list[str] = []
+            chain, why = None, ""
+            try:
+                chain = build_chain(mesh, settings, self.cache, notes=notes)
+            except Exception as exc:  # noqa: BLE001 - any failure: the full mesh stays
+                why = f"{type(exc).__name__}: {exc}"[:200]
+                notes.append(f"level-of-detail chain of {mesh.name or 'a mesh'} not built "
+                             f"({why}); drawn with its full mesh")
+            with self._lock:
+                if chain is not None:
+                    self._done[key] = chain
+                else:
+                    self.failed[key] = why
+                self._pending.discard(key)
+                self.notes.extend(notes)
+                self.generation += 1
+                self._idle.notify_all()
+
+
+def _lower_priority(step: int) -> None:
+    """Raise the calling thread's nice value by ``step`` where the OS allows (Linux)."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + step,
+                                                 19))
+    except (AttributeError, OSError):
+        pass
+
+
 @dataclass
 class LodState:
     """What level of detail keeps between frames of one renderer.
 
-    Chains by mesh identity, last levels per object (hysteresis), the measured cost
-    model of the frames (:class:`FrameCost`, for ``budget_ms``; reset when the display
-    changes), and one scene whose objects are replaced each frame, so the flattened
-    scene's static parts stay cached while no level changes.
+    Chains by mesh identity (and by mesh hash, for the same mesh arriving as a new
+    object, as each service job's scene does), last levels per object (hysteresis),
+    the measured cost model of the frames (:class:`FrameCost`, for ``budget_ms``;
+    reset when the display changes), and one scene whose objects are replaced each
+    frame, so the flattened scene's static parts stay cached while no level changes.
+
+    With ``background`` a chain that is not in the cache is built by a
+    :class:`ChainBuilds` thread while frames draw that object's full mesh (exact,
+    slower); the first frame after it is done uses it.  Without (the default), the
+    frame that first needs a chain builds it (``progress(mesh name, done, planned)``
+    hears how far it got) and its cache problems go to ``notes``.
     """
 
     chains: dict = field(default_factory=dict)
@@ -682,14 +894,70 @@ class LodState:
     scene: Scene | None = None
     cache: Path | None | bool = True
     display_key: tuple = ()
+    background: bool = False
+    progress: Callable[[str, int, int], None] | None = None
+    builds: ChainBuilds | None = None
+    #: cache problems met by chains built in the frame (the background's: ``builds``)
+    notes: deque = field(default_factory=lambda: deque(maxlen=NOTES_KEPT))
+    _by_key: OrderedDict = field(default_factory=OrderedDict)
     _last: tuple | None = None
 
     def chain(self, mesh: Mesh, settings: LodSettings) -> LodChain:
-        """The chain of ``mesh`` (built or read once per renderer)."""
+        """The chain of ``mesh``: read or built once per renderer, or its stand-in.
+
+        With ``background`` the stand-in (:func:`full_only`, ``ready`` False) is
+        returned while the chain is built; without, the chain is built here.
+        """
         got = self.chains.get(id(mesh))
-        if got is None or got[0] is not mesh:
-            got = self.chains[id(mesh)] = (mesh, build_chain(mesh, settings, self.cache))
-        return got[1]
+        if got is not None and got[0] is mesh and got[1].ready:
+            return got[1]
+        key = got[1].key if got is not None and got[0] is mesh else mesh_key(mesh, settings.recipe)
+        chain = self._by_key.get(key)
+        if chain is None:
+            chain = self._fetch(mesh, settings, key)
+            if chain.ready:
+                self._by_key[key] = chain
+                while len(self._by_key) > CHAINS_KEPT:
+                    self._by_key.popitem(last=False)
+        else:
+            self._by_key.move_to_end(key)
+        if chain.levels[0] is not mesh:  # the same mesh as another object: draw its own
+            chain = replace(chain, levels=(mesh, *chain.levels[1:]))
+        self.chains[id(mesh)] = (mesh, chain)
+        return chain
+
+    def _fetch(self, mesh: Mesh, settings: LodSettings, key: str) -> LodChain:
+        """A chain not in memory: built here, or (background) from the cache or a stand-in."""
+        if not self.background:
+            report = self.progress
+            tell = None if report is None else (lambda d, n: report(mesh.name, d, n))
+            notes: list[str] = []
+            try:
+                return build_chain(mesh, settings, self.cache, notes, tell)
+            finally:
+                self.notes.extend(notes)
+        if self.builds is None:
+            self.builds = ChainBuilds(self.cache)
+        done = self.builds.take(key)
+        if done is not None:
+            return done
+        folder = cache_dir() if self.cache is True else (Path(self.cache) if self.cache else None)
+        cached = read_chain(folder, key, mesh) if folder is not None else None
+        if cached is not None:
+            return cached
+        self.builds.submit(key, mesh, settings)  # no-op once built, failed or queued
+        return full_only(mesh, key)
+
+    def chain_status(self, chains: list) -> dict:
+        """``ready``, ``building`` and ``failed`` counts of distinct chains, and ``notes``."""
+        failed = self.builds.failed if self.builds is not None else {}
+        ready = sum(c.ready for c in chains)
+        bad = sum(not c.ready and c.key in failed for c in chains)
+        out = {"ready": ready, "building": len(chains) - ready - bad, "failed": bad}
+        notes = list(self.notes) + (list(self.builds.notes) if self.builds is not None else [])
+        if notes:
+            out["notes"] = notes[-NOTES_KEPT:]
+        return out
 
     def observe(self, triangles: int, ms: float) -> None:
         """A frame's triangles and render milliseconds (the LOD step not included)."""
@@ -697,7 +965,8 @@ class LodState:
 
     def _tables(self, scene: Scene, settings: LodSettings) -> dict:
         """Per-object chain tables, rebuilt only when the scene's meshes change."""
-        key = (tuple(id(o.mesh) for o in scene.objects), settings.recipe)
+        generation = self.builds.generation if self.builds is not None else 0
+        key = (tuple(id(o.mesh) for o in scene.objects), settings.recipe, generation)
         if getattr(self, "_tab_key", None) == key:
             return self._tab
         chains, which, seen = [], [], {}
@@ -706,6 +975,8 @@ class LodState:
             if j == len(chains):
                 chains.append(self.chain(o.mesh, settings))
             which.append(j)
+        # only this scene's meshes: a service job's scene brings new mesh objects each time
+        self.chains = {k: v for k, v in self.chains.items() if k in seen}
         width = max((len(c.levels) for c in chains), default=1)
         err = np.full((len(chains), width), np.inf)
         tris = np.zeros((len(chains), width), np.int64)
@@ -721,7 +992,9 @@ class LodState:
         self._tab = {"chains": chains, "which": w, "errors": err[w], "triangles": tris[w],
                      "radius": np.array([c.radius for c in chains])[w],
                      "mesh_errors": np.where(cloud, np.inf, err)[w],
-                     "last": (n_levels - 1)[w], "last_mesh": (n_meshes - 1)[w]}
+                     "last": (n_levels - 1)[w], "last_mesh": (n_meshes - 1)[w],
+                     "ready": np.array([c.ready for c in chains], np.bool_)[w],
+                     "status": self.chain_status(chains)}
         self._tab_key = key
         return self._tab
 
@@ -742,13 +1015,19 @@ class LodState:
             ``levels`` and ``predicted_px`` per object, ``triangles`` (chosen) and
             ``triangles_full``, ``over_error`` (objects degraded past the budget by
             ``budget_ms``), ``billboards`` (objects drawn as their billboard cloud),
-            ``select_ms`` (choosing only), ``error_px``.
+            ``select_ms`` (choosing only), ``error_px``, ``chains`` (the scene's
+            distinct chains ``ready``, ``building`` and ``failed``, and ``notes``:
+            the last cache problems and failed builds, when there are any).
         """
         objs = scene.objects
+        old = getattr(self, "_tab", None)
         tab = self._tables(scene, settings)
         names = tuple(o.name for o in objs)
         if self.previous is None or names != self.names or self.previous.size != len(objs):
             self.previous, self.names = np.full(len(objs), -1, np.int64), names
+        elif old is not None and tab is not old and old["ready"].size == len(objs):
+            # a chain just arrived: its objects had no level to flicker from
+            self.previous = np.where(tab["ready"] & ~old["ready"], -1, self.previous)
         key = (display.zones, display.rows, display.cols, display.pixel_size)
         if key != self.display_key:  # another display: the frames cost something else
             self.cost, self.display_key = FrameCost(), key
@@ -783,6 +1062,7 @@ class LodState:
             "billboards": len(boards) - len(getattr(scene, "billboards", [])),
             "select_ms": round(select_ms, 4),
             "pixels_per_unit": round(ppu, 3),
+            "chains": tab["status"],
         }
         if settings.budget_ms is not None:
             report.update(budget_ms=settings.budget_ms, cost_model=self.cost.as_dict(),

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from service.billboard_render import draw_billboards
-from service.cull import CullSettings, cull, facing, zone_mask
-from service.depth_sort import average_z, sort_polygons, triangle_order
+from service.cull import CullSettings, cull_zones
+from service.depth_sort import depth_order
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.frame import Frame
@@ -31,7 +31,7 @@ from service.occlusion.bsp import BspCache, bsp
 from service.occlusion.raycast import raycast
 from service.occlusion.runlength import runlength
 from service.occlusion.zbuffer import zbuffer
-from service.projection import project
+from service.projection import project_tables
 from service.scene import Scene, SceneArrays
 
 OcclusionFn = Callable[[SceneArrays, np.ndarray, DisplaySettings, np.ndarray], Visibility]
@@ -183,34 +183,25 @@ class Renderer:
         """
         clock = clock or StageClock({})
         scratch = getattr(self._scratch, "active", None)
-        with clock("project"):
-            proj = project(arrays.vertices, display)
         name = settings.method
         if name == "runlength" and settings.painter_fallback == "pixel":
             name = "runlength-repair"
         by_triangle = name == "zbuffer"  # the one-pass z-buffer reads the mask as (T, Z)
-        with clock("cull"):
-            need = settings.cull.mode == "modified" or settings.cull.per_zone
-            faces = facing(arrays.normals, display) if need else None  # (P, Z): both culls'
-            keep, counts = cull(arrays.normals, display, settings.cull, faces)
-            draw = zone_mask(
-                arrays.triangle_polygon,
-                arrays.normals,
-                arrays.polygon_closed,
-                display,
-                settings.cull,
-                faces,
-                by_triangle,
-            )
-        with clock("sort"):
-            poly_order = sort_polygons(
-                average_z(arrays.vertices, arrays.polygons, arrays.counts), keep
-            )
-            order = triangle_order(poly_order, arrays.triangle_polygon)
+        tables = by_triangle or settings.painter_fallback == "frame"  # the z-buffer's
+        with clock("project"):  # and the projection by vertex, for the z-buffer
+            proj, xz, yd = project_tables(arrays.vertices, display, tables)
+        with clock("cull"):  # both culls from one facing table, in one pass
+            keep, counts, draw = cull_zones(arrays.normals, arrays.triangle_polygon,
+                                            arrays.polygon_closed, display, settings.cull)
+            if not by_triangle:
+                draw = np.ascontiguousarray(draw.T)  # (Z, T)
+        with clock("sort"):  # every method reads it: ties in depth go to the earlier
+            order = depth_order(arrays.vertices, arrays.polygons, arrays.counts,
+                                arrays.triangle_polygon, keep)
         extra = {"draw": draw} if name in MASKED_METHODS else {}
         if name == "zbuffer":  # it also finds the polygons shown (Visibility.shown)
             extra = {"draw_t": draw, "tri_out": scratch, "item": arrays.triangle_polygon,
-                     "n_items": arrays.n_polygons}
+                     "n_items": arrays.n_polygons, "tables": (xz, yd)}
         with clock("occlusion"):
             vis = self._methods[name](arrays, proj, display, order, **extra)
         bad = vis.stats.get("inconsistent_pixels", 0)
@@ -218,7 +209,8 @@ class Renderer:
             with clock("fallback"):
                 mask = {"draw_t": draw} if by_triangle else {"draw": draw}
                 redo = zbuffer(arrays, proj, display, order, tri_out=scratch,
-                               item=arrays.triangle_polygon, n_items=arrays.n_polygons, **mask)
+                               item=arrays.triangle_polygon, n_items=arrays.n_polygons,
+                               tables=(xz, yd), **mask)
             redo.stats = {**vis.stats, "fallback": "zbuffer"}
             vis = redo
         with clock("occlusion"):  # the count of polygons seen is part of the stage's cost

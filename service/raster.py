@@ -281,20 +281,22 @@ def _zbuffer_band_zones(
         if r_last[i] < lo or r_first[i] > hi or r_first[i] > r_last[i]:
             continue  # the rows are shared: skip the triangle in every zone at once
         t = order[i]
-        ay, by, cy = _setup_zones(tables, tris[t], draw_t[t], xs, plane, live)
-        if not live.any():
+        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, live)
+        if not any_live:
             continue
         for r in range(max(r_first[i], lo), min(r_last[i], hi) + 1):
             y = r + 0.5
             _zone_spans(xs, ay, by, cy, y, cols, spans)
+            k = r - lo
             for z in range(zones):
                 c0, c1 = spans[0, z], spans[1, z]
-                if not live[z] or c0 > c1:
+                if c0 > c1:  # a zone the triangle does not draw in has every x 0: empty
                     continue
-                drawn[0, z, r - lo] = min(drawn[0, z, r - lo], c0)
-                drawn[1, z, r - lo] = max(drawn[1, z, r - lo], c1)
+                drawn[0, z, k] = min(drawn[0, z, k], c0)
+                drawn[1, z, k] = max(drawn[1, z, k], c1)
+                p0, p1, p2 = plane[0, z], plane[1, z], plane[2, z]
                 for c in range(c0, c1 + 1):
-                    d = plane[0, z] + plane[1, z] * (c + 0.5) + plane[2, z] * y
+                    d = p0 + p1 * (c + 0.5) + p2 * y
                     if d < depth_out[z, r, c]:
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t
@@ -384,45 +386,54 @@ def _corner_order(
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _pick(k: int, a: int, b: int, c: int) -> int:
+    """``(a, b, c)[k]`` without building a tuple to index at run time."""
+    return a if k == 0 else (b if k == 1 else c)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _setup_zones(
-    tables: tuple, tri: np.ndarray, draw: np.ndarray, xs: np.ndarray, plane: np.ndarray,
-    live: np.ndarray,
-) -> tuple[float, float, float]:
-    """:func:`setup_xyz` of one triangle in every zone it is drawn in.
+    tables: tuple, tris: np.ndarray, t: int, draw_t: np.ndarray, xs: np.ndarray,
+    plane: np.ndarray, live: np.ndarray,
+) -> tuple[float, float, float, bool]:
+    """:func:`setup_xyz` of triangle ``t`` in every zone it is drawn in.
 
     Zones share each corner's row and depth (only x is sheared), so the order of the
     corners is found once, unless two share a row (then x breaks the tie, per zone).
-    ``tables`` is :func:`vertex_tables` of the projection.  Fills ``xs`` (3, Z) with
-    the sorted corners' x, ``plane`` (3, Z) with the depth plane and ``live`` (Z,)
+    ``tables`` is :func:`vertex_tables` of the projection; ``tris`` (T, 3) and
+    ``draw_t`` (T, Z) are read by element (an array view per triangle cost a fifth
+    of the set-up).  Fills ``xs`` (3, Z) with the sorted corners' x (0 where the
+    triangle is not drawn), ``plane`` (3, Z) with the depth plane and ``live`` (Z,)
     with whether the triangle draws in that zone; returns the sorted corners' y (the
-    same in every zone).
+    same in every zone) and whether it draws in any zone.
     """
     xz, yd = tables
-    i0, i1, i2 = tri[0], tri[1], tri[2]
+    i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
     y0, y1, y2 = yd[i0, 0], yd[i1, 0], yd[i2, 0]
     tie = y0 == y1 or y1 == y2 or y0 == y2
     ia, ib, ic = _corner_order(y0, y1, y2, 0.0, 0.0, 0.0)
-    idx = (i0, i1, i2)
-    ay, by, cy = yd[idx[ia], 0], yd[idx[ib], 0], yd[idx[ic], 0]
+    a, b, c = _pick(ia, i0, i1, i2), _pick(ib, i0, i1, i2), _pick(ic, i0, i1, i2)
+    ay, by, cy = yd[a, 0], yd[b, 0], yd[c, 0]
+    az, bz, cz = yd[a, 1], yd[b, 1], yd[c, 1]
+    any_live = False
     for z in range(xs.shape[1]):
-        live[z] = False
-        xs[0, z] = xs[1, z] = xs[2, z] = 0.0  # finite, for the spans of dead zones
-        if not draw[z]:
-            continue
-        if tie:
-            ia, ib, ic = _corner_order(y0, y1, y2, xz[i0, z], xz[i1, z], xz[i2, z])
-        a, b, c = idx[ia], idx[ib], idx[ic]
+        if tie:  # the x order of two corners on one row may differ between zones
+            ja, jb, jc = _corner_order(y0, y1, y2, xz[i0, z], xz[i1, z], xz[i2, z])
+            a, b, c = _pick(ja, i0, i1, i2), _pick(jb, i0, i1, i2), _pick(jc, i0, i1, i2)
+            az, bz, cz = yd[a, 1], yd[b, 1], yd[c, 1]
         ax, bx, cx = xz[a, z], xz[b, z], xz[c, z]
-        az, bz, cz = yd[a, 1], yd[b, 1], yd[c, 1]
         det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
-        if det == 0.0 or not np.isfinite(det):
-            continue
-        dzdx = ((bz - az) * (cy - ay) - (cz - az) * (by - ay)) / det
-        dzdy = ((cz - az) * (bx - ax) - (bz - az) * (cx - ax)) / det
-        plane[0, z], plane[1, z], plane[2, z] = az - dzdx * ax - dzdy * ay, dzdx, dzdy
-        xs[0, z], xs[1, z], xs[2, z] = ax, bx, cx
-        live[z] = True
-    return ay, by, cy
+        ok = draw_t[t, z] and det != 0.0 and np.isfinite(det)
+        if ok:
+            dzdx = ((bz - az) * (cy - ay) - (cz - az) * (by - ay)) / det
+            dzdy = ((cz - az) * (bx - ax) - (bz - az) * (cx - ax)) / det
+            plane[0, z], plane[1, z], plane[2, z] = az - dzdx * ax - dzdy * ay, dzdx, dzdy
+            xs[0, z], xs[1, z], xs[2, z] = ax, bx, cx
+        else:  # finite, for the spans of dead zones (empty: every x is 0)
+            xs[0, z] = xs[1, z] = xs[2, z] = 0.0
+        live[z] = ok
+        any_live |= ok
+    return ay, by, cy, any_live
 
 
 @nb.njit(cache=True, nogil=True)
@@ -487,6 +498,9 @@ def zbuffer_zones_kernel(
     depth_out: np.ndarray,
     item: np.ndarray,
     shown: np.ndarray,
+    xz: np.ndarray,
+    yd: np.ndarray,
+    threads: int,
 ) -> None:
     """Z-buffer every zone in one pass over the triangles, bands of rows in parallel.
 
@@ -508,7 +522,9 @@ def zbuffer_zones_kernel(
         :func:`service.cull.zone_mask`).
     bands : ndarray, shape (B, 2), int64
         First and last row of each band; together they cover every row once.  Bands
-        run in parallel in the order given (interleave them to share the work).
+        run in parallel in the order given (interleave them to share the work).  No
+        rows (:func:`no_bands`): ``threads`` bands, cut where each gets the same
+        share of the frame's triangle rows (:func:`balanced_bands`).
     tri_out : ndarray, shape (Z, R, C), int32
         Out; need not be initialised (-1 where empty).
     depth_out : ndarray, shape (Z, R, C), float32
@@ -519,17 +535,95 @@ def zbuffer_zones_kernel(
         Out: ``shown[z, p]`` where zone z shows an item p (what
         :func:`service.light.mark_shown` finds in the buffers, found while each band
         is fresh and only in the columns it drew).  Shape (Z, 0): not wanted.
+    xz, yd : ndarray, shape (V, Z) and (V, 2)
+        :func:`vertex_tables` of ``proj`` where the caller has them
+        (:func:`service.projection.project_tables`); with no rows the kernel makes
+        them (one zone reads ``proj`` as it is and needs none).
+    threads : int
+        Threads the kernel runs on (``numba.get_num_threads()``, which a kernel
+        cached on disk cannot call itself), for ``bands`` with no rows.
     """
     extent = shared_rows(proj, tris, order, tri_out.shape[1])
-    if tri_out.shape[0] > 1:  # several zones read the projection by vertex
+    if tri_out.shape[0] > 1 and xz.shape[0] == 0:  # several zones read proj by vertex
         tables = vertex_tables(proj)
-    else:  # one zone reads proj as it is
-        tables = (np.empty((0, 1)), np.empty((0, 2)))
-    for b in nb.prange(bands.shape[0]):
-        lo, hi = bands[b, 0], bands[b, 1]
+    else:  # given, or one zone (which reads proj as it is)
+        tables = (xz, yd)
+    if bands.shape[0] == 0:
+        rows, cols = tri_out.shape[1], tri_out.shape[2]
+        use = balanced_bands(extent[0], extent[1], rows, threads, cols // 64 + 1)
+    else:
+        use = bands.copy()  # writable, as balanced_bands' (one type for both)
+    for b in nb.prange(use.shape[0]):
+        lo, hi = use[b, 0], use[b, 1]
         _zbuffer_band(
             proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown, tables
         )
+
+
+@nb.njit(cache=True, nogil=True)
+def balanced_bands(
+    r_first: np.ndarray, r_last: np.ndarray, rows: int, n: int, base: int
+) -> np.ndarray:
+    """``n`` bands of rows, each holding about the same share of the work.
+
+    A row's work is the triangles whose rows cover it plus ``base`` (its clearing
+    and marking, in triangle rows).  Fixed bands gave one of two threads 57-63 % of
+    the game scene's rows drawn (its triangles crowd part of the screen); several
+    bands per thread even that out but set up every triangle that crosses a band
+    edge again.
+
+    Parameters
+    ----------
+    r_first, r_last : ndarray, shape (N,), int64
+        Rows of each triangle (:func:`shared_rows`; none where ``r_first > r_last``).
+    rows : int
+        Rows of the screen (>= 1).
+    n : int
+        Bands wanted (as many as threads); at most ``rows`` are made.
+    base : int
+        Work of an empty row, in triangle rows.
+
+    Returns
+    -------
+    ndarray, shape (min(n, rows), 2), int64
+        First and last row of each band, top to bottom; each band has a row, and
+        together they cover every row once.
+    """
+    n = max(1, min(n, rows))
+    diff = np.zeros(rows + 1, np.int64)
+    for i in range(r_first.shape[0]):
+        if r_first[i] <= r_last[i]:  # then 0 <= r_first <= r_last < rows
+            diff[r_first[i]] += 1
+            diff[r_last[i] + 1] -= 1
+    cum = np.empty(rows, np.int64)  # work of rows 0..r
+    covering, total = 0, 0
+    for r in range(rows):
+        covering += diff[r]
+        total += covering + base
+        cum[r] = total
+    bands = np.empty((n, 2), np.int64)
+    lo = 0
+    for b in range(n - 1):
+        target = total * (b + 1) // n
+        last = rows - (n - b)  # leaves a row for each band after this one
+        r = lo
+        while r < last and cum[r] < target:
+            r += 1
+        bands[b, 0], bands[b, 1] = lo, r
+        lo = r + 1
+    bands[n - 1, 0], bands[n - 1, 1] = lo, rows - 1
+    return bands
+
+
+@functools.lru_cache(maxsize=1)
+def no_bands() -> np.ndarray:
+    """An empty (0, 2) bands array: :func:`zbuffer_zones_kernel` balances its own.
+
+    Read-only, as :func:`row_bands`' arrays are, so both are one kernel signature.
+    """
+    bands = np.zeros((0, 2), np.int64)
+    bands.flags.writeable = False
+    return bands
 
 
 @functools.lru_cache(maxsize=64)

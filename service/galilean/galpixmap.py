@@ -4,6 +4,8 @@ Every field is its own array (component planes first), so the colour planes are 
 ordinary frame buffer and the motion planes sit beside them, as section 3.1 asks
 for a retrofit.  Shapes use Z zones, H rows and W columns of the *logical* map,
 which may include an out-of-view margin around the display (see ``stage``).
+Interleaving the fields (array-of-structs) was measured for the scatter and not
+adopted: docs/galilean.md, "interleaved storage for the scatter".
 
 =========  ===========================  =====================================================
 field      shape, dtype                 meaning

@@ -32,16 +32,15 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service.blas import single_threaded_blas
 from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
-from service.heap import keep_freed_memory
 from service.light import LightSettings
-from service.lod import lod_from
+from service.lod import LodState, lod_from
 from service.net import protocol, wire
 from service.pipeline import Renderer, RenderSettings, StageClock
+from service.process import setup_frame_process
 from service.scene import (
     Light,
     MotionState,
@@ -131,6 +130,8 @@ class StatsRenderer(Renderer):
 
     def __init__(self) -> None:
         super().__init__()
+        # a chain not cached yet is built in the background: no render waits for it
+        self.lod = LodState(background=True)
         self.last_ms: dict[str, float] = {}
         self.last_counts: dict[str, int] = {}
         self.last_inconsistent = 0  # run-length points out of sort order (for --quality auto)
@@ -337,8 +338,7 @@ def split_job(frames: list[Any]) -> tuple[list[bytes], list[Any] | None]:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m service.net.worker``."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.cli_service.main
-    keep_freed_memory()  # see service.heap
-    single_threaded_blas()  # see service.blas
+    setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     ap = argparse.ArgumentParser(prog="holo-service-worker")
     ap.add_argument("--connect", default="tcp://127.0.0.1:5557")
     ap.add_argument("--curve-keys", default=None)

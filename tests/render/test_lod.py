@@ -17,6 +17,7 @@ from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.lod import (
     FrameCost,
+    LodCacheWarning,
     LodSettings,
     LodState,
     build_chain,
@@ -116,7 +117,8 @@ def test_a_corrupt_cache_file_is_rebuilt_not_fatal(ring, tmp_path, damage):
         head = json.loads(js.read_text())
         head["levels"] += 1
         js.write_text(json.dumps(head))
-    again = build_chain(ring, cache=tmp_path)
+    with pytest.warns(LodCacheWarning, match=f"{chain.key}.* is damaged .*; rebuilding it"):
+        again = build_chain(ring, cache=tmp_path)
     assert again.build_ms > 0 and len(again.levels) == len(chain.levels)
     assert build_chain(ring, cache=tmp_path).build_ms == 0.0  # and the file was rewritten
 
@@ -400,6 +402,10 @@ def test_holo_render_lod_json_report_and_quality_auto(tmp_path):
         assert len(lod["levels"]) == len(lod["predicted_px"]) > 1
         assert max(lod["predicted_px"]) <= 0.5 and lod["triangles"] <= lod["triangles_full"]
         assert report["mesh"]["flatten_us_per_triangle"] > 0
+        assert lod["chains"]["ready"] >= 1 and lod["chains"]["building"] == 0
+        # the build says so on stderr (the first run); the second run reads the cache
+        told = "building the level-of-detail chain" in run.stderr
+        assert told == (not extra), run.stderr
 
 
 def test_unchanged_objects_and_levels_reuse_the_frame_and_a_move_does_not(ring, tmp_path):

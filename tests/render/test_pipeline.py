@@ -112,6 +112,34 @@ def test_both_culls_from_one_facing_table_equal_their_own(mode):
     assert by_triangle.flags.c_contiguous and np.array_equal(by_triangle.T, zone_mask(*args))
 
 
+@pytest.mark.parametrize("mode", ["modified", "plain", "none"])
+@pytest.mark.parametrize("per_zone", [True, False])
+@pytest.mark.parametrize("name", ["game", "demo", "edge-on"])
+@pytest.mark.parametrize("zones", [1, 5])
+def test_one_pass_cull_equals_cull_and_zone_mask(mode, per_zone, name, zones):
+    from service.cull import cull_zones, zone_mask
+
+    if name == "edge-on":  # normals on and just past each zone's edge, one zero
+        edge = np.radians(6.4)
+        meshes = [facing(np.cos(edge + e), -np.sin(edge + e)) for e in (-0.01, 0.0, 0.01)]
+        meshes += [facing(1.0, 0.0), facing(0.0, 1.0), facing(0.0, -1.0)]
+        arrays = Scene([SceneObject(m) for m in meshes]).flatten()
+        arrays.normals[2] = 0.0  # a degenerate polygon: always culled
+    else:
+        arrays = builtin_scene(name).flatten()
+    d = DisplaySettings(zones=zones, angle_deg=16.0, cols=96, rows=72)
+    settings = CullSettings(mode, per_zone)
+    keep, counts, draw_t = cull_zones(
+        arrays.normals, arrays.triangle_polygon, arrays.polygon_closed, d, settings
+    )
+    own, own_counts = cull(arrays.normals, d, settings)
+    mask = zone_mask(arrays.triangle_polygon, arrays.normals, arrays.polygon_closed, d,
+                     settings, by_triangle=True)
+    assert np.array_equal(keep, own) and counts == own_counts
+    assert draw_t.flags.c_contiguous and np.array_equal(draw_t, mask)
+    assert not keep[np.all(arrays.normals == 0.0, axis=1)].any()
+
+
 def test_sort_is_nearest_first_and_ties_keep_object_order():
     z = np.array([0.0, 0.5, 0.5, -1.0, 0.5])
     assert sort_polygons(z).tolist() == [1, 2, 4, 0, 3]

@@ -9,7 +9,7 @@ from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
 from service.light import mark_shown
 from service.occlusion.zbuffer import rows_shared, zbuffer
-from service.projection import project
+from service.projection import project, project_tables
 from service.raster import row_bands, shared_rows, triangle_setup, zbuffer_zones_kernel
 
 
@@ -120,7 +120,7 @@ def test_any_banding_gives_the_same_buffers(threads, per_thread):
     shown = np.zeros((d.zones, arrays.n_polygons), bool)
     zbuffer_zones_kernel(
         proj, arrays.triangles, order, np.ascontiguousarray(draw.T), bands, tri, depth,
-        arrays.triangle_polygon, shown,
+        arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)), threads,
     )
     assert np.array_equal(tri, want.triangle)
     assert np.array_equal(depth, want.depth)
@@ -188,10 +188,12 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
     tables = vertex_tables(proj)
     xs, plane = np.zeros((3, d.zones)), np.zeros((3, d.zones))
     live = np.zeros(d.zones, bool)
-    draw = np.ones(d.zones, bool)
     ties = 0
-    for tri in rng.integers(0, 300, (200, 3)).astype(np.int32):
-        ay, by, cy = _setup_zones(tables, tri, draw, xs, plane, live)
+    tris = rng.integers(0, 300, (200, 3)).astype(np.int64)
+    draw_t = np.ones((tris.shape[0], d.zones), bool)
+    for t, tri in enumerate(tris):
+        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, live)
+        assert any_live == live.any()
         ties += len({proj[0, k, 1] for k in tri}) < 3
         for z in range(d.zones):
             st = setup_xyz(*proj[z, tri].ravel(), d.rows)
@@ -201,3 +203,108 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
                 assert (st[3], st[5], st[7]) == tuple(xs[:, z])
                 assert (st[9], st[10], st[11]) == tuple(plane[:, z])
     assert ties > 20
+
+
+@pytest.mark.parametrize("zones", [1, 5])
+def test_the_projection_by_vertex_equals_the_kernels_own_tables(zones):
+    from service.raster import vertex_tables
+
+    d = DisplaySettings(zones=zones, angle_deg=16.0, cols=96, rows=72)
+    v = builtin_scene("game").flatten().vertices
+    proj, xz, yd = project_tables(v, d)
+    assert np.array_equal(proj, project(v, d))
+    if zones == 1:  # one zone's z-buffer reads proj itself
+        assert xz.shape == (0, 1) and yd.shape == (0, 2)
+    else:
+        want_xz, want_yd = vertex_tables(proj)
+        assert np.array_equal(xz, want_xz) and np.array_equal(yd, want_yd)
+    assert project_tables(v, d, tables=False)[1].shape == (0, zones)
+
+
+@pytest.mark.parametrize("zones", [1, 5])
+@pytest.mark.parametrize("broken", [False, True])
+def test_the_z_buffer_given_the_tables_equals_the_per_zone_kernel(zones, broken):
+    # given the tables, the one-pass kernel runs without checking that rows are
+    # shared: also where vertices are not finite (which that check would send to the
+    # per-zone kernel)
+    d = DisplaySettings(zones=zones, angle_deg=16.0, cols=160, rows=120)
+    arrays, _, order, draw = inputs("game", d)
+    verts = arrays.vertices.copy()
+    if broken:
+        verts[arrays.triangles[order[0], 0]] = np.nan
+        verts[arrays.triangles[order[1], 1], 1] = np.inf
+        verts[arrays.triangles[order[2], 2], 2] = -np.inf
+    proj, xz, yd = project_tables(verts, d)
+    want = zbuffer(arrays, proj, d, order, draw, shared=False)
+    got = zbuffer(arrays, proj, d, order, draw_t=np.ascontiguousarray(draw.T),
+                  item=arrays.triangle_polygon, n_items=arrays.n_polygons, tables=(xz, yd))
+    assert (got.triangle >= 0).any()
+    assert_same(got, want)
+    assert np.array_equal(got.shown, mark_shown(got.triangle, arrays.triangle_polygon,
+                                                 arrays.n_polygons))
+
+
+def covers_each_row_once(bands, rows):
+    assert (bands[:, 0] <= bands[:, 1]).all()
+    covered = np.concatenate([np.arange(a, b + 1) for a, b in bands])
+    assert np.array_equal(covered, np.arange(rows))  # top to bottom, each row once
+
+
+@pytest.mark.parametrize(("rows", "n"), [(1, 1), (1, 4), (3, 3), (7, 2), (240, 2), (240, 16)])
+@pytest.mark.parametrize("layout", ["none", "one row", "last row", "spread"])
+def test_balanced_bands_cover_every_row_once(rows, n, layout):
+    from service.raster import balanced_bands
+
+    rng = np.random.default_rng(rows * n)
+    if layout == "none":  # no triangle has a row: the bands split the rows evenly
+        r_first, r_last = np.array([5, 0], np.int64), np.array([4, -1], np.int64)
+    elif layout in ("one row", "last row"):  # all the work on one row
+        r = 0 if layout == "one row" else rows - 1
+        r_first = r_last = np.full(50, r, np.int64)
+    else:
+        r_first = rng.integers(0, rows, 200)
+        r_last = np.minimum(r_first + rng.integers(0, 4, 200), rows - 1)
+    bands = balanced_bands(r_first, r_last, rows, n, 1)
+    assert bands.shape == (min(n, rows), 2)
+    covers_each_row_once(bands, rows)
+
+
+def test_balanced_bands_share_the_game_scenes_rows():
+    from service.raster import balanced_bands
+
+    d = DisplaySettings(zones=5, angle_deg=16.0, cols=320, rows=240)
+    arrays, proj, order, _ = inputs("game", d)
+    r_first, r_last = shared_rows(proj, arrays.triangles, order, d.rows)
+    work = np.zeros(d.rows)
+    for a, b in zip(r_first, r_last, strict=True):
+        work[a : b + 1] += 1
+    bands = balanced_bands(r_first, r_last, d.rows, 2, 0)
+    share = work[: bands[0, 1] + 1].sum() / work.sum()
+    assert 0.48 <= share <= 0.52  # fixed interleaved bands gave one thread 0.57-0.63
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("zones", [1, 5])
+def test_the_kernels_own_bands_give_the_same_buffers(threads, zones):
+    import numba as nb
+
+    from service.raster import no_bands
+
+    d = DisplaySettings(zones=zones, angle_deg=16.0, cols=160, rows=120)
+    arrays, proj, order, draw = inputs("game", d)
+    want = zbuffer(arrays, proj, d, order, draw, shared=False)
+    tri = np.empty((d.zones, d.rows, d.cols), np.int32)
+    depth = np.empty((d.zones, d.rows, d.cols), np.float32)
+    shown = np.zeros((d.zones, arrays.n_polygons), bool)
+    before = nb.get_num_threads()
+    nb.set_num_threads(min(threads, nb.config.NUMBA_NUM_THREADS))
+    try:
+        zbuffer_zones_kernel(
+            proj, arrays.triangles, order, np.ascontiguousarray(draw.T), no_bands(), tri,
+            depth, arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)),
+            nb.get_num_threads(),
+        )
+    finally:
+        nb.set_num_threads(before)
+    assert np.array_equal(tri, want.triangle) and np.array_equal(depth, want.depth)
+    assert np.array_equal(shown, mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons))

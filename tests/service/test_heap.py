@@ -56,3 +56,14 @@ def test_keep_freed_memory_clamps_to_what_glibc_accepts():
 
     # a threshold above glibc's ceiling would be refused; it is clamped instead
     assert keep_freed_memory(mmap_threshold=4 * MMAP_THRESHOLD_MAX, trim_threshold=1 << 40)
+
+
+def test_frame_process_setup_applies_both_settings_here():
+    from service.blas import _loaded_openblas
+    from service.process import setup_frame_process
+
+    took = setup_frame_process()
+    assert set(took) == {"keep_freed_memory", "single_threaded_blas"}
+    # this machine runs glibc; numpy's wheels bundle OpenBLAS
+    assert took["keep_freed_memory"] is True
+    assert took["single_threaded_blas"] is bool(_loaded_openblas())

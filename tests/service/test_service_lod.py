@@ -1,11 +1,32 @@
-"""Level of detail in the render service: ``--lod-error`` and ``set_display`` ``lod_error``."""
+"""Level of detail in the render service: ``--lod-error`` and ``set_display`` ``lod_error``.
+
+Chains are built in the background of the renderer that needs them (the worker, or the
+service's render thread): renders draw full meshes until then, and no render waits.
+"""
 
 from __future__ import annotations
 
+import fcntl
+import time
+from pathlib import Path
+
 import pytest
+from testkit import wait_until
 
 from service.errors import ServiceError
+from service.loaders import load_scene
+from service.lod import LodSettings, mesh_key
 from service.net.client import ServiceClient
+
+BUNNY = Path(__file__).resolve().parents[2] / ".." / "shared" / "fixtures" / "meshes" / "bunny.ply"
+#: how long a chain may take to build on a loaded 2-core machine (the bunny: ~2 s quiet)
+CHAIN_S = 120
+
+
+def _chains_built(c: ServiceClient) -> dict | None:
+    """The LOD report of a fresh render once every chain of the scene is built."""
+    lod = c.render_once()[0]["stats"]["lod"]
+    return lod if lod["chains"]["building"] == 0 else None
 
 
 def test_lod_error_turns_level_of_detail_on_and_off(service_factory, tmp_path, monkeypatch):
@@ -43,6 +64,7 @@ def test_a_time_budget_degrades_through_the_measured_cost_model(service_factory,
         "--workers", "0", "--refresh", "30", "--budget-ms", "0.001",
     )  # fmt: skip
     with ServiceClient(svc.control, timeout_s=30) as c:
+        assert wait_until(lambda: _chains_built(c), CHAIN_S)
         lods = [c.render_once()[0]["stats"]["lod"] for _ in range(3)]
         last = lods[-1]
         assert last["error_px"] == 0.5 and last["budget_ms"] == 0.001  # alone: LOD on
@@ -60,3 +82,39 @@ def test_a_time_budget_degrades_through_the_measured_cost_model(service_factory,
         with pytest.raises(ServiceError) as info:
             c.set_display(lod_budget_ms=-1)
         assert info.value.code == "bad_message" and "lod_budget_ms" in str(info.value)
+
+
+@pytest.mark.skipif(not BUNNY.is_file(), reason="needs ../shared/fixtures/meshes/bunny.ply")
+def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
+        service_factory, tmp_path, monkeypatch):
+    """A worker renders the bunny at once in full while its chain cannot be built.
+
+    The test holds the chain's build lock (as another process building it would), so
+    the chain cannot be ready: every render must still come back within the render
+    timeout, in full (level 0), without a resend.  Released, the worker builds the
+    chain in the background and a later render draws coarser levels.
+    """
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    key = mesh_key(load_scene(str(BUNNY)).objects[0].mesh, LodSettings().recipe)
+    svc = service_factory(
+        "--zones", "3", "--size", "64x48", "--workers", "1", "--refresh", "30",
+        "--lod-error", "0.5", "--render-timeout", "5",
+    )  # fmt: skip
+    with ServiceClient(svc.control, timeout_s=30, retries=0) as c, \
+            open(tmp_path / f"{key}.lock", "ab") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # the chain cannot be built while this is held
+        c.load_scene(path=str(BUNNY))
+        c.update_objects([{"index": 0, "scale": 0.2}])  # small: coarse levels will do
+        for _ in range(2):
+            t0 = time.monotonic()
+            lod = c.render_once()[0]["stats"]["lod"]
+            assert time.monotonic() - t0 < 5.0  # within the service's render timeout
+            assert lod["chains"] == {"ready": 0, "building": 1, "failed": 0}
+            assert lod["levels"] == [0] and lod["triangles"] == lod["triangles_full"]
+        assert c.stats()["render_retries"] == 0  # no render was resent
+        fcntl.flock(lock, fcntl.LOCK_UN)
+        lod = wait_until(lambda: _chains_built(c), CHAIN_S)
+        assert lod and lod["chains"]["ready"] == 1
+        assert lod["levels"][0] > 0 and lod["triangles"] < lod["triangles_full"]
+        assert c.stats()["lod"]["chains"]["ready"] == 1
+    assert (tmp_path / f"{key}.json").is_file()  # cached for the next service

@@ -1,0 +1,108 @@
+"""Level-of-detail chains built off the render path (``LodState(background=True)``).
+
+Where it can fail: a frame that waits for a chain, a frame that draws anything but the
+full mesh before the chain exists, a chain that never arrives, hysteresis carried over
+from the stand-in, a damaged or torn cache file that is silently ignored or fatal.
+
+A build is held back deterministically by holding its lock file, as another process
+building the same chain would: nothing here sleeps or races a timer.
+"""
+
+import fcntl
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+
+from service.display import DisplaySettings
+from service.lod import LodCacheWarning, LodSettings, LodState, build_chain, mesh_key, read_chain
+from service.pipeline import Renderer, RenderSettings
+from service.primitives import torus
+from service.scene import Scene, SceneObject, Transform
+
+DISPLAY = DisplaySettings(zones=3, cols=64, rows=48)
+LOD = RenderSettings(lod=LodSettings(error_px=0.5))
+WAIT_S = 120  # a chain of the 2,300-triangle torus builds in well under a second quiet
+
+
+@pytest.fixture(scope="module")
+def ring():
+    return torus(0.5, 0.15, 48, 24)
+
+
+def _scene(mesh):
+    places = [(-0.5, 0.0, 0.4), (0.5, 0.0, 0.25)]
+    return Scene([SceneObject(mesh, transform=Transform(np.array([x, y, -2.0]), scale=s),
+                              name=f"o{i}") for i, (x, y, s) in enumerate(places)])
+
+
+@contextmanager
+def held(folder, key):
+    """Hold ``key``'s build lock, as another process building that chain would."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / f"{key}.lock", "ab") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        yield
+
+
+def _renderer(cache):
+    r = Renderer()
+    r.lod = LodState(cache=cache, background=True)
+    return r
+
+
+def test_frames_draw_the_full_mesh_until_the_chain_is_built_then_use_it(ring, tmp_path):
+    scene, renderer = _scene(ring), _renderer(tmp_path)
+    exact = Renderer().render(scene, DISPLAY, RenderSettings())  # level of detail off
+    with held(tmp_path, mesh_key(ring, LodSettings().recipe)):
+        for _ in range(2):  # neither frame waits for the build the lock holds back
+            frame = renderer.render(scene, DISPLAY, LOD)
+            lod = frame.stats["lod"]
+            assert lod["chains"] == {"ready": 0, "building": 1, "failed": 0}
+            assert lod["levels"] == [0, 0] and lod["triangles"] == lod["triangles_full"]
+            np.testing.assert_array_equal(frame.colour, exact.colour)  # pixels: exact
+            np.testing.assert_array_equal(frame.depth, exact.depth)
+    assert renderer.lod.builds.wait_idle(WAIT_S)
+    lod = renderer.render(scene, DISPLAY, LOD).stats["lod"]
+    assert lod["chains"] == {"ready": 1, "building": 0, "failed": 0}
+    # as a renderer that had the chain from the start would choose (no hysteresis
+    # carried over from the stand-in)
+    cold = Renderer()
+    cold.lod = LodState(cache=tmp_path)
+    assert lod["levels"] == cold.render(scene, DISPLAY, LOD).stats["lod"]["levels"]
+    assert min(lod["levels"]) > 0 and lod["triangles"] < lod["triangles_full"]
+    assert read_chain(tmp_path, mesh_key(ring, LodSettings().recipe), ring) is not None
+
+
+def test_a_cached_chain_is_used_from_the_first_frame(ring, tmp_path):
+    build_chain(ring, cache=tmp_path)
+    lod = _renderer(tmp_path).render(_scene(ring), DISPLAY, LOD).stats["lod"]
+    assert lod["chains"]["ready"] == 1 and min(lod["levels"]) > 0
+
+
+@pytest.mark.parametrize("damage", ["truncate-npz", "no-header"])
+def test_a_damaged_cache_is_reported_and_rebuilt_in_the_background(ring, tmp_path, damage):
+    chain = build_chain(ring, cache=tmp_path)
+    npz, js = tmp_path / f"{chain.key}.npz", tmp_path / f"{chain.key}.json"
+    if damage == "truncate-npz":
+        npz.write_bytes(npz.read_bytes()[:200])
+    else:  # torn: the header (written last) never arrived
+        js.unlink()
+    scene, renderer = _scene(ring), _renderer(tmp_path)
+    first = renderer.render(scene, DISPLAY, LOD).stats["lod"]
+    assert first["levels"] == [0, 0]  # the full mesh, not a guess from a broken file
+    assert renderer.lod.builds.wait_idle(WAIT_S)
+    lod = renderer.render(scene, DISPLAY, LOD).stats["lod"]
+    assert lod["chains"]["ready"] == 1 and min(lod["levels"]) > 0
+    (note,) = lod["chains"]["notes"]
+    assert chain.key in note and "damaged" in note and "rebuilding" in note
+    assert read_chain(tmp_path, chain.key, ring) is not None  # rewritten whole
+
+
+def test_a_torn_cache_warns_where_the_chain_is_built_in_the_frame(ring, tmp_path):
+    chain = build_chain(ring, cache=tmp_path)
+    (tmp_path / f"{chain.key}.json").unlink()
+    with pytest.warns(LodCacheWarning, match=r"damaged \(.*json is missing\); rebuilding"):
+        again = build_chain(ring, cache=tmp_path)
+    assert again.build_ms > 0 and len(again.levels) == len(chain.levels)
+    assert build_chain(ring, cache=tmp_path).build_ms == 0.0
