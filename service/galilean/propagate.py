@@ -1287,6 +1287,346 @@ def poisson_interiors(
 
 
 @nb.njit(cache=True, nogil=True)
+def _finish_rows(
+    new: tuple,
+    old: tuple,
+    src_idx: np.ndarray,
+    deb64: np.ndarray,
+    snap: np.ndarray,
+    shape: tuple,
+    k0: int,
+    k1: int,
+    n_mot: int,
+    n_zm: int,
+    ncol: int,
+    threshold: float,
+    n_neighbours: int,
+    mode: int,
+    track: bool,
+    same_out: np.ndarray,
+    interior: np.ndarray,
+    table: bool,
+    counts: np.ndarray,
+    margin: int,
+    out_colour: np.ndarray,
+    out_depth: np.ndarray,
+    out_debris: np.ndarray,
+    write_out: bool,
+    zs: float,
+) -> None:
+    """:func:`finish`'s scan of the map rows ``[k0, k1)`` (row ``k`` = ``z H + r``).
+
+    ``new`` is the new map as :func:`planes`, ``old`` the old map's colour planes,
+    depth, debris and object planes.  Every debris pixel in scan order; each
+    row's debris flags are first copied to ``snap`` when it is not empty (for
+    :func:`_fix_rows`).  ``counts`` (4,) accumulates expanded and debris left.
+    """
+    nz, h, w = shape
+    # every plane in a local of its own, once: taking arrays out of tuples inside
+    # the loop costs a reference-count pair each time (~1 us per expansion)
+    (c0, c1, c2), dep, (f0, f1), mot, zm, dc, deb, obj = new
+    m0, m1, m2, m3, m4, m5 = mot
+    z0, z1, z2 = zm
+    d0, d1, d2, d3 = dc
+    o0, o1, o2, o_dep, o_deb, o_obj = old
+    ww = w - 2 * margin
+    keep = snap.size > 0
+    expanded = left = 0
+    n8 = 8 * deb64.size
+    for k in range(k0, k1):
+        z = k // h
+        r = k - z * h
+        zb = z * h * w
+        base = k * w
+        if keep:
+            for c in range(w):
+                snap[_u(base + c)] = deb[_u(base + c)]
+        c = np.int64(-1)
+        while c < w - 1:
+            c += 1
+            p = _u(base + c)
+            if (p & 7) == 0 and c + 8 <= w and p + 8 <= n8 and deb64[p >> 3] == 0:
+                c += 7  # eight galpixels: nothing to do
+                continue
+            if deb[p] == 0:
+                continue
+            same_out[p] = 0
+            near = (
+                (c > 0 and deb[_u(base + c - 1)] == 0)
+                or (c < w - 1 and deb[_u(base + c + 1)] == 0)
+                or (r > 0 and deb[_u(base + c - w)] == 0)
+                or (r < h - 1 and deb[_u(base + c + w)] == 0)
+            )
+            if threshold >= 0 and near:
+                # expansion (poisson.expand_pixel, same arithmetic)
+                first = np.int64(-1)
+                n = 0
+                acc0 = acc1 = acc2 = accd = 0.0
+                for k in range(n_neighbours):
+                    if k == 0:
+                        ok, qi = c > 0, base + c - 1
+                    elif k == 1:
+                        ok, qi = r > 0, base + c - w
+                    elif k == 2:
+                        ok, qi = c < w - 1, base + c + 1
+                    else:
+                        ok, qi = r < h - 1, base + c + w
+                    if not ok or deb[_u(qi)] == 1:
+                        continue
+                    sq = np.int64(src_idx[_u(qi)])
+                    if sq < 0:
+                        continue
+                    # Poisson test of the origin: from the table, or on the spot
+                    if table:
+                        if interior[_u(zb + sq)] == 0:
+                            continue
+                    elif not _interior_at(o_dep, o_deb, zb, sq, h, w, threshold):
+                        continue
+                    if first < 0:
+                        first = qi
+                    n += 1
+                    acc0 += c0[_u(qi)]
+                    acc1 += c1[_u(qi)]
+                    acc2 += c2[_u(qi)]
+                    accd += np.float64(dep[_u(qi)])
+                if first >= 0:
+                    q = _u(first)
+                    c0[p] = c0[q]
+                    c1[p] = c1[q]
+                    c2[p] = c2[q]
+                    dep[p] = dep[q]
+                    if n_mot >= 2:
+                        m0[p] = m0[q]
+                        m1[p] = m1[q]
+                    if n_mot >= 4:
+                        m2[p] = m2[q]
+                        m3[p] = m3[q]
+                    if n_mot >= 6:
+                        m4[p] = m4[q]
+                        m5[p] = m5[q]
+                    if n_zm >= 1:
+                        z0[p] = z0[q]
+                    if n_zm >= 2:
+                        z1[p] = z1[q]
+                    if n_zm >= 3:
+                        z2[p] = z2[q]
+                    if ncol == 4:
+                        d0[p] = d0[q]
+                        d1[p] = d1[q]
+                        d2[p] = d2[q]
+                        d3[p] = d3[q]
+                    deb[p] = 0
+                    obj[p] = obj[q]
+                    if mode == 1:
+                        c0[p] = acc0 / n
+                        c1[p] = acc1 / n
+                        c2[p] = acc2 / n
+                        dep[p] = np.floor(accd / n + 0.5)
+                    f0[p] = 0
+                    f1[p] = 0
+                    src_idx[p] = src_idx[q]
+                    expanded += 1
+                    continue
+            left += 1
+            # debris arm (also for old debris: it keeps the colour it last showed)
+            c0[p] = o0[p]
+            c1[p] = o1[p]
+            c2[p] = o2[p]
+            dep[p] = o_dep[p]
+            obj[p] = o_obj[p]
+            if track:
+                src_idx[p] = -1
+        if write_out and margin <= r < h - margin:
+            _show_row(
+                c0,
+                c1,
+                c2,
+                dep,
+                deb,
+                base + margin,
+                ww,
+                out_colour,
+                out_depth,
+                out_debris,
+                (z * (h - 2 * margin) + r - margin) * ww,
+                zs,
+            )
+    counts[0] += expanded
+    counts[1] += left
+
+
+@nb.njit(cache=True, nogil=True)
+def _fix_rows(
+    new: tuple,
+    old: tuple,
+    src_idx: np.ndarray,
+    snap: np.ndarray,
+    shape: tuple,
+    k0: int,
+    k1: int,
+    n_mot: int,
+    n_zm: int,
+    ncol: int,
+    threshold: float,
+    n_neighbours: int,
+    mode: int,
+    track: bool,
+    same_out: np.ndarray,
+    interior: np.ndarray,
+    table: bool,
+    counts: np.ndarray,
+    margin: int,
+    out_colour: np.ndarray,
+    out_depth: np.ndarray,
+    out_debris: np.ndarray,
+    write_out: bool,
+    zs: float,
+) -> None:
+    """A band's fix-up (see :func:`finish`): its top row ``k0``, then what that changes.
+
+    Row ``k0`` (untouched by the band's scan) is scanned in full; in the rows
+    below, up to ``k1``, only the debris pixels (as the scatter left them,
+    ``snap``) whose left or upper neighbour this fix-up expanded are scanned
+    again, until a row in which it expands nothing.  Right and lower neighbours'
+    debris flags are read from ``snap``, as the one-band scan sees them.  The
+    expansion and debris arm are :func:`_finish_rows`'s, arithmetic for
+    arithmetic.  ``counts`` (4,): expanded and debris left are corrected for the
+    pixels the band had done; rows fixed and pixels redone are added.
+    """
+    nz, h, w = shape
+    (c0, c1, c2), dep, (f0, f1), mot, zm, dc, deb, obj = new
+    m0, m1, m2, m3, m4, m5 = mot
+    z0, z1, z2 = zm
+    d0, d1, d2, d3 = dc
+    o0, o1, o2, o_dep, o_deb, o_obj = old
+    ww = w - 2 * margin
+    prev = np.zeros(w, np.uint8)  # 1: the fix-up expanded the pixel in the row above
+    cur = np.zeros(w, np.uint8)
+    for k in range(k0, k1):
+        z = k // h
+        r = k - z * h
+        zb = z * h * w
+        base = k * w
+        changed = False
+        for c in range(w):
+            p = _u(base + c)
+            cur[c] = 0
+            if snap[p] == 0 or (k > k0 and prev[c] == 0 and (c == 0 or cur[c - 1] == 0)):
+                continue
+            # what the band's scan did here: 0 nothing (top row), 1 expanded, 2 debris arm
+            spec = 0 if k == k0 else (1 if deb[p] == 0 else 2)
+            counts[3] += 1
+            same_out[p] = 0
+            near = (
+                (c > 0 and deb[_u(base + c - 1)] == 0)
+                or (c < w - 1 and snap[_u(base + c + 1)] == 0)
+                or (r > 0 and deb[_u(base + c - w)] == 0)
+                or (r < h - 1 and snap[_u(base + c + w)] == 0)
+            )
+            first = np.int64(-1)
+            n = 0
+            acc0 = acc1 = acc2 = accd = 0.0
+            for kk in range(n_neighbours if threshold >= 0 and near else 0):
+                if kk == 0:
+                    ok, qi = c > 0, base + c - 1
+                elif kk == 1:
+                    ok, qi = r > 0, base + c - w
+                elif kk == 2:
+                    ok, qi = c < w - 1, base + c + 1
+                else:
+                    ok, qi = r < h - 1, base + c + w
+                if not ok or (deb[_u(qi)] if kk < 2 else snap[_u(qi)]) == 1:
+                    continue
+                sq = np.int64(src_idx[_u(qi)])
+                if sq < 0:
+                    continue
+                if table:
+                    if interior[_u(zb + sq)] == 0:
+                        continue
+                elif not _interior_at(o_dep, o_deb, zb, sq, h, w, threshold):
+                    continue
+                if first < 0:
+                    first = qi
+                n += 1
+                acc0 += c0[_u(qi)]
+                acc1 += c1[_u(qi)]
+                acc2 += c2[_u(qi)]
+                accd += np.float64(dep[_u(qi)])
+            if first < 0:
+                # debris arm; a pixel the band expanded stays expanded (the fix-up
+                # only adds galpixels), one it left as debris holds the same
+                counts[1] += spec == 0
+                if spec == 0:
+                    c0[p] = o0[p]
+                    c1[p] = o1[p]
+                    c2[p] = o2[p]
+                    dep[p] = o_dep[p]
+                    obj[p] = o_obj[p]
+                    if track:
+                        src_idx[p] = -1
+                continue
+            q = _u(first)
+            c0[p] = c0[q]
+            c1[p] = c1[q]
+            c2[p] = c2[q]
+            dep[p] = dep[q]
+            if n_mot >= 2:
+                m0[p] = m0[q]
+                m1[p] = m1[q]
+            if n_mot >= 4:
+                m2[p] = m2[q]
+                m3[p] = m3[q]
+            if n_mot >= 6:
+                m4[p] = m4[q]
+                m5[p] = m5[q]
+            if n_zm >= 1:
+                z0[p] = z0[q]
+            if n_zm >= 2:
+                z1[p] = z1[q]
+            if n_zm >= 3:
+                z2[p] = z2[q]
+            if ncol == 4:
+                d0[p] = d0[q]
+                d1[p] = d1[q]
+                d2[p] = d2[q]
+                d3[p] = d3[q]
+            deb[p] = 0
+            obj[p] = obj[q]
+            if mode == 1:
+                c0[p] = acc0 / n
+                c1[p] = acc1 / n
+                c2[p] = acc2 / n
+                dep[p] = np.floor(accd / n + 0.5)
+            f0[p] = 0
+            f1[p] = 0
+            src_idx[p] = src_idx[q]
+            # taken as changed for the pixels right of and below it (not compared)
+            cur[c] = 1
+            changed = True
+            counts[0] += spec != 1
+            counts[1] -= spec == 2
+        counts[2] += 1
+        if write_out and margin <= r < h - margin:
+            _show_row(
+                c0,
+                c1,
+                c2,
+                dep,
+                deb,
+                base + margin,
+                ww,
+                out_colour,
+                out_depth,
+                out_debris,
+                (z * (h - 2 * margin) + r - margin) * ww,
+                zs,
+            )
+        if not changed:
+            break  # the rows below saw this row as it is now
+        prev, cur = cur, prev
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
 def finish(
     new: tuple,
     old: tuple,
@@ -1309,13 +1649,32 @@ def finish(
     same_out: np.ndarray,
     interior: np.ndarray,
     table: bool,
+    bands: int,
+    snap: np.ndarray,
+    band_stats: np.ndarray,
     zs: float = 1.0,
 ) -> None:
     """Second pass after :func:`scatter_bands`: debris arm, expansion and display copy.
 
     A pixel is only written when this scan reaches it (the debris arm, or an
     expansion that reads neighbours but writes the pixel itself), so each row is
-    final once scanned and is copied to the display straight away, while cached.
+    final once scanned (and copied to the display then, while cached, when
+    ``write_out``).
+
+    **Bands.**  The scan is sequential in principle: an expansion can qualify the
+    debris pixel right of it and the one below, through the rows of the whole
+    map.  The map's rows (``z H + r``) are split into ``bands`` bands that are
+    scanned in parallel, each but the first leaving its top row alone and taking
+    that row as the scatter left it (its pixels debris where they were).  Then,
+    band by band, the top row is scanned with the true row above it, and the
+    band's rows below are scanned again only where that changes something: a
+    debris pixel whose left or upper neighbour was expanded by the fix-up (or,
+    in the top row, by the scan), reading its right and lower neighbours' debris
+    flags as the scatter left them (``snap``), as the sequential scan does.  The
+    fix-up stops at the first row it changes nothing in.  Expansions only add
+    galpixels, so a pixel the band expanded is expanded by the fix-up too and
+    every field it wrote is written again; a debris-arm pixel that stays one
+    holds the same.  Any band count gives the one-band result bit for bit.
 
     Parameters
     ----------
@@ -1347,134 +1706,48 @@ def finish(
         Read the origins' Poisson tests from ``interior`` rather than testing each
         origin on the spot (same result; the table pays off from about one debris
         pixel in a hundred and twenty-eight, see :data:`TABLE_FROM`).
+    bands : int
+        Number of bands, 1 to ``Z H``.
+    snap : ndarray, shape (N,), uint8
+        Scratch for the scatter's debris flags (unused, may be empty, with one band).
+    band_stats : ndarray, shape (bands, 4), int64
+        Out: per band expanded, debris left, rows fixed up and pixels scanned again.
+    zs : float
+        Depth unit of the display copy (2^-fz).
     """
     nz, h, w = shape
-    # every plane in a local of its own, once: taking arrays out of tuples inside
-    # the loop costs a reference-count pair each time (~1 us per expansion)
+    rows = nz * h
+    band_stats[:] = 0
+    # a parallel loop takes arrays, not tuples of them: unpacked here, packed in it
     (c0, c1, c2), dep, (f0, f1), mot, zm, dc, deb, obj = new
     m0, m1, m2, m3, m4, m5 = mot
     z0, z1, z2 = zm
     d0, d1, d2, d3 = dc
     (o0, o1, o2), o_dep, o_deb, o_obj = old[0], old[1], old[6], old[7]
-    ww = w - 2 * margin
-    expanded = left = 0
-    n8 = 8 * deb64.size
-    for z in range(nz):
-        zb = z * h * w
-        for r in range(h):
-            base = zb + r * w
-            c = np.int64(-1)
-            while c < w - 1:
-                c += 1
-                p = _u(base + c)
-                if (p & 7) == 0 and c + 8 <= w and p + 8 <= n8 and deb64[p >> 3] == 0:
-                    c += 7  # eight galpixels: nothing to do
-                    continue
-                if deb[p] == 0:
-                    continue
-                same_out[p] = 0
-                near = (
-                    (c > 0 and deb[_u(base + c - 1)] == 0)
-                    or (c < w - 1 and deb[_u(base + c + 1)] == 0)
-                    or (r > 0 and deb[_u(base + c - w)] == 0)
-                    or (r < h - 1 and deb[_u(base + c + w)] == 0)
-                )
-                if threshold >= 0 and near:
-                    # expansion (poisson.expand_pixel, same arithmetic)
-                    first = np.int64(-1)
-                    n = 0
-                    acc0 = acc1 = acc2 = accd = 0.0
-                    for k in range(n_neighbours):
-                        if k == 0:
-                            ok, qi = c > 0, base + c - 1
-                        elif k == 1:
-                            ok, qi = r > 0, base + c - w
-                        elif k == 2:
-                            ok, qi = c < w - 1, base + c + 1
-                        else:
-                            ok, qi = r < h - 1, base + c + w
-                        if not ok or deb[_u(qi)] == 1:
-                            continue
-                        sq = np.int64(src_idx[_u(qi)])
-                        if sq < 0:
-                            continue
-                        # Poisson test of the origin: from the table, or on the spot
-                        if table:
-                            if interior[_u(zb + sq)] == 0:
-                                continue
-                        elif not _interior_at(o_dep, o_deb, zb, sq, h, w, threshold):
-                            continue
-                        if first < 0:
-                            first = qi
-                        n += 1
-                        acc0 += c0[_u(qi)]
-                        acc1 += c1[_u(qi)]
-                        acc2 += c2[_u(qi)]
-                        accd += np.float64(dep[_u(qi)])
-                    if first >= 0:
-                        q = _u(first)
-                        c0[p] = c0[q]
-                        c1[p] = c1[q]
-                        c2[p] = c2[q]
-                        dep[p] = dep[q]
-                        if n_mot >= 2:
-                            m0[p] = m0[q]
-                            m1[p] = m1[q]
-                        if n_mot >= 4:
-                            m2[p] = m2[q]
-                            m3[p] = m3[q]
-                        if n_mot >= 6:
-                            m4[p] = m4[q]
-                            m5[p] = m5[q]
-                        if n_zm >= 1:
-                            z0[p] = z0[q]
-                        if n_zm >= 2:
-                            z1[p] = z1[q]
-                        if n_zm >= 3:
-                            z2[p] = z2[q]
-                        if ncol == 4:
-                            d0[p] = d0[q]
-                            d1[p] = d1[q]
-                            d2[p] = d2[q]
-                            d3[p] = d3[q]
-                        deb[p] = 0
-                        obj[p] = obj[q]
-                        if mode == 1:
-                            c0[p] = acc0 / n
-                            c1[p] = acc1 / n
-                            c2[p] = acc2 / n
-                            dep[p] = np.floor(accd / n + 0.5)
-                        f0[p] = 0
-                        f1[p] = 0
-                        src_idx[p] = src_idx[q]
-                        expanded += 1
-                        continue
-                left += 1
-                # debris arm (also for old debris: it keeps the colour it last showed)
-                c0[p] = o0[p]
-                c1[p] = o1[p]
-                c2[p] = o2[p]
-                dep[p] = o_dep[p]
-                obj[p] = o_obj[p]
-                if track:
-                    src_idx[p] = -1
-            if write_out and margin <= r < h - margin:
-                _show_row(
-                    c0,
-                    c1,
-                    c2,
-                    dep,
-                    deb,
-                    base + margin,
-                    ww,
-                    out_colour,
-                    out_depth,
-                    out_debris,
-                    (z * (h - 2 * margin) + r - margin) * ww,
-                    zs,
-                )
-    stats[5] += expanded
-    stats[6] += left
+    for b in nb.prange(bands):
+        lo, hi = b * rows // bands, (b + 1) * rows // bands
+        if b > 0:  # the top row is left to the fix-up, as the scatter left it
+            for c in range(w):
+                snap[lo * w + c] = deb[lo * w + c]
+            lo += 1
+        _finish_rows(
+            ((c0, c1, c2), dep, (f0, f1), (m0, m1, m2, m3, m4, m5), (z0, z1, z2),
+             (d0, d1, d2, d3), deb, obj),
+            (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, deb64, snap if b > 0 else snap[:0],
+            shape, lo, hi, n_mot, n_zm, ncol, threshold, n_neighbours, mode, track, same_out,
+            interior, table, band_stats[b], margin, out_colour, out_depth, out_debris,
+            write_out, zs,
+        )
+    for b in range(1, bands):  # in order: a fix-up reads the row above it as final
+        _fix_rows(
+            new, (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, snap, shape, b * rows // bands,
+            (b + 1) * rows // bands, n_mot, n_zm, ncol, threshold, n_neighbours, mode, track,
+            same_out, interior, table, band_stats[b], margin, out_colour, out_depth,
+            out_debris, write_out, zs,
+        )
+    for b in range(bands):
+        stats[5] += band_stats[b, 0]
+        stats[6] += band_stats[b, 1]
 
 
 def reach_of(vy: int, ay: int, jy: int, fm: int) -> int:

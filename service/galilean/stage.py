@@ -104,13 +104,12 @@ class GalileanSettings:
         Fall back to a lower order when it predicted the control points better.
     threads : int
         Threads a refresh may use (row bands of the scatter, the Poisson tests,
-        the display copy and the head-motion update); 0, the default: numba's
-        thread count; 1: serial.  With OpenMP
-        threads that sleep while waiting (``OMP_WAIT_POLICY=PASSIVE``, which
-        ``holo-service`` and ``holo-bench`` set) two threads were 1.2-1.5x faster
-        than one on this 2-core machine when idle and no slower beside a busy
-        render process; with spinning threads a busy neighbour made both 2.5x
-        slower.
+        the second pass with its display copy, and the head-motion update); 0,
+        the default: numba's thread count; 1: serial.  With OpenMP threads that
+        sleep while waiting (``OMP_WAIT_POLICY=PASSIVE``, which ``holo-service``
+        and ``holo-bench`` set) two threads were 1.2-1.5x faster than one on this
+        2-core machine when idle and no slower beside a busy render process; with
+        spinning threads a busy neighbour made both 2.5x slower.
     """
 
     order: int = 2
@@ -235,6 +234,8 @@ class GalileanStage:
         self._still: float | None = None
         #: the Poisson test of every galpixel of ``map``, computed before each expansion
         self._interior = np.zeros(self._src.size, np.uint8)
+        #: scratch of :func:`finish`'s bands: the debris flags the scatter left
+        self._snap = np.zeros(self._src.size, np.uint8)
 
     def _map_changed(self) -> None:
         """Forget what is known of ``map`` (a graft or a motion update wrote it)."""
@@ -526,8 +527,11 @@ class GalileanStage:
         table = thr >= 0 and src.size - fresh >= TABLE_FROM * src.size
         if table:
             poisson_interiors(old_p[1], old_p[6], self.shape, thr, self._interior)
-        # expansion and debris arm (sequential: an expansion feeds the next), then
-        # the display copy in parallel bands
+        # expansion, debris arm and display copy in row bands, each fixed up where
+        # the band above changes what it saw (see finish)
+        rows = self.shape[0] * self.shape[1]
+        fbands = max(1, min(nb.get_num_threads(), rows // 8))
+        out = self._no_show if shown is None else tuple(a.reshape(-1) for a in shown)
         finish(
             new_p,
             old_p,
@@ -541,17 +545,18 @@ class GalileanStage:
             s.neighbours,
             EXPANSION_MODES[s.expansion],
             s.margin,
-            *self._no_show,
-            False,
+            *out,
+            shown is not None,
             s.poisson,
             counters,
             self._same[1],
             self._interior,
             table,
+            fbands,
+            self._snap,
+            np.zeros((fbands, 4), np.int64),
+            2.0**-self.fixed.fz,
         )
-        if shown is not None:
-            zs = 2.0**-self.fixed.fz
-            show_bands(new_p, self.shape, s.margin, *(a.reshape(-1) for a in shown), zs)
         self._reach = next_reach
         self._same = self._same[::-1]
         self._same_valid = record

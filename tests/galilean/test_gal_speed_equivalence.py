@@ -17,6 +17,8 @@ from service.galilean.galpixmap import Galpixmap
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
 from service.galilean.propagate import (
     STAT_NAMES,
+    debris_words,
+    finish,
     flat,
     map_reach,
     planes,
@@ -405,3 +407,70 @@ def test_recording_stops_while_almost_every_galpixel_moves() -> None:
     assert still[8] < stage_module.STILL_MIN  # measured once after the head turn
     assert not any(recorded[9:18])  # then not recorded while everything moves
     assert all(recorded[19:]) and still[19] > stage_module.STILL_MIN  # grafted: again
+
+
+def _finish_input(order: int, rng: np.random.Generator) -> tuple:
+    """A stage, an old map, and a new map after a scatter: strips and holes of debris.
+
+    Two zones of an odd size (debris words straddle rows); a debris column down
+    both zones (the expansion runs down it from row to row, so a band's fix-up
+    runs the whole band), a hole crossing the middle rows, scattered debris.
+    """
+    display = DisplaySettings(zones=2, cols=37, rows=29)
+    st = GalileanStage(display, GalileanSettings(order=order))
+    old = random_map(st, rng, debris=0.1)
+    new = random_map(st, rng, debris=0.15)
+    z, h, w = st.shape
+    new.debris[:, :, 5] = 1
+    new.debris[:, :, 20:22] = 1
+    new.debris[:, h // 2 - 3 : h // 2 + 4, 9:17] = 1
+    new.debris[0, 0, :] = 1
+    src = rng.integers(0, h * w, new.debris.size).astype(np.int32)
+    src[rng.random(src.size) < 0.05] = -1
+    src[new.debris.reshape(-1) == 1] = -9
+    return st, old, new, src
+
+
+@pytest.mark.parametrize("order", [0, 2, 3])
+@pytest.mark.parametrize(
+    "threshold, neighbours, mode, table, margin",
+    [(3e6, 4, 1, True, 0), (3e6, 4, 0, False, 2), (3e6, 2, 1, False, 0), (0.0, 1, 0, True, 1),
+     (-1.0, 4, 1, False, 0)],
+)
+def test_finish_in_bands_like_one_band(
+    order: int, threshold: float, neighbours: int, mode: int, table: bool, margin: int
+) -> None:
+    """finish: any band count gives the one-band scan's maps, origins, counters and display.
+
+    Bands start inside zones and at zone edges (1 to one band per row); the fix-up
+    must redo whole bands down the debris columns.
+    """
+    rng = np.random.default_rng(3 + order)
+    st, old, new, src = _finish_input(order, rng)
+    z, h, w = st.shape
+    interior = np.zeros(src.size, np.uint8)
+    poisson_interiors(old.depth.reshape(-1), old.debris.reshape(-1), st.shape, max(threshold, 0),
+                      interior)
+    zs, hs, ws = z, h - 2 * margin, w - 2 * margin
+    results = []
+    for bands in (1, 2, 3, 5, 7, z * h):
+        n, s = new.copy(), src.copy()
+        shown = (np.zeros(zs * hs * ws * 3, np.uint8), np.zeros(zs * hs * ws, np.float32),
+                 np.zeros(zs * hs * ws, np.bool_))
+        stats, band_stats = np.zeros(7, np.int64), np.zeros((bands, 4), np.int64)
+        same_out = np.ones(src.size, np.uint8)
+        finish(planes(n.arrays()), planes(old.arrays()), s, debris_words(n.debris), st.shape,
+               n.motion.shape[0], n.zmotion.shape[0], 4, threshold, neighbours, mode, margin,
+               *shown, True, True, stats, same_out, interior, table, bands,
+               np.zeros(src.size, np.uint8), band_stats, 0.5)
+        results.append((n, s, stats, same_out, shown, band_stats))
+    first = results[0]
+    assert first[2][5] > 0 or threshold < 0
+    for n, s, stats, same_out, shown, _ in results[1:]:
+        for u, v in zip(n.arrays(), first[0].arrays(), strict=True):
+            assert same(u, v)
+        assert same(s, first[1]) and (stats == first[2]).all() and same(same_out, first[3])
+        for u, v in zip(shown, first[4], strict=True):
+            assert same(u, v)
+    if threshold >= 0 and neighbours >= 2:  # the fix-ups ran down the debris columns
+        assert results[1][5][1, 2] > h // 2
