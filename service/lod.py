@@ -894,7 +894,7 @@ def _build_in_child(key: str, mesh: Mesh, settings: LodSettings, folder: Path,
               "texture_res": settings.texture_res, "name": mesh.name}
     try:
         run = subprocess.run([sys.executable, "-m", "service.lod_build", str(src), str(folder),
-                              json.dumps(recipe)], stdin=subprocess.DEVNULL,
+                              json.dumps(recipe), str(os.getpid())], stdin=subprocess.DEVNULL,
                              capture_output=True, text=True, check=False)
     finally:
         src.unlink(missing_ok=True)

@@ -1,7 +1,7 @@
 """A level-of-detail chain built in a child process of its own (no GIL shared with renders).
 
 :class:`service.lod.ChainBuilds` runs ``python -m service.lod_build MESH.npz FOLDER
-RECIPE.json`` for a chain not in the cache: the mesh's arrays come in a numpy file
+RECIPE.json PARENT_PID`` for a chain not in the cache: the mesh's arrays come in a numpy file
 (``vertices``, ``polygons``, ``counts``; read with ``allow_pickle=False``), the
 chain's settings as JSON (``fractions``, ``cloud_eps``, ``texture_res``, ``name``),
 and the chain goes into the cache folder (:func:`service.lod.build_chain`, which
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -26,10 +27,30 @@ import numpy as np
 from service.lod import BUILD_NICE, LodSettings, build_chain
 from service.mesh import Mesh
 
+#: Linux ``prctl`` option: the signal this process gets when its parent thread ends.
+PR_SET_PDEATHSIG = 1
+
+
+def _end_with_parent(parent: int) -> None:
+    """Be stopped (SIGTERM) when the parent goes (Linux; elsewhere a build runs on).
+
+    A service stopped mid-build would otherwise leave its build running for seconds.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # it went before the prctl took
+        raise SystemExit(1)
+
 
 def main(argv: list[str] | None = None) -> int:
     """Build one chain into the cache; see the module notes."""
     args = sys.argv[1:] if argv is None else argv
+    if len(args) > 3:
+        _end_with_parent(int(args[3]))
     try:
         mesh_file, folder, recipe = Path(args[0]), Path(args[1]), json.loads(args[2])
         os.nice(BUILD_NICE)  # renders come first
