@@ -11,6 +11,11 @@ summary.  ``--jsonl`` writes ``{"event": "kernel", "done": i, "total": n, "name"
 ..., "seconds": s, "cached": bool, "kernels": k}`` per job, then ``{"event": "done", "total": n,
 "compiled": k, "cached": m, "seconds": s, "kernels": K}``.  The kernels land in
 numba's cache (``NUMBA_CACHE_DIR`` if set) and every later process loads them.
+
+A full run (no ``--job``) also leaves a record beside the cache
+(:func:`service.warmup.write_record`: its events, whether the cache was empty when
+it started, and the cache files it left), so that ``make test`` can check a fresh
+clone's own cold warm-up instead of compiling every kernel a second time.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from typing import TYPE_CHECKING
 from service.cli_args import int_range, plain_help
 from service.readiness import mark_warm
 from service.signals import EXIT_RULE, interruptible
-from service.warmup import JOBS, warm_up
+from service.warmup import JOBS, cache_files, warm_up, write_record
 
 if TYPE_CHECKING:
     from service.warmup import WarmupStep
@@ -58,22 +63,34 @@ def _human(step: WarmupStep) -> None:
           flush=True)
 
 
-def _jsonl(step: WarmupStep) -> None:
-    print(json.dumps({"event": "kernel", "done": step.done, "total": step.total,
-                      "name": step.name, "seconds": round(step.seconds, 3),
-                      "cached": step.cached, "kernels": step.kernels}), flush=True)
+def _event(step: WarmupStep) -> dict:
+    return {"event": "kernel", "done": step.done, "total": step.total, "name": step.name,
+            "seconds": round(step.seconds, 3), "cached": step.cached, "kernels": step.kernels}
 
 
 def _run(args: argparse.Namespace) -> int:
     if not args.jsonl:
         print("holo-warmup: compiling numba kernels (a few minutes the first time, "
               "seconds once cached)", file=sys.stderr, flush=True)
-    report = warm_up(_jsonl if args.jsonl else _human, args.processes, args.job)
+    empty = not cache_files()
+    events: list[dict] = []
+
+    def progress(step: WarmupStep) -> None:
+        events.append(_event(step))
+        if args.jsonl:
+            print(json.dumps(events[-1]), flush=True)
+        else:
+            _human(step)
+
+    report = warm_up(progress, args.processes, args.job)
     mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
+    done = {"event": "done", "total": report.total, "compiled": report.compiled,
+            "cached": report.cached, "seconds": round(report.seconds, 3),
+            "kernels": report.kernels}
+    if args.job is None:  # a full warm-up: what a later process may check (tests/warmup)
+        write_record(empty, [*events, done])
     if args.jsonl:
-        print(json.dumps({"event": "done", "total": report.total, "compiled": report.compiled,
-                          "cached": report.cached, "seconds": round(report.seconds, 3),
-                          "kernels": report.kernels}), flush=True)
+        print(json.dumps(done), flush=True)
     elif report.compiled == 0:
         print(f"holo-warmup: all {report.total} jobs cached ({report.kernels} kernels), "
               f"{report.seconds:.1f} s", file=sys.stderr)

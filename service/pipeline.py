@@ -187,8 +187,9 @@ class Renderer:
         if name == "runlength" and settings.painter_fallback == "pixel":
             name = "runlength-repair"
         by_triangle = name == "zbuffer"  # the one-pass z-buffer reads the mask as (T, Z)
-        tables = by_triangle or settings.painter_fallback == "frame"  # the z-buffer's
-        with clock("project"):  # and the projection by vertex, for the z-buffer
+        # the projection by vertex too, where a z-buffer runs (or may: the fallback)
+        tables = by_triangle or (name == "runlength" and settings.painter_fallback == "frame")
+        with clock("project"):
             proj, xz, yd = project_tables(arrays.vertices, display, tables)
         with clock("cull"):  # both culls from one facing table, in one pass
             keep, counts, draw = cull_zones(arrays.normals, arrays.triangle_polygon,

@@ -548,8 +548,11 @@ def zbuffer_zones_kernel(
         tables = vertex_tables(proj)
     else:  # given, or one zone (which reads proj as it is)
         tables = (xz, yd)
-    if bands.shape[0] == 0:
-        rows, cols = tri_out.shape[1], tri_out.shape[2]
+    rows, cols = tri_out.shape[1], tri_out.shape[2]
+    if bands.shape[0] == 0 and threads <= 1:  # one band: nothing to balance
+        use = np.empty((1, 2), np.int64)
+        use[0, 0], use[0, 1] = 0, rows - 1
+    elif bands.shape[0] == 0:
         use = balanced_bands(extent[0], extent[1], rows, threads, cols // 64 + 1)
     else:
         use = bands.copy()  # writable, as balanced_bands' (one type for both)

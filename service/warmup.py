@@ -17,13 +17,16 @@ is the command; ``make venv`` runs it.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,7 +34,10 @@ import numpy as np
 from service.display import DisplaySettings
 from service.signals import end_process
 
-__all__ = ["JOBS", "WarmupReport", "WarmupStep", "cache_counts", "dispatchers", "warm_up"]
+__all__ = [
+    "JOBS", "WarmupReport", "WarmupStep", "cache_counts", "cache_files", "dispatchers",
+    "read_record", "record_path", "warm_up", "write_record",
+]
 
 
 @dataclass(frozen=True)
@@ -369,6 +375,77 @@ def cache_counts(prefix: str = "service") -> tuple[int, int, int]:
         misses += sum(d.stats.cache_misses.values())
         loaded += len(d.overloads)
     return hits, misses, loaded
+
+
+# ------------------------------------------------------------- the record
+#: File name of :func:`write_record`'s record, beside the warm-cache stamp.
+RECORD_NAME = "holo-warmup-last.json"
+
+
+def cache_files() -> dict[str, list[int]]:
+    """The numba cache files of the ``service`` kernels: relative path -> [size, mtime_ns].
+
+    The cache is ``NUMBA_CACHE_DIR`` when set (every index and data file in it),
+    else the ``__pycache__`` folders of the ``service`` package.
+    """
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    base = Path(root) if root else Path(__file__).parent
+    found = base.rglob("*.nb[ic]") if root else base.rglob("__pycache__/*.nb[ic]")
+    out = {}
+    for path in found:
+        with contextlib.suppress(OSError):  # a file replaced while we look
+            st = path.stat()
+            out[str(path.relative_to(base))] = [st.st_size, st.st_mtime_ns]
+    return out
+
+
+def record_path() -> Path:
+    """Where :func:`write_record` keeps the last full warm-up's record."""
+    from service.readiness import stamp_path
+
+    return stamp_path().parent / RECORD_NAME
+
+
+def write_record(empty_at_start: bool, events: list[dict]) -> None:
+    """Record a full warm-up: its events, whether the cache was empty, the files it left.
+
+    With it a later process can tell that the cache holds what one warm-up from an
+    empty cache wrote and nothing else (``files`` still match), and read what that
+    warm-up reported (``tests/warmup`` checks a fresh clone's ``make test`` warm-up
+    this way instead of compiling every kernel a second time).  A read-only cache
+    gets no record.
+    """
+    from service.readiness import fingerprint
+
+    path = record_path()
+    record = {"fingerprint": fingerprint(), "empty_at_start": empty_at_start,
+              "jobs": list(JOBS), "events": events, "files": cache_files()}
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(record))
+        os.replace(tmp, path)
+    except OSError:
+        pass
+
+
+def read_record() -> dict | None:
+    """The last full warm-up's record if it still describes the cache, else None.
+
+    It does while the sources, numba and Python are those it was made with, it ran
+    every job of :data:`JOBS`, and the cache's files are exactly those it left.
+    """
+    from service.readiness import fingerprint
+
+    try:
+        record = json.loads(record_path().read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(record, dict):
+        return None
+    same = (record.get("fingerprint") == fingerprint() and record.get("jobs") == list(JOBS)
+            and record.get("files") == cache_files())
+    return record if same else None
 
 
 class _Progress:

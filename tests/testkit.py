@@ -276,18 +276,36 @@ def start_service(*args: str, ready_timeout_s: float = 60.0,
 
 
 class ColdWarmup:
-    """``holo-warmup --jsonl`` into an empty ``NUMBA_CACHE_DIR``, run in the background.
+    """A cache filled by one ``holo-warmup`` from an empty cache, and what it reported.
 
-    The cold compile takes minutes, most of them on one core; started when the
-    tests are collected, at a lower priority, it overlaps the rest of the suite
-    on the other core instead of adding its minutes to ``make test``.
+    Two ways, decided when the tests are collected:
+
+    * **reused**: the last full ``holo-warmup`` on this checkout's cache started from
+      an empty cache and the cache still holds exactly the files it left
+      (:func:`service.warmup.read_record`): a fresh clone's ``make test``, whose
+      ``make warmup`` just compiled everything.  Its cache files are copied into
+      ``cache`` (numba's ``NUMBA_CACHE_DIR`` layout) before any test can add to
+      the cache, and its recorded events are the result: no kernel compiles twice.
+    * **cold here**: otherwise ``holo-warmup --jsonl`` runs into an empty ``cache``
+      in the background.  The cold compile takes minutes, most of them on one core;
+      started at collection, at a lower priority, it overlaps the rest of the suite
+      on the other core instead of adding its minutes to ``make test``.
     """
 
     def __init__(self) -> None:
+        from service.warmup import read_record
+
         self.folder = Path(tempfile.mkdtemp(prefix="holo-cold-warmup-"))
         self.cache = self.folder / "numba-cache"
         self.cache.mkdir()
         self.env = {**os.environ, "NUMBA_CACHE_DIR": str(self.cache), "PYTHONUNBUFFERED": "1"}
+        self.proc: subprocess.Popen | None = None
+        record = read_record()
+        self.reused = record is not None and record.get("empty_at_start") is True
+        if self.reused:
+            self.events = record["events"]
+            copy_numba_cache(self.cache)
+            return
         with (self.folder / "out").open("w") as out, (self.folder / "err").open("w") as err:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "service.cli_warmup", "--jsonl"], cwd=ROOT,
@@ -297,11 +315,44 @@ class ColdWarmup:
 
     def result(self, timeout_s: float) -> tuple[int, list[dict], str]:
         """Wait for it: exit status, its JSON events, the tail of its stderr."""
+        if self.proc is None:
+            return 0, self.events, ""
         rc = self.proc.wait(timeout_s)
         events = [json.loads(line) for line in (self.folder / "out").read_text().splitlines()]
         return rc, events, (self.folder / "err").read_text()[-2000:]
 
     def close(self) -> None:
         """Stop it if it still runs and remove its folder."""
-        end_process(self.proc)
+        if self.proc is not None:
+            end_process(self.proc)
         shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def copy_numba_cache(dst: Path) -> None:
+    """Copy this process's numba cache of ``service`` into ``dst`` (with stamp and record).
+
+    ``dst`` is laid out as numba lays out a ``NUMBA_CACHE_DIR``: a folder per source
+    folder, named by numba's own rule.  An index file names its data files and the
+    source's hash, not its folder, so the copy is a cache numba loads as is.
+    """
+    from numba.core.caching import _CacheLocator
+
+    import service.warmup
+    from service.readiness import stamp_path
+    from service.warmup import cache_files, record_path
+
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    # the package folder as numba sees it (the module's __file__, not resolved)
+    base = Path(root) if root else Path(service.warmup.__file__).parent
+    for rel in cache_files():
+        src = base / rel
+        if root:
+            target = dst / rel
+        else:  # service/<...>/__pycache__/f.nbi -> dst/<folder>_<sha1>/f.nbi
+            sub = _CacheLocator.get_suitable_cache_subpath(str(src.parent.parent / "x.py"))
+            target = dst / sub / src.name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(src, target)
+    for extra in (stamp_path(), record_path()):  # the warm stamp, the warm-up's record
+        if extra.exists():
+            shutil.copy2(extra, dst / extra.name)

@@ -92,7 +92,8 @@ def _match(img: np.ndarray, y: int, x: int, j: int, sub: int, centre: int, tol: 
 def _decode_kernel(img: np.ndarray, s_lo: int, s_hi: int, sub: int, centre: int, r: int,
                    tol: int, out: np.ndarray) -> None:
     h, w, nc = img.shape
-    for y in nb.prange(h):
+    for yp in nb.prange(h):
+        y = np.int64(yp)  # one signature for _match (prange types its index twice)
         best = np.zeros(w, np.int32)
         match = np.zeros(w, np.int32)
         orow = out[y]

@@ -129,7 +129,7 @@ def _row(o: np.ndarray, frow: np.ndarray, part: np.ndarray, prow: np.ndarray, nc
             elif r == FREE:
                 o[x] = prow[u0, 0]
             else:
-                _pattern_sample(o, x, r, prow, 1, scale, base)
+                _pattern_sample(o, x, r, prow, nc, scale, base)  # nc == 1: one signature
             u0 = u0 - 1 if u0 > 0 else pw - 1
         return n
     for x in range(w - 1, -1, -1):

@@ -328,7 +328,7 @@ def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray
     par = y & 1
     ncons = 0
     nhid = 0
-    occ_r = -1  # the last occluder found to the right
+    occ_r = np.int64(-1)  # the last occluder found to the right (typed: one signature)
     for x in range(w):
         z = zr[x]
         j = x - 1
@@ -347,7 +347,7 @@ def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray
                 nhid += 1
                 continue
             if look_right:
-                occ_r = _occluder(zr, x, z, zmax, step, 1, occ_r)
+                occ_r = _occluder(zr, x, z, zmax, step, np.int64(1), occ_r)
                 if occ_r >= 0:
                     nhid += 1
                     continue
@@ -385,8 +385,8 @@ def _link_span(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarra
     par = y & 1
     ncons = 0
     nhid = 0
-    occ_l = -1  # the last occluders found on each side
-    occ_r = -1
+    occ_l = np.int64(-1)  # the last occluders found on each side (typed, see _link_row)
+    occ_r = np.int64(-1)
     for x in range(lo, hi + 1):
         s = sr[x]
         z = zr[x]
@@ -402,12 +402,12 @@ def _link_span(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarra
         if (look_left or look_right) and z < zmax:
             step = step0 * (2.0 - mu * z)
             if look_left:
-                occ_l = _occluder(zr, x, z, zmax, step, -1, occ_l)
+                occ_l = _occluder(zr, x, z, zmax, step, np.int64(-1), occ_l)
                 if occ_l >= 0:
                     nhid += 1
                     continue
             if look_right:
-                occ_r = _occluder(zr, x, z, zmax, step, 1, occ_r)
+                occ_r = _occluder(zr, x, z, zmax, step, np.int64(1), occ_r)
                 if occ_r >= 0:
                     nhid += 1
                     continue
@@ -440,10 +440,10 @@ def _link_sparse(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, rows: np.ndar
     nspans = _spans(edges, w, reach, spans)
     ncons = 0
     nhid = 0
-    done = 0
+    done = np.int64(0)
     for k in range(nspans):
-        lo = spans[2 * k]
-        hi = spans[2 * k + 1]
+        lo = np.int64(spans[2 * k])
+        hi = np.int64(spans[2 * k + 1])
         ncons += _link_flat(sr, same, y, done, lo)
         _look_right_span(zr, lo, hi, reach, c_band, c_min, rows[1])
         c, h = _link_span(zr, sr, same, rows[1], y, lo, hi, reach, zmax, eye_sep, mu)
@@ -536,7 +536,8 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
     step0 = 2.0 / (mu * eye_sep)
     c_dense = step0 * (2.0 - mu * DENSE_BAND_Z)
     c_min = step0 * (2.0 - mu)
-    for y in nb.prange(h):
+    for yp in nb.prange(h):
+        y = np.int64(yp)  # one signature for the callees (prange types its index twice)
         tid = nb.get_thread_id()
         zr = heights[tid]
         sr = scratch[tid, 0]
@@ -551,7 +552,7 @@ def tiw_kernel(depth: np.ndarray, far: float, inv_range: float, eye_sep: float, 
         for x in range(w):
             same[x] = x
         if above == 0:
-            ncons, nhid = _link_flat(sr, same, y, 0, w), 0
+            ncons, nhid = _link_flat(sr, same, y, np.int64(0), w), 0
         else:
             nsteep, zbound = _steep_edges(zr, c_min, edges[tid])
             if nsteep * DENSE_EDGES > w:  # a slope: bound every pixel

@@ -289,7 +289,7 @@ def _partition(
     on = np.empty(seg.size, np.int64)
     fr = np.empty(2 * seg.size, np.int64)
     bk = np.empty(2 * seg.size, np.int64)
-    n_on = n_fr = n_bk = splits = 0
+    n_on = n_fr = n_bk = splits = np.int64(0)  # typed: one signature of _emit
     for f in seg:
         s = _side(pv[f], n, d, eps)
         if s == 0:

@@ -1,7 +1,10 @@
 """From an empty numba cache: ``holo-warmup`` fills it once, and nothing compiles after.
 
-One cold warm-up (minutes) is shared by the module: it runs in a child process with
-``NUMBA_CACHE_DIR`` set to a fresh temp folder, as on a new machine.  Then
+One cold warm-up (minutes) is shared by the module (:class:`testkit.ColdWarmup`):
+in a fresh clone's ``make test`` it is ``make warmup``'s own, whose record says it
+started from an empty cache and whose cache is copied aside before any test runs;
+elsewhere one runs in a child process with ``NUMBA_CACHE_DIR`` set to a fresh temp
+folder, as on a new machine.  Then
 
 * a second warm-up process finds every kernel in that cache (the report says
   ``cached == total``; numba's dispatcher stats count no miss; the cache's index
@@ -24,6 +27,8 @@ from pathlib import Path
 import pytest
 from testkit import ROOT, start_service
 
+from service.warmup import RECORD_NAME
+
 #: A cold warm-up took 200 s here on 2 quiet cores, 684-1237 s with the machine
 #: 5-7x oversubscribed.
 COLD_TIMEOUT_S = 2400
@@ -33,11 +38,12 @@ COLD_TIMEOUT_S = 2400
 #: service adds no entry to it.
 FRAMES_DEADLINE_S = 60.0
 
-#: Per-dispatcher cache stats of a process that ran the warm-up (a child's stdout).
+#: Per-dispatcher cache stats of a process that ran ``holo-warmup`` (last line of stdout).
 _STATS = """
 import json
-from service.warmup import dispatchers, warm_up
-report = warm_up()
+from service.cli_warmup import main
+from service.warmup import dispatchers, read_record
+rc = main(["--jsonl", "--processes", "1"])
 out = {}
 for d in dispatchers():
     name = d.py_func.__module__ + "." + d.py_func.__qualname__
@@ -45,7 +51,10 @@ for d in dispatchers():
     misses = sum(d.stats.cache_misses.values())
     prev = out.get(name, [0, 0])
     out[name] = [prev[0] + hits, prev[1] + misses]
-print(json.dumps({"total": report.total, "cached": report.cached, "dispatchers": out}))
+record = read_record()
+print(json.dumps({"rc": rc, "record": record and {"empty_at_start": record["empty_at_start"],
+                                                  "done": record["events"][-1]},
+                  "dispatchers": out}))
 """
 
 
@@ -54,17 +63,18 @@ def _env(cache: Path) -> dict[str, str]:
 
 
 def _snapshot(cache: Path) -> dict[str, tuple[int, int]]:
-    """Every file of the cache with its size and modification time."""
+    """Every index and data file of the cache with its size and modification time."""
     return {str(p.relative_to(cache)): (p.stat().st_size, p.stat().st_mtime_ns)
-            for p in cache.rglob("*") if p.is_file()}
+            for p in cache.rglob("*.nb[ic]")}
 
 
 @pytest.fixture(scope="module")
 def warmed(cold_warmup) -> tuple[Path, list[dict]]:
-    """A cache filled by one cold ``holo-warmup --jsonl``; its events.
+    """A cache filled by one cold ``holo-warmup``; its events.
 
-    The warm-up started in the background when the tests were collected (the root
-    ``conftest.py``), so its minutes overlap the rest of the suite.
+    Reused from ``make warmup`` when that was cold, else started in the background
+    when the tests were collected (the root ``conftest.py``), so its minutes overlap
+    the rest of the suite.
     """
     rc, events, err = cold_warmup.result(COLD_TIMEOUT_S)
     assert rc == 0, err
@@ -79,6 +89,12 @@ def test_cold_warmup_compiles_and_reports_every_job(warmed):
     assert [s["done"] for s in steps] == list(range(1, done["total"] + 1))
     assert done["compiled"] + done["cached"] == done["total"] and done["compiled"] > 0
     assert any(cache.rglob("*.nbi")), "numba wrote no cache index"
+    # what a fresh clone's make test relies on: the run recorded that it found the
+    # cache empty, its events, and the cache files it left (here or copied here)
+    record = json.loads((cache / RECORD_NAME).read_text())
+    assert record["empty_at_start"] is True and record["events"] == events
+    assert sorted(s for s, _ in record["files"].values()) == sorted(
+        s for s, _ in _snapshot(cache).values())
 
 
 @pytest.mark.timeout(COLD_TIMEOUT_S + 120)
@@ -89,7 +105,9 @@ def test_second_process_reuses_every_cache_entry(warmed):
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
     got = json.loads(p.stdout.splitlines()[-1])
-    assert got["cached"] == got["total"]
+    done = got["record"]["done"]  # this run's record: a full cache, still as it found it
+    assert got["rc"] == 0 and got["record"]["empty_at_start"] is False
+    assert done["cached"] == done["total"] and done["compiled"] == 0
     missed = {k: v[1] for k, v in got["dispatchers"].items() if v[1]}
     assert not missed, f"compiled again: {missed}"
     hits = {k: v[0] for k, v in got["dispatchers"].items() if v[0]}
