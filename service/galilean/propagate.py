@@ -1500,18 +1500,36 @@ def _fix_rows(
     d0, d1, d2, d3 = dc
     o0, o1, o2, o_dep, o_deb, o_obj = old
     ww = w - 2 * margin
-    prev = np.zeros(w, np.uint8)  # 1: the fix-up expanded the pixel in the row above
-    cur = np.zeros(w, np.uint8)
+    # columns the fix-up expanded in the row above (ascending), and in this row
+    prev, cur = np.empty(w, np.int64), np.empty(w, np.int64)
+    n_prev = 0
     for k in range(k0, k1):
         z = k // h
         r = k - z * h
         zb = z * h * w
         base = k * w
-        changed = False
-        for c in range(w):
+        n_cur = i = 0
+        c = np.int64(-1)
+        chain = False  # the pixel just done was expanded: its right neighbour is due
+        while True:
+            # the next pixel due: every one in the top row; below it, one whose
+            # upper neighbour (``prev``) or left neighbour (``chain``) was expanded
+            if k == k0:
+                c += 1
+                if c >= w:
+                    break
+            else:
+                while i < n_prev and prev[i] <= c:
+                    i += 1
+                if chain and c + 1 < w:
+                    c += 1
+                elif i < n_prev:
+                    c = prev[i]
+                else:
+                    break
+            chain = False
             p = _u(base + c)
-            cur[c] = 0
-            if snap[p] == 0 or (k > k0 and prev[c] == 0 and (c == 0 or cur[c - 1] == 0)):
+            if snap[p] == 0:
                 continue
             # what the band's scan did here: 0 nothing (top row), 1 expanded, 2 debris arm
             spec = 0 if k == k0 else (1 if deb[p] == 0 else 2)
@@ -1601,8 +1619,9 @@ def _fix_rows(
             f1[p] = 0
             src_idx[p] = src_idx[q]
             # taken as changed for the pixels right of and below it (not compared)
-            cur[c] = 1
-            changed = True
+            cur[n_cur] = c
+            n_cur += 1
+            chain = True
             counts[0] += spec != 1
             counts[1] -= spec == 2
         counts[2] += 1
@@ -1621,9 +1640,9 @@ def _fix_rows(
                 (z * (h - 2 * margin) + r - margin) * ww,
                 zs,
             )
-        if not changed:
+        if n_cur == 0:
             break  # the rows below saw this row as it is now
-        prev, cur = cur, prev
+        prev, cur, n_prev = cur, prev, n_cur
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
