@@ -40,10 +40,11 @@ not a constant; the first frame, with nothing measured, is chosen by error alone
 **Building off the render path.**  A chain takes seconds to build (the bunny: 2 s
 quiet, 5-9 s on a loaded machine), longer than the service's render timeout.  A
 renderer whose :class:`LodState` has ``background`` (the service's and its workers')
-hands a chain that is not cached to a :class:`ChainBuilds` thread and draws that
-mesh in full meanwhile (exact, slower); the report's ``chains`` says how many are
-ready.  Processes sharing a cache folder build each chain once (a lock file).  A
-damaged or torn cache file is reported and rebuilt.
+hands a chain that is not cached to a :class:`ChainBuilds` thread (which builds it
+in a child process, :mod:`service.lod_build`) and draws that mesh in full meanwhile
+(exact, slower); the report's ``chains`` says how many are ready.  Processes
+sharing a cache folder build each chain once (a lock file).  A damaged or torn cache
+file is reported and rebuilt.
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ import contextlib
 import hashlib
 import json
 import os
+import subprocess
+import sys
 import threading
 import time
 import warnings
@@ -779,10 +782,13 @@ class ChainBuilds:
 
     :meth:`LodState.chain` (with ``background``) hands a mesh whose chain is neither
     in memory nor in the cache to :meth:`submit` and draws the full mesh meanwhile;
-    each frame it asks :meth:`take` whether the chain is done.  The thread runs at a
-    lower CPU priority (:data:`BUILD_NICE`, Linux: per thread) than the renders.  A
-    build that fails leaves the full mesh; its message goes to :attr:`notes`, as do
-    the cache's (a damaged file rebuilt, a folder not writable).
+    each frame it asks :meth:`take` whether the chain is done.  With a cache folder
+    the thread runs the build in a child process (:mod:`service.lod_build`, at
+    :data:`BUILD_NICE`) and reads the chain from the cache: quadric decimation holds
+    the GIL for 20-40 ms a call, which in a thread stalled the renders beside it.
+    Without one (or where the folder cannot be written) it builds in the thread, at
+    a lower priority (Linux: per thread).  A build that fails leaves the full mesh;
+    its message goes to :attr:`notes`, as do the cache's (a damaged file rebuilt).
 
     Parameters
     ----------
@@ -844,7 +850,7 @@ class ChainBuilds:
             notes: list[str] = []
             chain, why = None, ""
             try:
-                chain = build_chain(mesh, settings, self.cache, notes=notes)
+                chain = self._build(key, mesh, settings, notes)
             except Exception as exc:  # noqa: BLE001 - any failure: the full mesh stays
                 why = f"{type(exc).__name__}: {exc}"[:200]
                 notes.append(f"level-of-detail chain of {mesh.name or 'a mesh'} not built "
@@ -858,6 +864,48 @@ class ChainBuilds:
                 self.notes.extend(notes)
                 self.generation += 1
                 self._idle.notify_all()
+
+
+    def _build(self, key: str, mesh: Mesh, settings: LodSettings, notes: list) -> LodChain:
+        """One chain: in a child process into the cache folder, or here without a cache."""
+        folder = cache_dir() if self.cache is True else (Path(self.cache) if self.cache else None)
+        if folder is not None:
+            got = _build_in_child(key, mesh, settings, folder, notes)
+            if got is not None:
+                return got
+        return build_chain(mesh, settings, self.cache, notes=notes)
+
+
+def _build_in_child(key: str, mesh: Mesh, settings: LodSettings, folder: Path,
+                    notes: list) -> LodChain | None:
+    """Build ``mesh``'s chain in ``python -m service.lod_build`` and read it from the cache.
+
+    Returns None where the child could not be used (the folder not writable: the
+    caller builds in process, uncached); raises :class:`LodError` when the build failed.
+    """
+    src = folder / f".{key}.{os.getpid()}.{threading.get_ident()}.mesh.npz"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with open(src, "wb") as fh:
+            np.savez(fh, vertices=mesh.vertices, polygons=mesh.polygons, counts=mesh.counts)
+    except OSError:
+        return None
+    recipe = {"fractions": list(settings.fractions), "cloud_eps": list(settings.cloud_eps),
+              "texture_res": settings.texture_res, "name": mesh.name}
+    try:
+        run = subprocess.run([sys.executable, "-m", "service.lod_build", str(src), str(folder),
+                              json.dumps(recipe), str(os.getpid())], stdin=subprocess.DEVNULL,
+                             capture_output=True, text=True, check=False)
+    finally:
+        src.unlink(missing_ok=True)
+    lines = run.stdout.splitlines()
+    notes.extend(line[len("note: "):] for line in lines if line.startswith("note: "))
+    if run.returncode != 0:
+        why = (run.stderr.strip().splitlines() or [f"exit status {run.returncode}"])[-1]
+        raise LodError(why)
+    if "levels: 1" in lines:  # nothing to simplify: the full mesh is the whole chain
+        return replace(full_only(mesh, key), ready=True)
+    return read_chain(folder, key, mesh)
 
 
 def _lower_priority(step: int) -> None:
