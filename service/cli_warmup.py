@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 from typing import TYPE_CHECKING
 
@@ -53,7 +54,31 @@ def build_parser() -> argparse.ArgumentParser:
                    "kernels in a second process meanwhile; 1: one process")
     p.add_argument("--job", action="append", choices=list(JOBS), metavar="NAME",
                    help="run only this job (repeat it); one of: " + "; ".join(JOBS))
+    p.add_argument("--parent-pid", type=int, default=0, help=argparse.SUPPRESS)
     return p
+
+
+#: Linux ``prctl`` option: the signal this process gets when its parent thread ends.
+PR_SET_PDEATHSIG = 1
+
+
+def _end_with_parent(parent: int) -> None:
+    """Be killed when ``parent`` ends (Linux; elsewhere the compile runs on).
+
+    ``warm_up``'s second process: a parent killed outright (SIGKILL, a test's
+    timeout) would otherwise leave it compiling for minutes on a machine that needs
+    its cores.  SIGKILL, not SIGTERM: a compile holds the interpreter until its
+    kernel is done, and numba writes each cache file whole (a temporary file, then
+    a rename), so nothing is left half-written.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # it went before the prctl took
+        raise SystemExit(1)
 
 
 def _human(step: WarmupStep) -> None:
@@ -104,6 +129,8 @@ def _run(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
+    if args.parent_pid:
+        _end_with_parent(args.parent_pid)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as holo-service, before numba
     return interruptible("holo-warmup", lambda: _run(args))
 

@@ -94,7 +94,9 @@ def depth_order(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
     polygons : ndarray, shape (P, K), padded with -1
     counts : ndarray, shape (P,)
     triangle_polygon : ndarray, shape (T,)
-        Polygon of each triangle; a polygon's triangles are contiguous.
+        Polygon of each triangle; a polygon's triangles are contiguous, in polygon
+        order, at least one each (a mesh's polygons have 3 corners or more), so
+        ``T == P`` means triangle ``t`` is polygon ``t``.
     keep : ndarray, shape (P,), bool
 
     Returns

@@ -957,9 +957,10 @@ class LodState:
         returned while the chain is built; without, the chain is built here.
         """
         got = self.chains.get(id(mesh))
-        if got is not None and got[0] is mesh and got[1].ready:
+        mine = got is not None and got[0] is mesh and got[2] == settings.recipe
+        if mine and got[1].ready:
             return got[1]
-        key = got[1].key if got is not None and got[0] is mesh else mesh_key(mesh, settings.recipe)
+        key = got[1].key if mine else mesh_key(mesh, settings.recipe)
         chain = self._by_key.get(key)
         if chain is None:
             chain = self._fetch(mesh, settings, key)
@@ -971,7 +972,7 @@ class LodState:
             self._by_key.move_to_end(key)
         if chain.levels[0] is not mesh:  # the same mesh as another object: draw its own
             chain = replace(chain, levels=(mesh, *chain.levels[1:]))
-        self.chains[id(mesh)] = (mesh, chain)
+        self.chains[id(mesh)] = (mesh, chain, settings.recipe)
         return chain
 
     def _fetch(self, mesh: Mesh, settings: LodSettings, key: str) -> LodChain:

@@ -477,7 +477,7 @@ def _run(name: str, kit: _Kit) -> tuple[float, int]:
 def _second_process(names: list[str], report: _Progress) -> tuple[Any, threading.Thread]:
     """``holo-warmup --jsonl`` for ``names`` in a child; a thread reports its jobs."""
     cmd = [sys.executable, "-m", "service.cli_warmup", "--jsonl", "--processes", "1",
-           *(f"--job={n}" for n in names)]
+           f"--parent-pid={os.getpid()}", *(f"--job={n}" for n in names)]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
 
     def read() -> None:

@@ -106,3 +106,11 @@ def test_a_torn_cache_warns_where_the_chain_is_built_in_the_frame(ring, tmp_path
         again = build_chain(ring, cache=tmp_path)
     assert again.build_ms > 0 and len(again.levels) == len(chain.levels)
     assert build_chain(ring, cache=tmp_path).build_ms == 0.0
+
+
+def test_another_recipe_gets_its_own_chain(ring, tmp_path):
+    state = LodState(cache=tmp_path)
+    full = state.chain(ring, LodSettings())
+    half = state.chain(ring, LodSettings(fractions=(0.5,)))
+    assert full.key != half.key and len(half.levels) == 2 < len(full.levels)
+    assert state.chain(ring, LodSettings()).key == full.key

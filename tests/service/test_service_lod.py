@@ -92,10 +92,12 @@ def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
     The test holds the chain's build lock (as another process building it would), so
     the chain cannot be ready: every render must still come back within the render
     timeout, in full (level 0), without a resend.  Released, the worker builds the
-    chain in the background and a later render draws coarser levels.
+    chain in the background and a later render draws coarser levels.  The cache
+    starts torn (arrays without their header): that is said and rebuilt.
     """
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
     key = mesh_key(load_scene(str(BUNNY)).objects[0].mesh, LodSettings().recipe)
+    (tmp_path / f"{key}.npz").write_bytes(b"PK torn")
     svc = service_factory(
         "--zones", "3", "--size", "64x48", "--workers", "1", "--refresh", "30",
         "--lod-error", "0.5", "--render-timeout", "5",
@@ -117,4 +119,9 @@ def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
         assert lod and lod["chains"]["ready"] == 1
         assert lod["levels"][0] > 0 and lod["triangles"] < lod["triangles_full"]
         assert c.stats()["lod"]["chains"]["ready"] == 1
-    assert (tmp_path / f"{key}.json").is_file()  # cached for the next service
+        # the chain may be read from the cache a render before its builder reports
+        notes = wait_until(lambda: c.render_once()[0]["stats"]["lod"]["chains"].get("notes"),
+                           CHAIN_S)
+        assert notes and len(notes) == 1
+        assert key in notes[0] and "json is missing" in notes[0] and "rebuilding" in notes[0]
+    assert (tmp_path / f"{key}.json").is_file()  # cached whole for the next service

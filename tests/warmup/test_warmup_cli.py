@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -21,9 +22,19 @@ _JOBS = ("scenes: normals, triangulation", "mesh files: repair")
 SIGNAL_WAIT_S = 240
 
 
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    """One empty numba cache for the module (the second test finds job 1 compiled)."""
+    return tmp_path_factory.mktemp("numba-cache")
+
+
+def _env(cache: Path) -> dict[str, str]:
+    return {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONUNBUFFERED": "1"}
+
+
 @pytest.mark.timeout(SIGNAL_WAIT_S + 120)
-def test_sigint_while_compiling_is_one_line_and_130(tmp_path):
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONUNBUFFERED": "1"}
+def test_sigint_while_compiling_is_one_line_and_130(cache):
+    env = _env(cache)
     p = subprocess.Popen([sys.executable, "-m", "service.cli_warmup", "--jsonl",
                           *(f"--job={j}" for j in _JOBS)], cwd=ROOT,
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -46,3 +57,47 @@ def test_bad_option_is_usage_error():
     p = subprocess.run([sys.executable, "-m", "service.cli_warmup", "--nope"], cwd=ROOT,
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "error:" in p.stderr
+
+
+#: A parent that starts a warm-up's second process as ``warm_up`` does, prints its
+#: pid, and passes its JSON lines through.
+_PARENT = """
+import os, subprocess, sys
+child = subprocess.Popen([sys.executable, "-m", "service.cli_warmup", "--jsonl",
+                          "--processes", "1", f"--parent-pid={os.getpid()}",
+                          *(f"--job={j}" for j in sys.argv[1:])])
+print(child.pid, flush=True)
+child.wait()
+"""
+
+
+def _gone(pid: int) -> bool:
+    stat = Path(f"/proc/{pid}/stat")
+    try:
+        return stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except (OSError, IndexError):
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl(PR_SET_PDEATHSIG)")
+@pytest.mark.timeout(SIGNAL_WAIT_S + 120)
+def test_second_process_ends_when_its_parent_is_killed_mid_compile(cache):
+    jobs = (_JOBS[0], "render runlength")  # the second compiles the render path: 20+ s
+    parent = subprocess.Popen([sys.executable, "-c", _PARENT, *jobs], cwd=ROOT,
+                              env=_env(cache), stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(parent.stdout.readline())
+        first = json.loads(parent.stdout.readline())  # job 1 done: job 2 compiles now
+        assert first["event"] == "kernel" and first["done"] == 1
+        parent.kill()  # no handler, no clean-up: only the kernel's death signal is left
+        parent.wait(60)
+        end = time.monotonic() + 15  # the death signal is at once; job 2 takes longer
+        while not _gone(child) and time.monotonic() < end:
+            time.sleep(0.1)  # polling /proc: no event tells another process's end
+        assert _gone(child), "the second process went on compiling without its parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        if not _gone(child):
+            os.kill(child, signal.SIGKILL)
