@@ -40,7 +40,7 @@ from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.motion_field import render_with_motion
-from service.lod import lod_from
+from service.lod import LodState, lod_from
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
@@ -125,6 +125,9 @@ class LocalRenderer:
         self.connected = True
         self.warming: dict | None = None
         self._renderer = Renderer()
+        # a chain not cached yet is built in the background (as the service's workers
+        # do): the full mesh is drawn meanwhile, no render stalls seconds for the build
+        self._renderer.lod = LodState(background=True)
         self._cv = threading.Condition()
         self._stage_lock = threading.Lock()
         self._stop = threading.Event()
