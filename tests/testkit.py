@@ -34,6 +34,19 @@ import zmq
 from service.signals import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def shared_fixture(relative: str) -> Path:
+    """A file of the project's shared fixtures, wherever this checkout sits.
+
+    Searched in ``$HOLO_FIXTURES``, ``../shared/fixtures`` beside the checkout, then
+    ``/work/shared/fixtures`` (a fresh clone elsewhere, as when checking ``make
+    test``); the first candidate when none has it (the caller skips, naming it).
+    """
+    dirs = [Path(os.environ["HOLO_FIXTURES"])] if os.environ.get("HOLO_FIXTURES") else []
+    dirs += [ROOT.parent / "shared" / "fixtures", Path("/work/shared/fixtures")]
+    found = [d / relative for d in dirs if (d / relative).is_file()]
+    return found[0] if found else dirs[0] / relative
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and ptys")
 linux_only = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="/proc")
 

@@ -8,17 +8,16 @@ from __future__ import annotations
 
 import fcntl
 import time
-from pathlib import Path
 
 import pytest
-from testkit import wait_until
+from testkit import shared_fixture, wait_until
 
 from service.errors import ServiceError
 from service.loaders import load_scene
 from service.lod import LodSettings, mesh_key
 from service.net.client import ServiceClient
 
-BUNNY = Path(__file__).resolve().parents[2] / ".." / "shared" / "fixtures" / "meshes" / "bunny.ply"
+BUNNY = shared_fixture("meshes/bunny.ply")
 #: how long a chain may take to build on a loaded 2-core machine (the bunny: ~2 s quiet)
 CHAIN_S = 120
 
@@ -84,7 +83,7 @@ def test_a_time_budget_degrades_through_the_measured_cost_model(service_factory,
         assert info.value.code == "bad_message" and "lod_budget_ms" in str(info.value)
 
 
-@pytest.mark.skipif(not BUNNY.is_file(), reason="needs ../shared/fixtures/meshes/bunny.ply")
+@pytest.mark.skipif(not BUNNY.is_file(), reason=f"needs the bunny fixture ({BUNNY})")
 def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
         service_factory, tmp_path, monkeypatch):
     """A worker renders the bunny at once in full while its chain cannot be built.
