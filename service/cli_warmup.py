@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 from service.cli_args import int_range, plain_help
 from service.readiness import mark_warm
-from service.signals import EXIT_RULE, interruptible
+from service.signals import EXIT_RULE, end_with_parent, interruptible
 from service.warmup import JOBS, cache_files, warm_up, write_record
 
 if TYPE_CHECKING:
@@ -56,29 +56,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run only this job (repeat it); one of: " + "; ".join(JOBS))
     p.add_argument("--parent-pid", type=int, default=0, help=argparse.SUPPRESS)
     return p
-
-
-#: Linux ``prctl`` option: the signal this process gets when its parent thread ends.
-PR_SET_PDEATHSIG = 1
-
-
-def _end_with_parent(parent: int) -> None:
-    """Be killed when ``parent`` ends (Linux; elsewhere the compile runs on).
-
-    ``warm_up``'s second process: a parent killed outright (SIGKILL, a test's
-    timeout) would otherwise leave it compiling for minutes on a machine that needs
-    its cores.  SIGKILL, not SIGTERM: a compile holds the interpreter until its
-    kernel is done, and numba writes each cache file whole (a temporary file, then
-    a rename), so nothing is left half-written.
-    """
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):
-        return
-    if os.getppid() != parent:  # it went before the prctl took
-        raise SystemExit(1)
 
 
 def _human(step: WarmupStep) -> None:
@@ -130,7 +107,11 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
     if args.parent_pid:
-        _end_with_parent(args.parent_pid)
+        # warm_up's second process: a parent killed outright (SIGKILL, a test's
+        # timeout) would leave it compiling for minutes.  SIGKILL, not SIGTERM: a
+        # compile holds the interpreter until its kernel is done, and numba writes
+        # each cache file whole (a temporary file, then a rename)
+        end_with_parent(args.parent_pid, signal.SIGKILL)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as holo-service, before numba
     return interruptible("holo-warmup", lambda: _run(args))
 

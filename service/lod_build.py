@@ -26,31 +26,15 @@ import numpy as np
 
 from service.lod import BUILD_NICE, LodSettings, build_chain
 from service.mesh import Mesh
-
-#: Linux ``prctl`` option: the signal this process gets when its parent thread ends.
-PR_SET_PDEATHSIG = 1
-
-
-def _end_with_parent(parent: int) -> None:
-    """Be stopped (SIGTERM) when the parent goes (Linux; elsewhere a build runs on).
-
-    A service stopped mid-build would otherwise leave its build running for seconds.
-    """
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        return
-    if os.getppid() != parent:  # it went before the prctl took
-        raise SystemExit(1)
+from service.signals import end_with_parent
 
 
 def main(argv: list[str] | None = None) -> int:
     """Build one chain into the cache; see the module notes."""
     args = sys.argv[1:] if argv is None else argv
     if len(args) > 3:
-        _end_with_parent(int(args[3]))
+        # a service stopped mid-build would otherwise leave its build running
+        end_with_parent(int(args[3]), signal.SIGTERM)
     try:
         mesh_file, folder, recipe = Path(args[0]), Path(args[1]), json.loads(args[2])
         os.nice(BUILD_NICE)  # renders come first

@@ -233,3 +233,32 @@ def end_process(p: subprocess.Popen, timeout: float = 5.0) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait(timeout)
+
+
+#: Linux ``prctl`` option: the signal this process gets when its parent thread ends.
+PR_SET_PDEATHSIG = 1
+
+
+def end_with_parent(parent: int, signum: int) -> bool:
+    """Get ``signum`` when the parent ends (Linux ``PR_SET_PDEATHSIG``); False elsewhere.
+
+    For helper processes (the warm-up's second process, a level-of-detail build)
+    that must not run on after the process that started them is killed outright.
+
+    Parameters
+    ----------
+    parent : int
+        The parent's pid as the caller knew it: if the parent went before the
+        setting took, this process exits at once (``SystemExit(1)``).
+    signum : int
+        The signal to get: SIGKILL where nothing needs cleaning up, else SIGTERM.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signum)
+    except (OSError, AttributeError):
+        return False
+    if os.getppid() != parent:  # it went before the prctl took
+        raise SystemExit(1)
+    return True
