@@ -186,13 +186,14 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
     ])
     proj = project(v, d)
     tables = vertex_tables(proj)
-    xs, plane = np.zeros((3, d.zones)), np.zeros((3, d.zones))
-    live = np.zeros(d.zones, bool)
+    xs, plane = np.zeros((2, 3, d.zones)), np.zeros((2, 3, d.zones))
     ties = 0
     tris = rng.integers(0, 300, (200, 3)).astype(np.int64)
     draw_t = np.ones((tris.shape[0], d.zones), bool)
     for t, tri in enumerate(tris):
-        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, live)
+        j = t % 2  # the table row written
+        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, j)
+        live = (xs[j] != 0.0).any(axis=0)  # a zone not drawn in has every x 0
         assert any_live == live.any()
         ties += len({proj[0, k, 1] for k in tri}) < 3
         for z in range(d.zones):
@@ -200,8 +201,8 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
             assert live[z] == st[0]
             if st[0]:
                 assert (st[4], st[6], st[8]) == (ay, by, cy)
-                assert (st[3], st[5], st[7]) == tuple(xs[:, z])
-                assert (st[9], st[10], st[11]) == tuple(plane[:, z])
+                assert (st[3], st[5], st[7]) == tuple(xs[j, :, z])
+                assert (st[9], st[10], st[11]) == tuple(plane[j, :, z])
     assert ties > 20
 
 
