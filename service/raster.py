@@ -240,14 +240,16 @@ def _zbuffer_band(
     same bit for bit.
     """
     zones, rows, cols = tri_out.shape
+    if zones > 1:  # clears the band between set-up and drawing, marks from pixel counts
+        _zbuffer_band_zones(
+            tables, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown
+        )
+        return
     drawn = np.empty((2, zones, hi - lo + 1), np.int64)  # columns written, per zone and row
     drawn[0] = cols
     drawn[1] = -1
-    if zones == 1:  # nothing to share: the plain loop, without the set-up table
-        _clear_band(tri_out, depth_out, lo, hi)
-        _zbuffer_band_one(proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, drawn)
-    else:  # clears the band between set-up and drawing
-        _zbuffer_band_zones(tables, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, drawn)
+    _clear_band(tri_out, depth_out, lo, hi)  # one zone: nothing to share, the plain loop
+    _zbuffer_band_one(proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, drawn)
     _mark_band(tri_out, drawn, lo, item, shown)
 
 
@@ -270,9 +272,10 @@ def _zbuffer_band_zones(
     hi: int,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
-    drawn: np.ndarray,
+    item: np.ndarray,
+    shown: np.ndarray,
 ) -> None:
-    """:func:`_zbuffer_band`'s clearing and drawing for several zones.
+    """:func:`_zbuffer_band` for several zones.
 
     ``tables`` is :func:`vertex_tables` of the projection.  Two passes: every
     triangle with rows in the band is set up first, into a table
@@ -280,27 +283,42 @@ def _zbuffer_band_zones(
     after another overlap in the CPU; set up between two triangles' drawing, each
     waited on the drawing before it (0.1 ms of a 5-zone game frame of 1.3 on one
     thread).  One zone draws as before: the table made it slower there.
+
+    The items in sight are marked from how many of the band's pixels each triangle
+    holds at the end, counted as it draws (:func:`_draw_band`), instead of from a
+    pass over the columns drawn.
     """
     zones, n = tri_out.shape[0], order.shape[0]
     xs = np.empty((n, 3, zones))  # per triangle and zone: x of corners a, b, c
     plane = np.empty((n, 3, zones))  # per triangle and zone: dz0, dzdx, dzdy
     ys = np.empty((n, 3))  # per triangle: y of corners a, b, c (every zone's)
     trs = np.empty((n, 3), np.int64)  # per triangle: its index, first and last row here
-    m = _setup_band(tables, tris, order, draw_t, extent, lo, hi, xs, plane, ys, trs)
+    row = np.empty(tris.shape[0], np.int64)  # per triangle index: its row of the table
+    m = _setup_band(tables, tris, order, draw_t, extent, lo, hi, xs, plane, ys, trs, row)
     _clear_band(tri_out, depth_out, lo, hi)  # after the set-up: its reads stay in cache
-    _draw_band(xs, plane, ys, trs, m, lo, tri_out, depth_out, drawn)
+    held = np.zeros((m, zones), np.int64)  # per triangle and zone: pixels it holds
+    _draw_band(xs, plane, ys, trs, row, m, tri_out, depth_out, held)
+    if shown.shape[1] == 0:
+        return
+    for j in range(m):
+        p = item[trs[j, 0]]
+        for z in range(zones):
+            if held[j, z] > 0:  # only ever True: bands mark in parallel
+                shown[z, p] = True
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _setup_band(
     tables: tuple, tris: np.ndarray, order: np.ndarray, draw_t: np.ndarray, extent: tuple,
     lo: int, hi: int, xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray,
+    row: np.ndarray,
 ) -> int:
     """Set up, in draw order, the triangles of ``order`` with rows in ``lo..hi``.
 
     Fills the first rows of ``xs``, ``plane`` (N, 3, Z) (:func:`_setup_zones`),
     ``ys`` (N, 3) and ``trs`` (N, 3) (the triangle, its first and last row in the
-    band) with the triangles drawn in some zone; returns how many.
+    band) with the triangles drawn in some zone, and ``row`` (T,) at those
+    triangles with their row of the table; returns how many.
     """
     r_first, r_last = extent
     m = 0
@@ -310,20 +328,25 @@ def _setup_band(
         ay, by, cy, any_live = _setup_zones(tables, tris, order[i], draw_t, xs, plane, m)
         ys[m, 0], ys[m, 1], ys[m, 2] = ay, by, cy
         trs[m, 0], trs[m, 1], trs[m, 2] = order[i], max(r_first[i], lo), min(r_last[i], hi)
+        row[order[i]] = m
         m += any_live  # a triangle drawn in no zone: its row is used again
     return m
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _draw_band(
-    xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray, m: int, lo: int,
-    tri_out: np.ndarray, depth_out: np.ndarray, drawn: np.ndarray,
+    xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray, row: np.ndarray,
+    m: int, tri_out: np.ndarray, depth_out: np.ndarray, held: np.ndarray,
 ) -> None:
-    """Draw the ``m`` triangles :func:`_setup_band` set up in every zone (band from ``lo``).
+    """Draw the ``m`` triangles :func:`_setup_band` set up, in every zone.
 
     Row by row, with every zone's span of that row in turn (:func:`_zone_spans`, one
     loop over the zones with no branch), so the zones' rows ``r`` are drawn while
-    they are in cache; ``drawn`` (2, Z, rows of the band) gets the columns written.
+    they are in cache.  ``held`` (m, Z), zero before, gets how many of the band's
+    pixels each triangle holds at the end: a pixel taken adds one to the triangle
+    drawing and takes one from the triangle it held before (rare: drawn nearest
+    first, 44 of the game scene's 47,669 pixels written at 5 zones), found by
+    ``row``.
     """
     zones, cols = tri_out.shape[0], tri_out.shape[2]
     spans = np.empty((2, zones), np.int64)  # per zone: first and last column of a row
@@ -333,19 +356,22 @@ def _draw_band(
         for r in range(trs[j, 1], trs[j, 2] + 1):
             y = r + 0.5
             _zone_spans(xs, j, ay, by, cy, y, cols, spans)
-            k = r - lo
             for z in range(zones):
                 c0, c1 = spans[0, z], spans[1, z]
                 if c0 > c1:  # a zone the triangle does not draw in has every x 0: empty
                     continue
-                drawn[0, z, k] = min(drawn[0, z, k], c0)
-                drawn[1, z, k] = max(drawn[1, z, k], c1)
                 p0, p1, p2 = plane[j, 0, z], plane[j, 1, z], plane[j, 2, z]
+                taken = 0
                 for c in range(c0, c1 + 1):
                     d = p0 + p1 * (c + 0.5) + p2 * y
                     if d < depth_out[z, r, c]:
+                        before = tri_out[z, r, c]
+                        if before >= 0:
+                            held[row[before], z] -= 1
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t
+                        taken += 1
+                held[j, z] += taken
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
