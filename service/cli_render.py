@@ -28,7 +28,7 @@ from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
 from service.errors import HoloError
-from service.frame import write_quilt, write_strip, write_zones
+from service.frame import Frame, write_quilt, write_strip, write_zones
 from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import load_scene
 from service.lod_cli import add_lod_options, budget_frames, lod_settings, lod_state
@@ -208,22 +208,14 @@ def run(args: argparse.Namespace) -> dict:
     for line in repairs:
         print(f"holo-render: warning: {line}", file=sys.stderr)
     quality = _quality(args, scene)
-    if quality.mode == "auto":
-        chooser = QualityChooser(quality, CostModel.load(args.cost_model))
-        warm_up(settings)
-        renderer, lod_report, shown = _renderer(), None, scene
-        if settings.lod is not None:  # levels first, then the methods for that scene
-            shown, lod_report = renderer.lod.apply(scene, display, settings.lod)
-        frame = render_auto(renderer, chooser, shown, display, args.light, settings.cull)
+    chooser = (QualityChooser(quality, CostModel.load(args.cost_model))
+               if quality.mode == "auto" else None)
+    warm_up(settings)  # compile or load the numba kernels outside the timings
+    renderer = _renderer()
+    if chooser is not None:
+        frame, settings = _render_auto(args.light, renderer, chooser, scene, display, settings)
         flatten_ms = frame.stats["ms"]["flatten"]
-        if lod_report is not None:
-            frame.stats["lod"] = lod_report
-        q = frame.stats["quality"]
-        settings = replace(settings, method=q["method"], painter_fallback="pixel",
-                           light=LightSettings(args.light, q["specular"]))
     else:
-        warm_up(settings)  # compile or load the numba kernels outside the timings
-        renderer = _renderer()
         frame = renderer.render(scene, display, settings)
         flatten_ms = frame.stats["ms"]["flatten"]  # the one-off build, not a warm frame's
         frame = budget_frames(renderer, scene, display, settings, frame)
@@ -236,12 +228,35 @@ def run(args: argparse.Namespace) -> dict:
     write_strip(frame, out / "strip.png")
     if args.quilt:
         write_quilt(frame, out)
+    return _report(args, settings, quality, frame, scene, (load_ms, flatten_ms), out)
+
+
+def _render_auto(light: str, renderer: Renderer, chooser: QualityChooser, scene: Scene,
+                 display: DisplaySettings,
+                 settings: RenderSettings) -> tuple[Frame, RenderSettings]:
+    """One frame with ``--quality auto``, and the settings the chooser picked."""
+    lod_report, shown = None, scene
+    if settings.lod is not None:  # levels first, then the methods for that scene
+        shown, lod_report = renderer.lod.apply(scene, display, settings.lod)
+    frame = render_auto(renderer, chooser, shown, display, light, settings.cull)
+    if lod_report is not None:
+        frame.stats["lod"] = lod_report
+    q = frame.stats["quality"]
+    return frame, replace(settings, method=q["method"], painter_fallback="pixel",
+                          light=LightSettings(light, q["specular"]))
+
+
+def _report(args: argparse.Namespace, settings: RenderSettings, quality: QualitySettings,
+            frame: Frame, scene: Scene, load_flatten_ms: tuple[float, float],
+            out: Path) -> dict:
+    """The JSON report of a render: settings used, mesh, timings, occlusion counters."""
+    load_ms, flatten_ms = load_flatten_ms
     return {
         "scene": args.scene,
         "settings": {
             "zones": args.zones,
             "angle_deg": args.angle,
-            "size": [cols, rows],
+            "size": list(args.size),
             "method": settings.method,
             "light": args.light,
             "specular": settings.light.evaluation,

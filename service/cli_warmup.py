@@ -28,6 +28,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from service.cli_args import int_range, plain_help
+from service.kernel_cache import drop_stale
 from service.readiness import mark_warm
 from service.signals import EXIT_RULE, end_with_parent, interruptible
 from service.warmup import JOBS, cache_files, warm_up, write_record
@@ -70,10 +71,27 @@ def _event(step: WarmupStep) -> dict:
             "seconds": round(step.seconds, 3), "cached": step.cached, "kernels": step.kernels}
 
 
+def _drop_stale(jsonl: bool) -> None:
+    """Drop cached kernels built before a change to a module they use (service.kernel_cache)."""
+    stale = drop_stale()
+    if not stale:
+        return
+    changed = sorted({m for kernel in stale for m in kernel.changed})
+    if jsonl:
+        print(json.dumps({"event": "stale", "dropped": len(stale), "changed": changed}),
+              flush=True)
+    else:
+        more = f" and {len(changed) - 4} more" if len(changed) > 4 else ""
+        print(f"holo-warmup: {len(stale)} cached kernels predate a change to "
+              f"{', '.join(changed[:4])}{more}; compiling them again", file=sys.stderr,
+              flush=True)
+
+
 def _run(args: argparse.Namespace) -> int:
     if not args.jsonl:
         print("holo-warmup: compiling numba kernels (a few minutes the first time, "
               "seconds once cached)", file=sys.stderr, flush=True)
+    _drop_stale(args.jsonl)
     empty = not cache_files()
     events: list[dict] = []
 

@@ -40,11 +40,13 @@ not a constant; the first frame, with nothing measured, is chosen by error alone
 **Building off the render path.**  A chain takes seconds to build (the bunny: 2 s
 quiet, 5-9 s on a loaded machine), longer than the service's render timeout.  A
 renderer whose :class:`LodState` has ``background`` (the service's and its workers')
-hands a chain that is not cached to a :class:`ChainBuilds` thread (which builds it
-in a child process, :mod:`service.lod_build`) and draws that mesh in full meanwhile
-(exact, slower); the report's ``chains`` says how many are ready.  Processes
-sharing a cache folder build each chain once (a lock file).  A damaged or torn cache
-file is reported and rebuilt.
+hands a chain that is not cached to a :class:`service.lod_build.ChainBuilds` thread
+(which builds it in a child process, with a cache folder or without) and draws that
+mesh in full meanwhile (exact, slower); the report's ``chains`` says how many are
+ready, building or failed.  A build that failed for a reason that may pass (the
+child killed, a full disk) is tried again a bounded number of times; one that fails
+deterministically is not.  Processes sharing a cache folder build each chain once
+(a lock file).  A damaged or torn cache file is reported and rebuilt.
 """
 
 from __future__ import annotations
@@ -53,9 +55,6 @@ import contextlib
 import hashlib
 import json
 import os
-import subprocess
-import sys
-import threading
 import time
 import warnings
 import zipfile
@@ -63,6 +62,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -70,6 +70,9 @@ from service.display import DisplaySettings
 from service.errors import HoloError, SettingsError
 from service.mesh import Mesh
 from service.scene import Scene, SceneObject
+
+if TYPE_CHECKING:  # service.lod_build imports this module
+    from service.lod_build import ChainBuilds
 
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
 DEFAULT_FRACTIONS = tuple(round(0.7 ** k, 4) for k in range(1, 15))
@@ -108,7 +111,7 @@ MIN_TRIANGLES = 8
 CHAINS_KEPT = 64
 #: Cache problems and failed builds a renderer keeps for its LOD report.
 NOTES_KEPT = 4
-#: Nice value a background chain build adds to its thread's (renders come first).
+#: Nice value a background chain build's process adds to its own (renders come first).
 BUILD_NICE = 5
 #: ``progress(done, planned)``: decimations done and planned of a chain's build.
 Progress = Callable[[int, int], None]
@@ -777,147 +780,6 @@ def _slope_known(t: np.ndarray, ms: np.ndarray, a: float, b: float) -> bool:
     return se < 0.25 * b
 
 
-class ChainBuilds:
-    """Chains built off the render path: a daemon thread while any is queued, one at a time.
-
-    :meth:`LodState.chain` (with ``background``) hands a mesh whose chain is neither
-    in memory nor in the cache to :meth:`submit` and draws the full mesh meanwhile;
-    each frame it asks :meth:`take` whether the chain is done.  With a cache folder
-    the thread runs the build in a child process (:mod:`service.lod_build`, at
-    :data:`BUILD_NICE`) and reads the chain from the cache: quadric decimation holds
-    the GIL for 20-40 ms a call, which in a thread stalled the renders beside it.
-    Without one (or where the folder cannot be written) it builds in the thread, at
-    a lower priority (Linux: per thread).  A build that fails leaves the full mesh;
-    its message goes to :attr:`notes`, as do the cache's (a damaged file rebuilt).
-
-    Parameters
-    ----------
-    cache : Path, True or False
-        As :func:`build_chain`'s ``cache``.
-    """
-
-    def __init__(self, cache: Path | None | bool = True) -> None:
-        self.cache = cache
-        self._lock = threading.Lock()
-        self._idle = threading.Condition(self._lock)
-        self._todo: deque = deque()
-        self._pending: set[str] = set()
-        self._done: dict[str, LodChain] = {}
-        #: key -> why its build failed (the mesh is drawn in full)
-        self.failed: dict[str, str] = {}
-        #: the last few cache problems and failed builds, oldest first
-        self.notes: deque[str] = deque(maxlen=NOTES_KEPT)
-        #: builds finished (or failed) so far: a frame that sees it change looks again
-        self.generation = 0
-        self._thread: threading.Thread | None = None
-
-    def submit(self, key: str, mesh: Mesh, settings: LodSettings) -> None:
-        """Build the chain of ``mesh`` (hash ``key``) unless it is built, failed or queued."""
-        with self._lock:
-            if key in self._pending or key in self._done or key in self.failed:
-                return
-            self._pending.add(key)
-            self._todo.append((key, mesh, settings))
-            if self._thread is None:  # the thread lives while there is work
-                self._thread = threading.Thread(target=self._run, name="lod-chains",
-                                                daemon=True)
-                self._thread.start()
-
-    def take(self, key: str) -> LodChain | None:
-        """The chain built for ``key`` (handed over once), or None."""
-        with self._lock:
-            return self._done.pop(key, None)
-
-    def building(self, key: str) -> bool:
-        """Whether ``key``'s chain is queued or being built."""
-        with self._lock:
-            return key in self._pending
-
-    def wait_idle(self, timeout_s: float) -> bool:
-        """Wait until no build is queued or running; False if still busy after ``timeout_s``."""
-        with self._idle:
-            return self._idle.wait_for(lambda: not self._pending, timeout_s)
-
-    def _run(self) -> None:
-        """The thread: build what is queued, then end (a daemon: a build dies with the process)."""
-        _lower_priority(BUILD_NICE)
-        while True:
-            with self._lock:
-                if not self._todo:
-                    self._thread = None
-                    return
-                key, mesh, settings = self._todo.popleft()
-            notes: list[str] = []
-            chain, why = None, ""
-            try:
-                chain = self._build(key, mesh, settings, notes)
-            except Exception as exc:  # noqa: BLE001 - any failure: the full mesh stays
-                why = f"{type(exc).__name__}: {exc}"[:200]
-                notes.append(f"level-of-detail chain of {mesh.name or 'a mesh'} not built "
-                             f"({why}); drawn with its full mesh")
-            with self._lock:
-                if chain is not None:
-                    self._done[key] = chain
-                else:
-                    self.failed[key] = why
-                self._pending.discard(key)
-                self.notes.extend(notes)
-                self.generation += 1
-                self._idle.notify_all()
-
-
-    def _build(self, key: str, mesh: Mesh, settings: LodSettings, notes: list) -> LodChain:
-        """One chain: in a child process into the cache folder, or here without a cache."""
-        folder = cache_dir() if self.cache is True else (Path(self.cache) if self.cache else None)
-        if folder is not None:
-            got = _build_in_child(key, mesh, settings, folder, notes)
-            if got is not None:
-                return got
-        return build_chain(mesh, settings, self.cache, notes=notes)
-
-
-def _build_in_child(key: str, mesh: Mesh, settings: LodSettings, folder: Path,
-                    notes: list) -> LodChain | None:
-    """Build ``mesh``'s chain in ``python -m service.lod_build`` and read it from the cache.
-
-    Returns None where the child could not be used (the folder not writable: the
-    caller builds in process, uncached); raises :class:`LodError` when the build failed.
-    """
-    src = folder / f".{key}.{os.getpid()}.{threading.get_ident()}.mesh.npz"
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with open(src, "wb") as fh:
-            np.savez(fh, vertices=mesh.vertices, polygons=mesh.polygons, counts=mesh.counts)
-    except OSError:
-        return None
-    recipe = {"fractions": list(settings.fractions), "cloud_eps": list(settings.cloud_eps),
-              "texture_res": settings.texture_res, "name": mesh.name}
-    try:
-        run = subprocess.run([sys.executable, "-m", "service.lod_build", str(src), str(folder),
-                              json.dumps(recipe), str(os.getpid())], stdin=subprocess.DEVNULL,
-                             capture_output=True, text=True, check=False)
-    finally:
-        src.unlink(missing_ok=True)
-    lines = run.stdout.splitlines()
-    notes.extend(line[len("note: "):] for line in lines if line.startswith("note: "))
-    if run.returncode != 0:
-        why = (run.stderr.strip().splitlines() or [f"exit status {run.returncode}"])[-1]
-        raise LodError(why)
-    if "levels: 1" in lines:  # nothing to simplify: the full mesh is the whole chain
-        return replace(full_only(mesh, key), ready=True)
-    return read_chain(folder, key, mesh)
-
-
-def _lower_priority(step: int) -> None:
-    """Raise the calling thread's nice value by ``step`` where the OS allows (Linux)."""
-    try:
-        tid = threading.get_native_id()
-        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + step,
-                                                 19))
-    except (AttributeError, OSError):
-        pass
-
-
 @dataclass
 class LodState:
     """What level of detail keeps between frames of one renderer.
@@ -986,6 +848,8 @@ class LodState:
             finally:
                 self.notes.extend(notes)
         if self.builds is None:
+            from service.lod_build import ChainBuilds  # it imports this module
+
             self.builds = ChainBuilds(self.cache)
         done = self.builds.take(key)
         if done is not None:

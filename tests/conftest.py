@@ -35,6 +35,29 @@ COLD_WARMUP_TESTS = "tests/warmup/test_warmup_cache.py"
 _COLD = pytest.StashKey[ColdWarmup]()
 
 
+_STALE = pytest.StashKey[list]()
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Drop cached kernels older than a module they inline (service.kernel_cache).
+
+    Numba would otherwise load them and the tests would run code no longer in the tree.
+    """
+    from service.kernel_cache import drop_stale
+
+    session.config.stash[_STALE] = drop_stale()
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    """Say how many stale kernels the session dropped (they compile again as used)."""
+    stale = config.stash.get(_STALE, [])
+    if not stale:
+        return []
+    changed = sorted({m for kernel in stale for m in kernel.changed})
+    return [f"numba cache: dropped {len(stale)} kernels built before a change to "
+            f"{', '.join(changed)}; they compile again when first used"]
+
+
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Start the cold warm-up in the background if any selected test needs it."""
     if any(item.nodeid.startswith(COLD_WARMUP_TESTS) for item in session.items):

@@ -218,6 +218,103 @@ def _reinit(t_ns: int) -> StatusEvent:
     return _status(t_ns, "error", {"reason": "repeated_garbage", "action": "reinit"})
 
 
+def _bulk_tokens(arr: np.ndarray, i0: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Where a long chunk's tokens start, from byte ``i0``, and their kinds.
+
+    Parameters
+    ----------
+    arr : ndarray, shape (n,), uint8
+        The chunk.
+    i0 : int
+        Where the scan starts.
+
+    Returns
+    -------
+    pos : ndarray, shape (t,), intp
+        Token starts in ``[i0, end)``: every byte but the counter bytes of the dial
+        headers.
+    tkind : ndarray, shape (t,), uint8
+        Their kinds (:data:`_KIND_NP`; 0 is garbage).
+    end : int
+        Where a partial packet at the end starts (``n`` if none).
+    """
+    n = arr.size
+    kinds = _KIND_NP[arr]
+    # Dial headers, minus those swallowed as counter bytes by an earlier header
+    # (only a header within two bytes of the previous one can be).
+    heads = np.flatnonzero(kinds[i0:] == 2)
+    if i0:
+        heads += i0
+    if heads.size > 1:
+        close = np.flatnonzero(heads[1:] - heads[:-1] <= 2) + 1
+        if close.size:
+            hl, swallowed = heads.tolist(), set()
+            for j in close.tolist():
+                h = hl[j]
+                if ((j - 1 not in swallowed and h - hl[j - 1] <= 2)
+                        or (j >= 2 and j - 2 not in swallowed and h - hl[j - 2] <= 2)):
+                    swallowed.add(j)
+            if swallowed:
+                heads = np.delete(heads, list(swallowed))
+    end = n
+    if heads.size and heads[-1] + 3 > n:  # a partial packet at the end
+        end = int(heads[-1])
+        heads = heads[:-1]
+    starts = np.ones(end - i0, dtype=bool)
+    starts[heads + (1 - i0)] = False
+    starts[heads + (2 - i0)] = False
+    pos = np.flatnonzero(starts)
+    if i0:
+        pos += i0
+    return pos, kinds[pos], end
+
+
+def _garbage_runs(pos: np.ndarray, tkind: np.ndarray) -> tuple:
+    """Good tokens and the runs of garbage tokens (one byte each) between them.
+
+    Returns
+    -------
+    gpos, gkind : ndarray, shape (g,)
+        The good tokens' starts and kinds.
+    run_len, run_at : ndarray, shape (r,), or None
+        Each run's length and the number of good tokens before it; None when the
+        chunk has no garbage.
+    """
+    bad = tkind == 0
+    if not bad.any():
+        return pos, tkind, None, None
+    good = ~bad
+    edge = np.diff(bad.view(np.int8), prepend=np.int8(0), append=np.int8(0))
+    run_start = np.flatnonzero(edge == 1)
+    run_len = np.flatnonzero(edge == -1) - run_start
+    run_at = run_start - (np.cumsum(run_len) - run_len)
+    return pos[good], tkind[good], run_len, run_at
+
+
+def _place(events: list, built: list, ngood: int, stat_at: list[int],
+           stat_obj: list) -> None:
+    """Append the good events (``built``: ``(which, objs)`` per kind) and statuses in order.
+
+    ``which`` is None when one kind fills every good slot; each status goes before
+    the good event ``stat_at`` names.
+    """
+    nstat = len(stat_obj)
+    if not nstat and len(built) == 1:
+        events.extend(built[0][1])
+        return
+    if not (ngood or nstat):
+        return
+    s_at = np.array(stat_at, dtype=np.intp)
+    good_dest = np.arange(ngood)
+    good_dest += np.searchsorted(s_at, good_dest, side="right")
+    out = np.empty(ngood + nstat, dtype=object)
+    out[s_at + np.arange(nstat)] = np.fromiter(stat_obj, dtype=object, count=nstat)
+    for which, objs in built:
+        out[good_dest if which is None else good_dest[which]] = np.fromiter(
+            objs, dtype=object, count=len(objs))
+    events.extend(out.tolist())
+
+
 class SgiDecoder:
     """Incremental decoder of the box-to-host stream (see module docstring).
 
@@ -347,78 +444,52 @@ class SgiDecoder:
     def _scan_bulk(self, data: bytes, i0: int, t_ns: int, events: list[Event]) -> None:
         """What :meth:`_scan` does, for a long chunk, with numpy.
 
-        Tokenise with numpy, build the events of each kind with C-level ``map``
-        calls, and place them (and the garbage statuses) in stream order through an
-        object array.
+        Tokenise with numpy (:func:`_bulk_tokens`), find the runs of garbage
+        (:func:`_garbage_runs`), build the events of each kind with C-level ``map``
+        calls, turn the runs into statuses (:meth:`_bulk_statuses`) and place
+        everything in stream order (:func:`_place`).
         """
         arr = np.frombuffer(data, dtype=np.uint8)
-        n = arr.size
-        kinds = _KIND_NP[arr]
-        # Dial headers, minus those swallowed as counter bytes by an earlier header
-        # (only a header within two bytes of the previous one can be).
-        heads = np.flatnonzero(kinds[i0:] == 2)
-        if i0:
-            heads += i0
-        if heads.size > 1:
-            close = np.flatnonzero(heads[1:] - heads[:-1] <= 2) + 1
-            if close.size:
-                hl, swallowed = heads.tolist(), set()
-                for j in close.tolist():
-                    h = hl[j]
-                    if ((j - 1 not in swallowed and h - hl[j - 1] <= 2)
-                            or (j >= 2 and j - 2 not in swallowed and h - hl[j - 2] <= 2)):
-                        swallowed.add(j)
-                if swallowed:
-                    heads = np.delete(heads, list(swallowed))
-        end = n
-        if heads.size and heads[-1] + 3 > n:  # a partial packet at the end
-            end = int(heads[-1])
-            heads = heads[:-1]
-        # Token starts in [i0, end): every byte but the counter bytes of the headers.
-        starts = np.ones(end - i0, dtype=bool)
-        starts[heads + (1 - i0)] = False
-        starts[heads + (2 - i0)] = False
-        pos = np.flatnonzero(starts)
-        if i0:
-            pos += i0
-        tkind = kinds[pos]
-        bad = tkind == 0
-        garbage, since = self._garbage, self._since_good
-        if bad.any():
-            good = ~bad
-            gpos, gkind = pos[good], tkind[good]
-            # runs of garbage tokens (one byte each): length, good tokens before
-            edge = np.diff(bad.view(np.int8), prepend=np.int8(0), append=np.int8(0))
-            run_start = np.flatnonzero(edge == 1)
-            run_len = np.flatnonzero(edge == -1) - run_start
-            run_at = run_start - (np.cumsum(run_len) - run_len)
-        else:
-            gpos, gkind, run_len = pos, tkind, None
+        pos, tkind, end = _bulk_tokens(arr, i0)
+        gpos, gkind, run_len, run_at = _garbage_runs(pos, tkind)
         ngood = gpos.size
         built = self._build(arr, gpos, gkind, t_ns)
-        if run_len is None and not (garbage and ngood):  # no statuses
-            if len(built) == 1:
-                events.extend(built[0][1])
-            elif built:
-                out = np.empty(ngood, dtype=object)
-                for which, objs in built:
-                    out[which] = np.fromiter(objs, dtype=object, count=len(objs))
-                events.extend(out.tolist())
+        if run_len is None and not (self._garbage and ngood):  # no statuses
+            _place(events, built, ngood, [], [])
             if ngood:
                 self._since_good = 0
             self._finish(data, end, t_ns, ngood, 0, 0)
             return
-        # Statuses, each placed before the good event at its ``at``: the resync of
-        # the garbage before it (carried in, or a run), preceded by the re-init
-        # request of that run if it crossed the limit.
+        stat_at, stat_obj, nresync = self._bulk_statuses(run_len, run_at, ngood, t_ns)
+        _place(events, built, ngood, stat_at, stat_obj)
+        discarded = 0 if run_len is None else int(run_len.sum())
+        self._finish(data, end, t_ns, ngood, discarded, nresync)
+
+    def _bulk_statuses(self, run_len: np.ndarray | None, run_at: np.ndarray | None,
+                       ngood: int, t_ns: int) -> tuple[list[int], list[Event], int]:
+        """The statuses of a bulk chunk's garbage, and the garbage it leaves to carry.
+
+        Each status goes before the good event at its place: the resync of the
+        garbage before it (carried in, or a run), preceded by the re-init request of
+        that run if it crossed the limit.  ``run_len``, ``run_at`` (None: no run in
+        this chunk) are :func:`_garbage_runs`' runs.
+
+        Returns
+        -------
+        stat_at : list of int
+            Good events each status goes before, ascending.
+        stat_obj : list of Event
+            The statuses, in stream order.
+        nresync : int
+            Resyncs among them.
+        """
+        garbage, since = self._garbage, self._since_good
         stat_at: list[int] = []
         stat_obj: list[Event] = []
-        discarded = 0
         if run_len is None:  # garbage carried in, then good packets only
             resync_at, resync_n = [0], [garbage]
             garbage = since = 0
         else:
-            discarded = int(run_len.sum())
             at_l, len_l = run_at.tolist(), run_len.tolist()
             limit = self.garbage_limit
             first_len = len_l[0]
@@ -447,30 +518,18 @@ class SgiDecoder:
                 garbage = since = 0
             resync_at += at_l
             resync_n += len_l
-        nresync = len(resync_at)
-        if nresync:
-            resyncs = _statuses(t_ns, "resync", "discarded", resync_n)
-            if stat_at:  # re-init requests go before the resync at the same place
-                keys = np.array([2 * a for a in stat_at] + [2 * a + 1 for a in resync_at])
-                order = np.argsort(keys, kind="stable")
-                stat_at = (keys[order] >> 1).tolist()
-                merged = stat_obj + resyncs
-                stat_obj = [merged[k] for k in order.tolist()]
-            else:
-                stat_at, stat_obj = resync_at, resyncs
         self._garbage, self._since_good = garbage, since
-        if ngood or stat_obj:
-            nstat = len(stat_obj)
-            s_at = np.array(stat_at, dtype=np.intp)
-            good_dest = np.arange(ngood)
-            good_dest += np.searchsorted(s_at, good_dest, side="right")
-            out = np.empty(ngood + nstat, dtype=object)
-            out[s_at + np.arange(nstat)] = np.fromiter(stat_obj, dtype=object, count=nstat)
-            for which, objs in built:
-                out[good_dest if which is None else good_dest[which]] = np.fromiter(
-                    objs, dtype=object, count=len(objs))
-            events.extend(out.tolist())
-        self._finish(data, end, t_ns, ngood, discarded, nresync)
+        if not resync_at:
+            return stat_at, stat_obj, 0
+        resyncs = _statuses(t_ns, "resync", "discarded", resync_n)
+        if not stat_at:
+            return resync_at, resyncs, len(resync_at)
+        # re-init requests go before the resync at the same place
+        keys = np.array([2 * a for a in stat_at] + [2 * a + 1 for a in resync_at])
+        order = np.argsort(keys, kind="stable")
+        merged = stat_obj + resyncs
+        return ((keys[order] >> 1).tolist(), [merged[k] for k in order.tolist()],
+                len(resync_at))
 
     def _finish(self, data: bytes, end: int, t_ns: int, frames: int, discarded: int,
                 resyncs: int) -> None:

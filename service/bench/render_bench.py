@@ -292,8 +292,8 @@ def write_rows(rows: list[dict], stem: Path) -> None:
         w.writerows(rows)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the occlusion benchmark; return the exit status."""
+def build_parser() -> argparse.ArgumentParser:
+    """The ``holo-bench render`` command line."""
     p = argparse.ArgumentParser(prog="holo-bench render", description=plain_help(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="bench-out", help="output folder")
@@ -312,7 +312,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="sizes of the extra peer scenes (default: 320x240,640x480; "
                         "--quick: --size)")
     add_size_option(p, (320, 240), "pixels per zone image")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the occlusion benchmark; return the exit status."""
+    args = build_parser().parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     warm_up(RenderSettings())
@@ -329,31 +334,42 @@ def main(argv: list[str] | None = None) -> int:
     reps = 3 if args.quick else 7
     for m in METHOD_NAMES:
         warm_up(RenderSettings(method=m))
-    rows = []
-    scenes = args.scenes.split(",")
-    total = len(scenes) * len(zones)
-    for i, (scene, z) in enumerate(((s, z) for s in scenes for z in zones), 1):
-        print(f"[{i}/{total}] {scene}, {z} zones", file=sys.stderr, flush=True)
-        rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback="off", size=args.size)
-        for mode in ("frame", "pixel"):
-            rows += [
-                dict(r, method=f"runlength+{mode}")
-                for r in measure(scene, z, 16.0, ["runlength"], reps, fallback=mode,
-                                 size=args.size)
-            ]
+    rows = _methods(args.scenes.split(","), zones, reps, args.size)
     write_rows(rows, out / "render_bench")
     peer_rows = run_peers(args, out, rows) if args.peers else []
     chart_methods(rows, out / "render_bench.png", peer_rows)
+    _runlength_sweep(zones, reps, args.size, args.quick, out)
+    print_summary(rows)
+    return 0
+
+
+def _methods(scenes: list[str], zones: tuple, reps: int, size: tuple[int, int]) -> list[dict]:
+    """Every method on every scene and zone count, runlength also with each fallback."""
+    rows = []
+    total = len(scenes) * len(zones)
+    for i, (scene, z) in enumerate(((s, z) for s in scenes for z in zones), 1):
+        print(f"[{i}/{total}] {scene}, {z} zones", file=sys.stderr, flush=True)
+        rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback="off", size=size)
+        for mode in ("frame", "pixel"):
+            rows += [
+                dict(r, method=f"runlength+{mode}")
+                for r in measure(scene, z, 16.0, ["runlength"], reps, fallback=mode, size=size)
+            ]
+    return rows
+
+
+def _runlength_sweep(zones: tuple, reps: int, size: tuple[int, int], quick: bool,
+                     out: Path) -> None:
+    """Runlength's error against the z-buffer over viewing angles and zone counts; charts."""
     sweep = []
-    for a in ANGLES if not args.quick else (8, 16, 32, 60):
+    for a in ANGLES if not quick else (8, 16, 32, 60):
         sweep += measure("game", 5, float(a), ("runlength", "zbuffer"), reps, fallback="off",
-                         size=args.size)
+                         size=size)
     for z in zones:
         sweep += measure("game", z, 32.0, ("runlength", "zbuffer"), reps, fallback="off",
-                         size=args.size)
+                         size=size)
     for r in sweep:
-        r["pct_differ_continuous"] = continuous_error("game", r["zones"], r["angle_deg"],
-                                                      args.size)
+        r["pct_differ_continuous"] = continuous_error("game", r["zones"], r["angle_deg"], size)
     write_rows(sweep, out / "runlength_sweep")
     chart_sweep(
         [r for r in sweep if r["zones"] == 5],
@@ -367,8 +383,6 @@ def main(argv: list[str] | None = None) -> int:
         out / "runlength_zones.png",
         "game scene, 32 degrees: error vs zone count",
     )
-    print_summary(rows)
-    return 0
 
 
 def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:

@@ -33,27 +33,17 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.errors import SettingsError
+from service.galilean.finish import finish
 from service.galilean.fixed_point import FixedPoint, bit_budget, propagate_points
 from service.galilean.galpixmap import FIELDS, GalileanError, Galpixmap, build
 from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import check_points, graft
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
-from service.galilean.propagate import (
-    STAT_NAMES,
-    TABLE_FROM,
-    debris_words,
-    finish,
-    flat,
-    map_reach,
-    planes,
-    poisson_interiors,
-    reach_of,
-    scatter,
-    scatter_bands,
-    scatter_bands_plain,
-    show_bands,
-)
+from service.galilean.poisson_table import TABLE_FROM, poisson_interiors
+from service.galilean.propagate import STAT_NAMES, flat, planes, scatter
+from service.galilean.scatter_bands import map_reach, reach_of, scatter_bands, scatter_bands_plain
+from service.galilean.show import debris_words, show_bands
 from service.scene import MotionState
 
 #: Mean number of refreshes between changes of the map (grafts, head-motion

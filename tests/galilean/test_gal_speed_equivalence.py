@@ -12,22 +12,14 @@ import pytest
 
 from service.display import DisplaySettings
 from service.galilean import stage as stage_module
+from service.galilean.finish import finish
 from service.galilean.fixed_point import Z_EMPTY
 from service.galilean.galpixmap import Galpixmap
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
-from service.galilean.propagate import (
-    STAT_NAMES,
-    debris_words,
-    finish,
-    flat,
-    map_reach,
-    planes,
-    poisson_interiors,
-    reach_of,
-    scatter_bands,
-    second_sweep,
-    sweep,
-)
+from service.galilean.poisson_table import poisson_interiors
+from service.galilean.propagate import STAT_NAMES, flat, planes, second_sweep, sweep
+from service.galilean.scatter_bands import map_reach, reach_of, scatter_bands
+from service.galilean.show import debris_words
 from service.galilean.stage import GalileanSettings, GalileanStage
 from service.scene import MotionState
 

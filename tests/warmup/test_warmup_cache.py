@@ -115,7 +115,7 @@ def test_second_process_reuses_every_cache_entry(warmed):
     # both scatter kernels (one inlined body, with and without the still-galpixel
     # bookkeeping; a factory's closures until issue 11) come from the cache
     for kernel in ("scatter_bands", "scatter_bands_plain"):
-        assert hits.get(f"service.galilean.propagate.{kernel}", 0) >= 1, hits
+        assert hits.get(f"service.galilean.scatter_bands.{kernel}", 0) >= 1, hits
     assert _snapshot(cache) == before, "the second process wrote to the cache"
 
 

@@ -1,0 +1,512 @@
+"""The banded scatter of one refresh: the galpixel arm of :mod:`.propagate` on all threads.
+
+:func:`scatter_bands` splits the old map's rows into bands, one per thread, and
+writes each galpixel where it lands (the z-test: nearest wins); galpixels known
+static are left in place, checked :data:`CHUNK` pixels at a time.  It does what
+:func:`service.galilean.propagate.sweep`'s galpixel arm does, bit for bit
+(tests/galilean/test_gal_speed_equivalence.py); the debris arm and the expansion
+follow in :func:`service.galilean.finish.finish`.  :func:`scatter_bands_plain` is
+the same body with the still-galpixel bookkeeping compiled out.  Kernels take a map
+as :func:`service.galilean.propagate.planes`.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from service.galilean.propagate import step, u64
+
+
+@nb.njit(cache=True, inline="always")
+def _landing(qr: int, qc: int, debris: int, z: int, h: int, w: int) -> int:
+    """Flat landing pixel of a galpixel landing at row ``qr``, column ``qc`` of zone ``z``.
+
+    -1 for debris, -2 off the map.
+    """
+    inside = (qr >= 0) & (qc >= 0) & (qr < h) & (qc < w)
+    return -1 if debris != 0 else ((z * h + qr) * w + qc if inside else -2)
+
+
+@nb.njit(cache=True, inline="always")
+def _no_colour_motion(dc: tuple, ncol: int, p: np.uint64) -> bool:
+    """Whether galpixel ``p``'s colour derivatives (``ncol`` planes of ``dc``) are all zero."""
+    return ncol == 0 or (dc[0][p] == 0 and dc[1][p] == 0 and dc[2][p] == 0 and dc[3][p] == 0)
+
+
+@nb.njit(cache=True, inline="always")
+def _unmoved(
+    p: np.uint64,
+    i: np.uint64,
+    frac: tuple,
+    fxb: np.ndarray,
+    fyb: np.ndarray,
+    vxb: np.ndarray,
+    vyb: np.ndarray,
+    axb: np.ndarray,
+    ayb: np.ndarray,
+) -> None:
+    """Batch entry ``i`` for the copy of static galpixel ``p`` (its fraction, no motion)."""
+    fxb[i] = frac[0][p]
+    fyb[i] = frac[1][p]
+    vxb[i] = vyb[i] = axb[i] = ayb[i] = 0
+
+
+@nb.njit(cache=True, inline="always")
+def _all_set(flags: np.ndarray, a: int, b: int) -> bool:
+    """Whether ``flags[a:b]`` (uint8) are all non-zero."""
+    every = np.uint8(1)
+    for k in range(a, b):
+        every &= flags[u64(k)]
+    return every != 0
+
+
+#: Pixels :func:`scatter_bands` checks at once for galpixels known static.
+CHUNK = 32
+
+
+#: Pixels per batch of rows :func:`scatter_bands` advances before it copies.
+BATCH = 4096
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _scatter_bands_body(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    reach: int,
+    bands: int,
+    stats: np.ndarray,
+    reach_out: np.ndarray,
+    same_in: np.ndarray,
+    same_out: np.ndarray,
+    use_same: bool,
+    record: bool,
+    bookkeeping: bool,
+) -> None:
+    """The body of :func:`scatter_bands` and :func:`scatter_bands_plain`.
+
+    ``bookkeeping`` is a constant where the two kernels inline this body, so numba
+    prunes the still-galpixel branches and stores from :func:`scatter_bands_plain`
+    (with them, the first refresh after every change was 15-20 % slower).  Two
+    module-level kernels, not one built by a factory: each has its own entry in
+    numba's cache (``holo-warmup`` compiles both; a second process loads both).
+    """
+    nz, h, w = shape
+    o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
+    n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
+    k0 = np.int64(0)
+    rows = max(1, min(h, BATCH // w))
+    size = rows * w
+    # batch buffers, one row per band (allocated outside the parallel loop)
+    qb_all = np.empty((bands, size), np.int64)  # landing pixel; -1 debris, -2 off the map
+    db_all = np.empty((bands, size), np.int64)  # new depth
+    fxb_all = np.empty((bands, size), np.int16)
+    fyb_all = np.empty((bands, size), np.int16)
+    vxb_all = np.empty((bands, size), np.int32)
+    vyb_all = np.empty((bands, size), np.int32)
+    axb_all = np.empty((bands, size), np.int32)
+    ayb_all = np.empty((bands, size), np.int32)
+    run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
+    run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
+    run_n_all = np.empty((bands, size), np.int64)  # its length
+    sb_all = np.zeros((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
+    for band in nb.prange(bands):
+        lo, hi = band * h // bands, (band + 1) * h // bands
+        r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
+        qb = qb_all[band]
+        db = db_all[band]
+        fxb = fxb_all[band]
+        fyb = fyb_all[band]
+        vxb = vxb_all[band]
+        vyb = vyb_all[band]
+        axb = axb_all[band]
+        ayb = ayb_all[band]
+        run_i = run_i_all[band]
+        run_q = run_q_all[band]
+        run_n = run_n_all[band]
+        sb = sb_all[band]
+        n_prop = n_clash = n_drop = np.int64(0)
+        mvy = may = mjy = np.int64(0)
+        for z in range(nz):
+            zb = z * h * w
+            q_lo, q_hi = zb + lo * w, zb + hi * w  # this band's new pixels
+            for r0 in range(r_lo, r_hi, rows):
+                nr = min(rows, r_hi - r0)
+                b0 = zb + r0 * w  # flat index of the batch's first pixel
+                own_lo, own_hi = (lo - r0) * w, (hi - r0) * w  # batch indices of own rows
+                # 1. advance (one loop per order: a loop-invariant branch inside
+                #    would keep LLVM from vectorising it)
+                for rr in range(nr):
+                    r = r0 + rr
+                    p0 = zb + r * w
+                    i0 = rr * w
+                    # stretches of whole chunks known static (left to step 2) and
+                    # the stretches between them (long loops: each loop entry
+                    # checks aliasing)
+                    ce = 0
+                    while ce < w:
+                        ca = cb = ce
+                        if not (bookkeeping and use_same):
+                            cb = ce = w
+                        while cb < w and not _all_set(same_in, p0 + cb,
+                                                      p0 + min(w, cb + CHUNK)):
+                            cb = min(w, cb + CHUNK)
+                        ce = max(ce, cb)
+                        while ce < w and _all_set(same_in, p0 + ce, p0 + min(w, ce + CHUNK)):
+                            ce = min(w, ce + CHUNK)
+                        if order == 0:
+                            for c in range(ca, cb):
+                                p, i = u64(p0 + c), u64(i0 + c)
+                                deb = o_deb[p]  # every load before the first store
+                                qr, qc, fx, fy, d = step(
+                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                    k0, k0, k0, k0, k0, k0, k0, k0, k0, 0, fp, fm,
+                                )[:5]  # fmt: skip
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i] = fx, fy, d
+                                if bookkeeping:
+                                    sb[i] = qb[i] == p0 + c
+                        elif order == 1:
+                            for c in range(ca, cb):
+                                p, i = u64(p0 + c), u64(i0 + c)
+                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                                vz, deb = np.int64(o_zm[0][p]), o_deb[p]
+                                qr, qc, fx, fy, d, vx1, vy1 = step(
+                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                    vx, vy, k0, k0, k0, k0, vz, k0, k0, 1, fp, fm,
+                                )[:7]  # fmt: skip
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i], vxb[i], vyb[i] = fx, fy, d, vx1, vy1
+                                if bookkeeping:
+                                    sb[i] = (qb[i] == p0 + c) & ((vx | vy | vz) == 0)
+                        elif order == 2:
+                            for c in range(ca, cb):
+                                p, i = u64(p0 + c), u64(i0 + c)
+                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                                ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                                vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
+                                deb = o_deb[p]
+                                qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = step(
+                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                    vx, vy, ax, ay, k0, k0, vz, az, k0, 2, fp, fm,
+                                )[:9]  # fmt: skip
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i] = fx, fy, d
+                                vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
+                                if bookkeeping:
+                                    still = (vx | vy | ax | ay | vz | az) == 0
+                                    sb[i] = (qb[i] == p0 + c) & still
+                        else:
+                            for c in range(ca, cb):
+                                p, i = u64(p0 + c), u64(i0 + c)
+                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                                ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                                jx, jy = np.int64(o_mot[4][p]), np.int64(o_mot[5][p])
+                                vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
+                                jz = np.int64(o_zm[2][p])
+                                deb = o_deb[p]
+                                qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = step(
+                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                    vx, vy, ax, ay, jx, jy, vz, az, jz, 3, fp, fm,
+                                )[:9]  # fmt: skip
+                                qb[i] = _landing(qr, qc, deb, z, h, w)
+                                fxb[i], fyb[i], db[i] = fx, fy, d
+                                vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
+                                if bookkeeping:
+                                    still = (vx | vy | ax | ay | jx | jy | vz | az | jz) == 0
+                                    sb[i] = (qb[i] == p0 + c) & still
+                # 2. z-test in scan order; the open run is kept in registers
+                runs = 0
+                ri = rq = rn = np.int64(0)
+                for i in range(nr * w):
+                    p = u64(b0 + i)
+                    known = bookkeeping and use_same and same_in[p] != 0  # still, new holds it
+                    q = b0 + i if known else qb[i]
+                    own = own_lo <= i < own_hi
+                    if q < 0 or q < q_lo or q >= q_hi:
+                        if q != -1 and own:
+                            n_prop += 1
+                            n_drop += q == -2
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                    n_prop += own
+                    fresh = n_deb[u64(q)] != 0
+                    if known and fresh:
+                        # the first to land on its own pixel, which holds it already
+                        n_deb[u64(q)] = 0
+                        if bookkeeping and record:
+                            same_out[u64(q)] = 1
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                            rn = 0
+                        continue
+                    d = np.int64(o_dep[p]) if known else db[i]
+                    if not fresh:
+                        n_clash += 1
+                        if d >= n_dep[u64(q)]:
+                            if rn:
+                                run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                                runs += 1
+                                rn = 0
+                            continue
+                    n_dep[u64(q)] = d
+                    n_deb[u64(q)] = 0
+                    if known:  # step 1 skipped it: its batch entries for the copy
+                        _unmoved(p, u64(i), o_frac, fxb, fyb, vxb, vyb, axb, ayb)
+                    if bookkeeping and record:
+                        still = known or (sb[i] != 0 and _no_colour_motion(o_dc, ncol, p))
+                        same_out[u64(q)] = still
+                    if rn and q == rq + rn:
+                        rn += 1
+                    else:
+                        if rn:
+                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                            runs += 1
+                        ri, rq, rn = i, q, 1
+                if rn:
+                    run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+                    runs += 1
+                # 3. copy, plane by plane, run by run
+                for k in range(runs):
+                    i0, q0, m = run_i[k], run_q[k], run_n[k]
+                    s0 = b0 + i0
+                    if ncol == 4:
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
+                            da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
+                            sa = da + 0.5 * d2a
+                            n_col[0][q] = o_col[0][p] + (sa + dbb)
+                            n_col[1][q] = o_col[1][p] + (sa - dcc)
+                            n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
+                            n_dc[0][q] = da + d2a
+                            n_dc[1][q] = dbb
+                            n_dc[2][q] = dcc
+                            n_dc[3][q] = d2a
+                    else:
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
+                            n_col[0][q] = o_col[0][p]
+                            n_col[1][q] = o_col[1][p]
+                            n_col[2][q] = o_col[2][p]
+                    for j in range(m):
+                        b, q = u64(i0 + j), u64(q0 + j)
+                        n_frac[0][q] = fxb[b]
+                        n_frac[1][q] = fyb[b]
+                    for j in range(m):
+                        n_obj[u64(q0 + j)] = o_obj[u64(s0 + j)]
+                    if track:
+                        for j in range(m):
+                            src_idx[u64(q0 + j)] = s0 - zb + j
+                    if order >= 1:
+                        for j in range(m):
+                            b, q = u64(i0 + j), u64(q0 + j)
+                            n_mot[0][q] = vxb[b]
+                            n_mot[1][q] = vyb[b]
+                            mvy = max(mvy, abs(np.int64(vyb[b])))
+                    if order >= 2:
+                        for j in range(m):
+                            b, q = u64(i0 + j), u64(q0 + j)
+                            n_mot[2][q] = axb[b]
+                            n_mot[3][q] = ayb[b]
+                            may = max(may, abs(np.int64(ayb[b])))
+                    if order == 3:
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
+                            n_mot[4][q] = o_mot[4][p]
+                            n_mot[5][q] = o_mot[5][p]
+                            mjy = max(mjy, abs(np.int64(o_mot[5][p])))
+                    if order == 1:
+                        for j in range(m):
+                            n_zm[0][u64(q0 + j)] = o_zm[0][u64(s0 + j)]
+                    elif order == 2:
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
+                            n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
+                            n_zm[1][q] = o_zm[1][p]
+                    elif order == 3:
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
+                            z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
+                            n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
+                            n_zm[1][q] = z1 + z2
+                            n_zm[2][q] = z2
+        stats[band, 0] += n_prop
+        stats[band, 1] += n_clash
+        stats[band, 2] += n_drop
+        reach_out[band, 0] = mvy
+        reach_out[band, 1] = may
+        reach_out[band, 2] = mjy
+
+
+@nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def scatter_bands(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    reach: int,
+    bands: int,
+    stats: np.ndarray,
+    reach_out: np.ndarray,
+    same_in: np.ndarray,
+    same_out: np.ndarray,
+    use_same: bool,
+    record: bool,
+) -> None:
+    """First sweep without its debris arm or cache, the new rows in parallel bands.
+
+    Bit for bit the result of :func:`sweep` without cache, the debris arm left to
+    :func:`finish`.  Maps are :func:`planes`; ``new``'s debris all 1 on entry.
+
+    Each batch of old rows (about :data:`BATCH` pixels) is done in three steps:
+
+    1. *advance* (plain element-wise loops, SIMD): every galpixel's landing pixel,
+       new fraction, motion and depth into batch buffers;
+    2. *z-test* (the only sequential part, in scan order like the paper's scan):
+       each landing galpixel against the new map's debris flag and depth, which it
+       writes when it wins; winners from consecutive old pixels that land on
+       consecutive new pixels are gathered into runs;
+    3. *copy*: each field, plane by plane, run by run (contiguous, SIMD).
+
+    Within every plane the writes keep scan order, so a pixel that two winners
+    land on ends up with the later one, as in the one-pass scan; the z-test only
+    reads the flags and depths that step 2 keeps current.
+
+    Band ``b`` owns the new rows
+    ``[b H / bands, (b + 1) H / bands)`` of every zone: it advances, in scan order,
+    the old rows a galpixel landing there can come from (its own rows and
+    ``reach`` rows either side) and runs the z-test and the copy only for the
+    galpixels that land in its rows.  Each new pixel thus sees its candidates in
+    the one-pass scan's order, from one thread; no two bands write one pixel.
+
+    Parameters
+    ----------
+    old, new : tuple
+        The old and new maps as :func:`planes`.
+    src_idx : ndarray, shape (N,), int32
+        Out (when ``track``): for each new pixel, ``r * W + c`` of the old galpixel
+        that landed there (pixels nothing lands on are left as they were).
+    shape : tuple
+        (Z, H, W).
+    order, fp, fm : int
+        Galpixel order; fractional bits of position and of motion.
+    ncol : int
+        Colour-derivative planes the map holds (:attr:`Galpixmap.colour_planes`: 4 or 0).
+    track : bool
+        Record ``src_idx`` (needed by the expansion sweep).
+    reach : int
+        A bound on the rows any galpixel of ``old`` moves this refresh
+        (:func:`map_reach`, or :func:`reach_of` of the previous call's
+        ``reach_out``).  A galpixel moving farther could be missed: callers must
+        pass a true bound (``H`` is always one).
+    bands : int
+        Number of bands (any count gives the same result).
+    stats : ndarray, shape (bands, 3), int64
+        Accumulated per band: propagated, clashes, dropped (of its own old rows).
+    reach_out : ndarray, shape (bands, 3), int64
+        Out: per band the largest ``|vy|``, ``|ay|``, ``|jy|`` it wrote.
+    same_in : ndarray, shape (N,), uint8
+        1 where ``new`` already holds, bit for bit, the galpixel ``old`` holds and
+        that galpixel is static (see below); read only when ``use_same``.
+    same_out : ndarray, shape (N,), uint8
+        Out, when ``record``: ``same_in`` for the next refresh, at every pixel a
+        galpixel lands on (:func:`finish` writes the others).
+    use_same : bool
+        Whether ``same_in`` holds what the last refresh recorded (False after any
+        other change to either map: a graft, a head-motion update).
+    record : bool
+        Whether to record ``same_out`` (it costs about a fifth of a refresh that
+        cannot use it; the caller turns it off when the maps keep changing).
+
+    Notes
+    -----
+    *Static galpixels are not rewritten.*  A galpixel with no motion, z motion or
+    colour motion that lands on its own pixel (its fraction then unchanged) is a
+    copy of itself.  ``same_in`` marks those that won their own pixel in the
+    previous refresh too (when the maps were the other way round), so that the
+    new map holds them already.  Step 1 skips whole chunks of such pixels
+    (:data:`CHUNK`) and step 2, for one that is the first to land on its pixel,
+    only clears the pixel's debris flag: its planes are neither read nor copied.
+    A later galpixel that wins the pixel overwrites it as usual; one that landed
+    first makes it a normal clash (its depth read, and copied if it wins).
+    ``same_out`` records for the next refresh 1 where a pixel's winner is its own
+    static galpixel, 0 where another galpixel won (pixels nothing lands on are
+    left to :func:`finish`, which clears them).  The origin (``src_idx``) of a
+    pixel left in place is not rewritten either: the previous refresh wrote the
+    same.  The one difference from the one-pass scan is the sign of a zero: a
+    static galpixel's colour of -0.0 stays -0.0 where the scan's ``colour + 0.0``
+    writes +0.0.
+    """
+    _scatter_bands_body(
+        old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
+        same_in, same_out, use_same, record, True
+    )
+
+
+@nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def scatter_bands_plain(
+    old: tuple,
+    new: tuple,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    ncol: int,
+    track: bool,
+    reach: int,
+    bands: int,
+    stats: np.ndarray,
+    reach_out: np.ndarray,
+    same_in: np.ndarray,
+    same_out: np.ndarray,
+    use_same: bool,
+    record: bool,
+) -> None:
+    """:func:`scatter_bands` without its still-galpixel bookkeeping (compiled out).
+
+    What a refresh runs when it neither uses nor records ``same``: ``use_same`` and
+    ``record`` are ignored (taken as False).
+    """
+    _scatter_bands_body(
+        old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
+        same_in, same_out, use_same, record, False
+    )
+
+
+
+
+def reach_of(vy: int, ay: int, jy: int, fm: int) -> int:
+    """Bound on the rows a galpixel with ``|vy|``, ``|ay|``, ``|jy|`` moves in a refresh.
+
+    Motion in units of 2^-fm px/refresh^n.
+
+    One refresh moves ``v + a/2 (+ j/6)`` rounded, at most ``|v| + |a| + |j|``;
+    the fraction and both roundings add under two rows.
+    """
+    return int((int(vy) + int(ay) + int(jy)) >> fm) + 2
+
+
+def map_reach(motion: np.ndarray, fm: int) -> int:
+    """:func:`reach_of` of a whole map's motion planes ``(2n, Z, H, W)`` int32."""
+    if motion.shape[0] == 0:
+        return 2
+    m = [max(int(motion[k].max()), -int(motion[k].min())) for k in range(1, motion.shape[0], 2)]
+    m += [0] * (3 - len(m))
+    return reach_of(m[0], m[1], m[2], fm)

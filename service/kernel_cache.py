@@ -1,0 +1,198 @@
+"""Numba's cache and its blind spot: kernels built from code in other files.
+
+Numba keys a cached kernel on its own source file alone (its size and time), so a
+kernel that inlines or calls a jitted function from another module keeps its old
+machine code after that module changes: the next process runs the old code, and
+nothing says so (numba's "Notes on caching"; seen with numba 0.68.1: a kernel
+inlining ``f(x) = x + 1`` from another file still returned the old result after
+``f`` became ``x + 2``).  Most kernels here do that (``fixed_point.advance``,
+``propagate.step``, ``show.show_row``), so an edit, a ``git checkout`` or a merge
+could leave the service, the tests or a benchmark running code that is no longer
+in the tree.
+
+:func:`stale_kernels` finds the cache files of every kernel whose module imports,
+directly or through other modules of the package, a source file changed after the
+kernel was compiled; :func:`drop_stale` removes them, so the next call compiles
+afresh.  ``holo-warmup`` (and so ``make test``, ``make demo`` and the service's own
+warm-up) and the test session run it first.  A fresh clone has no cache and so
+nothing to drop.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["StaleKernel", "cache_dir_of", "drop_stale", "module_imports", "stale_kernels"]
+
+#: The package whose kernels are checked (all of the project's numba code is in it).
+PACKAGE = "service"
+
+
+@dataclass(frozen=True)
+class StaleKernel:
+    """One kernel's cache files, older than a source file its module depends on.
+
+    Attributes
+    ----------
+    module : str
+        The kernel's module (``service.galilean.finish``).
+    files : tuple of Path
+        Its index (``.nbi``) and machine code (``.nbc``) files.
+    changed : tuple of str
+        The modules it depends on that changed after it was compiled.
+    """
+
+    module: str
+    files: tuple[Path, ...]
+    changed: tuple[str, ...]
+
+
+def _modules(root: Path, package: str) -> dict[str, Path]:
+    """Module name -> source file, for every ``.py`` file of ``package`` under ``root``."""
+    out = {}
+    for path in sorted((root / package).rglob("*.py")):
+        parts = path.relative_to(root).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        out[name] = path
+    return out
+
+
+#: An import statement anywhere in a file (indented ones, inside functions, too):
+#: ``import a.b``, ``from a.b import c, d`` and ``from .b import (c, d)``.
+_IMPORT = re.compile(
+    r"^[ \t]*(?:import[ \t]+([\w.]+)|from[ \t]+(\.*[\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n]*))",
+    re.MULTILINE,
+)
+
+
+def _imported(source: str, name: str, is_package: bool) -> set[str]:
+    """Absolute names a module's ``import`` statements refer to.
+
+    A regular expression, not :mod:`ast`: parsing and walking the package's trees
+    took seconds, and this runs before every test session and warm-up.  A line that
+    only looks like an import (in a string) can add a dependency, never lose one.
+    """
+    here = (name if is_package else name.rpartition(".")[0]).split(".")
+    found: set[str] = set()
+    for plain, module, names in _IMPORT.findall(source):
+        if plain:
+            found.add(plain)
+            continue
+        level = len(module) - len(module.lstrip("."))
+        base = here[: len(here) - level + 1] if level else []  # from .x, ..x
+        stem = ".".join([*base, module.lstrip(".")] if module.lstrip(".") else base)
+        found.add(stem)
+        for item in names.strip("()").replace("\n", " ").split(","):
+            word = item.split("#")[0].split()
+            if word:
+                found.add(f"{stem}.{word[0]}")
+    return found
+
+
+def module_imports(root: Path, package: str = PACKAGE) -> dict[str, set[str]]:
+    """Each module of ``package`` -> the modules of ``package`` it imports directly.
+
+    ``from a.b import c`` counts ``a.b`` and, when it is a module, ``a.b.c``;
+    imports inside functions count too (a kernel may use what a function imports).
+    """
+    modules = _modules(root, package)
+    graph = {}
+    for name, path in modules.items():
+        try:
+            source = path.read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            source = ""
+        names = _imported(source, name, path.name == "__init__.py")
+        graph[name] = {n for n in names if n in modules and n != name}
+    return graph
+
+
+def _closure(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Every module -> all the modules it reaches through ``graph`` (itself excluded)."""
+    out = {}
+    for start in graph:
+        seen, todo = set(), list(graph[start])
+        while todo:
+            m = todo.pop()
+            if m not in seen and m != start:
+                seen.add(m)
+                todo.extend(graph.get(m, ()))
+        out[start] = seen
+    return out
+
+
+def cache_dir_of(source: Path) -> Path:
+    """Where numba keeps the cache of the kernels in ``source`` (``NUMBA_CACHE_DIR`` aware)."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    if not root:
+        return source.parent / "__pycache__"
+    from numba.core.caching import _CacheLocator  # numba's own rule for the sub-folder
+
+    return Path(root) / _CacheLocator.get_suitable_cache_subpath(str(source))
+
+
+def _kernels(source: Path) -> dict[str, list[Path]]:
+    """A source file's cached kernels: index file name -> its index and data files."""
+    folder, stem = cache_dir_of(source), source.stem
+    try:
+        files = [p for p in folder.iterdir() if p.name.startswith(stem + ".")]
+    except OSError:
+        return {}
+    out: dict[str, list[Path]] = {}
+    for index in (p for p in files if p.suffix == ".nbi"):
+        key = index.name[: -len(".nbi")]
+        out[index.name] = [index, *(p for p in files
+                                    if p.suffix == ".nbc" and p.name.startswith(key + "."))]
+    return out
+
+
+def _mtime(path: Path) -> int:
+    with contextlib.suppress(OSError):
+        return path.stat().st_mtime_ns
+    return 0
+
+
+def stale_kernels(root: Path | None = None, package: str = PACKAGE) -> list[StaleKernel]:
+    """The cached kernels compiled before a change to a module their module depends on.
+
+    Parameters
+    ----------
+    root : Path, optional
+        The folder holding ``package`` (default: the installed package's parent).
+
+    Returns
+    -------
+    list of StaleKernel
+        Oldest file of each kernel against the newest dependency; empty when the
+        cache is empty or current.
+    """
+    root = Path(__file__).resolve().parent.parent if root is None else root
+    modules = _modules(root, package)
+    deps = _closure(module_imports(root, package))
+    stamps = {name: _mtime(path) for name, path in modules.items()}
+    stale = []
+    for name, path in modules.items():
+        for files in _kernels(path).values():
+            compiled = min(_mtime(f) for f in files)
+            changed = tuple(sorted(d for d in deps[name] if stamps[d] > compiled))
+            if changed:
+                stale.append(StaleKernel(name, tuple(files), changed))
+    return stale
+
+
+def drop_stale(root: Path | None = None, package: str = PACKAGE) -> list[StaleKernel]:
+    """Remove the cache files of :func:`stale_kernels`; returns the kernels dropped.
+
+    A file that cannot be removed (a read-only cache) is left; numba then loads the
+    old code, as it would have without this check.
+    """
+    stale = stale_kernels(root, package)
+    for kernel in stale:
+        for path in kernel.files:
+            with contextlib.suppress(OSError):
+                path.unlink()
+    return stale
