@@ -15,6 +15,7 @@ import os
 import sys
 
 from service.errors import HoloError
+from service.kernel_cache import drop_stale
 from service.process import setup_frame_process
 from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
 
@@ -94,6 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     prog = f"holo-bench {argv[0]}"
+    stale = drop_stale()  # time the code in the tree, not kernels cached before an edit
+    if stale:
+        print(f"{prog}: {len(stale)} cached kernels predate a change to a module they use; "
+              "they compile again when first used", file=sys.stderr)
     return interruptible(prog, lambda: _run(prog, BENCHES[argv[0]][0], argv[1:]))
 
 
