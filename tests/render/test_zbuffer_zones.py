@@ -186,13 +186,14 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
     ])
     proj = project(v, d)
     tables = vertex_tables(proj)
-    xs, plane = np.zeros((3, d.zones)), np.zeros((3, d.zones))
-    live = np.zeros(d.zones, bool)
+    xs, plane = np.zeros((2, 3, d.zones)), np.zeros((2, 3, d.zones))
     ties = 0
     tris = rng.integers(0, 300, (200, 3)).astype(np.int64)
     draw_t = np.ones((tris.shape[0], d.zones), bool)
     for t, tri in enumerate(tris):
-        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, live)
+        j = t % 2  # the table row written
+        ay, by, cy, any_live = _setup_zones(tables, tris, t, draw_t, xs, plane, j)
+        live = (xs[j] != 0.0).any(axis=0)  # a zone not drawn in has every x 0
         assert any_live == live.any()
         ties += len({proj[0, k, 1] for k in tri}) < 3
         for z in range(d.zones):
@@ -200,8 +201,8 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
             assert live[z] == st[0]
             if st[0]:
                 assert (st[4], st[6], st[8]) == (ay, by, cy)
-                assert (st[3], st[5], st[7]) == tuple(xs[:, z])
-                assert (st[9], st[10], st[11]) == tuple(plane[:, z])
+                assert (st[3], st[5], st[7]) == tuple(xs[j, :, z])
+                assert (st[9], st[10], st[11]) == tuple(plane[j, :, z])
     assert ties > 20
 
 
@@ -308,3 +309,26 @@ def test_the_kernels_own_bands_give_the_same_buffers(threads, zones):
         nb.set_num_threads(before)
     assert np.array_equal(tri, want.triangle) and np.array_equal(depth, want.depth)
     assert np.array_equal(shown, mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons))
+
+
+@pytest.mark.parametrize("name", ["game", "cyclic", "threaded", "sphere-torus", "demo"])
+@pytest.mark.parametrize("zones", [2, 5])
+def test_the_polygons_shown_drawn_far_to_near_in_many_bands(name, zones):
+    # the several-zone kernel marks from how many pixels each triangle holds at the
+    # end: drawn farthest first, most pixels are taken from a triangle that held them
+    d = DisplaySettings(zones=zones, angle_deg=32.0, cols=160, rows=120)
+    arrays, proj, order, draw = inputs(name, d)
+    order = np.ascontiguousarray(order[::-1])
+    want = zbuffer(arrays, proj, d, order, draw, shared=False)
+    for threads, per_thread in ((1, 1), (3, 4)):
+        tri = np.empty((d.zones, d.rows, d.cols), np.int32)
+        depth = np.empty((d.zones, d.rows, d.cols), np.float32)
+        shown = np.zeros((d.zones, arrays.n_polygons), bool)
+        zbuffer_zones_kernel(
+            proj, arrays.triangles, order, np.ascontiguousarray(draw.T),
+            row_bands(d.rows, threads, per_thread), tri, depth, arrays.triangle_polygon,
+            shown, np.empty((0, d.zones)), np.empty((0, 2)), threads,
+        )
+        assert np.array_equal(tri, want.triangle) and np.array_equal(depth, want.depth)
+        want_shown = mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons)
+        assert want_shown.any() and np.array_equal(shown, want_shown)
