@@ -89,6 +89,9 @@ def test_chains_that_cannot_be_built_are_reported_and_drawn_in_full(
         again = c.render_once()[0]["stats"]["lod"]  # nothing tried again, nothing added
         assert again["chains"] == chains
         assert c.stats()["render_failures"] == 0
+        for note in chains["notes"]:  # and the service's log has each once, in one line
+            assert svc.output().count(note) == 1, svc.output()[-2000:]
+            assert f"holo-service: {note}\n" in svc.output()
     assert not list((tmp_path / "cache").glob("*.json"))
 
 
