@@ -67,10 +67,10 @@ def poisson_interiors(
     """
     nz, h, w = shape
     for k in nb.prange(nz * h):
-        interior_row(dep, deb, k * w, k % h, h, w, threshold, out)
+        interior_row(dep, deb, np.int64(k * w), np.int64(k % h), h, w, threshold, out)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def interior_row(
     dep: np.ndarray,
     deb: np.ndarray,
@@ -84,7 +84,10 @@ def interior_row(
     """One row of :func:`poisson_interiors`: row ``r`` of a zone, from flat pixel ``base``.
 
     Also run by :func:`service.galilean.scatter_bands.scatter_bands` on the old
-    rows each band owns, while they are in cache.
+    rows each band owns, while they are in cache.  A plain call, not inlined: it
+    is compiled once for all three kernels, outside their parallel passes
+    (inlined into both scatter kernels it cost about 5 s more cold compile).
+    Callers pass int64 indices (a ``prange`` index would compile it twice).
     """
     if r == 0 or r == h - 1:
         for c in range(w):

@@ -230,7 +230,8 @@ def _scatter_bands_body(
                 # they are in cache (what poisson_interiors would compute)
                 if table:
                     for r in range(max(r0, lo), min(r0 + nr, hi)):
-                        interior_row(o_dep, o_deb, zb + r * w, r, h, w, threshold, interior)
+                        interior_row(o_dep, o_deb, np.int64(zb + r * w), np.int64(r), h, w,
+                                     threshold, interior)
                 # 2. z-test in scan order; the open run is kept in registers
                 runs = 0
                 ri = rq = rn = np.int64(0)
