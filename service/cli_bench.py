@@ -54,6 +54,10 @@ BENCHES = {
         "service.bench.lod_bench",
         "level of detail: triangles vs image error vs ms; a 200-object crowd, LOD on/off",
     ),
+    "lod-stall": (
+        "service.bench.lod_stall_bench",
+        "frame ms while an LOD chain builds: in a thread vs a child process vs none",
+    ),
     "billboard": (
         "service.bench.billboard_bench",
         "billboard clouds: planes and build time vs EPS; error close up and grazing",

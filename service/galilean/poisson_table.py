@@ -67,15 +67,35 @@ def poisson_interiors(
     """
     nz, h, w = shape
     for k in nb.prange(nz * h):
-        r = k % h
-        base = k * w
-        if r == 0 or r == h - 1:
-            for c in range(w):
-                out[u64(base + c)] = 0
-            continue
-        out[u64(base)] = 0
-        out[u64(base + w - 1)] = 0
-        for c in range(1, w - 1):
-            out[u64(base + c)] = _interior_inside(dep, deb, base + c, w, threshold)
+        interior_row(dep, deb, np.int64(k * w), np.int64(k % h), h, w, threshold, out)
+
+
+@nb.njit(cache=True, nogil=True)
+def interior_row(
+    dep: np.ndarray,
+    deb: np.ndarray,
+    base: int,
+    r: int,
+    h: int,
+    w: int,
+    threshold: float,
+    out: np.ndarray,
+) -> None:
+    """One row of :func:`poisson_interiors`: row ``r`` of a zone, from flat pixel ``base``.
+
+    Also run by :func:`service.galilean.scatter_bands.scatter_bands` on the old
+    rows each band owns, while they are in cache.  A plain call, not inlined: it
+    is compiled once for all three kernels, outside their parallel passes
+    (inlined into both scatter kernels it cost about 5 s more cold compile).
+    Callers pass int64 indices (a ``prange`` index would compile it twice).
+    """
+    if r == 0 or r == h - 1:
+        for c in range(w):
+            out[u64(base + c)] = 0
+        return
+    out[u64(base)] = 0
+    out[u64(base + w - 1)] = 0
+    for c in range(1, w - 1):
+        out[u64(base + c)] = _interior_inside(dep, deb, base + c, w, threshold)
 
 

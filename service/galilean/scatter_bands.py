@@ -15,6 +15,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.galilean.poisson_table import interior_row
 from service.galilean.propagate import step, u64
 
 
@@ -88,6 +89,9 @@ def _scatter_bands_body(
     same_out: np.ndarray,
     use_same: bool,
     record: bool,
+    interior: np.ndarray,
+    threshold: float,
+    table: bool,
     bookkeeping: bool,
 ) -> None:
     """The body of :func:`scatter_bands` and :func:`scatter_bands_plain`.
@@ -222,6 +226,12 @@ def _scatter_bands_body(
                                 if bookkeeping:
                                     still = (vx | vy | ax | ay | jx | jy | vz | az | jz) == 0
                                     sb[i] = (qb[i] == p0 + c) & still
+                # the Poisson tests of the band's own old rows in the batch, while
+                # they are in cache (what poisson_interiors would compute)
+                if table:
+                    for r in range(max(r0, lo), min(r0 + nr, hi)):
+                        interior_row(o_dep, o_deb, np.int64(zb + r * w), np.int64(r), h, w,
+                                     threshold, interior)
                 # 2. z-test in scan order; the open run is kept in registers
                 runs = 0
                 ri = rq = rn = np.int64(0)
@@ -368,6 +378,9 @@ def scatter_bands(
     same_out: np.ndarray,
     use_same: bool,
     record: bool,
+    interior: np.ndarray,
+    threshold: float,
+    table: bool,
 ) -> None:
     """First sweep without its debris arm or cache, the new rows in parallel bands.
 
@@ -433,6 +446,14 @@ def scatter_bands(
     record : bool
         Whether to record ``same_out`` (it costs about a fifth of a refresh that
         cannot use it; the caller turns it off when the maps keep changing).
+    interior : ndarray, shape (N,), uint8
+        Out, when ``table``: :func:`service.galilean.poisson_table.poisson_interiors`
+        of ``old`` (each band its own rows, right after advancing them, while
+        their depths and debris flags are in cache; no parallel pass of its own).
+    threshold : float
+        The Poisson threshold of ``interior``, in fixed-point depth units.
+    table : bool
+        Whether to compute ``interior``.
 
     Notes
     -----
@@ -455,7 +476,7 @@ def scatter_bands(
     """
     _scatter_bands_body(
         old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
-        same_in, same_out, use_same, record, True
+        same_in, same_out, use_same, record, interior, threshold, table, True
     )
 
 
@@ -478,6 +499,9 @@ def scatter_bands_plain(
     same_out: np.ndarray,
     use_same: bool,
     record: bool,
+    interior: np.ndarray,
+    threshold: float,
+    table: bool,
 ) -> None:
     """:func:`scatter_bands` without its still-galpixel bookkeeping (compiled out).
 
@@ -486,7 +510,7 @@ def scatter_bands_plain(
     """
     _scatter_bands_body(
         old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
-        same_in, same_out, use_same, record, False
+        same_in, same_out, use_same, record, interior, threshold, table, False
     )
 
 

@@ -224,6 +224,9 @@ class GalileanStage:
         self._still: float | None = None
         #: the Poisson test of every galpixel of ``map``, computed before each expansion
         self._interior = np.zeros(self._src.size, np.uint8)
+        #: whether the last refresh left enough debris for that table to pay
+        #: (:data:`TABLE_FROM`): the banded scatter computes it when so
+        self._table = True
         #: scratch of :func:`finish`'s bands: the debris flags the scatter left
         self._snap = np.zeros(self._src.size, np.uint8)
         #: id of a map -> (its field arrays, their :func:`planes`), see :meth:`_planes`
@@ -483,6 +486,10 @@ class GalileanStage:
             and max(self._steady, self._steady_mean) >= STEADY_MIN
             and (self._still is None or self._still >= STILL_MIN)
         )
+        # the origins' Poisson tests all at once when many pixels are debris: the
+        # banded scatter computes them, going by the last refresh (either way
+        # gives the same result)
+        table = thr >= 0 and self._table
         if self.cache is None:
             if self._reach is None:
                 self._reach = map_reach(self.map.motion, self.fixed.fm)
@@ -508,6 +515,9 @@ class GalileanStage:
                 *self._same,
                 self._same_valid,
                 record,
+                self._interior,
+                thr,
+                table,
             )
             counters[:3] += band_stats.sum(axis=0)
             top = reach.max(axis=0)
@@ -528,11 +538,12 @@ class GalileanStage:
                 counters,
             )
             next_reach = None
-        # the origins' Poisson tests all at once (in parallel) when many pixels are debris
         fresh = counters[0] - counters[2] - counters[1]
-        table = thr >= 0 and src.size - fresh >= TABLE_FROM * src.size
-        if table:
-            poisson_interiors(old_p[1], old_p[6], self.shape, thr, self._interior)
+        self._table = bool(src.size - fresh >= TABLE_FROM * src.size)
+        if self.cache is not None:
+            table = thr >= 0 and self._table
+            if table:
+                poisson_interiors(old_p[1], old_p[6], self.shape, thr, self._interior)
         # expansion, debris arm and display copy in row bands, each fixed up where
         # the band above changes what it saw (see finish)
         rows = self.shape[0] * self.shape[1]

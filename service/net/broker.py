@@ -69,6 +69,9 @@ class Broker:
         self.ready: OrderedDict[bytes, float] = OrderedDict()  # worker -> last heard
         self.busy: dict[bytes, float] = {}
         self.pids: dict[bytes, int] = {}
+        # ready, busy and pids change on the broker's thread and are read by info() on
+        # the service's: a worker moved between them is never seen in neither or both
+        self._books = threading.Lock()
         self.dispatched = 0
         self.dropped = 0
         self._stop = threading.Event()
@@ -79,15 +82,15 @@ class Broker:
 
     def info(self) -> dict[str, Any]:
         """Worker counts and pids (for the service's stats)."""
-        return {
-            "ready": len(self.ready),
-            "busy": len(self.busy),
-            "dispatched": self.dispatched,
-            "dropped": self.dropped,
-            "workers": [
-                {"pid": self.pids.get(w), "busy": w in self.busy} for w in [*self.ready, *self.busy]
-            ],
-        }
+        with self._books:
+            return {
+                "ready": len(self.ready),
+                "busy": len(self.busy),
+                "dispatched": self.dispatched,
+                "dropped": self.dropped,
+                "workers": [{"pid": self.pids.get(w), "busy": w in self.busy}
+                            for w in [*self.ready, *self.busy]],
+            }
 
     def run(self) -> None:
         """Route until :meth:`stop`; closes both sockets on return."""
@@ -109,15 +112,17 @@ class Broker:
     def _from_worker(self, frames: list[zmq.Frame]) -> None:
         worker = bytes(frames[0].buffer)
         if len(frames) >= 3 and bytes(frames[2].buffer) == READY:
-            self.busy.pop(worker, None)
-            self.ready[worker] = time.monotonic()
-            self.ready.move_to_end(worker)
-            self._note_pid(worker, frames[3:])
+            with self._books:
+                self.busy.pop(worker, None)
+                self.ready[worker] = time.monotonic()
+                self.ready.move_to_end(worker)
+                self._note_pid(worker, frames[3:])
             return
         if len(frames) < 5:
             return
-        self.busy.pop(worker, None)
-        self.ready[worker] = time.monotonic()
+        with self._books:
+            self.busy.pop(worker, None)
+            self.ready[worker] = time.monotonic()
         try:
             self.front.send_multipart(frames[2:], copy=False)
         except zmq.ZMQError:
@@ -130,14 +135,19 @@ class Broker:
             pass
 
     def _to_worker(self, frames: list[zmq.Frame]) -> None:
-        while self.ready:
-            worker, _ = self.ready.popitem(last=False)
+        while True:
+            with self._books:  # busy from the moment it is chosen
+                if not self.ready:
+                    break
+                worker, _ = self.ready.popitem(last=False)
+                self.busy[worker] = time.monotonic()
             try:
                 self.back.send_multipart([worker, b"", *frames], copy=False)
             except zmq.ZMQError:
-                self.pids.pop(worker, None)
+                with self._books:
+                    self.busy.pop(worker, None)
+                    self.pids.pop(worker, None)
                 continue  # vanished: try the next one
-            self.busy[worker] = time.monotonic()
             self.dispatched += 1
             return
         self.dropped += 1  # no worker took it: the requester's deadline resends
@@ -145,12 +155,13 @@ class Broker:
     def _expire(self) -> None:
         limit = protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
         now = time.monotonic()
-        for w in [w for w, t in self.ready.items() if now - t > limit]:
-            del self.ready[w]
-            self.pids.pop(w, None)
-        for w in [w for w, t in self.busy.items() if now - t > self.busy_limit_s]:
-            del self.busy[w]
-            self.pids.pop(w, None)
+        with self._books:
+            for w in [w for w, t in self.ready.items() if now - t > limit]:
+                del self.ready[w]
+                self.pids.pop(w, None)
+            for w in [w for w, t in self.busy.items() if now - t > self.busy_limit_s]:
+                del self.busy[w]
+                self.pids.pop(w, None)
 
 
 class BandClient:

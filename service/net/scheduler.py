@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -27,12 +28,22 @@ from service.pipeline import Renderer
 from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.scene import MotionState, Scene
 
+#: Level-of-detail notes (a failed chain build, a damaged cache) remembered so each is
+#: logged once, however many renders and workers report it.
+LOD_NOTES_LOGGED = 256
+
 
 class Scheduler:
-    """The render thread of a :class:`ServiceState` (:meth:`run`)."""
+    """The render thread of a :class:`ServiceState` (:meth:`run`).
 
-    def __init__(self, st: ServiceState) -> None:
+    ``log`` (the service's one-line log) hears each new level-of-detail note once:
+    a chain whose build failed, a damaged cache file rebuilt.
+    """
+
+    def __init__(self, st: ServiceState, log: Callable[[str], None] | None = None) -> None:
         self.st = st
+        self.log = log or (lambda line: None)
+        self._lod_notes: dict[str, None] = {}  # insertion-ordered: the oldest go first
         self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
         self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
 
@@ -158,6 +169,8 @@ class Scheduler:
         lod = stats.get("lod") or next((b["lod"] for b in stats.get("bands", ()) if "lod" in b),
                                        None)  # bands: the first band's (each band its own)
         self.st.last_lod = {"render_id": aim.render_id, **lod} if lod else None
+        if lod:
+            self._log_lod_notes(lod.get("chains", {}).get("notes", ()))
         self.st.updates.append(
             Ready(
                 aim.render_id,
@@ -171,6 +184,16 @@ class Scheduler:
         )
         mark = (aim.settings.generation, aim.scene_version)
         self.st.render_results.put((aim.render_id, aim.t0, rendered.frame, mark, stats))
+
+    def _log_lod_notes(self, notes: Any) -> None:
+        """Log the level-of-detail notes not logged before (each once)."""
+        for note in notes:
+            if note in self._lod_notes:
+                continue
+            self._lod_notes[note] = None
+            if len(self._lod_notes) > LOD_NOTES_LOGGED:
+                del self._lod_notes[next(iter(self._lod_notes))]
+            self.log(str(note))
 
     def observe(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict) -> None:
         """Tell the quality chooser what the render showed (out-of-order points, coverage)."""

@@ -195,7 +195,8 @@ class Service:
                 self._warm(end)
             if self.st.stop.is_set() or (end is not None and time.monotonic() >= end):
                 return
-            loops = (("render", Scheduler(self.st).run), ("refresh", RefreshLoop(self.st).run))
+            loops = (("render", Scheduler(self.st, self.log).run),
+                     ("refresh", RefreshLoop(self.st).run))
             for name, target in loops:
                 t = threading.Thread(target=target, name=name, daemon=True)
                 t.start()

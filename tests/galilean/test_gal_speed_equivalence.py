@@ -204,19 +204,33 @@ def test_fast_refresh_is_bit_identical_at_page_sized_planes() -> None:
 
 @pytest.mark.parametrize("order", [1, 2, 3])
 def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None:
-    """scatter_bands: any band count with a motion bound gives the one-band result."""
+    """scatter_bands: any band count with a motion bound gives the one-band result.
+
+    Its Poisson table (each band its own old rows, bands starting inside zones and
+    at zone edges, one band per row) is :func:`poisson_interiors` of the old map;
+    without ``table`` the table is left alone.
+    """
     display = DisplaySettings(zones=2, cols=40, rows=30)
     st = GalileanStage(display, GalileanSettings(order=order))
     old = random_map(st, np.random.default_rng(7 + order))
     reach = map_reach(old.motion, st.fixed.fm)
+    thr = 0.02 * 2.0**st.fixed.fz
+    want = np.zeros(old.depth.size, np.uint8)
+    poisson_interiors(old.depth.reshape(-1), old.debris.reshape(-1), st.shape, thr, want)
+    assert 0 < want.sum() < want.size
     results = []
-    for bands, r in [(1, st.shape[1]), (2, reach), (3, reach), (5, reach)]:
+    cases = [(1, st.shape[1], True), (2, reach, True), (3, reach, False), (5, reach, True),
+             (st.shape[1], reach, True)]
+    for bands, r, table in cases:
         new = Galpixmap.empty(order, st.fixed, st.shape, True)
         src = np.full(new.depth.size, -7, np.int32)
         stats, out = np.zeros((bands, 3), np.int64), np.zeros((bands, 3), np.int64)
+        interior = np.full(src.size, 7, np.uint8)
         scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
                       st.fixed.fp, st.fixed.fm, 4, True, r, bands, stats, out,
-                      np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False, True)
+                      np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False, True,
+                      interior, thr, table)
+        assert same(interior, want) if table else (interior == 7).all()
         results.append((new, src, stats.sum(0), out.max(0)))
     first = results[0]
     for new, src, stats, top in results[1:]:

@@ -7,6 +7,7 @@ service's render thread): renders draw full meshes until then, and no render wai
 from __future__ import annotations
 
 import fcntl
+import os
 import time
 
 import pytest
@@ -47,6 +48,51 @@ def test_lod_error_turns_level_of_detail_on_and_off(service_factory, tmp_path, m
         with pytest.raises(ServiceError) as info:
             c.set_display(lod_error=-1)
         assert info.value.code == "bad_message" and "lod_error" in str(info.value)
+
+
+#: A ``fast_simplification`` that cannot be imported in a level-of-detail build process
+#: (and is the real one everywhere else: the service's warm-up decimates too).
+NO_SIMPLIFIER_IN_BUILDS = """
+import importlib, os, sys
+main = getattr(sys.modules.get("__main__"), "__spec__", None)
+if main is not None and main.name == "service.lod_build":
+    raise ImportError("simplifier left out of the build process")
+here = os.path.dirname(os.path.abspath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != here]
+del sys.modules[__name__]
+sys.modules[__name__] = importlib.import_module(__name__)
+"""
+
+
+def test_chains_that_cannot_be_built_are_reported_and_drawn_in_full(
+        service_factory, tmp_path, monkeypatch):
+    """Builds that fail for good: each said once, counted ``failed``; renders go on in full."""
+    shadow = tmp_path / "shadow"
+    shadow.mkdir()
+    (shadow / "fast_simplification.py").write_text(NO_SIMPLIFIER_IN_BUILDS)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
+        [str(shadow), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "cache"))
+    svc = service_factory(
+        "--scene", "game", "--zones", "3", "--size", "32x24",
+        "--workers", "0", "--refresh", "30", "--lod-error", "0.5",
+    )  # fmt: skip
+    with ServiceClient(svc.control, timeout_s=30) as c:
+        lod = wait_until(lambda: _chains_built(c), CHAIN_S)
+        assert lod, "the builds never ended"
+        chains = lod["chains"]
+        assert chains["ready"] == 0 and chains["failed"] >= 1, chains
+        assert len(chains["notes"]) == min(chains["failed"], 4)  # one line each, no repeats
+        for note in chains["notes"]:
+            assert "not built" in note and "simplifier left out" in note and "after" not in note
+        assert lod["levels"] == [0] * 7 and lod["triangles"] == lod["triangles_full"]
+        again = c.render_once()[0]["stats"]["lod"]  # nothing tried again, nothing added
+        assert again["chains"] == chains
+        assert c.stats()["render_failures"] == 0
+        for note in chains["notes"]:  # and the service's log has each once, in one line
+            assert svc.output().count(note) == 1, svc.output()[-2000:]
+            assert f"holo-service: {note}\n" in svc.output()
+    assert not list((tmp_path / "cache").glob("*.json"))
 
 
 def test_a_time_budget_degrades_through_the_measured_cost_model(service_factory, tmp_path,

@@ -1,4 +1,16 @@
-"""A slow subscriber for 20 s: the service's memory stays flat, fast ones keep up."""
+"""A slow subscriber for 20 s: the service's memory stays flat, fast ones keep up.
+
+The memory is measured from a baseline taken once the service runs steadily (its
+third update), not at its first frame: the first updates allocate the refresh
+stage's buffers (measured: +12 MB at the first, +18-20 MB at the second, then flat
+within 1 MB for 20 s), and on a loaded machine the first frame comes out before
+more of that, so a first-frame baseline read 30-40 MB of start-up as growth at load
+4-6 and over the 64 MB bound at load 9-12.  The service keeps freed memory in its
+heap for reuse (service.heap), so its RSS is the high-water mark of the buffers live
+at once, which load still raises a little after warm-up (measured: 4 MB at load 5.5,
+17 MB at load 7.9).  What the bound is for, a queue that grows with a subscriber that
+cannot keep up, would grow by the frames published past the cap: over 300 MB here.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +22,11 @@ from testkit import rss_kb, wait_until
 from service.net.client import FrameSubscriber, ServiceClient
 
 FRAME_BYTES = 5 * 120 * 160 * 3 + 5 * 120 * 160 * 4  # colour + depth, 672 kB
+#: Growth allowed, MB: the frame stream holds at most SNDHWM (2) frames per subscriber
+#: (4 MB here) and a render's buffers are reused; a queue that grows would add 300+ MB.
+GROWTH_MB = 64
+#: Updates after which the service's buffers are all allocated (see the module notes).
+WARM_UPDATES = 3
 
 
 def test_slow_subscriber_memory_flat(service_factory):
@@ -34,12 +51,15 @@ def test_slow_subscriber_memory_flat(service_factory):
     slow.setsockopt(zmq.SUBSCRIBE, b"")
     slow.connect(svc.frames)
     fast = FrameSubscriber(svc.frames)
+    control = ServiceClient(svc.control, timeout_s=5)
     try:
         assert wait_until(lambda: fast.next(1.0), 60), "no frames"
+        assert wait_until(lambda: fast.next(0.1) and control.stats()["updates"] >= WARM_UPDATES,
+                          60), "the service never reached its third update"
         baseline = rss_kb(svc.proc.pid)
         samples, got_slow = [], 0
         start = time.monotonic()
-        fast_frames = fast.frames
+        published = control.stats()["frames_published"]
         while time.monotonic() - start < 20.0:
             if slow.poll(0):  # one message per second at most: a slow display
                 slow.recv_multipart()
@@ -49,12 +69,18 @@ def test_slow_subscriber_memory_flat(service_factory):
                 fast.next(max(0.01, deadline - time.monotonic()))
             samples.append(rss_kb(svc.proc.pid))
         grown_mb = (max(samples) - baseline) / 1024
-        produced_mb = (fast.frames - fast_frames) * FRAME_BYTES / 2**20
+        # what the service published in that time, whether or not this (loaded) test
+        # process read it all: that is what would have queued for the slow subscriber
+        published = control.stats()["frames_published"] - published
+        produced_mb = published * FRAME_BYTES / 2**20
         assert got_slow >= 10
         assert produced_mb > 300, "the test needs the service to publish far more than the cap"
-        assert grown_mb < 64, f"service RSS grew {grown_mb:.1f} MB with a slow subscriber"
-        with ServiceClient(svc.control, timeout_s=5) as c:
-            assert c.stats()["frames_published"] > 600
+        assert grown_mb < GROWTH_MB, (
+            f"service RSS grew {grown_mb:.1f} MB with a slow subscriber "
+            f"(baseline {baseline // 1024} MB, samples {[s // 1024 for s in samples]} MB)")
+        assert fast.frames > published / 4, "the fast subscriber fell behind"
+        assert control.stats()["frames_published"] > 600
     finally:
+        control.close()
         slow.close(0)
         fast.close()
