@@ -9,6 +9,7 @@ running or a thread spinning slows or breaks the tests after it.
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -39,23 +40,31 @@ _STALE = pytest.StashKey[list]()
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Drop cached kernels older than a module they inline (service.kernel_cache).
+    """Drop stale cached kernels, and compile what the sources now need, before any test.
 
-    Numba would otherwise load them and the tests would run code no longer in the tree.
+    Stale: older than a module they inline (service.kernel_cache); numba would load
+    them and the tests would run code no longer in the tree.  When the sources
+    changed since the last warm-up (or kernels were dropped), ``holo-warmup`` runs
+    first (2 s when everything is cached), so no test compiles a kernel inside its
+    own deadline: a service a test starts would miss its ready deadline on a busy
+    machine.  ``make test`` runs the warm-up just before, so this finds it warm.
     """
     from service.kernel_cache import drop_stale
+    from service.readiness import is_warm
 
-    session.config.stash[_STALE] = drop_stale()
+    stale = session.config.stash[_STALE] = drop_stale()
+    if stale or not is_warm():
+        subprocess.run([sys.executable, "-m", "service.cli_warmup"], check=False, timeout=1800)
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:
-    """Say how many stale kernels the session dropped (they compile again as used)."""
+    """Say how many stale kernels the session dropped (the warm-up compiled them again)."""
     stale = config.stash.get(_STALE, [])
     if not stale:
         return []
     changed = sorted({m for kernel in stale for m in kernel.changed})
     return [f"numba cache: dropped {len(stale)} kernels built before a change to "
-            f"{', '.join(changed)}; they compile again when first used"]
+            f"{', '.join(changed)}; holo-warmup compiled them again"]
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
