@@ -131,6 +131,33 @@ class Mesh:
         )
 
 
+#: Largest vertex coordinate a mesh may have.  A face normal's length takes the
+#: fourth power of the coordinates, which overflows float64 from about 1e77 (a mesh
+#: at 1e150 rendered blank: every face culled on an infinite normal; at 1e300 it was
+#: refused as "degenerate").  1e30 leaves that far behind, and no real mesh comes near.
+MAX_COORDINATE = 1e30
+
+
+def too_large(vertices: np.ndarray) -> tuple[str, int] | None:
+    """The first vertex with a coordinate beyond :data:`MAX_COORDINATE`, or None.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3), finite
+
+    Returns
+    -------
+    (message, vertex) or None
+        ``message`` says the value and the remedy (no file or mesh name).
+    """
+    if not vertices.size or np.abs(vertices).max() <= MAX_COORDINATE:
+        return None
+    bad = int(np.argwhere(np.abs(vertices) > MAX_COORDINATE)[0, 0])
+    value = float(np.abs(vertices[bad]).max())
+    return (f"coordinate {value:g} is beyond {MAX_COORDINATE:g}: normals and areas would "
+            "overflow; scale the mesh down", bad)
+
+
 def validate(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray, name: str) -> None:
     """Check shapes, finiteness, index ranges and polygon shapes; raise :class:`MeshError`.
 
@@ -142,6 +169,9 @@ def validate(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray, nam
     if not np.all(np.isfinite(vertices)):
         bad = int(np.argwhere(~np.isfinite(vertices))[0, 0])
         raise MeshError(f"{name}: vertex {bad} is not finite")
+    big = too_large(vertices)
+    if big is not None:
+        raise MeshError(f"{name}: vertex {big[1]}: {big[0]}")
     if polygons.ndim != 2 or counts.ndim != 1 or polygons.shape[0] != counts.shape[0]:
         raise MeshError(f"{name}: polygons (P, K) and counts (P,) do not match")
     if counts.size and counts.min() < 3:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from service.errors import MeshError, MeshFileError
-from service.mesh import Mesh, describe_fault, polygon_shape_faults
+from service.mesh import Mesh, describe_fault, polygon_shape_faults, too_large
 from service.mesh_repair import MeshRepair, MeshRepairWarning, distinct_corners, split_bad_shapes
 
 
@@ -178,6 +178,9 @@ def finish_mesh(
         Its ``repair`` says what was repaired.
     """
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    big = too_large(vertices)  # before the repairs, which would call it degenerate
+    if big is not None:
+        raise MeshFileError(str(path), f"vertex {big[1]}", big[0])
     report = report or MeshRepair()
     report.faces_read = int(counts.size)
     if counts.size == 0:

@@ -136,3 +136,29 @@ def test_random_dented_or_lifted_polygons_fail(k, gaps, radius, axis, offset, co
     lifted[i] += 0.01 * radius * np.array(axis) / np.linalg.norm(axis)
     faults = polygon_shape_faults(lifted, np.arange(k)[None, :], np.array([k]))
     assert faults.kind.tolist() == [PLANAR]
+
+
+@pytest.mark.parametrize("scale", [1e31, 1e150, 1e300])
+def test_coordinates_too_large_for_the_geometry_are_refused(scale):
+    verts = np.array(TRIANGLE, dtype=float) * scale
+    with pytest.raises(MeshError,
+                       match=r"^big: vertex 1: coordinate .* beyond 1e\+30: .*scale the mesh down"):
+        Mesh.from_polygons(verts, [[0, 1, 2]], "big")
+
+
+def test_large_coordinates_below_the_limit_render_as_small_ones(tmp_path):
+    from service.display import DisplaySettings
+    from service.loaders import load_scene, save_obj
+    from service.pipeline import Renderer, RenderSettings
+
+    def frame(scale):  # a mesh file is centred and scaled to fit the display
+        tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) * scale
+        path = tmp_path / f"tet-{scale:g}.obj"
+        save_obj(path, Mesh.from_polygons(tet, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]))
+        return Renderer().render(load_scene(path), DisplaySettings(cols=64, rows=48),
+                                 RenderSettings())
+
+    small, big = frame(1.0), frame(mesh_module.MAX_COORDINATE / 2)
+    assert (small.depth < np.inf).any()
+    np.testing.assert_array_equal(big.depth < np.inf, small.depth < np.inf)
+    np.testing.assert_allclose(big.colour, small.colour, atol=1)
