@@ -96,6 +96,8 @@ def distinct_corners(polygons: np.ndarray, counts: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (P,), int64
     """
+    if polygons.shape[1] == 0:  # every polygon empty (an OBJ whose only face is a bare 'f')
+        return np.zeros(polygons.shape[0], np.int64)
     used = np.arange(polygons.shape[1])[None, :] < counts[:, None]
     rows = np.sort(np.where(used, polygons, -1), axis=1)
     new = (rows[:, 1:] != rows[:, :-1]) & (rows[:, 1:] >= 0)

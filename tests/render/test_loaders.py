@@ -468,6 +468,9 @@ def test_single_mesh_becomes_fitted_one_object_scene(tmp_path):
          "property float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n",
          "no polygons"),
         ("flat.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n", "every polygon is degenerate"),
+        # cut off after its first 'f' (found by test_fuzz_truncation: an IndexError)
+        ("bare-f.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf\n", "every polygon is degenerate"),
+        ("bare-fs.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf\nf  \n", "every polygon is degenerate"),
     ],
 )
 def test_files_without_usable_polygons(tmp_path, name, content, reason):
