@@ -24,7 +24,8 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -80,6 +81,18 @@ def wait_for(pred: Callable[[], object], timeout: float = 20.0, what: str = "con
     """:func:`wait_until`, failing the test with ``what`` after ``timeout`` seconds."""
     if not wait_until(pred, timeout):
         raise AssertionError(f"{what} not met within {timeout} s")
+
+
+@contextmanager
+def held_lock(folder: Path, key: str) -> Iterator[None]:
+    """Hold ``key``'s LOD build lock (``<folder>/<key>.lock``), as another process building
+    that chain would: a build waits for it, deterministically, until the block ends."""
+    import fcntl  # POSIX only, as the tests that use it
+
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / f"{key}.lock", "ab") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        yield
 
 
 def free_port() -> int:

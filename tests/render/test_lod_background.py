@@ -8,11 +8,10 @@ A build is held back deterministically by holding its lock file, as another proc
 building the same chain would: nothing here sleeps or races a timer.
 """
 
-import fcntl
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
+from testkit import held_lock
 
 from service.display import DisplaySettings
 from service.lod import LodCacheWarning, LodSettings, LodState, build_chain, mesh_key, read_chain
@@ -36,15 +35,6 @@ def _scene(mesh):
                               name=f"o{i}") for i, (x, y, s) in enumerate(places)])
 
 
-@contextmanager
-def held(folder, key):
-    """Hold ``key``'s build lock, as another process building that chain would."""
-    folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / f"{key}.lock", "ab") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        yield
-
-
 def _renderer(cache):
     r = Renderer()
     r.lod = LodState(cache=cache, background=True)
@@ -54,7 +44,7 @@ def _renderer(cache):
 def test_frames_draw_the_full_mesh_until_the_chain_is_built_then_use_it(ring, tmp_path):
     scene, renderer = _scene(ring), _renderer(tmp_path)
     exact = Renderer().render(scene, DISPLAY, RenderSettings())  # level of detail off
-    with held(tmp_path, mesh_key(ring, LodSettings().recipe)):
+    with held_lock(tmp_path, mesh_key(ring, LodSettings().recipe)):
         for _ in range(2):  # neither frame waits for the build the lock holds back
             frame = renderer.render(scene, DISPLAY, LOD)
             lod = frame.stats["lod"]

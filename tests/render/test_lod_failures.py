@@ -12,15 +12,13 @@ signal, a cache path that is a file.  A build is held back by holding its lock f
 as another process building that chain would; nothing sleeps or races a timer.
 """
 
-import fcntl
 import os
 import signal
 import tempfile
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
-from testkit import posix_only, wait_until
+from testkit import held_lock, posix_only, wait_until
 
 from service.display import DisplaySettings
 from service.lod import LodSettings, LodState, mesh_key
@@ -66,15 +64,6 @@ def _shadow(tmp_path, monkeypatch, body):
         [str(shadow), *filter(None, [os.environ.get("PYTHONPATH")])]))
 
 
-@contextmanager
-def held(folder, key):
-    """Hold ``key``'s build lock, as another process building that chain would."""
-    folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / f"{key}.lock", "ab") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        yield
-
-
 def _frame_is_full(frame, exact):
     lod = frame.stats["lod"]
     assert lod["levels"] == [0, 0] and lod["triangles"] == lod["triangles_full"]
@@ -116,7 +105,7 @@ def test_a_mesh_that_cannot_be_simplified_fails_once_and_is_drawn_in_full(
 def test_a_build_killed_mid_way_is_tried_again_and_its_chain_used(ring, exact, tmp_path):
     scene, renderer = _scene(ring), _renderer(tmp_path)
     builds = renderer.lod.builds
-    with held(tmp_path, mesh_key(ring, LodSettings().recipe)):
+    with held_lock(tmp_path, mesh_key(ring, LodSettings().recipe)):
         _frame_is_full(renderer.render(scene, DISPLAY, LOD), exact)
         first = _new_child(builds, ())
         os.kill(first, signal.SIGKILL)
@@ -136,7 +125,7 @@ def test_a_build_killed_mid_way_is_tried_again_and_its_chain_used(ring, exact, t
 def test_a_build_killed_every_time_is_given_up_after_its_tries(ring, exact, tmp_path):
     scene, renderer = _scene(ring), _renderer(tmp_path, retry_s=(0.0,))
     builds = renderer.lod.builds
-    with held(tmp_path, mesh_key(ring, LodSettings().recipe)):
+    with held_lock(tmp_path, mesh_key(ring, LodSettings().recipe)):
         renderer.render(scene, DISPLAY, LOD)
         seen: tuple = ()
         for _ in range(2):
@@ -196,7 +185,7 @@ def test_a_cache_path_that_cannot_be_a_folder_is_reported_and_the_chain_still_bu
 def test_closing_ends_a_running_build(ring, tmp_path):
     renderer = _renderer(tmp_path)
     builds = renderer.lod.builds
-    with held(tmp_path, mesh_key(ring, LodSettings().recipe)):
+    with held_lock(tmp_path, mesh_key(ring, LodSettings().recipe)):
         renderer.render(_scene(ring), DISPLAY, LOD)
         pid = _new_child(builds, ())
         builds.close()
