@@ -100,6 +100,13 @@ class GalileanSettings:
         and ``holo-bench`` set) two threads were 1.2-1.5x faster than one on this
         2-core machine when idle and no slower beside a busy render process; with
         spinning threads a busy neighbour made both 2.5x slower.
+    hold_after : int
+        Refreshes after a global update from which, while no new one has come,
+        the stage holds the picture (shows the map as it is, no propagation, no
+        head-motion update) instead of extrapolating further; 0: never.  Past the
+        rating a head turn's motion extrapolated for a second shears objects into
+        scattered fragments (docs/galilean.md, "Holding past the rating");
+        ``holo-service`` holds after ``n_prop``.
     """
 
     order: int = 2
@@ -115,6 +122,7 @@ class GalileanSettings:
     colour_motion: bool = True
     order_guard: bool = True
     threads: int = 0
+    hold_after: int = 0
 
     def __post_init__(self) -> None:
         checks = {
@@ -128,6 +136,7 @@ class GalileanSettings:
             "neighbours": self.neighbours in (1, 2, 3, 4),
             "expansion": self.expansion in EXPANSION_MODES,
             "threads": isinstance(self.threads, int) and 0 <= self.threads <= 1024,
+            "hold_after": isinstance(self.hold_after, int) and self.hold_after >= 0,
         }
         for name, ok in checks.items():
             if not ok:
@@ -150,7 +159,8 @@ class Refresh:
         Pixels showing debris (G(0) fallback) rather than a galpixel.
     flags : dict
         ``updated`` (a graft happened), ``age`` (refreshes since the last global
-        update), ``past_rating`` (age > N_prop), ``order`` (order in use),
+        update), ``past_rating`` (age > N_prop), ``held`` (the picture is held,
+        see ``GalileanSettings.hold_after``), ``order`` (order in use),
         ``order_fallback``, ``events`` (incomplete updates, late renders refused).
     stats : dict
         Kernel counters (see :data:`service.galilean.propagate.STAT_NAMES`) and ``ms``.
@@ -212,6 +222,8 @@ class GalileanStage:
         self._viewer_next: MotionState | None = None
         self._guard = _Guard(np.zeros(s.order + 1))
         self._started = False
+        #: whether the picture is held (``hold_after``) until the next global update
+        self._held = False
         #: rows a galpixel of ``self.map`` can move in one refresh (None: unknown)
         self._reach: int | None = None
         #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
@@ -399,7 +411,9 @@ class GalileanStage:
         stats = dict.fromkeys(STAT_NAMES, 0)
         due = [p for p in self._pending if p.rendezvous == self.index]
         self._pending = [p for p in self._pending if p.rendezvous > self.index]
-        if self._viewer_next is not None:
+        global_due = any(p.objects is None for p in due)
+        held = self._hold(global_due)
+        if self._viewer_next is not None and not held:  # held: kept for the next render
             stats["viewer_updated"] = self._apply_viewer()
         z, r, c = self.display.zones, self.display.rows, self.display.cols
         shown = (
@@ -407,11 +421,13 @@ class GalileanStage:
             np.empty((z, r, c), np.float32),
             np.empty((z, r, c), np.bool_),
         )
-        propagate = self._started and not any(p.objects is None for p in due)
+        propagate = self._started and not global_due and not held
         if propagate:
             stats.update(self._propagate(shown if not due else None))
             self.age += 1
             self._viewer = _advance_motion(self._viewer, 1.0 / self.settings.refresh_hz)
+        elif held:
+            self.age += 1
         for p in due:
             self._graft(p)
         if due or not propagate:
@@ -422,6 +438,7 @@ class GalileanStage:
             "updated": bool(due),
             "age": self.age,
             "past_rating": self.age > self.settings.n_prop,
+            "held": held,
             "order": self.order,
             "order_fallback": self.order < self.settings.order,
             "events": events,
@@ -430,6 +447,16 @@ class GalileanStage:
         out = Refresh(self.index, colour, depth, debris, flags, stats)
         self.index += 1
         return out
+
+    def _hold(self, global_due: bool) -> bool:
+        """Whether this refresh holds the picture: ``hold_after`` refreshes passed, no render due.
+
+        The map is left as it is (shown again each refresh) until the next global
+        update; a local graft meanwhile is shown where it lands.
+        """
+        n = self.settings.hold_after
+        self._held = bool(n) and self._started and not global_due and self.age >= n
+        return self._held
 
     def _show(self, shown: tuple) -> None:
         """Copy the displayed window of the map into ``shown`` (no expansion)."""
