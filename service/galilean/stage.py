@@ -195,9 +195,11 @@ class GalileanStage:
         self.fixed = FixedPoint.for_order(self.budget, s.order)
         m = s.margin
         self.shape = (display.zones, display.rows + 2 * m, display.cols + 2 * m)
-        new = lambda: Galpixmap.empty(s.order, self.fixed, self.shape, s.colour_motion)  # noqa: E731
-        self.map, self._spare = new(), new()
-        self.cache = (new(), new()) if s.cache else None
+        # each map in its own slot: a refresh streams all their planes at once
+        new = lambda slot: Galpixmap.empty(s.order, self.fixed, self.shape,  # noqa: E731
+                                           s.colour_motion, slot)
+        self.map, self._spare = new(0), new(1)
+        self.cache = (new(2), new(3)) if s.cache else None
         self._src = np.full(self.shape, -1, np.int32)
         #: placeholder outputs for a propagation whose display copy is skipped
         self._no_show = (np.empty(0, np.uint8), np.empty(0, np.float32), np.empty(0, np.bool_))
