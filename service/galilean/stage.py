@@ -24,6 +24,7 @@ numerically differentiated motion falls back to G(2)) and flags it.
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -62,6 +63,11 @@ STEADY_MIN = 3.0
 #: galpixels stay still and moving ones keep moving until the map changes, so
 #: one count per change decides.
 STILL_MIN = 0.25
+
+#: How many times its usual interval a render must be overdue before the stage
+#: holds the picture (``GalileanSettings.hold_after``); the usual interval is the
+#: median of the last :data:`INTERVALS_KEPT` intervals between global updates.
+LATE_FACTOR, INTERVALS_KEPT = 2.0, 16
 
 
 @dataclass(frozen=True)
@@ -103,10 +109,12 @@ class GalileanSettings:
     hold_after : int
         Refreshes after a global update from which, while no new one has come,
         the stage holds the picture (shows the map as it is, no propagation, no
-        head-motion update) instead of extrapolating further; 0: never.  Past the
-        rating a head turn's motion extrapolated for a second shears objects into
-        scattered fragments (docs/galilean.md, "Holding past the rating");
-        ``holo-service`` holds after ``n_prop``.
+        head-motion update) instead of extrapolating further; 0: never.  Renders
+        that come steadily but slowly are not held: the stage waits at least
+        :data:`LATE_FACTOR` times the median of the last global updates' intervals.
+        Past the rating a head turn's motion extrapolated for a second shears
+        objects into scattered fragments (docs/galilean.md, "Holding past the
+        rating"); ``holo-service`` holds after ``n_prop``.
     """
 
     order: int = 2
@@ -224,6 +232,8 @@ class GalileanStage:
         self._started = False
         #: whether the picture is held (``hold_after``) until the next global update
         self._held = False
+        #: refreshes between the last global updates (the usual render interval)
+        self._intervals: deque[int] = deque(maxlen=INTERVALS_KEPT)
         #: rows a galpixel of ``self.map`` can move in one refresh (None: unknown)
         self._reach: int | None = None
         #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
@@ -449,13 +459,19 @@ class GalileanStage:
         return out
 
     def _hold(self, global_due: bool) -> bool:
-        """Whether this refresh holds the picture: ``hold_after`` refreshes passed, no render due.
+        """Whether this refresh holds the picture: the render is late and none is due.
 
-        The map is left as it is (shown again each refresh) until the next global
-        update; a local graft meanwhile is shown where it lands.
+        Late: ``hold_after`` refreshes have passed since the last global update,
+        and :data:`LATE_FACTOR` times the usual interval between them.  The map is
+        left as it is (shown again each refresh) until the next global update; a
+        local graft meanwhile is shown where it lands.
         """
         n = self.settings.hold_after
-        self._held = bool(n) and self._started and not global_due and self.age >= n
+        if not n or not self._started or global_due:
+            self._held = False
+            return False
+        usual = float(np.median(self._intervals)) if self._intervals else 0.0
+        self._held = self.age >= max(n, LATE_FACTOR * usual)
         return self._held
 
     def _show(self, shown: tuple) -> None:
@@ -613,6 +629,8 @@ class GalileanStage:
     def _graft(self, p: _Pending) -> None:
         self._map_changed()
         if p.objects is None:
+            if self._started:
+                self._intervals.append(self.age + 1)
             for name, arr in zip(FIELDS, p.buffer.arrays(), strict=True):
                 np.copyto(getattr(self.map, name), arr)
             if self.cache is not None:

@@ -136,9 +136,10 @@ def _sird_output(settings: Settings) -> Any:
 
 
 def stage_settings(settings: Settings) -> GalileanSettings:
-    """The service's Galilean stage: it holds the picture past the rating (``n_prop``).
+    """The service's Galilean stage: it holds the picture for a late render.
 
-    A render late by more than the rating (a loaded machine) would otherwise leave
+    Late: past the rating (``n_prop``) and twice the usual render interval.  A
+    render that late (a loaded machine) would otherwise leave
     the stage extrapolating a head turn for a second or more, which shears the
     objects into scattered fragments; held, the picture waits for the render.
     """

@@ -213,6 +213,21 @@ def test_hold_after_holds_the_picture_until_the_next_global_update():
         GalileanSettings(hold_after=-1)
 
 
+def test_hold_waits_for_renders_that_are_slow_but_steady():
+    """Renders every 10 refreshes are not late: held only past twice that."""
+    st = stage(2, hold_after=3)
+    sq = [(5, 8, 4, 7, 1.0, (9, 9, 9), (0.1, 0.0), (0, 0))]
+    held = []
+    for _ in range(4):
+        st.update(scene_update(sq), st.index)
+        held += [st.refresh().flags["held"] for _ in range(10)]
+    assert held[:4] == [False] * 4 and all(held[4:10])  # the first: nothing known yet
+    assert not any(held[10:])  # then intervals of 10 are the usual pace
+    st.update(scene_update(sq), st.index)
+    late = [st.refresh().flags["held"] for _ in range(25)]
+    assert late == [False] * 21 + [True] * 4  # the graft, then 20 refreshes carried
+
+
 def test_bad_motion_is_clamped_and_flagged():
     u = scene_update([(5, 9, 4, 9, 1.0, (9, 9, 9), (0.5, 0.0), (0, 0))])
     u.derivatives[0, 0, 0, 5, 4] = np.nan
