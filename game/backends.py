@@ -46,6 +46,9 @@ from service.scene import Scene
 
 #: Seconds between the service backend's ``stats`` requests for level-of-detail notes.
 LOD_POLL_S = 2.0
+#: Seconds the service backend waits (across ticks, never within one) for a ``stats``
+#: reply before it drops it.
+LOD_REPLY_S = 5.0
 
 
 @dataclass
@@ -336,6 +339,11 @@ class ServiceBackend:
         self.reconnects = 0
         self._lod_seen: set[str] = set()
         self._lod_next = 0.0
+        #: seconds between ``stats`` requests for level-of-detail notes
+        self.lod_poll_s = LOD_POLL_S
+        #: seconds a ``stats`` reply may take before it is dropped
+        self.lod_reply_s = LOD_REPLY_S
+        self._stats: Any = None  # a service.net.client.PendingRequest once asked
 
     def start(self, scene: Scene) -> None:
         """Load the scene and settings (raises if the service is not there).
@@ -451,21 +459,37 @@ class ServiceBackend:
         """Level-of-detail notes the service reported, new since the last call (each once).
 
         With level of detail on, the service's ``stats`` (its last render's
-        ``lod.chains.notes``) are asked for every :data:`LOD_POLL_S` seconds; a
-        failed request is left to the frame stream to notice.
+        ``lod.chains.notes``) are asked for every ``lod_poll_s`` seconds, without
+        waiting: the request goes out on a socket of its own and its reply is
+        picked up by a later call, once it is there (a zero-timeout poll), so a
+        slow reply never stalls the game's tick.  A reply that takes more than
+        ``lod_reply_s`` (:data:`LOD_REPLY_S`) is dropped (``stats_dropped``) and the next period
+        asks again; an error reply is left to the frame stream to notice.
         """
         from service.errors import ServiceError
 
         s, now = self.settings, time.monotonic()
-        if not self.connected or (s.lod_error <= 0 and s.lod_budget_ms <= 0) or (
-                now < self._lod_next):
+        if not self.connected or (s.lod_error <= 0 and s.lod_budget_ms <= 0):
             return []
-        self._lod_next = now + LOD_POLL_S
+        if self._stats is None:
+            from service.net.client import PendingRequest
+
+            self._stats = PendingRequest(self.client.address, self.lod_reply_s)
         try:
-            lod = self.client.stats().get("lod")
+            got = self._stats.poll()
         except ServiceError:
+            got = None
+        if not self._stats.waiting and now >= self._lod_next:
+            self._lod_next = now + self.lod_poll_s
+            self._stats.send("stats")
+        if got is None:
             return []
-        return new_notes(lod, self._lod_seen)
+        return new_notes((got.get("stats") or {}).get("lod"), self._lod_seen)
+
+    @property
+    def stats_dropped(self) -> int:
+        """``stats`` replies dropped for coming later than :data:`LOD_REPLY_S`."""
+        return 0 if self._stats is None else self._stats.dropped
 
     def frame(self, timeout_s: float = 0.0) -> FrameView | None:
         """The next frame from the stream, or None; a restarted service is reloaded.
@@ -494,6 +518,8 @@ class ServiceBackend:
         """Close both sockets."""
         if self.sub is not None:
             self.sub.close()
+        if self._stats is not None:
+            self._stats.close()
         self.client.close()
 
 
