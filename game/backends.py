@@ -44,6 +44,9 @@ from service.lod import LodState, lod_from
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
+#: Seconds between the service backend's ``stats`` requests for level-of-detail notes.
+LOD_POLL_S = 2.0
+
 
 @dataclass
 class FrameView:
@@ -146,6 +149,8 @@ class LocalRenderer:
         #: set by the game while it shows the autostereogram: only then is one made
         self.sird_wanted = False
         self._threads: list[threading.Thread] = []
+        self._lod_seen: set[str] = set()
+        self._lod_new: list[str] = []
 
     def start(self, scene: Scene) -> None:
         """Take the scene and start rendering and refreshing."""
@@ -175,6 +180,15 @@ class LocalRenderer:
         with self._cv:
             self._frozen = False
             self._burst = None
+
+    def lod_notes(self) -> list[str]:
+        """Level-of-detail notes (a chain not built, a damaged cache) new since the last call.
+
+        Each note is returned once, however many renders report it.
+        """
+        with self._cv:
+            new, self._lod_new = self._lod_new, []
+        return new
 
     def frame(self, timeout_s: float = 0.0) -> FrameView | None:
         """The newest refresh not yet taken, waiting up to ``timeout_s``."""
@@ -236,6 +250,10 @@ class LocalRenderer:
                     point_derivs=None,
                 )
             self._lead = 0.8 * self._lead + 0.2 * (time.monotonic() - t0)
+            new = new_notes(ru.frame.stats.get("lod"), self._lod_seen)
+            if new:
+                with self._cv:
+                    self._lod_new += new
             with self._stage_lock:
                 self._render_id += 1
                 self.stage.update(ru)
@@ -316,6 +334,8 @@ class ServiceBackend:
         self._idle = threading.Event()  # never set: paces frame() while unconnected
         self.session: str | None = None
         self.reconnects = 0
+        self._lod_seen: set[str] = set()
+        self._lod_next = 0.0
 
     def start(self, scene: Scene) -> None:
         """Load the scene and settings (raises if the service is not there).
@@ -427,6 +447,26 @@ class ServiceBackend:
             self._call(self._load, self._scene)
         self._frozen = False
 
+    def lod_notes(self) -> list[str]:
+        """Level-of-detail notes the service reported, new since the last call (each once).
+
+        With level of detail on, the service's ``stats`` (its last render's
+        ``lod.chains.notes``) are asked for every :data:`LOD_POLL_S` seconds; a
+        failed request is left to the frame stream to notice.
+        """
+        from service.errors import ServiceError
+
+        s, now = self.settings, time.monotonic()
+        if not self.connected or (s.lod_error <= 0 and s.lod_budget_ms <= 0) or (
+                now < self._lod_next):
+            return []
+        self._lod_next = now + LOD_POLL_S
+        try:
+            lod = self.client.stats().get("lod")
+        except ServiceError:
+            return []
+        return new_notes(lod, self._lod_seen)
+
     def frame(self, timeout_s: float = 0.0) -> FrameView | None:
         """The next frame from the stream, or None; a restarted service is reloaded.
 
@@ -455,6 +495,14 @@ class ServiceBackend:
         if self.sub is not None:
             self.sub.close()
         self.client.close()
+
+
+def new_notes(lod: dict | None, seen: set[str]) -> list[str]:
+    """The notes of a render's ``lod`` report (``chains.notes``) not in ``seen``; adds them."""
+    notes = ((lod or {}).get("chains") or {}).get("notes") or ()
+    new = list(dict.fromkeys(str(n) for n in notes if str(n) not in seen))
+    seen.update(new)
+    return new
 
 
 def _sird_output(display: DisplaySettings) -> SirdOutput | None:
