@@ -14,7 +14,7 @@ from service.display import DisplaySettings
 from service.galilean import stage as stage_module
 from service.galilean.finish import finish
 from service.galilean.fixed_point import Z_EMPTY
-from service.galilean.galpixmap import Galpixmap
+from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
 from service.galilean.poisson_table import poisson_interiors
 from service.galilean.propagate import STAT_NAMES, flat, planes, second_sweep, sweep
@@ -200,6 +200,38 @@ def test_fast_refresh_is_bit_identical_at_page_sized_planes() -> None:
             st.submit(gp.copy(), 0)
         for k in range(4):
             assert_identical(fast, ref, k)
+
+
+def _plane_lines(gp: Galpixmap) -> list[int]:
+    """The cache line (modulo the 4 KiB page) each plane of ``gp`` starts on."""
+    lines = []
+    for a in gp.arrays():
+        for plane in a.reshape(-1, *gp.shape) if a.ndim == 4 else [a]:
+            lines.append(plane.ctypes.data % 4096 // 64)
+    return lines
+
+
+def test_stage_maps_planes_staggered_by_slot_not_by_history() -> None:
+    """Every plane of a refresh's maps starts on its own cache line, whatever came before.
+
+    The stagger comes from each map's slot (no module counter): the same stage
+    built twice, with other maps made in between, has the same layout.
+    """
+    display = DisplaySettings(zones=1, cols=640, rows=64)  # page-sized planes
+    for cache in (False, True):
+        layouts = []
+        for _ in range(2):
+            st = GalileanStage(display, GalileanSettings(order=2, cache=cache))
+            maps = [st.map, st._spare, *(st.cache or ())]
+            lines = [x for gp in maps for x in _plane_lines(gp)]
+            assert len(lines) == 18 * len(maps)  # G(2) with colour motion
+            assert len(set(lines)) == min(len(lines), 64)  # 64 lines a page
+            layouts.append(lines)
+            Galpixmap.empty(3, st.fixed, st.shape)  # another map between the two stages
+        assert layouts[0] == layouts[1]
+    buf, _ = build(np.zeros((1, 64, 640, 3)), np.ones((1, 64, 640)), 2, st.fixed,
+                np.zeros((3, 3, 1, 64, 640)), np.zeros((4, 1, 64, 640)))
+    assert not set(_plane_lines(buf)) & set(_plane_lines(st.map) + _plane_lines(st._spare))
 
 
 @pytest.mark.parametrize("order", [1, 2, 3])
