@@ -44,6 +44,12 @@ from service.lod import LodState, lod_from
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
+#: Seconds between the service backend's ``stats`` requests for level-of-detail notes.
+LOD_POLL_S = 2.0
+#: Seconds the service backend waits (across ticks, never within one) for a ``stats``
+#: reply before it drops it.
+LOD_REPLY_S = 5.0
+
 
 @dataclass
 class FrameView:
@@ -146,6 +152,8 @@ class LocalRenderer:
         #: set by the game while it shows the autostereogram: only then is one made
         self.sird_wanted = False
         self._threads: list[threading.Thread] = []
+        self._lod_seen: set[str] = set()
+        self._lod_new: list[str] = []
 
     def start(self, scene: Scene) -> None:
         """Take the scene and start rendering and refreshing."""
@@ -175,6 +183,15 @@ class LocalRenderer:
         with self._cv:
             self._frozen = False
             self._burst = None
+
+    def lod_notes(self) -> list[str]:
+        """Level-of-detail notes (a chain not built, a damaged cache) new since the last call.
+
+        Each note is returned once, however many renders report it.
+        """
+        with self._cv:
+            new, self._lod_new = self._lod_new, []
+        return new
 
     def frame(self, timeout_s: float = 0.0) -> FrameView | None:
         """The newest refresh not yet taken, waiting up to ``timeout_s``."""
@@ -236,6 +253,10 @@ class LocalRenderer:
                     point_derivs=None,
                 )
             self._lead = 0.8 * self._lead + 0.2 * (time.monotonic() - t0)
+            new = new_notes(ru.frame.stats.get("lod"), self._lod_seen)
+            if new:
+                with self._cv:
+                    self._lod_new += new
             with self._stage_lock:
                 self._render_id += 1
                 self.stage.update(ru)
@@ -316,6 +337,13 @@ class ServiceBackend:
         self._idle = threading.Event()  # never set: paces frame() while unconnected
         self.session: str | None = None
         self.reconnects = 0
+        self._lod_seen: set[str] = set()
+        self._lod_next = 0.0
+        #: seconds between ``stats`` requests for level-of-detail notes
+        self.lod_poll_s = LOD_POLL_S
+        #: seconds a ``stats`` reply may take before it is dropped
+        self.lod_reply_s = LOD_REPLY_S
+        self._stats: Any = None  # a service.net.client.PendingRequest once asked
 
     def start(self, scene: Scene) -> None:
         """Load the scene and settings (raises if the service is not there).
@@ -427,6 +455,42 @@ class ServiceBackend:
             self._call(self._load, self._scene)
         self._frozen = False
 
+    def lod_notes(self) -> list[str]:
+        """Level-of-detail notes the service reported, new since the last call (each once).
+
+        With level of detail on, the service's ``stats`` (its last render's
+        ``lod.chains.notes``) are asked for every ``lod_poll_s`` seconds, without
+        waiting: the request goes out on a socket of its own and its reply is
+        picked up by a later call, once it is there (a zero-timeout poll), so a
+        slow reply never stalls the game's tick.  A reply that takes more than
+        ``lod_reply_s`` (:data:`LOD_REPLY_S`) is dropped (``stats_dropped``) and the next period
+        asks again; an error reply is left to the frame stream to notice.
+        """
+        from service.errors import ServiceError
+
+        s, now = self.settings, time.monotonic()
+        if not self.connected or (s.lod_error <= 0 and s.lod_budget_ms <= 0):
+            return []
+        if self._stats is None:
+            from service.net.client import PendingRequest
+
+            self._stats = PendingRequest(self.client.address, self.lod_reply_s)
+        try:
+            got = self._stats.poll()
+        except ServiceError:
+            got = None
+        if not self._stats.waiting and now >= self._lod_next:
+            self._lod_next = now + self.lod_poll_s
+            self._stats.send("stats")
+        if got is None:
+            return []
+        return new_notes((got.get("stats") or {}).get("lod"), self._lod_seen)
+
+    @property
+    def stats_dropped(self) -> int:
+        """``stats`` replies dropped for coming later than :data:`LOD_REPLY_S`."""
+        return 0 if self._stats is None else self._stats.dropped
+
     def frame(self, timeout_s: float = 0.0) -> FrameView | None:
         """The next frame from the stream, or None; a restarted service is reloaded.
 
@@ -454,7 +518,17 @@ class ServiceBackend:
         """Close both sockets."""
         if self.sub is not None:
             self.sub.close()
+        if self._stats is not None:
+            self._stats.close()
         self.client.close()
+
+
+def new_notes(lod: dict | None, seen: set[str]) -> list[str]:
+    """The notes of a render's ``lod`` report (``chains.notes``) not in ``seen``; adds them."""
+    notes = ((lod or {}).get("chains") or {}).get("notes") or ()
+    new = list(dict.fromkeys(str(n) for n in notes if str(n) not in seen))
+    seen.update(new)
+    return new
 
 
 def _sird_output(display: DisplaySettings) -> SirdOutput | None:

@@ -223,7 +223,9 @@ def run(args: argparse.Namespace) -> dict:
 
 
 class Progress:
-    """Lines on stderr as a run goes: waiting for the service, first frame, play time.
+    """Lines on stderr as a run goes: waiting, first frame, play time, level-of-detail notes.
+
+    Each level-of-detail note of the renderer is said once, as it comes.
 
     Parameters
     ----------
@@ -239,11 +241,16 @@ class Progress:
         self.seconds, self.start, self.every_s = seconds, start, every_s
         self._next = start + every_s
         self._first = False
+        self._notes = 0  # the client's level-of-detail notes said so far
 
     def __call__(self, client: object, capture: object = None) -> None:
         """After each tick (calls ``capture(client)`` first when given)."""
         if capture is not None:
             capture(client)
+        notes = getattr(client, "lod_notes", [])
+        for _, note in notes[self._notes:]:
+            print(f"holo-game: level of detail: {note}", file=sys.stderr, flush=True)
+        self._notes = len(notes)
         now = time.monotonic()
         if client.first_frame_t is not None and not self._first:
             self._first = True

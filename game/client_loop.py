@@ -36,6 +36,9 @@ from game.rules import MOVES, GameSettings, GameState, new_game, nudge, tick
 from game.scene import object_states
 
 MAX_DT = 0.1
+#: Seconds a level-of-detail note stays in the HUD (the log has it for good), and
+#: the characters of it the HUD shows.
+NOTE_S, NOTE_CHARS = 10.0, 90
 
 
 class RateMeter:
@@ -115,6 +118,18 @@ def waiting_lines(warming: dict) -> list[str]:
     ]
 
 
+def _hud_note(note: str) -> str:
+    """A level-of-detail note as a HUD line of at most :data:`NOTE_CHARS`.
+
+    A longer one loses its middle (a cache path), keeping what failed and what is done.
+    """
+    line = f"level of detail: {note}"
+    if len(line) <= NOTE_CHARS:
+        return line
+    head = (NOTE_CHARS - 3) // 2
+    return line[:head] + "..." + line[len(line) - (NOTE_CHARS - 3 - head):]
+
+
 class GameClient:
     """The game loop over a backend, a window and optional devices.
 
@@ -165,6 +180,8 @@ class GameClient:
         self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
         self.latencies: deque[float] = deque(maxlen=600)
         self.dial_events = self.disconnects = 0
+        #: (clock reading, note): the renderer's level-of-detail notes, each once
+        self.lod_notes: list[tuple[float, str]] = []
         self.pads = Pads()
         self.pads.open_all()
         self.quit = False
@@ -257,6 +274,7 @@ class GameClient:
         else:
             self._game_over(now)
         self._take_frame(now)
+        self._take_notes(now)
         self._draw(now)
 
     def _play(self, got: actions.Input, dt: float, now: float) -> None:
@@ -310,6 +328,12 @@ class GameClient:
         if frame.zone is not None and self.devices is None:
             self.head_zone = int(frame.zone)
 
+    def _take_notes(self, now: float) -> None:
+        """The backend's new level-of-detail notes (a backend without them has none)."""
+        take = getattr(self.backend, "lod_notes", None)
+        if take is not None:
+            self.lod_notes += [(now, note) for note in take()]
+
     # ----------------------------------------------------------------- draw
     def shown_zone(self) -> int:
         """The zone the current mode shows."""
@@ -319,6 +343,7 @@ class GameClient:
         """The HUD's contents now."""
         lines = ["attract mode: press a key to play"] if self.attract else []
         lines += [self.notice] if self.notice else []
+        lines += [_hud_note(n) for t, n in self.lod_notes if now - t < NOTE_S]
         lat = float(np.median(self.latencies)) if self.latencies else None
         return Hud(
             self.state.score,
@@ -417,5 +442,6 @@ class GameClient:
             "beeps": self.beeper.count,
             "disconnects": self.disconnects,
             "latency_ms_p50": float(np.median(self.latencies)) if self.latencies else None,
+            "lod_notes": [note for _, note in self.lod_notes],
             "seconds": round(elapsed_s, 2),
         }

@@ -220,18 +220,25 @@ def _cull_zones_kernel(
     """
     zones = views.shape[0]
     faces = np.empty((normals.shape[0], zones), np.bool_)  # or not closed, with per_zone
+    vx, vy, vz = views[:, 0].copy(), views[:, 1].copy(), views[:, 2].copy()
     kept = 0
     for p in range(normals.shape[0]):
         nx, ny, nz = normals[p, 0], normals[p, 1], normals[p, 2]
+        open_or_all = (not closed[p]) | (not per_zone)
         any_zone = False
-        open_or_all = (not closed[p]) or (not per_zone)
-        for z in range(zones):
-            f = _faces(normals, p, views, z)
-            faces[p, z] = f or open_or_all
-            any_zone = any_zone or f
-        nonzero = nx != 0.0 or ny != 0.0 or nz != 0.0
-        keep[p] = nonzero and (any_zone if mode == 0 else (nz > 0.0 if mode == 1 else True))
-        kept += keep[p]
+        for z in range(zones):  # | not `or`, the view by component: no branch per zone
+            f = nx * vx[z] + ny * vy[z] + nz * vz[z] > 0.0  # as _faces sums it
+            faces[p, z] = f | open_or_all
+            any_zone |= f
+        nonzero = (nx != 0.0) | (ny != 0.0) | (nz != 0.0)
+        if mode == 0:
+            k = nonzero & any_zone
+        elif mode == 1:
+            k = nonzero & (nz > 0.0)
+        else:
+            k = nonzero
+        keep[p] = k
+        kept += k
     for t in range(triangle_polygon.shape[0]):
         p = triangle_polygon[t]
         for z in range(zones):

@@ -25,7 +25,6 @@ obj        (Z, H, W) int32              scene object index of the galpixel, -1 n
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -120,13 +119,25 @@ class Galpixmap:
 
     @classmethod
     def empty(
-        cls, order: int, fixed: FixedPoint, shape: tuple[int, int, int], colour_motion: bool = True
+        cls,
+        order: int,
+        fixed: FixedPoint,
+        shape: tuple[int, int, int],
+        colour_motion: bool = True,
+        slot: int = 0,
     ) -> Galpixmap:
-        """An all-debris map ("clear-frame debris": black, empty depth, no object)."""
+        """An all-debris map ("clear-frame debris": black, empty depth, no object).
+
+        ``slot`` staggers its planes after those of maps in lower slots (see
+        :func:`_alloc`): give maps that one loop reads and writes together
+        different slots (the stage: its map 0, its spare 1, the obscuration
+        cache 2 and 3; an update buffer grafted into them :data:`BUFFER_SLOT`).
+        """
         k = 4 if colour_motion else 0
         specs = [(tuple(shape), dtype, None if planes is None else planes(order, k))
                  for dtype, planes in _LAYOUT.values()]
-        arrays = dict(zip(_LAYOUT, _alloc(specs), strict=True))
+        total = sum(1 if p is None else int(p) for _, _, p in specs)
+        arrays = dict(zip(_LAYOUT, _alloc(specs, slot * total), strict=True))
         arrays["depth"][:] = Z_EMPTY
         arrays["debris"][:] = 1
         arrays["obj"][:] = -1
@@ -155,14 +166,18 @@ _LINE, _PAGE = 64, 4096
 #: Bytes of a transparent huge page (x86-64), and the buffer size from which numpy
 #: asks the kernel for them (``madvise(MADV_HUGEPAGE)`` on allocations of 4 MiB and more).
 _HUGE, _HUGE_FROM = 2 << 20, 4 << 20
-#: Cache set of the next plane :func:`_alloc` places.
-_next_set = itertools.count()
+#: The :meth:`Galpixmap.empty` slot of update buffers (:func:`build`): after the
+#: stage's map and spare (0, 1), so a graft's copy does not alias its target.
+BUFFER_SLOT = 2
 
 
-def _alloc(specs: list[tuple]) -> list[np.ndarray]:
+def _alloc(specs: list[tuple], first: int = 0) -> list[np.ndarray]:
     """Zeroed arrays for ``(shape, dtype, planes)`` specs, planes staggered, in one buffer.
 
-    Each array is ``(planes, *shape)`` (``shape`` if ``planes`` is None).
+    Each array is ``(planes, *shape)`` (``shape`` if ``planes`` is None).  The
+    n-th plane (over all specs, zero-size ones included) starts on cache line
+    ``first + n`` modulo the page; :meth:`Galpixmap.empty` passes its slot times
+    its plane count, so maps in different slots take different lines.
 
     A propagation reads or writes every plane of two maps at the same pixel at
     once.  Plain contiguous planes whose size is a multiple of the page (640x480:
@@ -181,19 +196,18 @@ def _alloc(specs: list[tuple]) -> list[np.ndarray]:
     layout is the same, only the alignment is wasted.
     """
     plans: list[tuple | None] = []
-    total = 0
+    total, line = 0, first
     for shape, dtype, planes in specs:
         dt = np.dtype(dtype)
         k = 1 if planes is None else int(planes)
         size = int(np.prod(shape)) * dt.itemsize
         if k == 0 or size == 0:
+            line += k
             plans.append(None)
             continue
         step = -(-size // _PAGE) * _PAGE + _LINE
-        first = next(_next_set)
-        for _ in range(k - 1):
-            next(_next_set)
-        start = (first * _LINE) % _PAGE
+        start = (line * _LINE) % _PAGE
+        line += k
         plans.append((total + start, step, k, dt))
         total += -(-(start + k * step) // _PAGE) * _PAGE
     align = _HUGE if total >= _HUGE_FROM else _PAGE
@@ -288,7 +302,7 @@ def build(
     der = _check("derivatives", derivatives, (3, 3, *dep.shape))
     dcol = _check("dcolour", dcolour, (4, *dep.shape))
     ob = _check("obj", obj, dep.shape)
-    gp = Galpixmap.empty(order, fixed, tuple(dep.shape), dcol is not None)
+    gp = Galpixmap.empty(order, fixed, tuple(dep.shape), dcol is not None, BUFFER_SLOT)
     gp.colour[:] = np.moveaxis(col, -1, 0)
     gp.depth[:], zclamped = fixed.depth_fixed(dep)
     gp.debris[:] = 0

@@ -24,6 +24,7 @@ numerically differentiated motion falls back to G(2)) and flags it.
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -42,7 +43,13 @@ from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
 from service.galilean.poisson_table import TABLE_FROM, poisson_interiors
 from service.galilean.propagate import STAT_NAMES, flat, planes, scatter
-from service.galilean.scatter_bands import map_reach, reach_of, scatter_bands, scatter_bands_plain
+from service.galilean.scatter_bands import (
+    GATHER_RUN,
+    map_reach,
+    reach_of,
+    scatter_bands,
+    scatter_bands_plain,
+)
 from service.galilean.show import debris_words, show_bands
 from service.scene import MotionState
 
@@ -62,6 +69,11 @@ STEADY_MIN = 3.0
 #: galpixels stay still and moving ones keep moving until the map changes, so
 #: one count per change decides.
 STILL_MIN = 0.25
+
+#: How many times its usual interval a render must be overdue before the stage
+#: holds the picture (``GalileanSettings.hold_after``); the usual interval is the
+#: median of the last :data:`INTERVALS_KEPT` intervals between global updates.
+LATE_FACTOR, INTERVALS_KEPT = 2.0, 16
 
 
 @dataclass(frozen=True)
@@ -100,6 +112,15 @@ class GalileanSettings:
         and ``holo-bench`` set) two threads were 1.2-1.5x faster than one on this
         2-core machine when idle and no slower beside a busy render process; with
         spinning threads a busy neighbour made both 2.5x slower.
+    hold_after : int
+        Refreshes after a global update from which, while no new one has come,
+        the stage holds the picture (shows the map as it is, no propagation, no
+        head-motion update) instead of extrapolating further; 0: never.  Renders
+        that come steadily but slowly are not held: the stage waits at least
+        :data:`LATE_FACTOR` times the median of the last global updates' intervals.
+        Past the rating a head turn's motion extrapolated for a second shears
+        objects into scattered fragments (docs/galilean.md, "Holding past the
+        rating"); ``holo-service`` holds after ``n_prop``.
     """
 
     order: int = 2
@@ -115,6 +136,7 @@ class GalileanSettings:
     colour_motion: bool = True
     order_guard: bool = True
     threads: int = 0
+    hold_after: int = 0
 
     def __post_init__(self) -> None:
         checks = {
@@ -128,6 +150,7 @@ class GalileanSettings:
             "neighbours": self.neighbours in (1, 2, 3, 4),
             "expansion": self.expansion in EXPANSION_MODES,
             "threads": isinstance(self.threads, int) and 0 <= self.threads <= 1024,
+            "hold_after": isinstance(self.hold_after, int) and self.hold_after >= 0,
         }
         for name, ok in checks.items():
             if not ok:
@@ -150,7 +173,8 @@ class Refresh:
         Pixels showing debris (G(0) fallback) rather than a galpixel.
     flags : dict
         ``updated`` (a graft happened), ``age`` (refreshes since the last global
-        update), ``past_rating`` (age > N_prop), ``order`` (order in use),
+        update), ``past_rating`` (age > N_prop), ``held`` (the picture is held,
+        see ``GalileanSettings.hold_after``), ``order`` (order in use),
         ``order_fallback``, ``events`` (incomplete updates, late renders refused).
     stats : dict
         Kernel counters (see :data:`service.galilean.propagate.STAT_NAMES`) and ``ms``.
@@ -195,9 +219,11 @@ class GalileanStage:
         self.fixed = FixedPoint.for_order(self.budget, s.order)
         m = s.margin
         self.shape = (display.zones, display.rows + 2 * m, display.cols + 2 * m)
-        new = lambda: Galpixmap.empty(s.order, self.fixed, self.shape, s.colour_motion)  # noqa: E731
-        self.map, self._spare = new(), new()
-        self.cache = (new(), new()) if s.cache else None
+        # each map in its own slot: a refresh streams all their planes at once
+        new = lambda slot: Galpixmap.empty(s.order, self.fixed, self.shape,  # noqa: E731
+                                           s.colour_motion, slot)
+        self.map, self._spare = new(0), new(1)
+        self.cache = (new(2), new(3)) if s.cache else None
         self._src = np.full(self.shape, -1, np.int32)
         #: placeholder outputs for a propagation whose display copy is skipped
         self._no_show = (np.empty(0, np.uint8), np.empty(0, np.float32), np.empty(0, np.bool_))
@@ -210,6 +236,10 @@ class GalileanStage:
         self._viewer_next: MotionState | None = None
         self._guard = _Guard(np.zeros(s.order + 1))
         self._started = False
+        #: whether the picture is held (``hold_after``) until the next global update
+        self._held = False
+        #: refreshes between the last global updates (the usual render interval)
+        self._intervals: deque[int] = deque(maxlen=INTERVALS_KEPT)
         #: rows a galpixel of ``self.map`` can move in one refresh (None: unknown)
         self._reach: int | None = None
         #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
@@ -397,7 +427,9 @@ class GalileanStage:
         stats = dict.fromkeys(STAT_NAMES, 0)
         due = [p for p in self._pending if p.rendezvous == self.index]
         self._pending = [p for p in self._pending if p.rendezvous > self.index]
-        if self._viewer_next is not None:
+        global_due = any(p.objects is None for p in due)
+        held = self._hold(global_due)
+        if self._viewer_next is not None and not held:  # held: kept for the next render
             stats["viewer_updated"] = self._apply_viewer()
         z, r, c = self.display.zones, self.display.rows, self.display.cols
         shown = (
@@ -405,11 +437,13 @@ class GalileanStage:
             np.empty((z, r, c), np.float32),
             np.empty((z, r, c), np.bool_),
         )
-        propagate = self._started and not any(p.objects is None for p in due)
+        propagate = self._started and not global_due and not held
         if propagate:
             stats.update(self._propagate(shown if not due else None))
             self.age += 1
             self._viewer = _advance_motion(self._viewer, 1.0 / self.settings.refresh_hz)
+        elif held:
+            self.age += 1
         for p in due:
             self._graft(p)
         if due or not propagate:
@@ -420,6 +454,7 @@ class GalileanStage:
             "updated": bool(due),
             "age": self.age,
             "past_rating": self.age > self.settings.n_prop,
+            "held": held,
             "order": self.order,
             "order_fallback": self.order < self.settings.order,
             "events": events,
@@ -428,6 +463,22 @@ class GalileanStage:
         out = Refresh(self.index, colour, depth, debris, flags, stats)
         self.index += 1
         return out
+
+    def _hold(self, global_due: bool) -> bool:
+        """Whether this refresh holds the picture: the render is late and none is due.
+
+        Late: ``hold_after`` refreshes have passed since the last global update,
+        and :data:`LATE_FACTOR` times the usual interval between them.  The map is
+        left as it is (shown again each refresh) until the next global update; a
+        local graft meanwhile is shown where it lands.
+        """
+        n = self.settings.hold_after
+        if not n or not self._started or global_due:
+            self._held = False
+            return False
+        usual = float(np.median(self._intervals)) if self._intervals else 0.0
+        self._held = self.age >= max(n, LATE_FACTOR * usual)
+        return self._held
 
     def _show(self, shown: tuple) -> None:
         """Copy the displayed window of the map into ``shown`` (no expansion)."""
@@ -518,6 +569,7 @@ class GalileanStage:
                 self._interior,
                 thr,
                 table,
+                GATHER_RUN,
             )
             counters[:3] += band_stats.sum(axis=0)
             top = reach.max(axis=0)
@@ -584,6 +636,8 @@ class GalileanStage:
     def _graft(self, p: _Pending) -> None:
         self._map_changed()
         if p.objects is None:
+            if self._started:
+                self._intervals.append(self.age + 1)
             for name, arr in zip(FIELDS, p.buffer.arrays(), strict=True):
                 np.copyto(getattr(self.map, name), arr)
             if self.cache is not None:

@@ -328,6 +328,103 @@ class ServiceClient:
         self.close()
 
 
+class PendingRequest:
+    """One request at a time whose reply is picked up later, never waited for.
+
+    For a loop that must not stall (the game's tick): :meth:`send` sends and returns
+    at once, :meth:`poll` looks for the reply with a zero timeout.  It has its own
+    DEALER socket, so a reply that comes late never lands in
+    :class:`ServiceClient`'s socket, and one that never comes is dropped after
+    ``timeout_s`` (the socket is closed, LINGER 0; a later :meth:`send` opens a new
+    one).  No retries: the caller asks again when it next wants to.
+
+    Parameters
+    ----------
+    address : str
+        The service's control address.
+    timeout_s : float
+        How long a reply may take before it is dropped.
+    curve_keys : str or Path, optional
+    context : zmq.Context, optional
+    """
+
+    def __init__(
+        self,
+        address: str,
+        timeout_s: float = 5.0,
+        curve_keys: str | Path | None = None,
+        context: zmq.Context | None = None,
+    ) -> None:
+        self.address = address
+        self.timeout_s = float(timeout_s)
+        self.curve_keys = curve_keys
+        self._ctx = context or zmq.Context.instance()
+        self._ids = itertools.count(1)
+        self._sock: zmq.Socket | None = None
+        self._waiting: tuple[int, float] | None = None  # (request id, deadline)
+        self.sent = self.answered = self.dropped = 0
+
+    @property
+    def waiting(self) -> bool:
+        """Whether a request is out and its reply neither taken nor dropped yet."""
+        return self._waiting is not None
+
+    def send(self, msg_type: str, **fields: Any) -> bool:
+        """Send a request without waiting; False (nothing sent) while one is waiting.
+
+        Also False when the socket cannot take it at once (the reply is then not
+        waited for either).
+        """
+        if self._waiting is not None:
+            return False
+        if self._sock is None:
+            self._sock = self._ctx.socket(zmq.DEALER)
+            self._sock.setsockopt(zmq.LINGER, 0)
+            _curve_client(self._sock, self.curve_keys)
+            self._sock.connect(self.address)
+        rid = next(self._ids)
+        if not wire.send(self._sock, protocol.request(msg_type, rid, fields), timeout_ms=0):
+            return False
+        self._waiting = (rid, time.monotonic() + self.timeout_s)
+        self.sent += 1
+        return True
+
+    def poll(self) -> dict[str, Any] | None:
+        """The reply's header if it has come (zero timeout), else None.
+
+        A reply past ``timeout_s`` is dropped (``dropped`` counts it) and the socket
+        closed, so a later :meth:`send` starts afresh.
+
+        Raises
+        ------
+        ServiceError
+            The reply is an error reply (the request is over either way).
+        """
+        if self._waiting is None:
+            return None
+        rid, deadline = self._waiting
+        while self._sock.poll(0):
+            frames = self._sock.recv_multipart(copy=False)
+            try:
+                header = protocol.parse_reply([f.buffer for f in frames])
+            except MessageError:
+                continue
+            if header.get("id") == rid:
+                self._waiting = None
+                self.answered += 1
+                return ServiceClient._check(header)
+        if time.monotonic() > deadline:
+            self.dropped += 1
+            self.close()
+        return None
+
+    def close(self) -> None:
+        """Close the socket (LINGER 0); a waiting reply is forgotten."""
+        if self._sock is not None:
+            self._sock.close(0)
+        self._sock, self._waiting = None, None
+
+
 class FrameSubscriber:
     """Subscriber of the frame stream (SUB, small RCVHWM, reconnects when silent).
 

@@ -135,6 +135,18 @@ def _sird_output(settings: Settings) -> Any:
 
 
 
+def stage_settings(settings: Settings) -> GalileanSettings:
+    """The service's Galilean stage: it holds the picture for a late render.
+
+    Late: past the rating (``n_prop``) and twice the usual render interval.  A
+    render that late (a loaded machine) would otherwise leave
+    the stage extrapolating a head turn for a second or more, which shears the
+    objects into scattered fragments; held, the picture waits for the render.
+    """
+    return GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz,
+                            hold_after=GalileanSettings.n_prop)
+
+
 class RefreshLoop:
     """The refresh thread: stage, devices, publishing, at a fixed rate."""
 
@@ -154,10 +166,7 @@ class RefreshLoop:
         self.sird = None  # service.autostereogram.SirdOutput while that encoding is on
 
     def _restart(self, settings: Settings) -> None:
-        self.stage = GalileanStage(
-            settings.display,
-            GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz),
-        )
+        self.stage = GalileanStage(settings.display, stage_settings(settings))
         self.generation = settings.generation
         self.sird = _sird_output(settings)
         self.due.clear()

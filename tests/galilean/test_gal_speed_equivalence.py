@@ -14,11 +14,11 @@ from service.display import DisplaySettings
 from service.galilean import stage as stage_module
 from service.galilean.finish import finish
 from service.galilean.fixed_point import Z_EMPTY
-from service.galilean.galpixmap import Galpixmap
+from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
 from service.galilean.poisson_table import poisson_interiors
 from service.galilean.propagate import STAT_NAMES, flat, planes, second_sweep, sweep
-from service.galilean.scatter_bands import map_reach, reach_of, scatter_bands
+from service.galilean.scatter_bands import GATHER_RUN, map_reach, reach_of, scatter_bands
 from service.galilean.show import debris_words
 from service.galilean.stage import GalileanSettings, GalileanStage
 from service.scene import MotionState
@@ -202,6 +202,38 @@ def test_fast_refresh_is_bit_identical_at_page_sized_planes() -> None:
             assert_identical(fast, ref, k)
 
 
+def _plane_lines(gp: Galpixmap) -> list[int]:
+    """The cache line (modulo the 4 KiB page) each plane of ``gp`` starts on."""
+    lines = []
+    for a in gp.arrays():
+        for plane in a.reshape(-1, *gp.shape) if a.ndim == 4 else [a]:
+            lines.append(plane.ctypes.data % 4096 // 64)
+    return lines
+
+
+def test_stage_maps_planes_staggered_by_slot_not_by_history() -> None:
+    """Every plane of a refresh's maps starts on its own cache line, whatever came before.
+
+    The stagger comes from each map's slot (no module counter): the same stage
+    built twice, with other maps made in between, has the same layout.
+    """
+    display = DisplaySettings(zones=1, cols=640, rows=64)  # page-sized planes
+    for cache in (False, True):
+        layouts = []
+        for _ in range(2):
+            st = GalileanStage(display, GalileanSettings(order=2, cache=cache))
+            maps = [st.map, st._spare, *(st.cache or ())]
+            lines = [x for gp in maps for x in _plane_lines(gp)]
+            assert len(lines) == 18 * len(maps)  # G(2) with colour motion
+            assert len(set(lines)) == min(len(lines), 64)  # 64 lines a page
+            layouts.append(lines)
+            Galpixmap.empty(3, st.fixed, st.shape)  # another map between the two stages
+        assert layouts[0] == layouts[1]
+    buf, _ = build(np.zeros((1, 64, 640, 3)), np.ones((1, 64, 640)), 2, st.fixed,
+                np.zeros((3, 3, 1, 64, 640)), np.zeros((4, 1, 64, 640)))
+    assert not set(_plane_lines(buf)) & set(_plane_lines(st.map) + _plane_lines(st._spare))
+
+
 @pytest.mark.parametrize("order", [1, 2, 3])
 def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None:
     """scatter_bands: any band count with a motion bound gives the one-band result.
@@ -229,7 +261,7 @@ def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None
         scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
                       st.fixed.fp, st.fixed.fm, 4, True, r, bands, stats, out,
                       np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False, True,
-                      interior, thr, table)
+                      interior, thr, table, GATHER_RUN)
         assert same(interior, want) if table else (interior == 7).all()
         results.append((new, src, stats.sum(0), out.max(0)))
     first = results[0]
@@ -480,3 +512,38 @@ def test_finish_in_bands_like_one_band(
             assert same(u, v)
     if threshold >= 0 and neighbours >= 2:  # the fix-ups ran down the debris columns
         assert results[1][5][1, 2] > h // 2
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+@pytest.mark.parametrize("colour_motion", [True, False])
+def test_scatter_copies_alike_by_runs_and_by_winners(order: int, colour_motion: bool) -> None:
+    """scatter_bands' copy step: run by run, winner by winner, or mixed, the same bytes.
+
+    200 px wide rows give 20-row batches, several per band; the top rows move
+    alike (long runs), the rest at random (runs of one or two), so a threshold
+    between switches the copy from one way to the other within a band.
+    """
+    display = DisplaySettings(zones=2, cols=200, rows=70)
+    st = GalileanStage(display, GalileanSettings(order=order, colour_motion=colour_motion))
+    old = random_map(st, np.random.default_rng(30 + order))
+    old.motion[:, :, :30] = old.motion[:, :1, :1]  # one motion for the top rows: long runs
+    old.frac[:, :, :30] = 0
+    reach = map_reach(old.motion, st.fixed.fm)
+    ncol = old.colour_planes
+    results = []
+    for bands in (1, 3):
+        for gather_run in (0.0, 3.0, GATHER_RUN, np.inf):
+            new = Galpixmap.empty(order, st.fixed, st.shape, colour_motion)
+            src = np.full(new.depth.size, -7, np.int32)
+            stats, top = np.zeros((bands, 3), np.int64), np.zeros((bands, 3), np.int64)
+            scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
+                          st.fixed.fp, st.fixed.fm, ncol, True, reach, bands, stats, top,
+                          np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False,
+                          False, np.zeros(src.size, np.uint8), -1.0, False, gather_run)
+            results.append((new, src, stats.sum(0), top.max(0)))
+    first = results[0]
+    assert first[2][1] > 0  # clashes: pixels written twice, the later winner kept
+    for new, src, stats, top in results[1:]:
+        for u, v in zip(new.arrays(), first[0].arrays(), strict=True):
+            assert same(u, v)
+        assert same(src, first[1]) and (stats == first[2]).all() and (top == first[3]).all()

@@ -70,3 +70,75 @@ def test_budget_ms_reaches_the_service(service_factory, setup_from_args, tmp_pat
     with ServiceClient(svc.control, timeout_s=30) as c:
         lod = c.render_once()[0]["stats"]["lod"]
     assert lod["budget_ms"] == 30 and lod["error_px"] == 0.75
+
+
+def _tear_ship_cache(folder):
+    """A torn cache file of the ship's chain (arrays without their header): a note."""
+    from game.scene import game_scene
+    from service.lod import LodSettings, mesh_key
+
+    key = mesh_key(game_scene(1).objects[0].mesh, LodSettings().recipe)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"{key}.npz").write_bytes(b"PK torn")
+    return key
+
+
+def test_the_service_lod_notes_reach_the_hud_and_the_log_once(
+        service_factory, setup_from_args, tmp_path, monkeypatch, capsys):
+    from game.backends import ServiceBackend
+    from game.cli import Progress
+    from game.client_loop import GameClient, LoopSettings
+    from game.display import GameWindow
+
+    key = _tear_ship_cache(tmp_path / "lod")  # the folder both processes use
+    svc = service_factory("--zones", "3", "--size", "32x24", "--workers", "0",
+                          "--refresh", "30")
+    game, backend = setup_from_args("--service", svc.control, "--lod-error", "0.5",
+                                    local=False)
+    assert isinstance(backend, ServiceBackend)
+    client = GameClient(backend, GameWindow((320, 200)), LoopSettings(game))
+    progress = Progress(None, 0.0)
+
+    def noted() -> bool:
+        client.tick()
+        progress(client)
+        return bool(client.lod_notes)
+
+    if not wait_until(noted, 180, step_s=0.05):
+        pytest.fail("no level-of-detail note reached the game")
+    note = client.lod_notes[0][1]
+    assert key in note and "rebuilding" in note
+    now = client.clock()
+    lines = [ln for ln in client.hud(now).lines if ln.startswith("level of detail: ")]
+    assert len(lines) == 1 and len(lines[0]) == 90 and "..." in lines[0]
+    assert lines[0].endswith("json is missing); rebuilding it")  # what failed, what is done
+    backend._lod_next = 0.0  # ask the service again at once: the same note is not new
+    for _ in range(3):
+        client.tick()
+        progress(client)
+        backend._lod_next = 0.0
+    assert [n for _, n in client.lod_notes] == [note]  # once, however often reported
+    assert client.stats(1.0)["lod_notes"] == [note]
+    err = capsys.readouterr().err
+    assert err.count(f"holo-game: level of detail: {note}\n") == 1
+    assert not [ln for ln in client.hud(now + 11.0).lines if ln.startswith("level of")]
+
+
+def test_the_local_renderer_hands_each_lod_note_once(setup_from_args, tmp_path):
+    key = _tear_ship_cache(tmp_path / "lod")
+    game, backend = setup_from_args("--lod-error", "0.5")
+    states = object_states(new_game(game))
+    notes: list[str] = []
+
+    def noted() -> bool:
+        backend.update(states)
+        notes.extend(backend.lod_notes())
+        return bool(notes)
+
+    if not wait_until(noted, 180, step_s=0.05):
+        pytest.fail("the local renderer handed no level-of-detail note")
+    for _ in range(5):  # later renders report it again: not handed again
+        backend.update(states)
+        backend.frame(timeout_s=0.1)
+        notes.extend(backend.lod_notes())
+    assert len(notes) == 1 and key in notes[0] and "rebuilding" in notes[0]

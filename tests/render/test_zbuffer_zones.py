@@ -284,6 +284,25 @@ def test_balanced_bands_share_the_game_scenes_rows():
     assert 0.48 <= share <= 0.52  # fixed interleaved bands gave one thread 0.57-0.63
 
 
+@pytest.mark.parametrize("setup", [0, 3, 40])
+def test_balanced_bands_count_each_triangles_set_up(setup):
+    from service.raster import balanced_bands
+
+    # many small triangles at the top (the far scene), a few tall ones below
+    r_first = np.concatenate([np.arange(0, 60) % 30, np.full(4, 40)]).astype(np.int64)
+    r_last = np.concatenate([np.arange(0, 60) % 30, np.full(4, 239)]).astype(np.int64)
+    work = np.full(240, 2, np.int64)  # base
+    for a, b in zip(r_first, r_last, strict=True):
+        work[a : b + 1] += 1
+        work[a] += setup
+    cum = np.cumsum(work)
+    cut = int(np.searchsorted(cum, cum[-1] // 2))  # the first row reaching half the work
+    bands = balanced_bands(r_first, r_last, 240, 2, 2, setup)
+    assert bands.tolist() == [[0, cut], [cut + 1, 239]]
+    if setup:  # the set-ups draw the cut up the screen, toward the small triangles
+        assert cut < balanced_bands(r_first, r_last, 240, 2, 2, 0)[0, 1]
+
+
 @pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("zones", [1, 5])
 def test_the_kernels_own_bands_give_the_same_buffers(threads, zones):
