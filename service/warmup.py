@@ -307,7 +307,7 @@ def _level_of_detail(kit: _Kit) -> None:
 
     from service.billboard_render import BillboardObject
     from service.galilean.motion_field import render_with_motion
-    from service.lod import LodSettings, LodState, build_chain
+    from service.lod import LodSettings, LodState
     from service.pipeline import Renderer, RenderSettings
 
     scene = kit.scene()
@@ -315,7 +315,8 @@ def _level_of_detail(kit: _Kit) -> None:
     renderer = Renderer()
     renderer.lod = LodState(cache=False)  # no chain written to the user's LOD cache
     renderer.render(scene, kit.display, RenderSettings(lod=lod))
-    chain = build_chain(scene.objects[-1].mesh, lod, cache=False)
+    # the chain that render built (a second build cost every service start 0.1-0.2 s)
+    chain = renderer.lod.chain(scene.objects[-1].mesh, lod)
     boards = [BillboardObject(level) for level, kind in zip(chain.levels, chain.kinds,
                                                             strict=True) if kind == "billboard"]
     for method in ("zbuffer", "runlength", "bsp", "raycast"):
