@@ -62,12 +62,33 @@ def _all_set(flags: np.ndarray, a: int, b: int) -> bool:
     return every != 0
 
 
+@nb.njit(cache=True, inline="always")
+def _end_run(
+    run_i: np.ndarray,
+    run_q: np.ndarray,
+    run_n: np.ndarray,
+    runs: int,
+    ri: int,
+    rq: int,
+    rn: int,
+    gather: bool,
+) -> int:
+    """Close a run of winners (stored unless the batch is copied by winners): ``runs + 1``."""
+    if not gather:
+        run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
+    return runs + 1
+
+
 #: Pixels :func:`scatter_bands` checks at once for galpixels known static.
 CHUNK = 32
 
 
 #: Pixels per batch of rows :func:`scatter_bands` advances before it copies.
 BATCH = 4096
+
+#: Mean winners per run below which :func:`scatter_bands` copies the next batch
+#: winner by winner rather than run by run (see its ``gather_run``).
+GATHER_RUN = 5.0
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
@@ -92,6 +113,7 @@ def _scatter_bands_body(
     interior: np.ndarray,
     threshold: float,
     table: bool,
+    gather_run: float,
     bookkeeping: bool,
 ) -> None:
     """The body of :func:`scatter_bands` and :func:`scatter_bands_plain`.
@@ -120,6 +142,8 @@ def _scatter_bands_body(
     run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
     run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
     run_n_all = np.empty((bands, size), np.int64)  # its length
+    win_i_all = np.empty((bands, size), np.int64)  # every winner's batch index (gathering)
+    win_q_all = np.empty((bands, size), np.int64)  # and its new pixel
     sb_all = np.zeros((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
     for band in nb.prange(bands):
         lo, hi = band * h // bands, (band + 1) * h // bands
@@ -135,9 +159,13 @@ def _scatter_bands_body(
         run_i = run_i_all[band]
         run_q = run_q_all[band]
         run_n = run_n_all[band]
+        win_i = win_i_all[band]
+        win_q = win_q_all[band]
         sb = sb_all[band]
         n_prop = n_clash = n_drop = np.int64(0)
         mvy = may = mjy = np.int64(0)
+        # how step 3 copies the batch: winner by winner (True) or run by run
+        gather = gather_run == np.inf
         for z in range(nz):
             zb = z * h * w
             q_lo, q_hi = zb + lo * w, zb + hi * w  # this band's new pixels
@@ -233,7 +261,7 @@ def _scatter_bands_body(
                         interior_row(o_dep, o_deb, np.int64(zb + r * w), np.int64(r), h, w,
                                      threshold, interior)
                 # 2. z-test in scan order; the open run is kept in registers
-                runs = 0
+                runs = wins = 0
                 ri = rq = rn = np.int64(0)
                 for i in range(nr * w):
                     p = u64(b0 + i)
@@ -245,8 +273,7 @@ def _scatter_bands_body(
                             n_prop += 1
                             n_drop += q == -2
                         if rn:
-                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                            runs += 1
+                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
                             rn = 0
                         continue
                     n_prop += own
@@ -257,8 +284,7 @@ def _scatter_bands_body(
                         if bookkeeping and record:
                             same_out[u64(q)] = 1
                         if rn:
-                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                            runs += 1
+                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
                             rn = 0
                         continue
                     d = np.int64(o_dep[p]) if known else db[i]
@@ -266,8 +292,7 @@ def _scatter_bands_body(
                         n_clash += 1
                         if d >= n_dep[u64(q)]:
                             if rn:
-                                run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                                runs += 1
+                                runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
                                 rn = 0
                             continue
                     n_dep[u64(q)] = d
@@ -287,23 +312,24 @@ def _scatter_bands_body(
                     if bookkeeping and record:
                         still = known or (sb[i] != 0 and _no_colour_motion(o_dc, ncol, p))
                         same_out[u64(q)] = still
+                    if gather:
+                        win_i[wins], win_q[wins] = i, q
+                    wins += 1
                     if rn and q == rq + rn:
                         rn += 1
                     else:
                         if rn:
-                            run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                            runs += 1
+                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
                         ri, rq, rn = i, q, 1
                 if rn:
-                    run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-                    runs += 1
-                # 3. copy, plane by plane, run by run
-                for k in range(runs):
-                    i0, q0, m = run_i[k], run_q[k], run_n[k]
-                    s0 = b0 + i0
+                    runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
+                # 3. copy the other planes, plane by plane: run by run, or, where
+                #    runs are short, winner by winner (one long loop per plane; a
+                #    loop per run and plane costs more than the run's galpixels)
+                if gather:
                     if ncol == 4:
-                        for j in range(m):
-                            p, q = u64(s0 + j), u64(q0 + j)
+                        for k in range(wins):
+                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
                             da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
                             sa = da + 0.5 * d2a
                             n_col[0][q] = o_col[0][p] + (sa + dbb)
@@ -314,44 +340,102 @@ def _scatter_bands_body(
                             n_dc[2][q] = dcc
                             n_dc[3][q] = d2a
                     else:
-                        for j in range(m):
-                            p, q = u64(s0 + j), u64(q0 + j)
+                        for k in range(wins):
+                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
                             n_col[0][q] = o_col[0][p]
                             n_col[1][q] = o_col[1][p]
                             n_col[2][q] = o_col[2][p]
                     if order >= 1:
-                        for j in range(m):
-                            b, q = u64(i0 + j), u64(q0 + j)
+                        for k in range(wins):
+                            b, q = u64(win_i[k]), u64(win_q[k])
                             n_mot[0][q] = vxb[b]
                             n_mot[1][q] = vyb[b]
                             mvy = max(mvy, abs(np.int64(vyb[b])))
                     if order >= 2:
-                        for j in range(m):
-                            b, q = u64(i0 + j), u64(q0 + j)
+                        for k in range(wins):
+                            b, q = u64(win_i[k]), u64(win_q[k])
                             n_mot[2][q] = axb[b]
                             n_mot[3][q] = ayb[b]
                             may = max(may, abs(np.int64(ayb[b])))
                     if order == 3:
-                        for j in range(m):
-                            p, q = u64(s0 + j), u64(q0 + j)
+                        for k in range(wins):
+                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
                             n_mot[4][q] = o_mot[4][p]
                             n_mot[5][q] = o_mot[5][p]
                             mjy = max(mjy, abs(np.int64(o_mot[5][p])))
                     if order == 1:
-                        for j in range(m):
-                            n_zm[0][u64(q0 + j)] = o_zm[0][u64(s0 + j)]
+                        for k in range(wins):
+                            n_zm[0][u64(win_q[k])] = o_zm[0][u64(b0 + win_i[k])]
                     elif order == 2:
-                        for j in range(m):
-                            p, q = u64(s0 + j), u64(q0 + j)
+                        for k in range(wins):
+                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
                             n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
                             n_zm[1][q] = o_zm[1][p]
                     elif order == 3:
-                        for j in range(m):
-                            p, q = u64(s0 + j), u64(q0 + j)
+                        for k in range(wins):
+                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
                             z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
                             n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
                             n_zm[1][q] = z1 + z2
                             n_zm[2][q] = z2
+                else:
+                    for k in range(runs):
+                        i0, q0, m = run_i[k], run_q[k], run_n[k]
+                        s0 = b0 + i0
+                        if ncol == 4:
+                            for j in range(m):
+                                p, q = u64(s0 + j), u64(q0 + j)
+                                da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
+                                sa = da + 0.5 * d2a
+                                n_col[0][q] = o_col[0][p] + (sa + dbb)
+                                n_col[1][q] = o_col[1][p] + (sa - dcc)
+                                n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
+                                n_dc[0][q] = da + d2a
+                                n_dc[1][q] = dbb
+                                n_dc[2][q] = dcc
+                                n_dc[3][q] = d2a
+                        else:
+                            for j in range(m):
+                                p, q = u64(s0 + j), u64(q0 + j)
+                                n_col[0][q] = o_col[0][p]
+                                n_col[1][q] = o_col[1][p]
+                                n_col[2][q] = o_col[2][p]
+                        if order >= 1:
+                            for j in range(m):
+                                b, q = u64(i0 + j), u64(q0 + j)
+                                n_mot[0][q] = vxb[b]
+                                n_mot[1][q] = vyb[b]
+                                mvy = max(mvy, abs(np.int64(vyb[b])))
+                        if order >= 2:
+                            for j in range(m):
+                                b, q = u64(i0 + j), u64(q0 + j)
+                                n_mot[2][q] = axb[b]
+                                n_mot[3][q] = ayb[b]
+                                may = max(may, abs(np.int64(ayb[b])))
+                        if order == 3:
+                            for j in range(m):
+                                p, q = u64(s0 + j), u64(q0 + j)
+                                n_mot[4][q] = o_mot[4][p]
+                                n_mot[5][q] = o_mot[5][p]
+                                mjy = max(mjy, abs(np.int64(o_mot[5][p])))
+                        if order == 1:
+                            for j in range(m):
+                                n_zm[0][u64(q0 + j)] = o_zm[0][u64(s0 + j)]
+                        elif order == 2:
+                            for j in range(m):
+                                p, q = u64(s0 + j), u64(q0 + j)
+                                n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
+                                n_zm[1][q] = o_zm[1][p]
+                        elif order == 3:
+                            for j in range(m):
+                                p, q = u64(s0 + j), u64(q0 + j)
+                                z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
+                                n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
+                                n_zm[1][q] = z1 + z2
+                                n_zm[2][q] = z2
+                # the next batch (rows next to these, much alike) is copied winner
+                # by winner if this one's runs were short
+                gather = wins < gather_run * runs
         stats[band, 0] += n_prop
         stats[band, 1] += n_clash
         stats[band, 2] += n_drop
@@ -382,6 +466,7 @@ def scatter_bands(
     interior: np.ndarray,
     threshold: float,
     table: bool,
+    gather_run: float,
 ) -> None:
     """First sweep without its debris arm or cache, the new rows in parallel bands.
 
@@ -397,7 +482,8 @@ def scatter_bands(
        writes when it wins, with its fraction, object and origin; winners from
        consecutive old pixels that land on consecutive new pixels are gathered
        into runs;
-    3. *copy*: the other fields, plane by plane, run by run (contiguous).
+    3. *copy*: the other fields, plane by plane, run by run (contiguous), or
+       winner by winner where runs are short (``gather_run``).
 
     Within every plane the writes keep scan order, so a pixel that two winners
     land on ends up with the later one, as in the one-pass scan; the z-test only
@@ -456,6 +542,12 @@ def scatter_bands(
         The Poisson threshold of ``interior``, in fixed-point depth units.
     table : bool
         Whether to compute ``interior``.
+    gather_run : float
+        How step 3 copies a batch: winner by winner (one loop per plane over the
+        batch's winners) when the band's previous batch had fewer than
+        ``gather_run`` winners per run, else run by run; the first batch of a band
+        run by run, unless ``gather_run`` is inf (always winner by winner; 0:
+        always run by run).  Either way gives the same map, bit for bit.
 
     Notes
     -----
@@ -478,7 +570,7 @@ def scatter_bands(
     """
     _scatter_bands_body(
         old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
-        same_in, same_out, use_same, record, interior, threshold, table, True
+        same_in, same_out, use_same, record, interior, threshold, table, gather_run, True
     )
 
 
@@ -504,6 +596,7 @@ def scatter_bands_plain(
     interior: np.ndarray,
     threshold: float,
     table: bool,
+    gather_run: float,
 ) -> None:
     """:func:`scatter_bands` without its still-galpixel bookkeeping (compiled out).
 
@@ -512,7 +605,7 @@ def scatter_bands_plain(
     """
     _scatter_bands_body(
         old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
-        same_in, same_out, use_same, record, interior, threshold, table, False
+        same_in, same_out, use_same, record, interior, threshold, table, gather_run, False
     )
 
 

@@ -43,7 +43,13 @@ from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
 from service.galilean.poisson_table import TABLE_FROM, poisson_interiors
 from service.galilean.propagate import STAT_NAMES, flat, planes, scatter
-from service.galilean.scatter_bands import map_reach, reach_of, scatter_bands, scatter_bands_plain
+from service.galilean.scatter_bands import (
+    GATHER_RUN,
+    map_reach,
+    reach_of,
+    scatter_bands,
+    scatter_bands_plain,
+)
 from service.galilean.show import debris_words, show_bands
 from service.scene import MotionState
 
@@ -563,6 +569,7 @@ class GalileanStage:
                 self._interior,
                 thr,
                 table,
+                GATHER_RUN,
             )
             counters[:3] += band_stats.sum(axis=0)
             top = reach.max(axis=0)

@@ -18,7 +18,7 @@ from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
 from service.galilean.poisson_table import poisson_interiors
 from service.galilean.propagate import STAT_NAMES, flat, planes, second_sweep, sweep
-from service.galilean.scatter_bands import map_reach, reach_of, scatter_bands
+from service.galilean.scatter_bands import GATHER_RUN, map_reach, reach_of, scatter_bands
 from service.galilean.show import debris_words
 from service.galilean.stage import GalileanSettings, GalileanStage
 from service.scene import MotionState
@@ -261,7 +261,7 @@ def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None
         scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
                       st.fixed.fp, st.fixed.fm, 4, True, r, bands, stats, out,
                       np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False, True,
-                      interior, thr, table)
+                      interior, thr, table, GATHER_RUN)
         assert same(interior, want) if table else (interior == 7).all()
         results.append((new, src, stats.sum(0), out.max(0)))
     first = results[0]
@@ -512,3 +512,38 @@ def test_finish_in_bands_like_one_band(
             assert same(u, v)
     if threshold >= 0 and neighbours >= 2:  # the fix-ups ran down the debris columns
         assert results[1][5][1, 2] > h // 2
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+@pytest.mark.parametrize("colour_motion", [True, False])
+def test_scatter_copies_alike_by_runs_and_by_winners(order: int, colour_motion: bool) -> None:
+    """scatter_bands' copy step: run by run, winner by winner, or mixed, the same bytes.
+
+    200 px wide rows give 20-row batches, several per band; the top rows move
+    alike (long runs), the rest at random (runs of one or two), so a threshold
+    between switches the copy from one way to the other within a band.
+    """
+    display = DisplaySettings(zones=2, cols=200, rows=70)
+    st = GalileanStage(display, GalileanSettings(order=order, colour_motion=colour_motion))
+    old = random_map(st, np.random.default_rng(30 + order))
+    old.motion[:, :, :30] = old.motion[:, :1, :1]  # one motion for the top rows: long runs
+    old.frac[:, :, :30] = 0
+    reach = map_reach(old.motion, st.fixed.fm)
+    ncol = old.colour_planes
+    results = []
+    for bands in (1, 3):
+        for gather_run in (0.0, 3.0, GATHER_RUN, np.inf):
+            new = Galpixmap.empty(order, st.fixed, st.shape, colour_motion)
+            src = np.full(new.depth.size, -7, np.int32)
+            stats, top = np.zeros((bands, 3), np.int64), np.zeros((bands, 3), np.int64)
+            scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
+                          st.fixed.fp, st.fixed.fm, ncol, True, reach, bands, stats, top,
+                          np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False,
+                          False, np.zeros(src.size, np.uint8), -1.0, False, gather_run)
+            results.append((new, src, stats.sum(0), top.max(0)))
+    first = results[0]
+    assert first[2][1] > 0  # clashes: pixels written twice, the later winner kept
+    for new, src, stats, top in results[1:]:
+        for u, v in zip(new.arrays(), first[0].arrays(), strict=True):
+            assert same(u, v)
+        assert same(src, first[1]) and (stats == first[2]).all() and (top == first[3]).all()
