@@ -12,6 +12,10 @@ import numpy as np
 import zmq
 from testkit import ROOT
 
+from drivers.cli_devices import log_devices
+from drivers.protocols import hatire
+from drivers.reader import ReaderSettings
+from drivers.recording import LogHeader, LogWriter
 from service.loaders import save_obj
 from service.primitives import sphere
 
@@ -107,3 +111,23 @@ def test_holo_bench_without_a_name_is_bad_usage_and_an_unknown_one_is_one_line()
     assert proc.stderr.strip().splitlines()[-1] == "holo-bench: error: name a benchmark"
     proc = _run("service.cli_bench", "nosuch", timeout=60)
     _one_line_error(proc, "holo-bench", "unknown benchmark 'nosuch'", "render, light")
+
+
+def test_holo_replay_passes_replays_that_many_times_without_loop(tmp_path):
+    log = tmp_path / "s.hlog"
+    header = LogHeader(log_devices([ReaderSettings("loop://", "hatire", "tracker")]),
+                       start_monotonic_ns=0)
+    with LogWriter(log, header) as w:
+        for k in range(20):
+            w.write("tracker", k * 1_000_000, hatire.encode_pose(k, float(k), 0.0, 0.0))
+
+    def poses(*extra: str) -> int:
+        proc = _run("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump", *extra,
+                    timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        return sum('"kind":"pose"' in ln.replace(" ", "") for ln in proc.stdout.splitlines())
+
+    once = poses()
+    assert once == 20
+    assert poses("--passes", "2") == 2 * once  # it was one pass: --passes needed --loop
+    assert poses("--loop", "--passes", "3") == 3 * once
