@@ -92,3 +92,18 @@ def test_holo_service_says_in_one_line_that_its_port_is_taken():
         proc = _run("service.cli_service", "--control", f"tcp://127.0.0.1:{port}",
                     "--frames", "tcp://127.0.0.1:0", "--no-warmup", timeout=60)
     _one_line_error(proc, "holo-service", "cannot bind", "Address already in use")
+
+
+def test_holo_up_names_a_file_that_is_not_utf8_in_one_line(tmp_path):
+    rig = tmp_path / "rig.toml"
+    rig.write_bytes(b"[devices]\npub = \"\xff\"\n")
+    proc = _run("service.cli_up", str(rig), "--dry-run", timeout=60)
+    _one_line_error(proc, "holo-up", "not valid TOML", "UTF-8")
+
+
+def test_holo_bench_without_a_name_is_bad_usage_and_an_unknown_one_is_one_line():
+    proc = _run("service.cli_bench", timeout=60)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.strip().splitlines()[-1] == "holo-bench: error: name a benchmark"
+    proc = _run("service.cli_bench", "nosuch", timeout=60)
+    _one_line_error(proc, "holo-bench", "unknown benchmark 'nosuch'", "render, light")
