@@ -358,6 +358,7 @@ class ServiceBackend:
         self._scene: Scene | None = None
         self._records: list[dict] = []
         self._frozen = False
+        self._reload = False  # load the scene with the next update (a new game)
         self._next_try = 0.0
         self._idle = threading.Event()  # never set: paces frame() while unconnected
         self.session: str | None = None
@@ -414,11 +415,11 @@ class ServiceBackend:
             **({"lod_error": s.lod_error} if s.lod_error > 0 else {}),
             **({"lod_budget_ms": s.lod_budget_ms} if s.lod_budget_ms > 0 else {}),
         )
-        self.load_scene(self._scene)
+        self.load_scene(apply_states(self._scene, self._records) if self._records else
+                        self._scene)
+        self._reload = False
         if self.devices:
             self.client.set_viewer(devices=self.devices)
-        if self._records:
-            self.client.update_objects(self._records)
         if self.sub is None:
             self.sub = self._make_sub(self._frames_addr or info["frames"])
         self.connected = True
@@ -462,7 +463,11 @@ class ServiceBackend:
         if self._frozen:
             return
         self._records = records
-        self._call(self.client.update_objects, records)
+        if self._reload:  # a new game: its scene loaded with its objects in place
+            self._reload = False
+            self._call(self.load_scene, apply_states(self._scene, records))
+        else:
+            self._call(self.client.update_objects, records)
 
     def explode(self, seed: int = 0) -> None:
         """Fling the objects outward (:func:`game.gameover.burst_records`).
@@ -484,11 +489,12 @@ class ServiceBackend:
     def resume(self) -> None:
         """A new game: updates go through again, and the game's scene is loaded again.
 
-        The load is a new scene version: :meth:`frame` shows no frame of the game
-        over (shatter pieces, flung objects) from then on, only the new game's.
+        The load goes with the new game's first :meth:`update`, its objects in place
+        (a load before it would be rendered with the game before's positions).  It
+        is a new scene version: :meth:`frame` shows no frame of the game over
+        (shatter pieces, flung objects) from then on, only the new game's.
         """
-        if self._frozen:
-            self._call(self.load_scene, self._scene)
+        self._reload = self._reload or self._frozen
         self._frozen = False
 
     def lod_notes(self) -> list[str]:
