@@ -263,8 +263,30 @@ def _scatter_bands_body(
                 # 2. z-test in scan order; the open run is kept in registers
                 runs = wins = 0
                 ri = rq = rn = np.int64(0)
+                skip = 0
                 for i in range(nr * w):
+                    if skip:
+                        skip -= 1
+                        continue
                     p = u64(b0 + i)
+                    if (bookkeeping and use_same and (i & (CHUNK - 1)) == 0
+                            and own_lo <= i and i + CHUNK <= own_hi
+                            and _all_set(same_in, b0 + i, b0 + i + CHUNK)
+                            and _all_set(n_deb, b0 + i, b0 + i + CHUNK)):
+                        # a chunk of still galpixels on their own pixels, nothing
+                        # landed there yet: each is the first to land on its own
+                        # pixel (as below), all at once
+                        for j in range(b0 + i, b0 + i + CHUNK):
+                            n_deb[u64(j)] = 0
+                        if record:
+                            for j in range(b0 + i, b0 + i + CHUNK):
+                                same_out[u64(j)] = 1
+                        n_prop += CHUNK
+                        if rn:
+                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
+                            rn = 0
+                        skip = CHUNK - 1
+                        continue
                     known = bookkeeping and use_same and same_in[p] != 0  # still, new holds it
                     q = b0 + i if known else qb[i]
                     own = own_lo <= i < own_hi
