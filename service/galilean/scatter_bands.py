@@ -144,7 +144,7 @@ def _scatter_bands_body(
     run_n_all = np.empty((bands, size), np.int64)  # its length
     win_i_all = np.empty((bands, size), np.int64)  # every winner's batch index (gathering)
     win_q_all = np.empty((bands, size), np.int64)  # and its new pixel
-    sb_all = np.zeros((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
+    sb_all = np.empty((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
     for band in nb.prange(bands):
         lo, hi = band * h // bands, (band + 1) * h // bands
         r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
@@ -162,6 +162,8 @@ def _scatter_bands_body(
         win_i = win_i_all[band]
         win_q = win_q_all[band]
         sb = sb_all[band]
+        for k in range(size):  # zeroed here: np.zeros would be a parallel pass of its own
+            sb[k] = 0
         n_prop = n_clash = n_drop = np.int64(0)
         mvy = may = mjy = np.int64(0)
         # how step 3 copies the batch: winner by winner (True) or run by run
