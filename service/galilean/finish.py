@@ -471,6 +471,7 @@ def finish(
     """
     nz, h, w = shape
     rows = nz * h
+    band_stats[:] = 0
     # a parallel loop takes arrays, not tuples of them: unpacked here, packed in it
     (c0, c1, c2), dep, (f0, f1), mot, zm, dc, deb, obj = new
     m0, m1, m2, m3, m4, m5 = mot
@@ -478,9 +479,6 @@ def finish(
     d0, d1, d2, d3 = dc
     (o0, o1, o2), o_dep, o_deb, o_obj = old[0], old[1], old[6], old[7]
     for b in nb.prange(bands):
-        # zeroed here: band_stats[:] = 0 would be a parallel pass of its own
-        for j in range(band_stats.shape[1]):
-            band_stats[b, j] = 0
         lo, hi = b * rows // bands, (b + 1) * rows // bands
         if b > 0:  # the top row is left to the fix-up, as the scatter left it
             for c in range(w):
