@@ -71,6 +71,10 @@ class FrameView:
         to this frame.
     sird : ndarray, shape (R, C), uint8, or None
         The frame's autostereogram (of the viewer's zone, or the centre one).
+    scene : int or None
+        The version of the scene the frame was rendered from (the service's
+        ``load_scene`` count; the local renderer's game count); None from a
+        service older than the ``scene`` key.
     """
 
     colour: np.ndarray
@@ -80,6 +84,7 @@ class FrameView:
     zone: int | None = None
     latency_ms: float | None = None
     sird: np.ndarray | None = None
+    scene: int | None = None
 
 
 @dataclass(frozen=True)
@@ -146,7 +151,12 @@ class LocalRenderer:
         self._latest: FrameView | None = None
         self._taken = -1
         self._render_id = -1
-        self._grafted: tuple[int, float] = (-1, 0.0)
+        #: (render id, its records' time, its scene version) of the render grafted last
+        self._grafted: tuple[int, float, int] = (-1, 0.0, 0)
+        #: the scene version: +1 per new game (:meth:`resume`); older frames are not shown
+        self._scene_version = 0
+        #: refreshes not handed out because they were not of the current game
+        self.stale_frames = 0
         self._lead = 0.1
         self._sird = _sird_output(s.display)
         #: set by the game while it shows the autostereogram: only then is one made
@@ -179,10 +189,19 @@ class LocalRenderer:
             self._cv.notify_all()
 
     def resume(self) -> None:
-        """Renders follow the updates again (a new game)."""
+        """Renders follow the updates again (a new game): a new scene version.
+
+        The Galilean stage forgets the old game's galpixels (the burst's pieces) at
+        once, and :meth:`frame` hands out no frame until a render of the new game
+        is grafted; a render of the old game still under way is not grafted.
+        """
         with self._cv:
             self._frozen = False
             self._burst = None
+            with self._stage_lock:  # the render thread checks the version under it
+                self._scene_version += 1
+                self.stage.new_scene()
+                self._grafted = (-1, 0.0, -1)
 
     def lod_notes(self) -> list[str]:
         """Level-of-detail notes (a chain not built, a damaged cache) new since the last call.
@@ -203,6 +222,9 @@ class LocalRenderer:
             if got is None or got.seq == self._taken:
                 return None
             self._taken = got.seq
+            if got.scene != self._scene_version:
+                self.stale_frames += 1  # the game before's (the burst), or the cleared stage
+                return None
             return got
 
     def close(self) -> None:
@@ -223,7 +245,7 @@ class LocalRenderer:
                 return None
             burst, self._burst = self._burst, None
             self._frozen = burst is not None
-            return self._version, self._records, self._records_t, burst
+            return self._version, self._records, self._records_t, burst, self._scene_version
 
     def _render_loop(self) -> None:
         if self._sird is not None:  # load the SIRD kernels here, not in the refresh thread
@@ -233,7 +255,7 @@ class LocalRenderer:
             job = self._next_job(seen)
             if job is None:
                 continue
-            seen, records, records_t, burst = job
+            seen, records, records_t, burst, version = job
             t0 = time.monotonic()
             scene = apply_states(self._scene, records)
             ru = render_with_motion(
@@ -258,9 +280,11 @@ class LocalRenderer:
                 with self._cv:
                     self._lod_new += new
             with self._stage_lock:
+                if version != self._scene_version:
+                    continue  # a render of the game before: never shown
                 self._render_id += 1
                 self.stage.update(ru)
-                self._grafted = (self._render_id, records_t)
+                self._grafted = (self._render_id, records_t, version)
 
     def _refresh_loop(self) -> None:
         period = 1.0 / self.settings.refresh_hz
@@ -269,7 +293,7 @@ class LocalRenderer:
         while not self._stop.is_set():
             with self._stage_lock:
                 out = self.stage.refresh()
-                render_id, records_t = self._grafted
+                render_id, records_t, version = self._grafted
             if out.flags.get("updated"):
                 graft_index = out.index
             now = time.monotonic()
@@ -281,6 +305,7 @@ class LocalRenderer:
                 latency_ms=(now - records_t) * 1e3 if records_t else None,
                 sird=self._sird.frame(out.depth[out.depth.shape[0] // 2])
                 if self._sird is not None and self.sird_wanted else None,
+                scene=version,
             )
             with self._cv:
                 self._latest = view
@@ -333,10 +358,16 @@ class ServiceBackend:
         self._scene: Scene | None = None
         self._records: list[dict] = []
         self._frozen = False
+        self._reload = False  # load the scene with the next update (a new game)
         self._next_try = 0.0
         self._idle = threading.Event()  # never set: paces frame() while unconnected
         self.session: str | None = None
         self.reconnects = 0
+        #: the version of the scene loaded last (its ``load_scene`` reply's ``scene``;
+        #: None from a service without it): frames of older versions are not shown
+        self.scene_version: int | None = None
+        #: frames not shown because they came from an older scene
+        self.stale_frames = 0
         self._lod_seen: set[str] = set()
         self._lod_next = 0.0
         #: seconds between ``stats`` requests for level-of-detail notes
@@ -384,11 +415,11 @@ class ServiceBackend:
             **({"lod_error": s.lod_error} if s.lod_error > 0 else {}),
             **({"lod_budget_ms": s.lod_budget_ms} if s.lod_budget_ms > 0 else {}),
         )
-        self.client.load_scene(scene=self._scene)
+        self.load_scene(apply_states(self._scene, self._records) if self._records else
+                        self._scene)
+        self._reload = False
         if self.devices:
             self.client.set_viewer(devices=self.devices)
-        if self._records:
-            self.client.update_objects(self._records)
         if self.sub is None:
             self.sub = self._make_sub(self._frames_addr or info["frames"])
         self.connected = True
@@ -432,7 +463,11 @@ class ServiceBackend:
         if self._frozen:
             return
         self._records = records
-        self._call(self.client.update_objects, records)
+        if self._reload:  # a new game: its scene loaded with its objects in place
+            self._reload = False
+            self._call(self.load_scene, apply_states(self._scene, records))
+        else:
+            self._call(self.client.update_objects, records)
 
     def explode(self, seed: int = 0) -> None:
         """Fling the objects outward (:func:`game.gameover.burst_records`).
@@ -442,17 +477,24 @@ class ServiceBackend:
         """
         self._frozen = True
         if self.shatter:
-            self._call(self._load, explosion_scene(self._scene, self._records, seed))
+            self._call(self.load_scene, explosion_scene(self._scene, self._records, seed))
         else:
             self._call(self.client.update_objects, burst_records(self._records, seed))
 
-    def _load(self, scene: Scene) -> None:
-        self.client.load_scene(scene=scene)
+    def load_scene(self, scene: Scene) -> None:
+        """Load a scene; frames of the scenes before it are not shown from now on."""
+        got = self.client.load_scene(scene=scene).get("scene")
+        self.scene_version = got if isinstance(got, int) and not isinstance(got, bool) else None
 
     def resume(self) -> None:
-        """A new game: updates go through again (the game's scene again after a shatter)."""
-        if self._frozen and self.shatter:
-            self._call(self._load, self._scene)
+        """A new game: updates go through again, and the game's scene is loaded again.
+
+        The load goes with the new game's first :meth:`update`, its objects in place
+        (a load before it would be rendered with the game before's positions).  It
+        is a new scene version: :meth:`frame` shows no frame of the game over
+        (shatter pieces, flung objects) from then on, only the new game's.
+        """
+        self._reload = self._reload or self._frozen
         self._frozen = False
 
     def lod_notes(self) -> list[str]:
@@ -512,6 +554,10 @@ class ServiceBackend:
         if header.get("session") != self.session:
             self._lost()  # a restarted service: load the scene again
             return None
+        scene = header.get("scene")
+        if self.scene_version is not None and scene is not None and scene < self.scene_version:
+            self.stale_frames += 1  # rendered (or refreshed) from a scene replaced since
+            return None
         return _view(header, arrays)
 
     def close(self) -> None:
@@ -552,4 +598,5 @@ def _view(header: dict, arrays: dict) -> FrameView:
         zone=header.get("zone"),
         latency_ms=latency,
         sird=arrays.get("autostereogram"),
+        scene=header.get("scene"),
     )

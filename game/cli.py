@@ -147,7 +147,7 @@ def _setup(args: argparse.Namespace) -> tuple:
     from game.gameover import Beeper
     from game.highscores import HighScores
     from game.rules import new_game
-    from game.scene import attacker_mesh, game_scene
+    from game.scene import apply_states, attacker_mesh, game_scene, object_states
     from service.errors import ServiceError
 
     cols, rows = args.size
@@ -158,11 +158,12 @@ def _setup(args: argparse.Namespace) -> tuple:
                                lod_error=lod.error_px if lod is not None else 0.0,
                                lod_budget_ms=(lod.budget_ms or 0.0) if lod is not None else 0.0)
     game = GameSettings(seed=args.seed, difficulty=args.difficulty)
-    scene = game_scene(
-        len(new_game(game).attackers),
+    first = new_game(game)  # the scene starts as the first game does (no frame at the origin)
+    scene = apply_states(game_scene(
+        len(first.attackers),
         args.full_light,
         attacker_mesh(args.attackers) if args.attackers else None,
-    )
+    ), object_states(first))
     backend = _backend(args, settings)
     try:
         backend.start(scene)

@@ -188,6 +188,8 @@ class GameClient:
         #: clock reading when the first frame was shown (None before).
         self.first_frame_t: float | None = None
         self._hold_for_frame = False
+        #: a new game waits for its first frame (the window says "get ready")
+        self._get_ready = False
         self._last = clock()
         self._render_id = -1
         self._was_connected = backend.connected
@@ -234,6 +236,10 @@ class GameClient:
         self.bot = Bot(give_up_after=self.settings.bot_gives_up)
         self.backend.resume()
         self.backend.update(object_states(self.state))
+        # the backend shows no frame of the game before; until the new game's first
+        # one arrives the window is cleared and says "get ready"
+        self.colour = self.sird = None
+        self._get_ready = True
 
     # ---------------------------------------------------------------- input
     def read_input(self, dt: float) -> tuple[actions.Input, actions.Input]:
@@ -282,6 +288,8 @@ class GameClient:
             return  # frozen while reconnecting
         if self._hold_for_frame and self.first_frame_t is None:
             return  # a timed run's game starts with its first frame too
+        if self._get_ready:
+            return  # so does a new game: nothing moves before the player can see it
         moves = [a for a in got.actions if a in MOVES]
         if self.attract:
             moves = self.bot.act(self.state, dt)
@@ -315,6 +323,7 @@ class GameClient:
         frame = self.backend.frame(wait)
         if frame is None:
             return
+        self._get_ready = False
         self.colour = frame.colour
         if self.first_frame_t is None:
             self.first_frame_t = now
@@ -373,6 +382,8 @@ class GameClient:
             )
         elif self.over is not None and self.over.phase == "score":
             self.window.banner("GAME OVER", self._score_lines())
+        elif self._get_ready:
+            self.window.banner("GET READY", ["the game starts with its first frame"])
         elif self.state.paused:
             self.window.banner("paused", ["press P to go on"])
         self.disconnects += int(self._was_connected and not connected and warming is None)
@@ -441,6 +452,8 @@ class GameClient:
             "dial_events": self.dial_events,
             "beeps": self.beeper.count,
             "disconnects": self.disconnects,
+            # frames of a scene replaced since (the game over's), not shown
+            "stale_frames": getattr(self.backend, "stale_frames", 0),
             "latency_ms_p50": float(np.median(self.latencies)) if self.latencies else None,
             "lod_notes": [note for _, note in self.lod_notes],
             "seconds": round(elapsed_s, 2),

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -34,6 +35,7 @@ __all__ = [
     "endpoint",
     "float_range",
     "int_range",
+    "output_problem",
     "plain_help",
     "size",
 ]
@@ -189,3 +191,40 @@ def plain_help(text: str | None) -> str:
     out = _LITERAL.sub(r"\1", out)
     out = _EMPHASIS.sub(r"\2", out)
     return re.sub(r"(\w)::$", r"\1:", out, flags=re.MULTILINE)
+
+
+def output_problem(path: str, *, folder: bool = False) -> str | None:
+    """Why ``path`` cannot be written as an output, or None when it can.
+
+    Checked before a command starts its work, so a typo in ``--out`` costs a one-line
+    error (status 2) rather than a render or a build thrown away at the end.
+
+    Parameters
+    ----------
+    path : str
+        The output file (``folder=False``) or the output folder (``folder=True``, made
+        with its parents if missing).
+    folder : bool
+        Whether ``path`` names a folder.
+
+    Returns
+    -------
+    str or None
+        ``"PATH: ..."`` saying what is wrong, or None.
+    """
+    target = os.path.abspath(path)
+    if folder and os.path.exists(target) and not os.path.isdir(target):
+        return f"{path}: is a file, not a folder"
+    if not folder and os.path.isdir(target):
+        return f"{path}: is a folder, not a file"
+    # the nearest part of the path that exists must be a folder we may write in
+    parent = target if folder else os.path.dirname(target)
+    if not folder and not os.path.exists(parent):
+        return f"{path}: no folder {os.path.dirname(path)} (make it first)"
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        return f"{path}: {parent} is a file, not a folder"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"{path}: cannot write in {parent} (permission denied)"
+    return None

@@ -88,12 +88,16 @@ def usage() -> str:
 def main(argv: list[str] | None = None) -> int:
     """Dispatch to a benchmark's ``main``; return the exit status."""
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] in ("-h", "--help"):
+    if argv and argv[0] in ("-h", "--help"):
         print(usage())
         return 0
+    if not argv:  # a NAME is required: usage on stderr, status 2, as argparse does
+        print(f"{usage()}\nholo-bench: error: name a benchmark", file=sys.stderr)
+        return EXIT_USAGE
     if argv[0] not in BENCHES:
-        print(f"holo-bench: unknown benchmark {argv[0]!r}\n\n{usage()}", file=sys.stderr)
-        return 2
+        print(f"holo-bench: error: unknown benchmark {argv[0]!r}; known: "
+              f"{', '.join(BENCHES)} (holo-bench --help says what each does)", file=sys.stderr)
+        return EXIT_USAGE
     # as holo-service does: OpenMP threads that spin while waiting steal the core
     # the measured code needs (see service.cli_service.main); set before numba loads
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

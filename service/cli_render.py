@@ -24,7 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from service.builtin_scenes import SCENES, builtin_scene
-from service.cli_args import add_size_option, float_range, int_range, plain_help
+from service.cli_args import (
+    add_size_option,
+    float_range,
+    int_range,
+    output_problem,
+    plain_help,
+)
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
 from service.errors import HoloError
@@ -318,6 +324,15 @@ def occlusion_counters(stats: dict, depth: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
+    problem = output_problem(args.out, folder=True)
+    try:  # before the render, not after it
+        if not problem:
+            Path(args.out).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        problem = f"{args.out}: cannot make the folder: {exc.strerror}"
+    if problem:
+        print(f"holo-render: error: --out {problem}", file=sys.stderr)
+        return 2
     setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     return interruptible("holo-render", lambda: _main(args))
 

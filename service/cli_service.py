@@ -21,6 +21,9 @@ import argparse
 import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
+
+import zmq
 
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.display import DisplaySettings
@@ -222,7 +225,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (HoloError, OSError) as exc:
         print(f"holo-service: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except Exception as exc:  # zmq.ZMQError: address in use...
+    except zmq.ZMQError as exc:  # address in use...
+        print(f"holo-service: cannot bind: {exc} (another holo-service running? "
+              "--control, --frames and --worker-address pick other ports)", file=sys.stderr)
+        return EXIT_USAGE
+    except Exception as exc:
         print(f"holo-service: {type(exc).__name__}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     _log(
@@ -247,19 +254,40 @@ def _log(line: str) -> None:
     print(f"holo-service: {line}", file=sys.stderr, flush=True)
 
 
-def _print_keys(directory: str) -> int:
-    for name, path in make_keys(directory).items():
+#: The files ``make_keys`` writes; one already there is never overwritten.
+KEY_FILES = ("server.key", "server.key_secret", "client.key", "client.key_secret",
+             "authorized/client.key")
+
+
+def _print_keys(directory: str, prog: str = "holo-service") -> int:
+    """Make the keys in ``directory`` and print where each is; 2 if it cannot."""
+    folder = Path(directory)
+    there = [name for name in KEY_FILES if (folder / name).exists()]
+    if there:  # a new server key would lock out every client given the old one
+        print(f"{prog}: {directory} already holds keys ({', '.join(there)}); "
+              "delete them or name another folder", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        made = make_keys(directory)
+    except OSError as exc:
+        print(f"{prog}: {directory}: cannot write the keys: {exc.strerror}", file=sys.stderr)
+        return EXIT_USAGE
+    for name, path in made.items():
         print(f"{name}: {path}")
-    return 0
+    return EXIT_OK
 
 
 def keys_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``holo-service-keys DIR``."""
     ap = argparse.ArgumentParser(
-        prog="holo-service-keys", description="Make CurveZMQ keys for holo-service."
+        prog="holo-service-keys",
+        description="Make CurveZMQ keys for holo-service: DIR/server.key (give it to "
+        "clients and workers), DIR/server.key_secret (keep it on the service's host), a "
+        "client key pair and DIR/authorized/ (the client keys the service admits).",
+        epilog=EXIT_RULE + " Keys already in DIR are never overwritten (status 2).",
     )
-    ap.add_argument("directory")
-    return _print_keys(ap.parse_args(argv).directory)
+    ap.add_argument("directory", metavar="DIR", help="folder for the keys (made if missing)")
+    return _print_keys(ap.parse_args(argv).directory, "holo-service-keys")
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cli_args import int_range, plain_help
+from service.cli_args import int_range, output_problem, plain_help
 from service.errors import HoloError
 from service.loaders import load_mesh, save_obj, save_ply
 from service.mesh import Mesh
@@ -79,6 +79,10 @@ def _check_out(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Non
         parser.error(f"--out for a billboard cloud must end in .hbc, got {args.out!r}")
     if args.method == "quadric" and ext not in MESH_OUT:
         parser.error(f"--out for a quadric mesh must end in .ply or .obj, got {args.out!r}")
+    problem = output_problem(args.out)
+    if problem:  # before the build (seconds to minutes), not after it
+        print(f"holo-simplify: error: --out {problem}", file=sys.stderr)
+        raise SystemExit(2)
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -90,6 +94,9 @@ def run(args: argparse.Namespace) -> dict:
     eps = value / 100.0 * diag if pct else value
     report = {"method": args.method, "mesh": args.mesh, "faces_in": int(f.shape[0]),
               "diagonal": diag, "eps": eps, "out": args.out}
+    what = "a billboard cloud" if args.method == "billboard" else "quadric levels"
+    print(f"holo-simplify: building {what} of {args.mesh} ({int(f.shape[0])} triangles, "
+          f"EPS {eps:.4g}); seconds to minutes", file=sys.stderr, flush=True)
     t0, c0 = time.perf_counter(), time.process_time()
     if args.method == "billboard":
         cloud = build_cloud(v, f, eps, args.texture_res)

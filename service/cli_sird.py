@@ -35,7 +35,13 @@ from service.autostereogram import (
     stereogram,
 )
 from service.autostereogram.source import load_depth
-from service.cli_args import add_size_option, float_range, int_range, plain_help
+from service.cli_args import (
+    add_size_option,
+    float_range,
+    int_range,
+    output_problem,
+    plain_help,
+)
 from service.errors import HoloError
 from service.png import write_png
 from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
@@ -133,6 +139,10 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
     args.size_given = _size_given(argv)
+    problem = output_problem(args.out)
+    if problem:
+        print(f"holo-sird: error: --out {problem}", file=sys.stderr)
+        return EXIT_USAGE
     return interruptible("holo-sird", lambda: _main(args))
 
 

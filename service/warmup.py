@@ -259,6 +259,22 @@ def _galilean_variants(kit: _Kit) -> None:
         _stage_refreshes(stage, 4)
 
 
+def _shadows(kit: _Kit) -> None:
+    """Depth-only shadow renders (:mod:`service.galilean.shadow`): cull, sort, z-buffer.
+
+    The local-update job reaches them too, but they are render kernels, not
+    Galilean ones: compiled here, in the first process while the second one is
+    still in its long service-refresh job, they leave that (longer) process
+    sooner, which then loads them from the cache.  Called as ``render_local``
+    calls it, so the signatures are the same.
+    """
+    from service.galilean.shadow import shadow_depth
+    from service.pipeline import RenderSettings
+
+    scene = kit.scene()
+    shadow_depth(scene, range(1, len(scene.objects)), kit.display, 0.1, RenderSettings().cull)
+
+
 def _galilean_local(kit: _Kit) -> None:
     """Local updates (Flinders Street buffers with depth-only shadows), grafted."""
     from service.galilean import GalileanSettings, GalileanStage
@@ -291,7 +307,7 @@ def _level_of_detail(kit: _Kit) -> None:
 
     from service.billboard_render import BillboardObject
     from service.galilean.motion_field import render_with_motion
-    from service.lod import LodSettings, LodState, build_chain
+    from service.lod import LodSettings, LodState
     from service.pipeline import Renderer, RenderSettings
 
     scene = kit.scene()
@@ -299,7 +315,8 @@ def _level_of_detail(kit: _Kit) -> None:
     renderer = Renderer()
     renderer.lod = LodState(cache=False)  # no chain written to the user's LOD cache
     renderer.render(scene, kit.display, RenderSettings(lod=lod))
-    chain = build_chain(scene.objects[-1].mesh, lod, cache=False)
+    # the chain that render built (a second build cost every service start 0.1-0.2 s)
+    chain = renderer.lod.chain(scene.objects[-1].mesh, lod)
     boards = [BillboardObject(level) for level, kind in zip(chain.levels, chain.kinds,
                                                             strict=True) if kind == "billboard"]
     for method in ("zbuffer", "runlength", "bsp", "raycast"):
@@ -314,7 +331,11 @@ def _level_of_detail(kit: _Kit) -> None:
 #: jobs run in a second process while this one runs the ``HERE`` jobs.  The two
 #: groups compile disjoint kernels: numba numbers a kernel's cache entries by
 #: reading its index, so two processes adding different signatures of one kernel
-#: at once could both write entry 1.
+#: at once could both write entry 1 (and one index would then name the other's
+#: code).  The ``APART`` side is the longer one (the two scatter kernels: 92 s of
+#: CPU against 74 s here, measured 2026-11-26), so render kernels that only a
+#: Galilean job reached (the depth-only shadows) compile in the first ``HERE``
+#: job instead, before the second process gets to them: it then loads them.
 FIRST, HERE, APART = "first", "here", "apart"
 
 
@@ -337,6 +358,7 @@ JOBS: dict[str, _Job] = {
     "galilean: game refresh": _Job(_galilean_game, APART),
     "galilean: orders, cache, margin": _Job(_galilean_variants, APART),
     "galilean: local updates": _Job(_galilean_local, APART),
+    "galilean: depth-only shadows": _Job(_shadows, HERE),
     "mesh files: repair": _Job(_mesh_files, HERE),
     "render runlength": _Job(_render("runlength"), HERE),
     "render runlength, pixel fallback": _Job(_render("runlength", fallback="pixel"), HERE),

@@ -39,6 +39,13 @@ def resample(depth: np.ndarray, cols: int, rows: int) -> np.ndarray:
 def read_depth_npy(path: Path) -> np.ndarray:
     """A 2-D float depth map from ``.npy`` (no pickles), or :class:`SettingsError`."""
     try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+    except OSError as exc:
+        raise SettingsError(f"{path}: cannot read the file: {exc.strerror}") from None
+    if magic != b"\x93NUMPY":  # else numpy's error talks of pickles
+        raise SettingsError(f"{path}: not a .npy file (no NUMPY header)")
+    try:
         d = np.load(path, allow_pickle=False)
     except ValueError as exc:
         raise SettingsError(f"{path}: not a depth map .npy ({exc})") from None

@@ -35,7 +35,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean.finish import finish
-from service.galilean.fixed_point import FixedPoint, bit_budget, propagate_points
+from service.galilean.fixed_point import Z_EMPTY, FixedPoint, bit_budget, propagate_points
 from service.galilean.galpixmap import FIELDS, GalileanError, Galpixmap, build
 from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import check_points, graft
@@ -658,6 +658,29 @@ class GalileanStage:
         self._started = True
         if self.order < self.settings.order:
             _drop_orders(self.map, self.order)
+
+    def new_scene(self) -> None:
+        """A new scene: a discontinuity, nothing of the old one is carried on.
+
+        The map is cleared (black, empty, all debris), updates still pending (renders
+        of the old scene) are dropped, the order guard forgets, and the refreshes show
+        the empty map without propagating until the next global update is grafted.
+        Without it the old scene's galpixels would go on flying (extrapolated) until
+        the new scene's first render lands.
+        """
+        self._map_changed()
+        self._pending.clear()
+        m = self.map
+        m.colour.fill(0)
+        m.depth.fill(Z_EMPTY)
+        m.debris.fill(1)
+        m.obj.fill(-1)
+        if self.cache is not None:
+            for c in self.cache:
+                c.debris.fill(1)
+        self._started = self._held = False
+        self.age = 0
+        self.reset_guard()
 
     def reset_guard(self) -> None:
         """Forget the order guard's history (call it when a new scene is loaded).

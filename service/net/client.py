@@ -461,6 +461,9 @@ class FrameSubscriber:
         self.frames = 0
         self.dropped = 0
         self.skipped = 0
+        #: messages :func:`~service.net.protocol.parse_frame` refused, and why the last was
+        self.malformed = 0
+        self.last_error = ""
         #: the newest heartbeat's ``status`` (``ready`` or ``warming_up``) and progress.
         self.status: str | None = None
         self.warmup: dict[str, Any] | None = None
@@ -503,8 +506,10 @@ class FrameSubscriber:
 
     def _take(self, frames: list[zmq.Frame]) -> tuple[dict, dict] | None:
         try:
-            header = protocol.parse_reply([f.buffer for f in frames[1:]])
-        except (MessageError, IndexError):
+            header = protocol.parse_frame([f.buffer for f in frames])
+        except MessageError as exc:  # counted, never shown: a torn header, a bad key
+            self.malformed += 1
+            self.last_error = f"{exc.code}: {exc.message}"
             return None
         self.last_heard = time.monotonic()
         session = header.get("session")

@@ -79,10 +79,13 @@ def load_scene(st: ServiceState, req: dict[str, Any]) -> tuple:
     with st.state.lock:
         st.state.scene, st.state.scene_t = scene, time.monotonic()
         st.state.scene_version += 1
+        st.state.scene_load += 1
+        loaded = st.state.scene_load
     return (
         {
             "objects": [o.name for o in scene.objects],
             "polygons": int(sum(o.mesh.n_polygons for o in scene.objects)),
+            "scene": loaded,
         },
     )
 

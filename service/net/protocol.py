@@ -349,3 +349,76 @@ def parse_reply(frames: list[Any]) -> dict[str, Any]:
     elif arrays:
         header["arrays"] = arrays
     return header
+
+
+#: Frame stream topics (``docs/protocol.md`` 2): the first frame of each message.
+STREAM_KINDS = ("frame", "hb")
+#: Frame header keys that must be integers when present: (key, least value, required
+#: in a ``frame``).  ``scene`` is absent in services older than it.
+FRAME_INTS = (("seq", 0, True), ("render_id", -1, True), ("since_render", 0, False),
+              ("scene", 0, False), ("refresh", 0, False), ("t_ns", 0, False))
+
+
+def _frame_int(header: dict[str, Any], key: str, least: int, required: bool) -> None:
+    if key not in header:
+        if required and header.get("kind") == "frame":
+            raise MessageError("bad_message", f"frame header: {key} missing")
+        return
+    v = header[key]
+    if isinstance(v, bool) or not isinstance(v, int) or v < least:
+        raise MessageError(
+            "bad_message", f"frame header: {key} must be an integer >= {least}, got {v!r:.40}"
+        )
+
+
+def parse_frame(frames: list[Any]) -> dict[str, Any]:
+    """A frame stream message (topic, header, buffers): its checked header, arrays by name.
+
+    Parameters
+    ----------
+    frames : list of bytes-like
+        ``[topic, header JSON, *buffers]`` as a SUB socket receives them.
+
+    Returns
+    -------
+    dict
+        The header; a frame's arrays are under ``arrays`` as ``{name: ndarray}``.
+
+    Raises
+    ------
+    MessageError
+        With a message saying what is wrong: ``bad_frames`` (no header, an unknown
+        topic, buffers not matching ``arrays``), ``bad_json`` (not JSON: a torn or
+        cut-short header), ``bad_version``, ``bad_message`` (a key missing or of the
+        wrong type: ``session``, ``seq``, ``render_id``, ``scene``...), ``bad_array``.
+    """
+    if len(frames) < 2:
+        raise MessageError("bad_frames", f"a stream message needs a topic and a header, "
+                           f"got {len(frames)} frame(s)")
+    topic = bytes(frames[0])
+    if topic.decode("ascii", "replace") not in STREAM_KINDS:
+        raise MessageError("bad_frames", f"unknown topic {topic[:16]!r} (frame or hb)")
+    try:
+        header = _header(frames[1], DEFAULT_LIMITS)
+    except MessageError as exc:
+        raise MessageError(exc.code, f"{topic.decode()} header: {exc.message} "
+                           "(torn or cut short?)") from exc
+    v = header.get("v")
+    if isinstance(v, bool) or v not in SUPPORTED_VERSIONS:
+        raise MessageError("bad_version", f"frame header: v must be one of "
+                           f"{list(SUPPORTED_VERSIONS)}, got {v!r:.40}")
+    if header.get("kind") != topic.decode():
+        raise MessageError("bad_message", f"frame header: kind {header.get('kind')!r:.40} "
+                           f"under topic {topic.decode()!r}")
+    if not isinstance(header.get("session"), str):
+        raise MessageError("bad_message", "frame header: session must be a string")
+    for key, least, required in FRAME_INTS:
+        _frame_int(header, key, least, required)
+    descs = header.pop("arrays", None)
+    names = [d.get("name") for d in descs or () if isinstance(d, dict)]
+    arrays = wire.decode_arrays(descs, frames[2:], DEFAULT_LIMITS.max_message_bytes)
+    if len(names) != len(arrays) or not all(isinstance(n, str) for n in names):
+        raise MessageError("bad_message", "frame header: every array needs a name")
+    if header["kind"] == "frame":
+        header["arrays"] = dict(zip(names, arrays, strict=True))
+    return header

@@ -155,9 +155,13 @@ class RefreshLoop:
         self.stage: GalileanStage | None = None
         self.generation = -1
         self.scene_version = -1
+        #: the newest scene load the stage knows of, and the one the shown render is of
+        self.scene_load = 0
+        self.shown_scene = 0
         self.sub = None
         self.sub_address: str | None = None
-        self.due: dict[int, tuple[int, int]] = {}  # rendezvous -> (render id, t_render_ns)
+        #: rendezvous -> (render id, t_render_ns, scene load)
+        self.due: dict[int, tuple[int, int, int]] = {}
         self.render_id = -1
         self.t_render_ns = 0
         self.since = 0
@@ -223,6 +227,8 @@ class RefreshLoop:
         """
         st, c = self.st, self.st.counters
         self._devices(settings)  # latch: the newest pose picks the zone
+        if st.state.scene_load > self.scene_load:
+            self._new_scene(st.state.scene_load)
         if self.prepared is not None:
             self._publish(*self.prepared, settings)
         else:
@@ -233,7 +239,7 @@ class RefreshLoop:
         c.n["refreshes"] += 1
         c.refresh_t.append(time.monotonic())
         if r.flags["updated"] and r.index in self.due:
-            self.render_id, self.t_render_ns = self.due.pop(r.index)
+            self.render_id, self.t_render_ns, self.shown_scene = self.due.pop(r.index)
             self.since = 0
             c.n["updates"] += 1
             c.update_t.append(time.monotonic())
@@ -256,6 +262,7 @@ class RefreshLoop:
                     "render_id": self.render_id,
                     "since_render": self.since,
                     "t_render_ns": self.t_render_ns,
+                    "scene": self.shown_scene,
                     "ms": ms,
                 },
             )
@@ -267,6 +274,10 @@ class RefreshLoop:
             if up.generation != self.generation:
                 continue
             rd = up.rendered
+            if up.scene_load > self.scene_load:  # loaded after this tick's check
+                self._new_scene(up.scene_load)
+            elif up.scene_load < self.scene_load:  # rendered from a scene replaced since
+                continue
             if up.scene_version != self.scene_version:
                 self.stage.reset_guard()  # a new scene: the old points predict nothing
                 self.scene_version = up.scene_version
@@ -281,10 +292,23 @@ class RefreshLoop:
                 rd.viewer_motion,
             )
             if ok:
-                self.due[up.rendezvous] = (up.render_id, up.t_render_ns)
+                self.due[up.rendezvous] = (up.render_id, up.t_render_ns, up.scene_load)
             else:
                 st.counters.n["late_refused"] += 1
                 st.counters.n["incomplete_updates"] += 1
+
+    def _new_scene(self, loaded: int) -> None:
+        """A scene load: a discontinuity for the stage (``docs/protocol.md`` 2).
+
+        The stage forgets the old scene's galpixels and pending grafts and shows
+        nothing until the new scene's first render is grafted; until then no frame
+        is published (heartbeats only), so no frame shows the old scene after it.
+        """
+        self.stage.new_scene()
+        self.scene_load = loaded
+        self.due.clear()
+        self.render_id, self.since = -1, 0
+        self.prepared = None
 
     def _devices(self, settings: Settings) -> None:
         state = self.st.state

@@ -85,7 +85,7 @@ class Scheduler:
         with state.lock:
             scene, scene_t, settings = state.scene, state.scene_t, state.settings
             viewer = state.viewer.render_spec()
-            version = state.scene_version
+            version, loaded = state.scene_version, state.scene_load
         if scene is None or not scene.objects:
             return None
         index, t_index, gen, fixed, order = self.st.clock
@@ -109,7 +109,8 @@ class Scheduler:
         }
         if settings.quality == "auto":
             self.auto(job, scene, settings)
-        return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns())
+        return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns(),
+                   loaded)
 
     def auto(self, job: dict[str, Any], scene: Scene, settings: Settings) -> None:
         """``quality: "auto"``: this render's method and specular, and the choice in the job."""
@@ -161,6 +162,7 @@ class Scheduler:
             "wall_ms": round(wall, 3),
             "stitch_ms": round((time.perf_counter() - t_stitch) * 1e3, 3),
             "rendezvous": aim.rendezvous,
+            "scene": aim.scene_load,
         }
         if "quality" in aim.job:
             stats["quality"] = aim.job["quality"]
@@ -180,6 +182,7 @@ class Scheduler:
                 rendered,
                 aim.t0,
                 aim.scene_version,
+                aim.scene_load,
             )
         )
         mark = (aim.settings.generation, aim.scene_version)

@@ -169,6 +169,7 @@ class Service:
         if self.config.scene:
             self.st.state.scene = load_builtin(self.config.scene)
             self.st.state.scene_t = time.monotonic()
+            self.st.state.scene_load += 1
         if not self.st.workers:
             self._start_workers()
 

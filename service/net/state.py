@@ -179,6 +179,9 @@ class State:
     scene: Scene | None = None
     scene_t: float = 0.0
     scene_version: int = 0
+    #: the scene's version on the wire: ``load_scene`` requests applied (the frames'
+    #: and the render replies' ``scene``; ``docs/protocol.md`` 2)
+    scene_load: int = 0
     devices: str | None = None
     viewer: ViewerTracker = field(default_factory=_new_viewer)
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -195,6 +198,8 @@ class Ready:
     rendered: Any
     t_render_ns: int
     scene_version: int = 0
+    #: the ``load_scene`` count of the scene rendered (:attr:`State.scene_load`)
+    scene_load: int = 0
 
 
 class ReplyCache:
@@ -257,6 +262,8 @@ class Aim:
     rendezvous: int
     fixed: Any
     t0: int
+    #: the ``load_scene`` count of the scene snapshot (:attr:`State.scene_load`)
+    scene_load: int = 0
 
 
 class Counters:

@@ -24,7 +24,7 @@ MARKUP = re.compile(r"``|:[a-z]+:`|(?<![\w*])\*[A-Za-z][^*\n]*\*(?![\w*])")
 PENDING_MARKUP: dict[str, str] = {}
 PENDING_RULE: dict[str, str] = {}
 #: Commands without the rule in their help: they run no loop and take no signal.
-NO_RULE = {"holo-service-keys"}
+NO_RULE: set[str] = set()
 
 
 def _help(entry: str, argv: list[str], capsys) -> str:

@@ -1,4 +1,9 @@
-"""``set_display`` at run time: the method, the viewing angle and the refresh rate take effect."""
+"""``set_display`` at run time: the method, the viewing angle and the refresh rate take effect.
+
+One service for the module (a start costs 1-3 s): the tests run in file order, the
+first sees the settings it was started with, the others first put back what the
+tests before them changed (:func:`_reset`).
+"""
 
 from __future__ import annotations
 
@@ -6,20 +11,31 @@ import time
 
 import numpy as np
 import pytest
-from testkit import wait_until
+from testkit import start_service, wait_until
 
 from service.net.client import FrameSubscriber, ServiceClient
 
 
-def _service(service_factory):
-    return service_factory(
+@pytest.fixture(scope="module")
+def svc():
+    """A small in-process service at 30 Hz, every zone looking straight ahead."""
+    s = start_service(
         "--scene", "game", "--zones", "3", "--size", "32x24",
         "--workers", "0", "--refresh", "30", "--angle", "0",
     )  # fmt: skip
+    try:
+        yield s
+    finally:
+        s.stop()
 
 
-def test_method_and_angle_change_the_render(service_factory):
-    svc = _service(service_factory)
+def _reset(c: ServiceClient) -> None:
+    """The display settings the service was started with (what the tests change)."""
+    shown = c.set_display(method="zbuffer", angle_deg=0.0, refresh_hz=30.0, quality="fixed")
+    assert (shown["method"], shown["angle_deg"], shown["refresh_hz"]) == ("zbuffer", 0.0, 30.0)
+
+
+def test_method_and_angle_change_the_render(svc):
     with ServiceClient(svc.control, timeout_s=20) as c:
         header, arrays = c.render_once()
         assert header["stats"]["method"] == "zbuffer"
@@ -51,9 +67,9 @@ def _rate(frames: FrameSubscriber, hz: float, window_s: float) -> tuple[float, f
     return 1e3 * len(intervals) / (stamps[-1] - stamps[0]), float(np.median(intervals)), len(stamps)
 
 
-def test_refresh_rate_change_paces_the_frames(service_factory):
-    svc = _service(service_factory)
+def test_refresh_rate_change_paces_the_frames(svc):
     with FrameSubscriber(svc.frames, hwm=100) as frames, ServiceClient(svc.control) as c:
+        _reset(c)
         rate, median, n = _rate(frames, 30.0, 1.0)
         assert 30 * 0.85 <= rate <= 30 * 1.1 and abs(median - 33.3) < 4, (rate, median, n)
         assert c.set_display(refresh_hz=12.0)["refresh_hz"] == 12.0
@@ -61,11 +77,11 @@ def test_refresh_rate_change_paces_the_frames(service_factory):
         assert 12 * 0.85 <= rate <= 12 * 1.1 and abs(median - 83.3) < 6, (rate, median, n)
 
 
-def test_quality_auto_picks_per_render_and_reports_it(service_factory):
+def test_quality_auto_picks_per_render_and_reports_it(svc):
     from service.errors import ServiceError
 
-    svc = _service(service_factory)
     with ServiceClient(svc.control, timeout_s=20) as c:
+        _reset(c)
         assert c.render_once()[0]["stats"].get("quality") is None  # fixed by default
         shown = c.set_display(quality="auto", max_error="40dB", angle_deg=16.0)
         assert shown["quality"] == "auto" and shown["max_error"] == "40dB"

@@ -1,4 +1,9 @@
-"""A slow subscriber for 20 s: the service's memory stays flat, fast ones keep up.
+"""A slow subscriber: the service's memory stays flat, fast ones keep up.
+
+The check runs until the service has published well past what a queue for the
+slow subscriber could hold without showing (300+ MB, five times the growth bound)
+and the slow subscriber has read 10 frames at one a second: about 10 s on a quiet
+machine, 20 s at most (a fixed 20 s before).
 
 The memory is measured from a baseline taken once the service runs steadily (its
 third update), not at its first frame: the first updates allocate the refresh
@@ -27,6 +32,15 @@ FRAME_BYTES = 5 * 120 * 160 * 3 + 5 * 120 * 160 * 4  # colour + depth, 672 kB
 GROWTH_MB = 64
 #: Updates after which the service's buffers are all allocated (see the module notes).
 WARM_UPDATES = 3
+#: Published past the slow subscriber before the check ends, MB: a queue that grew
+#: with it would have grown by this much (far over GROWTH_MB).
+PRODUCED_MB = 300
+#: Frames the slow subscriber reads (one a second at most) before the check ends.
+SLOW_READS = 10
+#: Frames published since the start before the check ends (at 60 Hz, over 10 s).
+TOTAL_FRAMES = 600
+#: Longest the check runs, s.
+SOAK_S = 20.0
 
 
 def test_slow_subscriber_memory_flat(service_factory):
@@ -57,10 +71,11 @@ def test_slow_subscriber_memory_flat(service_factory):
         assert wait_until(lambda: fast.next(0.1) and control.stats()["updates"] >= WARM_UPDATES,
                           60), "the service never reached its third update"
         baseline = rss_kb(svc.proc.pid)
-        samples, got_slow = [], 0
+        samples, got_slow, produced_mb = [], 0, 0.0
         start = time.monotonic()
-        published = control.stats()["frames_published"]
-        while time.monotonic() - start < 20.0:
+        total = first = control.stats()["frames_published"]
+        while time.monotonic() - start < SOAK_S and (
+                got_slow < SLOW_READS or produced_mb <= PRODUCED_MB or total <= TOTAL_FRAMES):
             if slow.poll(0):  # one message per second at most: a slow display
                 slow.recv_multipart()
                 got_slow += 1
@@ -68,18 +83,20 @@ def test_slow_subscriber_memory_flat(service_factory):
             while time.monotonic() < deadline:  # the fast subscriber reads all along
                 fast.next(max(0.01, deadline - time.monotonic()))
             samples.append(rss_kb(svc.proc.pid))
+            # what the service published so far, whether or not this (loaded) test
+            # process read it all: that is what would have queued for the slow subscriber
+            total = control.stats()["frames_published"]
+            published = total - first
+            produced_mb = published * FRAME_BYTES / 2**20
         grown_mb = (max(samples) - baseline) / 1024
-        # what the service published in that time, whether or not this (loaded) test
-        # process read it all: that is what would have queued for the slow subscriber
-        published = control.stats()["frames_published"] - published
-        produced_mb = published * FRAME_BYTES / 2**20
-        assert got_slow >= 10
-        assert produced_mb > 300, "the test needs the service to publish far more than the cap"
+        assert got_slow >= SLOW_READS
+        assert produced_mb > PRODUCED_MB, \
+            "the test needs the service to publish far more than the cap"
         assert grown_mb < GROWTH_MB, (
             f"service RSS grew {grown_mb:.1f} MB with a slow subscriber "
             f"(baseline {baseline // 1024} MB, samples {[s // 1024 for s in samples]} MB)")
         assert fast.frames > published / 4, "the fast subscriber fell behind"
-        assert control.stats()["frames_published"] > 600
+        assert control.stats()["frames_published"] > TOTAL_FRAMES
     finally:
         control.close()
         slow.close(0)

@@ -1,0 +1,133 @@
+"""What a new user met following the README: outputs checked before the work, one-line
+errors where tracebacks were, keys never overwritten.  Each test runs the real command
+in a subprocess.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import zmq
+from testkit import ROOT
+
+from drivers.cli_devices import log_devices
+from drivers.protocols import hatire
+from drivers.reader import ReaderSettings
+from drivers.recording import LogHeader, LogWriter
+from service.loaders import save_obj
+from service.primitives import sphere
+
+
+def _run(module: str, *args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT, text=True,
+                          capture_output=True, timeout=timeout)
+
+
+def _one_line_error(proc: subprocess.CompletedProcess, prog: str, *words: str) -> str:
+    """Status 2, one stderr line from ``prog`` holding ``words``, no traceback."""
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and lines[0].startswith(f"{prog}: "), proc.stderr
+    assert "Traceback" not in proc.stderr
+    for word in words:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+def test_holo_render_refuses_an_out_that_is_a_file_before_rendering(tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    proc = _run("service.cli_render", "builtin:cyclic", "--size", "32x24",
+                "--out", str(afile))
+    _one_line_error(proc, "holo-render", "--out", "not a folder")
+    assert afile.read_text() == "mine" and proc.stdout == ""
+
+
+def test_holo_simplify_refuses_a_missing_out_folder_before_building(tmp_path):
+    mesh = tmp_path / "ball.obj"
+    save_obj(mesh, sphere(0.5, 12, 8))
+    out = tmp_path / "no-such-folder" / "ball.hbc"
+    proc = _run("service.cli_simplify", str(mesh), "--error", "1%", "--out", str(out))
+    _one_line_error(proc, "holo-simplify", "no folder")  # and no "building" line
+    good = _run("service.cli_simplify", str(mesh), "--error", "1%", "--method", "quadric",
+                "--out", str(tmp_path / "low.obj"))
+    assert good.returncode == 0, good.stderr
+    assert good.stderr.startswith("holo-simplify: building quadric levels of ")  # progress
+    assert (tmp_path / "low.obj").is_file()
+
+
+def test_holo_sird_names_a_file_that_is_not_npy_or_missing(tmp_path):
+    garbage = tmp_path / "garbage.npy"
+    garbage.write_text("garbage\n")
+    proc = _run("service.cli_sird", str(garbage), "--out", str(tmp_path / "x.png"))
+    line = _one_line_error(proc, "holo-sird", "not a .npy file")
+    assert "pickle" not in line  # numpy's own message spoke of pickled data
+    proc = _run("service.cli_sird", str(tmp_path / "missing.npy"),
+                "--out", str(tmp_path / "x.png"))
+    _one_line_error(proc, "holo-sird", "missing.npy: cannot read the file")
+    np.save(tmp_path / "depth.npy", np.ones((24, 32), np.float32))
+    proc = _run("service.cli_sird", str(tmp_path / "depth.npy"),
+                "--out", str(tmp_path / "none" / "x.png"))
+    _one_line_error(proc, "holo-sird", "no folder")
+
+
+def test_holo_service_keys_never_overwrites_keys_and_errors_in_one_line(tmp_path):
+    keys = tmp_path / "keys"
+    first = _run("service.cli_service", "--make-keys", str(keys))
+    assert first.returncode == 0, first.stderr
+    before = {p: p.read_bytes() for p in keys.rglob("*") if p.is_file()}
+    assert len(before) == 5
+    again = subprocess.run([sys.executable, "-c", "from service.cli_service import keys_main;"
+                            f"raise SystemExit(keys_main([{str(keys)!r}]))"],
+                           cwd=ROOT, text=True, capture_output=True, timeout=60)
+    _one_line_error(again, "holo-service-keys", "already holds keys")
+    assert {p: p.read_bytes() for p in keys.rglob("*") if p.is_file()} == before
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    proc = _run("service.cli_service", "--make-keys", str(afile))
+    _one_line_error(proc, "holo-service", "cannot write the keys")
+
+
+def test_holo_service_says_in_one_line_that_its_port_is_taken():
+    with zmq.Context() as ctx, ctx.socket(zmq.REP) as sock:
+        port = sock.bind_to_random_port("tcp://127.0.0.1")
+        proc = _run("service.cli_service", "--control", f"tcp://127.0.0.1:{port}",
+                    "--frames", "tcp://127.0.0.1:0", "--no-warmup", timeout=60)
+    _one_line_error(proc, "holo-service", "cannot bind", "Address already in use")
+
+
+def test_holo_up_names_a_file_that_is_not_utf8_in_one_line(tmp_path):
+    rig = tmp_path / "rig.toml"
+    rig.write_bytes(b"[devices]\npub = \"\xff\"\n")
+    proc = _run("service.cli_up", str(rig), "--dry-run", timeout=60)
+    _one_line_error(proc, "holo-up", "not valid TOML", "UTF-8")
+
+
+def test_holo_bench_without_a_name_is_bad_usage_and_an_unknown_one_is_one_line():
+    proc = _run("service.cli_bench", timeout=60)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.strip().splitlines()[-1] == "holo-bench: error: name a benchmark"
+    proc = _run("service.cli_bench", "nosuch", timeout=60)
+    _one_line_error(proc, "holo-bench", "unknown benchmark 'nosuch'", "render, light")
+
+
+def test_holo_replay_passes_replays_that_many_times_without_loop(tmp_path):
+    log = tmp_path / "s.hlog"
+    header = LogHeader(log_devices([ReaderSettings("loop://", "hatire", "tracker")]),
+                       start_monotonic_ns=0)
+    with LogWriter(log, header) as w:
+        for k in range(20):
+            w.write("tracker", k * 1_000_000, hatire.encode_pose(k, float(k), 0.0, 0.0))
+
+    def poses(*extra: str) -> int:
+        proc = _run("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump", *extra,
+                    timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        return sum('"kind":"pose"' in ln.replace(" ", "") for ln in proc.stdout.splitlines())
+
+    once = poses()
+    assert once == 20
+    assert poses("--passes", "2") == 2 * once  # it was one pass: --passes needed --loop
+    assert poses("--loop", "--passes", "3") == 3 * once
