@@ -5,12 +5,13 @@ in a subprocess.
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 
 import numpy as np
 import zmq
-from testkit import ROOT
+from testkit import ROOT, SIGNALS, STATUS, catches, posix_only, wait_for
 
 from drivers.cli_devices import log_devices
 from drivers.protocols import hatire
@@ -131,3 +132,25 @@ def test_holo_replay_passes_replays_that_many_times_without_loop(tmp_path):
     assert once == 20
     assert poses("--passes", "2") == 2 * once  # it was one pass: --passes needed --loop
     assert poses("--loop", "--passes", "3") == 3 * once
+
+
+def test_holo_service_refuses_an_unknown_scene_before_binding():
+    proc = _run("service.cli_service", "--scene", "scene.toml", "--control",
+                "tcp://127.0.0.1:0", "--frames", "tcp://127.0.0.1:0", timeout=60)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "holo-service: error: argument --scene: unknown scene 'scene.toml'; known: game, "
+        "sphere-torus, cyclic, threaded, demo")
+    assert "control tcp://" not in proc.stderr  # nothing was bound
+
+
+@posix_only
+@SIGNALS
+def test_holo_sim_on_tcp_stopped_before_a_client_came_gives_the_signal_status(procs, signum):
+    sim = procs("sim_devices.cli", "tracker", "--tcp", "0")
+    sim.wait_lines(lambda: sim.out)  # socket://127.0.0.1:PORT: waiting for a client
+    assert sim.out[0].startswith("socket://127.0.0.1:")
+    wait_for(lambda: catches(sim.p.pid, signal.SIGTERM), what="signal handler installed")
+    sim.signal(signum)
+    assert sim.finish() == STATUS[signum]  # it said 2, "no client connected"
+    assert '"frames": 0' in sim.out[-1] and not any("Traceback" in ln for ln in sim.err)
