@@ -154,3 +154,12 @@ def test_holo_sim_on_tcp_stopped_before_a_client_came_gives_the_signal_status(pr
     sim.signal(signum)
     assert sim.finish() == STATUS[signum]  # it said 2, "no client connected"
     assert '"frames": 0' in sim.out[-1] and not any("Traceback" in ln for ln in sim.err)
+
+
+def test_holo_sird_names_a_pattern_file_that_is_not_a_png(tmp_path):
+    bad = tmp_path / "dots.png"
+    bad.write_bytes(b"GIF89a not a png")
+    proc = _run("service.cli_sird", "builtin:cyclic", "--size", "64x48", "--pattern", str(bad),
+                "--out", str(tmp_path / "x.png"))
+    _one_line_error(proc, "holo-sird", f"pattern {bad}: not a PNG file")
+    assert not (tmp_path / "x.png").exists()
