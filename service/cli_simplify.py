@@ -114,6 +114,11 @@ def run(args: argparse.Namespace) -> dict:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for k, arg in enumerate(argv[:-1]):  # "--error -1%" would read as a missing value
+        if arg == "--error" and argv[k + 1].startswith("-"):
+            argv[k:k + 2] = [f"--error={argv[k + 1]}"]
+            break
     args = parser.parse_args(argv)
     _check_out(args, parser)
     return interruptible("holo-simplify", lambda: _main(args))

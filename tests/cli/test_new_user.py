@@ -194,3 +194,11 @@ def test_holo_replay_skip_past_the_end_says_so_and_exits_1(tmp_path):
     proc = _run("drivers.cli_replay", str(log), "--skip", "1", "--as-fast-as-possible",
                 "--dump", timeout=60)
     assert proc.returncode == 0 and proc.stdout.count('"pose"') == 10, proc.stderr
+
+
+def test_holo_simplify_names_a_negative_error_as_such(tmp_path):
+    proc = _run("service.cli_simplify", "mesh.ply", "--error", "-1%", "--out",
+                str(tmp_path / "m.hbc"), timeout=60)
+    assert proc.returncode == 2
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last == "holo-simplify: error: argument --error: must be > 0, got -1%", last
