@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start S recorded seconds in")
     p.add_argument("--loop", action="store_true", help="start again at the end")
     p.add_argument("--passes", type=positive_int, default=None, metavar="N",
-                   help="with --loop, stop after N passes")
+                   help="replay N times, then stop (implies --loop)")
     add_publish_options(p)
     p.add_argument("--dump", action="store_true",
                    help="print one JSON line per event (implied without another output)")
@@ -278,7 +278,8 @@ class ReplaySession:
         settings = ReplaySettings(speed=args.speed, as_fast_as_possible=args.as_fast_as_possible,
                                   skip_s=args.skip,
                                   skip_mode="drop" if args.to_port or args.to_pty else "fast",
-                                  loop=args.loop, max_passes=args.passes)
+                                  loop=args.loop or args.passes is not None,
+                                  max_passes=args.passes)
         self.scheduler: ReplayScheduler[Record] = ReplayScheduler(settings, sleep=self._sleep)
         self.listeners: list[Listener] = []
         self.publisher: Publisher | None = None

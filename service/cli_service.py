@@ -25,6 +25,7 @@ from pathlib import Path
 
 import zmq
 
+from service.builtin_scenes import scene_name
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
@@ -149,9 +150,10 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
     ap.add_argument(
         "--scene",
         default=None,
+        type=scene_name,
         metavar="NAME",
-        help="built-in scene to load at start: game, demo, sphere_torus, cyclic or threaded "
-        "(default: none)",
+        help="built-in scene to load at start: game, demo, sphere-torus, cyclic or threaded "
+        "(default: none; a scene file is loaded by a client's load_scene request)",
     )
     ap.add_argument(
         "--scene-dir",

@@ -11,7 +11,8 @@ The first stdout line is the path or URL a client opens (flushed at once).  When
 run ends a JSON summary (bytes sent, faults applied; for a tracker, the host
 commands it received) is printed on stdout.  Ctrl-C (SIGINT) and SIGTERM stop it at
 once, without waiting for a client to read what is queued: exit status 130 / 143,
-the rule of :mod:`service.signals`; 0 after ``--seconds``; 2 for bad settings.
+the rule of :mod:`service.signals`; 0 after ``--seconds``; 1 when it served nobody
+(no client came to ``--tcp`` within 30 s); 2 for bad settings.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from drivers.pty_link import PtyLink
 from drivers.tracker_driver import add_command_options, commands_from_args
 from service.cli_args import float_range, int_range, plain_help
 from service.errors import HoloError
-from service.signals import EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
+from service.signals import EXIT_FAILED, EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
 from sim_devices.dialbox import DialBoxSim, demo_script
 from sim_devices.endpoints import DeviceRunner, TcpLink
 from sim_devices.faults import FaultSpec
@@ -46,7 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
         "or SGI dial and button box, served on a pty pair or a TCP port on 127.0.0.1.",
         epilog=plain_help("The first line on stdout is what a client opens (a /dev/pts "
                           "path or a socket:// URL); a JSON summary follows when the run "
-                          "ends. " + EXIT_RULE))
+                          "ends. " + EXIT_RULE + " 1: no client came to --tcp within "
+                          "30 s."))
     p.add_argument("device", choices=("tracker", "dials"), help="which device to simulate")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="serve on a pty pair (default)")
@@ -109,21 +111,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"holo-sim: {exc}", file=sys.stderr)
         return EXIT_USAGE
     print(getattr(link, "path", link.name), flush=True)
-    signum = None
+    signum, failure = None, None
     try:
         if isinstance(link, PtyLink):
             link.stop = runner.stop_event
         # SIGINT too: a KeyboardInterrupt would leave the stop event unset, and the pty
         # would then wait (up to 10 s) for a client to read what was queued
         with stop_on_signals(runner.stop_event) as got:
-            runner.run()
+            try:
+                runner.run()
+            except HoloError as exc:  # e.g. no client came to --tcp (or the stop ended the wait)
+                failure = exc
         signum = got.signum
     except KeyboardInterrupt:  # before the handler was in place
         signum = signal.SIGINT
         runner.stop_event.set()
-    except HoloError as exc:
-        print(f"holo-sim: {exc}", file=sys.stderr)
-        return EXIT_USAGE
     finally:
         with contextlib.suppress(HoloError, OSError):
             runner.poll_host()  # count host commands that came in at the very end
@@ -135,6 +137,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if isinstance(device, TrackerSim):
         summary["commands"] = dict(device.received)
     print(json.dumps(summary), flush=True)
+    if failure is not None and signum is None:
+        print(f"holo-sim: {failure}", file=sys.stderr)
+        return exit_status(None, EXIT_FAILED)  # it ran, but served nobody
     return exit_status(signum)
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import SettingsError
+from service.errors import PngError, SettingsError
 from service.png import read_png
 
 #: Random pattern names -> channels.
@@ -73,4 +73,8 @@ def make_pattern(kind: str, width: int, *, seed: int = 0) -> np.ndarray:
         raise SettingsError(
             f"pattern must be one of {sorted(RANDOM_KINDS)} or a PNG file, got {kind!r}"
         )
-    return image_tile(read_png(path), width)
+    try:
+        image = read_png(path)
+    except PngError as exc:
+        raise SettingsError(f"pattern {kind}: {exc}") from None
+    return image_tile(image, width)

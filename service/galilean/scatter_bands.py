@@ -144,7 +144,7 @@ def _scatter_bands_body(
     run_n_all = np.empty((bands, size), np.int64)  # its length
     win_i_all = np.empty((bands, size), np.int64)  # every winner's batch index (gathering)
     win_q_all = np.empty((bands, size), np.int64)  # and its new pixel
-    sb_all = np.zeros((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
+    sb_all = np.empty((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
     for band in nb.prange(bands):
         lo, hi = band * h // bands, (band + 1) * h // bands
         r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
@@ -162,6 +162,8 @@ def _scatter_bands_body(
         win_i = win_i_all[band]
         win_q = win_q_all[band]
         sb = sb_all[band]
+        for k in range(size):  # zeroed here: np.zeros would be a parallel pass of its own
+            sb[k] = 0
         n_prop = n_clash = n_drop = np.int64(0)
         mvy = may = mjy = np.int64(0)
         # how step 3 copies the batch: winner by winner (True) or run by run
@@ -263,8 +265,30 @@ def _scatter_bands_body(
                 # 2. z-test in scan order; the open run is kept in registers
                 runs = wins = 0
                 ri = rq = rn = np.int64(0)
+                skip = 0
                 for i in range(nr * w):
+                    if skip:
+                        skip -= 1
+                        continue
                     p = u64(b0 + i)
+                    if (bookkeeping and use_same and (i & (CHUNK - 1)) == 0
+                            and own_lo <= i and i + CHUNK <= own_hi
+                            and _all_set(same_in, b0 + i, b0 + i + CHUNK)
+                            and _all_set(n_deb, b0 + i, b0 + i + CHUNK)):
+                        # a chunk of still galpixels on their own pixels, nothing
+                        # landed there yet: each is the first to land on its own
+                        # pixel (as below), all at once
+                        for j in range(b0 + i, b0 + i + CHUNK):
+                            n_deb[u64(j)] = 0
+                        if record:
+                            for j in range(b0 + i, b0 + i + CHUNK):
+                                same_out[u64(j)] = 1
+                        n_prop += CHUNK
+                        if rn:
+                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
+                            rn = 0
+                        skip = CHUNK - 1
+                        continue
                     known = bookkeeping and use_same and same_in[p] != 0  # still, new holds it
                     q = b0 + i if known else qb[i]
                     own = own_lo <= i < own_hi

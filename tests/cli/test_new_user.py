@@ -5,13 +5,18 @@ in a subprocess.
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 
 import numpy as np
 import zmq
-from testkit import ROOT
+from testkit import ROOT, SIGNALS, STATUS, catches, posix_only, wait_for
 
+from drivers.cli_devices import log_devices
+from drivers.protocols import hatire
+from drivers.reader import ReaderSettings
+from drivers.recording import LogHeader, LogWriter
 from service.loaders import save_obj
 from service.primitives import sphere
 
@@ -107,3 +112,54 @@ def test_holo_bench_without_a_name_is_bad_usage_and_an_unknown_one_is_one_line()
     assert proc.stderr.strip().splitlines()[-1] == "holo-bench: error: name a benchmark"
     proc = _run("service.cli_bench", "nosuch", timeout=60)
     _one_line_error(proc, "holo-bench", "unknown benchmark 'nosuch'", "render, light")
+
+
+def test_holo_replay_passes_replays_that_many_times_without_loop(tmp_path):
+    log = tmp_path / "s.hlog"
+    header = LogHeader(log_devices([ReaderSettings("loop://", "hatire", "tracker")]),
+                       start_monotonic_ns=0)
+    with LogWriter(log, header) as w:
+        for k in range(20):
+            w.write("tracker", k * 1_000_000, hatire.encode_pose(k, float(k), 0.0, 0.0))
+
+    def poses(*extra: str) -> int:
+        proc = _run("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump", *extra,
+                    timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        return sum('"kind":"pose"' in ln.replace(" ", "") for ln in proc.stdout.splitlines())
+
+    once = poses()
+    assert once == 20
+    assert poses("--passes", "2") == 2 * once  # it was one pass: --passes needed --loop
+    assert poses("--loop", "--passes", "3") == 3 * once
+
+
+def test_holo_service_refuses_an_unknown_scene_before_binding():
+    proc = _run("service.cli_service", "--scene", "scene.toml", "--control",
+                "tcp://127.0.0.1:0", "--frames", "tcp://127.0.0.1:0", timeout=60)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "holo-service: error: argument --scene: unknown scene 'scene.toml'; known: game, "
+        "sphere-torus, cyclic, threaded, demo")
+    assert "control tcp://" not in proc.stderr  # nothing was bound
+
+
+@posix_only
+@SIGNALS
+def test_holo_sim_on_tcp_stopped_before_a_client_came_gives_the_signal_status(procs, signum):
+    sim = procs("sim_devices.cli", "tracker", "--tcp", "0")
+    sim.wait_lines(lambda: sim.out)  # socket://127.0.0.1:PORT: waiting for a client
+    assert sim.out[0].startswith("socket://127.0.0.1:")
+    wait_for(lambda: catches(sim.p.pid, signal.SIGTERM), what="signal handler installed")
+    sim.signal(signum)
+    assert sim.finish() == STATUS[signum]  # it said 2, "no client connected"
+    assert '"frames": 0' in sim.out[-1] and not any("Traceback" in ln for ln in sim.err)
+
+
+def test_holo_sird_names_a_pattern_file_that_is_not_a_png(tmp_path):
+    bad = tmp_path / "dots.png"
+    bad.write_bytes(b"GIF89a not a png")
+    proc = _run("service.cli_sird", "builtin:cyclic", "--size", "64x48", "--pattern", str(bad),
+                "--out", str(tmp_path / "x.png"))
+    _one_line_error(proc, "holo-sird", f"pattern {bad}: not a PNG file")
+    assert not (tmp_path / "x.png").exists()

@@ -341,10 +341,24 @@ def test_static_galpixels_left_in_place_give_the_same_refreshes(order: int, case
     head-motion update the wall moves, and a stage that still took it as static
     would show it where it was).
     """
-    display = DisplaySettings(zones=2, cols=56, rows=40)
+    _static_refreshes(DisplaySettings(zones=2, cols=56, rows=40), order, case, 40 + order)
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_static_chunks_left_in_place_give_the_same_refreshes(order: int) -> None:
+    """The z-test's chunks of still galpixels (32 at once), rows of an odd width.
+
+    203 px rows: chunks start anywhere in a row and straddle rows; movers land on
+    some chunks before their own galpixels do (those are taken one by one).
+    """
+    _static_refreshes(DisplaySettings(zones=1, cols=203, rows=48), order, {}, 60 + order)
+
+
+def _static_refreshes(display: DisplaySettings, order: int, case: dict, seed: int) -> None:
+    """The body of the two tests above: 24 refreshes of a mostly static map, compared."""
     gs = GalileanSettings(order=order, refresh_hz=50.0, **case)
     fast, ref = GalileanStage(display, gs), ReferenceStage(display, gs)
-    rng = np.random.default_rng(40 + order)
+    rng = np.random.default_rng(seed)
     gp = mostly_static_map(fast, rng)
     for st in (fast, ref):
         st.submit(gp.copy(), 0)
