@@ -26,7 +26,7 @@ from pathlib import Path
 import zmq
 
 from service.builtin_scenes import scene_name
-from service.cli_args import add_size_option, float_range, int_range, plain_help
+from service.cli_args import add_size_option, endpoint, float_range, int_range, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.net.curve_keys import make_keys
@@ -60,14 +60,17 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_addresses(ap: argparse.ArgumentParser) -> None:
     """Sockets, devices and keys."""
     ap.add_argument(
-        "--control", default="tcp://127.0.0.1:5555", metavar="ADDR", help="control ROUTER address"
+        "--control", default="tcp://127.0.0.1:5555", type=endpoint(bind=True), metavar="ADDR",
+        help="control ROUTER address"
     )
     ap.add_argument(
-        "--frames", default="tcp://127.0.0.1:5556", metavar="ADDR", help="frame PUB address"
+        "--frames", default="tcp://127.0.0.1:5556", type=endpoint(bind=True), metavar="ADDR",
+        help="frame PUB address"
     )
     ap.add_argument(
         "--devices",
         default=None,
+        type=endpoint(bind=False),
         metavar="ADDR",
         help="holo-devices PUB address for the viewer's pose and input (default: none)",
     )
@@ -82,6 +85,7 @@ def _add_addresses(ap: argparse.ArgumentParser) -> None:
     ap.add_argument(
         "--worker-address",
         default=None,
+        type=endpoint(bind=True),
         metavar="ADDR",
         help="broker backend address workers connect to (default: tcp://127.0.0.1:5557, "
         "used when --workers > 0).  Giving it starts the broker even with --workers 0, for "
@@ -193,6 +197,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.make_keys:
         return _print_keys(args.make_keys)
+    problem = _keys_problem(args.curve_keys)
+    if problem:
+        print(f"holo-service: --curve-keys {problem}", file=sys.stderr)
+        return EXIT_USAGE
     # OpenMP threads that spin while waiting steal the core the refresh thread and the
     # other processes need: with one busy process beside it, a 5-zone game render took
     # 16 ms spinning against 12 ms passive (unloaded, passive is ~1.2x slower).  Set
@@ -249,6 +257,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if received.signum is not None:
         _log(f"stopped ({received.name})")
     return received.exit_status(EXIT_OK)
+
+
+def _keys_problem(directory: str | None) -> str | None:
+    """What a ``--curve-keys`` folder lacks (zmq.auth says it in two unprefixed lines)."""
+    if directory is None:
+        return None
+    folder = Path(directory)
+    missing = [name for name in ("server.key_secret", "authorized")
+               if not (folder / name).exists()]
+    if missing:
+        return (f"{directory}: no {' or '.join(missing)} (make the keys with "
+                f"holo-service-keys {directory})")
+    return None
 
 
 def _log(line: str) -> None:

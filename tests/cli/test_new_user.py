@@ -163,3 +163,19 @@ def test_holo_sird_names_a_pattern_file_that_is_not_a_png(tmp_path):
                 "--out", str(tmp_path / "x.png"))
     _one_line_error(proc, "holo-sird", f"pattern {bad}: not a PNG file")
     assert not (tmp_path / "x.png").exists()
+
+
+def test_holo_service_checks_its_addresses_and_keys_before_binding(tmp_path):
+    cases = [
+        (("--control", "tcp://127.0.0.1:99999"), "argument --control"),  # bound 34463
+        (("--worker-address", "tcp://127.0.0.1:99999"), "argument --worker-address"),
+        (("--devices", "foo"), "argument --devices"),  # taken, and never heard from
+        (("--curve-keys", str(tmp_path / "nokeys")), "--curve-keys"),  # two zmq.auth lines
+    ]
+    for extra, word in cases:
+        proc = _run("service.cli_service", "--frames", "tcp://127.0.0.1:0", *extra,
+                    "--no-warmup", timeout=60)
+        assert proc.returncode == 2, (extra, proc.stderr)
+        last = proc.stderr.strip().splitlines()[-1]
+        assert last.startswith("holo-service: ") and word in last, last
+        assert "control tcp://" not in proc.stderr and "Traceback" not in proc.stderr
