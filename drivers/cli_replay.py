@@ -29,8 +29,8 @@ its first byte.  With no output option (``--dump``, ``--pub``, ``--to-port``,
 
 Exit status (the rule of :mod:`service.signals`): 0 when the replay decoded device
 events; 1 when it decoded none (an empty log, or bytes in another protocol: the
-message names what was read and discarded); 2 for a bad file or settings; 130 / 143
-after a clean stop on SIGINT / SIGTERM.
+message names what was read and discarded) or ``--skip`` passed them all; 2 for a
+bad file or settings; 130 / 143 after a clean stop on SIGINT / SIGTERM.
 """
 
 from __future__ import annotations
@@ -94,7 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Replay a holo-devices session log (or a raw serial capture) at its "
         "recorded timing: dump, publish, or write the bytes into a serial port.",
         epilog=plain_help("Without --dump, --pub, --to-port or --to-pty, --dump is implied. "
-                          + EXIT_RULE + " 1: no device event was decoded."))
+                          + EXIT_RULE + " 1: no device event was decoded (or --skip passed "
+                          "them all)."))
     p.add_argument("file", type=Path, help="session log, or raw capture with --protocol")
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--speed", type=float_range(0, lo_open=True), default=1.0,
@@ -288,6 +289,9 @@ class ReplaySession:
         #: device bytes replayed and device events (pose, dial, button) decoded from them
         self.bytes_read = 0
         self.decoded = 0
+        #: device events replayed from --skip on, and the log's first and last record times
+        self.shown = 0
+        self.span_ns = (0, 0)
         try:
             self._open_outputs()
         except HoloError:
@@ -336,6 +340,7 @@ class ReplaySession:
         if first is None:
             return
         show_from = first.t_ns + round(self.args.skip * 1e9)
+        self.span_ns = (first.t_ns, first.t_ns)
         current = 0
         with contextlib.suppress(_Stopped):
             for n_pass, rec in self._records():
@@ -356,6 +361,7 @@ class ReplaySession:
 
     def _one(self, rec: Record, show: bool) -> None:
         item = self.replayer.item(rec)
+        self.span_ns = (self.span_ns[0], max(self.span_ns[1], rec.t_ns))
         if self.port is not None and isinstance(item, Chunk) and item.device == self.port_device:
             self.port.write(item.data)
         events = self.replayer.events(item)
@@ -366,6 +372,7 @@ class ReplaySession:
             self._dispatch(item, events)
 
     def _dispatch(self, item: Item, events: list[Event]) -> None:
+        self.shown += sum(not isinstance(e, StatusEvent) for e in events)
         for listener in self.listeners:
             listener(item, events)
         if events and not self.args.as_fast_as_possible:
@@ -390,6 +397,10 @@ class ReplaySession:
                    f"{st.skipped_bytes} bytes skipped")
         if not self.decoded:
             yield f"{self.args.file}: {self._nothing_decoded()}"
+        elif not self.shown:
+            span = (self.span_ns[1] - self.span_ns[0]) / 1e9
+            yield (f"--skip {self.args.skip:g} s is past the last device event; the log "
+                   f"spans {span:.1f} s, so nothing was replayed")
 
     def _nothing_decoded(self) -> str:
         if not self.bytes_read:
@@ -435,7 +446,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         session.close()
     for line in session.problems():
         print(f"holo-replay: {line}", file=sys.stderr)
-    return exit_status(signum, EXIT_OK if session.decoded else EXIT_FAILED)
+    return exit_status(signum, EXIT_OK if session.shown else EXIT_FAILED)
 
 
 if __name__ == "__main__":

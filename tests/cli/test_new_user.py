@@ -179,3 +179,18 @@ def test_holo_service_checks_its_addresses_and_keys_before_binding(tmp_path):
         last = proc.stderr.strip().splitlines()[-1]
         assert last.startswith("holo-service: ") and word in last, last
         assert "control tcp://" not in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_holo_replay_skip_past_the_end_says_so_and_exits_1(tmp_path):
+    log = tmp_path / "s.hlog"
+    header = LogHeader(log_devices([ReaderSettings("loop://", "hatire", "tracker")]),
+                       start_monotonic_ns=0)
+    with LogWriter(log, header) as w:
+        for k in range(20):
+            w.write("tracker", k * 100_000_000, hatire.encode_pose(k, float(k), 0.0, 0.0))
+    proc = _run("drivers.cli_replay", str(log), "--skip", "100", "--dump", timeout=60)
+    assert proc.returncode == 1 and proc.stdout == ""  # it said 0, printing nothing
+    assert "--skip 100 s is past the last device event; the log spans 1.9 s" in proc.stderr
+    proc = _run("drivers.cli_replay", str(log), "--skip", "1", "--as-fast-as-possible",
+                "--dump", timeout=60)
+    assert proc.returncode == 0 and proc.stdout.count('"pose"') == 10, proc.stderr
