@@ -356,7 +356,8 @@ STREAM_KINDS = ("frame", "hb")
 #: Frame header keys that must be integers when present: (key, least value, required
 #: in a ``frame``).  ``scene`` is absent in services older than it.
 FRAME_INTS = (("seq", 0, True), ("render_id", -1, True), ("since_render", 0, False),
-              ("scene", 0, False), ("refresh", 0, False), ("t_ns", 0, False))
+              ("scene", 0, False), ("refresh", 0, False), ("t_ns", 0, False),
+              ("order", 0, False))
 
 
 def _frame_int(header: dict[str, Any], key: str, least: int, required: bool) -> None:

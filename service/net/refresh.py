@@ -154,7 +154,6 @@ class RefreshLoop:
         self.st = st
         self.stage: GalileanStage | None = None
         self.generation = -1
-        self.scene_version = -1
         #: the newest scene load the stage knows of, and the one the shown render is of
         self.scene_load = 0
         self.shown_scene = 0
@@ -278,9 +277,9 @@ class RefreshLoop:
                 self._new_scene(up.scene_load)
             elif up.scene_load < self.scene_load:  # rendered from a scene replaced since
                 continue
-            if up.scene_version != self.scene_version:
-                self.stage.reset_guard()  # a new scene: the old points predict nothing
-                self.scene_version = up.scene_version
+            # no guard reset on object updates: a changed motion is what the order
+            # guard is for; a new scene resets it (new_scene), as a new object does
+            # (another count of control points)
             ok = self.stage.submit(
                 up.buffer,
                 up.rendezvous,
@@ -353,6 +352,7 @@ class RefreshLoop:
             "input": self.input,
             "events": r.flags["events"],
             "age": r.flags["age"],
+            "order": int(r.flags["order"]),
         }
         arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]
         self.st.stream.publish(header, arrays, names)
