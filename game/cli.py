@@ -25,7 +25,7 @@ from pathlib import Path
 from game.actions import binding_help, lamp_mask
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
-from service.cli_args import add_size_option, plain_help
+from service.cli_args import add_size_option, endpoint, output_problem, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.lod_cli import add_lod_options, lod_settings
@@ -44,9 +44,12 @@ def build_parser() -> argparse.ArgumentParser:
         + "\n\n" + EXIT_RULE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--service", default=DEFAULT_SERVICE, help="holo-service control address")
-    p.add_argument("--frames", default=None, help="frame stream address (default: from hello)")
-    p.add_argument("--devices", default=None, help="holo-devices PUB address (input, head)")
+    p.add_argument("--service", default=DEFAULT_SERVICE, type=endpoint(bind=False),
+                   metavar="ADDR", help="holo-service control address")
+    p.add_argument("--frames", default=None, type=endpoint(bind=False), metavar="ADDR",
+                   help="frame stream address (default: from hello)")
+    p.add_argument("--devices", default=None, type=endpoint(bind=False), metavar="ADDR",
+                   help="holo-devices PUB address (input, head)")
     p.add_argument("--local", action="store_true", help="render in this process, no service")
     _add_display_args(p)
     p.add_argument("--bot", action="store_true", help="attract mode: the bot plays")
@@ -128,6 +131,9 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
         parser.error(
             f"--zone {args.zone}: the display has {args.zones} zones, 0 to {args.zones - 1}"
         )
+    problem = output_problem(args.out, folder=True) if args.out else None
+    if problem:
+        parser.error(f"--out {problem}")
 
 
 def _backend(args: argparse.Namespace, settings: object) -> object:
