@@ -16,7 +16,9 @@ authenticator).  Binding a non-loopback address without keys is refused.
 
 from __future__ import annotations
 
+import os
 import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from urllib.parse import urlparse
@@ -39,20 +41,20 @@ def make_keys(directory: str | Path) -> dict[str, Path]:
     """
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    server_pub, server_sec = zmq.auth.create_certificates(d, "server")
-    client_pub, client_sec = zmq.auth.create_certificates(d, "client")
+    # made in a private folder (mode 700, tempfile's) and made 600 there before they
+    # move beside the public keys: no moment in which another user could read them
+    with tempfile.TemporaryDirectory(dir=d, prefix=".keys-") as private:
+        made: dict[str, Path] = {}
+        for who in ("server", "client"):
+            pub, sec = zmq.auth.create_certificates(private, who)
+            Path(sec).chmod(0o600)
+            for kind, path in (("public", Path(pub)), ("secret", Path(sec))):
+                os.replace(path, d / path.name)
+                made[f"{who}_{kind}"] = d / path.name
     auth = d / "authorized"
     auth.mkdir(exist_ok=True)
-    shutil.copy(client_pub, auth / "client.key")
-    for secret in (server_sec, client_sec):
-        Path(secret).chmod(0o600)
-    return {
-        "server_public": Path(server_pub),
-        "server_secret": Path(server_sec),
-        "client_public": Path(client_pub),
-        "client_secret": Path(client_sec),
-        "authorized": auth,
-    }
+    shutil.copy(made["client_public"], auth / "client.key")
+    return {**made, "authorized": auth}
 
 
 def is_local(address: str) -> bool:

@@ -85,3 +85,19 @@ def test_non_loopback_bind_needs_keys():
         timeout=60,
     )
     assert out.returncode == 2 and "--curve-keys" in out.stderr
+
+
+def test_make_keys_writes_secrets_private_and_leaves_no_temporary_folder(tmp_path):
+    import stat
+
+    from service.net.curve_keys import make_keys
+
+    made = make_keys(tmp_path / "k")
+    for name in ("server_secret", "client_secret"):
+        assert stat.S_IMODE(made[name].stat().st_mode) == 0o600, name
+        assert made[name].parent == tmp_path / "k"
+    for name in ("server_public", "client_public"):
+        assert made[name].is_file() and made[name].parent == tmp_path / "k"
+    assert sorted(p.name for p in (tmp_path / "k").iterdir()) == [
+        "authorized", "client.key", "client.key_secret", "server.key", "server.key_secret"]
+    assert (made["authorized"] / "client.key").read_bytes() == made["client_public"].read_bytes()
