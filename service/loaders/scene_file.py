@@ -104,7 +104,19 @@ def _object_mesh(path: Path, where: str, spec: dict, load_mesh: Callable) -> Mes
         raise MeshFileError(str(path), where, "give exactly one of 'file' and 'primitive'")
     if "primitive" in spec:
         return _primitive(path, where, spec)
-    return load_mesh(path.parent / _value(path, where, "file", spec["file"], -1))
+    return _load_named(path, where, _value(path, where, "file", spec["file"], -1), load_mesh)
+
+
+def _load_named(path: Path, where: str, name: str, load: Callable) -> object:
+    """``load`` the file an object names, beside the scene file.
+
+    A missing one is named with the scene file and the object, not as a bare errno line.
+    """
+    target = path.parent / name
+    if not target.is_file():
+        what = "is not a file" if target.exists() else "not found"
+        raise MeshFileError(str(path), where, f"file {name!r} {what} (looked for {target})")
+    return load(target)
 
 
 def _transform(path: Path, where: str, spec: dict) -> Transform:
@@ -155,7 +167,7 @@ def _billboard_object(path: Path, where: str, spec: dict, material: dict,
     if "motion" in spec or "primitive" in spec:
         raise MeshFileError(str(path), where, "a billboard cloud takes no 'motion' or "
                             "'primitive' (it is drawn where it is placed)")
-    cloud = load_cloud(path.parent / spec["file"])
+    cloud = _load_named(path, where, spec["file"], load_cloud)
     return BillboardObject(cloud=cloud,
                            material=_make(path, f"{where}, material", Material, **material),
                            transform=_transform(path, where, spec), name=name)

@@ -208,10 +208,23 @@ def test_bad_scene_file_names_file_and_place(tmp_path, text, where, reason):
 
 def test_scene_error_in_referenced_mesh_names_that_file(tmp_path):
     (tmp_path / "s.toml").write_text("[[object]]\nfile = 'sub/m.hobj'\n")
-    with pytest.raises(MeshFileError) as info:
+    with pytest.raises(MeshFileError) as info:  # missing: the scene file and object named
         load_scene(tmp_path / "s.toml")
-    assert info.value.path == str(tmp_path / "sub" / "m.hobj")
+    assert info.value.path == str(tmp_path / "s.toml") and info.value.where == "object 1"
+    assert "'sub/m.hobj' not found" in info.value.reason
+    assert str(tmp_path / "sub" / "m.hobj") in info.value.reason
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / "m.hobj").write_text("3 1\n3\n0 0 0\n1 0 0\n")
     with pytest.raises(MeshFileError, match=r"m\.hobj, polygon 0"):
         load_scene(tmp_path / "s.toml")
+
+
+@pytest.mark.parametrize("name", ["gone.hbc", "gone.obj", "folder.hbc"])
+def test_scene_naming_a_missing_file_names_scene_object_and_file(tmp_path, name):
+    (tmp_path / "folder.hbc").mkdir()
+    (tmp_path / "s.toml").write_text(f"[[object]]\nname = 'x'\nfile = '{name}'\n")
+    with pytest.raises(MeshFileError) as info:
+        load_scene(tmp_path / "s.toml")
+    assert info.value.path == str(tmp_path / "s.toml") and info.value.where == "object 1 (x)"
+    want = "is not a file" if name.startswith("folder") else "not found"
+    assert f"{name!r} {want}" in info.value.reason
