@@ -401,10 +401,9 @@ def _summary(args: argparse.Namespace, control: str | None) -> int:
               f"service's warm-up); the rates count from it, over {stats['seconds']} s")
     print(f"  score {stats['score']} over {stats['games']} games, beeps {stats['beeps']}")
     print(f"  tracker poses {stats['tracker_events']}, dial-box events {stats['dial_events']}")
-    print(
-        f"  modes {', '.join(stats['modes'])} (unavailable: "
-        f"{', '.join(stats['modes_unavailable'])})"
-    )
+    missing = stats["modes_unavailable"]
+    print(f"  modes {', '.join(stats['modes'])}"
+          + (f" (unavailable: {', '.join(missing)})" if missing else ""))
     print(f"  wrote {', '.join(stats.get('files', []))} and stats.json to {out}/")
     for line in rate_warnings(stats, args):
         print(f"holo-demo: warning: {line}", file=sys.stderr)
@@ -421,9 +420,12 @@ def rate_warnings(stats: dict, args: argparse.Namespace) -> list[str]:
            if stats[k] < MEANT_HZ[k]]
     if not low:
         return []
-    lighter = "--size 160x120" if args.light == "ambient" else "--light ambient or --size 160x120"
+    # only what the run did not already use
+    lighter = [o for o, used in (("--light ambient", args.light == "ambient"),
+                                 ("--size 160x120", tuple(args.size) <= (160, 120))) if not used]
+    hint = f"; {' or '.join(lighter)} lightens the load" if lighter else ""
     return [f"{' and '.join(low)} at {args.size[0]}x{args.size[1]} per zone: the machine is "
-            f"busy or slower than two quiet cores; {lighter} lightens the load"]
+            f"busy or slower than two quiet cores{hint}"]
 
 
 if __name__ == "__main__":

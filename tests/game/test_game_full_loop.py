@@ -64,3 +64,18 @@ def test_the_summary_warns_when_the_rates_fall_short(refresh_hz, update_hz, warn
     else:
         assert len(lines) == 1 and warned in lines[0]
         assert refresh_hz == 0 or "--light ambient or --size 160x120" in lines[0]
+
+
+@pytest.mark.parametrize(("argv", "hint"), [
+    (["--light", "ambient"], "; --size 160x120 lightens the load"),
+    (["--size", "160x120"], "; --light ambient lightens the load"),
+    (["--light", "ambient", "--size", "160x120"], None),
+])
+def test_the_warning_suggests_only_what_the_run_did_not_use(argv, hint):
+    args = full_demo.build_parser().parse_args(argv)
+    stats = {"refreshes": 600, "refresh_hz": 30.0, "update_hz": 2.0}
+    (line,) = full_demo.rate_warnings(stats, args)
+    if hint is None:
+        assert "lightens" not in line and line.endswith("than two quiet cores")
+    else:
+        assert line.endswith(hint), line
