@@ -210,6 +210,11 @@ def _write_csv(path: Path, rows: list) -> None:
             w.writerows(rows)
 
 
+def _step(what: str) -> None:
+    """One progress line on stderr (the rows go to stdout at the end)."""
+    print(f"holo-bench billboard: {what}", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; write CSV, JSON and the chart."""
     args = build_parser().parse_args(argv)
@@ -225,12 +230,16 @@ def main(argv: list[str] | None = None) -> int:
     mesh = load_mesh(args.mesh)
     v, f = mesh.vertices, mesh.triangles
     diag = float(np.linalg.norm(v.max(0) - v.min(0)))
+    _step("warm-up (numba kernels; minutes on an empty cache)")
     warm_up(SETTINGS)
+    _step(f"building clouds of {args.mesh}")
     build = build_rows(v, f, diag, args)
     cloud = build_cloud(v, f, args.view_eps / 100 * diag, args.texture_res)
     fit = fit_transform(mesh)
+    _step("zoom and grazing-angle errors")
     zoom = zoom_rows(mesh, cloud, fit, display, args)
     grazing = grazing_rows(mesh, cloud, fit, display, args)
+    _step(f"frame cost, meshes {names or 'none'}")
     cost = billboard_cost.cost_rows(display, names, args.cost_sizes, args.lod_error, args.repeats)
     for name, data in (("build", build), ("zoom", zoom), ("grazing", grazing), ("cost", cost)):
         _write_csv(out / f"billboard_{name}.csv", data)

@@ -565,6 +565,11 @@ def plot(res: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
+def _step(what: str) -> None:
+    """One progress line on stderr (the summary goes to stdout at the end)."""
+    print(f"holo-bench service: {what}", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """``holo-bench service``; returns the exit status."""
     p = argparse.ArgumentParser(
@@ -599,13 +604,17 @@ def main(argv: list[str] | None = None) -> int:
             "libzmq": zmq.zmq_version(),
         }
     }
+    _step("transport (raw PUB/SUB against the frame codec)")
     res["transport"] = bench_transport(50 if q else 500)
+    _step("request round trip")
     res["round_trip"] = bench_round_trip(100 if q else 1000)
+    _step(f"render rates with workers {counts[:2] if q else counts} (services started in turn)")
     res["workers_rounds"] = bench_workers(
         counts[:2] if q else counts, 3.0 if q else args.seconds, rounds=1 if q else args.rounds
     )
     res["workers"] = median_rows(res["workers_rounds"])
     res["game"] = next((w for w in res["workers"] if w.get("workers") == 1), res["workers"][0])
+    _step("motion to photon (a simulated tracker through the service)")
     res["motion_to_photon"] = bench_motion_to_photon(60 if q else 400)
     if not q:  # the same with one libzmq I/O thread (frames share it with worker replies)
         res["motion_to_photon_1io"] = bench_motion_to_photon(400, io_threads=1)
