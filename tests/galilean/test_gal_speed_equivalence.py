@@ -7,6 +7,9 @@ both stages get the same random galpixmaps and must agree on every byte of every
 displayed frame, of the counters and of every field of the maps they hold.
 """
 
+import contextlib
+from collections.abc import Iterator
+
 import numpy as np
 import pytest
 
@@ -29,11 +32,15 @@ class ReferenceStage(GalileanStage):
 
     def _show(self, shown: tuple) -> None:
         counters = np.zeros(len(STAT_NAMES), np.int64)
+        with _contiguous(self.map) as (m,):
+            self._show_kernel(m, shown, counters)
+
+    def _show_kernel(self, m: tuple, shown: tuple, counters: np.ndarray) -> None:
         second_sweep(
-            self.map.arrays(),
+            m,
             self._src,
-            self.map.depth,
-            self.map.debris,
+            m[1],  # the same arrays as the tuple's depth and debris, as the stage passes
+            m[6],
             -1.0,
             1,
             0,
@@ -52,12 +59,17 @@ class ReferenceStage(GalileanStage):
         counters: np.ndarray,
         shown: tuple | None,
     ) -> None:
+        with _contiguous(self.map, new, cold, cnew) as (m, n, co, cn):
+            self._sweep_kernels(m, n, co, cn, thr, counters, shown)
+
+    def _sweep_kernels(self, m: tuple, new: tuple, cold: tuple, cnew: tuple, thr: float,
+                       counters: np.ndarray, shown: tuple | None) -> None:
         s = self.settings
         sweep(
-            flat(self.map.arrays()),
-            flat(new.arrays()),
-            flat(cold.arrays()),
-            flat(cnew.arrays()),
+            flat(m),
+            flat(new),
+            flat(cold),
+            flat(cnew),
             self.cache is not None,
             self._src.reshape(-1),
             self.shape,
@@ -75,10 +87,10 @@ class ReferenceStage(GalileanStage):
                 np.empty((z, r, c), np.bool_),
             )
         second_sweep(
-            new.arrays(),
+            new,
             self._src,
-            self.map.depth,
-            self.map.debris,
+            m[1],
+            m[6],
             thr,
             s.neighbours,
             EXPANSION_MODES[s.expansion],
@@ -87,6 +99,25 @@ class ReferenceStage(GalileanStage):
             counters,
             2.0**-self.fixed.fz,
         )
+
+
+@contextlib.contextmanager
+def _contiguous(*maps: Galpixmap) -> Iterator[list[tuple]]:
+    """Each map's arrays as C-contiguous copies, written back into the map afterwards.
+
+    A map's multi-plane fields are staggered views ('A' to numba) with 2 or more
+    planes and contiguous ('C') with 0 or 1, which depends on the order and on colour
+    motion; the reference kernels compiled once per combination (6 each, about 70 s
+    of a fresh clone's test run).  Copies are 'C' whatever the map, so one compile
+    serves all.  A map given twice (the stage passes ``new`` as both cache maps when
+    the cache is off) gets one copy, so the kernels see the same aliasing.
+    """
+    copies = {id(gp): tuple(np.array(a, order="C") for a in gp.arrays())
+              for gp in maps}
+    yield [copies[id(gp)] for gp in maps]
+    for gp in {id(g): g for g in maps}.values():
+        for dst, src in zip(gp.arrays(), copies[id(gp)], strict=True):
+            dst[...] = src
 
 
 def random_map(stage: GalileanStage, rng: np.random.Generator, debris: float = 0.08) -> Galpixmap:
