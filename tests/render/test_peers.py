@@ -61,7 +61,9 @@ def test_peer_depth_agrees_with_ours_on_a_small_scene(name, tmp_path):
     assert row["pct_agree"] >= 99.9, row
     assert row["pct_differ"] <= 0.1 and row["ours_pct_differ"] == 0.0
     assert row["peer_ms"] > 0 and row["ours_ms"] > 0
-    assert row["ratio"] == pytest.approx(row["ours_ms"] / row["peer_ms"], rel=0.01)
+    # the row's ratio is rounded to 3 decimals: a small one (ours much faster) is off
+    # by up to 5e-4 however exact, more than rel=0.01 of it (0.031 against 0.0313)
+    assert row["ratio"] == pytest.approx(row["ours_ms"] / row["peer_ms"], rel=0.01, abs=6e-4)
     chart_peers(rows, tmp_path / "p.png")
     method_row = {"scene": "sphere-torus", "zones": 3, "method": "zbuffer", "ms": 1.0,
                   "pct_differ": 0.0}
