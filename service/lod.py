@@ -912,6 +912,14 @@ class LodState:
         self.builds.submit(key, mesh, settings)  # no-op once built, failed or queued
         return full_only(mesh, key)
 
+    def close(self, timeout_s: float = 10.0) -> None:
+        """End the background builds: a running build child is stopped (SIGTERM).
+
+        A chain it had not finished is built again by the next renderer that needs it.
+        """
+        if self.builds is not None:
+            self.builds.close(timeout_s)
+
     def chain_status(self, chains: list) -> dict:
         """``ready``, ``building`` and ``failed`` counts of distinct chains, and ``notes``."""
         failed = self.builds.failed if self.builds is not None else {}
