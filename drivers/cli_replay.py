@@ -24,19 +24,28 @@ client opened the port, so ``--loop`` suits it).
 
 A file without the log magic is read as a raw capture (``--protocol`` required):
 chunks of ``--chunk-size`` bytes stamped at the line rate of ``--baud``; time 0 is
-its first byte.  With no output option (``--dump``, ``--pub``, ``--to-port``,
+its first byte.  A capture whose first 64 KiB do not frame as ``--protocol`` (more
+than half the bytes rejected: :mod:`drivers.protocols.framing`) is refused before
+any output, naming the protocols it does frame as; the SGI dial box protocol has no
+framing, so without this a tracker capture read as ``sgi`` gave thousands of
+made-up button events.  A session log is replayed as recorded, but a device whose
+bytes did not frame is named at the end and its events do not count for the exit
+status.  With no output option (``--dump``, ``--pub``, ``--to-port``,
 ``--to-pty``) ``--dump`` is implied, and a note on stderr says so.
 
 Exit status (the rule of :mod:`service.signals`): 0 when the replay decoded device
 events; 1 when it decoded none (an empty log, or bytes in another protocol: the
-message names what was read and discarded) or ``--skip`` passed them all; 2 for a
-bad file or settings; 130 / 143 after a clean stop on SIGINT / SIGTERM.
+message names what was read and discarded; events of a device whose bytes do not
+frame do not count) or ``--skip`` passed them all; 2 for a bad file or settings
+(a raw capture that does not frame as ``--protocol``); 130 / 143 after a clean stop
+on SIGINT / SIGTERM.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import signal
 import sys
 import threading
@@ -54,7 +63,14 @@ from drivers.cli_devices import (
     publishing_line,
 )
 from drivers.events import DEFAULT_COUNTS_PER_TURN, Event, StatusEvent
-from drivers.protocols import DEVICE_OF
+from drivers.protocols import DEVICE_OF, sgi_dialbox
+from drivers.protocols.framing import (
+    PREFIX_BYTES,
+    FramingCheck,
+    check_framing,
+    count_events,
+    protocols_that_frame,
+)
 from drivers.pty_link import PtyLink
 from drivers.publisher import Publisher
 from drivers.reader import (
@@ -66,7 +82,14 @@ from drivers.reader import (
     Item,
     canonical_protocol,
 )
-from drivers.recording import MAGIC, LogHeader, LogReader, RawCaptureReader, Record
+from drivers.recording import (
+    BITS_PER_BYTE_8N1,
+    MAGIC,
+    LogHeader,
+    LogReader,
+    RawCaptureReader,
+    Record,
+)
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
 from service.cli_args import float_range, int_range, plain_help
 from service.errors import DeviceError, HoloError, LogFileError, SettingsError
@@ -155,10 +178,37 @@ def open_source(args: argparse.Namespace) -> LogReader | RawCaptureReader:
     if args.protocol is None:
         raise LogFileError(f"{args.file}: not a session log (no HOLOLOG magic); "
                            "pass --protocol to replay a raw capture")
-    return RawCaptureReader(args.file, protocol=args.protocol,
-                            baudrate=args.baud or RAW_BAUD[args.protocol],
-                            chunk_size=args.chunk_size, skip_bytes=args.skip_bytes,
-                            device=DEVICE_OF[args.protocol])
+    reader = RawCaptureReader(args.file, protocol=args.protocol,
+                              baudrate=args.baud or RAW_BAUD[args.protocol],
+                              chunk_size=args.chunk_size, skip_bytes=args.skip_bytes,
+                              device=DEVICE_OF[args.protocol])
+    check_raw_framing(args)
+    return reader
+
+
+def check_raw_framing(args: argparse.Namespace) -> None:
+    """Refuse a raw capture whose first bytes do not frame as ``--protocol``.
+
+    Raises
+    ------
+    LogFileError
+        Naming the rejected bytes and the protocols that do frame them.
+    """
+    try:
+        with open(args.file, "rb") as f:
+            f.seek(args.skip_bytes)
+            head = f.read(PREFIX_BYTES)
+    except OSError as exc:
+        raise LogFileError(f"{args.file}: cannot read: {exc}") from exc
+    options = {"byte_order": "big"} if args.hatire_big_endian and args.protocol == "hatire" else {}
+    check = check_framing(args.protocol, head, **options)
+    if check.frames:
+        return
+    others = [p for p in protocols_that_frame(head) if p != args.protocol]
+    hint = (f"it frames as {' or '.join(others)}: pass --protocol {others[0]}" if others
+            else "nor as any other protocol (a leading banner? --skip-bytes N drops it)")
+    raise LogFileError(f"{args.file}: does not frame as {args.protocol}: "
+                       f"{check.describe('its first ')}; {hint}")
 
 
 def data_devices(header: LogHeader) -> list[tuple[str, str]]:
@@ -180,6 +230,23 @@ def decoder_options(header: LogHeader, big_endian: bool = False) -> dict[str, di
     return out
 
 
+def raw_capture_options(args: argparse.Namespace,
+                        options: dict[str, dict[str, Any]]) -> None:
+    """Decoder options a raw capture needs (updates ``options`` in place).
+
+    A raw capture's chunks are stamped at the line rate, ``--chunk-size`` bytes
+    apart (64 bytes at 9600 baud: 67 ms), so an SGI dial packet split between two
+    chunks would look 67 ms late and be dropped by the decoder's 10 ms rule, which
+    is about real arrival times that a capture does not have.  The timeout is
+    widened by one chunk period.
+    """
+    if args.protocol != "sgi":
+        return
+    chunk_ns = args.chunk_size * BITS_PER_BYTE_8N1 * 1e9 / (args.baud or RAW_BAUD["sgi"])
+    for opts in options.values():
+        opts.setdefault("dial_timeout_ns", sgi_dialbox.DIAL_TIMEOUT_NS + math.ceil(chunk_ns))
+
+
 class Replayer:
     """Turns records into items and events, one :class:`DeviceStream` per device.
 
@@ -196,13 +263,29 @@ class Replayer:
         self.t0_ns = header.start_monotonic_ns
         self._devices = data_devices(header)
         self._options = decoder_options(header) if options is None else dict(options)
+        #: device name -> framing counts of the passes so far (:meth:`reset` adds each)
+        self.framing = {name: FramingCheck(canonical_protocol(proto))
+                        for name, proto in self._devices}
+        #: device name -> its first bytes (up to PREFIX_BYTES), to say what they frame as
+        self.head = {name: bytearray() for name, _ in self._devices}
+        self.streams: dict[str, DeviceStream] = {}
         self.reset()
 
     def reset(self) -> None:
-        """Fresh decoders (a new pass)."""
+        """Fresh decoders (a new pass); the old ones' counts go into :attr:`framing`."""
+        for name, stream in self.streams.items():
+            st = stream.decoder.stats
+            self.framing[name] += FramingCheck(stream.protocol, st.bytes_in,
+                                               st.bytes_discarded, st.resyncs,
+                                               self._events.get(name, 0))
         self.streams = {name: DeviceStream(name, proto, self._options.get(name))
                         for name, proto in self._devices}
         self._last_t: dict[str, int] = {}
+        self._events: dict[str, int] = {}
+
+    def misframed(self) -> dict[str, FramingCheck]:
+        """Devices whose bytes (so far, over finished passes) do not frame as their protocol."""
+        return {name: c for name, c in self.framing.items() if not c.frames}
 
     def flush(self) -> list[tuple[Item, list[Event]]]:
         """End of a pass: each decoder's leftovers, at its device's last record time.
@@ -229,7 +312,13 @@ class Replayer:
         if stream is None:
             return []
         self._last_t[item.device] = item.t_ns
-        return stream.process(item)
+        if isinstance(item, Chunk):
+            head = self.head[item.device]
+            if len(head) < PREFIX_BYTES:
+                head += item.data[: PREFIX_BYTES - len(head)]
+        events = stream.process(item)
+        self._events[item.device] = self._events.get(item.device, 0) + count_events(events)
+        return events
 
 
 class _PtyOut:
@@ -272,7 +361,10 @@ class ReplaySession:
         self.stop = threading.Event()
         self.source = open_source(args)
         header = self.source.header
-        self.replayer = Replayer(header, decoder_options(header, args.hatire_big_endian))
+        options = decoder_options(header, args.hatire_big_endian)
+        if isinstance(self.source, RawCaptureReader):
+            raw_capture_options(args, options)
+        self.replayer = Replayer(header, options)
         self.counts_per_turn = int(args.dial_counts_per_turn
                                    or header.extra.get("counts_per_turn")
                                    or DEFAULT_COUNTS_PER_TURN)
@@ -291,6 +383,7 @@ class ReplaySession:
         self.decoded = 0
         #: device events replayed from --skip on, and the log's first and last record times
         self.shown = 0
+        self.shown_by_device: dict[str, int] = {}
         self.span_ns = (0, 0)
         try:
             self._open_outputs()
@@ -372,7 +465,9 @@ class ReplaySession:
             self._dispatch(item, events)
 
     def _dispatch(self, item: Item, events: list[Event]) -> None:
-        self.shown += sum(not isinstance(e, StatusEvent) for e in events)
+        shown = sum(not isinstance(e, StatusEvent) for e in events)
+        self.shown += shown
+        self.shown_by_device[item.device] = self.shown_by_device.get(item.device, 0) + shown
         for listener in self.listeners:
             listener(item, events)
         if events and not self.args.as_fast_as_possible:
@@ -389,18 +484,33 @@ class ReplaySession:
                 self.port.flush()
             self.port.close()
 
+    def useful(self) -> int:
+        """Device events shown from devices whose bytes framed as their protocol."""
+        bad = self.replayer.misframed()
+        return sum(n for device, n in self.shown_by_device.items() if device not in bad)
+
     def problems(self) -> Iterable[str]:
-        """What the log reader skipped (torn tail, corrupt regions); nothing decoded."""
+        """What went wrong: log damage, misframed devices, nothing decoded or shown."""
         st = self.source.stats
         if st.torn or st.corrupt:
             yield (f"log damage: {st.torn} torn, {st.corrupt} corrupt regions, "
                    f"{st.skipped_bytes} bytes skipped")
+        for name, check in self.replayer.misframed().items():
+            yield self._misframed_line(name, check)
         if not self.decoded:
             yield f"{self.args.file}: {self._nothing_decoded()}"
         elif not self.shown:
             span = (self.span_ns[1] - self.span_ns[0]) / 1e9
             yield (f"--skip {self.args.skip:g} s is past the last device event; the log "
                    f"spans {span:.1f} s, so nothing was replayed")
+
+    def _misframed_line(self, name: str, check: FramingCheck) -> str:
+        others = [p for p in protocols_that_frame(bytes(self.replayer.head[name]))
+                  if p != check.protocol]
+        hint = f"the bytes frame as {' or '.join(others)}: " if others else ""
+        return (f"{name}: the recorded bytes do not frame as {check.protocol} "
+                f"({check.describe()}), so its {check.events} events are not trusted; "
+                f"{hint}recorded with the wrong protocol?")
 
     def _nothing_decoded(self) -> str:
         if not self.bytes_read:
@@ -446,7 +556,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         session.close()
     for line in session.problems():
         print(f"holo-replay: {line}", file=sys.stderr)
-    return exit_status(signum, EXIT_OK if session.shown else EXIT_FAILED)
+    return exit_status(signum, EXIT_OK if session.useful() else EXIT_FAILED)
 
 
 if __name__ == "__main__":

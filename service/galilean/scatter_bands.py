@@ -54,6 +54,26 @@ def _unmoved(
 
 
 @nb.njit(cache=True, inline="always")
+def _move_colour(o_col: tuple, o_dc: tuple, n_col: tuple, n_dc: tuple, p: np.uint64,
+                 q: np.uint64) -> None:
+    """Old galpixel ``p``'s colour one refresh on, and its colour derivatives, into new pixel ``q``.
+
+    The colour-motion step of :func:`service.galilean.propagate.sweep` (``dA``,
+    ``dB``, ``dC``, ``d2A``), the same float arithmetic; written once for both
+    ways step 3 copies (winner by winner and run by run), inlined into each loop.
+    """
+    da, db, dc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
+    sa = da + 0.5 * d2a
+    n_col[0][q] = o_col[0][p] + (sa + db)
+    n_col[1][q] = o_col[1][p] + (sa - dc)
+    n_col[2][q] = o_col[2][p] + (sa - db + dc)
+    n_dc[0][q] = da + d2a
+    n_dc[1][q] = db
+    n_dc[2][q] = dc
+    n_dc[3][q] = d2a
+
+
+@nb.njit(cache=True, inline="always")
 def _all_set(flags: np.ndarray, a: int, b: int) -> bool:
     """Whether ``flags[a:b]`` (uint8) are all non-zero."""
     every = np.uint8(1)
@@ -68,15 +88,23 @@ def _end_run(
     run_q: np.ndarray,
     run_n: np.ndarray,
     runs: int,
+    wins: int,
     ri: int,
     rq: int,
     rn: int,
     gather: bool,
-) -> int:
-    """Close a run of winners (stored unless the batch is copied by winners): ``runs + 1``."""
+) -> tuple:
+    """Close the open run of ``rn`` winners, if any: ``(runs, wins)`` counted on.
+
+    Stored unless the batch is copied winner by winner (whose z-test counts and
+    lists its winners one by one).
+    """
+    if rn == 0:
+        return runs, wins
     if not gather:
         run_i[runs], run_q[runs], run_n[runs] = ri, rq, rn
-    return runs + 1
+        wins += rn
+    return runs + 1, wins
 
 
 #: Pixels :func:`scatter_bands` checks at once for galpixels known static.
@@ -264,7 +292,7 @@ def _scatter_bands_body(
                                      threshold, interior)
                 # 2. z-test in scan order; the open run is kept in registers
                 runs = wins = 0
-                ri = rq = rn = np.int64(0)
+                ri, rq, rn = np.int64(-2), np.int64(0), np.int64(0)  # no run open
                 skip = 0
                 for i in range(nr * w):
                     if skip:
@@ -284,9 +312,6 @@ def _scatter_bands_body(
                             for j in range(b0 + i, b0 + i + CHUNK):
                                 same_out[u64(j)] = 1
                         n_prop += CHUNK
-                        if rn:
-                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
-                            rn = 0
                         skip = CHUNK - 1
                         continue
                     known = bookkeeping and use_same and same_in[p] != 0  # still, new holds it
@@ -296,9 +321,6 @@ def _scatter_bands_body(
                         if q != -1 and own:
                             n_prop += 1
                             n_drop += q == -2
-                        if rn:
-                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
-                            rn = 0
                         continue
                     n_prop += own
                     fresh = n_deb[u64(q)] != 0
@@ -307,17 +329,11 @@ def _scatter_bands_body(
                         n_deb[u64(q)] = 0
                         if bookkeeping and record:
                             same_out[u64(q)] = 1
-                        if rn:
-                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
-                            rn = 0
                         continue
                     d = np.int64(o_dep[p]) if known else db[i]
                     if not fresh:
                         n_clash += 1
                         if d >= n_dep[u64(q)]:
-                            if rn:
-                                runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
-                                rn = 0
                             continue
                     n_dep[u64(q)] = d
                     n_deb[u64(q)] = 0
@@ -338,31 +354,24 @@ def _scatter_bands_body(
                         same_out[u64(q)] = still
                     if gather:
                         win_i[wins], win_q[wins] = i, q
-                    wins += 1
-                    if rn and q == rq + rn:
+                        wins += 1
+                    # a run goes on while winners follow each other in the scan and
+                    # land side by side; it is closed at the first that does not
+                    # (nothing to do on the paths that win nothing)
+                    if i == ri + rn and q == rq + rn:
                         rn += 1
                     else:
-                        if rn:
-                            runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
+                        runs, wins = _end_run(run_i, run_q, run_n, runs, wins, ri, rq, rn, gather)
                         ri, rq, rn = i, q, 1
-                if rn:
-                    runs = _end_run(run_i, run_q, run_n, runs, ri, rq, rn, gather)
+                runs, wins = _end_run(run_i, run_q, run_n, runs, wins, ri, rq, rn, gather)
                 # 3. copy the other planes, plane by plane: run by run, or, where
                 #    runs are short, winner by winner (one long loop per plane; a
                 #    loop per run and plane costs more than the run's galpixels)
                 if gather:
                     if ncol == 4:
                         for k in range(wins):
-                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
-                            da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
-                            sa = da + 0.5 * d2a
-                            n_col[0][q] = o_col[0][p] + (sa + dbb)
-                            n_col[1][q] = o_col[1][p] + (sa - dcc)
-                            n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
-                            n_dc[0][q] = da + d2a
-                            n_dc[1][q] = dbb
-                            n_dc[2][q] = dcc
-                            n_dc[3][q] = d2a
+                            _move_colour(o_col, o_dc, n_col, n_dc,
+                                         u64(b0 + win_i[k]), u64(win_q[k]))
                     else:
                         for k in range(wins):
                             p, q = u64(b0 + win_i[k]), u64(win_q[k])
@@ -408,16 +417,7 @@ def _scatter_bands_body(
                         s0 = b0 + i0
                         if ncol == 4:
                             for j in range(m):
-                                p, q = u64(s0 + j), u64(q0 + j)
-                                da, dbb, dcc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
-                                sa = da + 0.5 * d2a
-                                n_col[0][q] = o_col[0][p] + (sa + dbb)
-                                n_col[1][q] = o_col[1][p] + (sa - dcc)
-                                n_col[2][q] = o_col[2][p] + (sa - dbb + dcc)
-                                n_dc[0][q] = da + d2a
-                                n_dc[1][q] = dbb
-                                n_dc[2][q] = dcc
-                                n_dc[3][q] = d2a
+                                _move_colour(o_col, o_dc, n_col, n_dc, u64(s0 + j), u64(q0 + j))
                         else:
                             for j in range(m):
                                 p, q = u64(s0 + j), u64(q0 + j)

@@ -42,16 +42,29 @@ def _log(path, frames: list[bytes]) -> None:
             w.write("tracker", (k + 1) * 1_000_000, frame)
 
 
-def test_replay_of_bytes_that_decode_to_nothing_exits_1(tmp_path, capsys):
+def test_replay_of_a_capture_that_frames_as_nothing_exits_2(tmp_path, capsys):
     noise = tmp_path / "random.bin"
     noise.write_bytes(random.Random(7).randbytes(3000).replace(b"\xaa", b"\x00"))
     rc = cli_replay.main([str(noise), "--protocol", "hatire", "--as-fast-as-possible",
                           "--dump"])
     out = capsys.readouterr()
+    assert rc == 2 and out.out == ""  # refused before any work: --protocol is wrong
+    assert out.err.splitlines()[-1] == (
+        f"holo-replay: {noise}: does not frame as hatire: 3000 of its first 3000 bytes "
+        "(100 %) rejected in 1 run; nor as any other protocol (a leading banner? "
+        "--skip-bytes N drops it)")
+
+
+def test_replay_of_a_log_whose_bytes_decode_to_nothing_exits_1(tmp_path, capsys):
+    noise = random.Random(7).randbytes(3000).replace(b"\xaa", b"\x00")
+    _log(tmp_path / "noise.hlog", [noise[k:k + 100] for k in range(0, 3000, 100)])
+    rc = cli_replay.main([str(tmp_path / "noise.hlog"), "--as-fast-as-possible", "--dump"])
+    out = capsys.readouterr()
     assert rc == 1
     assert out.err.splitlines()[-1] == (
-        f"holo-replay: {noise}: no pose, dial or button event decoded from 3000 bytes "
-        "(read as hatire; is that the device's protocol?)")
+        f"holo-replay: {tmp_path / 'noise.hlog'}: no pose, dial or button event decoded "
+        "from 3000 bytes (read as hatire; is that the device's protocol?)")
+    assert "tracker: the recorded bytes do not frame as hatire" in out.err
     assert all(json.loads(ln)["kind"] == "status" for ln in out.out.splitlines())
 
 

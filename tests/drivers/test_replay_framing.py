@@ -1,0 +1,144 @@
+"""holo-replay refuses bytes that do not frame as the chosen protocol (no silent garbage).
+
+The SGI dial box protocol has no framing (any byte C0-FF is a button), so a Hatire
+capture read as ``sgi`` used to "decode" into ~20,000 button and dial events, exit 0.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+
+import pytest
+from drivers_fixtures import MISSING, hatire_capture
+
+from drivers import cli_replay
+from drivers.cli_devices import log_devices
+from drivers.protocols import hatire
+from drivers.protocols import sgi_dialbox as sgi
+from drivers.protocols.framing import check_framing, protocols_that_frame
+from drivers.reader import ReaderSettings
+from drivers.recording import LogHeader, LogWriter
+from sim_devices.dialbox import DialBoxSim, demo_script
+from sim_devices.tracker import TrackerSim
+
+FIXTURE = hatire_capture()
+
+
+def stream(protocol: str) -> bytes:
+    """A few seconds of a simulated device speaking ``protocol``."""
+    if protocol == "sgi":
+        box = DialBoxSim(demo_script(seconds=10), enabled=True)
+        return b"".join(make() for _, make in box.frames())
+    return b"".join(make() for _, make in TrackerSim(protocol).frames(3))
+
+
+def replay(capsys, *argv: str) -> tuple[int, list[str], list[str]]:
+    rc = cli_replay.main([*argv, "--as-fast-as-possible", "--dump"])
+    out = capsys.readouterr()
+    return rc, out.out.splitlines(), out.err.splitlines()
+
+
+def test_the_hatire_fixture_read_as_sgi_is_refused_before_any_output(capsys):
+    if not FIXTURE.is_file():
+        pytest.skip(MISSING)
+    rc, out, err = replay(capsys, str(FIXTURE), "--protocol", "sgi")
+    assert rc == 2 and out == []
+    assert err[-1] == (f"holo-replay: {FIXTURE}: does not frame as sgi: 54425 of its first "
+                       "65536 bytes (83 %) rejected in 7609 runs; it frames as hatire: "
+                       "pass --protocol hatire")
+    # the whole file, counted: what the decoder used to turn into 19,650 events
+    whole = check_framing("sgi", FIXTURE.read_bytes(), limit=None)
+    assert (whole.bytes_discarded, whole.events, whole.frames) == (120748, 19650, False)
+    assert check_framing("hatire", FIXTURE.read_bytes(), limit=None).frames
+
+
+@pytest.mark.parametrize("chosen", ["hatire", "native", "sgi"])
+@pytest.mark.parametrize("actual", ["hatire", "native", "sgi"])
+def test_every_protocol_and_recording_combination(tmp_path, capsys, chosen, actual):
+    capture = tmp_path / f"{actual}.bin"
+    capture.write_bytes(stream(actual))
+    rc, out, err = replay(capsys, str(capture), "--protocol", chosen)
+    if chosen == actual:
+        assert rc == 0 and out
+        assert not any("frame" in line for line in err)
+    else:
+        assert rc == 2 and out == []
+        assert f"does not frame as {chosen}: " in err[-1]
+        assert err[-1].endswith(f"it frames as {actual}: pass --protocol {actual}")
+
+
+def test_noise_that_frames_as_nothing_says_so(tmp_path, capsys):
+    noise = tmp_path / "random.bin"
+    noise.write_bytes(random.Random(7).randbytes(3000))
+    rc, out, err = replay(capsys, str(noise), "--protocol", "sgi")
+    assert rc == 2 and out == []
+    assert err[-1].endswith("nor as any other protocol (a leading banner? --skip-bytes N "
+                            "drops it)")
+    assert protocols_that_frame(noise.read_bytes()) == []
+
+
+def test_a_noisy_line_still_frames(tmp_path, capsys):
+    """Line noise (a third of the bytes garbage) is resynchronised past, not refused."""
+    box = DialBoxSim(demo_script(seconds=10), enabled=True)
+    rng = random.Random(3)
+    noisy = bytearray()
+    for _, make in box.frames():  # after each report, 0-4 bytes of 00-1F (never valid)
+        noisy += make() + bytes(rng.randrange(0x20) for _ in range(rng.randrange(5)))
+    capture = tmp_path / "noisy.bin"
+    capture.write_bytes(bytes(noisy))
+    assert check_framing("sgi", bytes(noisy)).frames
+    rc, out, err = replay(capsys, str(capture), "--protocol", "sgi")
+    assert rc == 0
+    assert sum(json.loads(line)["kind"] != "status" for line in out) == 355
+
+
+def _log(path, devices: dict[str, tuple[str, bytes]]) -> None:
+    settings = [ReaderSettings("loop://", proto, name) for name, (proto, _) in devices.items()]
+    with LogWriter(path, LogHeader(log_devices(settings), start_monotonic_ns=0)) as w:
+        for name, (_, data) in devices.items():
+            for k in range(0, len(data), 64):
+                w.write(name, 1000 + k, data[k:k + 64])
+
+
+def test_a_log_of_a_device_recorded_with_the_wrong_protocol_is_named(tmp_path, capsys):
+    """A log replays what holo-devices saw, so it is not refused; but events from
+    bytes that do not frame are not trusted: they are named and do not count."""
+    log = tmp_path / "wrong.hlog"
+    _log(log, {"dials": ("sgi", stream("hatire"))})
+    rc, out, err = replay(capsys, str(log))
+    assert rc == 1  # only untrusted events: nothing useful
+    assert out  # the dump is still what the live run printed
+    assert err[-1].startswith("holo-replay: dials: the recorded bytes do not frame as sgi "
+                              "(4158 of 5400 bytes (77 %) rejected in 784 runs), so its 1044 "
+                              "events are not trusted; the bytes frame as hatire: recorded "
+                              "with the wrong protocol?")
+
+
+def test_a_good_device_beside_a_misframed_one_still_counts(tmp_path, capsys):
+    log = tmp_path / "mixed.hlog"
+    _log(log, {"tracker": ("hatire", stream("hatire")), "dials": ("sgi", stream("native"))})
+    rc, out, err = replay(capsys, str(log))
+    assert rc == 0
+    assert sum("do not frame" in line for line in err) == 1
+    assert "holo-replay: dials: the recorded bytes do not frame as sgi" in err[-1]
+
+
+def test_a_good_log_gets_no_framing_line(tmp_path, capsys):
+    log = tmp_path / "good.hlog"
+    data = stream("sgi") + sgi.encode_dial(1, 5)
+    _log(log, {"dials": ("sgi", data), "tracker": ("hatire", hatire.encode_pose(0, 1.0, 0, 0))})
+    rc, out, err = replay(capsys, str(log))
+    assert rc == 0 and not any("frame" in line for line in err)
+
+
+@pytest.mark.parametrize("chunk", ["64", "7", "1000"])
+def test_a_raw_sgi_capture_loses_no_dial_packet_at_chunk_edges(tmp_path, capsys, chunk):
+    """Raw chunks are stamped a chunk's line time apart (67 ms for 64 bytes at 9600
+    baud); the 10 ms dial rule must not drop a packet split between two of them."""
+    capture = tmp_path / "sgi.bin"
+    capture.write_bytes(stream("sgi"))
+    rc, out, _ = replay(capsys, str(capture), "--protocol", "sgi", "--chunk-size", chunk)
+    records = [json.loads(line) for line in out]
+    assert rc == 0 and [r for r in records if r["kind"] == "status"] == []
+    assert len(records) == check_framing("sgi", capture.read_bytes()).events == 355
