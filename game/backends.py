@@ -228,12 +228,13 @@ class LocalRenderer:
             return got
 
     def close(self) -> None:
-        """Stop both threads."""
+        """Stop both threads, and a level-of-detail build still running in its child."""
         self._stop.set()
         with self._cv:
             self._cv.notify_all()
         for t in self._threads:
             t.join(5.0)
+        self._renderer.lod.close()
 
     # ------------------------------------------------------------- threads
     def _next_job(self, seen: int) -> tuple[int, list[dict], float, int | None] | None:

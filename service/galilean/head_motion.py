@@ -113,30 +113,32 @@ def pixel_coefficients(old: np.ndarray, new: np.ndarray, geo: np.ndarray, shears
 
 @nb.njit(cache=True, inline="always")
 def _add(
-    motion: np.ndarray, zmotion: np.ndarray, k: int, z: int, r: int, c: int, vx: float,
-    vy: float, vz: float, lim: float, zlim: float,
+    mx_plane: np.ndarray, my_plane: np.ndarray, mz_plane: np.ndarray, z: int, r: int, c: int,
+    vx: float, vy: float, vz: float, lim: float, zlim: float,
 ) -> int:
-    """Add (vx, vy, vz) (fixed-point units, rounded) to derivative ``k``; values clamped.
+    """Add (vx, vy, vz) (fixed-point units, rounded) to one derivative's planes; clamped.
 
-    A sum that is not a number (never for a bounded viewer motion) leaves the
-    value as it was and counts as clamped.
+    The planes are that derivative's x and y motion and its z motion, (Z, R, C)
+    each.  A sum that is not a number (never for a bounded viewer motion) leaves
+    the value as it was and counts as clamped.
     """
     if np.isnan(vx) or np.isnan(vy) or np.isnan(vz):
         return 3
-    mx = motion[2 * k, z, r, c] + np.floor(vx + 0.5)
-    my = motion[2 * k + 1, z, r, c] + np.floor(vy + 0.5)
-    mz = zmotion[k, z, r, c] + np.floor(vz + 0.5)
-    motion[2 * k, z, r, c] = min(max(mx, -lim), lim)
-    motion[2 * k + 1, z, r, c] = min(max(my, -lim), lim)
-    zmotion[k, z, r, c] = min(max(mz, -zlim), zlim)
+    mx = mx_plane[z, r, c] + np.floor(vx + 0.5)
+    my = my_plane[z, r, c] + np.floor(vy + 0.5)
+    mz = mz_plane[z, r, c] + np.floor(vz + 0.5)
+    mx_plane[z, r, c] = min(max(mx, -lim), lim)
+    my_plane[z, r, c] = min(max(my, -lim), lim)
+    mz_plane[z, r, c] = min(max(mz, -zlim), zlim)
     return (abs(mx) > lim) + (abs(my) > lim) + (abs(mz) > zlim)
 
 
 @nb.njit(cache=True, nogil=True)
 def _apply_row(
-    z: int, r: int, frac: np.ndarray, depth: np.ndarray, debris: np.ndarray,
-    motion: np.ndarray, zmotion: np.ndarray, coef: np.ndarray, margin: float, fp: int,
-    fz: int, limits: np.ndarray, order: int,
+    z: int, r: int, f0: np.ndarray, f1: np.ndarray, depth: np.ndarray, debris: np.ndarray,
+    m0: np.ndarray, m1: np.ndarray, m2: np.ndarray, m3: np.ndarray, z0: np.ndarray,
+    z1: np.ndarray, coef: np.ndarray, margin: float, fp: int, fz: int, limits: np.ndarray,
+    order: int,
 ) -> tuple:
     """:func:`_apply` for row ``r`` of zone ``z``: (changed, clamped).
 
@@ -164,14 +166,14 @@ def _apply_row(
     for c in range(depth.shape[2]):
         if debris[z, r, c] == 1 or depth[z, r, c] == Z_EMPTY:
             continue
-        sx = c - margin + 0.5 + frac[0, z, r, c] * unit_p
-        fy = frac[1, z, r, c] * unit_p  # sy = sy0 + fy
+        sx = c - margin + 0.5 + f0[z, r, c] * unit_p
+        fy = f1[z, r, c] * unit_p  # sy = sy0 + fy
         d = depth[z, r, c] * unit_z
-        clamped += _add(motion, zmotion, 0, z, r, c, ax0 + ax1 * sx + cy0 * fy + ax2 * d,
+        clamped += _add(m0, m1, z0, z, r, c, ax0 + ax1 * sx + cy0 * fy + ax2 * d,
                         ay0 + ay1 * sx + cy1 * fy + ay2 * d, az0 + az1 * sx + cy2 * fy + az2 * d,
                         vlim, zlim)
         if order >= 2:
-            clamped += _add(motion, zmotion, 1, z, r, c, bx0 + bx1 * sx + dy0 * fy + bx2 * d,
+            clamped += _add(m2, m3, z1, z, r, c, bx0 + bx1 * sx + dy0 * fy + bx2 * d,
                             by0 + by1 * sx + dy1 * fy + by2 * d,
                             bz0 + bz1 * sx + dy2 * fy + bz2 * d, alim, zlim)
         count += 1
@@ -180,12 +182,19 @@ def _apply_row(
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _apply(
-    frac: np.ndarray, depth: np.ndarray, debris: np.ndarray, motion: np.ndarray,
-    zmotion: np.ndarray, coef: np.ndarray, margin: float, fp: int, fz: int,
-    limits: np.ndarray, order: int,
+    f0: np.ndarray, f1: np.ndarray, depth: np.ndarray, debris: np.ndarray, m0: np.ndarray,
+    m1: np.ndarray, m2: np.ndarray, m3: np.ndarray, z0: np.ndarray, z1: np.ndarray,
+    coef: np.ndarray, margin: float, fp: int, fz: int, limits: np.ndarray, order: int,
 ) -> tuple:
     """Add the motion change (:func:`pixel_coefficients`) to every galpixel, rows in parallel.
 
+    The map's fields come as (Z, R, C) planes (:func:`_planes`): ``f0, f1`` the
+    fraction, ``m0..m3`` velocity x, y and acceleration x, y, ``z0, z1`` the z
+    velocity and acceleration; planes an order lacks are empty and never read.
+    Planes of a map are C-contiguous whatever its order or allocation, so numba
+    compiles this kernel once (whole 4-D fields typed 'C' with 0-1 planes and 'A'
+    with more: G(1)'s single z plane compiled a second kernel, 6 s, and a service
+    at G(1) compiled it inside its refresh loop at the first head motion).
     ``limits`` (2,): the velocity and acceleration bounds in fixed-point units.
     Returns (galpixels changed, values clamped): sums beyond the bounds, or z motion
     beyond the depth format, are clamped there rather than wrapped.
@@ -194,8 +203,8 @@ def _apply(
     count = clamped = 0
     for row in nb.prange(nz * h):
         z, r = row // h, row % h
-        n, k = _apply_row(z, r, frac, depth, debris, motion, zmotion, coef, margin, fp, fz,
-                          limits, order)
+        n, k = _apply_row(z, r, f0, f1, depth, debris, m0, m1, m2, m3, z0, z1, coef, margin,
+                          fp, fz, limits, order)
         count += n
         clamped += k
     return count, clamped
@@ -233,6 +242,13 @@ def apply_viewer_motion(
     coef = pixel_coefficients(_per_refresh(old, refresh_hz), _per_refresh(new, refresh_hz), geo,
                               display.shears(), scales)
     limits = np.array([f.v_max, f.a_max], np.float64) * 2.0**f.fm
-    changed, clamped = _apply(gp.frac, gp.depth, gp.debris, gp.motion, gp.zmotion, coef,
-                              float(margin), f.fp, f.fz, limits, gp.order)
+    changed, clamped = _apply(*_planes(gp.frac, 2), gp.depth, gp.debris, *_planes(gp.motion, 4),
+                              *_planes(gp.zmotion, 2), coef, float(margin), f.fp, f.fz, limits,
+                              gp.order)
     return int(changed), int(clamped)
+
+
+def _planes(field: np.ndarray, k: int) -> tuple:
+    """The first ``k`` planes of a (P, Z, R, C) field, each (Z, R, C); empty past P."""
+    return tuple(field[i] if i < field.shape[0] else np.empty((0, 0, 0), field.dtype)
+                 for i in range(k))

@@ -152,8 +152,17 @@ def test_pty_closed_and_reopened_resumes_without_restart(tmp_path):
     lost = [e for e in sink.status("error") if e.details["reason"] == "disconnected"]
     assert len(lost) == stats["disconnects"]
     assert all(e.details["decoder_reset"] for e in sink.status("reconnect"))
+    # Frames are lost only across an outage: those sent while the port was closed
+    # or not yet reopened (opening flushes the input).  How many depends on how soon
+    # the reader reopens (later on a loaded machine), so count the gaps, not frames:
+    # every gap in the frames received is an outage, none is a frame lost while the
+    # port was open.
     seqs = [s for s in sink.seqs() if s != 999]
-    assert seqs == sorted(seqs) and len(seqs) > 150 and seqs[-1] > 200
+    assert len(seqs) == len(set(seqs)) and seqs == sorted(seqs)
+    assert set(seqs) <= set(runner.ledger.intact)
+    gaps = sum(b - a > 1 for a, b in zip(seqs, seqs[1:], strict=False))
+    first_gap = seqs[0] > 0
+    assert gaps + first_gap <= drops, (gaps, first_gap, drops)
 
 
 @posix_only
@@ -198,11 +207,14 @@ def test_reader_thread_is_joined_and_port_closed_on_stop():
 
 @posix_only
 def test_dial_box_handshake_events_reinit_and_lamps():
+    # the last step keeps the runner (which answers host commands) playing until the
+    # test stops it: one due after 0.5 s of streaming could end it before the re-init
+    # and the lamp command reach the box on a loaded machine
     script = [Turn(0.0, 2, 40, steps=4, span_s=0.01), Press(0.02, 31, hold_s=0.01),
-              Turn(0.05, 7, -70000, steps=7, span_s=0.01), Turn(0.5, 0, 5, steps=1)]
+              Turn(0.05, 7, -70000, steps=7, span_s=0.01), Turn(3600.0, 0, 5, steps=1)]
     box = DialBoxSim(script)
     link = PtyLink()
-    runner = DeviceRunner(box, link, seconds=2.0, realtime=True, pace=True).start()
+    runner = DeviceRunner(box, link, realtime=True, pace=True).start()
     driver = DialBoxDriver(reset_wait_s=1.0, lamps=0b101)
     sink = Collector()
     reader = DeviceReader(ReaderSettings(link.path, "sgi", baudrate=9600, poll_s=0.01,

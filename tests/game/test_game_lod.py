@@ -142,3 +142,30 @@ def test_the_local_renderer_hands_each_lod_note_once(setup_from_args, tmp_path):
         backend.frame(timeout_s=0.1)
         notes.extend(backend.lod_notes())
     assert len(notes) == 1 and key in notes[0] and "rebuilding" in notes[0]
+
+
+def test_closing_the_local_renderer_ends_a_chain_build_at_once(setup_from_args, tmp_path):
+    """A build still running at close is stopped, not left to finish (seconds, longer
+    on a loaded machine) with its thread and child process behind the closed game."""
+    import contextlib
+    import os
+    import threading
+
+    from testkit import held_lock, wait_for
+
+    from game.scene import game_scene
+    from service.lod import LodSettings, mesh_key
+
+    keys = {mesh_key(o.mesh, LodSettings().recipe) for o in game_scene(1).objects}
+    with contextlib.ExitStack() as held:
+        for key in keys:  # every chain's build waits for its lock: one is running at close
+            held.enter_context(held_lock(tmp_path / "lod", key))
+        game, backend = setup_from_args("--lod-error", "0.5")
+        backend.update(object_states(new_game(game)))
+        lod = backend._renderer.lod
+        wait_for(lambda: lod.builds is not None and lod.builds.child_pid is not None, 180,
+                 "a chain build running")
+        pid = lod.builds.child_pid
+        backend.close()
+        assert not any(t.name == "lod-chains" for t in threading.enumerate())
+        assert not os.path.exists(f"/proc/{pid}")  # ended and reaped

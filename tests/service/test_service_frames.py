@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 
-import pytest
 from testkit import wait_until
 
 from service.net.client import FrameSubscriber, ServiceClient
@@ -25,25 +24,44 @@ def test_frames_at_refresh_rate_between_renders(service_factory):
         "--max-update-hz",
         "5",
     )
+    # What holds however loaded the machine: the refresh loop keeps a 30 Hz grid and
+    # accounts for every tick (a refresh published, or an overrun it skipped); between
+    # renders each frame is the Galilean stage's next refresh of the last render;
+    # renders keep coming, no faster than 5 a second.  Load-dependent, so not checked
+    # here: the frames received per second and their intervals (a busy machine skips
+    # ticks, and says so in refresh_overruns), and that the subscriber gets every
+    # frame (the service's SNDHWM of 2 drops frames for a subscriber whose I/O thread
+    # stalls ~70 ms, by design; under a load of 16 this test's own did: 3 of 111 lost).
     with FrameSubscriber(svc.frames, hwm=100) as frames, ServiceClient(svc.control) as c:
         assert wait_until(lambda: frames.next(1.0), 90), "no frames"
-        headers, start = [], time.monotonic()
-        while time.monotonic() - start < 4.0:
+        t0_send = time.monotonic()
+        s0 = c.stats()
+        t0_recv = time.monotonic()
+        headers = []
+        while time.monotonic() - t0_recv < 4.0:
             got = frames.next(1.0)
             if got is not None:
                 headers.append(got[0])
-        span = (headers[-1]["t_ns"] - headers[0]["t_ns"]) / 1e9
-        rate = (len(headers) - 1) / span
-        assert 30 * 0.85 <= rate <= 30 * 1.1, f"{rate:.1f} frames/s at 30 Hz"
-        seqs = [h["seq"] for h in headers]
-        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), "a fast subscriber lost frames"
-        renders = {h["render_id"] for h in headers}
-        assert len(renders) >= 5, "renders should keep coming (about 5 per second)"
-        between = [h for h in headers if h["since_render"] > 0]
-        assert len(between) > len(headers) / 2, "most frames come from the Galilean stage"
-        assert all(h["since_render"] == 0 for h in headers if h["updated"])
-        stamps = [h["t_ns"] / 1e6 for h in headers]
-        intervals = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
-        assert sorted(intervals)[len(intervals) // 2] == pytest.approx(33.3, abs=3)
-        s = c.stats()
-        assert s["refreshes_per_s"] > 25 and s["updates"] >= 5
+        t1_send = time.monotonic()
+        s1 = c.stats()
+        t1_recv = time.monotonic()
+    delta = {k: s1[k] - s0[k] for k in ("refreshes", "refresh_overruns", "frames_published",
+                                        "updates")}
+    ticks = delta["refreshes"] + delta["refresh_overruns"]
+    # the service read its counters somewhere within each request's round trip
+    shortest, longest = t1_send - t0_recv, t1_recv - t0_send
+    assert 30 * shortest - 2 <= ticks <= 30 * longest + 2, (ticks, shortest, longest)
+    assert abs(delta["frames_published"] - delta["refreshes"]) <= 1  # each tick published
+    seqs = [h["seq"] for h in headers]
+    assert len(seqs) > 1 and seqs == sorted(set(seqs)), "frames out of order or repeated"
+    for a, b in zip(headers, headers[1:], strict=False):
+        if b["render_id"] == a["render_id"]:  # the same render, propagated once per frame
+            assert not b["updated"]
+            assert b["since_render"] == a["since_render"] + b["seq"] - a["seq"]
+        else:  # a newer render (its first frame may have been dropped)
+            assert b["render_id"] > a["render_id"]
+            assert b["since_render"] <= b["seq"] - a["seq"] - 1  # shown after a
+            assert b["since_render"] == 0 or not b["updated"]
+    assert len({h["render_id"] for h in headers}) >= 2, "renders should keep coming"
+    assert 1 <= delta["updates"] <= 5 * longest + 1  # --max-update-hz 5 (renders take
+    # 0.2 s to seconds under load)
