@@ -4,6 +4,11 @@ After each test, :func:`no_leftovers` waits briefly for the threads, child
 processes and sockets of ``zmq.Context.instance()`` the test started to end, and
 fails the test's teardown naming any still there: a test that leaves a service
 running or a thread spinning slows or breaks the tests after it.
+
+Under pytest-xdist (``make test`` runs ``pytest -n 2``) the controller does the
+session's one-off work before its workers start: it drops stale kernels, runs
+``holo-warmup`` when the cache is not warm, and makes the cold warm-up
+(:class:`testkit.ColdWarmup`) that the workers attach to.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import zmq
 sys.path.insert(0, str(Path(__file__).parent))  # ``import testkit`` from any folder
 
 from testkit import (  # noqa: E402
+    ROOT,
     ColdWarmup,
     Proc,
     ServiceProcess,
@@ -34,6 +40,26 @@ LEFTOVER_GRACE_S = 5.0
 #: Tests that need a cold warm-up (:class:`testkit.ColdWarmup`), started at collection.
 COLD_WARMUP_TESTS = "tests/warmup/test_warmup_cache.py"
 _COLD = pytest.StashKey[ColdWarmup]()
+#: The ``workerinput`` key naming the controller's cold warm-up folder (pytest-xdist).
+_COLD_FOLDER = "holo_cold_warmup"
+
+
+def _xdist_worker(config: pytest.Config) -> bool:
+    return hasattr(config, "workerinput")
+
+
+def _xdist_controller(config: pytest.Config) -> bool:
+    return config.pluginmanager.has_plugin("dsession")
+
+
+def _may_select(config: pytest.Config, test_file: str) -> bool:
+    """Whether the session's arguments take in ``test_file`` (``-k`` and ``-m`` aside)."""
+    target = (ROOT / test_file).resolve()
+    for arg in config.args:
+        path = (Path(config.invocation_params.dir) / arg.split("::")[0]).resolve()
+        if path == target or path in target.parents:
+            return True
+    return False
 
 
 _STALE = pytest.StashKey[list]()
@@ -52,9 +78,23 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     from service.kernel_cache import drop_stale
     from service.readiness import is_warm
 
-    stale = session.config.stash[_STALE] = drop_stale()
+    config = session.config
+    if _xdist_worker(config):
+        return  # the controller did it before starting this worker
+    stale = config.stash[_STALE] = drop_stale()
     if stale or not is_warm():
         subprocess.run([sys.executable, "-m", "service.cli_warmup"], check=False, timeout=1800)
+    if _xdist_controller(config) and _may_select(config, COLD_WARMUP_TESTS):
+        cold = config.stash[_COLD] = ColdWarmup()
+        cold.announce()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    """Tell each xdist worker (``node``: its controller) where the cold warm-up is."""
+    cold = node.config.stash.get(_COLD, None)
+    if cold is not None:
+        node.workerinput[_COLD_FOLDER] = str(cold.folder)
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:
@@ -67,10 +107,21 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
             f"{', '.join(changed)}; holo-warmup compiled them again"]
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_finish(session: pytest.Session) -> None:
-    """Start the cold warm-up in the background if any selected test needs it."""
+    """Start the cold warm-up in the background if any selected test needs it.
+
+    An xdist worker attaches to the controller's instead (or, when the controller
+    made none, starts one in :func:`cold_warmup` if it gets such a test).
+    """
+    config = session.config
+    if _xdist_worker(config):
+        folder = config.workerinput.get(_COLD_FOLDER)
+        if folder is not None:
+            config.stash[_COLD] = ColdWarmup.attach(folder)
+        return
     if any(item.nodeid.startswith(COLD_WARMUP_TESTS) for item in session.items):
-        session.config.stash[_COLD] = ColdWarmup()
+        config.stash[_COLD] = ColdWarmup()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

@@ -316,21 +316,35 @@ class ColdWarmup:
       in the background.  The cold compile takes minutes, most of them on one core;
       started at collection, at a lower priority, it overlaps the rest of the suite
       on the other core instead of adding its minutes to ``make test``.
+
+    With pytest-xdist the controller makes it (before any worker starts) and the
+    workers :meth:`attach` to its folder: the events (``events.json`` when reused)
+    or the background run's output and exit status (``rc``, written when it ends).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, folder: Path | None = None) -> None:
         from service.warmup import read_record
 
-        self.folder = Path(tempfile.mkdtemp(prefix="holo-cold-warmup-"))
+        self.owner = folder is None
+        self.folder = Path(tempfile.mkdtemp(prefix="holo-cold-warmup-")) if folder is None \
+            else folder
         self.cache = self.folder / "numba-cache"
-        self.cache.mkdir()
-        self.env = {**os.environ, "NUMBA_CACHE_DIR": str(self.cache), "PYTHONUNBUFFERED": "1"}
         self.proc: subprocess.Popen | None = None
+        self.events: list[dict] | None = None
+        self.env = {**os.environ, "NUMBA_CACHE_DIR": str(self.cache), "PYTHONUNBUFFERED": "1"}
+        if not self.owner:
+            events = self.folder / "events.json"
+            self.reused = events.exists()
+            if self.reused:
+                self.events = json.loads(events.read_text())
+            return
+        self.cache.mkdir()
         record = read_record()
         self.reused = record is not None and record.get("empty_at_start") is True
         if self.reused:
             self.events = record["events"]
             copy_numba_cache(self.cache)
+            (self.folder / "events.json").write_text(json.dumps(self.events))
             return
         with (self.folder / "out").open("w") as out, (self.folder / "err").open("w") as err:
             self.proc = subprocess.Popen(
@@ -339,16 +353,43 @@ class ColdWarmup:
                 preexec_fn=lambda: os.nice(10),
             )
 
+    @classmethod
+    def attach(cls, folder: str | Path) -> ColdWarmup:
+        """The cold warm-up another process (the xdist controller) made in ``folder``."""
+        return cls(Path(folder))
+
+    def announce(self) -> None:
+        """Write the exit status to ``rc`` when the background run ends (for :meth:`attach`)."""
+        if self.proc is None:
+            return
+        proc, rc = self.proc, self.folder / "rc"
+
+        def wait() -> None:
+            code = proc.wait()
+            tmp = rc.with_suffix(".tmp")
+            tmp.write_text(str(code))
+            os.replace(tmp, rc)
+
+        threading.Thread(target=wait, name="cold-warmup-rc", daemon=True).start()
+
     def result(self, timeout_s: float) -> tuple[int, list[dict], str]:
         """Wait for it: exit status, its JSON events, the tail of its stderr."""
-        if self.proc is None:
+        if self.reused:
             return 0, self.events, ""
-        rc = self.proc.wait(timeout_s)
+        if self.proc is not None:
+            rc = self.proc.wait(timeout_s)
+        else:  # attached: the controller's run writes its status when it ends
+            path = self.folder / "rc"
+            if not wait_until(path.exists, timeout_s, 0.5):
+                raise subprocess.TimeoutExpired("holo-warmup", timeout_s)
+            rc = int(path.read_text())
         events = [json.loads(line) for line in (self.folder / "out").read_text().splitlines()]
         return rc, events, (self.folder / "err").read_text()[-2000:]
 
     def close(self) -> None:
-        """Stop it if it still runs and remove its folder."""
+        """Stop it if it still runs and remove its folder (only the process that made it)."""
+        if not self.owner:
+            return
         if self.proc is not None:
             end_process(self.proc)
         shutil.rmtree(self.folder, ignore_errors=True)

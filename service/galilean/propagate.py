@@ -472,7 +472,6 @@ def second_sweep(
 # display copy of each row in one go.  Fast-path indices are unsigned (see ``u64``).
 
 
-@nb.njit(cache=True, error_model="numpy")
 def scatter(
     old: tuple,
     new: tuple,
@@ -489,7 +488,38 @@ def scatter(
 ) -> None:
     """First sweep without its debris arm (:func:`finish` does it); see :func:`sweep`.
 
-    Same parameters and the same arithmetic, operation for operation.  Afterwards
+    Same parameters (the maps :func:`flat`) and the same arithmetic, operation for
+    operation.  Afterwards a new pixel whose debris flag is still set holds stale
+    fields until :func:`finish` runs the debris arm there.
+
+    The kernel (:func:`_scatter`) takes the maps as :func:`planes`: whole flat
+    fields type 'C' with 0-1 planes and 'A' (staggered) or 'C' (a copied map) with
+    more, and numba compiled the kernel, :func:`_cache_pass_p` and the spills once
+    per combination (two in the warm-up, three more in the tests, 5-19 s of CPU
+    each); 1-D planes in tuples of fixed length are one type for every order.
+    """
+    _scatter(planes(old), planes(new), planes(cold), planes(cnew), cache_on, src_idx, shape,
+             order, fp, fm, track, stats)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _scatter(
+    old: tuple,
+    new: tuple,
+    cold: tuple,
+    cnew: tuple,
+    cache_on: bool,
+    src_idx: np.ndarray,
+    shape: tuple,
+    order: int,
+    fp: int,
+    fm: int,
+    track: bool,
+    stats: np.ndarray,
+) -> None:
+    """:func:`scatter` on the maps as :func:`planes` (fixed-length tuples of 1-D planes).
+
+    Same arithmetic as :func:`sweep`, operation for operation.  Afterwards
     a new pixel whose debris flag is still set holds stale fields until
     :func:`finish` runs the debris arm there.
 
@@ -508,7 +538,7 @@ def scatter(
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
     n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
-    ncol = o_dc.shape[0]
+    ncol = 4 if o_dc[0].shape[0] > 0 else 0
     sh = fm - fp
     half = np.int64(1) << (fp - 1)
     n_prop = n_clash = n_drop = 0
@@ -520,30 +550,30 @@ def scatter(
                 p = np.uint64(base + c)
                 if o_deb[p] != 0:
                     continue
-                x = (np.int64(c) << fp) + o_frac[0, p]
-                y = y0 + o_frac[1, p]
+                x = (np.int64(c) << fp) + o_frac[0][p]
+                y = y0 + o_frac[1][p]
                 d = np.int64(o_dep[p])
                 vx = vy = ax = ay = jx = jy = np.int64(0)
                 if order == 1:
-                    vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
+                    vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
                     x += (vx + (1 << (sh - 1))) >> sh
                     y += (vy + (1 << (sh - 1))) >> sh
                 elif order == 2:
-                    vx, vy = np.int64(o_mot[0, p]), np.int64(o_mot[1, p])
-                    ax, ay = np.int64(o_mot[2, p]), np.int64(o_mot[3, p])
+                    vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                    ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
                     x += (2 * vx + ax + (1 << sh)) >> (sh + 1)
                     y += (2 * vy + ay + (1 << sh)) >> (sh + 1)
                     vx += ax
                     vy += ay
                 elif order == 3:
-                    jx, jy = np.int64(o_mot[4, p]), np.int64(o_mot[5, p])
+                    jx, jy = np.int64(o_mot[4][p]), np.int64(o_mot[5][p])
                     x, vx, ax = advance(
-                        x, np.int64(o_mot[0, p]), np.int64(o_mot[2, p]), jx, 3, fp, fm
+                        x, np.int64(o_mot[0][p]), np.int64(o_mot[2][p]), jx, 3, fp, fm
                     )
                     y, vy, ay = advance(
-                        y, np.int64(o_mot[1, p]), np.int64(o_mot[3, p]), jy, 3, fp, fm
+                        y, np.int64(o_mot[1][p]), np.int64(o_mot[3][p]), jy, 3, fp, fm
                     )
-                z0, z1, z2 = _zplanes(o_zm, p, order)
+                z0, z1, z2 = _zplanes_p(o_zm, p, order)
                 d, vz, az = advance(d, z0, z1, z2, order, fp, fm)
                 qc = (x + half) >> fp
                 qr = (y + half) >> fp
@@ -557,7 +587,7 @@ def scatter(
                     n_clash += 1
                     if d >= n_dep[q]:
                         if cache_on:
-                            _spill_incoming(
+                            _spill_incoming_p(
                                 old,
                                 np.int64(p),
                                 cnew,
@@ -571,56 +601,221 @@ def scatter(
                             )
                         continue
                     if cache_on:
-                        _spill_resident(new, cnew, np.int64(q), stats)
-                c0, c1, c2 = o_col[0, p], o_col[1, p], o_col[2, p]
+                        _spill_resident_p(new, cnew, np.int64(q), stats)
+                c0, c1, c2 = o_col[0][p], o_col[1][p], o_col[2][p]
                 ob = o_obj[p]
                 if ncol == 4:
-                    da, db, dc, d2a = o_dc[0, p], o_dc[1, p], o_dc[2, p], o_dc[3, p]
+                    da, db, dc, d2a = o_dc[0][p], o_dc[1][p], o_dc[2][p], o_dc[3][p]
                     sa = da + 0.5 * d2a
-                    n_col[0, q] = c0 + (sa + db)
-                    n_col[1, q] = c1 + (sa - dc)
-                    n_col[2, q] = c2 + (sa - db + dc)
-                    n_dc[0, q] = da + d2a
-                    n_dc[1, q] = db
-                    n_dc[2, q] = dc
-                    n_dc[3, q] = d2a
+                    n_col[0][q] = c0 + (sa + db)
+                    n_col[1][q] = c1 + (sa - dc)
+                    n_col[2][q] = c2 + (sa - db + dc)
+                    n_dc[0][q] = da + d2a
+                    n_dc[1][q] = db
+                    n_dc[2][q] = dc
+                    n_dc[3][q] = d2a
                 else:
-                    n_col[0, q] = c0
-                    n_col[1, q] = c1
-                    n_col[2, q] = c2
+                    n_col[0][q] = c0
+                    n_col[1][q] = c1
+                    n_col[2][q] = c2
                 n_dep[q] = d
-                n_frac[0, q] = fx
-                n_frac[1, q] = fy
+                n_frac[0][q] = fx
+                n_frac[1][q] = fy
                 if order == 1:
-                    n_mot[0, q] = vx
-                    n_mot[1, q] = vy
-                    n_zm[0, q] = vz
+                    n_mot[0][q] = vx
+                    n_mot[1][q] = vy
+                    n_zm[0][q] = vz
                 elif order == 2:
-                    n_mot[0, q] = vx
-                    n_mot[1, q] = vy
-                    n_mot[2, q] = ax
-                    n_mot[3, q] = ay
-                    n_zm[0, q] = vz
-                    n_zm[1, q] = az
+                    n_mot[0][q] = vx
+                    n_mot[1][q] = vy
+                    n_mot[2][q] = ax
+                    n_mot[3][q] = ay
+                    n_zm[0][q] = vz
+                    n_zm[1][q] = az
                 elif order == 3:
-                    n_mot[0, q] = vx
-                    n_mot[1, q] = vy
-                    n_mot[2, q] = ax
-                    n_mot[3, q] = ay
-                    n_mot[4, q] = jx
-                    n_mot[5, q] = jy
-                    n_zm[0, q] = vz
-                    n_zm[1, q] = az
-                    n_zm[2, q] = z2
+                    n_mot[0][q] = vx
+                    n_mot[1][q] = vy
+                    n_mot[2][q] = ax
+                    n_mot[3][q] = ay
+                    n_mot[4][q] = jx
+                    n_mot[5][q] = jy
+                    n_zm[0][q] = vz
+                    n_zm[1][q] = az
+                    n_zm[2][q] = z2
                 n_deb[q] = 0
                 n_obj[q] = ob
                 if track:
                     src_idx[q] = r * w + c
         if cache_on:
-            _cache_pass(cold, new, cnew, z, h, w, order, fp, fm, stats, src_idx)
+            _cache_pass_p(cold, new, cnew, z, h, w, order, fp, fm, stats, src_idx)
     stats[0] += n_prop
     stats[1] += n_clash
     stats[2] += n_drop
+
+
+# ------------------------------------------------- the scatter's plane helpers
+# :func:`_copy`, :func:`_advance_into`, :func:`_zplanes`, :func:`_motion_at` and the
+# cache's kernels for maps as :func:`planes` (``field[k][p]`` for ``field[k, p]``;
+# an absent plane is empty and never read), the same arithmetic.
+
+
+@nb.njit(cache=True, inline="always")
+def _copy_p(src: tuple, p: int, dst: tuple, q: int) -> None:
+    """:func:`_copy` for maps as :func:`planes`."""
+    for k in range(3):
+        dst[0][k][q] = src[0][k][p]
+    dst[1][q] = src[1][p]
+    dst[2][0][q] = src[2][0][p]
+    dst[2][1][q] = src[2][1][p]
+    for k in range(6):
+        if src[3][k].shape[0] > 0:
+            dst[3][k][q] = src[3][k][p]
+    for k in range(3):
+        if src[4][k].shape[0] > 0:
+            dst[4][k][q] = src[4][k][p]
+    for k in range(4):
+        if src[5][k].shape[0] > 0:
+            dst[5][k][q] = src[5][k][p]
+    dst[6][q] = src[6][p]
+    dst[7][q] = src[7][p]
+
+
+@nb.njit(cache=True, inline="always")
+def _advance_into_p(
+    src: tuple,
+    p: int,
+    dst: tuple,
+    q: int,
+    fx: int,
+    fy: int,
+    depth: float,
+    mot: tuple,
+    order: int,
+) -> None:
+    """:func:`_advance_into` for maps as :func:`planes`."""
+    s_col, s_mot, s_zm, s_dc = src[0], src[3], src[4], src[5]
+    d_col, d_mot, d_zm, d_dc = dst[0], dst[3], dst[4], dst[5]
+    d_col[0][q] = s_col[0][p]
+    d_col[1][q] = s_col[1][p]
+    d_col[2][q] = s_col[2][p]
+    if s_dc[0].shape[0] > 0:
+        da, db, dc, d2a = s_dc[0][p], s_dc[1][p], s_dc[2][p], s_dc[3][p]
+        sa = da + 0.5 * d2a
+        d_col[0][q] += sa + db
+        d_col[1][q] += sa - dc
+        d_col[2][q] += sa - db + dc
+        d_dc[0][q] = da + d2a
+        d_dc[1][q] = db
+        d_dc[2][q] = dc
+        d_dc[3][q] = d2a
+    dst[1][q] = depth
+    dst[2][0][q] = fx
+    dst[2][1][q] = fy
+    if order >= 1:
+        d_mot[0][q] = mot[0]
+        d_mot[1][q] = mot[1]
+        d_zm[0][q] = mot[4]
+    if order >= 2:
+        d_mot[2][q] = mot[2]
+        d_mot[3][q] = mot[3]
+        d_zm[1][q] = mot[5]
+    if order >= 3:
+        d_mot[4][q] = s_mot[4][p]
+        d_mot[5][q] = s_mot[5][p]
+        d_zm[2][q] = s_zm[2][p]
+    dst[6][q] = 0
+    dst[7][q] = src[7][p]
+
+
+@nb.njit(cache=True, inline="always")
+def _zplanes_p(zm: tuple, p: int, order: int) -> tuple:
+    """:func:`_zplanes` for z motion as planes."""
+    z0 = np.int64(zm[0][p]) if order >= 1 else np.int64(0)
+    z1 = np.int64(zm[1][p]) if order >= 2 else np.int64(0)
+    z2 = np.int64(zm[2][p]) if order >= 3 else np.int64(0)
+    return z0, z1, z2
+
+
+@nb.njit(cache=True, inline="always")
+def _motion_at_p(mot: tuple, zm: tuple, p: int, order: int) -> tuple:
+    """:func:`_motion_at` for motion and z motion as planes."""
+    z = np.int64(0)
+    vx = np.int64(mot[0][p]) if order >= 1 else z
+    vy = np.int64(mot[1][p]) if order >= 1 else z
+    ax = np.int64(mot[2][p]) if order >= 2 else z
+    ay = np.int64(mot[3][p]) if order >= 2 else z
+    jx = np.int64(mot[4][p]) if order >= 3 else z
+    jy = np.int64(mot[5][p]) if order >= 3 else z
+    vz = np.int64(zm[0][p]) if order >= 1 else z
+    az = np.int64(zm[1][p]) if order >= 2 else z
+    jz = np.int64(zm[2][p]) if order >= 3 else z
+    return vx, vy, ax, ay, jx, jy, vz, az, jz
+
+
+@nb.njit(cache=True)
+def _spill_incoming_p(
+    old: tuple,
+    p: int,
+    cnew: tuple,
+    q: int,
+    fx: int,
+    fy: int,
+    d: float,
+    mot: tuple,
+    order: int,
+    stats: np.ndarray,
+) -> None:
+    """:func:`_spill_incoming` for maps as :func:`planes`."""
+    if cnew[6][q] == 1 or d < cnew[1][q]:
+        _advance_into_p(old, p, cnew, q, fx, fy, d, mot, order)
+        stats[3] += 1
+
+
+@nb.njit(cache=True)
+def _spill_resident_p(new: tuple, cnew: tuple, q: int, stats: np.ndarray) -> None:
+    """:func:`_spill_resident` for maps as :func:`planes`."""
+    if cnew[6][q] == 1 or new[1][q] < cnew[1][q]:
+        _copy_p(new, q, cnew, q)
+        stats[3] += 1
+
+
+@nb.njit(cache=True)
+def _cache_pass_p(
+    cold: tuple,
+    new: tuple,
+    cnew: tuple,
+    z: int,
+    h: int,
+    w: int,
+    order: int,
+    fp: int,
+    fm: int,
+    stats: np.ndarray,
+    src_idx: np.ndarray,
+) -> None:
+    """:func:`_cache_pass` for maps as :func:`planes`."""
+    for r in range(h):
+        for c in range(w):
+            p = (z * h + r) * w + c
+            if cold[6][p] == 1:
+                continue
+            vx, vy, ax, ay, jx, jy, vz, az, jz = _motion_at_p(cold[3], cold[4], p, order)
+            qr, qc, fx, fy, d, vx, vy, ax, ay, vz, az = step(
+                r, c, cold[2][0][p], cold[2][1][p], cold[1][p],
+                vx, vy, ax, ay, jx, jy, vz, az, jz, order, fp, fm,
+            )  # fmt: skip
+            mot = (vx, vy, ax, ay, vz, az)
+            if qr < 0 or qc < 0 or qr >= h or qc >= w:
+                continue
+            q = (z * h + qr) * w + qc
+            if cnew[6][q] == 1 or d < cnew[1][q]:
+                _advance_into_p(cold, p, cnew, q, fx, fy, d, mot, order)
+    for p in range(z * h * w, (z + 1) * h * w):
+        if new[6][p] == 1 and cnew[6][p] == 0:
+            _copy_p(cnew, p, new, p)
+            cnew[6][p] = 1
+            src_idx[p] = -1
+            stats[4] += 1
 
 
 def planes(arrays: tuple) -> tuple:
