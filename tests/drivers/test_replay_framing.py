@@ -142,3 +142,26 @@ def test_a_raw_sgi_capture_loses_no_dial_packet_at_chunk_edges(tmp_path, capsys,
     records = [json.loads(line) for line in out]
     assert rc == 0 and [r for r in records if r["kind"] == "status"] == []
     assert len(records) == check_framing("sgi", capture.read_bytes()).events == 355
+
+
+def test_hatire_in_the_wrong_byte_order_is_refused_both_ways(tmp_path, capsys):
+    """The frames still have their AA AA / 55 55 ends, so no byte is rejected; but the
+    swapped frame counter reads as a text or undefined code, so most frames give no
+    pose (the fixture: 76 made-up poses of 4,765 frames, exit 0, before)."""
+    if FIXTURE.is_file():
+        rc, out, err = replay(capsys, str(FIXTURE), "--protocol", "hatire",
+                              "--hatire-big-endian")
+        assert rc == 2 and out == []
+        assert err[-1] == (f"holo-replay: {FIXTURE}: does not frame as hatire "
+                           "--hatire-big-endian: 2144 of its first 2180 frames gave no "
+                           "pose, dial or button; it frames as hatire: leave out "
+                           "--hatire-big-endian")
+    big = tmp_path / "big.bin"
+    big.write_bytes(b"".join(make() for _, make in
+                             TrackerSim("hatire", byte_order="big").frames(3)))
+    rc, out, err = replay(capsys, str(big), "--protocol", "hatire")
+    assert rc == 2 and out == []
+    assert err[-1].endswith("it frames as hatire --hatire-big-endian: pass --protocol "
+                            "hatire --hatire-big-endian")
+    rc, out, _ = replay(capsys, str(big), "--protocol", "hatire", "--hatire-big-endian")
+    assert rc == 0 and len(out) == 180
