@@ -165,3 +165,36 @@ def test_hatire_in_the_wrong_byte_order_is_refused_both_ways(tmp_path, capsys):
                             "hatire --hatire-big-endian")
     rc, out, _ = replay(capsys, str(big), "--protocol", "hatire", "--hatire-big-endian")
     assert rc == 0 and len(out) == 180
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="pty pairs need POSIX")
+def test_holo_devices_names_a_port_whose_bytes_do_not_frame(capsys):
+    """A Hatire tracker on the dial box's port: the live run says so at its end."""
+    import threading
+
+    from drivers import cli_devices
+    from drivers.pty_link import PtyLink
+
+    link, stop = PtyLink(), threading.Event()
+    link.stop = stop
+    frames = stream("hatire")
+
+    def play() -> None:
+        while not stop.is_set():
+            link.read_available()  # the driver's init commands
+            link.write(frames[:600])
+            stop.wait(0.02)
+
+    player = threading.Thread(target=play, daemon=True)
+    player.start()
+    try:
+        rc = cli_devices.main(["--dials", link.path, "--seconds", "1.5"])
+    finally:
+        stop.set()
+        player.join(10)
+        link.close()
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 0  # it ran; the line says what it read
+    assert err[-1].startswith(f"holo-devices: dials ({link.path}): the bytes read do not "
+                              "frame as sgi (")
+    assert err[-1].endswith("; the wrong port or protocol?")
