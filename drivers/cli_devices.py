@@ -41,6 +41,7 @@ from typing import Any, TextIO
 
 from drivers.dialbox_driver import DialBoxDriver
 from drivers.events import DEFAULT_COUNTS_PER_TURN, Event, StatusEvent
+from drivers.protocols.framing import FramingCheck
 from drivers.protocols.sgi_dialbox import BAUD as SGI_BAUD
 from drivers.publisher import Publisher
 from drivers.reader import (
@@ -316,6 +317,24 @@ def never_opened(session: DeviceSession) -> list[str]:
     return out
 
 
+def misframed(session: DeviceSession) -> list[str]:
+    """``NAME (URL): ...`` for each reader whose bytes did not frame as its protocol.
+
+    Most of the bytes rejected (:mod:`drivers.protocols.framing`): a tracker on the
+    dial box's port, or the wrong ``--tracker-protocol``.  The SGI protocol has no
+    framing, so such a port gives made-up button events rather than none.
+    """
+    out = []
+    for r in session.readers:
+        st = r.stream.decoder.stats
+        check = FramingCheck(r.stream.protocol, st.bytes_in, st.bytes_discarded, st.resyncs,
+                             st.frames, st.frames)
+        if not check.frames:
+            out.append(f"{r.name} ({r.settings.url}): the bytes read do not frame as "
+                       f"{check.protocol} ({check.describe()}); the wrong port or protocol?")
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``holo-devices``; returns the exit status (see the module docstring)."""
     parser = build_parser()
@@ -346,6 +365,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     missing = never_opened(session)
     for line in missing:
         print(f"holo-devices: never opened {line}", file=sys.stderr)
+    for line in misframed(session):
+        print(f"holo-devices: {line}", file=sys.stderr)
     ok = EXIT_FAILED if len(missing) == len(session.readers) else EXIT_OK
     if ok == EXIT_FAILED:
         print("holo-devices: no device could be opened; nothing was read", file=sys.stderr)

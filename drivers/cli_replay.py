@@ -200,14 +200,17 @@ def check_raw_framing(args: argparse.Namespace) -> None:
             head = f.read(PREFIX_BYTES)
     except OSError as exc:
         raise LogFileError(f"{args.file}: cannot read: {exc}") from exc
-    options = {"byte_order": "big"} if args.hatire_big_endian and args.protocol == "hatire" else {}
-    check = check_framing(args.protocol, head, **options)
+    big = args.hatire_big_endian and args.protocol == "hatire"
+    check = check_framing(args.protocol, head, **({"byte_order": "big"} if big else {}))
     if check.frames:
         return
-    others = [p for p in protocols_that_frame(head) if p != args.protocol]
-    hint = (f"it frames as {' or '.join(others)}: pass --protocol {others[0]}" if others
+    chosen = args.protocol + (" --hatire-big-endian" if big else "")
+    others = [p for p in protocols_that_frame(head) if p != chosen]
+    fix = ("leave out --hatire-big-endian" if others[:1] == ["hatire"] and big
+           else f"pass --protocol {others[0]}" if others else "")
+    hint = (f"it frames as {' or '.join(others)}: {fix}" if others
             else "nor as any other protocol (a leading banner? --skip-bytes N drops it)")
-    raise LogFileError(f"{args.file}: does not frame as {args.protocol}: "
+    raise LogFileError(f"{args.file}: does not frame as {chosen}: "
                        f"{check.describe('its first ')}; {hint}")
 
 
@@ -277,7 +280,7 @@ class Replayer:
             st = stream.decoder.stats
             self.framing[name] += FramingCheck(stream.protocol, st.bytes_in,
                                                st.bytes_discarded, st.resyncs,
-                                               self._events.get(name, 0))
+                                               self._events.get(name, 0), st.frames)
         self.streams = {name: DeviceStream(name, proto, self._options.get(name))
                         for name, proto in self._devices}
         self._last_t: dict[str, int] = {}

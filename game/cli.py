@@ -21,11 +21,18 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from game.actions import binding_help, lamp_mask
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
-from service.cli_args import add_size_option, endpoint, output_problem, plain_help
+from service.cli_args import (
+    add_size_option,
+    endpoint,
+    int_range,
+    output_problem,
+    plain_help,
+)
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.lod_cli import add_lod_options, lod_settings
@@ -65,6 +72,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         help="stop after N seconds of play, counted from the first frame shown",
+    )
+    p.add_argument(
+        "--games",
+        type=int_range(1),
+        default=None,
+        metavar="N",
+        help="stop once N games are over (the score screen of the Nth shown); with "
+        "--seconds, whichever comes first",
     )
     p.add_argument(
         "--wait",
@@ -211,9 +226,14 @@ def run(args: argparse.Namespace) -> dict:
     print(f"holo-game: started, {args.mode} mode, {args.zones} zones of {cols}x{rows} "
           f"rendered {where}", file=sys.stderr, flush=True)
     progress = Progress(args.seconds, start)
+
+    def after_tick(c: GameClient) -> None:
+        progress(c, capture)
+        if games_over(c, args.games):
+            c.quit = True
+
     try:
-        client.run(args.seconds, lambda c: progress(c, capture),
-                   args.wait if args.seconds is not None else None)
+        client.run(args.seconds, after_tick, args.wait if args.seconds is not None else None)
     finally:
         stats = client.stats(client.played_s())
         stats["first_frame_s"] = (None if client.first_frame_t is None
@@ -227,6 +247,17 @@ def run(args: argparse.Namespace) -> dict:
         pygame.quit()
         args.stats = stats
     return stats
+
+
+def games_over(client: Any, games: int | None) -> bool:
+    """Whether ``--games N`` is done: N games over, the last one's score screen shown.
+
+    A condition, not a time: on a loaded machine the game runs slower than the wall
+    clock (a tick advances it at most ``MAX_DT``), so a game over may come late.
+    """
+    over = client.over
+    return (games is not None and len(client.scores) >= games and over is not None
+            and over.phase == "score")
 
 
 class Progress:

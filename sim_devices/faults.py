@@ -89,6 +89,11 @@ class FaultSpec:
             raise SettingsError("corrupt + drop + truncate + wrong_baud must be <= 1")
         if self.max_split < 1 or not 0 < self.burst_len[0] <= self.burst_len[1]:
             raise SettingsError("max_split >= 1 and 0 < burst_len min <= max needed")
+        for name in ("pause_s", "reconnect_s"):  # inf: a run that never resumes
+            if not 0.0 <= getattr(self, name) < math.inf:
+                raise SettingsError(f"fault {name} must be a finite number of seconds >= 0")
+        if not 0.0 < self.baud_ratio < math.inf:  # 0: a reader that samples one bit
+            raise SettingsError("fault baud_ratio must be a finite number > 0")
 
     @classmethod
     def parse(cls, text: str) -> FaultSpec:
@@ -99,6 +104,8 @@ class FaultSpec:
             key, sep, value = item.partition("=")
             if key not in kinds:
                 raise SettingsError(f"unknown fault {key!r}; known: {', '.join(kinds)}")
+            if key in opts:  # the later one would silently win
+                raise SettingsError(f"fault {key} given twice in {text!r}")
             opts[key] = _convert(key, value if sep else "1")
         return cls(**opts)
 
@@ -119,7 +126,8 @@ def _convert(key: str, value: str) -> object:
             return value not in ("0", "false", "no")
         return float(value)
     except ValueError:
-        raise SettingsError(f"fault {key}={value!r} is not a number") from None
+        what = "a count or a LO-HI range" if key == "burst_len" else "a number"
+        raise SettingsError(f"fault {key}={value!r} is not {what}") from None
 
 
 @dataclass

@@ -142,3 +142,59 @@ def test_a_raw_sgi_capture_loses_no_dial_packet_at_chunk_edges(tmp_path, capsys,
     records = [json.loads(line) for line in out]
     assert rc == 0 and [r for r in records if r["kind"] == "status"] == []
     assert len(records) == check_framing("sgi", capture.read_bytes()).events == 355
+
+
+def test_hatire_in_the_wrong_byte_order_is_refused_both_ways(tmp_path, capsys):
+    """The frames still have their AA AA / 55 55 ends, so no byte is rejected; but the
+    swapped frame counter reads as a text or undefined code, so most frames give no
+    pose (the fixture: 76 made-up poses of 4,765 frames, exit 0, before)."""
+    if FIXTURE.is_file():
+        rc, out, err = replay(capsys, str(FIXTURE), "--protocol", "hatire",
+                              "--hatire-big-endian")
+        assert rc == 2 and out == []
+        assert err[-1] == (f"holo-replay: {FIXTURE}: does not frame as hatire "
+                           "--hatire-big-endian: 2144 of its first 2180 frames gave no "
+                           "pose, dial or button; it frames as hatire: leave out "
+                           "--hatire-big-endian")
+    big = tmp_path / "big.bin"
+    big.write_bytes(b"".join(make() for _, make in
+                             TrackerSim("hatire", byte_order="big").frames(3)))
+    rc, out, err = replay(capsys, str(big), "--protocol", "hatire")
+    assert rc == 2 and out == []
+    assert err[-1].endswith("it frames as hatire --hatire-big-endian: pass --protocol "
+                            "hatire --hatire-big-endian")
+    rc, out, _ = replay(capsys, str(big), "--protocol", "hatire", "--hatire-big-endian")
+    assert rc == 0 and len(out) == 180
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="pty pairs need POSIX")
+def test_holo_devices_names_a_port_whose_bytes_do_not_frame(capsys):
+    """A Hatire tracker on the dial box's port: the live run says so at its end."""
+    import threading
+
+    from drivers import cli_devices
+    from drivers.pty_link import PtyLink
+
+    link, stop = PtyLink(), threading.Event()
+    link.stop = stop
+    frames = stream("hatire")
+
+    def play() -> None:
+        while not stop.is_set():
+            link.read_available()  # the driver's init commands
+            link.write(frames[:600])
+            stop.wait(0.02)
+
+    player = threading.Thread(target=play, daemon=True)
+    player.start()
+    try:
+        rc = cli_devices.main(["--dials", link.path, "--seconds", "1.5"])
+    finally:
+        stop.set()
+        player.join(10)
+        link.close()
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 0  # it ran; the line says what it read
+    assert err[-1].startswith(f"holo-devices: dials ({link.path}): the bytes read do not "
+                              "frame as sgi (")
+    assert err[-1].endswith("; the wrong port or protocol?")

@@ -26,6 +26,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_local_headless_bot_run_writes_screenshots_and_stats(tmp_path, capsys):
+    # it ends on a condition, the first game's score screen (--games 1), not after 5 s:
+    # on a loaded machine the game runs slower than the clock (a tick advances it at
+    # most 0.1 s) and its game over came too late for gameover.png (2 s into it)
     out = tmp_path / "out"
     scores = str(tmp_path / "hs.json")
     rc = cli.main(
@@ -36,7 +39,9 @@ def test_local_headless_bot_run_writes_screenshots_and_stats(tmp_path, capsys):
             "0.5",
             "--headless",
             "--seconds",
-            "5",
+            "120",
+            "--games",
+            "1",
             "--size",
             "120x90",
             "--out",
@@ -49,7 +54,9 @@ def test_local_headless_bot_run_writes_screenshots_and_stats(tmp_path, capsys):
     stats = json.loads((out / "stats.json").read_text())
     assert stats == json.loads(capsys.readouterr().out.splitlines()[-1]) | {}
     assert stats["refreshes"] > 20 and stats["renders"] > 2 and stats["beeps"] == 3
+    assert stats["games"] == 1 and stats["seconds"] < 60  # stopped by --games, not the time
     assert (out / "mode-head.png").exists() and (out / "gameover.png").exists()
+    assert (out / "score.png").exists()
     assert json.loads((tmp_path / "hs.json").read_text())["scores"][0]["name"] == "bot"
 
 

@@ -161,3 +161,17 @@ def test_spec_parsing_and_validation():
     for bad in ("corrupt=2", "melt=0.1", "corrupt=x", "corrupt=0.6,drop=0.6"):
         with pytest.raises(SettingsError):
             FaultSpec.parse(bad)
+
+
+@pytest.mark.parametrize(("bad", "says"), [
+    ("reconnect_s=inf", "reconnect_s must be a finite number of seconds >= 0"),  # never back
+    ("pause_s=-1", "pause_s must be a finite number of seconds >= 0"),
+    ("pause_s=nan", "pause_s must be a finite number of seconds >= 0"),
+    ("baud_ratio=0", "baud_ratio must be a finite number > 0"),
+    ("baud_ratio=inf", "baud_ratio must be a finite number > 0"),  # crashed the run
+    ("drop=0.1,drop=0.2", "fault drop given twice"),  # the later one silently won
+    ("burst_len=-3", "fault burst_len='-3' is not a count or a LO-HI range"),
+])
+def test_spec_values_that_would_hang_crash_or_mislead_are_refused(bad, says):
+    with pytest.raises(SettingsError, match=says):
+        FaultSpec.parse(bad)
