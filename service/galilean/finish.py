@@ -126,10 +126,16 @@ def _finish_rows(
                     accd += np.float64(dep[u64(qi)])
                 if first >= 0:
                     q = u64(first)
-                    c0[p] = c0[q]
-                    c1[p] = c1[q]
-                    c2[p] = c2[q]
-                    dep[p] = dep[q]
+                    if mode == 1:  # the average of the neighbours taken
+                        c0[p] = acc0 / n
+                        c1[p] = acc1 / n
+                        c2[p] = acc2 / n
+                        dep[p] = np.floor(accd / n + 0.5)
+                    else:  # the first of them
+                        c0[p] = c0[q]
+                        c1[p] = c1[q]
+                        c2[p] = c2[q]
+                        dep[p] = dep[q]
                     if n_mot >= 2:
                         m0[p] = m0[q]
                         m1[p] = m1[q]
@@ -152,11 +158,6 @@ def _finish_rows(
                         d3[p] = d3[q]
                     deb[p] = 0
                     obj[p] = obj[q]
-                    if mode == 1:
-                        c0[p] = acc0 / n
-                        c1[p] = acc1 / n
-                        c2[p] = acc2 / n
-                        dep[p] = np.floor(accd / n + 0.5)
                     f0[p] = 0
                     f1[p] = 0
                     src_idx[p] = src_idx[q]
@@ -319,10 +320,16 @@ def _fix_rows(
                         src_idx[p] = -1
                 continue
             q = u64(first)
-            c0[p] = c0[q]
-            c1[p] = c1[q]
-            c2[p] = c2[q]
-            dep[p] = dep[q]
+            if mode == 1:  # the average of the neighbours taken
+                c0[p] = acc0 / n
+                c1[p] = acc1 / n
+                c2[p] = acc2 / n
+                dep[p] = np.floor(accd / n + 0.5)
+            else:  # the first of them
+                c0[p] = c0[q]
+                c1[p] = c1[q]
+                c2[p] = c2[q]
+                dep[p] = dep[q]
             if n_mot >= 2:
                 m0[p] = m0[q]
                 m1[p] = m1[q]
@@ -345,11 +352,6 @@ def _fix_rows(
                 d3[p] = d3[q]
             deb[p] = 0
             obj[p] = obj[q]
-            if mode == 1:
-                c0[p] = acc0 / n
-                c1[p] = acc1 / n
-                c2[p] = acc2 / n
-                dep[p] = np.floor(accd / n + 0.5)
             f0[p] = 0
             f1[p] = 0
             src_idx[p] = src_idx[q]
