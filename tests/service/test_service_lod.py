@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import fcntl
 import os
-import time
 
 import pytest
 from testkit import shared_fixture, wait_until
@@ -153,9 +152,9 @@ def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
         c.load_scene(path=str(BUNNY))
         c.update_objects([{"index": 0, "scale": 0.2}])  # small: coarse levels will do
         for _ in range(2):
-            t0 = time.monotonic()
+            # within the render timeout: a render past it is resent (render_retries below);
+            # the client's own wall clock is not asserted, a loaded machine stretches it
             lod = c.render_once()[0]["stats"]["lod"]
-            assert time.monotonic() - t0 < 5.0  # within the service's render timeout
             assert lod["chains"] == {"ready": 0, "building": 1, "failed": 0}
             assert lod["levels"] == [0] and lod["triangles"] == lod["triangles_full"]
         assert c.stats()["render_retries"] == 0  # no render was resent
