@@ -56,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--job", action="append", choices=list(JOBS), metavar="NAME",
                    help="run only this job (repeat it); one of: " + "; ".join(JOBS))
     p.add_argument("--parent-pid", type=int, default=0, help=argparse.SUPPRESS)
+    # warm_up's second process: wait for a line on stdin before this job (its parent
+    # is still compiling the render kernels that job uses)
+    p.add_argument("--hold-before", choices=list(JOBS), help=argparse.SUPPRESS)
     return p
 
 
@@ -102,7 +105,11 @@ def _run(args: argparse.Namespace) -> int:
         else:
             _human(step)
 
-    report = warm_up(progress, args.processes, args.job)
+    def before_job(name: str) -> None:
+        if name == args.hold_before:
+            sys.stdin.readline()  # the parent's release, or end of file if it is gone
+
+    report = warm_up(progress, args.processes, args.job, before_job)
     mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
     done = {"event": "done", "total": report.total, "compiled": report.compiled,
             "cached": report.cached, "seconds": round(report.seconds, 3),

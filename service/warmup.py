@@ -195,6 +195,34 @@ def _stage_refreshes(stage: Any, n: int = 3) -> None:
         stage.refresh()
 
 
+def _galilean_kernels(kit: _Kit) -> None:
+    """The service refresh's stage kernels on made-up G(2) maps: no render kernel runs.
+
+    The maps are laid out as ``stitch`` lays out a band render's (each field a
+    C-contiguous copy), so the scatter, finish, show and head-motion kernels compile
+    for the types :func:`_galilean_service` then loads them with.  Run beside the
+    ``FIRST`` jobs in the second process (see :data:`EARLY`).
+    """
+    from service.galilean import GalileanSettings, GalileanStage
+    from service.galilean.galpixmap import FIELDS, Galpixmap
+    from service.scene import MotionState
+
+    stage = GalileanStage(kit.display, GalileanSettings(order=2, refresh_hz=60.0))
+    rng = np.random.default_rng(7)
+    for k in range(2):
+        blank = Galpixmap.empty(2, stage.fixed, stage.shape)
+        f = {n: np.array(getattr(blank, n)) for n in FIELDS}
+        f["depth"][:] = rng.integers(2**20, 2**21, f["depth"].shape)
+        f["debris"][:], f["obj"][:] = 0, 0
+        f["colour"][:] = rng.uniform(0, 255, f["colour"].shape)
+        f["motion"][:] = rng.integers(-3000, 3000, f["motion"].shape)
+        f["frac"][:] = rng.integers(-100, 100, f["frac"].shape)
+        stage.submit(Galpixmap(order=2, fixed=stage.fixed, **f), stage.index + 1, None, True,
+                     (), None, None, MotionState())
+        stage.viewer(MotionState(velocity=[0.1 * k, 0.0, 0.0], angular_velocity=[0.0, 0.2, 0.0]))
+        _stage_refreshes(stage)
+
+
 def _galilean_game(kit: _Kit) -> None:
     """The game's in-process path (``game.backends.LocalRenderer``): update, refresh."""
     from service.galilean import GalileanSettings, GalileanStage
@@ -336,7 +364,12 @@ def _level_of_detail(kit: _Kit) -> None:
 #: CPU against 74 s here, measured 2026-11-26), so render kernels that only a
 #: Galilean job reached (the depth-only shadows) compile in the first ``HERE``
 #: job instead, before the second process gets to them: it then loads them.
-FIRST, HERE, APART = "first", "here", "apart"
+#: ``EARLY`` jobs start the second process as soon as a ``FIRST`` job had to
+#: compile, and run there beside the rest of the ``FIRST`` jobs, so they must reach
+#: none of their kernels: the Galilean stage's kernels on a made-up map (the scatter
+#: kernels, 9 signatures, none shared with the render path: checked 2026-11-26).
+#: The second process holds its ``APART`` jobs until this one's ``FIRST`` jobs end.
+FIRST, HERE, APART, EARLY = "first", "here", "apart", "early"
 
 
 @dataclass(frozen=True)
@@ -356,6 +389,7 @@ JOBS: dict[str, _Job] = {
     "light phong": _Job(_render("zbuffer", "phong"), FIRST),
     "motion field": _Job(_motion(True, "blinn"), FIRST, service=True),
     "motion field, no colour motion": _Job(_motion(False, "ambient"), FIRST),
+    "galilean: refresh kernels, made-up map": _Job(_galilean_kernels, EARLY),
     "galilean: service refresh": _Job(_galilean_service, APART, service=True),
     "galilean: game refresh": _Job(_galilean_game, APART),
     "galilean: orders, cache, margin": _Job(_galilean_variants, APART, service=True),
@@ -509,11 +543,19 @@ def _run(name: str, kit: _Kit) -> tuple[float, int]:
     return time.perf_counter() - t0, cache_counts()[1] - misses0
 
 
-def _second_process(names: list[str], report: _Progress) -> tuple[Any, threading.Thread]:
-    """``holo-warmup --jsonl`` for ``names`` in a child; a thread reports its jobs."""
+def _second_process(
+    names: list[str], report: _Progress, hold_before: str | None = None
+) -> tuple[Any, threading.Thread]:
+    """``holo-warmup --jsonl`` for ``names`` in a child; a thread reports its jobs.
+
+    With ``hold_before`` the child waits for a line on its stdin (:func:`_release`)
+    before it runs that job.
+    """
     cmd = [sys.executable, "-m", "service.cli_warmup", "--jsonl", "--processes", "1",
            f"--parent-pid={os.getpid()}", *(f"--job={n}" for n in names)]
-    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+    if hold_before is not None:
+        cmd.append(f"--hold-before={hold_before}")
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.PIPE, text=True)
 
     def read() -> None:
         for line in child.stdout:  # read to the end, whatever comes: never block the child
@@ -529,10 +571,18 @@ def _second_process(names: list[str], report: _Progress) -> tuple[Any, threading
     return child, reader
 
 
+def _release(child: Any) -> None:
+    """Let a held second process go on (a line, then end of file, on its stdin)."""
+    with contextlib.suppress(OSError):  # it ended already: nothing to release
+        child.stdin.write("go\n")
+        child.stdin.close()
+
+
 def warm_up(
     progress: Callable[[WarmupStep], None] | None = None,
     processes: int = 1,
     only: list[str] | None = None,
+    before_job: Callable[[str], None] | None = None,
 ) -> WarmupReport:
     """Compile, or load from numba's cache, every kernel of :data:`JOBS`.
 
@@ -542,12 +592,16 @@ def warm_up(
         Called with each :class:`WarmupStep` as its job finishes (from a second
         thread too when ``processes`` is 2: jobs are numbered as they finish).
     processes : int
-        2: when the ``FIRST`` jobs had to compile (an empty cache), the ``APART``
-        jobs run in a second process at the same time as the ``HERE`` jobs, then
-        are run here again (loaded from the cache: a check that another process
-        finds them).  1: everything here, in order.
+        2: once a ``FIRST`` job had to compile (an empty cache), a second process
+        runs the ``EARLY`` jobs beside the other ``FIRST`` jobs, then the ``APART``
+        jobs beside the ``HERE`` jobs; this process then runs both groups again
+        (loaded from the cache: a check that another process finds them).
+        1: everything here, in order.
     only : list of str, optional
         Run just these jobs of :data:`JOBS`.
+    before_job : callable, optional
+        Called with each job's name before it runs here (``holo-warmup
+        --hold-before``: the second process waits there for its parent).
 
     Returns
     -------
@@ -557,24 +611,22 @@ def warm_up(
     kit = _Kit()
     report = _Progress(len(names), progress)
     t_all = time.perf_counter()
-    first = [n for n in names if JOBS[n].part == FIRST]
-    for name in first:
-        report.step(name, *_run(name, kit))
-    apart = [n for n in names if JOBS[n].part == APART]
-    cold = any(not s.cached for s in report.steps)
-    child = reader = None
-    if processes > 1 and cold and apart:
-        child, reader = _second_process(apart, report)
+    split = processes > 1 and any(JOBS[n].part in (EARLY, APART) for n in names)
+    child = None
     try:
-        for name in names:
-            if name not in first and (child is None or name not in apart):
-                report.step(name, *_run(name, kit))
+        child, reader = _run_first(names, kit, report, split)
+        run_here = [n for n in names if JOBS[n].part != FIRST
+                    and (child is None or JOBS[n].part not in (EARLY, APART))]
+        for name in run_here:
+            if before_job is not None:
+                before_job(name)
+            report.step(name, *_run(name, kit))
         if child is not None:
             child.wait()
             reader.join()
             done = {s.name for s in report.steps}
-            for name in apart:  # loads what the child compiled (or compiles what it did not)
-                seconds, compiled = _run(name, kit)
+            for name in (n for n in names if JOBS[n].part in (EARLY, APART)):
+                seconds, compiled = _run(name, kit)  # loads what the child compiled
                 if name not in done:
                     report.step(name, seconds, compiled)
     finally:
@@ -584,3 +636,28 @@ def warm_up(
     n_cached = sum(s.cached for s in steps)
     return WarmupReport(len(steps), len(steps) - n_cached, n_cached,
                         time.perf_counter() - t_all, steps, cache_counts()[2])
+
+
+def _run_first(
+    names: list[str], kit: _Kit, report: _Progress, split: bool
+) -> tuple[Any, threading.Thread | None]:
+    """The ``FIRST`` jobs; with ``split``, the second process starts at the first compile.
+
+    Returns the second process (released to its ``APART`` jobs) and its reader
+    thread, or (None, None) when every ``FIRST`` job was cached or ``split`` is off.
+    """
+    child = reader = None
+    rest = [n for n in names if JOBS[n].part in (EARLY, APART)]
+    held = next((n for n in rest if JOBS[n].part == APART), None)
+    try:
+        for name in (n for n in names if JOBS[n].part == FIRST):
+            report.step(name, *_run(name, kit))
+            if split and child is None and not report.steps[-1].cached:
+                child, reader = _second_process(rest, report, held)
+    except BaseException:
+        if child is not None:
+            end_process(child)
+        raise
+    if child is not None:
+        _release(child)
+    return child, reader

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from testkit import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -102,3 +103,37 @@ def test_second_process_ends_when_its_parent_is_killed_mid_compile(cache):
             parent.wait()
         if not _gone(child):
             os.kill(child, signal.SIGKILL)
+
+
+def _reading_stdin(pid: int) -> bool:
+    """True while ``pid``'s main thread sits in read(2) on fd 0 (x86-64 and arm64)."""
+    try:
+        words = Path(f"/proc/{pid}/task/{pid}/syscall").read_text().split()
+    except OSError:
+        return False
+    return len(words) > 1 and words[0] in ("0", "63") and int(words[1], 16) == 0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/PID/syscall")
+@pytest.mark.timeout(SIGNAL_WAIT_S + 120)
+def test_second_process_holds_before_the_named_job_until_released(cache):
+    """``--hold-before``: the Galilean child waits there while its parent compiles."""
+    p = subprocess.Popen([sys.executable, "-m", "service.cli_warmup", "--jsonl",
+                          *(f"--job={j}" for j in _JOBS), f"--hold-before={_JOBS[1]}"],
+                         cwd=ROOT, env=_env(cache), stdin=subprocess.PIPE,
+                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        first = json.loads(p.stdout.readline())
+        assert first["event"] == "kernel" and first["name"] == _JOBS[0]
+        assert wait_until(lambda: _reading_stdin(p.pid), SIGNAL_WAIT_S), "it did not wait"
+        assert select.select([p.stdout], [], [], 0)[0] == []  # job 2 has not run
+        p.stdin.write("go\n")
+        p.stdin.close()
+        second = json.loads(p.stdout.readline())
+        assert second["event"] == "kernel" and second["name"] == _JOBS[1]
+        assert json.loads(p.stdout.readline())["event"] == "done"
+        assert p.wait(SIGNAL_WAIT_S) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
