@@ -21,6 +21,39 @@ from service.galilean.propagate import u64
 from service.galilean.show import show_row
 
 
+@nb.njit(cache=True, inline="always")
+def _expanded_colour(
+    c0: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    dep: np.ndarray,
+    p: np.uint64,
+    q: np.uint64,
+    mode: int,
+    n: int,
+    acc0: float,
+    acc1: float,
+    acc2: float,
+    accd: float,
+) -> None:
+    """Write an expanded pixel ``p``'s colour and depth, each plane once.
+
+    The mean of the ``n`` neighbours taken (``mode`` 1, sums ``acc*``, depth
+    rounded half up) or the first of them, ``q`` (replication); one helper for
+    the band scan and the fix-up.
+    """
+    if mode == 1:
+        c0[p] = acc0 / n
+        c1[p] = acc1 / n
+        c2[p] = acc2 / n
+        dep[p] = np.floor(accd / n + 0.5)
+    else:
+        c0[p] = c0[q]
+        c1[p] = c1[q]
+        c2[p] = c2[q]
+        dep[p] = dep[q]
+
+
 @nb.njit(cache=True, nogil=True)
 def _finish_rows(
     new: tuple,
@@ -126,16 +159,7 @@ def _finish_rows(
                     accd += np.float64(dep[u64(qi)])
                 if first >= 0:
                     q = u64(first)
-                    if mode == 1:  # the average of the neighbours taken
-                        c0[p] = acc0 / n
-                        c1[p] = acc1 / n
-                        c2[p] = acc2 / n
-                        dep[p] = np.floor(accd / n + 0.5)
-                    else:  # the first of them
-                        c0[p] = c0[q]
-                        c1[p] = c1[q]
-                        c2[p] = c2[q]
-                        dep[p] = dep[q]
+                    _expanded_colour(c0, c1, c2, dep, p, q, mode, n, acc0, acc1, acc2, accd)
                     if n_mot >= 2:
                         m0[p] = m0[q]
                         m1[p] = m1[q]
@@ -320,16 +344,7 @@ def _fix_rows(
                         src_idx[p] = -1
                 continue
             q = u64(first)
-            if mode == 1:  # the average of the neighbours taken
-                c0[p] = acc0 / n
-                c1[p] = acc1 / n
-                c2[p] = acc2 / n
-                dep[p] = np.floor(accd / n + 0.5)
-            else:  # the first of them
-                c0[p] = c0[q]
-                c1[p] = c1[q]
-                c2[p] = c2[q]
-                dep[p] = dep[q]
+            _expanded_colour(c0, c1, c2, dep, p, q, mode, n, acc0, acc1, acc2, accd)
             if n_mot >= 2:
                 m0[p] = m0[q]
                 m1[p] = m1[q]
