@@ -14,6 +14,7 @@ import importlib
 import os
 import sys
 
+from service.cli_args import output_problem
 from service.errors import HoloError
 from service.kernel_cache import drop_stale
 from service.process import setup_frame_process
@@ -103,11 +104,32 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     prog = f"holo-bench {argv[0]}"
+    problem = _out_problem(argv[1:])
+    if problem:  # before any work: a typo in --out must not cost a whole benchmark
+        print(f"{prog}: error: --out {problem}", file=sys.stderr)
+        return EXIT_USAGE
     stale = drop_stale()  # time the code in the tree, not kernels cached before an edit
     if stale:
         print(f"{prog}: {len(stale)} cached kernels predate a change to a module they use; "
               "they compile again when first used", file=sys.stderr)
     return interruptible(prog, lambda: _run(prog, BENCHES[argv[0]][0], argv[1:]))
+
+
+def _out_problem(argv: list[str]) -> str | None:
+    """Why the ``--out`` folder in a benchmark's ``argv`` cannot be written, or None.
+
+    Every benchmark's ``--out`` names a folder (made if missing); one not given
+    (each benchmark's default) is left to the benchmark.
+    """
+    for i, word in enumerate(argv):
+        value = None
+        if word == "--out" and i + 1 < len(argv):
+            value = argv[i + 1]
+        elif word.startswith("--out="):
+            value = word.split("=", 1)[1]
+        if value is not None and (problem := output_problem(value, folder=True)):
+            return problem
+    return None
 
 
 def _run(prog: str, module_name: str, argv: list[str]) -> int:
@@ -116,8 +138,15 @@ def _run(prog: str, module_name: str, argv: list[str]) -> int:
         module = importlib.import_module(module_name)
         return int(module.main(argv) or 0)
     except (HoloError, OSError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {_message(exc)}", file=sys.stderr)
         return EXIT_USAGE
+
+
+def _message(exc: Exception) -> str:
+    """``"PATH: No such file or directory"`` for a file error, not ``"[Errno 2] ..."``."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror
+    return str(exc)
 
 
 if __name__ == "__main__":

@@ -66,3 +66,22 @@ def test_unknown_benchmark_and_the_help(capsys):
     assert cli_bench.main(["--help"]) == 0
     out = capsys.readouterr().out
     assert all(name in out for name in cli_bench.BENCHES) and "130" in out
+
+
+@pytest.mark.parametrize(("out", "words"), [
+    ("/dev/null", "is a file, not a folder"),
+    ("/dev/null/sub", "/dev/null is a file, not a folder"),
+], ids=["a-file", "under-a-file"])
+def test_an_unwritable_out_folder_is_refused_before_any_work(out, words, tmp_path):
+    """The folder is checked before the benchmark starts (it used to end in an errno line)."""
+    r = subprocess.run([sys.executable, "-m", "service.cli_bench", "report", "--quick",
+                        "--out", out], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [f"holo-bench report: error: --out {out}: {words}"]
+    assert "Errno" not in r.stderr
+
+
+def test_file_errors_are_named_without_errno():
+    err = FileNotFoundError(2, "No such file or directory", "/x/y")
+    assert cli_bench._message(err) == "/x/y: No such file or directory"
+    assert cli_bench._message(OSError("plain")) == "plain"
