@@ -67,5 +67,8 @@ def test_frames_at_refresh_rate_between_renders(service_factory):
             assert b["since_render"] <= b["seq"] - a["seq"] - 1  # shown after a
             assert b["since_render"] == 0 or not b["updated"]
     assert len({h["render_id"] for h in headers}) >= 2, "renders should keep coming"
-    assert 1 <= delta["updates"] <= 5 * longest + 1  # --max-update-hz 5 (renders take
-    # 0.2 s to seconds under load)
+    # --max-update-hz 5: render starts are >= 0.2 s apart, so a window of `longest`
+    # holds at most 5 * longest + 1 of them; an update counts when the refresh loop
+    # grafts it, so the render started just before the window may count in it too
+    # (one run under pytest -n 2 counted 22 in 4.03 s: 5 * longest + 1 is 21.2)
+    assert 1 <= delta["updates"] <= 5 * longest + 2
