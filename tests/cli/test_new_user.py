@@ -8,6 +8,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import zmq
@@ -114,13 +115,19 @@ def test_holo_bench_without_a_name_is_bad_usage_and_an_unknown_one_is_one_line()
     _one_line_error(proc, "holo-bench", "unknown benchmark 'nosuch'", "render, light")
 
 
-def test_holo_replay_passes_replays_that_many_times_without_loop(tmp_path):
+
+def _tracker_log(tmp_path: Path, step_ns: int) -> Path:
+    """A session log of 20 Hatire poses from one tracker, ``step_ns`` apart."""
     log = tmp_path / "s.hlog"
     header = LogHeader(log_devices([ReaderSettings("loop://", "hatire", "tracker")]),
                        start_monotonic_ns=0)
     with LogWriter(log, header) as w:
         for k in range(20):
-            w.write("tracker", k * 1_000_000, hatire.encode_pose(k, float(k), 0.0, 0.0))
+            w.write("tracker", k * step_ns, hatire.encode_pose(k, float(k), 0.0, 0.0))
+    return log
+
+def test_holo_replay_passes_replays_that_many_times_without_loop(tmp_path):
+    log = _tracker_log(tmp_path, 1_000_000)
 
     def poses(*extra: str) -> int:
         proc = _run("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump", *extra,
@@ -182,12 +189,7 @@ def test_holo_service_checks_its_addresses_and_keys_before_binding(tmp_path):
 
 
 def test_holo_replay_skip_past_the_end_says_so_and_exits_1(tmp_path):
-    log = tmp_path / "s.hlog"
-    header = LogHeader(log_devices([ReaderSettings("loop://", "hatire", "tracker")]),
-                       start_monotonic_ns=0)
-    with LogWriter(log, header) as w:
-        for k in range(20):
-            w.write("tracker", k * 100_000_000, hatire.encode_pose(k, float(k), 0.0, 0.0))
+    log = _tracker_log(tmp_path, 100_000_000)
     proc = _run("drivers.cli_replay", str(log), "--skip", "100", "--dump", timeout=60)
     assert proc.returncode == 1 and proc.stdout == ""  # it said 0, printing nothing
     assert "--skip 100 s is past the last device event; the log spans 1.9 s" in proc.stderr

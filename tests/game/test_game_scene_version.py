@@ -44,6 +44,20 @@ def _green(colour: np.ndarray) -> int:
     return int(np.count_nonzero((c[..., 1] > 60) & (c[..., 1] > 2 * c[..., 0] + 30)))
 
 
+
+def _next_frames(backend, n: int) -> list:
+    """The next ``n`` frames the backend shows (it may hold some back), within 120 s."""
+    shown = []
+
+    def enough() -> bool:
+        got = backend.frame(0.2)
+        if got is not None:
+            shown.append(got)
+        return len(shown) >= n
+
+    assert wait_until(enough, 120, step_s=0.0), f"{len(shown)} of {n} frames shown"
+    return shown
+
 def test_after_a_scene_load_every_frame_is_of_the_new_scene(service_factory):
     svc = service_factory(*TINY_DISPLAY, "--refresh", "30")
     backend = ServiceBackend(svc.control, svc.frames, settings=BackendSettings(
@@ -57,15 +71,7 @@ def test_after_a_scene_load_every_frame_is_of_the_new_scene(service_factory):
         backend.load_scene(_ball((0.1, 1.0, 0.1), 0.3, -0.4))
         b = backend.scene_version
         assert b == a + 1
-        shown = []
-
-        def fifteen() -> bool:
-            got = backend.frame(0.2)
-            if got is not None:
-                shown.append(got)
-            return len(shown) >= 15
-
-        assert wait_until(fifteen, 120, step_s=0.0)
+        shown = _next_frames(backend, 15)
     finally:
         backend.close()
     assert [f.scene for f in shown] == [b] * len(shown)
@@ -136,15 +142,7 @@ def test_a_new_game_is_loaded_with_its_objects_in_place(service_factory):
         backend.explode(1)  # flung (update_objects), then a new game
         backend.resume()
         backend.update([_record(0.3)])  # the new game's ball on the right
-        shown = []
-
-        def fifteen() -> bool:
-            got = backend.frame(0.2)
-            if got is not None:
-                shown.append(got)
-            return len(shown) >= 15
-
-        assert wait_until(fifteen, 120, step_s=0.0)
+        shown = _next_frames(backend, 15)
     finally:
         backend.close()
     assert {f.scene for f in shown} == {backend.scene_version}
