@@ -46,12 +46,6 @@ STAT_NAMES = ("propagated", "clashes", "dropped", "cached", "promoted", "expande
 STAT = {name: i for i, name in enumerate(STAT_NAMES)}
 
 
-def flat(arrays: tuple) -> tuple:
-    """A map's array tuple with every plane flattened: (k, Z, H, W) -> (k, N), (Z, H, W) -> (N,)."""
-    n = arrays[1].size
-    return tuple(a.reshape(a.shape[0], n) if a.ndim == 4 else a.reshape(n) for a in arrays)
-
-
 @nb.njit(cache=True, inline="always", error_model="numpy")
 def step(
     r: int,
@@ -96,20 +90,8 @@ def step(
 
 
 @nb.njit(cache=True, error_model="numpy")
-def sweep(
-    old: tuple,
-    new: tuple,
-    cold: tuple,
-    cnew: tuple,
-    cache_on: bool,
-    src_idx: np.ndarray,
-    shape: tuple,
-    order: int,
-    fp: int,
-    fm: int,
-    track: bool,
-    stats: np.ndarray,
-) -> None:
+def sweep(old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, src_idx: np.ndarray,
+          shape: tuple, order: int, fp: int, fm: int, track: bool, stats: np.ndarray) -> None:
     """First sweep: debris arm and galpixel arm, then cache propagation and promotion.
 
     Parameters
@@ -133,7 +115,7 @@ def sweep(
         Counters, accumulated (see :data:`STAT_NAMES`).
 
     The maps are :func:`planes`, as the stage's kernels take them, so the cache's
-    kernels (:func:`_cache_pass` and the spills) are the ones :func:`_scatter`
+    kernels (:func:`_cache_pass` and the spills) are the ones :func:`scatter`
     calls, compiled once for both.
     """
     nz, h, w = shape
@@ -192,21 +174,10 @@ def sweep(
 
 
 @nb.njit(cache=True)
-def second_sweep(
-    new: tuple,
-    src_idx: np.ndarray,
-    old_depth: np.ndarray,
-    old_debris: np.ndarray,
-    threshold: float,
-    n_neighbours: int,
-    mode: int,
-    margin: int,
-    out_colour: np.ndarray,
-    out_depth: np.ndarray,
-    out_debris: np.ndarray,
-    stats: np.ndarray,
-    zs: float = 1.0,
-) -> None:
+def second_sweep(new: tuple, src_idx: np.ndarray, old_depth: np.ndarray, old_debris: np.ndarray,
+                 threshold: float, n_neighbours: int, mode: int, margin: int,
+                 out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray,
+                 stats: np.ndarray, zs: float = 1.0) -> None:
     """Second sweep: expansion of debris (when ``threshold`` >= 0), then the display copy.
 
     Parameters
@@ -279,6 +250,7 @@ def second_sweep(
 # display copy of each row in one go.  Fast-path indices are unsigned (see ``u64``).
 
 
+@nb.njit(cache=True, error_model="numpy")
 def scatter(
     old: tuple,
     new: tuple,
@@ -295,40 +267,16 @@ def scatter(
 ) -> None:
     """First sweep without its debris arm (:func:`finish` does it); see :func:`sweep`.
 
-    Same parameters (the maps :func:`flat`, made :func:`planes` here) and the same
-    arithmetic, operation for operation.  Afterwards a new pixel whose debris flag
-    is still set holds stale fields until :func:`finish` runs the debris arm there.
+    Same parameters (the maps as :func:`planes`) and the same arithmetic,
+    operation for operation.  Afterwards a new pixel whose debris flag is still
+    set holds stale fields until :func:`finish` runs the debris arm there.  The
+    stage's scatter when the obscuration cache is on.
 
-    The kernel (:func:`_scatter`) takes the maps as :func:`planes`: whole flat
-    fields type 'C' with 0-1 planes and 'A' (staggered) or 'C' (a copied map) with
-    more, and numba compiled the kernel, :func:`_cache_pass` and the spills once
-    per combination (two in the warm-up, three more in the tests, 5-19 s of CPU
-    each); 1-D planes in tuples of fixed length are one type for every order.
-    """
-    _scatter(planes(old), planes(new), planes(cold), planes(cnew), cache_on, src_idx, shape,
-             order, fp, fm, track, stats)
-
-
-@nb.njit(cache=True, error_model="numpy")
-def _scatter(
-    old: tuple,
-    new: tuple,
-    cold: tuple,
-    cnew: tuple,
-    cache_on: bool,
-    src_idx: np.ndarray,
-    shape: tuple,
-    order: int,
-    fp: int,
-    fm: int,
-    track: bool,
-    stats: np.ndarray,
-) -> None:
-    """:func:`scatter` on the maps as :func:`planes` (fixed-length tuples of 1-D planes).
-
-    Same arithmetic as :func:`sweep`, operation for operation.  Afterwards
-    a new pixel whose debris flag is still set holds stale fields until
-    :func:`finish` runs the debris arm there.
+    The maps as :func:`planes`: whole flat fields typed 'C' with 0-1 planes and
+    'A' (staggered) or 'C' (a copied map) with more, and numba compiled the
+    kernel, :func:`_cache_pass` and the spills once per combination (two in the
+    warm-up, three more in the tests, 5-19 s of CPU each); 1-D planes in tuples
+    of fixed length are one type for every order.
 
     Written for the machine: flat indices are unsigned (numba cannot prove a signed
     one non-negative and adds a negative-index wraparound to every access), and
@@ -462,7 +410,7 @@ def _scatter(
 
 # ------------------------------------------------ the sweeps' plane helpers
 # For maps as :func:`planes` (``field[k][p]``; an absent plane is empty and never
-# read), shared by the reference :func:`sweep` and the stage's :func:`_scatter`:
+# read), shared by the reference :func:`sweep` and the stage's :func:`scatter`:
 # one compile of the cache's kernels serves both.
 
 
