@@ -41,7 +41,7 @@ from pathlib import Path
 from game.actions import lamp_mask
 from game.display import has_display, headless_env
 from service.cli_args import add_size_option
-from service.signals import end_process, stop_on_signals
+from service.signals import Interrupted, end_process, exit_status, stop_on_signals
 
 ANY = "tcp://127.0.0.1:0"
 #: What a demo run writes in ``--out`` (glob patterns), removed at the start of the next.
@@ -59,19 +59,6 @@ WAIT_S = 1200.0
 POLL_S = 0.02
 
 
-class Stopped(BaseException):  # noqa: N818 -- a stop, like KeyboardInterrupt
-    """A signal asked the demo to stop.
-
-    Parameters
-    ----------
-    signum : int
-    """
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
 class Signals:
     """SIGINT and SIGTERM while the demo runs, caught by :func:`stop_on_signals`."""
 
@@ -87,10 +74,10 @@ class Signals:
             yield
 
     def check(self) -> None:
-        """Raise :class:`Stopped` if a signal came."""
+        """Raise :class:`~service.signals.Interrupted` if a signal came."""
         for sig, event in self.events.items():
             if event.is_set():
-                raise Stopped(sig)
+                raise Interrupted(sig)
 
 
 class Proc:
@@ -178,7 +165,7 @@ class Children:
         RuntimeError
             Another child exited while ``proc`` ran (every child runs until stopped).
         subprocess.TimeoutExpired
-        Stopped
+        Interrupted
             From ``check``: a signal came.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -375,9 +362,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     with signals.caught():
         try:
             return run(args, children, headless)
-        except Stopped as exc:
+        except Interrupted as exc:
             print(f"holo-demo: {exc}: stopping every process", file=sys.stderr)
-            return 128 + exc.signum
+            return exit_status(exc.signum)
         except (RuntimeError, subprocess.TimeoutExpired) as exc:
             print(f"holo-demo: {exc}; stopping every process", file=sys.stderr)
             return 1

@@ -51,6 +51,7 @@ import struct
 from dataclasses import dataclass
 
 from drivers.events import DecoderStats, Event, PoseEvent, StatusEvent
+from drivers.protocols.resync import SyncScan
 from service.errors import ProtocolError
 
 FRAME_LEN = 30
@@ -147,12 +148,13 @@ class HatireDecoder:
         self._order = byte_order
         self.angle_limit = float(angle_limit)
         self.stats = DecoderStats()
+        self._scan = SyncScan(HEADER, self.stats)
         self.reset()
 
     def reset(self) -> None:
         """Forget buffered bytes and counter state (stats are kept)."""
         self._buf = bytearray()
-        self._garbage = 0
+        self._scan.run = 0
         self._last_code: int | None = None
         self._in_range = True
 
@@ -164,15 +166,9 @@ class HatireDecoder:
         events: list[Event] = []
         pos, n = 0, len(buf)
         while True:
-            j = buf.find(HEADER, pos)
-            if j < 0:
-                keep = 1 if n > pos and buf[-1] == 0xAA else 0
-                self._drop(n - keep - pos)
-                pos = n - keep
-                break
-            self._drop(j - pos)
-            pos = j
-            if n - j < FRAME_LEN:
+            pos, found = self._scan.next_sync(buf, pos)
+            j = pos
+            if not found or n - j < FRAME_LEN:
                 break
             if buf[j + 28] == 0x55 and buf[j + 29] == 0x55:
                 self._frame(buf, j, t_ns, events)
@@ -192,21 +188,14 @@ class HatireDecoder:
             self._end_garbage(t_ns, events)
             self._truncated(t_ns, events, left)
         else:
-            self._drop(left)
+            self._scan.drop(left)
             self._end_garbage(t_ns, events)
         self._buf.clear()
         return events
 
-    def _drop(self, count: int) -> None:
-        if count > 0:
-            self._garbage += count
-            self.stats.bytes_discarded += count
-
     def _end_garbage(self, t_ns: int, events: list[Event]) -> None:
-        if self._garbage:
-            self.stats.resyncs += 1
-            events.append(StatusEvent(t_ns, "tracker", "resync", {"discarded": self._garbage}))
-            self._garbage = 0
+        if run := self._scan.end_run():
+            events.append(StatusEvent(t_ns, "tracker", "resync", {"discarded": run}))
 
     def _truncated(self, t_ns: int, events: list[Event], size: int) -> None:
         self.stats.truncated += 1
@@ -216,7 +205,7 @@ class HatireDecoder:
     def _bad_candidate(self, buf: bytearray, j: int, t_ns: int, events: list[Event]) -> int:
         nxt = buf.find(HEADER, j + 1, j + FRAME_LEN + 1)
         if nxt < 0 or nxt < j + MIN_TRUNCATED:
-            self._drop(1)
+            self._scan.drop(1)
             return j + 1
         self._end_garbage(t_ns, events)
         self._truncated(t_ns, events, nxt - j)

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 from drivers.events import DecoderStats, Event, PoseEvent, StatusEvent
 from drivers.protocols.crc import crc16_ccitt
+from drivers.protocols.resync import SyncScan
 from service.errors import ProtocolError
 
 SYNC = b"\xa5\x5a"
@@ -134,12 +135,12 @@ class NativeFramer:
     def __init__(self) -> None:
         self.stats = DecoderStats()
         self._buf = bytearray()
-        self.garbage = 0
+        self._scan = SyncScan(SYNC, self.stats)
 
     def reset(self) -> None:
         """Forget buffered bytes."""
         self._buf.clear()
-        self.garbage = 0
+        self._scan.run = 0
 
     def feed(self, data: bytes) -> list[Frame | tuple[str, int]]:
         """Return frames and markers ``("garbage", n)`` / ``("crc", type)`` in order."""
@@ -149,14 +150,10 @@ class NativeFramer:
         out: list[Frame | tuple[str, int]] = []
         pos, n = 0, len(buf)
         while True:
-            j = buf.find(SYNC, pos)
-            if j < 0:
-                keep = 1 if n > pos and buf[-1] == 0xA5 else 0
-                self._drop(n - keep - pos)
-                pos = n - keep
+            pos, found = self._scan.next_sync(buf, pos)
+            if not found:
                 break
-            self._drop(j - pos)
-            pos = j
+            j = pos
             step = self._candidate(buf, j, n, out)
             if step == 0:
                 break
@@ -170,7 +167,7 @@ class NativeFramer:
         spec = MSG_TYPES.get(buf[j + 3])
         length = buf[j + 4]
         if buf[j + 2] != VERSION or spec is None or not spec[1] <= length <= spec[2]:
-            self._drop(1)
+            self._scan.drop(1)
             return 1
         end = j + HEADER_LEN + length
         if n < end + CRC_LEN:
@@ -179,23 +176,16 @@ class NativeFramer:
             self.stats.crc_errors += 1
             self._flush_garbage(out)
             out.append(("crc", buf[j + 3]))
-            self._drop(1)
+            self._scan.drop(1)
             return 1
         self._flush_garbage(out)
         self.stats.frames += 1
         out.append(Frame(buf[j + 3], bytes(buf[j + HEADER_LEN:end])))
         return end + CRC_LEN - j
 
-    def _drop(self, count: int) -> None:
-        if count > 0:
-            self.garbage += count
-            self.stats.bytes_discarded += count
-
     def _flush_garbage(self, out: list) -> None:
-        if self.garbage:
-            self.stats.resyncs += 1
-            out.append(("garbage", self.garbage))
-            self.garbage = 0
+        if run := self._scan.end_run():
+            out.append(("garbage", run))
 
     def flush(self) -> list[Frame | tuple[str, int]]:
         """End of input: an unfinished frame becomes ``("truncated", n)``.
@@ -207,7 +197,7 @@ class NativeFramer:
         buf = self._buf
         while buf:
             if not buf.startswith(SYNC):
-                self._drop(len(buf))
+                self._scan.drop(len(buf))
                 buf.clear()
                 break
             nxt = buf.find(SYNC, 1)

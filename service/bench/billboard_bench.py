@@ -32,7 +32,6 @@ panels).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -42,6 +41,7 @@ import numpy as np
 
 from service.bench import billboard_cost
 from service.bench.lod_bench import BUNNY, LIGHTS, MATERIAL, image_error
+from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject, draw_billboards
 from service.cli_args import add_size_option, comma_list, float_range, int_range, plain_help
 from service.display import DisplaySettings
@@ -202,14 +202,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _write_csv(path: Path, rows: list) -> None:
-    if rows:
-        with path.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-
-
 def _step(what: str) -> None:
     """One progress line on stderr (the rows go to stdout at the end)."""
     print(f"holo-bench billboard: {what}", file=sys.stderr, flush=True)
@@ -242,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     _step(f"frame cost, meshes {names or 'none'}")
     cost = billboard_cost.cost_rows(display, names, args.cost_sizes, args.lod_error, args.repeats)
     for name, data in (("build", build), ("zoom", zoom), ("grazing", grazing), ("cost", cost)):
-        _write_csv(out / f"billboard_{name}.csv", data)
+        write_csv(data, out / f"billboard_{name}.csv")
     (out / "billboard_bench.json").write_text(json.dumps(
         {"mesh": args.mesh, "display": [args.zones, cols, rows], "view_eps_pct": args.view_eps,
          "build": build, "zoom": zoom, "grazing": grazing, "cost": cost}, indent=1))

@@ -31,7 +31,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sys
@@ -48,6 +47,7 @@ from service.bench.galilean_experiments import (
     run_case,
     run_tracker,
 )
+from service.bench.rows import write_csv
 from service.cli_args import add_size_option, int_range, plain_help
 from service.display import DisplaySettings
 from service.galilean.fixed_point import (
@@ -399,7 +399,7 @@ def run_timing(out: Path, time_size: tuple[int, int]) -> dict:
     tm = timing(time_size, settings)
     tm["shadow"] = shadow_timing(time_size, settings)
     (out / "galilean_timing.json").write_text(json.dumps(tm, indent=1))
-    write_rows([{"key": k, **v} for k, v in tm["orders"].items()], out / "galilean_timing.csv")
+    write_csv([{"key": k, **v} for k, v in tm["orders"].items()], out / "galilean_timing.csv")
     chart_timing(tm, out / "galilean_timing.png")
     return tm
 
@@ -589,7 +589,7 @@ def run_complexity(out: Path, time_size: tuple[int, int],
     warm_up(settings)
     cx = complexity_timing(time_size, settings, counts, repeats)
     (out / "galilean_complexity.json").write_text(json.dumps(cx, indent=1))
-    write_rows(cx["steps"], out / "galilean_complexity.csv")
+    write_csv(cx["steps"], out / "galilean_complexity.csv")
     chart_complexity(cx, out / "galilean_complexity.png")
     return cx
 
@@ -665,14 +665,6 @@ def chart_thought(te: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def write_rows(rows: list[dict], path: Path) -> None:
-    """CSV of the sweep rows."""
-    with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
 
 
 # ------------------------------------------------------------------- cases
@@ -782,9 +774,9 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
            "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": var,
            "thought_experiments": te}
     (out / "galilean_sweep.json").write_text(json.dumps(doc, indent=1))
-    write_rows(rows, out / "galilean_sweep.csv")
+    write_csv(rows, out / "galilean_sweep.csv")
     if var:
-        write_rows(var, out / "galilean_variants.csv")
+        write_csv(var, out / "galilean_variants.csv")
     chart_sweep(rows, out / "galilean_sweep.png")
     chart_thought(te, out / "galilean_thought.png")
     print(json.dumps({"timing": tm, "complexity": cx, "variants": var}, indent=1))

@@ -15,7 +15,6 @@ Writes ``light_bench.json``, ``light_bench.csv`` and ``light_bench.png``.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import platform
@@ -26,6 +25,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from service.bench.rows import write_csv
 from service.builtin_scenes import SCENES as BUILTIN_SCENES
 from service.builtin_scenes import builtin_scene, scene_name
 from service.cli_args import add_size_option, comma_list, int_range, plain_help
@@ -205,10 +205,7 @@ def write(rows: list[dict], meta: dict, out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     jpath, cpath, ppath = out / "light_bench.json", out / "light_bench.csv", out / "light_bench.png"
     jpath.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
-    with cpath.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(rows, cpath)
     chart(rows, ppath)
     return [jpath, cpath, ppath]
 

@@ -43,7 +43,6 @@ time mostly measures the other processes; both are in the CSV.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sys
@@ -52,6 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject
 from service.cli_args import add_size_option, float_range, int_range, plain_help
 from service.display import DisplaySettings
@@ -267,13 +267,6 @@ def _lod_columns(frame) -> dict:
     }
 
 
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-
-
 def charts(levels: list[dict], crowd: list[dict], out: Path) -> None:
     """``lod_levels.png`` and ``lod_build.png`` (with level rows), ``lod_crowd.png``."""
     import matplotlib
@@ -408,9 +401,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name}: {len(levels)} level rows so far", file=sys.stderr)
     crowd = crowd_rows(display, args) if args.crowd else []
     if levels:
-        _write_csv(out / "lod_levels.csv", levels)
+        write_csv(levels, out / "lod_levels.csv")
     if crowd:
-        _write_csv(out / "lod_crowd.csv", crowd)
+        write_csv(crowd, out / "lod_crowd.csv")
     (out / "lod_bench.json").write_text(json.dumps(
         {"display": [args.zones, cols, rows], "depth_tol": args.depth_tol,
          "lod_error": args.lod_error, "levels": levels, "crowd": crowd}, indent=1))

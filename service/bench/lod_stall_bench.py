@@ -20,7 +20,6 @@ also measures the other processes: compare the modes of one run, not runs.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import sys
@@ -30,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench.rows import write_csv
 from service.cli_args import add_size_option, int_range, plain_help
 from service.display import DisplaySettings
 from service.loaders import load_mesh
@@ -157,10 +157,7 @@ def main(argv: list[str] | None = None) -> int:
             shown = {k: v for k, v in rows[-1].items() if not k.startswith("_")}
             print(" ".join(f"{k} {v}" for k, v in shown.items()), file=sys.stderr)
     table = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
-    with open(out / "lod_stall.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(table[0]))
-        writer.writeheader()
-        writer.writerows(table)
+    write_csv(table, out / "lod_stall.csv")
     (out / "lod_stall.json").write_text(json.dumps(
         {"display": [args.zones, cols, rows_px], "mesh": args.mesh, "rows": table}, indent=1))
     chart(rows, out)

@@ -16,9 +16,7 @@ the measured error must stay within the budget.
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
-import json
 import platform
 import sys
 import time
@@ -26,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option
 from service.display import DisplaySettings
@@ -182,15 +181,6 @@ def check(model: CostModel, size: tuple[int, int], zones: int = 5, frames: int =
                     "galilean_interval": (q["galilean"] or {}).get("interval"),
                 })
     return out
-
-
-def write_rows(rows: list[dict], stem: Path) -> None:
-    """``stem.json`` and ``stem.csv``."""
-    stem.with_suffix(".json").write_text(json.dumps(rows, indent=1))
-    with stem.with_suffix(".csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

@@ -14,7 +14,6 @@ polygon) on the game scene, stage by stage.  Writes ``render_bench.json``, ``.cs
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -22,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option, comma_list, plain_help, size
 from service.display import DisplaySettings
@@ -281,15 +281,6 @@ def chart_sweep(rows: list[dict], key: str, path: Path, title: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def write_rows(rows: list[dict], stem: Path) -> None:
-    """Write rows as CSV and JSON next to each other."""
-    stem.with_suffix(".json").write_text(json.dumps(rows, indent=1))
-    with stem.with_suffix(".csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
 
 
 def build_parser() -> argparse.ArgumentParser:

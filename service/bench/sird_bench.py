@@ -16,7 +16,6 @@ dots every frame.  Writes ``sird_bench.json``, ``sird_bench.csv`` and
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import platform
@@ -50,6 +49,7 @@ from service.autostereogram.decode import (
 from service.autostereogram.depth_scenes import seed_slope, sphere, steps
 from service.autostereogram.output import SirdOutput
 from service.autostereogram.source import centre_depth
+from service.bench.rows import write_csv
 from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option, comma_list, int_range, plain_help, size
 from service.display import DisplaySettings
@@ -264,11 +264,8 @@ def write(rows: list[dict], stable: list[dict], service: list[dict], meta: dict,
     paths[0].write_text(json.dumps({"meta": meta, "rows": rows, "stability": stable,
                                     "service": service, "streak_ratios": streak_ratios(rows)},
                                    indent=1))
-    for path, table in ((paths[1], rows), (paths[2], service)):
-        with path.open("w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(table[0]))
-            writer.writeheader()
-            writer.writerows(table)
+    write_csv(rows, paths[1])
+    write_csv(service, paths[2])
     chart(rows, service, paths[3])
     return paths
 

@@ -197,20 +197,8 @@ def _finish_rows(
             if track:
                 src_idx[p] = -1
         if write_out and margin <= r < h - margin:
-            show_row(
-                c0,
-                c1,
-                c2,
-                dep,
-                deb,
-                base + margin,
-                ww,
-                out_colour,
-                out_depth,
-                out_debris,
-                (z * (h - 2 * margin) + r - margin) * ww,
-                zs,
-            )
+            show_row(c0, c1, c2, dep, deb, base + margin, ww, out_colour, out_depth, out_debris,
+                     (z * (h - 2 * margin) + r - margin) * ww, zs)
     counts[0] += expanded
     counts[1] += left
 
@@ -378,20 +366,8 @@ def _fix_rows(
             counts[1] -= spec == 2
         counts[2] += 1
         if write_out and margin <= r < h - margin:
-            show_row(
-                c0,
-                c1,
-                c2,
-                dep,
-                deb,
-                base + margin,
-                ww,
-                out_colour,
-                out_depth,
-                out_debris,
-                (z * (h - 2 * margin) + r - margin) * ww,
-                zs,
-            )
+            show_row(c0, c1, c2, dep, deb, base + margin, ww, out_colour, out_depth, out_debris,
+                     (z * (h - 2 * margin) + r - margin) * ww, zs)
         if n_cur == 0:
             break  # the rows below saw this row as it is now
         prev, cur, n_prev = cur, prev, n_cur

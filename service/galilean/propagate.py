@@ -20,9 +20,9 @@ still debris.
 
 Kernels take a map as the tuple of its arrays (:meth:`Galpixmap.arrays`):
 ``(colour, depth, frac, motion, zmotion, dcolour, debris, obj)``; the first sweep
-takes them *flattened* (:func:`flat`: planes (k, N), scalars (N,), N = Z H W) and
-addresses every galpixel by one flat index, which numba compiles to much cheaper
-address arithmetic than four-dimensional indexing.
+takes them as :func:`planes` (each field's planes flat, (N,), N = Z H W, in tuples
+of fixed length) and addresses every galpixel by one flat index, which numba
+compiles to much cheaper address arithmetic than four-dimensional indexing.
 
 This module keeps the straightforward reference (:func:`sweep`,
 :func:`second_sweep`), :func:`scatter` (the stage's scatter when the cache is on)
@@ -44,81 +44,6 @@ from service.galilean.poisson import expand_pixel
 #: Index of each counter in the ``stats`` array the kernels fill.
 STAT_NAMES = ("propagated", "clashes", "dropped", "cached", "promoted", "expanded", "debris")
 STAT = {name: i for i, name in enumerate(STAT_NAMES)}
-
-
-def flat(arrays: tuple) -> tuple:
-    """A map's array tuple with every plane flattened: (k, Z, H, W) -> (k, N), (Z, H, W) -> (N,)."""
-    n = arrays[1].size
-    return tuple(a.reshape(a.shape[0], n) if a.ndim == 4 else a.reshape(n) for a in arrays)
-
-
-@nb.njit(cache=True, inline="always")
-def _copy(src: tuple, p: int, dst: tuple, q: int) -> None:
-    """Copy one galpixel, every field, from flat index ``p`` of ``src`` to ``q`` of ``dst``."""
-    for k in range(3):
-        dst[0][k, q] = src[0][k, p]
-    dst[1][q] = src[1][p]
-    dst[2][0, q] = src[2][0, p]
-    dst[2][1, q] = src[2][1, p]
-    for k in range(src[3].shape[0]):
-        dst[3][k, q] = src[3][k, p]
-    for k in range(src[4].shape[0]):
-        dst[4][k, q] = src[4][k, p]
-    for k in range(src[5].shape[0]):
-        dst[5][k, q] = src[5][k, p]
-    dst[6][q] = src[6][p]
-    dst[7][q] = src[7][p]
-
-
-@nb.njit(cache=True, inline="always")
-def _advance_into(
-    src: tuple,
-    p: int,
-    dst: tuple,
-    q: int,
-    fx: int,
-    fy: int,
-    depth: float,
-    mot: tuple,
-    order: int,
-) -> None:
-    """Write galpixel ``p`` of ``src``, advanced one refresh, at ``q`` of ``dst``.
-
-    ``mot`` is ``(vx, vy, ax, ay, vz, az)`` after the step (from :func:`advance`),
-    ``depth`` the new depth, ``fx``, ``fy`` the new fraction.
-    """
-    s_col, s_mot, s_zm, s_dc = src[0], src[3], src[4], src[5]
-    d_col, d_mot, d_zm, d_dc = dst[0], dst[3], dst[4], dst[5]
-    d_col[0, q] = s_col[0, p]
-    d_col[1, q] = s_col[1, p]
-    d_col[2, q] = s_col[2, p]
-    if s_dc.shape[0] == 4:
-        da, db, dc, d2a = s_dc[0, p], s_dc[1, p], s_dc[2, p], s_dc[3, p]
-        sa = da + 0.5 * d2a
-        d_col[0, q] += sa + db
-        d_col[1, q] += sa - dc
-        d_col[2, q] += sa - db + dc
-        d_dc[0, q] = da + d2a
-        d_dc[1, q] = db
-        d_dc[2, q] = dc
-        d_dc[3, q] = d2a
-    dst[1][q] = depth
-    dst[2][0, q] = fx
-    dst[2][1, q] = fy
-    if order >= 1:
-        d_mot[0, q] = mot[0]
-        d_mot[1, q] = mot[1]
-        d_zm[0, q] = mot[4]
-    if order >= 2:
-        d_mot[2, q] = mot[2]
-        d_mot[3, q] = mot[3]
-        d_zm[1, q] = mot[5]
-    if order >= 3:
-        d_mot[4, q] = s_mot[4, p]
-        d_mot[5, q] = s_mot[5, p]
-        d_zm[2, q] = s_zm[2, p]
-    dst[6][q] = 0
-    dst[7][q] = src[7][p]
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
@@ -164,59 +89,19 @@ def step(
     return qr, qc, x - (qc << fp), y - (qr << fp), d, vx, vy, ax, ay, vz, az
 
 
-@nb.njit(cache=True, inline="always")
-def _zplanes(zm: tuple, p: int, order: int) -> tuple:
-    """Galpixel ``p``'s z motion ``(vz, az, jz)`` as int64, 0 beyond ``order``."""
-    z0 = np.int64(zm[0, p]) if order >= 1 else np.int64(0)
-    z1 = np.int64(zm[1, p]) if order >= 2 else np.int64(0)
-    z2 = np.int64(zm[2, p]) if order >= 3 else np.int64(0)
-    return z0, z1, z2
-
-
-@nb.njit(cache=True, inline="always")
-def _motion_at(mot: np.ndarray, zm: np.ndarray, p: int, order: int) -> tuple:
-    """Galpixel ``p``'s ``(vx, vy, ax, ay, jx, jy, vz, az, jz)`` as int64, 0 beyond ``order``.
-
-    ``mot`` and ``zm`` are flat motion planes (2 order, N) and (order, N).
-    """
-    z = np.int64(0)
-    vx = np.int64(mot[0, p]) if order >= 1 else z
-    vy = np.int64(mot[1, p]) if order >= 1 else z
-    ax = np.int64(mot[2, p]) if order >= 2 else z
-    ay = np.int64(mot[3, p]) if order >= 2 else z
-    jx = np.int64(mot[4, p]) if order >= 3 else z
-    jy = np.int64(mot[5, p]) if order >= 3 else z
-    vz = np.int64(zm[0, p]) if order >= 1 else z
-    az = np.int64(zm[1, p]) if order >= 2 else z
-    jz = np.int64(zm[2, p]) if order >= 3 else z
-    return vx, vy, ax, ay, jx, jy, vz, az, jz
-
-
 @nb.njit(cache=True, error_model="numpy")
-def sweep(
-    old: tuple,
-    new: tuple,
-    cold: tuple,
-    cnew: tuple,
-    cache_on: bool,
-    src_idx: np.ndarray,
-    shape: tuple,
-    order: int,
-    fp: int,
-    fm: int,
-    track: bool,
-    stats: np.ndarray,
-) -> None:
+def sweep(old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, src_idx: np.ndarray,
+          shape: tuple, order: int, fp: int, fm: int, track: bool, stats: np.ndarray) -> None:
     """First sweep: debris arm and galpixel arm, then cache propagation and promotion.
 
     Parameters
     ----------
     old, new : tuple of arrays
-        Old and new main maps, flattened (:func:`flat`); ``new``'s debris must be
-        all 1 on entry.
+        Old and new main maps as :func:`planes`; ``new``'s debris must be all 1
+        on entry.
     cold, cnew : tuple of arrays
-        Old and new obscuration-cache maps, flattened (``cnew`` debris all 1);
-        ignored unless ``cache_on``.
+        Old and new obscuration-cache maps as :func:`planes` (``cnew`` debris all
+        1); ignored unless ``cache_on``.
     cache_on : bool
     src_idx : ndarray, shape (N,), int32
         Out (when ``track``): for each new pixel, ``r * W + c`` of the old
@@ -228,11 +113,14 @@ def sweep(
         Record ``src_idx`` (needed by the expansion sweep).
     stats : ndarray, shape (7,), int64
         Counters, accumulated (see :data:`STAT_NAMES`).
+
+    The maps are :func:`planes`, as the stage's kernels take them, so the cache's
+    kernels (:func:`_cache_pass` and the spills) are the ones :func:`scatter`
+    calls, compiled once for both.
     """
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
     n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
-    ncol = o_dc.shape[0]
     n_prop = n_clash = n_drop = 0
     # The advance step is step (scalars only, inlined): passing arrays to helpers
     # costs numba reference-count traffic on every call, several times the work.
@@ -246,15 +134,15 @@ def sweep(
                 if galpixel:
                     vx, vy, ax, ay, jx, jy, vz, az, jz = _motion_at(o_mot, o_zm, p, order)
                     qr, qc, fx, fy, d, vx, vy, ax, ay, vz, az = step(
-                        r, c, o_frac[0, p], o_frac[1, p], o_dep[p],
+                        r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
                         vx, vy, ax, ay, jx, jy, vz, az, jz, order, fp, fm,
                     )  # fmt: skip
                 # debris arm (own place free): for an old galpixel that moved away,
                 # and for old debris, which keeps the colour it last showed
                 if n_deb[p] == 1 and (not galpixel or qr != r or qc != c):
-                    n_col[0, p] = o_col[0, p]
-                    n_col[1, p] = o_col[1, p]
-                    n_col[2, p] = o_col[2, p]
+                    n_col[0][p] = o_col[0][p]
+                    n_col[1][p] = o_col[1][p]
+                    n_col[2][p] = o_col[2][p]
                     n_dep[p] = o_dep[p]
                     n_obj[p] = o_obj[p]
                     if track:
@@ -266,45 +154,16 @@ def sweep(
                     n_drop += 1
                     continue
                 q = (z * h + qr) * w + qc
+                mot = (vx, vy, ax, ay, vz, az)
                 if n_deb[q] == 0:
                     n_clash += 1
                     if d >= n_dep[q]:
                         if cache_on:
-                            mot = (vx, vy, ax, ay, vz, az)
                             _spill_incoming(old, p, cnew, q, fx, fy, d, mot, order, stats)
                         continue
                     if cache_on:
                         _spill_resident(new, cnew, q, stats)
-                n_col[0, q] = o_col[0, p]
-                n_col[1, q] = o_col[1, p]
-                n_col[2, q] = o_col[2, p]
-                if ncol == 4:
-                    da, db, dc, d2a = o_dc[0, p], o_dc[1, p], o_dc[2, p], o_dc[3, p]
-                    sa = da + 0.5 * d2a
-                    n_col[0, q] += sa + db
-                    n_col[1, q] += sa - dc
-                    n_col[2, q] += sa - db + dc
-                    n_dc[0, q] = da + d2a
-                    n_dc[1, q] = db
-                    n_dc[2, q] = dc
-                    n_dc[3, q] = d2a
-                n_dep[q] = d
-                n_frac[0, q] = fx
-                n_frac[1, q] = fy
-                if order >= 1:
-                    n_mot[0, q] = vx
-                    n_mot[1, q] = vy
-                    n_zm[0, q] = vz
-                if order >= 2:
-                    n_mot[2, q] = ax
-                    n_mot[3, q] = ay
-                    n_zm[1, q] = az
-                if order >= 3:
-                    n_mot[4, q] = o_mot[4, p]
-                    n_mot[5, q] = o_mot[5, p]
-                    n_zm[2, q] = o_zm[2, p]
-                n_deb[q] = 0
-                n_obj[q] = o_obj[p]
+                _advance_into(old, p, new, q, fx, fy, d, mot, order)
                 if track:
                     src_idx[q] = r * w + c
         if cache_on:
@@ -315,91 +174,10 @@ def sweep(
 
 
 @nb.njit(cache=True)
-def _spill_incoming(
-    old: tuple,
-    p: int,
-    cnew: tuple,
-    q: int,
-    fx: int,
-    fy: int,
-    d: float,
-    mot: tuple,
-    order: int,
-    stats: np.ndarray,
-) -> None:
-    """A clash loser on its way in goes to the cache if nearer than the cache's entry."""
-    if cnew[6][q] == 1 or d < cnew[1][q]:
-        _advance_into(old, p, cnew, q, fx, fy, d, mot, order)
-        stats[3] += 1
-
-
-@nb.njit(cache=True)
-def _spill_resident(new: tuple, cnew: tuple, q: int, stats: np.ndarray) -> None:
-    """The galpixel about to be overwritten goes to the cache if nearer than the cache's entry."""
-    if cnew[6][q] == 1 or new[1][q] < cnew[1][q]:
-        _copy(new, q, cnew, q)
-        stats[3] += 1
-
-
-@nb.njit(cache=True)
-def _cache_pass(
-    cold: tuple,
-    new: tuple,
-    cnew: tuple,
-    z: int,
-    h: int,
-    w: int,
-    order: int,
-    fp: int,
-    fm: int,
-    stats: np.ndarray,
-    src_idx: np.ndarray,
-) -> None:
-    """Propagate zone ``z`` of the old cache into the new one, then promote.
-
-    Cached galpixels take the z-test among themselves; afterwards each one sitting
-    where the main map is still debris moves into the main map.
-    """
-    for r in range(h):
-        for c in range(w):
-            p = (z * h + r) * w + c
-            if cold[6][p] == 1:
-                continue
-            vx, vy, ax, ay, jx, jy, vz, az, jz = _motion_at(cold[3], cold[4], p, order)
-            qr, qc, fx, fy, d, vx, vy, ax, ay, vz, az = step(
-                r, c, cold[2][0, p], cold[2][1, p], cold[1][p],
-                vx, vy, ax, ay, jx, jy, vz, az, jz, order, fp, fm,
-            )  # fmt: skip
-            mot = (vx, vy, ax, ay, vz, az)
-            if qr < 0 or qc < 0 or qr >= h or qc >= w:
-                continue
-            q = (z * h + qr) * w + qc
-            if cnew[6][q] == 1 or d < cnew[1][q]:
-                _advance_into(cold, p, cnew, q, fx, fy, d, mot, order)
-    for p in range(z * h * w, (z + 1) * h * w):
-        if new[6][p] == 1 and cnew[6][p] == 0:
-            _copy(cnew, p, new, p)
-            cnew[6][p] = 1
-            src_idx[p] = -1
-            stats[4] += 1
-
-
-@nb.njit(cache=True)
-def second_sweep(
-    new: tuple,
-    src_idx: np.ndarray,
-    old_depth: np.ndarray,
-    old_debris: np.ndarray,
-    threshold: float,
-    n_neighbours: int,
-    mode: int,
-    margin: int,
-    out_colour: np.ndarray,
-    out_depth: np.ndarray,
-    out_debris: np.ndarray,
-    stats: np.ndarray,
-    zs: float = 1.0,
-) -> None:
+def second_sweep(new: tuple, src_idx: np.ndarray, old_depth: np.ndarray, old_debris: np.ndarray,
+                 threshold: float, n_neighbours: int, mode: int, margin: int,
+                 out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray,
+                 stats: np.ndarray, zs: float = 1.0) -> None:
     """Second sweep: expansion of debris (when ``threshold`` >= 0), then the display copy.
 
     Parameters
@@ -472,6 +250,7 @@ def second_sweep(
 # display copy of each row in one go.  Fast-path indices are unsigned (see ``u64``).
 
 
+@nb.njit(cache=True, error_model="numpy")
 def scatter(
     old: tuple,
     new: tuple,
@@ -488,40 +267,16 @@ def scatter(
 ) -> None:
     """First sweep without its debris arm (:func:`finish` does it); see :func:`sweep`.
 
-    Same parameters (the maps :func:`flat`) and the same arithmetic, operation for
-    operation.  Afterwards a new pixel whose debris flag is still set holds stale
-    fields until :func:`finish` runs the debris arm there.
+    Same parameters (the maps as :func:`planes`) and the same arithmetic,
+    operation for operation.  Afterwards a new pixel whose debris flag is still
+    set holds stale fields until :func:`finish` runs the debris arm there.  The
+    stage's scatter when the obscuration cache is on.
 
-    The kernel (:func:`_scatter`) takes the maps as :func:`planes`: whole flat
-    fields type 'C' with 0-1 planes and 'A' (staggered) or 'C' (a copied map) with
-    more, and numba compiled the kernel, :func:`_cache_pass_p` and the spills once
-    per combination (two in the warm-up, three more in the tests, 5-19 s of CPU
-    each); 1-D planes in tuples of fixed length are one type for every order.
-    """
-    _scatter(planes(old), planes(new), planes(cold), planes(cnew), cache_on, src_idx, shape,
-             order, fp, fm, track, stats)
-
-
-@nb.njit(cache=True, error_model="numpy")
-def _scatter(
-    old: tuple,
-    new: tuple,
-    cold: tuple,
-    cnew: tuple,
-    cache_on: bool,
-    src_idx: np.ndarray,
-    shape: tuple,
-    order: int,
-    fp: int,
-    fm: int,
-    track: bool,
-    stats: np.ndarray,
-) -> None:
-    """:func:`scatter` on the maps as :func:`planes` (fixed-length tuples of 1-D planes).
-
-    Same arithmetic as :func:`sweep`, operation for operation.  Afterwards
-    a new pixel whose debris flag is still set holds stale fields until
-    :func:`finish` runs the debris arm there.
+    The maps as :func:`planes`: whole flat fields typed 'C' with 0-1 planes and
+    'A' (staggered) or 'C' (a copied map) with more, and numba compiled the
+    kernel, :func:`_cache_pass` and the spills once per combination (two in the
+    warm-up, three more in the tests, 5-19 s of CPU each); 1-D planes in tuples
+    of fixed length are one type for every order.
 
     Written for the machine: flat indices are unsigned (numba cannot prove a signed
     one non-negative and adds a negative-index wraparound to every access), and
@@ -573,7 +328,7 @@ def _scatter(
                     y, vy, ay = advance(
                         y, np.int64(o_mot[1][p]), np.int64(o_mot[3][p]), jy, 3, fp, fm
                     )
-                z0, z1, z2 = _zplanes_p(o_zm, p, order)
+                z0, z1, z2 = _zplanes(o_zm, p, order)
                 d, vz, az = advance(d, z0, z1, z2, order, fp, fm)
                 qc = (x + half) >> fp
                 qr = (y + half) >> fp
@@ -587,7 +342,7 @@ def _scatter(
                     n_clash += 1
                     if d >= n_dep[q]:
                         if cache_on:
-                            _spill_incoming_p(
+                            _spill_incoming(
                                 old,
                                 np.int64(p),
                                 cnew,
@@ -601,7 +356,7 @@ def _scatter(
                             )
                         continue
                     if cache_on:
-                        _spill_resident_p(new, cnew, np.int64(q), stats)
+                        _spill_resident(new, cnew, np.int64(q), stats)
                 c0, c1, c2 = o_col[0][p], o_col[1][p], o_col[2][p]
                 ob = o_obj[p]
                 if ncol == 4:
@@ -647,21 +402,21 @@ def _scatter(
                 if track:
                     src_idx[q] = r * w + c
         if cache_on:
-            _cache_pass_p(cold, new, cnew, z, h, w, order, fp, fm, stats, src_idx)
+            _cache_pass(cold, new, cnew, z, h, w, order, fp, fm, stats, src_idx)
     stats[0] += n_prop
     stats[1] += n_clash
     stats[2] += n_drop
 
 
-# ------------------------------------------------- the scatter's plane helpers
-# :func:`_copy`, :func:`_advance_into`, :func:`_zplanes`, :func:`_motion_at` and the
-# cache's kernels for maps as :func:`planes` (``field[k][p]`` for ``field[k, p]``;
-# an absent plane is empty and never read), the same arithmetic.
+# ------------------------------------------------ the sweeps' plane helpers
+# For maps as :func:`planes` (``field[k][p]``; an absent plane is empty and never
+# read), shared by the reference :func:`sweep` and the stage's :func:`scatter`:
+# one compile of the cache's kernels serves both.
 
 
 @nb.njit(cache=True, inline="always")
-def _copy_p(src: tuple, p: int, dst: tuple, q: int) -> None:
-    """:func:`_copy` for maps as :func:`planes`."""
+def _copy(src: tuple, p: int, dst: tuple, q: int) -> None:
+    """Copy one galpixel, every field, from flat index ``p`` of ``src`` to ``q`` of ``dst``."""
     for k in range(3):
         dst[0][k][q] = src[0][k][p]
     dst[1][q] = src[1][p]
@@ -681,7 +436,7 @@ def _copy_p(src: tuple, p: int, dst: tuple, q: int) -> None:
 
 
 @nb.njit(cache=True, inline="always")
-def _advance_into_p(
+def _advance_into(
     src: tuple,
     p: int,
     dst: tuple,
@@ -692,7 +447,11 @@ def _advance_into_p(
     mot: tuple,
     order: int,
 ) -> None:
-    """:func:`_advance_into` for maps as :func:`planes`."""
+    """Write galpixel ``p`` of ``src``, advanced one refresh, at ``q`` of ``dst``.
+
+    ``mot`` is ``(vx, vy, ax, ay, vz, az)`` after the step (from :func:`step`),
+    ``depth`` the new depth, ``fx``, ``fy`` the new fraction.
+    """
     s_col, s_mot, s_zm, s_dc = src[0], src[3], src[4], src[5]
     d_col, d_mot, d_zm, d_dc = dst[0], dst[3], dst[4], dst[5]
     d_col[0][q] = s_col[0][p]
@@ -728,8 +487,8 @@ def _advance_into_p(
 
 
 @nb.njit(cache=True, inline="always")
-def _zplanes_p(zm: tuple, p: int, order: int) -> tuple:
-    """:func:`_zplanes` for z motion as planes."""
+def _zplanes(zm: tuple, p: int, order: int) -> tuple:
+    """Galpixel ``p``'s z motion ``(vz, az, jz)`` as int64, 0 beyond ``order``."""
     z0 = np.int64(zm[0][p]) if order >= 1 else np.int64(0)
     z1 = np.int64(zm[1][p]) if order >= 2 else np.int64(0)
     z2 = np.int64(zm[2][p]) if order >= 3 else np.int64(0)
@@ -737,8 +496,8 @@ def _zplanes_p(zm: tuple, p: int, order: int) -> tuple:
 
 
 @nb.njit(cache=True, inline="always")
-def _motion_at_p(mot: tuple, zm: tuple, p: int, order: int) -> tuple:
-    """:func:`_motion_at` for motion and z motion as planes."""
+def _motion_at(mot: tuple, zm: tuple, p: int, order: int) -> tuple:
+    """Galpixel ``p``'s ``(vx, vy, ax, ay, jx, jy, vz, az, jz)`` as int64, 0 beyond ``order``."""
     z = np.int64(0)
     vx = np.int64(mot[0][p]) if order >= 1 else z
     vy = np.int64(mot[1][p]) if order >= 1 else z
@@ -753,7 +512,7 @@ def _motion_at_p(mot: tuple, zm: tuple, p: int, order: int) -> tuple:
 
 
 @nb.njit(cache=True)
-def _spill_incoming_p(
+def _spill_incoming(
     old: tuple,
     p: int,
     cnew: tuple,
@@ -765,22 +524,22 @@ def _spill_incoming_p(
     order: int,
     stats: np.ndarray,
 ) -> None:
-    """:func:`_spill_incoming` for maps as :func:`planes`."""
+    """A clash loser on its way in goes to the cache if nearer than the cache's entry."""
     if cnew[6][q] == 1 or d < cnew[1][q]:
-        _advance_into_p(old, p, cnew, q, fx, fy, d, mot, order)
+        _advance_into(old, p, cnew, q, fx, fy, d, mot, order)
         stats[3] += 1
 
 
 @nb.njit(cache=True)
-def _spill_resident_p(new: tuple, cnew: tuple, q: int, stats: np.ndarray) -> None:
-    """:func:`_spill_resident` for maps as :func:`planes`."""
+def _spill_resident(new: tuple, cnew: tuple, q: int, stats: np.ndarray) -> None:
+    """The galpixel about to be overwritten goes to the cache if nearer than the cache's entry."""
     if cnew[6][q] == 1 or new[1][q] < cnew[1][q]:
-        _copy_p(new, q, cnew, q)
+        _copy(new, q, cnew, q)
         stats[3] += 1
 
 
 @nb.njit(cache=True)
-def _cache_pass_p(
+def _cache_pass(
     cold: tuple,
     new: tuple,
     cnew: tuple,
@@ -793,13 +552,17 @@ def _cache_pass_p(
     stats: np.ndarray,
     src_idx: np.ndarray,
 ) -> None:
-    """:func:`_cache_pass` for maps as :func:`planes`."""
+    """Propagate zone ``z`` of the old cache into the new one, then promote.
+
+    Cached galpixels take the z-test among themselves; afterwards each one sitting
+    where the main map is still debris moves into the main map.
+    """
     for r in range(h):
         for c in range(w):
             p = (z * h + r) * w + c
             if cold[6][p] == 1:
                 continue
-            vx, vy, ax, ay, jx, jy, vz, az, jz = _motion_at_p(cold[3], cold[4], p, order)
+            vx, vy, ax, ay, jx, jy, vz, az, jz = _motion_at(cold[3], cold[4], p, order)
             qr, qc, fx, fy, d, vx, vy, ax, ay, vz, az = step(
                 r, c, cold[2][0][p], cold[2][1][p], cold[1][p],
                 vx, vy, ax, ay, jx, jy, vz, az, jz, order, fp, fm,
@@ -809,10 +572,10 @@ def _cache_pass_p(
                 continue
             q = (z * h + qr) * w + qc
             if cnew[6][q] == 1 or d < cnew[1][q]:
-                _advance_into_p(cold, p, cnew, q, fx, fy, d, mot, order)
+                _advance_into(cold, p, cnew, q, fx, fy, d, mot, order)
     for p in range(z * h * w, (z + 1) * h * w):
         if new[6][p] == 1 and cnew[6][p] == 0:
-            _copy_p(cnew, p, new, p)
+            _copy(cnew, p, new, p)
             cnew[6][p] = 1
             src_idx[p] = -1
             stats[4] += 1

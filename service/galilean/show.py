@@ -1,9 +1,9 @@
 """The display window of a galpixel map: the rows inside the margin copied out.
 
-:func:`show` (one thread) and :func:`show_bands` (rows split between threads) copy
-each displayed pixel's colour and depth (scaled by ``zs``) and its debris flag;
-:func:`show_row` is the one row copy both use, and :func:`service.galilean.finish.finish`
-too, which folds the display copy into its second pass.
+:func:`show_bands` (rows split between threads) copies each displayed pixel's
+colour and depth (scaled by ``zs``) and its debris flag; :func:`show_row` is the
+one row copy it uses, and :func:`service.galilean.finish.finish` too, which folds
+the display copy into its second pass.
 """
 
 from __future__ import annotations
@@ -43,42 +43,6 @@ def show_row(
         out_debris[o] = deb[p] == 1
 
 
-@nb.njit(cache=True)
-def show(
-    m: tuple,
-    shape: tuple,
-    margin: int,
-    out_colour: np.ndarray,
-    out_depth: np.ndarray,
-    out_debris: np.ndarray,
-    zs: float,
-) -> None:
-    """Display copy of a map (:func:`planes`, no expansion); outputs flattened too.
-
-    ``zs`` is the depth unit (2^-fz) the displayed float32 depth is scaled by.
-    """
-    nz, h, w = shape
-    ww = w - 2 * margin
-    (c0, c1, c2), dep, deb = m[0], m[1], m[6]
-    for z in range(nz):
-        for r in range(margin, h - margin):
-            o0 = (z * (h - 2 * margin) + r - margin) * ww
-            show_row(
-                c0,
-                c1,
-                c2,
-                dep,
-                deb,
-                (z * h + r) * w + margin,
-                ww,
-                out_colour,
-                out_depth,
-                out_debris,
-                o0,
-                zs,
-            )
-
-
 def debris_words(debris: np.ndarray) -> np.ndarray:
     """A (Z, H, W) uint8 debris plane's first ``8 (N // 8)`` bytes as uint64 words (a view)."""
     flat_ = debris.reshape(-1)
@@ -95,25 +59,17 @@ def show_bands(
     out_debris: np.ndarray,
     zs: float,
 ) -> None:
-    """:func:`show` with the displayed rows split between threads (``nb.prange``)."""
+    """Display copy of a map (:func:`planes`, no expansion); outputs flattened too.
+
+    The displayed rows are split between threads (``nb.prange``).  ``zs`` is the
+    depth unit (2^-fz) the displayed float32 depth is scaled by.
+    """
     nz, h, w = shape
     hh, ww = h - 2 * margin, w - 2 * margin
     (c0, c1, c2), dep, deb = m[0], m[1], m[6]
     for k in nb.prange(nz * hh):
         z, rr = k // hh, k % hh
-        show_row(
-            c0,
-            c1,
-            c2,
-            dep,
-            deb,
-            (z * h + rr + margin) * w + margin,
-            ww,
-            out_colour,
-            out_depth,
-            out_debris,
-            k * ww,
-            zs,
-        )
+        show_row(c0, c1, c2, dep, deb, (z * h + rr + margin) * w + margin, ww,
+                 out_colour, out_depth, out_debris, k * ww, zs)
 
 

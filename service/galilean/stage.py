@@ -42,7 +42,7 @@ from service.galilean.local_update import check_points, graft
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import EXPANSION_MODES
 from service.galilean.poisson_table import TABLE_FROM, poisson_interiors
-from service.galilean.propagate import STAT_NAMES, flat, planes, scatter
+from service.galilean.propagate import STAT_NAMES, planes, scatter
 from service.galilean.scatter_bands import (
     GATHER_RUN,
     map_reach,
@@ -575,20 +575,8 @@ class GalileanStage:
             top = reach.max(axis=0)
             next_reach = reach_of(top[0], top[1], top[2], self.fixed.fm)
         else:
-            scatter(
-                flat(self.map.arrays()),
-                flat(new.arrays()),
-                flat(cold.arrays()),
-                flat(cnew.arrays()),
-                True,
-                src,
-                self.shape,
-                self.order,
-                self.fixed.fp,
-                self.fixed.fm,
-                s.poisson,
-                counters,
-            )
+            scatter(old_p, new_p, self._planes(cold), self._planes(cnew), True, src, self.shape,
+                    self.order, self.fixed.fp, self.fixed.fm, s.poisson, counters)
             next_reach = None
         fresh = counters[0] - counters[2] - counters[1]
         self._table = bool(src.size - fresh >= TABLE_FROM * src.size)

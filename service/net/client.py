@@ -81,6 +81,32 @@ def _curve_client(sock: zmq.Socket, keys_dir: str | Path | None) -> None:
     sock.curve_secretkey = secret
 
 
+def _dealer(
+    ctx: zmq.Context, address: str, curve_keys: str | Path | None, linger_ms: int,
+    heartbeat: bool = False,
+) -> zmq.Socket:
+    """A DEALER connected to the service's control ``address`` (ZMTP heartbeats optional)."""
+    sock = ctx.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, linger_ms)
+    if heartbeat:
+        sock.setsockopt(zmq.HEARTBEAT_IVL, int(protocol.HEARTBEAT_S * 1000))
+        sock.setsockopt(
+            zmq.HEARTBEAT_TIMEOUT, int(protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS * 1000)
+        )
+    _curve_client(sock, curve_keys)
+    sock.connect(address)
+    return sock
+
+
+def _next_reply(sock: zmq.Socket) -> dict[str, Any] | None:
+    """The reply waiting on ``sock`` (a poll said one is there); None when it is garbled."""
+    frames = sock.recv_multipart(copy=False)
+    try:
+        return protocol.parse_reply([f.buffer for f in frames])
+    except MessageError:
+        return None
+
+
 class ServiceClient:
     """Request/reply client of the control channel (DEALER, Lazy Pirate retries).
 
@@ -124,15 +150,7 @@ class ServiceClient:
 
     # ------------------------------------------------------------ transport
     def _open(self) -> zmq.Socket:
-        sock = self._ctx.socket(zmq.DEALER)
-        sock.setsockopt(zmq.LINGER, LINGER_MS)
-        sock.setsockopt(zmq.HEARTBEAT_IVL, int(protocol.HEARTBEAT_S * 1000))
-        sock.setsockopt(
-            zmq.HEARTBEAT_TIMEOUT, int(protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS * 1000)
-        )
-        _curve_client(sock, self.curve_keys)
-        sock.connect(self.address)
-        return sock
+        return _dealer(self._ctx, self.address, self.curve_keys, LINGER_MS, heartbeat=True)
 
     def _reset(self) -> None:
         if self._sock is not None:
@@ -176,12 +194,8 @@ class ServiceClient:
         while (left := deadline - time.monotonic()) > 0:
             if not self._sock.poll(max(1, int(left * 1000))):
                 return None
-            frames = self._sock.recv_multipart(copy=False)
-            try:
-                header = protocol.parse_reply([f.buffer for f in frames])
-            except MessageError:
-                continue
-            if header.get("id") == rid:
+            header = _next_reply(self._sock)
+            if header is not None and header.get("id") == rid:
                 self.last_reply_t = time.monotonic()
                 return header
         return None
@@ -378,10 +392,7 @@ class PendingRequest:
         if self._waiting is not None:
             return False
         if self._sock is None:
-            self._sock = self._ctx.socket(zmq.DEALER)
-            self._sock.setsockopt(zmq.LINGER, 0)
-            _curve_client(self._sock, self.curve_keys)
-            self._sock.connect(self.address)
+            self._sock = _dealer(self._ctx, self.address, self.curve_keys, 0)
         rid = next(self._ids)
         if not wire.send(self._sock, protocol.request(msg_type, rid, fields), timeout_ms=0):
             return False
@@ -404,12 +415,8 @@ class PendingRequest:
             return None
         rid, deadline = self._waiting
         while self._sock.poll(0):
-            frames = self._sock.recv_multipart(copy=False)
-            try:
-                header = protocol.parse_reply([f.buffer for f in frames])
-            except MessageError:
-                continue
-            if header.get("id") == rid:
+            header = _next_reply(self._sock)
+            if header is not None and header.get("id") == rid:
                 self._waiting = None
                 self.answered += 1
                 return ServiceClient._check(header)

@@ -41,6 +41,14 @@ def send_until_seen(link, sink: Collector, seq: int, timeout: float = 5.0) -> No
         tick.wait(0.02)
 
 
+def loop_reader(link: LoopLink, protocol: str, sink: Collector | None = None,
+                **kw) -> DeviceReader:
+    """A reader (not started yet) of ``link``'s loop:// port, polling every 10 ms."""
+    return DeviceReader(ReaderSettings("loop://", protocol, poll_s=0.01),
+                        Collector() if sink is None else sink,
+                        opener=lambda url, **_: link.port, **kw)
+
+
 @pytest.mark.parametrize("protocol", ["native", "hatire"])
 def test_every_intact_frame_recovered_through_a_loop_reader(protocol):
     link = LoopLink()
@@ -48,8 +56,7 @@ def test_every_intact_frame_recovered_through_a_loop_reader(protocol):
     runner = DeviceRunner(TrackerSim(protocol, make_motion("walk", seed=2), rate_hz=100),
                           link, spec, seconds=3.0, realtime=False, pace=False)
     sink = Collector()
-    reader = DeviceReader(ReaderSettings("loop://", protocol, poll_s=0.01), sink,
-                          opener=lambda url, **kw: link.port)
+    reader = loop_reader(link, protocol, sink)
     reader.start()
     try:
         runner.run()
@@ -93,8 +100,7 @@ def test_every_intact_frame_recovered_through_a_pty_reader():
 def test_receive_times_are_monotonic_clock_at_arrival():
     link = LoopLink()
     sink = Collector()
-    reader = DeviceReader(ReaderSettings("loop://", "hatire", poll_s=0.01), sink,
-                          opener=lambda url, **kw: link.port).start()
+    reader = loop_reader(link, "hatire", sink).start()
     try:
         wait_for(lambda: reader.connected)
         before = time.monotonic_ns()
@@ -195,8 +201,7 @@ def test_watchdog_reopens_a_silent_port_and_waits_for_a_missing_one(tmp_path):
 
 def test_reader_thread_is_joined_and_port_closed_on_stop():
     link = LoopLink()
-    reader = DeviceReader(ReaderSettings("loop://", "native", poll_s=0.01), Collector(),
-                          opener=lambda url, **kw: link.port).start()
+    reader = loop_reader(link, "native").start()
     wait_for(lambda: reader.connected)
     start = time.monotonic()
     reader.stop()
@@ -289,8 +294,7 @@ def test_an_unexpected_exception_is_reported_and_ends_the_thread():
 
     link = LoopLink()
     sink = Collector()
-    reader = DeviceReader(ReaderSettings("loop://", "hatire", poll_s=0.01), sink,
-                          hooks=Broken(), opener=lambda url, **kw: link.port).start()
+    reader = loop_reader(link, "hatire", sink, hooks=Broken()).start()
     try:
         link.write(hatire.encode_pose(0, 0, 0, 0))
         wait_for(lambda: reader.crashed is not None, what="crash report")
@@ -329,8 +333,7 @@ def test_a_pty_is_read_through_its_descriptor_and_a_frame_may_span_two_reads():
 def test_a_loop_port_has_no_descriptor_and_is_read_through_pyserial():
     link = LoopLink()
     sink = Collector()
-    reader = DeviceReader(ReaderSettings("loop://", "hatire", poll_s=0.01), sink,
-                          opener=lambda url, **kw: link.port).start()
+    reader = loop_reader(link, "hatire", sink).start()
     try:
         wait_for(lambda: reader.connected)
         assert reader._fd is None

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from gal_scenes import DISP, FLAT, HZ, box
 
 from service.display import DisplaySettings
 from service.galilean.fixed_point import Z_EMPTY, FixedPoint, bit_budget
@@ -14,28 +15,9 @@ from service.galilean.local_update import (
 )
 from service.galilean.motion_field import render_with_motion
 from service.galilean.stage import GalileanSettings, GalileanStage, prediction_errors
-from service.light import LightSettings
-from service.pipeline import Renderer, RenderSettings
-from service.primitives import cube
-from service.scene import (
-    Material,
-    MotionState,
-    Scene,
-    SceneObject,
-    Transform,
-    axis_angle_quaternion,
-)
+from service.pipeline import Renderer
+from service.scene import Scene
 from service.scene_motion import advance_scene, control_points
-
-HZ = 60.0
-DISP = DisplaySettings(zones=1, cols=48, rows=32, width=2.0)
-FLAT = RenderSettings(light=LightSettings("ambient"))
-
-
-def box(pos, size=0.5, colour=(0.9, 0.5, 0.2), **motion):
-    return SceneObject(cube(size), Material(colour=colour, ambient=1.0),
-                       Transform(np.array(pos, float), axis_angle_quaternion([1, 1, 0], 0.4)),
-                       MotionState(**motion))
 
 
 def test_motion_field_matches_object_velocity():

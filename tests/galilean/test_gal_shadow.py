@@ -2,33 +2,14 @@
 
 import numpy as np
 import pytest
+from gal_scenes import DISP, FLAT, HZ, box
 
-from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.local_update import render_local
 from service.galilean.shadow import shadow_depth
-from service.light import LightSettings
-from service.pipeline import Renderer, RenderSettings
-from service.primitives import cube
-from service.scene import (
-    Material,
-    MotionState,
-    Scene,
-    SceneObject,
-    Transform,
-    axis_angle_quaternion,
-)
+from service.pipeline import Renderer
+from service.scene import Scene
 from service.scene_motion import advance_scene, control_points
-
-HZ = 60.0
-DISP = DisplaySettings(zones=1, cols=48, rows=32, width=2.0)
-FLAT = RenderSettings(light=LightSettings("ambient"))
-
-
-def box(pos, size, colour, **motion):
-    return SceneObject(cube(size), Material(colour=colour, ambient=1.0),
-                       Transform(np.array(pos, float), axis_angle_quaternion([1, 1, 0], 0.4)),
-                       MotionState(**motion))
 
 
 def two_boxes() -> Scene:

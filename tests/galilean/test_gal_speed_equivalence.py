@@ -20,7 +20,7 @@ from service.galilean.fixed_point import Z_EMPTY
 from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
 from service.galilean.poisson_table import poisson_interiors
-from service.galilean.propagate import STAT_NAMES, flat, planes, second_sweep, sweep
+from service.galilean.propagate import STAT_NAMES, planes, second_sweep, sweep
 from service.galilean.scatter_bands import GATHER_RUN, map_reach, reach_of, scatter_bands
 from service.galilean.show import debris_words
 from service.galilean.stage import GalileanSettings, GalileanStage
@@ -50,26 +50,19 @@ class ReferenceStage(GalileanStage):
             2.0**-self.fixed.fz,
         )
 
-    def _sweeps(
-        self,
-        new: Galpixmap,
-        cold: Galpixmap,
-        cnew: Galpixmap,
-        thr: float,
-        counters: np.ndarray,
-        shown: tuple | None,
-    ) -> None:
+    def _sweeps(self, new: Galpixmap, cold: Galpixmap, cnew: Galpixmap, *rest: object) -> None:
+        """The stage's ``_sweeps`` (same arguments) on contiguous copies of the maps."""
         with _contiguous(self.map, new, cold, cnew) as (m, n, co, cn):
-            self._sweep_kernels(m, n, co, cn, thr, counters, shown)
+            self._sweep_kernels(m, n, co, cn, *rest)
 
     def _sweep_kernels(self, m: tuple, new: tuple, cold: tuple, cnew: tuple, thr: float,
                        counters: np.ndarray, shown: tuple | None) -> None:
         s = self.settings
         sweep(
-            flat(m),
-            flat(new),
-            flat(cold),
-            flat(cnew),
+            planes(m),
+            planes(new),
+            planes(cold),
+            planes(cnew),
             self.cache is not None,
             self._src.reshape(-1),
             self.shape,
@@ -385,14 +378,20 @@ def test_static_chunks_left_in_place_give_the_same_refreshes(order: int) -> None
     _static_refreshes(DisplaySettings(zones=1, cols=203, rows=48), order, {}, 60 + order)
 
 
-def _static_refreshes(display: DisplaySettings, order: int, case: dict, seed: int) -> None:
-    """The body of the two tests above: 24 refreshes of a mostly static map, compared."""
-    gs = GalileanSettings(order=order, refresh_hz=50.0, **case)
+def _static_pair(display: DisplaySettings, gs: GalileanSettings, seed: int) -> tuple:
+    """A fast and a reference stage given the same mostly static map, and the generator."""
     fast, ref = GalileanStage(display, gs), ReferenceStage(display, gs)
     rng = np.random.default_rng(seed)
     gp = mostly_static_map(fast, rng)
     for st in (fast, ref):
         st.submit(gp.copy(), 0)
+    return fast, ref, rng
+
+
+def _static_refreshes(display: DisplaySettings, order: int, case: dict, seed: int) -> None:
+    """The body of the two tests above: 24 refreshes of a mostly static map, compared."""
+    fast, ref, rng = _static_pair(display, GalileanSettings(order=order, refresh_hz=50.0, **case),
+                                  seed)
     skipped = []
     for k in range(24):
         if k == 10:
@@ -439,13 +438,8 @@ def test_still_galpixels_are_recorded_only_while_the_map_stays_steady() -> None:
 
     The refreshes stay byte for byte those of the reference throughout.
     """
-    display = DisplaySettings(zones=1, cols=48, rows=32)
-    gs = GalileanSettings(order=2, refresh_hz=50.0)
-    fast, ref = GalileanStage(display, gs), ReferenceStage(display, gs)
-    rng = np.random.default_rng(5)
-    gp = mostly_static_map(fast, rng)
-    for st in (fast, ref):
-        st.submit(gp.copy(), 0)
+    fast, ref, rng = _static_pair(DisplaySettings(zones=1, cols=48, rows=32),
+                                  GalileanSettings(order=2, refresh_hz=50.0), 5)
     recorded = []
     for k in range(40):
         if 6 <= k < 24 and k % 2 == 0:
@@ -466,13 +460,8 @@ def test_recording_stops_while_almost_every_galpixel_moves() -> None:
     ``STILL_MIN`` the stage stops recording; a mostly still map grafted later is
     recorded again.  The refreshes stay byte for byte those of the reference.
     """
-    display = DisplaySettings(zones=1, cols=48, rows=32)
-    gs = GalileanSettings(order=2, refresh_hz=50.0)
-    fast, ref = GalileanStage(display, gs), ReferenceStage(display, gs)
-    rng = np.random.default_rng(9)
-    gp = mostly_static_map(fast, rng)
-    for st in (fast, ref):
-        st.submit(gp.copy(), 0)
+    fast, ref, rng = _static_pair(DisplaySettings(zones=1, cols=48, rows=32),
+                                  GalileanSettings(order=2, refresh_hz=50.0), 9)
     recorded, still = [], []
     for k in range(28):
         if k == 8:

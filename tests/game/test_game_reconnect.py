@@ -8,15 +8,11 @@ import time
 
 import numpy as np
 import pytest
+from real_service import attract_client
 from testkit import free_port
 
-from game.backends import BackendSettings, ServiceBackend
-from game.client_loop import GameClient, LoopSettings
+from game.client_loop import GameClient
 from game.display import GameWindow
-from game.rules import GameSettings
-from game.scene import game_scene
-from service.display import DisplaySettings
-from service.errors import ServiceError
 
 BANNER = (255, 220, 90)
 
@@ -57,17 +53,7 @@ def test_service_killed_mid_game_reconnecting_then_resumes(pygame_headless):
     procs = [start_service(control, frames)]
     backend = None
     try:
-        settings = BackendSettings(DisplaySettings(zones=3, cols=80, rows=60))
-        backend = ServiceBackend(control, frames, settings=settings, timeout_s=0.5)
-        try:
-            backend.start(game_scene(6))
-        except ServiceError:
-            pass  # not up yet: the loop keeps trying
-        client = GameClient(
-            backend,
-            GameWindow((320, 240)),
-            LoopSettings(GameSettings(difficulty="easy"), attract=True),
-        )
+        backend, client = attract_client(control, frames, GameWindow((320, 240)))
         tick_until(client, lambda: client.renders.count >= 2, 30, "frames")
         assert not shows_banner(client)
         procs[0].kill()

@@ -14,15 +14,13 @@ import time
 
 import numpy as np
 import pytest
+from real_service import attract_client
 from testkit import free_port
 
-from game.backends import BackendSettings, ServiceBackend
+from game.backends import BackendSettings
 from game.client_loop import GameClient, LoopSettings, waiting_lines
 from game.display import GameWindow
-from game.rules import GameSettings
-from game.scene import game_scene
 from service.display import DisplaySettings
-from service.errors import ServiceError
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
@@ -135,14 +133,7 @@ def test_a_real_cold_service_shows_the_waiting_screen(pygame_headless, tmp_path)
     )  # fmt: skip
     backend = None
     try:
-        settings = BackendSettings(DisplaySettings(zones=3, cols=80, rows=60))
-        backend = ServiceBackend(control, frames, settings=settings, timeout_s=0.5)
-        try:
-            backend.start(game_scene(6))
-        except ServiceError:
-            pass  # not listening yet: the loop keeps trying
-        client = GameClient(backend, SeenWindow((320, 240)),
-                            LoopSettings(GameSettings(difficulty="easy"), attract=True))
+        backend, client = attract_client(control, frames, SeenWindow((320, 240)))
         deadline = time.monotonic() + 45
         while not client.window.banners or client.window.banners[-1][0] == "reconnecting":
             assert time.monotonic() < deadline, "the game never heard the service warm up"

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-from testkit import ROOT, SMALL_SERVICE, raw_request, start_service
+from testkit import ROOT, raw_request
 
 from service.net import protocol
 
@@ -48,15 +48,6 @@ def test_the_error_code_table_is_the_code():
 def test_the_message_type_table_is_the_code():
     types = re.findall(r"^\| `(\w+)` \|", _section("### 1.5").split("Render reply")[0], re.M)
     assert tuple(types) == protocol.MESSAGE_TYPES
-
-
-@pytest.fixture(scope="module")
-def svc():
-    s = start_service(*SMALL_SERVICE)
-    try:
-        yield s
-    finally:
-        s.stop()
 
 
 def ask(svc, header: dict, buffers: tuple = ()) -> dict:

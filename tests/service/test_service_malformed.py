@@ -7,19 +7,9 @@ import json
 import numpy as np
 import pytest
 import zmq
-from testkit import SMALL_SERVICE, raw_request, start_service
+from testkit import raw_request
 
 HELLO = {"v": 1, "type": "hello", "id": 1, "versions": [1]}
-
-
-@pytest.fixture(scope="module")
-def shared_service():
-    """One service for every case of this module (each case checks it still serves)."""
-    svc = start_service(*SMALL_SERVICE)
-    try:
-        yield svc
-    finally:
-        svc.stop()
 
 
 def _send(address: str, frames: list[bytes], with_delimiter: bool = True) -> list[bytes] | None:
@@ -211,45 +201,45 @@ CASES = {
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_malformed_gets_error_reply(shared_service, name):
+def test_malformed_gets_error_reply(svc, name):
     frames, code = CASES[name]
-    reply = _send(shared_service.control, frames, with_delimiter=name != "garbage_no_delimiter")
+    reply = _send(svc.control, frames, with_delimiter=name != "garbage_no_delimiter")
     assert reply is not None, "no reply: the connection must answer every message"
     header = json.loads(reply[-1] if name == "garbage_no_delimiter" else reply[1])
     assert header["ok"] is False
     assert header["error"]["code"] == code, header
     # another client is still served, and so is the same service
-    assert raw_request(shared_service.control, HELLO)["ok"]
+    assert raw_request(svc.control, HELLO)["ok"]
 
 
-def test_bad_clients_do_not_stop_good_ones(shared_service):
+def test_bad_clients_do_not_stop_good_ones(svc):
     """A good client keeps its session (one socket) while a bad one floods garbage."""
     good = zmq.Context.instance().socket(zmq.DEALER)
     good.setsockopt(zmq.LINGER, 0)
-    good.connect(shared_service.control)
+    good.connect(svc.control)
     try:
         for i in range(20):
-            bad = _send(shared_service.control, [b"\x00" * (i + 1), b"x"])
+            bad = _send(svc.control, [b"\x00" * (i + 1), b"x"])
             assert bad is not None and json.loads(bad[1])["ok"] is False
             good.send_multipart([b"", _j({"v": 1, "type": "ping", "id": i})])
             assert good.poll(5000)
             assert json.loads(good.recv_multipart()[1])["id"] == i
-        stats = raw_request(shared_service.control, {"v": 1, "type": "stats", "id": 1})
+        stats = raw_request(svc.control, {"v": 1, "type": "stats", "id": 1})
         assert stats["stats"]["errors"] >= 20
     finally:
         good.close(0)
 
 
-def test_unknown_version_reply_is_version_1_and_echoes_the_request(shared_service):
+def test_unknown_version_reply_is_version_1_and_echoes_the_request(svc):
     """protocol.md 1.2: a request in a version the service does not speak gets a
     version-1 bad_version reply naming the versions it does speak; nothing is done."""
-    before = raw_request(shared_service.control, {"v": 1, "type": "stats", "id": 1})["stats"]
+    before = raw_request(svc.control, {"v": 1, "type": "stats", "id": 1})["stats"]
     req = {"v": 2, "type": "shutdown", "id": "next-gen"}
-    reply = raw_request(shared_service.control, req)
+    reply = raw_request(svc.control, req)
     assert reply["v"] == 1 and reply["ok"] is False
     assert reply["id"] == "next-gen" and reply["type"] == "shutdown"
     assert reply["error"]["code"] == "bad_version" and "[1]" in reply["error"]["message"]
-    hello = raw_request(shared_service.control, {**HELLO, "versions": [2, 1]})
+    hello = raw_request(svc.control, {**HELLO, "versions": [2, 1]})
     assert hello["ok"] and hello["version"] == 1 and hello["versions"] == [1]
-    after = raw_request(shared_service.control, {"v": 1, "type": "stats", "id": 2})["stats"]
+    after = raw_request(svc.control, {"v": 1, "type": "stats", "id": 2})["stats"]
     assert after["session"] == before["session"]  # the v=2 shutdown was not acted on

@@ -8,20 +8,9 @@ import json
 import numpy as np
 import pytest
 import zmq
-from testkit import SMALL_SERVICE, start_service
 
 from service.net import protocol
 from service.net.client import RequestTooLargeError, ServiceClient
-
-
-@pytest.fixture(scope="module")
-def svc():
-    """One small in-process service for the module."""
-    s = start_service(*SMALL_SERVICE)
-    try:
-        yield s
-    finally:
-        s.stop()
 
 
 def _exchange(address: str, frames: list, timeout_ms: int = 20000) -> dict | None:
