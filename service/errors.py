@@ -69,13 +69,13 @@ class SampleError(HoloError, ValueError):
     """A pose sample or its time is unusable (non-finite, backwards, duplicate)."""
 
 
-class MessageError(ProtocolError):
-    """A service message broke the protocol (``docs/protocol.md``).
+class CodedError(HoloError):
+    """An error with one of the protocol's error codes (``docs/protocol.md`` 1.3).
 
     Parameters
     ----------
     code : str
-        The protocol's error code (``bad_json``, ``bad_array``...).
+        The error code (``bad_json``, ``bad_array``, ``warming_up``...).
     message : str
         What was wrong, in words.
     """
@@ -86,21 +86,12 @@ class MessageError(ProtocolError):
         super().__init__(f"{code}: {message}")
 
 
-class ServiceError(HoloError):
-    """The render service answered a request with an error reply.
+class MessageError(CodedError, ProtocolError):
+    """A service message broke the protocol (``docs/protocol.md``): ``code``, ``message``."""
 
-    Parameters
-    ----------
-    code : str
-        The error code of the reply.
-    message : str
-        The reply's message.
-    """
 
-    def __init__(self, code: str, message: str) -> None:
-        self.code = code
-        self.message = message
-        super().__init__(f"{code}: {message}")
+class ServiceError(CodedError):
+    """The render service answered a request with an error reply (its code and message)."""
 
 
 class ServiceUnavailableError(ServiceError):

@@ -61,19 +61,21 @@ class Mesh:
         """Number of vertices V."""
         return int(self.vertices.shape[0])
 
+    def _fan(self) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`fan_triangulate` of the polygons (cached): triangles, their polygons."""
+        if "tri" not in self._cache:
+            self._cache["tri"] = fan_triangulate(self.polygons, self.counts)
+        return self._cache["tri"]
+
     @property
     def triangles(self) -> np.ndarray:
         """Fan triangulation, shape (T, 3) int64 (cached)."""
-        if "tri" not in self._cache:
-            self._cache["tri"] = fan_triangulate(self.polygons, self.counts)
-        return self._cache["tri"][0]
+        return self._fan()[0]
 
     @property
     def triangle_polygon(self) -> np.ndarray:
         """Polygon index of each triangle, shape (T,) int64 (cached)."""
-        if "tri" not in self._cache:
-            self._cache["tri"] = fan_triangulate(self.polygons, self.counts)
-        return self._cache["tri"][1]
+        return self._fan()[1]
 
     @property
     def normals(self) -> np.ndarray:
