@@ -6,7 +6,7 @@ After :func:`service.galilean.scatter_bands.scatter_bands` (or
 galpixels into pixels still debris (the debris arm), expands debris inside an
 expanding surface (:mod:`.poisson`) and copies the displayed rows out
 (:func:`service.galilean.show.show_row`).  At each band's top row an exact fix-up
-(:func:`_fix_rows`) visits the pixels the band above changed.  Together with the
+(:func:`_rows` with ``fix``) visits the pixels the band above changed.  Together with the
 scatter it does what :func:`service.galilean.propagate.sweep` and
 :func:`service.galilean.propagate.second_sweep` do, bit for bit.
 """
@@ -55,39 +55,34 @@ def _expanded_colour(
 
 
 @nb.njit(cache=True, nogil=True)
-def _finish_rows(
-    new: tuple,
-    old: tuple,
-    src_idx: np.ndarray,
-    deb64: np.ndarray,
-    snap: np.ndarray,
-    shape: tuple,
-    k0: int,
-    k1: int,
-    n_mot: int,
-    n_zm: int,
-    ncol: int,
-    threshold: float,
-    n_neighbours: int,
-    mode: int,
-    track: bool,
-    same_out: np.ndarray,
-    interior: np.ndarray,
-    table: bool,
-    counts: np.ndarray,
-    margin: int,
-    out_colour: np.ndarray,
-    out_depth: np.ndarray,
-    out_debris: np.ndarray,
-    write_out: bool,
-    zs: float,
-) -> None:
-    """:func:`finish`'s scan of the map rows ``[k0, k1)`` (row ``k`` = ``z H + r``).
+def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: np.ndarray,
+          shape: tuple, k0: int, k1: int, fix: bool, n_mot: int, n_zm: int, ncol: int,
+          threshold: float, n_neighbours: int, mode: int, track: bool, same_out: np.ndarray,
+          interior: np.ndarray, table: bool, counts: np.ndarray, margin: int,
+          out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray, write_out: bool,
+          zs: float) -> None:
+    """:func:`finish`'s scan of a band's rows ``[k0, k1)`` (row ``k`` = ``z H + r``), or its fix-up.
 
     ``new`` is the new map as :func:`planes`, ``old`` the old map's colour planes,
-    depth, debris and object planes.  Every debris pixel in scan order; each
-    row's debris flags are first copied to ``snap`` when it is not empty (for
-    :func:`_fix_rows`).  ``counts`` (4,) accumulates expanded and debris left.
+    depth, debris and object planes; ``counts`` (4,) accumulates expanded, debris
+    left, rows fixed and pixels redone.  One loop for both, so that a pixel is
+    decided and written by the same lines: inlined helpers taking the planes
+    cost a reference-count pair per plane and call (docs/galilean.md, 2026-11-26,
+    third session).  :func:`finish` passes ``fix`` as a constant, so numba
+    compiles one specialisation per value (``Literal[bool]``) and the scan's
+    carries none of the fix-up's branches.
+
+    **Scan** (``fix`` False): every debris pixel in scan order, eight galpixels
+    skipped per test of ``deb64``; each row's debris flags are first copied to
+    ``snap`` when it is not empty (for the fix-up).
+
+    **Fix-up** (``fix`` True, see :func:`finish`): row ``k0`` (untouched by the
+    band's scan) is scanned in full; in the rows below, up to ``k1``, only the
+    debris pixels (as the scatter left them, ``snap``) whose left or upper
+    neighbour this fix-up expanded are scanned again, until a row in which it
+    expands nothing.  Right and lower neighbours' debris flags are read from
+    ``snap``, as the one-band scan sees them; the counts are corrected for the
+    pixels the band had done.
     """
     nz, h, w = shape
     # every plane in a local of its own, once: taking arrays out of tuples inside
@@ -97,10 +92,15 @@ def _finish_rows(
     z0, z1, z2 = zm
     d0, d1, d2, d3 = dc
     o0, o1, o2, o_dep, o_deb, o_obj = old
+    # the right and lower neighbours' debris flags: as the scatter left them
+    later = snap if fix else deb
     ww = w - 2 * margin
-    keep = snap.size > 0
+    keep = not fix and snap.size > 0
     expanded = left = 0
     n8 = 8 * deb64.size
+    # fix-up: columns it expanded in the row above (ascending), and in this row
+    prev, cur = np.empty(w, np.int64), np.empty(w, np.int64)
+    n_prev = 0
     for k in range(k0, k1):
         z = k // h
         r = k - z * h
@@ -109,163 +109,21 @@ def _finish_rows(
         if keep:
             for c in range(w):
                 snap[u64(base + c)] = deb[u64(base + c)]
-        c = np.int64(-1)
-        while c < w - 1:
-            c += 1
-            p = u64(base + c)
-            if (p & 7) == 0 and c + 8 <= w and p + 8 <= n8 and deb64[p >> 3] == 0:
-                c += 7  # eight galpixels: nothing to do
-                continue
-            if deb[p] == 0:
-                continue
-            same_out[p] = 0
-            near = (
-                (c > 0 and deb[u64(base + c - 1)] == 0)
-                or (c < w - 1 and deb[u64(base + c + 1)] == 0)
-                or (r > 0 and deb[u64(base + c - w)] == 0)
-                or (r < h - 1 and deb[u64(base + c + w)] == 0)
-            )
-            if threshold >= 0 and near:
-                # expansion (poisson.expand_pixel, same arithmetic)
-                first = np.int64(-1)
-                n = 0
-                acc0 = acc1 = acc2 = accd = 0.0
-                for k in range(n_neighbours):
-                    if k == 0:
-                        ok, qi = c > 0, base + c - 1
-                    elif k == 1:
-                        ok, qi = r > 0, base + c - w
-                    elif k == 2:
-                        ok, qi = c < w - 1, base + c + 1
-                    else:
-                        ok, qi = r < h - 1, base + c + w
-                    if not ok or deb[u64(qi)] == 1:
-                        continue
-                    sq = np.int64(src_idx[u64(qi)])
-                    if sq < 0:
-                        continue
-                    # Poisson test of the origin: from the table, or on the spot
-                    if table:
-                        if interior[u64(zb + sq)] == 0:
-                            continue
-                    elif not interior_at(o_dep, o_deb, zb, sq, h, w, threshold):
-                        continue
-                    if first < 0:
-                        first = qi
-                    n += 1
-                    acc0 += c0[u64(qi)]
-                    acc1 += c1[u64(qi)]
-                    acc2 += c2[u64(qi)]
-                    accd += np.float64(dep[u64(qi)])
-                if first >= 0:
-                    q = u64(first)
-                    _expanded_colour(c0, c1, c2, dep, p, q, mode, n, acc0, acc1, acc2, accd)
-                    if n_mot >= 2:
-                        m0[p] = m0[q]
-                        m1[p] = m1[q]
-                    if n_mot >= 4:
-                        m2[p] = m2[q]
-                        m3[p] = m3[q]
-                    if n_mot >= 6:
-                        m4[p] = m4[q]
-                        m5[p] = m5[q]
-                    if n_zm >= 1:
-                        z0[p] = z0[q]
-                    if n_zm >= 2:
-                        z1[p] = z1[q]
-                    if n_zm >= 3:
-                        z2[p] = z2[q]
-                    if ncol == 4:
-                        d0[p] = d0[q]
-                        d1[p] = d1[q]
-                        d2[p] = d2[q]
-                        d3[p] = d3[q]
-                    deb[p] = 0
-                    obj[p] = obj[q]
-                    f0[p] = 0
-                    f1[p] = 0
-                    src_idx[p] = src_idx[q]
-                    expanded += 1
-                    continue
-            left += 1
-            # debris arm (also for old debris: it keeps the colour it last showed)
-            c0[p] = o0[p]
-            c1[p] = o1[p]
-            c2[p] = o2[p]
-            dep[p] = o_dep[p]
-            obj[p] = o_obj[p]
-            if track:
-                src_idx[p] = -1
-        if write_out and margin <= r < h - margin:
-            show_row(c0, c1, c2, dep, deb, base + margin, ww, out_colour, out_depth, out_debris,
-                     (z * (h - 2 * margin) + r - margin) * ww, zs)
-    counts[0] += expanded
-    counts[1] += left
-
-
-@nb.njit(cache=True, nogil=True)
-def _fix_rows(
-    new: tuple,
-    old: tuple,
-    src_idx: np.ndarray,
-    snap: np.ndarray,
-    shape: tuple,
-    k0: int,
-    k1: int,
-    n_mot: int,
-    n_zm: int,
-    ncol: int,
-    threshold: float,
-    n_neighbours: int,
-    mode: int,
-    track: bool,
-    same_out: np.ndarray,
-    interior: np.ndarray,
-    table: bool,
-    counts: np.ndarray,
-    margin: int,
-    out_colour: np.ndarray,
-    out_depth: np.ndarray,
-    out_debris: np.ndarray,
-    write_out: bool,
-    zs: float,
-) -> None:
-    """A band's fix-up (see :func:`finish`): its top row ``k0``, then what that changes.
-
-    Row ``k0`` (untouched by the band's scan) is scanned in full; in the rows
-    below, up to ``k1``, only the debris pixels (as the scatter left them,
-    ``snap``) whose left or upper neighbour this fix-up expanded are scanned
-    again, until a row in which it expands nothing.  Right and lower neighbours'
-    debris flags are read from ``snap``, as the one-band scan sees them.  The
-    expansion and debris arm are :func:`_finish_rows`'s, arithmetic for
-    arithmetic.  ``counts`` (4,): expanded and debris left are corrected for the
-    pixels the band had done; rows fixed and pixels redone are added.
-    """
-    nz, h, w = shape
-    (c0, c1, c2), dep, (f0, f1), mot, zm, dc, deb, obj = new
-    m0, m1, m2, m3, m4, m5 = mot
-    z0, z1, z2 = zm
-    d0, d1, d2, d3 = dc
-    o0, o1, o2, o_dep, o_deb, o_obj = old
-    ww = w - 2 * margin
-    # columns the fix-up expanded in the row above (ascending), and in this row
-    prev, cur = np.empty(w, np.int64), np.empty(w, np.int64)
-    n_prev = 0
-    for k in range(k0, k1):
-        z = k // h
-        r = k - z * h
-        zb = z * h * w
-        base = k * w
         n_cur = i = 0
         c = np.int64(-1)
         chain = False  # the pixel just done was expanded: its right neighbour is due
         while True:
-            # the next pixel due: every one in the top row; below it, one whose
-            # upper neighbour (``prev``) or left neighbour (``chain``) was expanded
-            if k == k0:
+            # the next pixel due: every one in the scan and the fix-up's top row;
+            # below it, one whose upper (``prev``) or left (``chain``) neighbour
+            # the fix-up expanded
+            if not fix or k == k0:
                 c += 1
                 if c >= w:
                     break
+                p = u64(base + c)
+                if not fix and (p & 7) == 0 and c + 8 <= w and p + 8 <= n8 and deb64[p >> 3] == 0:
+                    c += 7  # eight galpixels: nothing to do
+                    continue
             else:
                 while i < n_prev and prev[i] <= c:
                     i += 1
@@ -277,18 +135,21 @@ def _fix_rows(
                     break
             chain = False
             p = u64(base + c)
-            if snap[p] == 0:
+            if later[p] == 0:
                 continue
-            # what the band's scan did here: 0 nothing (top row), 1 expanded, 2 debris arm
-            spec = 0 if k == k0 else (1 if deb[p] == 0 else 2)
-            counts[3] += 1
+            # what the band's scan did here: 0 nothing (the scan, the top row),
+            # 1 expanded, 2 debris arm
+            spec = 0 if not fix or k == k0 else (1 if deb[p] == 0 else 2)
+            if fix:
+                counts[3] += 1
             same_out[p] = 0
             near = (
                 (c > 0 and deb[u64(base + c - 1)] == 0)
-                or (c < w - 1 and snap[u64(base + c + 1)] == 0)
+                or (c < w - 1 and later[u64(base + c + 1)] == 0)
                 or (r > 0 and deb[u64(base + c - w)] == 0)
-                or (r < h - 1 and snap[u64(base + c + w)] == 0)
+                or (r < h - 1 and later[u64(base + c + w)] == 0)
             )
+            # expansion (poisson.expand_pixel, same arithmetic)
             first = np.int64(-1)
             n = 0
             acc0 = acc1 = acc2 = accd = 0.0
@@ -301,11 +162,12 @@ def _fix_rows(
                     ok, qi = c < w - 1, base + c + 1
                 else:
                     ok, qi = r < h - 1, base + c + w
-                if not ok or (deb[u64(qi)] if kk < 2 else snap[u64(qi)]) == 1:
+                if not ok or (deb[u64(qi)] if kk < 2 else later[u64(qi)]) == 1:
                     continue
                 sq = np.int64(src_idx[u64(qi)])
                 if sq < 0:
                     continue
+                # Poisson test of the origin: from the table, or on the spot
                 if table:
                     if interior[u64(zb + sq)] == 0:
                         continue
@@ -319,9 +181,10 @@ def _fix_rows(
                 acc2 += c2[u64(qi)]
                 accd += np.float64(dep[u64(qi)])
             if first < 0:
-                # debris arm; a pixel the band expanded stays expanded (the fix-up
-                # only adds galpixels), one it left as debris holds the same
-                counts[1] += spec == 0
+                # debris arm (also for old debris: it keeps the colour it last
+                # showed); in the fix-up a pixel the band expanded stays expanded
+                # (the fix-up only adds galpixels), one it left as debris holds the same
+                left += spec == 0
                 if spec == 0:
                     c0[p] = o0[p]
                     c1[p] = o1[p]
@@ -358,19 +221,23 @@ def _fix_rows(
             f0[p] = 0
             f1[p] = 0
             src_idx[p] = src_idx[q]
-            # taken as changed for the pixels right of and below it (not compared)
-            cur[n_cur] = c
-            n_cur += 1
-            chain = True
-            counts[0] += spec != 1
-            counts[1] -= spec == 2
-        counts[2] += 1
+            expanded += spec != 1
+            left -= spec == 2
+            if fix:
+                # taken as changed for the pixels right of and below it (not compared)
+                cur[n_cur] = c
+                n_cur += 1
+                chain = True
         if write_out and margin <= r < h - margin:
             show_row(c0, c1, c2, dep, deb, base + margin, ww, out_colour, out_depth, out_debris,
                      (z * (h - 2 * margin) + r - margin) * ww, zs)
-        if n_cur == 0:
-            break  # the rows below saw this row as it is now
-        prev, cur, n_prev = cur, prev, n_cur
+        if fix:
+            counts[2] += 1
+            if n_cur == 0:
+                break  # the rows below saw this row as it is now
+            prev, cur, n_prev = cur, prev, n_cur
+    counts[0] += expanded
+    counts[1] += left
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -477,20 +344,20 @@ def finish(
             for c in range(w):
                 snap[lo * w + c] = deb[lo * w + c]
             lo += 1
-        _finish_rows(
+        _rows(
             ((c0, c1, c2), dep, (f0, f1), (m0, m1, m2, m3, m4, m5), (z0, z1, z2),
              (d0, d1, d2, d3), deb, obj),
             (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, deb64, snap if b > 0 else snap[:0],
-            shape, lo, hi, n_mot, n_zm, ncol, threshold, n_neighbours, mode, track, same_out,
-            interior, table, band_stats[b], margin, out_colour, out_depth, out_debris,
+            shape, lo, hi, False, n_mot, n_zm, ncol, threshold, n_neighbours, mode, track,
+            same_out, interior, table, band_stats[b], margin, out_colour, out_depth, out_debris,
             write_out, zs,
         )
     for b in range(1, bands):  # in order: a fix-up reads the row above it as final
-        _fix_rows(
-            new, (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, snap, shape, b * rows // bands,
-            (b + 1) * rows // bands, n_mot, n_zm, ncol, threshold, n_neighbours, mode, track,
-            same_out, interior, table, band_stats[b], margin, out_colour, out_depth,
-            out_debris, write_out, zs,
+        _rows(
+            new, (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, deb64, snap if b > 0 else snap[:0],
+            shape, b * rows // bands, (b + 1) * rows // bands, True, n_mot, n_zm, ncol,
+            threshold, n_neighbours, mode, track, same_out, interior, table, band_stats[b],
+            margin, out_colour, out_depth, out_debris, write_out, zs,
         )
     for b in range(bands):
         stats[5] += band_stats[b, 0]

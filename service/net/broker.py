@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from service.errors import MessageError
 from service.net import protocol, wire
 from service.net.worker import READY
 
@@ -241,7 +242,7 @@ class BandClient:
     def _take(frames: list[zmq.Frame], job_id: int, got: dict) -> None:
         try:
             head = protocol.parse_reply([f.buffer for f in frames])
-        except Exception:  # noqa: BLE001 - a garbled reply counts as no reply
+        except MessageError:  # a garbled reply counts as no reply
             return
         if head.get("ok") and head.get("job") == job_id and isinstance(head.get("arrays"), dict):
             got.setdefault(int(head["band"]), {**head["arrays"], "_stats": head.get("stats", {})})
@@ -306,7 +307,7 @@ class FramePipe:
             frames = self.sock.recv_multipart(copy=False)
             try:
                 head = protocol.parse_reply([f.buffer for f in frames])
-            except Exception:  # noqa: BLE001 - a garbled reply counts as no reply
+            except MessageError:  # a garbled reply counts as no reply
                 continue
             flight = self.flights.get(head.get("job")) if isinstance(head.get("job"), int) else None
             if flight is None or head.get("attempt") != flight.attempt:

@@ -340,10 +340,9 @@ def parse_reply(frames: list[Any]) -> dict[str, Any]:
     if not body:
         raise MessageError("bad_frames", "empty reply")
     header = _header(body[0], DEFAULT_LIMITS)
-    names = [d.get("name") for d in header.get("arrays", []) if isinstance(d, dict)]
-    arrays = wire.decode_arrays(
-        header.pop("arrays", None), body[1:], DEFAULT_LIMITS.max_message_bytes, max_dims=8
-    )
+    descs = header.pop("arrays", None)
+    arrays = wire.decode_arrays(descs, body[1:], DEFAULT_LIMITS.max_message_bytes, max_dims=8)
+    names = [d.get("name") for d in descs or []]  # decode_arrays checked: a list of dicts
     if names and all(isinstance(n, str) for n in names):
         header["arrays"] = dict(zip(names, arrays, strict=True))
     elif arrays:
@@ -416,8 +415,8 @@ def parse_frame(frames: list[Any]) -> dict[str, Any]:
     for key, least, required in FRAME_INTS:
         _frame_int(header, key, least, required)
     descs = header.pop("arrays", None)
-    names = [d.get("name") for d in descs or () if isinstance(d, dict)]
     arrays = wire.decode_arrays(descs, frames[2:], DEFAULT_LIMITS.max_message_bytes)
+    names = [d.get("name") for d in descs or []]  # decode_arrays checked: a list of dicts
     if len(names) != len(arrays) or not all(isinstance(n, str) for n in names):
         raise MessageError("bad_message", "frame header: every array needs a name")
     if header["kind"] == "frame":

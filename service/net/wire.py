@@ -169,7 +169,8 @@ def decode_arrays(
         )
     out = []
     for i, (desc, buf) in enumerate(zip(descs, buffers, strict=True)):
-        if not isinstance(desc, dict) or desc.get("dtype") not in DTYPES:
+        if not isinstance(desc, dict) or not isinstance(desc.get("dtype"), str) \
+                or desc["dtype"] not in DTYPES:
             raise MessageError("bad_array", f"arrays[{i}].dtype must be one of {sorted(DTYPES)}")
         _encoding(desc, i)
         dtype, shape = DTYPES[desc["dtype"]], _shape(desc, i, max_dims)
