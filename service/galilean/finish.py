@@ -55,34 +55,12 @@ def _expanded_colour(
 
 
 @nb.njit(cache=True, nogil=True)
-def _rows(
-    new: tuple,
-    old: tuple,
-    src_idx: np.ndarray,
-    deb64: np.ndarray,
-    snap: np.ndarray,
-    shape: tuple,
-    k0: int,
-    k1: int,
-    fix: bool,
-    n_mot: int,
-    n_zm: int,
-    ncol: int,
-    threshold: float,
-    n_neighbours: int,
-    mode: int,
-    track: bool,
-    same_out: np.ndarray,
-    interior: np.ndarray,
-    table: bool,
-    counts: np.ndarray,
-    margin: int,
-    out_colour: np.ndarray,
-    out_depth: np.ndarray,
-    out_debris: np.ndarray,
-    write_out: bool,
-    zs: float,
-) -> None:
+def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: np.ndarray,
+          shape: tuple, k0: int, k1: int, fix: bool, n_mot: int, n_zm: int, ncol: int,
+          threshold: float, n_neighbours: int, mode: int, track: bool, same_out: np.ndarray,
+          interior: np.ndarray, table: bool, counts: np.ndarray, margin: int,
+          out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray, write_out: bool,
+          zs: float) -> None:
     """:func:`finish`'s scan of a band's rows ``[k0, k1)`` (row ``k`` = ``z H + r``), or its fix-up.
 
     ``new`` is the new map as :func:`planes`, ``old`` the old map's colour planes,
