@@ -19,8 +19,19 @@ $(STAMP): pyproject.toml
 warmup: $(STAMP)
 	$(BIN)/holo-warmup
 
+# pytest-xdist processes for `make test`: 2 where there are 2 or more cores, none
+# (plain pytest) on one core.  Not one per core: most files start real service
+# processes (each with its own threads) and some tests bound a time, so a
+# 16-core box with 16 workers would oversubscribe; three fresh-clone runs passed
+# in a row with 2 (docs/compile-time.md).  `--dist loadfile` keeps each file's
+# tests (and its module-scoped services) in one worker.  Override:
+# `make test TEST_WORKERS=4`; plain `pytest` (or `pytest -n0`) runs serially.
+TEST_WORKERS ?= $(shell $(PYTHON) -c 'import os; \
+	n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1; \
+	print(2 if n >= 2 else 0)')
+
 test: warmup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 demo: warmup
 	$(BIN)/python -m game.full_demo --out demo-out

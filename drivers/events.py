@@ -277,7 +277,7 @@ def event_from_dict(d: Mapping[str, Any], t0_ns: int = 0) -> Event:
     try:
         t_ns = t0_ns + round(float(d["t"]) * NS_PER_S)
         return _FROM_DICT[d["kind"]](d, t_ns)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:  # Overflow: t of 1e400
         raise ProtocolError(f"not a device event: {d!r} ({exc})") from exc
 
 

@@ -34,6 +34,8 @@ from service.errors import ProtocolError
 DEFAULT_TOPICS = (b"pose", b"dials", b"status")
 #: Topics taken from the main socket when poses come from the pose-only endpoint.
 NON_POSE_TOPICS = (b"dials", b"status")
+#: A dials message's ``seq`` is below this (a 64-bit counter; larger is malformed).
+SEQ_LIMIT = 1 << 63
 
 
 @dataclass
@@ -196,8 +198,8 @@ class DeviceSubscriber:
                 raise ProtocolError("message body is not a JSON object")
             self._check_session(msg)
             handler(msg)
-        except (ProtocolError, ValueError, KeyError, TypeError, IndexError):
-            self.stats.malformed += 1
+        except (ProtocolError, ValueError, KeyError, TypeError, IndexError, OverflowError):
+            self.stats.malformed += 1  # OverflowError: a number of 1e400 read as inf
 
     @staticmethod
     def _event(msg: dict[str, Any]) -> Event:
@@ -226,6 +228,8 @@ class DeviceSubscriber:
 
     def _on_dials(self, msg: dict[str, Any]) -> None:
         seq = int(msg["seq"])
+        if not 0 <= seq < SEQ_LIMIT:
+            raise ProtocolError(f"dials seq {seq} outside 0..2^63")
         dials = tuple(int(v) for v in msg["dials"])
         buttons = tuple(bool(v) for v in msg["buttons"])
         if len(dials) != NUM_DIALS or len(buttons) != NUM_BUTTONS:

@@ -69,6 +69,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.errors import HoloError, SettingsError
 from service.mesh import Mesh
+from service.npy_file import read_npz
 from service.scene import Scene, SceneObject
 
 if TYPE_CHECKING:  # service.lod_build imports this module
@@ -607,15 +608,15 @@ def _parse_cache(folder: Path, key: str, mesh: Mesh, head: dict) -> LodChain:
         raise ValueError("the header is not this chain's (format version or key differ)")
     n, kinds = int(head["levels"]), tuple(head["kinds"])
     levels: list = [mesh]
-    with np.load(folder / f"{key}.npz", allow_pickle=False) as data:
-        for k in range(1, n):
-            if kinds[k] == "billboard":
-                from service.simplify.cloud_file import load_cloud
+    data = read_npz(folder / f"{key}.npz")
+    for k in range(1, n):
+        if kinds[k] == "billboard":
+            from service.simplify.cloud_file import load_cloud
 
-                levels.append(load_cloud(folder / f"{key}.b{k}.hbc"))
-                continue
-            levels.append(Mesh.from_triangles(data[f"vertices_{k}"], data[f"faces_{k}"],
-                                              f"{mesh.name}@{k}"))
+            levels.append(load_cloud(folder / f"{key}.b{k}.hbc"))
+            continue
+        levels.append(Mesh.from_triangles(data[f"vertices_{k}"], data[f"faces_{k}"],
+                                          f"{mesh.name}@{k}"))
     errors = np.asarray(head["errors"], np.float64)
     tris = np.asarray(head["triangles"], np.int64)
     meshes = np.array([kind != "billboard" for kind in kinds])

@@ -136,9 +136,12 @@ class Light:
         if self.kind not in ("directional", "point"):
             raise SettingsError(f"light kind must be 'directional' or 'point', got {self.kind!r}")
         v = np.asarray(self.vector, dtype=np.float64).reshape(3)
-        if not np.all(np.isfinite(v)) or (self.kind == "directional" and np.linalg.norm(v) == 0):
+        with np.errstate(over="ignore"):  # a length past float64 is refused, not a warning
+            length = float(np.sqrt(np.sum(v * v)))
+        if not np.isfinite(length) or (self.kind == "directional" and length == 0):
             raise SettingsError(
-                "light vector must be finite (and non-zero for a directional light)"
+                "light vector must be finite, of a length below 1e154 (and non-zero for a "
+                "directional light)"
             )
         object.__setattr__(self, "vector", v)
         object.__setattr__(self, "colour", tuple(float(c) for c in self.colour))

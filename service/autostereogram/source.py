@@ -16,6 +16,7 @@ from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.loaders import load_scene
+from service.npy_file import read_npy_file
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
@@ -46,9 +47,11 @@ def read_depth_npy(path: Path) -> np.ndarray:
     if magic != b"\x93NUMPY":  # else numpy's error talks of pickles
         raise SettingsError(f"{path}: not a .npy file (no NUMPY header)")
     try:
-        d = np.load(path, allow_pickle=False)
+        d = read_npy_file(path)
     except ValueError as exc:
         raise SettingsError(f"{path}: not a depth map .npy ({exc})") from None
+    except OSError as exc:
+        raise SettingsError(f"{path}: cannot read the file: {exc.strerror}") from None
     if d.ndim != 2 or d.dtype.kind not in "fiu":
         raise SettingsError(f"{path}: want a 2-D numeric depth map, got {d.shape} {d.dtype}")
     if d.size == 0:

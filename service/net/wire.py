@@ -343,7 +343,8 @@ def transform_from_wire(spec: dict[str, Any], name: str, t: Transform) -> Transf
     q = t.orientation
     if "orientation" in spec:
         q = vector(spec["orientation"], f"{name}.orientation", 4)
-        norm = float(np.linalg.norm(q))
+        with np.errstate(over="ignore"):  # [1e308] * 4: refused below, not a warning
+            norm = float(np.linalg.norm(q))
         if not 0.5 < norm < 2.0:
             raise MessageError("bad_message", f"{name}.orientation must be a unit quaternion")
         q = q / norm

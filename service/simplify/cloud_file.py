@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from service.errors import MeshFileError
+from service.npy_file import read_npy
 from service.simplify.billboard import LAYERS, BillboardCloud
 
 FORMAT = "holo-billboard-cloud"
@@ -65,10 +68,24 @@ def _header(z: zipfile.ZipFile, path: str) -> dict:
     for key in ("billboards", "source_faces"):
         if not isinstance(header.get(key), int) or header[key] < 0:
             raise MeshFileError(path, "header.json", f"{key} must be a whole number >= 0")
-    eps = header.get("eps")
-    if not isinstance(eps, int | float) or not np.isfinite(eps) or eps <= 0:
+    eps = _number(header.get("eps"))
+    if eps is None or eps <= 0:
         raise MeshFileError(path, "header.json", "eps must be a positive number")
-    return header
+    build_s = _number(header.get("build_s", 0.0))
+    if build_s is None or build_s < 0:
+        raise MeshFileError(path, "header.json", "build_s must be a number >= 0")
+    return {**header, "eps": eps, "build_s": build_s}
+
+
+def _number(value: object) -> float | None:
+    """``value`` as a finite float, or None (not a number, a bool, inf, NaN, past float)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        out = float(value)
+    except OverflowError:  # a JSON integer of 400 digits
+        return None
+    return out if math.isfinite(out) else None
 
 
 #: Largest texture side (rows or columns) of one billboard a reader accepts.
@@ -120,10 +137,10 @@ def arrays_problem(c: dict) -> tuple[str, str] | None:
 
 def _array(z: zipfile.ZipFile, path: str, name: str, n_billboards: int) -> np.ndarray:
     try:
-        arr = np.lib.format.read_array(io.BytesIO(z.read(f"{name}.npy")), allow_pickle=False)
+        arr = read_npy(z.read(f"{name}.npy"))
     except KeyError:
         raise MeshFileError(path, f"{name}.npy", "missing") from None
-    except (ValueError, OSError, EOFError) as exc:
+    except ValueError as exc:
         raise MeshFileError(path, f"{name}.npy", f"unreadable array ({exc})") from None
     problem = array_problem(name, arr, n_billboards)
     if problem is not None:
@@ -153,9 +170,9 @@ def load_cloud(path: str | Path) -> BillboardCloud:
             arrays = {name: _array(z, p, name, header["billboards"]) for name in ARRAYS}
     except zipfile.BadZipFile as exc:
         raise MeshFileError(p, "", f"not a billboard-cloud zip or truncated ({exc})") from None
-    except (zipfile.LargeZipFile, EOFError) as exc:
+    except (zipfile.LargeZipFile, EOFError, NotImplementedError, RuntimeError,
+            zlib.error) as exc:  # NotImplementedError: a damaged member's compression field
         raise MeshFileError(p, "", f"truncated or unreadable ({exc})") from None
     _check(p, arrays)
-    return BillboardCloud(**arrays, eps=float(header["eps"]),
-                          source_faces=header["source_faces"],
-                          build_s=float(header.get("build_s", 0.0)))
+    return BillboardCloud(**arrays, eps=header["eps"], source_faces=header["source_faces"],
+                          build_s=header["build_s"])

@@ -72,3 +72,20 @@ def test_not_a_depth_file(tmp_path, capsys):
     bad.write_bytes(b"not numpy at all")
     assert main([str(bad), "--out", str(tmp_path / "x.png")]) == 2
     assert "holo-sird: error:" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("old", "new", "words"), [
+    ("(20, 200)", "(100000000000,)", "need 400000000000 bytes"),  # np.load: MemoryError
+    ("'descr'", "'de(cr'", "not a readable .npy header"),  # np.load: TokenError
+])
+def test_a_damaged_npy_header_is_one_line_not_a_crash(tmp_path, capsys, old, new, words):
+    path = _npy(tmp_path, sphere(200, 20).astype(np.float32))
+    data = open(path, "rb").read()
+    end = data.index(b"\n")
+    head = data[:end].decode("latin1")
+    assert old in head
+    head = head.replace(old, new, 1).rstrip(" ")
+    open(path, "wb").write(head.ljust(end).encode("latin1") + data[end:])
+    assert main([path, "--out", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert "holo-sird: error:" in err and words in err and err.count("\n") == 1

@@ -50,6 +50,8 @@ def test_status_schema_and_validation():
         StatusEvent(0, "tracker", "exploded")
     with pytest.raises(ProtocolError):
         event_from_dict({"kind": "pose", "t": 0})
+    with pytest.raises(ProtocolError, match="not a device event"):  # json reads 1e400 as inf
+        event_from_dict({**d, "t": float("inf")})
 
 
 def test_registry_and_uniform_interface():

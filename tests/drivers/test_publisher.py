@@ -136,14 +136,17 @@ def test_subscriber_counts_gaps_skips_malformed_and_follows_a_new_session():
                 raw.send_multipart(dials(1, value=1))
                 sub.poll(0.01)
             start = sub.seq
-            for msg in ([b"dials", b"{oops"], [b"dials"], [b"pose", b"[1, 2]"],
-                        dials(start + 1, value=2), dials(start + 5, value=3),
+            huge_t = dials(start + 1, value=7)  # a number JSON reads as inf
+            huge_t[1] = huge_t[1].replace(b'"t": 0.0', b'"t": 1e400')
+            huge_seq = dials(2**70, value=8)
+            for msg in ([b"dials", b"{oops"], [b"dials"], [b"pose", b"[1, 2]"], huge_t,
+                        huge_seq, dials(start + 1, value=2), dials(start + 5, value=3),
                         dials(start + 2, value=99), dials(1, session="b", value=4)):
                 raw.send_multipart(msg)
             assert sub.wait_for(lambda s: s.session == "b", 5.0)
     finally:
         raw.close()
-    assert sub.stats.malformed == 3
+    assert sub.stats.malformed == 5
     assert sub.stats.gaps == 1 and sub.stats.missing == 3 and sub.stats.stale == 1
     assert sub.dials[0] == 4 and sub.seq == 1 and sub.stats.sessions == 2
 

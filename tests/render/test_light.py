@@ -232,6 +232,21 @@ def test_bad_settings_and_shapes_are_refused():
         shade(sa, proj[:, :2], Visibility.empty(1, 16, 16), HEAD_ON, [], 1.0)
 
 
+@pytest.mark.parametrize(("kind", "vector"), [
+    ("directional", [0, 0, 0]), ("directional", [np.nan, 0, 1]), ("point", [np.inf, 0, 0]),
+    # finite, but its length overflows: normalised it would be a silent zero or NaN light
+    ("directional", [1e308, 1e308, 0]), ("point", [0, 2e154, 0]),
+])
+def test_a_light_vector_that_cannot_be_normalised_is_refused(kind, vector):
+    with pytest.raises(SettingsError, match="light vector must be finite"):
+        Light(kind, vector)
+
+
+def test_a_far_point_light_and_a_tiny_direction_are_kept():
+    assert Light("point", [0, 1e150, 0]).vector[1] == 1e150
+    assert Light("directional", [1e-150, 0, 0]).vector[0] == 1e-150
+
+
 def test_light_benchmark_writes_its_files_and_ranks_modes(tmp_path, capsys):
     from service.bench import light_bench
 

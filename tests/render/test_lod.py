@@ -5,8 +5,10 @@ the predicted one, flicker at a threshold, a stale or corrupt cache file, bad se
 """
 
 import json
+import re
 import subprocess
 import sys
+import zipfile
 
 import numpy as np
 import pytest
@@ -105,12 +107,29 @@ def test_chain_is_ordered_and_cached(ring, chain, tmp_path):
     assert header["format"] == "holo-lod-chain" and header["levels"] == len(first.levels)
 
 
-@pytest.mark.parametrize("damage", ["truncate-npz", "garbage-json", "missing-array"])
+def _claim_huge(npz):
+    """``npz`` with its first member's header claiming 10^11 float64 (np.load: MemoryError)."""
+    with zipfile.ZipFile(npz) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    name = sorted(members)[0]
+    data = members[name]
+    end = data.index(b"\n")
+    head = re.sub(r"'shape': \([^)]*\)", "'shape': (100000000000,)", data[:end].decode("latin1"))
+    members[name] = head.rstrip(" ").ljust(end).encode("latin1") + data[end:]
+    with zipfile.ZipFile(npz, "w") as z:
+        for n, v in members.items():
+            z.writestr(n, v)
+
+
+@pytest.mark.parametrize("damage", ["truncate-npz", "garbage-json", "missing-array",
+                                    "huge-member"])
 def test_a_corrupt_cache_file_is_rebuilt_not_fatal(ring, tmp_path, damage):
     chain = build_chain(ring, cache=tmp_path)
     npz, js = tmp_path / f"{chain.key}.npz", tmp_path / f"{chain.key}.json"
     if damage == "truncate-npz":
         npz.write_bytes(npz.read_bytes()[:100])
+    elif damage == "huge-member":
+        _claim_huge(npz)
     elif damage == "garbage-json":
         js.write_text("{not json")
     else:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -83,3 +84,11 @@ def test_cut_or_flipped_bytes_and_lost_frames_are_message_errors(kind, data):
         else:
             frames[k][i] ^= data.draw(st.integers(1, 255))
     _parse(kind, [bytes(f) for f in frames])
+
+
+def test_a_huge_quaternion_is_refused_without_a_warning(recwarn):
+    from service.scene import Transform
+
+    with pytest.raises(MessageError, match="viewer.orientation must be a unit quaternion"):
+        wire.transform_from_wire({"orientation": [1e308] * 4}, "viewer", Transform())
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]

@@ -96,3 +96,41 @@ def test_not_a_zip(tmp_path):
     p.write_bytes(b"ply\nformat ascii 1.0\n")
     with pytest.raises(MeshFileError, match="not a billboard-cloud zip"):
         load_cloud(p)
+
+
+def _header_with(path, **fields):
+    with zipfile.ZipFile(path) as z:
+        header = json.loads(z.read("header.json"))
+    return json.dumps({**header, **fields}).encode()
+
+
+@pytest.mark.parametrize("fields, match", [
+    ({"build_s": "x"}, "build_s must be a number"),
+    ({"build_s": None}, "build_s must be a number"),
+    ({"build_s": [1]}, "build_s must be a number"),
+    ({"build_s": -1}, "build_s must be a number"),
+    ({"eps": 10**400}, "eps must be a positive number"),  # a JSON integer past float
+    ({"eps": True}, "eps must be a positive number"),
+    ({"eps": "0.05"}, "eps must be a positive number"),
+])
+def test_a_header_field_of_the_wrong_type_is_named(saved, fields, match):
+    _rewrite(saved, "header.json", _header_with(saved, **fields))
+    with pytest.raises(MeshFileError, match=match):
+        load_cloud(saved)
+
+
+def test_a_header_without_build_s_still_loads(saved, cloud):
+    with zipfile.ZipFile(saved) as z:
+        header = json.loads(z.read("header.json"))
+    del header["build_s"]
+    _rewrite(saved, "header.json", json.dumps(header).encode())
+    assert load_cloud(saved).build_s == 0.0
+
+
+def test_a_damaged_compression_field_is_unreadable_not_a_crash(saved):
+    data = bytearray(saved.read_bytes())
+    entry = data.index(b"PK\x01\x02")  # the first central-directory entry: method at +10
+    data[entry + 10] = 99  # no such compression method
+    saved.write_bytes(bytes(data))
+    with pytest.raises(MeshFileError, match="unreadable|truncated|not a billboard"):
+        load_cloud(saved)
