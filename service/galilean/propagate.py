@@ -121,7 +121,6 @@ def sweep(old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, src_
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
     n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
-    n_prop = n_clash = n_drop = 0
     # The advance step is step (scalars only, inlined): passing arrays to helpers
     # costs numba reference-count traffic on every call, several times the work.
     for z in range(nz):
@@ -149,14 +148,14 @@ def sweep(old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, src_
                         src_idx[p] = -1
                 if not galpixel:
                     continue
-                n_prop += 1
+                stats[0] += 1
                 if qr < 0 or qc < 0 or qr >= h or qc >= w:
-                    n_drop += 1
+                    stats[2] += 1
                     continue
                 q = (z * h + qr) * w + qc
                 mot = (vx, vy, ax, ay, vz, az)
                 if n_deb[q] == 0:
-                    n_clash += 1
+                    stats[1] += 1
                     if d >= n_dep[q]:
                         if cache_on:
                             _spill_incoming(old, p, cnew, q, fx, fy, d, mot, order, stats)
@@ -168,9 +167,6 @@ def sweep(old: tuple, new: tuple, cold: tuple, cnew: tuple, cache_on: bool, src_
                     src_idx[q] = r * w + c
         if cache_on:
             _cache_pass(cold, new, cnew, z, h, w, order, fp, fm, stats, src_idx)
-    stats[0] += n_prop
-    stats[1] += n_clash
-    stats[2] += n_drop
 
 
 @nb.njit(cache=True)
@@ -376,26 +372,17 @@ def scatter(
                 n_dep[q] = d
                 n_frac[0][q] = fx
                 n_frac[1][q] = fy
-                if order == 1:
+                if order >= 1:
                     n_mot[0][q] = vx
                     n_mot[1][q] = vy
                     n_zm[0][q] = vz
-                elif order == 2:
-                    n_mot[0][q] = vx
-                    n_mot[1][q] = vy
+                if order >= 2:
                     n_mot[2][q] = ax
                     n_mot[3][q] = ay
-                    n_zm[0][q] = vz
                     n_zm[1][q] = az
-                elif order == 3:
-                    n_mot[0][q] = vx
-                    n_mot[1][q] = vy
-                    n_mot[2][q] = ax
-                    n_mot[3][q] = ay
+                if order >= 3:
                     n_mot[4][q] = jx
                     n_mot[5][q] = jy
-                    n_zm[0][q] = vz
-                    n_zm[1][q] = az
                     n_zm[2][q] = z2
                 n_deb[q] = 0
                 n_obj[q] = ob
