@@ -94,6 +94,13 @@ class DeviceInfo:
     serial: SerialSettings = field(default_factory=SerialSettings)
 
 
+def _text(d: dict[str, Any], key: str) -> str:
+    """``d[key]``, which must be a string (TypeError names it otherwise)."""
+    if not isinstance(d[key], str):
+        raise TypeError(f"device {key} must be a string, got {d[key]!r:.40}")
+    return d[key]
+
+
 @dataclass(frozen=True)
 class LogHeader:
     """The JSON header of a log file.
@@ -139,7 +146,8 @@ class LogHeader:
         """
         try:
             devices = tuple(
-                DeviceInfo(x["name"], x["protocol"], SerialSettings(**x.get("serial", {})))
+                DeviceInfo(_text(x, "name"), _text(x, "protocol"),
+                           SerialSettings(**x.get("serial", {})))
                 for x in d["devices"]
             )
             return cls(
@@ -148,7 +156,7 @@ class LogHeader:
                 int(d["start_monotonic_ns"]),
                 dict(d.get("extra", {})),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:  # Overflow: 1e400
             raise LogFileError(f"bad log header: {exc!r}") from exc
 
     def device_index(self, name: str) -> int:

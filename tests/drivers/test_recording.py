@@ -6,6 +6,7 @@ import subprocess
 import sys
 import textwrap
 import warnings
+import zlib
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivers.recording import (
+    CRC,
+    FILE_HEAD,
     MAGIC,
+    VERSION,
     DeviceInfo,
     LogHeader,
     LogReader,
@@ -174,6 +178,23 @@ def test_torn_or_corrupt_file_header_raises(tmp_path):
         LogReader(tmp_path / "c.hlog")
     with pytest.raises(LogFileError):
         LogReader(tmp_path / "missing.hlog")
+
+
+@pytest.mark.parametrize(("change", "words"), [
+    (lambda h: h.update(start_wall_ns=float("inf")), "OverflowError"),  # written as 1e400
+    (lambda h: h["devices"][0].update(name=None), "device name must be a string"),
+    (lambda h: h["devices"][1].update(protocol=7), "device protocol must be a string"),
+    (lambda h: h.update(devices=[3]), "TypeError"),
+])
+def test_a_crafted_header_with_a_valid_crc_is_a_log_file_error(tmp_path, change, words):
+    js = header().to_json()
+    change(js)
+    body = json.dumps(js).replace("Infinity", "1e400").encode()
+    p = tmp_path / "x.hlog"
+    p.write_bytes(FILE_HEAD.pack(MAGIC, VERSION, len(body)) + body
+                  + CRC.pack(zlib.crc32(body)))
+    with pytest.raises(LogFileError, match=f"bad log header: .*{words}"):
+        LogReader(p)
 
 
 def test_writer_rejects_unknown_device_existing_file_and_closed_use(tmp_path):
