@@ -138,6 +138,9 @@ class Mesh:
 #: at 1e150 rendered blank: every face culled on an infinite normal; at 1e300 it was
 #: refused as "degenerate").  1e30 leaves that far behind, and no real mesh comes near.
 MAX_COORDINATE = 1e30
+#: Most polygons a mesh sent to the service or built from a primitive's parameters
+#: may have (``service.net.wire`` refuses larger messages; about 60x the Stanford bunny).
+MAX_POLYGONS = 4_000_000
 
 
 def too_large(vertices: np.ndarray) -> tuple[str, int] | None:

@@ -15,7 +15,7 @@ from itertools import combinations
 import numpy as np
 
 from service.errors import SettingsError
-from service.mesh import Mesh
+from service.mesh import MAX_POLYGONS, Mesh
 
 
 def _need(name: str, value: float, low: float, integer: bool = False) -> None:
@@ -24,6 +24,17 @@ def _need(name: str, value: float, low: float, integer: bool = False) -> None:
     if not (ok_type and value >= low):
         kind = "an integer" if integer else "a finite number"
         raise SettingsError(f"{name} must be {kind} >= {low}, got {value!r}")
+
+
+def _budget(name: str, polygons: int) -> None:
+    """Raise :class:`SettingsError` if a primitive's parameters ask for too many polygons.
+
+    Checked before anything is allocated: ``n_lat = n_lon = 100000`` in a scene file
+    asked for 10^10 polygons and the process was killed for memory.
+    """
+    if polygons > MAX_POLYGONS:
+        raise SettingsError(f"{name} would have {polygons:,} polygons "
+                            f"(at most {MAX_POLYGONS:,}); lower its resolution")
 
 
 def signed_volume(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray) -> float:
@@ -140,6 +151,7 @@ def sphere(radius: float = 0.5, n_lat: int = 16, n_lon: int = 32) -> Mesh:
     _need("sphere radius", radius, 1e-12)
     _need("sphere n_lat", n_lat, 2, integer=True)
     _need("sphere n_lon", n_lon, 3, integer=True)
+    _budget("sphere", n_lat * n_lon)
     theta = np.pi * np.arange(n_lat + 1) / n_lat
     profile = np.stack([radius * np.sin(theta), radius * np.cos(theta)], 1)
     profile[[0, -1], 0] = 0.0
@@ -162,6 +174,7 @@ def torus(R: float = 0.5, r: float = 0.15, n_major: int = 32, n_minor: int = 12)
     _need("torus R", R, r * (1 + 1e-9))
     _need("torus n_major", n_major, 3, integer=True)
     _need("torus n_minor", n_minor, 3, integer=True)
+    _budget("torus", n_major * n_minor)
     u = 2 * np.pi * np.arange(n_major)[:, None] / n_major
     v = 2 * np.pi * np.arange(n_minor)[None, :] / n_minor
     rad = R + r * np.cos(v)
@@ -206,12 +219,13 @@ def player(detail: int = 4, size: float = 0.35) -> Mesh:
     ----------
     detail : int
         Resolution level (>= 1): ``6 * detail`` segments around, ``3 * detail`` nose
-        bands; about ``115 * detail`` polygons.
+        bands; about ``24 * detail**2`` polygons (452 at 4).
     size : float
         Length of the ship along y in world units.
     """
     _need("player detail", detail, 1, integer=True)
     _need("player size", size, 1e-12)
+    _budget("player", 6 * detail * (4 * detail + 2) + 32)  # a bound: 452 at 4
     t = np.linspace(0.0, 1.0, 3 * detail + 1)
     nose = np.stack([0.12 * np.sin(t * np.pi / 2), 0.1 + 0.4 * np.cos(t * np.pi / 2)], 1)
     body_y = np.linspace(0.1, -0.35, detail + 1)[1:]
@@ -296,6 +310,7 @@ def attacker(detail: int = 8, radius: float = 0.1, spike: float = 0.9) -> Mesh:
     _need("attacker detail", detail, 1, integer=True)
     _need("attacker radius", radius, 1e-12)
     _need("attacker spike", spike, 0.0)
+    _budget("attacker", 20 * detail**2)
     unit, tris = geodesic_sphere(detail)
     dirs = unit[:12]
     near = np.max(unit @ dirs.T, axis=1)

@@ -21,6 +21,7 @@ import numpy as np
 import zmq
 
 from service.errors import MeshError, MessageError, SettingsError
+from service.mesh import MAX_POLYGONS as MESH_MAX_POLYGONS
 from service.mesh import Mesh
 from service.scene import Light, Material, MotionState, Scene, SceneObject, Transform
 
@@ -296,7 +297,7 @@ def int_array(v: Any, name: str, ndim: int, max_rows: int) -> np.ndarray:
 
 # ------------------------------------------------------------------ scenes
 MAX_VERTICES = 2_000_000
-MAX_POLYGONS = 4_000_000
+MAX_POLYGONS = MESH_MAX_POLYGONS
 MAX_OBJECTS = 4096
 MOTION_FIELDS = ("velocity", "acceleration", "angular_velocity", "angular_acceleration")
 

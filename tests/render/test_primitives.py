@@ -121,6 +121,16 @@ def test_bad_parameters_raise_settings_error(build):
         build()
 
 
+@pytest.mark.parametrize("build", [
+    lambda: sphere(1.0, 100_000, 100_000), lambda: torus(1.0, 0.3, 2001, 2000),
+    lambda: player(500), lambda: attacker(500),
+])
+def test_a_resolution_past_the_polygon_limit_is_refused_before_allocating(build):
+    # sphere(1, 1e5, 1e5) asked for 10^10 polygons: the process was killed for memory
+    with pytest.raises(SettingsError, match=r"would have [\d,]+ polygons \(at most 4,000,000\)"):
+        build()
+
+
 def test_primitive_table_names_builders():
     assert set(PRIMITIVES) == {"cube", "sphere", "torus", "player", "attacker"}
     for build in PRIMITIVES.values():

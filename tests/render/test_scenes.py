@@ -174,6 +174,11 @@ BAD_SCENES = [
     ("[[object]]\nprimitive = 'sphere'\nparams = { radus = 1 }\n", "object 1", "radus"),
     ("[[object]]\nprimitive = 'sphere'\nparams = { radius = -1 }\n", "object 1", "radius"),
     ("[[object]]\nprimitive = 'sphere'\nparams = { n_lat = 'many' }\n", "object 1", "n_lat"),
+    # 10^10 polygons: the loader was killed for memory
+    ("[[object]]\nprimitive = 'sphere'\nparams = { n_lat = 100000, n_lon = 100000 }\n",
+     "object 1", "would have 10,000,000,000 polygons"),
+    ("[[light]]\ndirection = [1e308, 1e308, 0]\n[[object]]\nprimitive = 'cube'\n", "light 1",
+     "length below"),
     ("[[object]]\nprimitive = 'cube'\nfile = 'x.ply'\n", "object 1", "exactly one"),
     ("[[object]]\n", "object 1", "exactly one"),
     ("[[object]]\nprimitive = 'cube'\nposition = [1, 2]\n", "object 1", "3 numbers"),
