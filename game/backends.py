@@ -367,6 +367,9 @@ class ServiceBackend:
         #: the version of the scene loaded last (its ``load_scene`` reply's ``scene``;
         #: None from a service without it): frames of older versions are not shown
         self.scene_version: int | None = None
+        #: frames not shown because they carried no (Z, R, C, 3) uint8 ``colour`` array:
+        #: another client's ``set_display`` left ``colour`` out of the encodings
+        self.unusable_frames = 0
         #: frames not shown because they came from an older scene
         self.stale_frames = 0
         self._lod_seen: set[str] = set()
@@ -559,6 +562,9 @@ class ServiceBackend:
         if self.scene_version is not None and scene is not None and scene < self.scene_version:
             self.stale_frames += 1  # rendered (or refreshed) from a scene replaced since
             return None
+        if not _shows_colour(arrays):
+            self.unusable_frames += 1
+            return None
         return _view(header, arrays)
 
     def close(self) -> None:
@@ -586,11 +592,17 @@ def _sird_output(display: DisplaySettings) -> SirdOutput | None:
         return None
 
 
+def _shows_colour(arrays: dict) -> bool:
+    """Whether a frame has the colour array a game window draws: (Z, R, C, 3) uint8."""
+    colour = arrays.get("colour")
+    return (isinstance(colour, np.ndarray) and colour.dtype == np.uint8 and colour.ndim == 4
+            and colour.shape[3] == 3)
+
+
 def _view(header: dict, arrays: dict) -> FrameView:
-    pose_t = header.get("pose_t_ns")
-    latency = (header["t_ns"] - pose_t) / 1e6 if pose_t else None
-    if latency is None and header.get("t_render_ns"):
-        latency = (header["t_ns"] - header["t_render_ns"]) / 1e6
+    since = next((header[k] for k in ("pose_t_ns", "t_render_ns")
+                  if type(header.get(k)) is int and header[k] > 0), None)
+    latency = (header["t_ns"] - since) / 1e6 if since is not None else None
     return FrameView(
         colour=arrays["colour"],
         seq=int(header.get("seq", 0)),

@@ -454,6 +454,8 @@ class GameClient:
             "disconnects": self.disconnects,
             # frames of a scene replaced since (the game over's), not shown
             "stale_frames": getattr(self.backend, "stale_frames", 0),
+            # frames with no colour to draw (another client's set_display), not shown
+            "unusable_frames": getattr(self.backend, "unusable_frames", 0),
             "latency_ms_p50": float(np.median(self.latencies)) if self.latencies else None,
             "lod_notes": [note for _, note in self.lod_notes],
             "seconds": round(elapsed_s, 2),
