@@ -197,7 +197,8 @@ def _image(colour: np.ndarray, mode: str, zone: int, sird: np.ndarray | None) ->
     """The (R, C, 3) picture of a mode; a grey stereogram (R, C) is shown as RGB."""
     if mode == "autostereogram" and sird is not None:
         return np.repeat(sird[:, :, None], 3, axis=2)
-    return IMAGES[mode](colour, zone)
+    # a frame may have fewer zones than the game's display (another client's set_display)
+    return IMAGES[mode](colour, min(max(zone, 0), colour.shape[0] - 1))
 
 
 class GameWindow:

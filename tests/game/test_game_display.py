@@ -38,6 +38,17 @@ def test_every_mode_draws_its_zones(pygame_headless, mode, tmp_path):
     assert window.screenshot(tmp_path / "s.png").stat().st_size > 0
 
 
+@pytest.mark.parametrize("mode", ["head", "zone"])
+def test_a_zone_past_the_frames_zones_shows_the_last_zone(pygame_headless, mode):
+    # another client's set_display can leave frames with fewer zones than the game has
+    colour = np.zeros((2, 30, 40, 3), np.uint8)
+    colour[1, :, :, 2] = 200  # zone 1 blue
+    window = GameWindow((400, 300))
+    window.draw(colour, mode, 4, Hud(score=1))  # was an IndexError
+    pixels = window.pixels()
+    assert np.count_nonzero((pixels[..., 2] == 200) & (pixels[..., 0] == 0)) > 1000
+
+
 def test_autostereogram_is_a_mode_and_hud_text():
     assert "autostereogram" in MODES and "autostereogram" in IMAGES and not UNAVAILABLE
     text = Hud(score=5, latency_ms=None).text()
