@@ -388,13 +388,24 @@ class PendingRequest:
 
         Also False when the socket cannot take it at once (the reply is then not
         waited for either).
+
+        Raises
+        ------
+        RequestTooLargeError
+            When the request breaks the protocol's default size caps (nothing is
+            sent), as :meth:`ServiceClient.request` checks them.
         """
         if self._waiting is not None:
             return False
+        rid = next(self._ids)
+        frames = protocol.request(msg_type, rid, fields)
+        try:
+            protocol.check_request_size(frames)
+        except MessageError as exc:
+            raise RequestTooLargeError(exc.code, f"{msg_type}: {exc.message}; not sent") from exc
         if self._sock is None:
             self._sock = _dealer(self._ctx, self.address, self.curve_keys, 0)
-        rid = next(self._ids)
-        if not wire.send(self._sock, protocol.request(msg_type, rid, fields), timeout_ms=0):
+        if not wire.send(self._sock, frames, timeout_ms=0):
             return False
         self._waiting = (rid, time.monotonic() + self.timeout_s)
         self.sent += 1

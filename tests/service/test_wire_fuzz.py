@@ -92,3 +92,16 @@ def test_a_huge_quaternion_is_refused_without_a_warning(recwarn):
     with pytest.raises(MessageError, match="viewer.orientation must be a unit quaternion"):
         wire.transform_from_wire({"orientation": [1e308] * 4}, "viewer", Transform())
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_a_pending_request_past_the_size_caps_is_not_sent():
+    from service.net.client import PendingRequest, RequestTooLargeError
+
+    req = PendingRequest("tcp://127.0.0.1:9", timeout_s=0.1)  # nothing listens: not reached
+    try:
+        with pytest.raises(RequestTooLargeError, match=r"stats: header has \d+ bytes"):
+            req.send("stats", note="x" * (2 << 20))  # a 2 MiB header (cap 1 MiB)
+        assert not req.waiting and req.sent == 0
+        assert req.send("stats") and req.waiting  # a small one still goes out
+    finally:
+        req.close()
