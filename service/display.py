@@ -27,6 +27,11 @@ import numpy as np
 
 from service.errors import SettingsError
 
+#: Most pixels of all zones together (zones x cols x rows): 64 zones of 1024x1024, or one
+#: of 8192x8192.  Frames of this size take a few GB; 64 zones of 8192x8192 asked
+#: holo-render for a 16 GiB buffer first, and a MemoryError was its answer.
+MAX_PIXELS = 64 * 1024 * 1024
+
 
 @dataclass(frozen=True)
 class DisplaySettings:
@@ -58,6 +63,11 @@ class DisplaySettings:
         if not (1 <= self.cols <= 8192 and 1 <= self.rows <= 8192):
             raise SettingsError(
                 f"display size must be 1..8192 each way, got {self.cols}x{self.rows}"
+            )
+        if self.zones * self.cols * self.rows > MAX_PIXELS:
+            raise SettingsError(
+                f"{self.zones} zones of {self.cols}x{self.rows} are "
+                f"{self.zones * self.cols * self.rows:,} pixels (at most {MAX_PIXELS:,})"
             )
         if not (np.isfinite(self.width) and self.width > 0):
             raise SettingsError(f"display width must be > 0, got {self.width}")

@@ -15,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from service.display import DisplaySettings
+from service.display import MAX_PIXELS, DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.light import EVALUATIONS, MODELS
 from service.net import protocol, wire
@@ -341,8 +341,8 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
     if "lod_budget_ms" in req:  # ms per render; 0: no time budget
         kw["lod_budget_ms"] = wire.number(req["lod_budget_ms"], "lod_budget_ms", 0.0, 1e6)
     kw.update(_quality_fields(req))
-    if disp["cols"] * disp["rows"] * disp["zones"] > 64 * 1024 * 1024:
-        raise MessageError("too_large", "display has more than 64 Mi pixels")
+    if disp["cols"] * disp["rows"] * disp["zones"] > MAX_PIXELS:
+        raise MessageError("too_large", f"display has more than {MAX_PIXELS:,} pixels")
     return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
 
 

@@ -83,6 +83,10 @@ def test_missing_file_and_bad_size_are_clear(tmp_path):
     assert r.returncode == 2 and "320x240" in r.stderr
     r = run("builtin:demo", "--zones", "0", "--out", str(tmp_path))
     assert r.returncode == 2 and "zones" in r.stderr
+    # 64 zones of 8192x8192: a 16 GiB buffer was asked for first (MemoryError)
+    r = run("builtin:demo", "--zones", "64", "--size", "8192x8192", "--out", str(tmp_path))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "4,294,967,296 pixels (at most 67,108,864)" in r.stderr
 
 
 def test_help_lists_the_options():
