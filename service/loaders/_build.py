@@ -69,12 +69,27 @@ def to_float(path: str | Path, where: str, token: str) -> float:
     return value
 
 
+#: Integers in mesh files are below this in magnitude (an int64 holds them); a larger
+#: index or count is refused, not an OverflowError where numpy takes it.
+INT_LIMIT = 1 << 62
+
+
+def bounded_int(token: str) -> int:
+    """``int(token)``; ValueError if not an integer, OverflowError past :data:`INT_LIMIT`."""
+    value = int(token)
+    if not -INT_LIMIT < value < INT_LIMIT:
+        raise OverflowError(token)
+    return value
+
+
 def to_int(path: str | Path, where: str, token: str, what: str) -> int:
     """Parse an integer (``what`` names it in messages) or raise at ``where``."""
     try:
-        return int(token)
+        return bounded_int(token)
     except ValueError:
         raise MeshFileError(str(path), where, f"{what} is not an integer: {token[:40]!r}") from None
+    except OverflowError:
+        raise MeshFileError(str(path), where, f"{what} is out of range: {token[:40]!r}") from None
 
 
 def pad_flat(flat: np.ndarray, counts: np.ndarray) -> np.ndarray:

@@ -17,7 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from service.errors import MeshFileError, SettingsError
-from service.loaders._build import decode_text, finish_mesh, pad_flat, read_bytes, to_int
+from service.loaders._build import (
+    bounded_int,
+    decode_text,
+    finish_mesh,
+    pad_flat,
+    read_bytes,
+    to_int,
+)
 from service.mesh import Mesh
 from service.mesh_repair import MeshRepair
 
@@ -151,7 +158,7 @@ def _ascii_record(
                 items = tokens[i + 1 : i + 1 + n]
                 if len(items) < n:
                     raise IndexError
-                values.append([int(t) for t in items] if prop.dtype[0] != "f" else items)
+                values.append([bounded_int(t) for t in items] if prop.dtype[0] != "f" else items)
                 i += 1 + n
             else:
                 values.append(float(tokens[i]))
@@ -162,6 +169,8 @@ def _ascii_record(
     except ValueError:
         reason = "a value is not a number of the declared type"
         raise MeshFileError(str(path), where, reason) from None
+    except OverflowError:
+        raise MeshFileError(str(path), where, "an integer value is out of range") from None
     if i != len(tokens) and strict:
         raise MeshFileError(str(path), where, "more values than the declared properties")
     return values, i != len(tokens)
