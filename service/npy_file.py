@@ -28,8 +28,8 @@ _HEADER_ERRORS = (ValueError, SyntaxError, tokenize.TokenError, EOFError, TypeEr
                   RecursionError)
 #: What reading a damaged zip raises (a member's compression field damaged:
 #: NotImplementedError; an encrypted member: RuntimeError).
-ZIP_ERRORS = (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError,
-              NotImplementedError, RuntimeError, zlib.error)
+ZIP_ERRORS = (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError,
+              RuntimeError, zlib.error)
 
 
 def read_npy(data: bytes) -> np.ndarray:
@@ -96,6 +96,6 @@ def read_npz(path: str | Path) -> dict[str, np.ndarray]:
                     out[name.removesuffix(".npy")] = read_npy(z.read(name))
                 except ValueError as exc:
                     raise ValueError(f"{name}: {exc}") from None
-    except ZIP_ERRORS as exc:
+    except (*ZIP_ERRORS, OSError) as exc:
         raise ValueError(f"not a readable .npz ({type(exc).__name__}: {exc})"[:200]) from None
     return out

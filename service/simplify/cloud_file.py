@@ -14,13 +14,12 @@ import io
 import json
 import math
 import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
 
 from service.errors import MeshFileError
-from service.npy_file import read_npy
+from service.npy_file import ZIP_ERRORS, read_npy
 from service.simplify.billboard import LAYERS, BillboardCloud
 
 FORMAT = "holo-billboard-cloud"
@@ -170,8 +169,7 @@ def load_cloud(path: str | Path) -> BillboardCloud:
             arrays = {name: _array(z, p, name, header["billboards"]) for name in ARRAYS}
     except zipfile.BadZipFile as exc:
         raise MeshFileError(p, "", f"not a billboard-cloud zip or truncated ({exc})") from None
-    except (zipfile.LargeZipFile, EOFError, NotImplementedError, RuntimeError,
-            zlib.error) as exc:  # NotImplementedError: a damaged member's compression field
+    except ZIP_ERRORS as exc:  # NotImplementedError: a damaged member's compression field
         raise MeshFileError(p, "", f"truncated or unreadable ({exc})") from None
     _check(p, arrays)
     return BillboardCloud(**arrays, eps=header["eps"], source_faces=header["source_faces"],
