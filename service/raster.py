@@ -70,8 +70,12 @@ def setup_xyz(
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _edge_x(x0: float, y0: float, x1: float, y1: float, y: float) -> float:
-    """X where the edge (x0, y0)-(x1, y1) (with y0 < y1) crosses the line at y."""
-    return x0 + (x1 - x0) * (y - y0) / (y1 - y0)
+    """X where the edge (x0, y0)-(x1, y1) (with y0 < y1) crosses the line at y.
+
+    The fraction of the edge's height, ``(y - y0) / (y1 - y0)``, is taken first: it
+    depends on rows only, so :func:`_zone_spans` finds it once for every zone.
+    """
+    return x0 + (x1 - x0) * ((y - y0) / (y1 - y0))
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -597,16 +601,19 @@ def _zone_spans(
 
     ``xs`` (N, 3, Z): row ``j`` holds the triangle's corners (:func:`_setup_zones`).
 
-    Which short edge the row crosses depends on y alone, so it is chosen once; the
-    loop over zones has no branch left and its divisions run side by side.
+    Which short edge the row crosses, and how far down each edge the row lies,
+    depend on y alone (zones share rows), so both are found once: the loop over
+    zones has no branch and no division left (:func:`_edge_x`'s arithmetic).
     """
     upper = y < by
     s0 = 0 if upper else 1  # the short edge: a-b above corner b, b-c below
     ys0 = ay if upper else by
     ys1 = by if upper else cy
+    f_long = (y - ay) / (cy - ay)
+    f_short = (y - ys0) / (ys1 - ys0)
     for z in range(xs.shape[2]):
-        x_long = xs[j, 0, z] + (xs[j, 2, z] - xs[j, 0, z]) * (y - ay) / (cy - ay)
-        x_short = xs[j, s0, z] + (xs[j, s0 + 1, z] - xs[j, s0, z]) * (y - ys0) / (ys1 - ys0)
+        x_long = xs[j, 0, z] + (xs[j, 2, z] - xs[j, 0, z]) * f_long
+        x_short = xs[j, s0, z] + (xs[j, s0 + 1, z] - xs[j, s0, z]) * f_short
         xl = min(x_long, x_short)
         xr = max(x_long, x_short)
         spans[0, z] = max(int(np.ceil(xl - 0.5)), 0)
