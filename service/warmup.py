@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from service.display import DisplaySettings
+from service.numba_patches import faster_copy_propagation
 from service.signals import end_process
 
 __all__ = [
@@ -607,6 +608,7 @@ def warm_up(
     -------
     WarmupReport
     """
+    faster_copy_propagation()  # before anything compiles: 12 % less CPU (docs/compile-time.md)
     names = [n for n in JOBS if only is None or n in only]
     kit = _Kit()
     report = _Progress(len(names), progress)
