@@ -107,7 +107,7 @@ def assert_all_gone(procs: dict[int, int]) -> None:
 
 
 def running_game(demo: subprocess.Popen) -> dict[int, int]:
-    """The demo's process tree once all of its children run the game and the service.
+    """The demo's process tree once its children run the game, the service and holo-devices.
 
     A child counts once it runs its own program: between fork and exec its
     ``/proc/<pid>/cmdline`` is still the demo's (a loaded machine once showed the
@@ -119,10 +119,12 @@ def running_game(demo: subprocess.Popen) -> dict[int, int]:
         kids = tree(demo.pid)
         direct = [p for p in kids if (st := stat(p)) and st[1] == demo.pid]
         programs = " ".join(cmdline(p) for p in kids)
-        running = all(name in programs for name in ("game.cli", "service.cli_service"))
+        running = all(name in programs
+                      for name in ("game.cli", "service.cli_service", "drivers.cli_devices"))
         return kids if len(direct) >= CHILDREN and running else {}
 
-    return wait_until(started, 120, f"{CHILDREN} children, the game and the service among them")
+    return wait_until(started, 120,
+                      f"{CHILDREN} children running the game, the service and holo-devices")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
