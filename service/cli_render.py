@@ -351,7 +351,8 @@ def _main(args: argparse.Namespace) -> int:
     else:
         p = report["polygons"]
         print(
-            f"{p['in']} polygons, {p['culled']} culled, {p['drawn']} drawn; "
+            f"{p['in']} polygons, {p['culled']} culled, {p['kept']} kept, "
+            f"{p['drawn']} seen in a zone; "
             f"{report['ms']['total']:.1f} ms; wrote {report['out']}/"
         )
         q = report["quality"]
