@@ -205,3 +205,25 @@ def test_holo_simplify_names_a_negative_error_as_such(tmp_path):
     assert proc.returncode == 2
     last = proc.stderr.strip().splitlines()[-1]
     assert last == "holo-simplify: error: argument --error: must be > 0, got -1%", last
+
+
+def test_a_file_of_the_wrong_kind_names_every_kind_the_command_reads(tmp_path):
+    """The loaders' own line named the mesh extensions only, not .toml, .npy or builtin:."""
+    picture = tmp_path / "zone-02.png"
+    picture.write_bytes(b"\x89PNG\r\n\x1a\n")
+    line = _one_line_error(_run("service.cli_render", str(picture)), "holo-render",
+                           "not a file this reads", ".toml", ".hbc", ".ply", "builtin:NAME")
+    assert ".npy" not in line
+    _one_line_error(_run("service.cli_sird", str(picture), "--out", str(tmp_path / "s.png")),
+                    "holo-sird", "not a file this reads", ".npy", ".toml", "builtin:NAME")
+
+
+def test_a_missing_billboard_cloud_is_named_first_without_errno(tmp_path):
+    """Before: 'holo-render: error: [Errno 2] No such file or directory: 'x.hbc''."""
+    missing = tmp_path / "x.hbc"
+    line = _one_line_error(_run("service.cli_render", str(missing), "--out",
+                                str(tmp_path / "out")), "holo-render")
+    assert line == f"holo-render: error: {missing}: No such file or directory"
+    line = _one_line_error(_run("service.cli_sird", str(missing), "--out",
+                                str(tmp_path / "s.png")), "holo-sird")
+    assert line == f"holo-sird: error: {missing}: No such file or directory"
