@@ -227,3 +227,12 @@ def test_a_missing_billboard_cloud_is_named_first_without_errno(tmp_path):
     line = _one_line_error(_run("service.cli_sird", str(missing), "--out",
                                 str(tmp_path / "s.png")), "holo-sird")
     assert line == f"holo-sird: error: {missing}: No such file or directory"
+
+
+def test_holo_replay_names_a_missing_log_once(tmp_path):
+    """Before: 'x.hlog: cannot open: [Errno 2] No such file or directory: 'x.hlog''."""
+    missing = tmp_path / "x.hlog"
+    proc = _run("drivers.cli_replay", str(missing), "--dump")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"holo-replay: {missing}: cannot open: No such file or directory")
