@@ -172,7 +172,7 @@ def open_source(args: argparse.Namespace) -> LogReader | RawCaptureReader:
         with open(args.file, "rb") as f:
             head = f.read(len(MAGIC))
     except OSError as exc:
-        raise LogFileError(f"{args.file}: cannot open: {exc}") from exc
+        raise LogFileError(f"{args.file}: cannot open: {exc.strerror or exc}") from exc
     if head == MAGIC:
         return LogReader(args.file, warn=False)
     if args.protocol is None:

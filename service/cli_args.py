@@ -228,3 +228,10 @@ def output_problem(path: str, *, folder: bool = False) -> str | None:
     if not os.access(parent, os.W_OK | os.X_OK):
         return f"{path}: cannot write in {parent} (permission denied)"
     return None
+
+
+def os_error_text(exc: OSError) -> str:
+    """``PATH: REASON`` for an OSError (``str(exc)`` reads ``[Errno 2] ...: 'PATH'``)."""
+    if exc.filename is not None and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    return exc.strerror or str(exc)

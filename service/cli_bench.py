@@ -82,7 +82,8 @@ def usage() -> str:
         "benchmarks:",
     ]
     lines += [f"  {name:10s} {text}" for name, (_, text) in BENCHES.items()]
-    lines += ["", EXIT_RULE]
+    lines += ["", EXIT_RULE,
+              "1: quality found a frame over its error budget, or report ran no benchmark."]
     return "\n".join(lines)
 
 

@@ -28,6 +28,7 @@ from service.cli_args import (
     add_size_option,
     float_range,
     int_range,
+    os_error_text,
     output_problem,
     plain_help,
 )
@@ -36,7 +37,7 @@ from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame import Frame, write_quilt, write_strip, write_zones
 from service.light import EVALUATIONS, MODELS, LightSettings
-from service.loaders import load_scene
+from service.loaders import MESH_LOADERS, SCENE_EXTENSIONS, load_scene
 from service.lod_cli import add_lod_options, budget_frames, lod_settings, lod_state
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
@@ -125,6 +126,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="print one JSON object with settings, counts and timings",
     )
     return p
+
+
+def scene_problem(spec: str, first: tuple[str, ...] = ()) -> str | None:
+    """Why ``spec`` names no scene this command reads (by its extension), or None.
+
+    The loaders' own message names the mesh extensions only ("unknown mesh file
+    extension '.png' (.hobj, .obj, .ply)"), not scene files nor ``builtin:``.
+    ``first`` adds extensions the command reads besides scenes (holo-sird's ``.npy``).
+    """
+    if spec.startswith("builtin:"):
+        return None
+    known = (*first, *SCENE_EXTENSIONS, ".hbc", *sorted(MESH_LOADERS))
+    if Path(spec).suffix.lower() in known:
+        return None
+    return (f"{spec}: not a file this reads: want {', '.join(known)} or builtin:NAME "
+            f"({', '.join(SCENES)})")
 
 
 def _load(spec: str, strict: bool = False) -> tuple[Scene, list[str]]:
@@ -324,6 +341,10 @@ def occlusion_counters(stats: dict, depth: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
+    problem = scene_problem(args.scene)
+    if problem:
+        print(f"holo-render: error: {problem}", file=sys.stderr)
+        return 2
     problem = output_problem(args.out, folder=True)
     try:  # before the render, not after it
         if not problem:
@@ -344,14 +365,15 @@ def _main(args: argparse.Namespace) -> int:
         print(f"holo-render: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"holo-render: error: {exc}", file=sys.stderr)
+        print(f"holo-render: error: {os_error_text(exc)}", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(report))
     else:
         p = report["polygons"]
         print(
-            f"{p['in']} polygons, {p['culled']} culled, {p['drawn']} drawn; "
+            f"{p['in']} polygons, {p['culled']} culled, {p['kept']} kept, "
+            f"{p['drawn']} seen in a zone; "
             f"{report['ms']['total']:.1f} ms; wrote {report['out']}/"
         )
         q = report["quality"]

@@ -285,6 +285,10 @@ KEY_FILES = ("server.key", "server.key_secret", "client.key", "client.key_secret
 def _print_keys(directory: str, prog: str = "holo-service") -> int:
     """Make the keys in ``directory`` and print where each is; 2 if it cannot."""
     folder = Path(directory)
+    if folder.exists() and not folder.is_dir():  # mkdir's own word here is "File exists"
+        print(f"{prog}: {directory}: not a folder; name a folder for the keys",
+              file=sys.stderr)
+        return EXIT_USAGE
     there = [name for name in KEY_FILES if (folder / name).exists()]
     if there:  # a new server key would lock out every client given the old one
         print(f"{prog}: {directory} already holds keys ({', '.join(there)}); "

@@ -39,9 +39,11 @@ from service.cli_args import (
     add_size_option,
     float_range,
     int_range,
+    os_error_text,
     output_problem,
     plain_help,
 )
+from service.cli_render import scene_problem
 from service.errors import HoloError
 from service.png import write_png
 from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
@@ -139,6 +141,10 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
     args.size_given = _size_given(argv)
+    problem = scene_problem(args.input, first=(".npy",))
+    if problem:
+        print(f"holo-sird: error: {problem}", file=sys.stderr)
+        return EXIT_USAGE
     problem = output_problem(args.out)
     if problem:
         print(f"holo-sird: error: --out {problem}", file=sys.stderr)
@@ -150,7 +156,8 @@ def _main(args: argparse.Namespace) -> int:
     try:
         report = run(args)
     except (HoloError, OSError) as exc:
-        print(f"holo-sird: error: {exc}", file=sys.stderr)
+        text = os_error_text(exc) if isinstance(exc, OSError) else str(exc)
+        print(f"holo-sird: error: {text}", file=sys.stderr)
         return EXIT_USAGE
     if args.json:
         print(json.dumps(report))

@@ -27,16 +27,20 @@ before anything starts; relative paths are relative to the current directory.
 Each program's output lines are copied to stderr, prefixed with its name; stdout
 has ``holo-up``'s own lines: where each program listens, then ``holo-up: running``.
 Ctrl-C or SIGTERM stops them all, the last started first, and exits 130 / 143 (the
-rule of :mod:`service.signals`); a program that fails or exits on its own stops the
-others too (exit status 1, naming it and its last lines); a bad file is exit
-status 2 with one line naming the file and the table.
+rule of :mod:`service.signals`; SIGHUP, the terminal closing, 129): each program runs
+in a process group of its own, so a Ctrl-C at the terminal reaches ``holo-up`` alone;
+a program that fails or exits on its own stops the others too (exit status 1, naming
+it and its last lines); a bad file is exit status 2 with one line naming the file and
+the table.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import shlex
+import signal
 import subprocess
 import sys
 import threading
@@ -55,6 +59,7 @@ from service.signals import (
     EXIT_OK,
     EXIT_RULE,
     EXIT_USAGE,
+    STOP_SIGNALS,
     end_process,
     exit_status,
     stop_on_signals,
@@ -210,6 +215,18 @@ def check_options(part: Part, where: str) -> None:
         refuse("give tracker and/or dials, or a [sim.tracker] / [sim.dials] table")
 
 
+#: Each program in a process group of its own (POSIX).  A Ctrl-C at the terminal
+#: goes to the whole foreground group at once: the simulators then ended before
+#: holo-devices, which reported them disconnected, and the tracker never got its stop
+#: command.  Now holo-up alone gets it and stops them in order, the last started first.
+OWN_GROUP: dict[str, int] = {"process_group": 0} if os.name == "posix" else {}
+
+#: What stops holo-up: SIGINT, SIGTERM and, where there is one, SIGHUP (the terminal
+#: closed), which the programs, in their own groups, no longer get themselves.
+UP_SIGNALS: tuple[int, ...] = STOP_SIGNALS + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP")
+                                              else ())
+
+
 class Child:
     """A started program whose output lines are kept and copied to stderr.
 
@@ -223,7 +240,8 @@ class Child:
         self.part = part
         self.lines: dict[str, list[str]] = {"out": [], "err": []}
         self.p = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                  stdin=subprocess.DEVNULL, text=True, bufsize=1)
+                                  stdin=subprocess.DEVNULL, text=True, bufsize=1,
+                                  **OWN_GROUP)
         self.threads = [threading.Thread(target=self._pump, args=(s, k), daemon=True)
                         for s, k in ((self.p.stdout, "out"), (self.p.stderr, "err"))]
         for t in self.threads:
@@ -398,7 +416,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_OK
     launcher = Launcher(parts, timeout)
     status = EXIT_OK
-    with stop_on_signals(launcher.stop) as got:
+    with stop_on_signals(launcher.stop, UP_SIGNALS) as got:
         try:
             if launcher.start_all():
                 print("holo-up: running; Ctrl-C stops everything", flush=True)

@@ -69,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     write_strip(frame, out / "strip.png")
     quilt = write_quilt(frame, out)
     c = frame.stats["polygons"]
-    print(f"run-length frame: {c['in']} polygons, {c['culled']} culled, {c['drawn']} drawn")
+    print(f"run-length frame: {c['in']} polygons, {c['culled']} culled, {c['kept']} kept, "
+          f"{c['drawn']} seen in a zone")
     print(f"wrote {display.zones} zone images, depth maps, {out / 'strip.png'} and {quilt}")
     return 0
 

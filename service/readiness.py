@@ -217,8 +217,10 @@ class Warmup:
             return
         self._set(done=int(ev.get("done", 0)), total=int(ev.get("total", self.total)),
                   step=str(ev.get("name", "")))
-        how = "cached" if ev.get("cached") else f"{float(ev.get('seconds', 0)):.1f} s"
-        self.log(f"warming up: compiling {self.done}/{self.total} {self.step} ({how})")
+        cached = bool(ev.get("cached"))  # worded as holo-warmup words it
+        how = "cached" if cached else f"{float(ev.get('seconds', 0)):.1f} s"
+        word = "loading" if cached else "compiling"
+        self.log(f"warming up: {word} {self.done}/{self.total} {self.step} ({how})")
 
     def _in_process(self, phase: str) -> int:
         """The service's warm-up jobs in this process (loads what the child compiled).

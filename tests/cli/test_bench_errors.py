@@ -85,3 +85,10 @@ def test_file_errors_are_named_without_errno():
     err = FileNotFoundError(2, "No such file or directory", "/x/y")
     assert cli_bench._message(err) == "/x/y: No such file or directory"
     assert cli_bench._message(OSError("plain")) == "plain"
+
+
+def test_help_names_the_benchmarks_that_exit_1(capsys):
+    """`quality` over its budget and `report` with nothing run exit 1: the help says so."""
+    assert cli_bench.main(["--help"]) == 0
+    text = capsys.readouterr().out
+    assert "1: quality found a frame over its error budget, or report ran no benchmark" in text

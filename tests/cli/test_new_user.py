@@ -89,7 +89,8 @@ def test_holo_service_keys_never_overwrites_keys_and_errors_in_one_line(tmp_path
     afile = tmp_path / "afile"
     afile.write_text("x")
     proc = _run("service.cli_service", "--make-keys", str(afile))
-    _one_line_error(proc, "holo-service", "cannot write the keys")
+    _one_line_error(proc, "holo-service", "not a folder")  # not mkdir's "File exists"
+    assert afile.read_text() == "x"
 
 
 def test_holo_service_says_in_one_line_that_its_port_is_taken():
@@ -204,3 +205,34 @@ def test_holo_simplify_names_a_negative_error_as_such(tmp_path):
     assert proc.returncode == 2
     last = proc.stderr.strip().splitlines()[-1]
     assert last == "holo-simplify: error: argument --error: must be > 0, got -1%", last
+
+
+def test_a_file_of_the_wrong_kind_names_every_kind_the_command_reads(tmp_path):
+    """The loaders' own line named the mesh extensions only, not .toml, .npy or builtin:."""
+    picture = tmp_path / "zone-02.png"
+    picture.write_bytes(b"\x89PNG\r\n\x1a\n")
+    line = _one_line_error(_run("service.cli_render", str(picture)), "holo-render",
+                           "not a file this reads", ".toml", ".hbc", ".ply", "builtin:NAME")
+    assert ".npy" not in line
+    _one_line_error(_run("service.cli_sird", str(picture), "--out", str(tmp_path / "s.png")),
+                    "holo-sird", "not a file this reads", ".npy", ".toml", "builtin:NAME")
+
+
+def test_a_missing_billboard_cloud_is_named_first_without_errno(tmp_path):
+    """Before: 'holo-render: error: [Errno 2] No such file or directory: 'x.hbc''."""
+    missing = tmp_path / "x.hbc"
+    line = _one_line_error(_run("service.cli_render", str(missing), "--out",
+                                str(tmp_path / "out")), "holo-render")
+    assert line == f"holo-render: error: {missing}: No such file or directory"
+    line = _one_line_error(_run("service.cli_sird", str(missing), "--out",
+                                str(tmp_path / "s.png")), "holo-sird")
+    assert line == f"holo-sird: error: {missing}: No such file or directory"
+
+
+def test_holo_replay_names_a_missing_log_once(tmp_path):
+    """Before: 'x.hlog: cannot open: [Errno 2] No such file or directory: 'x.hlog''."""
+    missing = tmp_path / "x.hlog"
+    proc = _run("drivers.cli_replay", str(missing), "--dump")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"holo-replay: {missing}: cannot open: No such file or directory")

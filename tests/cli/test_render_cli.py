@@ -52,3 +52,16 @@ def test_fallback_and_no_fallback_are_exclusive(capsys):
         cli_render.main(["builtin:game", "--fallback", "pixel", "--no-fallback"])
     assert exc.value.code == 2
     assert "--no-fallback: not allowed with argument --fallback" in capsys.readouterr().err
+
+
+def test_summary_line_adds_up(tmp_path, capsys):
+    """in - culled = kept; "drawn" (seen in a zone) is named so, not read as in - culled."""
+    assert cli_render.main(["builtin:sphere_torus", "--zones", "3", "--size", "64x48",
+                            "--out", str(tmp_path), "--json"]) == 0
+    p = json.loads(capsys.readouterr().out)["polygons"]
+    assert cli_render.main(["builtin:sphere_torus", "--zones", "3", "--size", "64x48",
+                            "--out", str(tmp_path)]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    assert p["in"] - p["culled"] == p["kept"]
+    assert line.startswith(f"{p['in']} polygons, {p['culled']} culled, {p['kept']} kept, "
+                           f"{p['drawn']} seen in a zone; ")

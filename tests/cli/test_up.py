@@ -143,3 +143,49 @@ def test_a_program_that_fails_stops_the_others(procs, tmp_path):
     failure = [ln for ln in up.err if ln.startswith("holo-up: ")]
     assert len(failure) == 1 and "holo-devices exited 2 while starting" in failure[0]
     assert "Address already in use" in failure[0] and "stopping the others" in failure[0]
+
+
+@linux_only
+def test_ctrl_c_at_the_terminal_stops_the_programs_in_order(tmp_path):
+    """A terminal's Ctrl-C reaches its whole foreground process group at once.
+
+    holo-up runs in a session of its own here, as a shell's foreground job, and the
+    SIGINT goes to the group: the programs (each in a group of its own) are stopped by
+    holo-up, holo-devices before the simulators, so no device is reported lost and
+    the tracker gets its stop command.
+    """
+    import os
+    import signal
+    import threading
+
+    p = subprocess.Popen([sys.executable, "-m", "service.cli_up",
+                          str(_config(tmp_path, SIMS + DEVICES))], cwd=ROOT, text=True,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         stdin=subprocess.DEVNULL, start_new_session=True)
+    out: list[str] = []
+    err: list[str] = []
+    pumps = [threading.Thread(target=lambda s=s, k=k: k.extend(s), daemon=True)
+             for s, k in ((p.stdout, out), (p.stderr, err))]
+    for t in pumps:
+        t.start()
+    try:
+        deadline = threading.Event()
+        for _ in range(12000):  # up to 120 s for the ready line
+            if any("running; Ctrl-C" in ln for ln in out) or p.poll() is not None:
+                break
+            deadline.wait(0.01)
+        assert any("running; Ctrl-C" in ln for ln in out), err[-8:]
+        started = children_of(p.pid)
+        assert len(started) == 3
+        os.killpg(p.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        assert p.wait(60) == 130
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait(10)
+    for t in pumps:
+        t.join(10)
+    assert not any(alive(pid) for pid in started)
+    lost = [ln for ln in err if ln.startswith("[holo-devices]") and ": error {" in ln]
+    assert not lost, lost
+    assert any(ln.startswith("[holo-devices] {\"stats\"") for ln in err)

@@ -22,3 +22,28 @@ def test_targets_rows_and_files(tmp_path):
     with (tmp_path / "targets.csv").open() as fh:
         got = list(csv.DictReader(fh))
     assert [r["target"] for r in got] == [r["target"] for r in rows]
+
+
+def test_median_round_keeps_the_median_rounds_row():
+    """Each target's row is its median round's, whole; every round's figure is listed."""
+    def row(target, figure, tag):
+        return {"target": target, "figure": figure, "tag": tag, "met": False}
+
+    rounds = [[row("refresh", 5.0, "a"), row("premise-10x", None, "a")],
+              [row("refresh", 3.0, "b"), row("premise-10x", 9.0, "b")],
+              [row("refresh", 4.0, "c"), row("premise-10x", 11.0, "c")]]
+    refresh, tenx = tb.median_round(rounds)
+    assert refresh["tag"] == "c" and refresh["figure"] == 4.0
+    assert refresh["rounds"] == [5.0, 3.0, 4.0]
+    assert tenx["tag"] == "c" and tenx["rounds"] == [None, 9.0, 11.0]  # no figure ranks last
+    two = tb.median_round(rounds[:2])[0]  # an even count: the lower middle one
+    assert two["tag"] == "b"
+    assert "rounds 5.0, 3.0, 4.0" in tb.summary({**refresh, "what": "w", "goal": 4.0})
+
+
+def test_targets_cli_rounds(tmp_path):
+    """``--rounds 2``: the refresh row lists both rounds' figures and holds one of them."""
+    assert tb.main(["--only", "refresh", "--size", "48x36", "--repeats", "2", "--rounds", "2",
+                    "--out", str(tmp_path)]) == 0
+    (row,) = json.loads((tmp_path / "targets.json").read_text())
+    assert len(row["rounds"]) == 2 and row["figure"] == min(row["rounds"])

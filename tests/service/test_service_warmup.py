@@ -165,3 +165,27 @@ def test_a_failed_warmup_child_falls_back_to_the_service_process():
         assert "exited 3" in state["note"] and any("exited 3" in ln for ln in lines)
     finally:
         warmup.stop()
+
+
+@pytest.mark.timeout(120)
+def test_warmup_lines_say_loading_for_a_cached_job_and_compiling_for_a_compiled_one():
+    """A job the child found in the cache was loaded, not compiled ("compiling ... (cached)")."""
+    import json
+
+    from service.readiness import Warmup
+
+    events = [{"event": "kernel", "done": 1, "total": 2, "name": "a", "cached": True,
+               "seconds": 0.1},
+              {"event": "kernel", "done": 2, "total": 2, "name": "b", "cached": False,
+               "seconds": 3.25}]
+    script = "".join(f"print({json.dumps(json.dumps(ev))})\n" for ev in events)
+    lines: list[str] = []
+    warmup = Warmup(lines.append, child=(sys.executable, "-c", script), trust_stamp=False,
+                    jobs=())
+    warmup.start()
+    try:
+        assert warmup.ready.wait(100), warmup.as_dict()
+    finally:
+        warmup.stop()
+    assert "warming up: loading 1/2 a (cached)" in lines, lines
+    assert "warming up: compiling 2/2 b (3.2 s)" in lines, lines
