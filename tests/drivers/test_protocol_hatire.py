@@ -185,3 +185,19 @@ def test_a_header_stub_before_a_frame_is_garbage_below_four_bytes_and_torn_from_
     assert [(e.event, dict(e.details)) for e in events if isinstance(e, StatusEvent)] \
         == [(event, details)]
     assert [e.seq for e in poses(events)] == [7]
+
+
+@pytest.mark.parametrize(("code", "event", "meaning", "restarts"), [
+    (2000, "info", "info", False), (3000, "info", "init", True),
+    (5000, "info", "start", True), (9000, "error", "error", False),
+    (4000, "info", "text", False),
+])
+def test_each_text_code_has_its_meaning_and_only_init_and_start_restart_the_counter(
+        code, event, meaning, restarts):
+    # mutants: TEXT_CODES keys 2000 / 5000 and RESTART_CODES' 5000 changed
+    data = encode_pose(7, 0, 0, 0) + encode_text(code, "hi") + encode_pose(0, 0, 0, 0)
+    events = HatireDecoder().feed(data, 0)
+    status = [e for e in events if isinstance(e, StatusEvent)]
+    assert (status[0].event, dict(status[0].details)) \
+        == (event, {"code": code, "meaning": meaning, "text": "hi"})
+    assert [e.event for e in status[1:]] == ([] if restarts else ["counter_gap"])

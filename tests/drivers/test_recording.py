@@ -345,3 +345,23 @@ def test_device_index_names_a_device_missing_from_the_header():
     assert header().device_index("dials") == 1
     with pytest.raises(SettingsError, match="'mouse' is not in the log header"):
         header().device_index("mouse")
+
+
+def test_each_record_is_on_disk_after_write_by_default_and_after_flush_every_otherwise(
+        tmp_path):
+    # a killed writer loses at most the unflushed records; mutants: flush_every's
+    # default 1 -> 2, the pending count starting at 1, the flush_every < 1 raise deleted
+    rec = 28 + 3
+    with LogWriter(tmp_path / "a.hlog", header()) as w:
+        start = (tmp_path / "a.hlog").stat().st_size
+        w.write("tracker", 1, b"abc")
+        assert (tmp_path / "a.hlog").stat().st_size == start + rec
+    with LogWriter(tmp_path / "b.hlog", header(), flush_every=3) as w:
+        sizes = []
+        for i in range(3):
+            w.write("dials", i, b"xyz")
+            sizes.append((tmp_path / "b.hlog").stat().st_size - start)
+        assert sizes == [0, 0, 3 * rec]
+    with pytest.raises(SettingsError, match="flush_every must be >= 1"):
+        LogWriter(tmp_path / "c.hlog", header(), flush_every=0)
+    assert not (tmp_path / "c.hlog").exists()
