@@ -356,6 +356,7 @@ def test_each_record_is_on_disk_after_write_by_default_and_after_flush_every_oth
         start = (tmp_path / "a.hlog").stat().st_size
         w.write("tracker", 1, b"abc")
         assert (tmp_path / "a.hlog").stat().st_size == start + rec
+        assert w.records == 1
     with LogWriter(tmp_path / "b.hlog", header(), flush_every=3) as w:
         sizes = []
         for i in range(3):
@@ -365,3 +366,12 @@ def test_each_record_is_on_disk_after_write_by_default_and_after_flush_every_oth
     with pytest.raises(SettingsError, match="flush_every must be >= 1"):
         LogWriter(tmp_path / "c.hlog", header(), flush_every=0)
     assert not (tmp_path / "c.hlog").exists()
+
+
+def test_a_header_that_is_not_json_but_has_a_valid_crc_is_a_log_file_error(tmp_path):
+    # mutant: the "header is not JSON" raise deleted (a TypeError unpacking None)
+    body = b"{not json"
+    p = tmp_path / "j.hlog"
+    p.write_bytes(FILE_HEAD.pack(MAGIC, VERSION, len(body)) + body + CRC.pack(zlib.crc32(body)))
+    with pytest.raises(LogFileError, match="header is not JSON"):
+        LogReader(p)
