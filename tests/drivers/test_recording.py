@@ -114,6 +114,7 @@ def test_torn_at_every_offset_of_last_record_keeps_all_complete_ones(tmp_path):
         torn_msgs = [w for w in caught if "torn last record" in str(w.message)]
         assert len(torn_msgs) == len(caught) == (cut > offsets[-1])
         assert reader.stats.torn == (cut > offsets[-1])
+        assert reader.stats.skipped_bytes == cut - offsets[-1]
         assert reader.stats.corrupt == 0
 
 
@@ -375,3 +376,29 @@ def test_a_header_that_is_not_json_but_has_a_valid_crc_is_a_log_file_error(tmp_p
     p.write_bytes(FILE_HEAD.pack(MAGIC, VERSION, len(body)) + body + CRC.pack(zlib.crc32(body)))
     with pytest.raises(LogFileError, match="header is not JSON"):
         LogReader(p)
+
+
+def test_a_16_mib_record_reads_back_whole(tmp_path):
+    # mutant: the reader's `n > MAX_RECORD` as `>=` (a maximal record skipped as corrupt)
+    data = bytes(range(256)) * (1 << 16)
+    path = tmp_path / "big.hlog"
+    with LogWriter(path, header()) as w:
+        w.write("dials", 3, data)
+    got, reader = read_all(path)
+    assert got == [Record("dials", 3, data)] and reader.stats.corrupt == 0
+
+
+@pytest.mark.parametrize("bad", [dict(baudrate=0), dict(chunk_size=0), dict(skip_bytes=-1),
+                                 dict(bits_per_byte=0)])
+def test_raw_capture_reader_refuses_each_impossible_setting(tmp_path, bad):
+    # mutant: the settings check's `or`s as `and` (one bad setting alone accepted)
+    (tmp_path / "c.bin").write_bytes(b"x")
+    with pytest.raises(SettingsError):
+        RawCaptureReader(tmp_path / "c.bin", protocol="hatire", **bad)
+
+
+def test_raw_capture_reader_defaults_to_64_byte_chunks_from_the_first_byte(tmp_path):
+    # mutants: chunk_size default 64 -> 65, skip_bytes default 0 -> 1
+    (tmp_path / "c.bin").write_bytes(bytes(range(100)))
+    got = list(RawCaptureReader(tmp_path / "c.bin", protocol="hatire"))
+    assert [r.data for r in got] == [bytes(range(64)), bytes(range(64, 100))]
