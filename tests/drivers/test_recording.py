@@ -402,3 +402,9 @@ def test_raw_capture_reader_defaults_to_64_byte_chunks_from_the_first_byte(tmp_p
     (tmp_path / "c.bin").write_bytes(bytes(range(100)))
     got = list(RawCaptureReader(tmp_path / "c.bin", protocol="hatire"))
     assert [r.data for r in got] == [bytes(range(64)), bytes(range(64, 100))]
+
+
+def test_raw_capture_reader_of_a_missing_file_is_a_log_file_error(tmp_path):
+    # mutant: the "no such capture file" raise deleted
+    with pytest.raises(LogFileError, match="no such capture file"):
+        RawCaptureReader(tmp_path / "none.bin", protocol="hatire")
