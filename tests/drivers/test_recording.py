@@ -408,3 +408,13 @@ def test_raw_capture_reader_of_a_missing_file_is_a_log_file_error(tmp_path):
     # mutant: the "no such capture file" raise deleted
     with pytest.raises(LogFileError, match="no such capture file"):
         RawCaptureReader(tmp_path / "none.bin", protocol="hatire")
+
+
+def test_a_header_holds_1_to_65535_devices():
+    # device ids are uint16; mutants: `0 < len(names) < 65536` with < as <=
+    names = [f"d{i}" for i in range(65536)]
+    assert len(LogHeader(tuple(DeviceInfo(n, "x") for n in names[:1])).devices) == 1
+    assert len(LogHeader(tuple(DeviceInfo(n, "x") for n in names[1:])).devices) == 65535
+    for bad in ((), tuple(DeviceInfo(n, "x") for n in names)):
+        with pytest.raises(SettingsError, match="1..65535"):
+            LogHeader(bad)
