@@ -170,3 +170,18 @@ def test_pose_event_json_schema():
     assert ev.to_dict(t0_ns=500_000_000) == {
         "t": 2.0, "device": "tracker", "kind": "pose", "yaw": 1.5, "pitch": -2.0,
         "roll": 3.0, "x": 4.0, "y": 5.0, "z": 6.0, "seq": 4}
+
+
+@pytest.mark.parametrize(("stub", "event", "details"), [
+    (b"\xaa\xaa\x01", "resync", {"discarded": 3}),  # shorter than MIN_TRUNCATED: garbage
+    (b"\xaa\xaa\x01\x00", "truncated", {"bytes": 4}),  # MIN_TRUNCATED bytes: a torn frame
+])
+def test_a_header_stub_before_a_frame_is_garbage_below_four_bytes_and_torn_from_four(
+        stub, event, details):
+    # mutant: MIN_TRUNCATED 4 -> 5 (a 4-byte torn frame reported as a resync)
+    good = encode_pose(7, 1.0, 2.0, 3.0)
+    dec = HatireDecoder()
+    events = dec.feed(stub + good, 0)
+    assert [(e.event, dict(e.details)) for e in events if isinstance(e, StatusEvent)] \
+        == [(event, details)]
+    assert [e.seq for e in poses(events)] == [7]

@@ -18,6 +18,8 @@ from drivers.recording import (
     CRC,
     FILE_HEAD,
     MAGIC,
+    REC_HEAD,
+    SYNC,
     VERSION,
     DeviceInfo,
     LogHeader,
@@ -27,6 +29,8 @@ from drivers.recording import (
     RawCaptureReader,
     Record,
     SerialSettings,
+    encode_file_header,
+    encode_record,
 )
 from service.errors import LogFileError, SettingsError
 
@@ -293,3 +297,51 @@ def test_log_round_trip_of_a_hatire_stream_feeds_the_decoder_identically(tmp_pat
     poses = [e for r in LogReader(path) for e in dec.feed(r.data, r.t_ns) if hasattr(e, "yaw")]
     assert [p.seq for p in poses] == list(range(100))
     assert poses[10].yaw == 5.0
+
+
+def test_record_and_file_header_bytes_are_the_documented_layout():
+    # docs/recording-format.md pins the bytes; mutants: VERSION 1 -> 2, flags 0 -> 1
+    data = b"ab"
+    head = b"\xa7RC\x5d" + (1).to_bytes(2, "little") + b"\x00\x00" \
+        + (-5).to_bytes(8, "little", signed=True) + (2).to_bytes(4, "little")
+    want = head + zlib.crc32(head[4:]).to_bytes(4, "little") + data \
+        + zlib.crc32(data).to_bytes(4, "little")
+    assert encode_record(1, -5, data) == want
+    assert encode_file_header(header())[:14] == b"HOLOLOG\x00\r\n\x1a\n\x01\x00"
+
+
+def test_records_up_to_16_mib_and_not_one_byte_more():
+    # the documented bound (16 MiB); mutants: the check or its raise deleted, 1 << 24 changed
+    assert len(encode_record(0, 0, bytes(16 << 20))) == 16 << 20 | 28
+    with pytest.raises(SettingsError, match="exceeds"):
+        encode_record(0, 0, bytes((16 << 20) + 1))
+
+
+def _crafted(dev: int, n: int, data: bytes) -> bytes:
+    """A record whose CRCs are right whatever its fields say."""
+    head = REC_HEAD.pack(SYNC, dev, 0, 9, n)
+    return head + CRC.pack(zlib.crc32(head[4:])) + data + CRC.pack(zlib.crc32(data))
+
+
+@pytest.mark.parametrize("junk", [
+    _crafted(2, 3, b"xyz"),  # a device the header does not have (2 devices)
+    _crafted(0, (16 << 20) + 1, b""),  # longer than any record may be
+])
+def test_a_record_with_good_crcs_but_impossible_fields_is_skipped_as_corrupt(tmp_path, junk):
+    # mutants: `dev >= n_devices or n > MAX_RECORD` as `and`, its ("bad", 0) return
+    # replaced (an IndexError, or a record of a device that does not exist)
+    recs = sample_records(4)
+    path = tmp_path / "f.hlog"
+    offsets = write_log(path, recs)
+    raw = path.read_bytes()
+    path.write_bytes(raw[: offsets[2]] + junk + raw[offsets[2]:])
+    got, reader = read_all(path)
+    assert got == recs
+    assert (reader.stats.corrupt, reader.stats.skipped_bytes) == (1, len(junk))
+
+
+def test_device_index_names_a_device_missing_from_the_header():
+    # mutant: the raise deleted (None returned)
+    assert header().device_index("dials") == 1
+    with pytest.raises(SettingsError, match="'mouse' is not in the log header"):
+        header().device_index("mouse")

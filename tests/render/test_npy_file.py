@@ -103,3 +103,25 @@ def test_npz_members_by_name_and_a_damaged_member_named(tmp_path):
 def test_a_file_that_is_not_there_is_an_os_error(tmp_path):
     with pytest.raises(OSError):
         read_npy_file(tmp_path / "none.npy")
+
+
+@pytest.mark.parametrize("version", [(1, 0), (2, 0)])
+def test_format_versions_1_and_2_read_and_3_is_a_value_error_naming_it(version):
+    # mutants: the (2, 0) entry of the header-reader table changed (version 2.0 refused)
+    arr = np.arange(6, dtype=np.int16).reshape(2, 3)
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, arr, version=version, allow_pickle=False)
+    np.testing.assert_array_equal(read_npy(buf.getvalue()), arr)
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, arr, version=(3, 0), allow_pickle=False)
+    with pytest.raises(ValueError, match=r"format version \(3, 0\)"):
+        read_npy(buf.getvalue())
+
+
+def test_an_npz_member_not_npy_is_named_even_when_its_bytes_are_an_array(tmp_path):
+    # mutant: the "not an .npy member" raise deleted (the member read as "notes.txt")
+    path = tmp_path / "a.npz"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("notes.txt", _npy(np.ones(3)))
+    with pytest.raises(ValueError, match=r"notes\.txt: not an \.npy member"):
+        read_npz(path)
