@@ -185,3 +185,67 @@ def test_a_header_stub_before_a_frame_is_garbage_below_four_bytes_and_torn_from_
     assert [(e.event, dict(e.details)) for e in events if isinstance(e, StatusEvent)] \
         == [(event, details)]
     assert [e.seq for e in poses(events)] == [7]
+
+
+@pytest.mark.parametrize(("code", "event", "meaning", "restarts"), [
+    (2000, "info", "info", False), (3000, "info", "init", True),
+    (5000, "info", "start", True), (9000, "error", "error", False),
+    (4000, "info", "text", False),
+])
+def test_each_text_code_has_its_meaning_and_only_init_and_start_restart_the_counter(
+        code, event, meaning, restarts):
+    # mutants: TEXT_CODES keys 2000 / 5000 and RESTART_CODES' 5000 changed
+    data = encode_pose(7, 0, 0, 0) + encode_text(code, "hi") + encode_pose(0, 0, 0, 0)
+    events = HatireDecoder().feed(data, 0)
+    status = [e for e in events if isinstance(e, StatusEvent)]
+    assert (status[0].event, dict(status[0].details)) \
+        == (event, {"code": code, "meaning": meaning, "text": "hi"})
+    assert [e.event for e in status[1:]] == ([] if restarts else ["counter_gap"])
+
+
+@pytest.mark.parametrize(("code", "reason"), [(999, None), (1000, "unknown_code"),
+                                              (1999, "unknown_code")])
+def test_codes_below_1000_are_poses_and_1000_to_1999_unknown(code, reason):
+    # mutant: `code < COUNTER_MODULO` as `<=` (code 1000 decoded as a pose)
+    frame = bytearray(encode_pose(0, 0, 0, 0))
+    struct.pack_into("<H", frame, 2, code)
+    events = HatireDecoder().feed(bytes(frame), 0)
+    assert [getattr(e, "seq", None) if reason is None else e.details["reason"]
+            for e in events] == [code if reason is None else reason]
+
+
+def test_text_codes_2000_to_65535_encode_and_others_are_refused():
+    # mutant: `code > 0xFFFF` as `>=` (65535 refused)
+    assert encode_text(65535, "x")[2:4] == b"\xff\xff"
+    for bad in (1999, 65536):
+        with pytest.raises(ProtocolError, match="2000..65535"):
+            encode_text(bad, "x")
+
+
+def test_an_out_of_range_first_frame_and_one_after_reset_are_reported():
+    # mutant: reset() starting with _in_range False (the first bad frame not reported)
+    dec = HatireDecoder()
+    for _ in range(2):
+        events = dec.feed(encode_pose(0, 500, 0, 0), 0)
+        assert [e.details["reason"] for e in events if isinstance(e, StatusEvent)] \
+            == ["out_of_range"]
+        dec.reset()
+
+
+def test_a_header_with_no_other_header_within_a_frame_is_dropped_as_garbage():
+    # mutant: `nxt < 0 or nxt < j + MIN_TRUNCATED` as `and` (no header ahead: torn)
+    junk = b"\xaa\xaa" + bytes(range(1, 41))
+    dec = HatireDecoder()
+    events = dec.feed(junk + encode_pose(4, 0, 0, 0), 0)
+    assert [(e.event, dict(e.details)) for e in events if isinstance(e, StatusEvent)] \
+        == [("resync", {"discarded": len(junk)})]
+    assert [e.seq for e in poses(events)] == [4] and dec.stats.truncated == 0
+
+
+def test_a_lone_header_byte_at_the_end_is_garbage_not_a_torn_frame():
+    # mutant: flush's `left and startswith(HEADER)` as `or`
+    dec = HatireDecoder()
+    assert dec.feed(encode_pose(1, 0, 0, 0) + b"\xaa", 0) != []
+    assert [(e.event, dict(e.details)) for e in dec.flush(1)] \
+        == [("resync", {"discarded": 1})]
+    assert dec.stats.truncated == 0

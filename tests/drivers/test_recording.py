@@ -114,6 +114,7 @@ def test_torn_at_every_offset_of_last_record_keeps_all_complete_ones(tmp_path):
         torn_msgs = [w for w in caught if "torn last record" in str(w.message)]
         assert len(torn_msgs) == len(caught) == (cut > offsets[-1])
         assert reader.stats.torn == (cut > offsets[-1])
+        assert reader.stats.skipped_bytes == cut - offsets[-1]
         assert reader.stats.corrupt == 0
 
 
@@ -345,3 +346,65 @@ def test_device_index_names_a_device_missing_from_the_header():
     assert header().device_index("dials") == 1
     with pytest.raises(SettingsError, match="'mouse' is not in the log header"):
         header().device_index("mouse")
+
+
+def test_each_record_is_on_disk_after_write_by_default_and_after_flush_every_otherwise(
+        tmp_path):
+    # a killed writer loses at most the unflushed records; mutants: flush_every's
+    # default 1 -> 2, the pending count starting at 1, the flush_every < 1 raise deleted
+    rec = 28 + 3
+    with LogWriter(tmp_path / "a.hlog", header()) as w:
+        start = (tmp_path / "a.hlog").stat().st_size
+        w.write("tracker", 1, b"abc")
+        assert (tmp_path / "a.hlog").stat().st_size == start + rec
+        assert w.records == 1
+    with LogWriter(tmp_path / "b.hlog", header(), flush_every=3) as w:
+        sizes = []
+        for i in range(3):
+            w.write("dials", i, b"xyz")
+            sizes.append((tmp_path / "b.hlog").stat().st_size - start)
+        assert sizes == [0, 0, 3 * rec]
+    with pytest.raises(SettingsError, match="flush_every must be >= 1"):
+        LogWriter(tmp_path / "c.hlog", header(), flush_every=0)
+    assert not (tmp_path / "c.hlog").exists()
+
+
+def test_a_header_that_is_not_json_but_has_a_valid_crc_is_a_log_file_error(tmp_path):
+    # mutant: the "header is not JSON" raise deleted (a TypeError unpacking None)
+    body = b"{not json"
+    p = tmp_path / "j.hlog"
+    p.write_bytes(FILE_HEAD.pack(MAGIC, VERSION, len(body)) + body + CRC.pack(zlib.crc32(body)))
+    with pytest.raises(LogFileError, match="header is not JSON"):
+        LogReader(p)
+
+
+def test_a_16_mib_record_reads_back_whole(tmp_path):
+    # mutant: the reader's `n > MAX_RECORD` as `>=` (a maximal record skipped as corrupt)
+    data = bytes(range(256)) * (1 << 16)
+    path = tmp_path / "big.hlog"
+    with LogWriter(path, header()) as w:
+        w.write("dials", 3, data)
+    got, reader = read_all(path)
+    assert got == [Record("dials", 3, data)] and reader.stats.corrupt == 0
+
+
+@pytest.mark.parametrize("bad", [dict(baudrate=0), dict(chunk_size=0), dict(skip_bytes=-1),
+                                 dict(bits_per_byte=0)])
+def test_raw_capture_reader_refuses_each_impossible_setting(tmp_path, bad):
+    # mutant: the settings check's `or`s as `and` (one bad setting alone accepted)
+    (tmp_path / "c.bin").write_bytes(b"x")
+    with pytest.raises(SettingsError):
+        RawCaptureReader(tmp_path / "c.bin", protocol="hatire", **bad)
+
+
+def test_raw_capture_reader_defaults_to_64_byte_chunks_from_the_first_byte(tmp_path):
+    # mutants: chunk_size default 64 -> 65, skip_bytes default 0 -> 1
+    (tmp_path / "c.bin").write_bytes(bytes(range(100)))
+    got = list(RawCaptureReader(tmp_path / "c.bin", protocol="hatire"))
+    assert [r.data for r in got] == [bytes(range(64)), bytes(range(64, 100))]
+
+
+def test_raw_capture_reader_of_a_missing_file_is_a_log_file_error(tmp_path):
+    # mutant: the "no such capture file" raise deleted
+    with pytest.raises(LogFileError, match="no such capture file"):
+        RawCaptureReader(tmp_path / "none.bin", protocol="hatire")
