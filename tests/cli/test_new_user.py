@@ -267,3 +267,17 @@ def _one_line_error_argparse(proc: subprocess.CompletedProcess, prog: str) -> st
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith(f"{prog}: error: "), proc.stderr
     return last
+
+
+def test_the_demos_refuse_bad_values_before_starting_anything():
+    """Before: make render-demo's --scene bogus and --repeats 0 were tracebacks, and
+    make demo's --seconds -1 started every program before holo-game refused it."""
+    for module, argv, words in (
+            ("service.demo", ["--scene", "bogus"], "--scene: unknown scene 'bogus'"),
+            ("service.demo", ["--repeats", "0"], "--repeats: must be >= 1"),
+            ("game.full_demo", ["--seconds", "-1"], "--seconds: must be > 0"),
+            ("game.full_demo", ["--gives-up", "-2"], "--gives-up: must be >= 0")):
+        proc = _run(module, *argv, timeout=60)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert words in proc.stderr.strip().splitlines()[-1], proc.stderr
+        assert "starting" not in proc.stderr
