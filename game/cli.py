@@ -202,7 +202,8 @@ def _setup(args: argparse.Namespace) -> tuple:
     try:
         backend.start(scene)
     except ServiceError as exc:
-        print(f"holo-game: service not reachable yet ({exc}); retrying", file=sys.stderr)
+        print(f"holo-game: service not reachable yet ({exc}); retrying (is holo-service "
+              "running there? --local plays without it)", file=sys.stderr)
     devices = None
     if args.devices:
         from drivers.subscriber import DeviceSubscriber

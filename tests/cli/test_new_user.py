@@ -281,3 +281,18 @@ def test_the_demos_refuse_bad_values_before_starting_anything():
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
         assert words in proc.stderr.strip().splitlines()[-1], proc.stderr
         assert "starting" not in proc.stderr
+
+
+def test_holo_game_without_a_service_says_what_to_start():
+    """A newcomer's first 'holo-game' with no service: the line names holo-service and
+    --local, and --wait ends the run with status 1."""
+    import socket
+
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = _run("game.cli", "--service", f"tcp://127.0.0.1:{port}", "--headless",
+                "--seconds", "1", "--wait", "2", timeout=60)
+    assert proc.returncode == 1, proc.stderr
+    assert "is holo-service running there? --local plays without it" in proc.stderr
+    assert "Traceback" not in proc.stderr
