@@ -119,10 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=plain_help("Without --dump, --pub, --to-port or --to-pty, --dump is implied. "
                           + EXIT_RULE + " 1: no device event was decoded (or --skip passed "
                           "them all)."))
-    p.add_argument("file", type=Path, help="session log, or raw capture with --protocol")
+    p.add_argument("file", type=Path, metavar="FILE",
+                   help="session log, or raw capture with --protocol")
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--speed", type=float_range(0, lo_open=True), default=1.0,
-                       help="speed factor (default 1)")
+                       metavar="X", help="speed factor (default 1)")
     speed.add_argument("--as-fast-as-possible", action="store_true", help="never wait")
     p.add_argument("--skip", type=float_range(0), default=0.0, metavar="S",
                    help="start S recorded seconds in")

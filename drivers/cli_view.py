@@ -65,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Show a holo-devices / holo-replay event stream live: the latest pose, "
         "dial values, held buttons and the last events.",
         epilog=plain_help(EXIT_RULE + " 1: nothing arrived within --timeout."))
-    p.add_argument("address", nargs="?", default=default_address("devices"),
+    p.add_argument("address", nargs="?", default=default_address("devices"), metavar="ADDR",
                    type=endpoint(bind=False),
                    help="the publisher's address (default: %(default)s)")
     p.add_argument("--pose", metavar="ADDR", type=endpoint(bind=False),

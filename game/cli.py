@@ -29,6 +29,7 @@ from game.rules import DIFFICULTIES, GameSettings
 from service.cli_args import (
     add_size_option,
     endpoint,
+    float_range,
     int_range,
     output_problem,
     plain_help,
@@ -48,11 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
         prog="holo-game",
         description=plain_help(__doc__.split("\n\n")[0]),
         epilog=plain_help(binding_help({f"mode_{m}": "not available" for m in UNAVAILABLE}))
-        + "\n\n" + EXIT_RULE,
+        + "\n\n" + EXIT_RULE
+        + " 1: with --seconds, no frame came within --wait.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--service", default=DEFAULT_SERVICE, type=endpoint(bind=False),
-                   metavar="ADDR", help="holo-service control address")
+                   metavar="ADDR",
+                   help=f"holo-service control address (default {DEFAULT_SERVICE})")
     p.add_argument("--frames", default=None, type=endpoint(bind=False), metavar="ADDR",
                    help="frame stream address (default: from hello)")
     p.add_argument("--devices", default=None, type=endpoint(bind=False), metavar="ADDR",
@@ -62,15 +65,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bot", action="store_true", help="attract mode: the bot plays")
     p.add_argument(
         "--bot-gives-up",
-        type=float,
+        type=float_range(0),
         default=None,
         metavar="S",
         help="attract mode: the bot stops dodging after S game seconds",
     )
     p.add_argument(
         "--seconds",
-        type=float,
+        type=float_range(0, lo_open=True),
         default=None,
+        metavar="N",
         help="stop after N seconds of play, counted from the first frame shown",
     )
     p.add_argument(
@@ -83,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--wait",
-        type=float,
+        type=float_range(0, lo_open=True),
         default=1200.0,
         metavar="S",
         help="with --seconds: give up when no frame came within S seconds (a service "
@@ -94,11 +98,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")
     p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
     add_lod_options(p)
-    p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES))
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--attackers", default=None, help="attacker mesh file (.obj, .ply, ...)")
-    p.add_argument("--highscores", default=str(Path.home() / ".holo-game-scores.json"))
-    p.add_argument("--name", default=os.environ.get("USER", "player"))
+    p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES),
+                   help="the attackers' speed, how fast it grows and how near they may "
+                   "come (default normal)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the attackers' starts and the bot (default 0)")
+    p.add_argument("--attackers", default=None, metavar="FILE",
+                   help="attacker mesh file (.obj, .ply, .hobj)")
+    p.add_argument("--highscores", default=str(Path.home() / ".holo-game-scores.json"),
+                   metavar="FILE", help="the high-score table (default "
+                   "~/.holo-game-scores.json)")
+    p.add_argument("--name", default=os.environ.get("USER", "player"),
+                   help="your name in the high scores (default $USER)")
     p.add_argument(
         "--shatter",
         action=argparse.BooleanOptionalAction,
@@ -128,9 +139,11 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
     )
-    p.add_argument("--zones", type=int, default=5, help="view zones (default 5)")
+    p.add_argument("--zones", type=int_range(1, 64), default=5,
+                   help="view zones, 1-64 (default 5)")
     add_size_option(p, (200, 150), "pixels per zone")
-    p.add_argument("--refresh", type=float, default=60.0, help="refresh rate, Hz")
+    p.add_argument("--refresh", type=float_range(0, lo_open=True), default=60.0,
+                   metavar="HZ", help="refresh rate, Hz (default 60)")
 
 
 def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -189,7 +202,8 @@ def _setup(args: argparse.Namespace) -> tuple:
     try:
         backend.start(scene)
     except ServiceError as exc:
-        print(f"holo-game: service not reachable yet ({exc}); retrying", file=sys.stderr)
+        print(f"holo-game: service not reachable yet ({exc}); retrying (is holo-service "
+              "running there? --local plays without it)", file=sys.stderr)
     devices = None
     if args.devices:
         from drivers.subscriber import DeviceSubscriber

@@ -40,8 +40,14 @@ from pathlib import Path
 
 from game.actions import lamp_mask
 from game.display import has_display, headless_env
-from service.cli_args import add_size_option
-from service.signals import Interrupted, end_process, exit_status, stop_on_signals
+from service.cli_args import add_size_option, float_range, plain_help
+from service.signals import (
+    EXIT_RULE,
+    Interrupted,
+    end_process,
+    exit_status,
+    stop_on_signals,
+)
 
 ANY = "tcp://127.0.0.1:0"
 #: What a demo run writes in ``--out`` (glob patterns), removed at the start of the next.
@@ -295,20 +301,23 @@ def game_args(
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line."""
-    ap = argparse.ArgumentParser(prog="holo-demo", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="demo-out")
-    ap.add_argument(
-        "--seconds", type=float, default=20.0, help="seconds of play, from the first frame"
-    )
+    ap = argparse.ArgumentParser(
+        prog="holo-demo", description=plain_help(__doc__.split("\n\n")[0]),
+        epilog=EXIT_RULE + " 1: a program failed to start or stopped, or no frame came.")
+    ap.add_argument("--out", default="demo-out", metavar="DIR",
+                    help="screenshots, film and stats.json (default demo-out)")
+    ap.add_argument("--seconds", type=float_range(0, lo_open=True), default=20.0,
+                    metavar="N", help="seconds of play, from the first frame (default 20)")
     ap.add_argument(
         "--wait",
-        type=float,
+        type=float_range(0, lo_open=True),
         default=WAIT_S,
         metavar="S",
         help="give up when the game shows no frame within S seconds (the service's "
         "first warm-up)",
     )
-    ap.add_argument("--gives-up", type=float, default=6.0, help="bot gives up after S s")
+    ap.add_argument("--gives-up", type=float_range(0), default=6.0, metavar="S",
+                    help="the bot stops dodging after S game seconds (default 6)")
     ap.add_argument("--light", choices=("blinn", "ambient"), default=DEMO_LOOK["light"],
                     help="per-zone Blinn-Phong light, or the game's flat ambient (default: "
                     "%(default)s)")

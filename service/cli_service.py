@@ -38,7 +38,7 @@ class _DefaultsHelp(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefau
     """``--help`` as written, with every default; a None default is explained in words."""
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
-        if action.default is None:
+        if action.default is None or action.nargs == 0:  # a flag: "(default: True)" misleads
             return action.help
         return super()._get_help_string(action)
 

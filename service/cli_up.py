@@ -376,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "[service], [up] (see examples/holo-up.toml and "
                           "docs/command-line.md). " + EXIT_RULE
                           + " 1: a program failed or exited on its own."))
-    p.add_argument("config", type=Path, help="the TOML file")
+    p.add_argument("config", type=Path, metavar="CONFIG", help="the TOML file")
     p.add_argument("--dry-run", action="store_true",
                    help="check the file and print the command lines; start nothing")
     return p

@@ -1,4 +1,4 @@
-"""``make demo``: render the built-in demo scene in 5 view zones and report timings.
+"""``make render-demo``: render the built-in demo scene in 5 view zones and report timings.
 
 Writes zone-NN.png, depth-NN.npy, strip.png and a quilt to the output folder, then
 prints per-stage milliseconds for every occlusion method and how many pixels each
@@ -13,12 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from service.builtin_scenes import builtin_scene
+from service.builtin_scenes import builtin_scene, scene_name
+from service.cli_args import int_range, plain_help
 from service.display import DisplaySettings
 from service.frame import write_quilt, write_strip, write_zones
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.process import setup_frame_process
+from service.signals import EXIT_RULE, interruptible
 
 STAGES = ("flatten", "project", "cull", "sort", "occlusion", "light", "total")
 
@@ -31,13 +33,21 @@ def _median_frame(renderer: Renderer, scene, display, settings, repeats: int):
 
 def main(argv: list[str] | None = None) -> int:
     """Render the demo scene; return the exit status."""
-    p = argparse.ArgumentParser(prog="holo-demo", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m service.demo", description=plain_help(__doc__),
+                                epilog=EXIT_RULE)
     p.add_argument(
         "--out", default="render-demo-out", help="output folder (default render-demo-out)"
     )
-    p.add_argument("--scene", default="demo", help="built-in scene name (default demo)")
-    p.add_argument("--repeats", type=int, default=5, help="renders per method for the median")
+    p.add_argument("--scene", default="demo", type=scene_name,
+                   help="built-in scene name (default demo)")
+    p.add_argument("--repeats", type=int_range(1), default=5, metavar="N",
+                   help="renders per method for the median (default 5)")
     args = p.parse_args(argv)
+    return interruptible("render-demo", lambda: _run(args))
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Render, time and write as ``args`` say; return the exit status."""
     setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     display = DisplaySettings(zones=5, angle_deg=16.0, cols=320, rows=240)
     scene = builtin_scene(args.scene)

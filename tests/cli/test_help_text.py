@@ -69,3 +69,10 @@ def test_help_states_the_exit_rule(name, capsys):
     if "130" not in text:
         _pending(name, PENDING_RULE)
     assert "Ctrl-C (SIGINT) 130" in text and "SIGTERM 143" in text, name
+
+
+@pytest.mark.parametrize(("name", "entry", "argv"), _commands())
+def test_help_gives_no_flag_a_boolean_default(name, entry, argv, capsys):
+    """holo-service's --no-warmup read "(default: True)": which way is on?"""
+    text = " ".join(_help(entry, argv, capsys).split())
+    assert "(default: True)" not in text and "(default: False)" not in text, name

@@ -236,3 +236,63 @@ def test_holo_replay_names_a_missing_log_once(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines()[-1] == (
         f"holo-replay: {missing}: cannot open: No such file or directory")
+
+
+def test_holo_game_refuses_times_and_rates_it_cannot_use():
+    """Before: --seconds -1 played 'playing -1 s' and stopped at once, --wait -1 gave up
+    before the first frame, --bot-gives-up -3 was taken, --refresh 0 was refused as
+    'Galilean setting refresh_hz is out of range: 0.0' (no option named)."""
+    from game.cli import build_parser
+
+    parser = build_parser()
+    for argv, words in ((["--seconds", "-1"], "--seconds: must be > 0"),
+                        (["--seconds", "0"], "--seconds: must be > 0"),
+                        (["--wait", "-1"], "--wait: must be > 0"),
+                        (["--bot-gives-up", "-3"], "--bot-gives-up: must be >= 0"),
+                        (["--refresh", "0"], "--refresh: must be > 0"),
+                        (["--zones", "100"], "--zones: must be from 1 to 64")):
+        proc = _run("game.cli", "--local", "--headless", *argv, timeout=60)
+        line = _one_line_error_argparse(proc, "holo-game")
+        assert words in line, (argv, line)
+    text = parser.format_help()
+    for words in ("(default tcp://127.0.0.1:5555)", "refresh rate, Hz (default 60)",
+                  "the high-score table", "1: with --seconds, no frame came within --wait"):
+        assert words in " ".join(text.split()), words
+
+
+def _one_line_error_argparse(proc: subprocess.CompletedProcess, prog: str) -> str:
+    """Status 2, argparse's usage and one 'PROG: error: ...' line, no traceback."""
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"{prog}: error: "), proc.stderr
+    return last
+
+
+def test_the_demos_refuse_bad_values_before_starting_anything():
+    """Before: make render-demo's --scene bogus and --repeats 0 were tracebacks, and
+    make demo's --seconds -1 started every program before holo-game refused it."""
+    for module, argv, words in (
+            ("service.demo", ["--scene", "bogus"], "--scene: unknown scene 'bogus'"),
+            ("service.demo", ["--repeats", "0"], "--repeats: must be >= 1"),
+            ("game.full_demo", ["--seconds", "-1"], "--seconds: must be > 0"),
+            ("game.full_demo", ["--gives-up", "-2"], "--gives-up: must be >= 0")):
+        proc = _run(module, *argv, timeout=60)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert words in proc.stderr.strip().splitlines()[-1], proc.stderr
+        assert "starting" not in proc.stderr
+
+
+def test_holo_game_without_a_service_says_what_to_start():
+    """A newcomer's first 'holo-game' with no service: the line names holo-service and
+    --local, and --wait ends the run with status 1."""
+    import socket
+
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = _run("game.cli", "--service", f"tcp://127.0.0.1:{port}", "--headless",
+                "--seconds", "1", "--wait", "2", timeout=60)
+    assert proc.returncode == 1, proc.stderr
+    assert "is holo-service running there? --local plays without it" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -55,7 +55,7 @@ def test_zone_out_of_range_is_a_usage_error(tmp_path, zone):
 
 def test_zero_zones_is_a_usage_error():
     run = holo_game("--local", "--zones", "0")
-    assert run.returncode == 2 and "at least one zone" in run.stderr
+    assert run.returncode == 2 and "--zones: must be from 1 to 64, got 0" in run.stderr
 
 
 def client_with(settings: LoopSettings, zones: int = 3) -> GameClient:
