@@ -249,3 +249,41 @@ def test_a_lone_header_byte_at_the_end_is_garbage_not_a_torn_frame():
     assert [(e.event, dict(e.details)) for e in dec.flush(1)] \
         == [("resync", {"discarded": 1})]
     assert dec.stats.truncated == 0
+
+
+@pytest.mark.parametrize("body", [bytes(range(1, 28)), bytes(range(1, 27)) + b"\x55\x56"])
+def test_a_bad_frame_of_29_or_30_bytes_before_a_frame_gives_the_same_events_at_any_split(
+        body):
+    # mutants: `n - j <= FRAME_LEN` as `<` and its `break` as `continue` (a header at
+    # j + 29 not yet visible: the 29 bytes dropped as garbage instead of a torn frame),
+    # and the header search window j + FRAME_LEN + 1 widened (a 30-byte bad frame torn)
+    # (a frame first, so that the stub does not start the buffer: mutant n - j as n + j)
+    data = encode_pose(4, 0, 0, 0) + b"\xaa\xaa" + body + encode_pose(5, 0, 0, 0)
+    whole = [(type(e).__name__, dict(getattr(e, "details", {}))) for e in
+             feed_split(HatireDecoder(), data, [])]
+    stub = 2 + len(body)
+    assert whole[1] == (("StatusEvent", {"bytes": 29}) if stub == 29
+                        else ("StatusEvent", {"discarded": 30}))
+    assert [w[0] for w in whole] == ["PoseEvent", "StatusEvent", "PoseEvent"]
+    for cut in range(1, len(data)):
+        got = feed_split(HatireDecoder(), data, [cut])
+        assert [(type(e).__name__, dict(getattr(e, "details", {}))) for e in got] == whole
+
+
+@pytest.mark.parametrize(("angle", "reported"), [(180.0, False), (-180.0, False),
+                                                 (180.0001, True), (-180.0001, True)])
+def test_angles_of_exactly_the_limit_are_in_range(angle, reported):
+    # mutants: `-lim <= a <= lim` with either <= as <
+    for axis in range(3):
+        angles = [0.0, 0.0, 0.0]
+        angles[axis] = angle
+        events = HatireDecoder().feed(encode_pose(0, *angles), 0)
+        assert any(isinstance(e, StatusEvent) for e in events) == reported
+
+
+def test_a_header_byte_before_a_torn_frame_is_a_one_byte_resync():
+    # mutant: the next-header search starting at j + 2 (the torn frame at j + 1 missed)
+    data = b"\xaa\xaa\xaa\x01\x02\x03\x04" + encode_pose(5, 0, 0, 0)
+    events = HatireDecoder().feed(data, 0)
+    assert [(e.event, dict(e.details)) for e in events if isinstance(e, StatusEvent)] \
+        == [("resync", {"discarded": 1}), ("truncated", {"bytes": 6})]

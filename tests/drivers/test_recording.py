@@ -402,9 +402,49 @@ def test_raw_capture_reader_defaults_to_64_byte_chunks_from_the_first_byte(tmp_p
     (tmp_path / "c.bin").write_bytes(bytes(range(100)))
     got = list(RawCaptureReader(tmp_path / "c.bin", protocol="hatire"))
     assert [r.data for r in got] == [bytes(range(64)), bytes(range(64, 100))]
+    assert RawCaptureReader(tmp_path / "c.bin", protocol="x").header.extra["synthetic_times"]
 
 
 def test_raw_capture_reader_of_a_missing_file_is_a_log_file_error(tmp_path):
     # mutant: the "no such capture file" raise deleted
     with pytest.raises(LogFileError, match="no such capture file"):
         RawCaptureReader(tmp_path / "none.bin", protocol="hatire")
+
+
+def test_a_header_holds_1_to_65535_devices():
+    # device ids are uint16; mutants: `0 < len(names) < 65536` with < as <=
+    names = [f"d{i}" for i in range(65536)]
+    assert len(LogHeader(tuple(DeviceInfo(n, "x") for n in names[:1])).devices) == 1
+    assert len(LogHeader(tuple(DeviceInfo(n, "x") for n in names[1:])).devices) == 65535
+    for bad in ((), tuple(DeviceInfo(n, "x") for n in names)):
+        with pytest.raises(SettingsError, match="1..65535"):
+            LogHeader(bad)
+
+
+@pytest.mark.parametrize("tail", [b"\x00" * 10, b"\x00" * 40, b"\xa7R", b"\xa7RC\x5d\x00"])
+def test_junk_after_the_last_record_is_corrupt_unless_it_begins_a_record(tmp_path, tail):
+    # short junk that cannot begin a record is corrupt, not a torn record; junk with
+    # no sync after it is skipped to the end.  Mutants: the torn check's tail
+    # buf[pos:pos + len(SYNC)] as pos - len(SYNC), the resync's `pos == -1` as -2
+    recs = sample_records(3)
+    path = tmp_path / "t.hlog"
+    write_log(path, recs)
+    path.write_bytes(path.read_bytes() + tail)
+    got, reader = read_all(path)
+    assert got == recs
+    torn = tail.startswith(b"\xa7")
+    assert (reader.stats.torn, reader.stats.corrupt) == (int(torn), int(not torn))
+    assert reader.stats.skipped_bytes == len(tail)
+
+
+def test_a_damaged_region_with_false_sync_markers_in_it_is_one_corrupt_region(tmp_path):
+    # mutant: the resync's check of each sync found (`[0] == "bad"` as `[1]`) ignored
+    recs = sample_records(4)
+    path = tmp_path / "s.hlog"
+    offsets = write_log(path, recs)
+    raw = path.read_bytes()
+    junk = b"\x00" + (SYNC + b"\x00" * 30) * 3
+    path.write_bytes(raw[: offsets[2]] + junk + raw[offsets[2]:])
+    got, reader = read_all(path)
+    assert got == recs
+    assert (reader.stats.corrupt, reader.stats.skipped_bytes) == (1, len(junk))

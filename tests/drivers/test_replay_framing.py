@@ -16,7 +16,7 @@ from drivers import cli_replay
 from drivers.cli_devices import log_devices
 from drivers.protocols import hatire
 from drivers.protocols import sgi_dialbox as sgi
-from drivers.protocols.framing import check_framing, protocols_that_frame
+from drivers.protocols.framing import FramingCheck, check_framing, protocols_that_frame
 from drivers.reader import ReaderSettings
 from drivers.recording import LogHeader, LogWriter
 from sim_devices.dialbox import DialBoxSim, demo_script
@@ -198,3 +198,41 @@ def test_holo_devices_names_a_port_whose_bytes_do_not_frame(capsys):
     assert err[-1].startswith(f"holo-devices: dials ({link.path}): the bytes read do not "
                               "frame as sgi (")
     assert err[-1].endswith("; the wrong port or protocol?")
+
+
+@pytest.mark.parametrize(("bytes_in", "discarded", "rejected"), [
+    (100, 63, False), (100, 64, True),  # at least 64 bytes discarded ...
+    (128, 64, False), (128, 65, True),  # ... and more than half of them
+])
+def test_rejected_needs_64_bytes_and_more_than_half_discarded(bytes_in, discarded, rejected):
+    # mutants: MIN_REJECTED_BYTES 64 -> 65, `>=` as `>`, `> MAX_REJECTED_FRACTION` as `>=`
+    check = FramingCheck("hatire", bytes_in, discarded)
+    assert check.rejected == rejected and check.frames == (not rejected)
+
+
+@pytest.mark.parametrize(("packets", "events", "eventless"), [
+    (19, 0, False), (20, 9, True), (20, 10, False),
+])
+def test_eventless_needs_20_frames_and_fewer_than_half_with_events(packets, events, eventless):
+    # mutants: MIN_FRAMES 20 -> 21, `>=` as `>`, `2 * events < packets` as `<=`
+    check = FramingCheck("hatire", 1000, 0, 0, events, packets)
+    assert check.eventless == eventless and check.frames == (not eventless)
+
+
+def test_describe_names_bytes_when_rejected_and_frames_when_only_eventless():
+    # mutants: describe's `eventless and not rejected` as `or`; the counts' default 0
+    both = FramingCheck("sgi", 1000, 900, 3, 0, 30)
+    assert both.describe() == "900 of 1000 bytes (90 %) rejected in 3 runs"
+    assert FramingCheck("sgi", 1000, 0, 0, 5, 30).describe("its first ") \
+        == "25 of its first 30 frames gave no pose, dial or button"
+    assert FramingCheck("sgi") == FramingCheck("sgi", 0, 0, 0, 0, 0)
+    assert FramingCheck("sgi").describe() == "0 of 0 bytes (0 %) rejected in 0 runs"
+    assert FramingCheck("sgi", 200, 100, 1).describe() \
+        == "100 of 200 bytes (50 %) rejected in 1 run"
+
+
+def test_check_framing_reads_only_the_first_limit_bytes():
+    # mutant: `limit is None` as `is not` (the limit ignored)
+    data = b"".join(hatire.encode_pose(i, 0, 0, 0) for i in range(4))
+    assert check_framing("hatire", data, limit=60).packets == 2
+    assert check_framing("hatire", data, limit=None).packets == 4
