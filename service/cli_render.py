@@ -110,8 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--max-error", type=_budget, default=None, metavar="BUDGET",
-        help="error budget of --quality auto: %% of pixels wrong (0.5 or 0.5%%) or a least "
-        "PSNR (40dB); default 0.5%%, or the scene file's [quality] max_error",
+        help="error budget of --quality auto (giving it turns auto on): %% of pixels wrong "
+        "(0.5 or 0.5%%) or a least PSNR (40dB); default 0.5%%, or the scene file's "
+        "[quality] max_error",
     )
     p.add_argument(
         "--cost-model", default=None, metavar="PATH",
@@ -204,7 +205,10 @@ def _budget(text: str):
 def _quality(args: argparse.Namespace, scene: Scene) -> QualitySettings:
     """Command line first, then the scene file's ``[quality]`` table, then fixed / 0.5%."""
     own = getattr(scene, "quality", {}) or {}
-    mode = args.quality or own.get("mode", "fixed")
+    if args.quality:
+        mode = args.quality
+    else:  # a budget given on the command line asks for auto, as --lod-error asks for LOD
+        mode = "auto" if args.max_error is not None else own.get("mode", "fixed")
     budget = args.max_error or parse_budget(own.get("max_error", "0.5%"))
     return QualitySettings(mode, budget)
 
@@ -342,6 +346,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     args = build_parser().parse_args(argv)
     problem = scene_problem(args.scene)
+    if not problem and args.quality == "fixed" and args.max_error is not None:
+        problem = "--max-error is the budget of --quality auto; --quality fixed has none"
     if problem:
         print(f"holo-render: error: {problem}", file=sys.stderr)
         return 2

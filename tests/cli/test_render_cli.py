@@ -65,3 +65,18 @@ def test_summary_line_adds_up(tmp_path, capsys):
     assert p["in"] - p["culled"] == p["kept"]
     assert line.startswith(f"{p['in']} polygons, {p['culled']} culled, {p['kept']} kept, "
                            f"{p['drawn']} seen in a zone; ")
+
+
+def test_max_error_alone_turns_quality_auto_on(tmp_path, capsys):
+    """Before: --max-error without --quality auto was dropped without a word."""
+    report = _report(capsys, "builtin:cyclic", "--size", "32x24", "--max-error", "5",
+                     "--out", str(tmp_path))
+    assert report["quality"] and report["quality"]["reason"]
+    fixed = _report(capsys, "builtin:cyclic", "--size", "32x24", "--out", str(tmp_path))
+    assert not fixed["quality"]
+
+
+def test_max_error_with_quality_fixed_is_bad_usage(tmp_path, capsys):
+    assert cli_render.main(["builtin:cyclic", "--quality", "fixed", "--max-error", "5",
+                            "--out", str(tmp_path)]) == 2
+    assert "--max-error is the budget of --quality auto" in capsys.readouterr().err
