@@ -289,3 +289,17 @@ def test_material_and_light_fields_and_their_defaults():
     light = wire.light_from_wire({}, "l")
     assert isinstance(light, Light) and light.intensity == 1.0
     assert wire.light_from_wire({"kind": "point", "intensity": 3}, "l").kind == "point"
+
+
+def test_an_array_over_max_bytes_is_too_large_and_one_at_it_is_read():
+    # mutants: `nbytes > max_bytes` as `>=`, its raise deleted
+    desc = [{"dtype": "float32", "shape": [4]}]
+    assert wire.decode_arrays(desc, [bytes(16)], 16)[0].shape == (4,)
+    with pytest.raises(MessageError, match=r"arrays\[0\] has 16 bytes \(max 15\)") as err:
+        wire.decode_arrays(desc, [bytes(16)], 15)
+    assert err.value.code == "too_large"
+
+
+def test_a_scene_that_is_not_an_object_is_a_bad_message():
+    # mutant: the "scene must be an object" raise deleted
+    assert _code(lambda: wire.scene_from_wire([])) == "bad_message"
