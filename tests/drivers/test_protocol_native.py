@@ -146,3 +146,44 @@ def test_encoder_rejects_bad_input():
         encode_frame(0x01, b"short")
     with pytest.raises(ProtocolError):
         encode_command("fly")
+
+
+def _raw(msg_type: int, payload: bytes) -> bytes:
+    """A frame with a right CRC whatever its type and length (docs/native-protocol.md)."""
+    body = bytes((1, msg_type, len(payload))) + payload
+    return b"\xa5\x5a" + body + crc16_ccitt_reference(body).to_bytes(2, "little")
+
+
+@pytest.mark.parametrize(("name", "code"), [("start", 0x10), ("stop", 0x11), ("reset", 0x12)])
+def test_command_frames_are_the_documented_bytes(name, code):
+    # mutants: START/STOP/RESET type numbers changed
+    assert encode_command(name) == _raw(code, b"")
+
+
+def test_pose_and_text_frames_carry_the_documented_type_bytes():
+    # mutants: POSE/INFO/ERROR type numbers changed
+    assert encode_pose(1, 2, (0, 0, 0), (1, 0, 0, 0))[3] == 0x01
+    assert encode_text(1, 2, "x")[3] == 0x02
+    assert encode_text(1, 2, "x", error=True)[3] == 0x03
+
+
+@pytest.mark.parametrize(("msg_type", "ok", "bad"), [
+    (0x01, [40], [39, 41]), (0x02, [12, 255], [11]), (0x03, [12, 255], [11]),
+    (0x10, [0], [1]), (0x11, [0], [1]), (0x12, [0], [1]),
+])
+def test_each_type_takes_exactly_its_payload_lengths(msg_type, ok, bad):
+    # mutants: every bound of MSG_TYPES changed (a wrong-length frame with a right CRC
+    # must be dropped as garbage, a right-length one delivered; encode_frame agrees)
+    end = encode_command("stop")
+    for n in ok:
+        frames = [f for f in NativeFramer().feed(_raw(msg_type, bytes(n)) + end)
+                  if not isinstance(f, tuple)]
+        assert [(f.type, len(f.payload)) for f in frames] == [(msg_type, n), (0x11, 0)]
+        assert encode_frame(msg_type, bytes(n)) == _raw(msg_type, bytes(n))
+    for n in bad:
+        framer = NativeFramer()
+        out = framer.feed(_raw(msg_type, bytes(n)) + end)
+        assert [f.type for f in out if not isinstance(f, tuple)] == [0x11]
+        assert framer.stats.bytes_discarded == 7 + n
+        with pytest.raises(ProtocolError):
+            encode_frame(msg_type, bytes(n))

@@ -171,3 +171,62 @@ def test_big_buffers_are_sent_without_copy():
         a.close(0)
         b.close(0)
         ctx.term()
+
+
+def test_number_takes_its_bounds_inclusive_and_refuses_beyond():
+    # mutant: the range check's raise deleted (an out-of-range number accepted)
+    assert wire.number(0.0, "x", 0.0, 1.0) == 0.0 and wire.number(1, "x", 0.0, 1.0) == 1.0
+    for bad in (-1e-9, 1.000001):
+        with pytest.raises(MessageError, match=r"x must be in \[0.0, 1.0\]") as err:
+            wire.number(bad, "x", 0.0, 1.0)
+        assert err.value.code == "bad_message"
+
+
+@pytest.mark.parametrize("bad", [True, 2.0, "2", None, -1, 11])
+def test_integer_refuses_bools_floats_strings_and_out_of_range(bad):
+    # mutants: integer()'s `or`s as `and`, its raise deleted
+    with pytest.raises(MessageError, match=r"n must be an integer in \[0, 10\]"):
+        wire.integer(bad, "n", 0, 10)
+
+
+def test_integer_gives_a_python_int_at_both_bounds():
+    # mutant: `return int(v)` replaced (None returned)
+    got = [wire.integer(v, "n", 0, 10) for v in (0, np.int64(10))]
+    assert got == [0, 10] and all(type(v) is int for v in got)
+
+
+def test_string_takes_4096_characters_by_default_and_not_more():
+    # mutant: max_len default 4096 -> 4097
+    assert wire.string("x" * 4096, "s") == "x" * 4096
+    with pytest.raises(MessageError, match="longer than 4096") as err:
+        wire.string("x" * 4097, "s")
+    assert err.value.code == "too_large"
+
+
+@pytest.mark.parametrize(("descs", "code", "words"), [
+    ({"dtype": "uint8"}, "bad_message", "must be a list"),
+    ([{"dtype": "uint8", "shape": [0]}] * 1025, "too_large", r"1025 arrays \(max 1024\)"),
+])
+def test_array_descriptors_not_a_list_or_too_many_are_refused(descs, code, words):
+    # mutants: the two raises deleted, `len(descs) > MAX_ARRAYS` as `>=`, MAX_ARRAYS changed
+    buffers = [b""] * (len(descs) if isinstance(descs, list) else 1)
+    with pytest.raises(MessageError, match=words) as err:
+        wire.decode_arrays(descs, buffers, 1 << 20)
+    assert err.value.code == code
+
+
+def test_1024_arrays_are_accepted():
+    got = wire.decode_arrays([{"dtype": "uint8", "shape": [0]}] * 1024, [b""] * 1024, 1 << 20)
+    assert len(got) == 1024
+
+
+def test_as_wire_sends_big_endian_as_little_and_refuses_other_dtypes():
+    # mutants: the byte-order test flipped, the bad-dtype raise deleted
+    a = np.arange(3, dtype=">i4")
+    got = wire.as_wire(a)
+    assert got.dtype == np.dtype("<i4") and got.tolist() == [0, 1, 2]
+    assert wire.as_wire(np.arange(3, dtype="<f8")).dtype == np.dtype("<f8")
+    for bad in (np.zeros(2, np.complex64), np.zeros(2, np.float16), np.zeros(2, "U1")):
+        with pytest.raises(MessageError, match="cannot be sent") as err:
+            wire.as_wire(bad)
+        assert err.value.code == "bad_array"
