@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import signal
 import sys
 import threading
@@ -57,7 +58,7 @@ from drivers.reader import (
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
 from service.addresses import default_address
-from service.cli_args import endpoint, float_range, int_range, plain_help
+from service.cli_args import endpoint, float_range, int_range, output_problem, plain_help
 from service.errors import HoloError
 from service.signals import (
     EXIT_FAILED,
@@ -343,6 +344,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("give --tracker URL and/or --dials URL")
     if args.pub_pose and not args.pub:
         parser.error("--pub-pose needs --pub")
+    problem = output_problem(args.record) if args.record else None
+    if args.record and not problem and os.path.lexists(args.record):
+        problem = f"{args.record}: already exists (a log is never overwritten; name a new file)"
+    if problem:  # the log's own error repeated the path and the errno
+        print(f"holo-devices: --record {problem}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         session = DeviceSession(args, sys.stdout, sys.stderr)
     except HoloError as exc:

@@ -91,7 +91,7 @@ from drivers.recording import (
     Record,
 )
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
-from service.cli_args import float_range, int_range, plain_help
+from service.cli_args import float_range, int_range, output_problem, plain_help
 from service.errors import DeviceError, HoloError, LogFileError, SettingsError
 from service.signals import (
     EXIT_FAILED,
@@ -530,6 +530,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.pub_pose and not args.pub:
         parser.error("--pub-pose needs --pub")
+    problem = output_problem(args.pty_link) if args.pty_link else None
+    if problem:  # the link is made once the pty is open: a traceback there before
+        print(f"holo-replay: --pty-link {problem}", file=sys.stderr)
+        return EXIT_USAGE
     if not has_output(args):
         args.dump = True
         print("holo-replay: no output option given: dumping JSON lines (--dump)",

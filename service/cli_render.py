@@ -145,6 +145,12 @@ def scene_problem(spec: str, first: tuple[str, ...] = ()) -> str | None:
             f"({', '.join(SCENES)})")
 
 
+def _billboard_words(report: dict) -> str:
+    """``, 50 billboards`` when the frame drew billboard quads (a cloud has no polygons)."""
+    quads = (report.get("billboards") or {}).get("quads", 0)
+    return f", {quads} billboards" if quads else ""
+
+
 def _load(spec: str, strict: bool = False) -> tuple[Scene, list[str]]:
     """The scene, and the one-line repair warnings its mesh files gave."""
     if spec.startswith("builtin:"):
@@ -379,7 +385,7 @@ def _main(args: argparse.Namespace) -> int:
         p = report["polygons"]
         print(
             f"{p['in']} polygons, {p['culled']} culled, {p['kept']} kept, "
-            f"{p['drawn']} seen in a zone; "
+            f"{p['drawn']} seen in a zone{_billboard_words(report)}; "
             f"{report['ms']['total']:.1f} ms; wrote {report['out']}/"
         )
         q = report["quality"]

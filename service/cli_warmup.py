@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--jsonl", action="store_true",
                    help="one JSON object per line on stdout instead of progress on stderr")
-    p.add_argument("--processes", type=int_range(1, 2), default=2,
+    p.add_argument("--processes", type=int_range(1, 2), default=2, metavar="N",
                    help="2 (default): on an empty cache, compile the Galilean stage's "
                    "kernels in a second process meanwhile; 1: one process")
     p.add_argument("--job", action="append", choices=list(JOBS), metavar="NAME",

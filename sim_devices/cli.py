@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 from drivers.pty_link import PtyLink
 from drivers.tracker_driver import add_command_options, commands_from_args
-from service.cli_args import float_range, int_range, plain_help
+from service.cli_args import float_range, int_range, output_problem, plain_help
 from service.errors import HoloError
 from service.signals import EXIT_FAILED, EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
 from sim_devices.dialbox import DialBoxSim, demo_script
@@ -101,6 +101,10 @@ def _device(args: argparse.Namespace) -> TrackerSim | DialBoxSim:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the simulator; returns the exit status (see the module docstring)."""
     args = build_parser().parse_args(argv)
+    problem = output_problem(args.pty_link) if args.pty_link else None
+    if problem:  # the link is made once the pty is open: a traceback there before
+        print(f"holo-sim: --pty-link {problem}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         device = _device(args)
         faults = FaultSpec.parse(args.faults)

@@ -296,3 +296,32 @@ def test_holo_game_without_a_service_says_what_to_start():
     assert proc.returncode == 1, proc.stderr
     assert "is holo-service running there? --local plays without it" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_holo_sim_names_a_pty_link_it_cannot_make(tmp_path):
+    """Before: a FileNotFoundError traceback (status 1) once the pty was open."""
+    link = tmp_path / "no-such-folder" / "tracker"
+    proc = _run("sim_devices.cli", "tracker", "--pty", "--pty-link", str(link),
+                "--seconds", "1", timeout=60)
+    _one_line_error(proc, "holo-sim", "--pty-link", "no folder")
+    assert proc.stdout == ""
+
+
+def test_holo_replay_names_a_pty_link_it_cannot_make(tmp_path):
+    """Before: a FileNotFoundError traceback (status 1) once the pty was open."""
+    log = _tracker_log(tmp_path, 1_000_000)
+    link = tmp_path / "no-such-folder" / "tracker"
+    proc = _run("drivers.cli_replay", str(log), "--to-pty", "--pty-link", str(link))
+    _one_line_error(proc, "holo-replay", "--pty-link", "no folder")
+
+
+def test_holo_devices_names_a_record_file_it_cannot_make_before_opening_ports(tmp_path):
+    """Before: 'PATH: cannot create log: [Errno 17] File exists: 'PATH'' (and Errno 2)."""
+    there = tmp_path / "s.hlog"
+    there.write_bytes(b"mine")
+    proc = _run("drivers.cli_devices", "--tracker", "loop://", "--record", str(there))
+    _one_line_error(proc, "holo-devices", "--record", "already exists", "never overwritten")
+    assert there.read_bytes() == b"mine"
+    proc = _run("drivers.cli_devices", "--tracker", "loop://", "--record",
+                str(tmp_path / "no-such-folder" / "s.hlog"))
+    _one_line_error(proc, "holo-devices", "--record", "no folder")

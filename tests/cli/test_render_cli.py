@@ -80,3 +80,20 @@ def test_max_error_with_quality_fixed_is_bad_usage(tmp_path, capsys):
     assert cli_render.main(["builtin:cyclic", "--quality", "fixed", "--max-error", "5",
                             "--out", str(tmp_path)]) == 2
     assert "--max-error is the budget of --quality auto" in capsys.readouterr().err
+
+
+def test_summary_of_a_billboard_cloud_counts_its_billboards(tmp_path, capsys):
+    """Before: 'holo-render bunny.hbc' said '0 polygons, ... 0 seen in a zone' of a frame
+    full of billboards."""
+    from service import cli_simplify
+    from service.loaders import save_obj
+    from service.primitives import sphere
+
+    save_obj(tmp_path / "ball.obj", sphere(0.5, 12, 8))
+    assert cli_simplify.main([str(tmp_path / "ball.obj"), "--error", "5%", "--out",
+                              str(tmp_path / "ball.hbc")]) == 0
+    capsys.readouterr()
+    assert cli_render.main([str(tmp_path / "ball.hbc"), "--zones", "3", "--size", "48x36",
+                            "--out", str(tmp_path / "out")]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    assert " billboards; " in line and not line.split(", ")[-1].startswith("0 billboards")
