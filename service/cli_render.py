@@ -354,6 +354,9 @@ def main(argv: list[str] | None = None) -> int:
     problem = scene_problem(args.scene)
     if not problem and args.quality == "fixed" and args.max_error is not None:
         problem = "--max-error is the budget of --quality auto; --quality fixed has none"
+    if not problem and args.cost_model and not Path(args.cost_model).is_file():
+        problem = (f"--cost-model {args.cost_model}: no such file (holo-bench quality "
+                   "--calibrate --model PATH writes one)")
     if problem:
         print(f"holo-render: error: {problem}", file=sys.stderr)
         return 2
