@@ -187,3 +187,43 @@ def test_each_type_takes_exactly_its_payload_lengths(msg_type, ok, bad):
         assert framer.stats.bytes_discarded == 7 + n
         with pytest.raises(ProtocolError):
             encode_frame(msg_type, bytes(n))
+
+
+def test_a_frame_of_another_version_is_dropped_even_with_a_right_crc():
+    # mutant: the candidate check's `or`s as `and` (version 2 frames accepted)
+    good = encode_command("stop")
+    body = bytes((2,)) + good[3:5]
+    other = b"\xa5\x5a" + body + crc16_ccitt(body).to_bytes(2, "little")
+    framer = NativeFramer()
+    out = framer.feed(other + good)
+    assert out == [("garbage", 7), out[1]] and out[1].type == 0x11
+
+
+def test_a_bad_five_byte_header_at_the_end_is_garbage_not_a_torn_frame():
+    # mutant: `n - j < HEADER_LEN` as `<=` (a whole bad header waited on, then torn)
+    dec = NativeDecoder()
+    events = dec.feed(b"\xa5\x5a\x07\x01\x00", 0) + dec.flush(1)
+    assert [(e.event, dict(e.details)) for e in events] == [("resync", {"discarded": 5})]
+    assert dec.stats.truncated == 0
+
+
+def test_reset_forgets_dropped_bytes_and_re_arms_the_out_of_range_report():
+    # mutants: reset's scan.run = 0 -> 1 (a phantom resync), _in_range True -> False
+    bad = encode_pose(0, 0, (0, 0, 0), (2.0, 0, 0, 0))
+    dec = NativeDecoder()
+    dec.feed(b"\x00\x01" + bad, 0)
+    dec.reset()
+    dec.feed(b"\x00\x01", 0)
+    dec.reset()
+    events = dec.feed(bad, 0)
+    assert [e.details.get("reason") for e in events if isinstance(e, StatusEvent)] \
+        == ["out_of_range"]
+
+
+def test_text_frames_keep_seq_and_time_and_cut_long_text_to_243_bytes():
+    # mutants: encode_text's `seq % SEQ_MODULO`, `t_us % 2**64` and 255 - 12 changed
+    events = NativeDecoder().feed(encode_text(5, 7, "é" + "x" * 300), 0)
+    assert [dict(e.details) for e in events] \
+        == [{"seq": 5, "device_t_us": 7, "text": "é" + "x" * 241}]
+    events = NativeDecoder().feed(encode_text(2**32 + 1, 2**64 + 3, "a"), 0)
+    assert (events[0].details["seq"], events[0].details["device_t_us"]) == (1, 3)

@@ -230,3 +230,76 @@ def test_as_wire_sends_big_endian_as_little_and_refuses_other_dtypes():
         with pytest.raises(MessageError, match="cannot be sent") as err:
             wire.as_wire(bad)
         assert err.value.code == "bad_array"
+
+
+def _code(call) -> str:
+    with pytest.raises(MessageError) as err:
+        call()
+    return err.value.code
+
+
+def test_float_array_checks_type_shape_rows_and_finiteness():
+    # mutants: float_array's `or`s as `and`, its three raises deleted, `>` as `>=`
+    ok = np.zeros((3, 2), np.float32)
+    got = wire.float_array(ok, "v", 2, 3)
+    assert got.dtype == np.float64 and got.shape == (3, 2)
+    assert _code(lambda: wire.float_array(ok.tolist(), "v", 2, 3)) == "bad_array"
+    assert _code(lambda: wire.float_array(ok.astype(np.int32), "v", 2, 3)) == "bad_array"
+    assert _code(lambda: wire.float_array(ok.ravel(), "v", 2, 3)) == "bad_array"
+    assert _code(lambda: wire.float_array(ok, "v", 3, 3)) == "bad_array"
+    assert _code(lambda: wire.float_array(ok, "v", 2, 2)) == "too_large"
+    assert _code(lambda: wire.float_array(np.full((1, 2), np.nan), "v", 2, 3)) == "not_finite"
+
+
+def test_int_array_checks_type_dims_and_rows():
+    # mutants: int_array's `or`s as `and`, its two raises deleted, `>` as `>=`
+    ok = np.zeros((3, 3), np.int32)
+    got = wire.int_array(ok, "t", 2, 3)
+    assert got.dtype == np.int64 and got.shape == (3, 3)
+    assert _code(lambda: wire.int_array(ok.tolist(), "t", 2, 3)) == "bad_array"
+    assert _code(lambda: wire.int_array(ok.astype(np.float32), "t", 2, 3)) == "bad_array"
+    assert _code(lambda: wire.int_array(ok, "t", 1, 3)) == "bad_array"
+    assert _code(lambda: wire.int_array(ok, "t", 2, 2)) == "too_large"
+
+
+def test_list_fields_must_be_lists_of_at_most_max_len():
+    # mutants: _list's raises deleted, `len(v) > max_len` as `>=`
+    assert wire._list([1, 2], "l", 2) == [1, 2]
+    assert _code(lambda: wire._list((1, 2), "l", 2)) == "bad_message"
+    assert _code(lambda: wire._list([1, 2, 3], "l", 2)) == "too_large"
+
+
+@pytest.mark.parametrize("parse", [wire.mesh_from_wire, wire.material_from_wire,
+                                   wire.light_from_wire, wire.object_from_wire])
+def test_object_fields_that_are_not_objects_are_bad_messages(parse):
+    # mutants: the "must be an object" raises deleted
+    with pytest.raises(MessageError, match="x must be an object") as err:
+        parse([1, 2], "x")
+    assert err.value.code == "bad_message"
+
+
+def test_material_and_light_fields_and_their_defaults():
+    # mutants: material_from_wire's None default, `"colour" in spec` and both returns
+    # replaced; light_from_wire's return replaced
+    from service.scene import Light, Material
+    assert wire.material_from_wire(None, "m") == Material()
+    m = wire.material_from_wire({"colour": [0.5, 0.25, 1.0], "shininess": 8}, "m")
+    assert m.colour == (0.5, 0.25, 1.0) and m.shininess == 8.0
+    assert wire.material_from_wire({"ambient": 0.5}, "m").colour == Material().colour
+    light = wire.light_from_wire({}, "l")
+    assert isinstance(light, Light) and light.intensity == 1.0
+    assert wire.light_from_wire({"kind": "point", "intensity": 3}, "l").kind == "point"
+
+
+def test_an_array_over_max_bytes_is_too_large_and_one_at_it_is_read():
+    # mutants: `nbytes > max_bytes` as `>=`, its raise deleted
+    desc = [{"dtype": "float32", "shape": [4]}]
+    assert wire.decode_arrays(desc, [bytes(16)], 16)[0].shape == (4,)
+    with pytest.raises(MessageError, match=r"arrays\[0\] has 16 bytes \(max 15\)") as err:
+        wire.decode_arrays(desc, [bytes(16)], 15)
+    assert err.value.code == "too_large"
+
+
+def test_a_scene_that_is_not_an_object_is_a_bad_message():
+    # mutant: the "scene must be an object" raise deleted
+    assert _code(lambda: wire.scene_from_wire([])) == "bad_message"
