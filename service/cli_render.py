@@ -66,9 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
         f"a hyphen). {plain_help(EXIT_RULE)}",
     )
     p.add_argument("scene", metavar="SCENE", help="scene or mesh file, or builtin:NAME")
-    p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones, 1-64 (default 5)")
+    p.add_argument("--zones", type=int_range(1, 64), default=5, metavar="N",
+                   help="view zones, 1-64 (default 5)")
     p.add_argument(
-        "--angle", type=float_range(0, 60), default=16.0,
+        "--angle", type=float_range(0, 60), default=16.0, metavar="DEG",
         help="viewing angle in degrees, 0-60 (default 16)",
     )
     add_size_option(p, (320, 240), "pixels per zone image")
@@ -354,6 +355,9 @@ def main(argv: list[str] | None = None) -> int:
     problem = scene_problem(args.scene)
     if not problem and args.quality == "fixed" and args.max_error is not None:
         problem = "--max-error is the budget of --quality auto; --quality fixed has none"
+    if not problem and args.cost_model and not Path(args.cost_model).is_file():
+        problem = (f"--cost-model {args.cost_model}: no such file (holo-bench quality "
+                   "--calibrate --model PATH writes one)")
     if problem:
         print(f"holo-render: error: {problem}", file=sys.stderr)
         return 2

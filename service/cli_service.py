@@ -167,11 +167,13 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
         help="directory load_scene/load_object paths must lie in (repeatable; "
         "default: none, so any file the service can read)",
     )
-    ap.add_argument("--zones", type=int, default=5, help="view zones")
+    ap.add_argument("--zones", type=int_range(1, 64), default=5, metavar="N",
+                    help="view zones, 1-64")
     add_size_option(ap, (160, 120), "galpixel columns x hololines per zone",
                     old_cols_rows=True)
     ap.add_argument(
-        "--angle", type=float, default=16.0, help="view angle across the zones, degrees"
+        "--angle", type=float_range(0, 60), default=16.0, metavar="DEG",
+        help="view angle across the zones, degrees, 0-60"
     )
     ap.add_argument(
         "--pose-scale",

@@ -76,3 +76,11 @@ def test_help_gives_no_flag_a_boolean_default(name, entry, argv, capsys):
     """holo-service's --no-warmup read "(default: True)": which way is on?"""
     text = " ".join(_help(entry, argv, capsys).split())
     assert "(default: True)" not in text and "(default: False)" not in text, name
+
+
+def test_command_line_doc_lists_every_command():
+    """docs/command-line.md's table of commands names every console script."""
+    text = (ROOT / "docs" / "command-line.md").read_text()
+    table = text.split("## The commands", 1)[1].split("\n## ", 1)[0]
+    missing = [name for name in SCRIPTS if f"| `{name}` |" not in table]
+    assert not missing, f"add to docs/command-line.md's table: {missing}"

@@ -325,3 +325,17 @@ def test_holo_devices_names_a_record_file_it_cannot_make_before_opening_ports(tm
     proc = _run("drivers.cli_devices", "--tracker", "loop://", "--record",
                 str(tmp_path / "no-such-folder" / "s.hlog"))
     _one_line_error(proc, "holo-devices", "--record", "no folder")
+
+
+def test_holo_service_names_the_option_of_a_bad_display(capsys):
+    """Before: 'holo-service: zones must be an integer from 1 to 64, got 0', no option."""
+    import pytest
+
+    from service.cli_service import build_parser
+
+    for argv, words in ((["--zones", "0"], "argument --zones: must be from 1 to 64"),
+                        (["--angle", "90"], "argument --angle: must be from 0 to 60")):
+        with pytest.raises(SystemExit) as exc:
+            build_parser().parse_args(argv)
+        assert exc.value.code == 2
+        assert words in capsys.readouterr().err

@@ -97,3 +97,14 @@ def test_summary_of_a_billboard_cloud_counts_its_billboards(tmp_path, capsys):
                             "--out", str(tmp_path / "out")]) == 0
     line = capsys.readouterr().out.splitlines()[0]
     assert " billboards; " in line and not line.split(", ")[-1].startswith("0 billboards")
+
+
+def test_a_missing_cost_model_is_named_before_rendering(tmp_path, capsys):
+    """Before: 'cost model m.json: [Errno 2] No such file or directory: 'm.json''."""
+    missing = tmp_path / "m.json"
+    assert cli_render.main(["builtin:cyclic", "--quality", "auto", "--cost-model",
+                            str(missing), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == (f"holo-render: error: --cost-model {missing}: no such file "
+                           "(holo-bench quality --calibrate --model PATH writes one)")
+    assert not (tmp_path / "out").exists()
