@@ -303,3 +303,40 @@ def test_an_array_over_max_bytes_is_too_large_and_one_at_it_is_read():
 def test_a_scene_that_is_not_an_object_is_a_bad_message():
     # mutant: the "scene must be an object" raise deleted
     assert _code(lambda: wire.scene_from_wire([])) == "bad_message"
+
+
+def test_mesh_from_wire_builds_triangle_meshes_and_names_bad_indices():
+    # mutants: the triangle path's return replaced, the MeshError -> bad_message raise
+    # deleted
+    verts = np.eye(3, dtype=np.float64)
+    mesh = wire.mesh_from_wire({"vertices": verts, "triangles": np.array([[0, 1, 2]])}, "m")
+    np.testing.assert_array_equal(mesh.vertices, verts)
+    with pytest.raises(MessageError, match="^bad_message: m: ") as err:
+        wire.mesh_from_wire({"vertices": verts, "triangles": np.array([[0, 1, 7]])}, "m")
+    assert err.value.code == "bad_message"
+
+
+def test_material_fields_are_used_and_an_impossible_material_is_a_bad_message():
+    # mutants: `key in spec` as `not in`, the SettingsError -> bad_message raise deleted
+    m = wire.material_from_wire({"ambient": 0.5, "diffuse": 0.25}, "m")
+    assert (m.ambient, m.diffuse) == (0.5, 0.25)
+    for bad in ({"colour": [2, 0, 0]}, {"shininess": 0.5}):
+        with pytest.raises(MessageError, match="^bad_message: m: ") as err:
+            wire.material_from_wire(bad, "m")
+        assert err.value.code == "bad_message"
+
+
+def test_orientation_is_normalised_and_scale_applied():
+    # mutants: `q / norm` as `q * norm`, `"scale" in spec` as `not in`
+    from service.scene import Transform
+    t = wire.transform_from_wire({"orientation": [0, 0, 0, 1.5], "scale": 2}, "o", Transform())
+    assert np.linalg.norm(t.orientation) == pytest.approx(1.0) and t.scale == 2.0
+    assert wire.transform_from_wire({}, "o", Transform()).scale == Transform().scale
+
+
+def test_a_light_of_an_unknown_kind_is_a_bad_message_and_a_scene_holds_64_lights():
+    # mutants: light_from_wire's SettingsError -> bad_message raise deleted, the
+    # scene's 64-light bound changed
+    assert _code(lambda: wire.light_from_wire({"kind": "spot"}, "l")) == "bad_message"
+    assert len(wire.scene_from_wire({"lights": [{}] * 64}).lights) == 64
+    assert _code(lambda: wire.scene_from_wire({"lights": [{}] * 65})) == "too_large"

@@ -96,3 +96,19 @@ def test_malformed_billboard_object_gets_a_clear_error(cloud, field, value, matc
         wire.scene_from_wire(spec)
     with pytest.raises(MessageError, match="list"):
         wire.scene_from_wire({"billboards": {}})
+
+
+def test_a_cloud_of_more_than_65536_billboards_is_too_large_before_its_other_arrays():
+    # mutants: `planes.shape[0] > MAX_BILLBOARDS` as `>=`, its raise deleted
+    with pytest.raises(MessageError, match="more than 65536 billboards") as err:
+        wire.cloud_from_wire({"planes": np.zeros((65537, 4))}, "c")
+    assert err.value.code == "too_large"
+    with pytest.raises(MessageError, match="c.corners must be an array"):
+        wire.cloud_from_wire({"planes": np.zeros((65536, 4))}, "c")
+
+
+def test_a_billboard_that_is_not_an_object_is_a_bad_message():
+    # mutant: billboard_from_wire's "must be an object" raise deleted
+    with pytest.raises(MessageError, match="b must be an object") as err:
+        wire.billboard_from_wire([], "b", {})
+    assert err.value.code == "bad_message"
