@@ -379,3 +379,17 @@ def test_a_mesh_ref_must_name_an_earlier_object(ref):
         wire.scene_from_wire(spec)
     shared = wire.scene_from_wire({"objects": [{"mesh": mesh}, {"mesh_ref": 0}]})
     assert shared.objects[1].mesh is shared.objects[0].mesh
+
+
+@pytest.mark.parametrize("ref", [-1, 1, True, "0"])
+def test_an_array_reference_out_of_range_is_a_bad_message(ref):
+    # mutants: `0 <= i < len(arrays)` with either < as <= (an IndexError, or index 0 refused)
+    a = np.zeros(2)
+    assert wire.resolve({"x": {"$array": 0}}, [a])["x"] is a
+    assert _code(lambda: wire.resolve({"x": {"$array": ref}}, [a])) == "bad_message"
+
+
+def test_a_light_defaults_to_white_from_above_and_in_front():
+    # mutants: the default colour's and vector's numbers changed
+    light = wire.light_from_wire({}, "l")
+    assert light.colour == (1.0, 1.0, 1.0) and light.kind == "directional"
