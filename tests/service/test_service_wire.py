@@ -393,3 +393,90 @@ def test_a_light_defaults_to_white_from_above_and_in_front():
     # mutants: the default colour's and vector's numbers changed
     light = wire.light_from_wire({}, "l")
     assert light.colour == (1.0, 1.0, 1.0) and light.kind == "directional"
+
+
+def test_split_envelope_with_and_without_the_empty_delimiter():
+    # mutant: the no-delimiter return replaced
+    assert protocol.split_envelope([b"id", b"", b"h", b"a"]) == ([b"id", b""], [b"h", b"a"])
+    assert protocol.split_envelope([b"id", b"h", b"a"]) == ([b"id"], [b"h", b"a"])
+    assert protocol.split_envelope([b"id"]) == ([b"id"], [])
+
+
+def _ping(**extra) -> bytes:
+    return json.dumps({"v": 1, "type": "ping", **extra}).encode()
+
+
+def test_request_limits_take_their_bound_and_refuse_one_more():
+    # each cap inclusive: mutants of parse_request's `>` comparisons (as `>=`)
+    desc = [{"dtype": "uint8", "shape": [4]}]
+    head = _ping(arrays=desc, x={"$array": 0})
+    limits = protocol.Limits(max_frames=3, max_request_bytes=len(head) + 4)
+    assert protocol.parse_request([head, bytes(4)], limits)["x"].shape == (4,)
+    too = [(lambda: protocol.parse_request([head, bytes(4), b""], limits), "frames"),
+           (lambda: protocol.parse_request(
+               [head, bytes(4)], protocol.Limits(max_request_bytes=len(head) + 3)), "bytes")]
+    for call, words in too:
+        with pytest.raises(MessageError, match=words) as err:
+            call()
+        assert err.value.code == "too_large"
+    h = _ping(s="12345")
+    assert protocol.parse_request([h], protocol.Limits(max_header_bytes=len(h), max_string=5))
+    for lim in (protocol.Limits(max_header_bytes=len(h) - 1),
+                protocol.Limits(max_string=4)):
+        with pytest.raises(MessageError) as err:
+            protocol.parse_request([h], lim)
+        assert err.value.code == "too_large"
+
+
+@pytest.mark.parametrize(("key", "value", "code"), [
+    ("id", "abcd", None), ("id", "abcde", "too_large"), ("id", "", "bad_message"),
+    ("id", True, "bad_message"), ("id", 7, None), ("client_id", 7, "bad_message"),
+    ("client_id", "abcd", None), ("client_id", "abcde", "too_large"),
+])
+def test_ids_are_ints_or_short_non_empty_strings(key, value, code):
+    # mutants: _check_token's checks (kinds, "", len > max_id) and check_id's bound
+    limits = protocol.Limits(max_id=4)
+    body = [_ping(**{key: value})]
+    if code is None:
+        assert protocol.parse_request(body, limits)[key] == value
+        return
+    with pytest.raises(MessageError) as err:
+        protocol.parse_request(body, limits)
+    assert err.value.code == code
+
+
+def test_check_id_keeps_ints_and_short_strings_only():
+    limits = protocol.Limits(max_id=4)
+    assert [protocol.check_id(v, limits) for v in (3, "abcd", "abcde", True, 1.5, None)] \
+        == [3, "abcd", None, None, None, None]
+
+
+def test_an_unknown_type_of_at_most_64_characters_is_echoed_in_the_error():
+    # mutant: _readable_type's 64-character bound changed
+    for t, echoed in (("x" * 64, True), ("x" * 65, False)):
+        with pytest.raises(MessageError) as err:
+            protocol.parse_request([json.dumps({"v": 1, "type": t}).encode()])
+        assert err.value.code == "unknown_type"
+        assert err.value.partial["type"] == (t if echoed else None)
+
+
+def test_check_request_size_takes_each_bound_and_refuses_one_more():
+    # mutants: check_request_size's comparisons (as >=) and raises
+    frames = [b"", b"h" * 10, bytes(5), bytes(5)]
+    ok = protocol.Limits(max_frames=4, max_header_bytes=10, max_array_bytes=5,
+                         max_request_bytes=20)
+    protocol.check_request_size(frames, ok)
+    for change in (dict(max_frames=3), dict(max_header_bytes=9), dict(max_array_bytes=4),
+                   dict(max_request_bytes=19)):
+        lim = protocol.Limits(**{**ok.as_dict(), **change})
+        with pytest.raises(MessageError) as err:
+            protocol.check_request_size(frames, lim)
+        assert err.value.code == "too_large"
+
+
+def test_limits_from_a_hello_reply_ignore_unknown_keys_and_default_missing_ones():
+    # mutants: Limits.as_dict's and Limits.from_dict's returns replaced
+    got = protocol.Limits.from_dict({"max_id": "8", "max_frames": 10, "future_key": 1})
+    assert got == protocol.Limits(max_id=8, max_frames=10)
+    assert protocol.Limits.from_dict(got.as_dict()) == got
+    assert got.as_dict()["max_string"] == protocol.Limits().max_string
