@@ -227,3 +227,10 @@ def test_text_frames_keep_seq_and_time_and_cut_long_text_to_243_bytes():
         == [{"seq": 5, "device_t_us": 7, "text": "é" + "x" * 241}]
     events = NativeDecoder().feed(encode_text(2**32 + 1, 2**64 + 3, "a"), 0)
     assert (events[0].details["seq"], events[0].details["device_t_us"]) == (1, 3)
+
+
+def test_pose_frames_wrap_seq_and_device_time():
+    # mutants: encode_pose's `t_us % (1 << 64)` changed (2**64 + 3 then cannot be packed)
+    frame = encode_pose(2**32 + 2, 2**64 + 3, (0, 0, 0), (1, 0, 0, 0))
+    (event,) = NativeDecoder().feed(frame, 0)
+    assert (event.seq, event.device_t_us) == (2, 3)

@@ -340,3 +340,56 @@ def test_a_light_of_an_unknown_kind_is_a_bad_message_and_a_scene_holds_64_lights
     assert _code(lambda: wire.light_from_wire({"kind": "spot"}, "l")) == "bad_message"
     assert len(wire.scene_from_wire({"lights": [{}] * 64}).lights) == 64
     assert _code(lambda: wire.scene_from_wire({"lights": [{}] * 65})) == "too_large"
+
+
+def test_a_negative_dimension_is_a_bad_array():
+    # mutant: `n >= 0` in the shape check changed
+    with pytest.raises(MessageError, match="non-negative ints") as err:
+        wire.decode_arrays([{"dtype": "uint8", "shape": [-1]}], [b""], 16)
+    assert err.value.code == "bad_array"
+
+
+def test_triangles_must_have_three_columns():
+    # mutants: `tri.shape[1] != 3` changed, its raise deleted
+    verts = np.zeros((4, 3), np.float64)
+    with pytest.raises(MessageError, match=r"m.triangles must have shape \(T, 3\)") as err:
+        wire.mesh_from_wire({"vertices": verts, "triangles": np.array([[0, 1, 2, 3]])}, "m")
+    assert err.value.code == "bad_array"
+
+
+@pytest.mark.parametrize(("q", "ok"), [([0, 0, 0, 0.5], False), ([0, 0, 0, 0.51], True),
+                                       ([0, 0, 0, 1.99], True), ([0, 0, 0, 2.0], False)])
+def test_an_orientation_needs_a_norm_strictly_between_half_and_two(q, ok):
+    # mutants: `0.5 < norm < 2.0` with either < as <=
+    from service.scene import Transform
+    if ok:
+        t = wire.transform_from_wire({"orientation": q}, "o", Transform())
+        assert np.linalg.norm(t.orientation) == pytest.approx(1.0)
+    else:
+        assert _code(lambda: wire.transform_from_wire({"orientation": q}, "o",
+                                                       Transform())) == "bad_message"
+
+
+@pytest.mark.parametrize("ref", [1, 5, "0", None])
+def test_a_mesh_ref_must_name_an_earlier_object(ref):
+    # mutants: the mesh_ref check's `and` as `or`, its raise deleted (a KeyError)
+    mesh = {"vertices": np.eye(3, dtype=np.float64), "triangles": np.array([[0, 1, 2]])}
+    spec = {"objects": [{"mesh": mesh}, {"mesh_ref": ref}]}
+    with pytest.raises(MessageError, match=r"objects\[1\].mesh_ref must name an earlier"):
+        wire.scene_from_wire(spec)
+    shared = wire.scene_from_wire({"objects": [{"mesh": mesh}, {"mesh_ref": 0}]})
+    assert shared.objects[1].mesh is shared.objects[0].mesh
+
+
+@pytest.mark.parametrize("ref", [-1, 1, True, "0"])
+def test_an_array_reference_out_of_range_is_a_bad_message(ref):
+    # mutants: `0 <= i < len(arrays)` with either < as <= (an IndexError, or index 0 refused)
+    a = np.zeros(2)
+    assert wire.resolve({"x": {"$array": 0}}, [a])["x"] is a
+    assert _code(lambda: wire.resolve({"x": {"$array": ref}}, [a])) == "bad_message"
+
+
+def test_a_light_defaults_to_white_from_above_and_in_front():
+    # mutants: the default colour's and vector's numbers changed
+    light = wire.light_from_wire({}, "l")
+    assert light.colour == (1.0, 1.0, 1.0) and light.kind == "directional"

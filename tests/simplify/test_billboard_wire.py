@@ -112,3 +112,13 @@ def test_a_billboard_that_is_not_an_object_is_a_bad_message():
     with pytest.raises(MessageError, match="b must be an object") as err:
         wire.billboard_from_wire([], "b", {})
     assert err.value.code == "bad_message"
+
+
+@pytest.mark.parametrize("faces", [None, 0])
+def test_source_faces_defaults_to_and_may_be_zero(cloud, faces):
+    # mutants: source_faces' default 0 -> 1 and its lower bound 0 -> 1
+    spec = _spec(cloud)["billboards"][0]["cloud"]
+    spec.pop("source_faces")
+    if faces is not None:
+        spec["source_faces"] = faces
+    assert wire.cloud_from_wire(spec, "c").source_faces == 0
