@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cli_args import int_range, output_problem, plain_help
+from service.cli_args import int_range, os_error_text, output_problem, plain_help
 from service.errors import HoloError
 from service.loaders import load_mesh, save_obj, save_ply
 from service.mesh import Mesh
@@ -128,7 +128,8 @@ def _main(args: argparse.Namespace) -> int:
     try:
         report = run(args)
     except (HoloError, OSError) as exc:
-        print(f"holo-simplify: error: {exc}", file=sys.stderr)
+        text = os_error_text(exc) if isinstance(exc, OSError) else str(exc)
+        print(f"holo-simplify: error: {text}", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(report))

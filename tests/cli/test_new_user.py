@@ -339,3 +339,21 @@ def test_holo_service_names_the_option_of_a_bad_display(capsys):
             build_parser().parse_args(argv)
         assert exc.value.code == 2
         assert words in capsys.readouterr().err
+
+
+def test_holo_simplify_names_an_output_it_could_not_write_without_errno(tmp_path):
+    """Before: 'holo-simplify: error: [Errno 2] No such file or directory: '/proc/x.ply''."""
+    import os
+
+    import pytest
+
+    if not os.path.isdir("/proc/self") or not os.access("/proc", os.W_OK):
+        pytest.skip("needs /proc that output_problem passes and open() refuses")
+    mesh = tmp_path / "ball.obj"
+    save_obj(mesh, sphere(0.5, 12, 8))
+    proc = _run("service.cli_simplify", str(mesh), "--error", "1%", "--method", "quadric",
+                "--out", "/proc/holo-no-such.ply")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("holo-simplify: error: /proc/holo-no-such.ply: "), last
+    assert "Errno" not in last
