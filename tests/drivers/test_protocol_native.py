@@ -234,3 +234,27 @@ def test_pose_frames_wrap_seq_and_device_time():
     frame = encode_pose(2**32 + 2, 2**64 + 3, (0, 0, 0), (1, 0, 0, 0))
     (event,) = NativeDecoder().feed(frame, 0)
     assert (event.seq, event.device_t_us) == (2, 3)
+
+
+def test_a_seq_jump_says_what_was_expected_and_how_many_are_missing_and_wraps_quietly():
+    # mutants: the counter_gap's expected/missing arithmetic changed
+    seqs = (2**32 - 2, 2**32 - 1, 0, 1, 5)
+    data = b"".join(encode_pose(s, 0, (0, 0, 0), (1, 0, 0, 0)) for s in seqs)
+    events = NativeDecoder().feed(data, 0)
+    assert [dict(e.details) for e in events if isinstance(e, StatusEvent)] \
+        == [{"expected": 2, "got": 5, "missing": 3}]
+    data = b"".join(encode_pose(s, 0, (0, 0, 0), (1, 0, 0, 0)) for s in (2**32 - 2, 1))
+    events = NativeDecoder().feed(data, 0)
+    assert [dict(e.details) for e in events if isinstance(e, StatusEvent)] \
+        == [{"expected": 2**32 - 1, "got": 1, "missing": 2}]
+
+
+def test_a_crc_error_names_the_frame_type():
+    # mutant: the crc_error's type read from the wrong byte
+    bad = bytearray(encode_text(1, 2, "x", error=True))
+    bad[-1] ^= 0xFF
+    events = [e for e in NativeDecoder().feed(bytes(bad) + pose_frames(1)[0], 0)
+              if isinstance(e, StatusEvent)]
+    # and its bytes are counted once, as one resync (mutant: the crc branch's drop(1))
+    assert [(e.event, dict(e.details)) for e in events] \
+        == [("crc_error", {"type": 3}), ("resync", {"discarded": len(bad)})]

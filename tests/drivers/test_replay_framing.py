@@ -236,3 +236,9 @@ def test_check_framing_reads_only_the_first_limit_bytes():
     data = b"".join(hatire.encode_pose(i, 0, 0, 0) for i in range(4))
     assert check_framing("hatire", data, limit=60).packets == 2
     assert check_framing("hatire", data, limit=None).packets == 4
+
+
+def test_checks_of_two_parts_of_a_stream_add_up():
+    # mutant: __add__'s packets sum changed
+    a = FramingCheck("native", 10, 1, 2, 3, 4)
+    assert a + FramingCheck("native", 20, 5, 6, 7, 8) == FramingCheck("native", 30, 6, 8, 10, 12)
