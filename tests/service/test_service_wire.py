@@ -480,3 +480,39 @@ def test_limits_from_a_hello_reply_ignore_unknown_keys_and_default_missing_ones(
     assert got == protocol.Limits(max_id=8, max_frames=10)
     assert protocol.Limits.from_dict(got.as_dict()) == got
     assert got.as_dict()["max_string"] == protocol.Limits().max_string
+
+
+def test_parse_reply_names_arrays_when_all_have_names_and_refuses_an_empty_reply():
+    # mutants: parse_reply's "empty reply" raise deleted (an IndexError), its
+    # `names and all(...)` as `or`
+    a, b = np.arange(3, dtype=np.int32), np.ones(2)
+    named = protocol.reply([], 4, "render", {"x": 1}, [a, b], ["depth", "mask"])
+    got = protocol.parse_reply([bytes(f) for f in named])
+    assert set(got["arrays"]) == {"depth", "mask"} and got["x"] == 1
+    plain = protocol.parse_reply([bytes(f) for f in protocol.reply([b""], 4, "render", {},
+                                                                    [a, b])])
+    assert isinstance(plain["arrays"], list) and plain["arrays"][0].tolist() == [0, 1, 2]
+    assert "arrays" not in protocol.parse_reply([bytes(f) for f in protocol.reply([], 4, "ping")])
+    for empty in ([], [b""]):
+        with pytest.raises(MessageError, match="empty reply") as err:
+            protocol.parse_reply(empty)
+        assert err.value.code == "bad_frames"
+
+
+def test_default_limits_are_the_documented_ones():
+    # docs/protocol.md section 1.6 (tests/service/test_protocol_doc.py checks the table
+    # through a running service); mutants: every default of Limits changed
+    mib = 1 << 20
+    assert protocol.Limits().as_dict() == {
+        "max_message_bytes": 256 * mib, "max_array_bytes": 128 * mib,
+        "max_request_bytes": 160 * mib, "max_frames": 1 + 1 + 1024,
+        "max_header_bytes": mib, "max_string": 4096, "max_id": 64, "max_name": 256,
+        "max_objects": 4096, "max_vertices": 2_000_000, "max_polygons": 4_000_000,
+        "max_dims": 4}
+
+
+def test_a_request_exposes_its_type_and_id():
+    # mutants: Request.type's and Request.id's returns replaced
+    req = protocol.Request([b"x", b""], {"type": "ping", "id": 9})
+    assert (req.type, req.id) == ("ping", 9)
+    assert protocol.Request([b"x"], {"type": "ping"}).id is None
