@@ -11,12 +11,16 @@ from drivers.protocols.sgi_dialbox import (
     SgiCommandParser,
     SgiDecoder,
     button_code,
+    button_index,
     encode_all_lamps,
+    encode_auto_report_buttons,
     encode_button,
     encode_dial,
+    encode_enable_buttons,
     encode_enable_dials,
     encode_filter,
     encode_lamps,
+    encode_reset,
     init_sequence,
 )
 from service.errors import ProtocolError
@@ -299,3 +303,30 @@ def test_reinit_counts_garbage_across_a_timed_out_packet(bulk_min):
             ("resync", {"discarded": 5}), ("truncated", {"bytes": 1, "dial": 2})]
         assert [e.needs_reinit for e in dec.feed(b"\x01", 20 * MS)] == [True]
         assert [e.details["discarded"] for e in dec.flush(20 * MS)] == [3]
+
+
+def test_button_index_inverts_button_code_for_every_button():
+    # mutants: button_index's `(code & 0x1F) ^ 0x18` changed (no test called it)
+    assert [button_index(button_code(i, p)) for p in (True, False) for i in range(32)] \
+        == list(range(32)) * 2
+
+
+def test_button_and_dial_indices_out_of_range_are_refused():
+    # mutants: the index checks' `<` as `<=` and their raises deleted
+    assert encode_button(31, True) == b"\xc7" and encode_dial(7, 1) == b"\x37\x00\x01"
+    for bad in (-1, 32):
+        with pytest.raises(ProtocolError, match="button index"):
+            button_code(bad, True)
+    for bad in (-1, 8):
+        with pytest.raises(ProtocolError, match="dial index"):
+            encode_dial(bad, 0)
+
+
+def test_every_host_command_parses_with_its_argument_count():
+    # mutants: HOST_COMMAND_ARGS' counts and the masks' 0xFFFFFFFF defaults changed
+    stream = (encode_reset() + encode_enable_dials(0x0F) + encode_enable_buttons()
+              + encode_auto_report_buttons() + encode_lamps(2) + encode_all_lamps(True)
+              + encode_all_lamps(False) + encode_filter(3, 4))
+    assert SgiCommandParser().feed(stream) == [
+        (0x20, b""), (0x50, b"\xff\x0f"), (0x71, b"\xff" * 4), (0x73, b"\xff" * 4),
+        (0x75, b"\x02\0\0\0"), (0x4B, b""), (0x4C, b""), (0x53, b"\x03\x04")]

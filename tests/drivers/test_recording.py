@@ -448,3 +448,10 @@ def test_a_damaged_region_with_false_sync_markers_in_it_is_one_corrupt_region(tm
     got, reader = read_all(path)
     assert got == recs
     assert (reader.stats.corrupt, reader.stats.skipped_bytes) == (1, len(junk))
+
+
+def test_raw_capture_reader_takes_one_byte_chunks_at_one_baud(tmp_path):
+    # the smallest settings are valid; mutants: `chunk_size <= 0` / `baudrate <= 0` as <= 1
+    (tmp_path / "c.bin").write_bytes(b"ab")
+    got = list(RawCaptureReader(tmp_path / "c.bin", protocol="x", chunk_size=1, baudrate=1))
+    assert [(r.data, r.t_ns) for r in got] == [(b"a", 10 * 10**9), (b"b", 20 * 10**9)]
