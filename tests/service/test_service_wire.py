@@ -516,3 +516,29 @@ def test_a_request_exposes_its_type_and_id():
     req = protocol.Request([b"x", b""], {"type": "ping", "id": 9})
     assert (req.type, req.id) == ("ping", 9)
     assert protocol.Request([b"x"], {"type": "ping"}).id is None
+
+
+def test_each_frame_header_integer_takes_its_least_value_and_optional_ones_may_be_absent():
+    # mutants: FRAME_INTS' least values and required flags changed
+    def frame(**fields) -> list[bytes]:
+        head = {"v": 1, "kind": "frame", "session": "s", "seq": 0, "render_id": -1, **fields}
+        return [b"frame", json.dumps({k: v for k, v in head.items() if v is not None}).encode()]
+    assert protocol.parse_frame(frame())["arrays"] == {}
+    for key, least, required in protocol.FRAME_INTS:
+        assert protocol.parse_frame(frame(**{key: least}))[key] == least
+        with pytest.raises(MessageError, match=f"{key} must be an integer >= {least}"):
+            protocol.parse_frame(frame(**{key: least - 1}))
+        if required:
+            with pytest.raises(MessageError, match=f"{key} missing"):
+                protocol.parse_frame(frame(**{key: None}))
+    assert protocol.FRAME_INTS[:2] == (("seq", 0, True), ("render_id", -1, True))
+    assert all(not required and least == 0 for _k, least, required in protocol.FRAME_INTS[2:])
+
+
+def test_check_request_size_checks_the_first_array_too():
+    # mutant: the per-array loop starting at the second buffer (sizes[2:])
+    lim = protocol.Limits(max_array_bytes=4)
+    with pytest.raises(MessageError, match=r"arrays\[0\] has 5 bytes"):
+        protocol.check_request_size([b"", b"h", bytes(5), bytes(1)], lim)
+    with pytest.raises(MessageError, match=r"arrays\[0\] has 5 bytes"):
+        protocol.check_request_size([b"h", bytes(5)], lim)  # no delimiter
