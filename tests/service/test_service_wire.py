@@ -542,3 +542,8 @@ def test_check_request_size_checks_the_first_array_too():
         protocol.check_request_size([b"", b"h", bytes(5), bytes(1)], lim)
     with pytest.raises(MessageError, match=r"arrays\[0\] has 5 bytes"):
         protocol.check_request_size([b"h", bytes(5)], lim)  # no delimiter
+
+
+def test_string_refuses_what_is_not_a_string():
+    # mutant: string()'s "must be a string" raise deleted (5 returned as a name)
+    assert _code(lambda: wire.string(5, "s")) == "bad_message"
