@@ -7,6 +7,7 @@ process tree through ``/proc`` (each process's parent from ``/proc/<pid>/stat``;
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -106,6 +107,20 @@ def assert_all_gone(procs: dict[int, int]) -> None:
     wait_until(lambda: not any(alive(p, s) for p, s in procs.items()), 15, "children to end")
 
 
+def kill_all(demo: subprocess.Popen) -> None:
+    """SIGKILL the demo and every process under it (a failed test must leave none behind).
+
+    Killing the demo alone orphans its children: a run whose assertion failed
+    before the signal left a simulated tracker running for an hour.
+    """
+    for pid, start in tree(demo.pid).items():
+        if alive(pid, start):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    demo.kill()
+    demo.wait()
+
+
 def running_game(demo: subprocess.Popen) -> dict[int, int]:
     """The demo's process tree once its children run the game, the service and holo-devices.
 
@@ -137,8 +152,7 @@ def test_a_signal_stops_every_process_the_demo_started(tmp_path, sig):
         assert_all_gone(kids)
         assert f"{signal.Signals(sig).name}: stopping every process" in log.read_text()
     finally:
-        demo.kill()
-        demo.wait()
+        kill_all(demo)
 
 
 def test_a_service_that_fails_to_start_stops_the_others(tmp_path):
@@ -152,8 +166,7 @@ def test_a_service_that_fails_to_start_stops_the_others(tmp_path):
         assert len(seen) >= 3, names  # both simulators and holo-devices had started
         assert_all_gone(seen)
     finally:
-        demo.kill()
-        demo.wait()
+        kill_all(demo)
 
 
 def test_a_child_dying_mid_game_stops_the_others(tmp_path):
@@ -166,5 +179,4 @@ def test_a_child_dying_mid_game_stops_the_others(tmp_path):
         assert "holo-devices exited -9 while holo-game ran" in log.read_text()
         assert_all_gone(kids)
     finally:
-        demo.kill()
-        demo.wait()
+        kill_all(demo)
