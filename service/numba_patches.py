@@ -81,7 +81,8 @@ def faster_copy_propagation() -> bool:
     """Use :func:`copy_propagate` in numba's parallel passes; True if it is in use.
 
     Idempotent.  Leaves numba alone (returns False) unless its ``copy_propagate``
-    is the source this module reproduces.
+    is the source this module reproduces; numba's stays reachable as
+    ``copy_propagate.__wrapped__``.
     """
     from numba.core import ir_utils
     from numba.parfors import parfor
@@ -90,6 +91,7 @@ def faster_copy_propagation() -> bool:
         return True
     if _source_digest(ir_utils.copy_propagate) != COPY_PROPAGATE_SHA256:
         return False
+    copy_propagate.__wrapped__ = ir_utils.copy_propagate  # numba's, for a test to compare
     ir_utils.copy_propagate = copy_propagate
     parfor.copy_propagate = copy_propagate
     return True
