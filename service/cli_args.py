@@ -21,11 +21,13 @@ import math
 import os
 import re
 import sys
+import textwrap
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from service.addresses import check_endpoint
 from service.errors import SettingsError
+from service.signals import EXIT_RULE
 
 T = TypeVar("T")
 
@@ -33,6 +35,7 @@ __all__ = [
     "add_size_option",
     "comma_list",
     "endpoint",
+    "exit_rule_epilog",
     "float_range",
     "int_range",
     "output_problem",
@@ -191,6 +194,27 @@ def plain_help(text: str | None) -> str:
     out = _LITERAL.sub(r"\1", out)
     out = _EMPHASIS.sub(r"\2", out)
     return re.sub(r"(\w)::$", r"\1:", out, flags=re.MULTILINE)
+
+
+def exit_rule_epilog(failed: str | None = None) -> str:
+    """The exit rule for an ``--help`` epilog, wrapped to 79 columns.
+
+    Wrapped here so that it reads the same under argparse's raw formatters (which
+    keep an epilog's lines as they are) as under the default one.
+
+    Parameters
+    ----------
+    failed : str or None
+        What exit status 1 means for this command (``"a frame went over its
+        budget."``), or None where the command has no status 1.
+
+    Returns
+    -------
+    str
+        ``service.signals.EXIT_RULE``, then ``" 1: FAILED"`` when given.
+    """
+    text = EXIT_RULE if failed is None else f"{EXIT_RULE} 1: {failed}"
+    return textwrap.fill(text, width=79)
 
 
 def output_problem(path: str, *, folder: bool = False) -> str | None:

@@ -43,14 +43,13 @@ from service.bench import billboard_cost
 from service.bench.lod_bench import BUNNY, LIGHTS, MATERIAL, image_error
 from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject, draw_billboards
-from service.cli_args import add_size_option, comma_list, float_range, int_range, plain_help
+from service.cli_args import add_size_option, comma_list, exit_rule_epilog, float_range, int_range
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.loaders import fit_transform, load_mesh
 from service.occlusion import Visibility
 from service.pipeline import Renderer, RenderSettings, warm_up
 from service.scene import Scene, SceneObject, Transform, euler_quaternion
-from service.signals import EXIT_RULE
 from service.simplify.billboard import build_cloud
 
 SETTINGS = RenderSettings(method="zbuffer", light=LightSettings("blinn", "polygon"))
@@ -176,7 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="holo-bench billboard",
                                 description="Billboard clouds: planes and build time vs "
                                 "EPS; image error close up and at grazing angles.",
-                                epilog=plain_help(EXIT_RULE))
+                                epilog=exit_rule_epilog())
     p.add_argument("--mesh", default=str(BUNNY), help="mesh file (default: the bunny fixture)")
     p.add_argument("--eps", type=comma_list(float_range(0, 100, lo_open=True)),
                    default="0.5,1,2,4", help="EPS list, %% of the diagonal (0.5,1,2,4)")

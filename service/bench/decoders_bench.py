@@ -19,7 +19,7 @@ from pathlib import Path
 
 from drivers.protocols import make_decoder
 from drivers.protocols import sgi_dialbox as sgi
-from service.cli_args import float_range, int_range
+from service.cli_args import exit_rule_epilog, float_range, int_range
 
 TARGET_MB_S = 1.0
 
@@ -92,7 +92,8 @@ def run(out_dir: Path, scale: float, chunk: int, repeat: int) -> dict:
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point."""
     p = argparse.ArgumentParser(prog="holo-bench decoders",
-                                description="Measure decoder throughput (MB/s per core).")
+                                description="Measure decoder throughput (MB/s per core).",
+                                epilog=exit_rule_epilog())
     p.add_argument("--out", type=Path, required=True, help="directory for the JSON report")
     p.add_argument("--scale", type=float_range(0, lo_open=True), default=1.0,
                    help="stream size factor (1: ~1 MB)")

@@ -54,7 +54,7 @@ from drivers.filters import (
     run_filter,
 )
 from drivers.recording import RawCaptureReader
-from service.cli_args import float_range, plain_help
+from service.cli_args import exit_rule_epilog, float_range, plain_help
 
 DEFAULT_FIXTURE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
 #: Nominal Hatire capture rate: 4765 frames in one minute.
@@ -468,7 +468,8 @@ def write_results(rows: list[dict], out: Path, meta: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     ap = argparse.ArgumentParser(
-        prog="holo-bench filters", description=plain_help(__doc__.split("\n\n")[0])
+        prog="holo-bench filters", description=plain_help(__doc__.split("\n\n")[0]),
+        epilog=exit_rule_epilog(),
     )
     ap.add_argument("--out", required=True, type=Path, help="output folder")
     ap.add_argument(

@@ -48,7 +48,7 @@ from service.bench.galilean_experiments import (
     run_tracker,
 )
 from service.bench.rows import write_csv
-from service.cli_args import add_size_option, int_range, plain_help
+from service.cli_args import add_size_option, exit_rule_epilog, int_range, plain_help
 from service.display import DisplaySettings
 from service.galilean.fixed_point import (
     FixedPoint,
@@ -797,6 +797,7 @@ def _counts(text: str) -> tuple[int, ...]:
 def main(argv: list[str] | None = None) -> int:
     """``holo-bench galilean``; returns the exit status."""
     p = argparse.ArgumentParser(prog="holo-bench galilean", description=plain_help(__doc__),
+                                epilog=exit_rule_epilog(),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--case", choices=[*CASES, "scene"], default="falling")
     p.add_argument("--order", type=int, default=2, choices=ORDERS)

@@ -60,7 +60,7 @@ from drivers.events import Event, PoseEvent
 from drivers.protocols import hatire, native
 from drivers.publisher import Publisher
 from drivers.reader import DeviceReader, EventHub, Item, ReaderSettings
-from service.cli_args import float_range, int_range, plain_help
+from service.cli_args import exit_rule_epilog, float_range, int_range, plain_help
 
 TARGET_P99_MS = 2.0
 #: protocol -> frame encoder taking the frame number.
@@ -428,7 +428,8 @@ def _line(name: str, s: dict[str, float]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the latency benchmark; returns 0 (whether the target was met is reported)."""
     ap = argparse.ArgumentParser(prog="holo-bench latency",
-                                 description=plain_help(__doc__.splitlines()[0]))
+                                 description=plain_help(__doc__.splitlines()[0]),
+                                 epilog=exit_rule_epilog())
     ap.add_argument("--out", required=True, type=Path, help="output folder")
     ap.add_argument("--frames", type=int_range(1), default=2000, help="frames to time per wiring")
     ap.add_argument("--rate", type=float_range(0, lo_open=True), default=200.0,

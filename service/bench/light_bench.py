@@ -28,7 +28,7 @@ import numpy as np
 from service.bench.rows import write_csv
 from service.builtin_scenes import SCENES as BUILTIN_SCENES
 from service.builtin_scenes import builtin_scene, scene_name
-from service.cli_args import add_size_option, comma_list, int_range, plain_help
+from service.cli_args import add_size_option, comma_list, exit_rule_epilog, int_range, plain_help
 from service.cull import cull
 from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
@@ -224,7 +224,8 @@ def light_scene_name(text: str) -> str:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """Command-line options (each value checked here: a bad one is a usage error)."""
     ap = argparse.ArgumentParser(prog="holo-bench light",
-                                 description=plain_help(__doc__.splitlines()[0]))
+                                 description=plain_help(__doc__.splitlines()[0]),
+                                 epilog=exit_rule_epilog())
     ap.add_argument("--out", type=Path, default=Path("bench-out/light"), help="output folder")
     ap.add_argument("--scenes", type=comma_list(light_scene_name),
                     default="sphere,sphere-torus,game",

@@ -53,7 +53,7 @@ import numpy as np
 
 from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject
-from service.cli_args import add_size_option, float_range, int_range, plain_help
+from service.cli_args import add_size_option, exit_rule_epilog, float_range, int_range
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.loaders import fit_transform, load_mesh
@@ -62,7 +62,6 @@ from service.mesh import Mesh
 from service.pipeline import Renderer, RenderSettings, warm_up
 from service.primitives import attacker, torus
 from service.scene import Light, Material, Scene, SceneObject, Transform, euler_quaternion
-from service.signals import EXIT_RULE
 
 BUNNY = Path(__file__).resolve().parents[2] / ".." / "shared" / "fixtures" / "meshes" / "bunny.ply"
 #: Built-in benchmark meshes by name (a path to a .ply/.obj works too).
@@ -365,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
         "colour PSNR, CPU ms per frame, build time), and a crowd of 200 bunnies at depths "
         "0.1-1.0 with LOD off and on. Writes lod_levels.csv, lod_crowd.csv, lod_bench.json "
         "and lod_levels.png, lod_build.png, lod_crowd.png (README, Benchmarks).",
-        epilog=plain_help(EXIT_RULE),
+        epilog=exit_rule_epilog(),
     )
     p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
     p.add_argument("--meshes", default="bunny,torus,spiky",

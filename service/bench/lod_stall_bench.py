@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from service.bench.rows import write_csv
-from service.cli_args import add_size_option, int_range, plain_help
+from service.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.display import DisplaySettings
 from service.loaders import load_mesh
 from service.lod import BUILD_NICE, LodError, LodSettings, build_chain, mesh_key
@@ -39,7 +39,6 @@ from service.mesh import Mesh
 from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
 from service.scene import Scene, SceneObject, Transform
-from service.signals import EXIT_RULE
 
 BUNNY = Path(__file__).resolve().parents[2] / ".." / "shared" / "fixtures" / "meshes" / "bunny.ply"
 #: Frames of an ``idle`` round.
@@ -54,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Frame times while a level-of-detail chain builds beside the renders: "
         "in a thread of the rendering process, in a child process, and with no build. "
         "Writes lod_stall.csv, lod_stall.json and lod_stall.png.",
-        epilog=plain_help(EXIT_RULE),
+        epilog=exit_rule_epilog(),
     )
     p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
     p.add_argument("--mesh", default=str(BUNNY),

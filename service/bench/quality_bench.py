@@ -26,7 +26,7 @@ import numpy as np
 
 from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
-from service.cli_args import add_size_option
+from service.cli_args import add_size_option, exit_rule_epilog
 from service.display import DisplaySettings
 from service.light import LightSettings, shade
 from service.pipeline import Renderer, RenderSettings, StageClock, warm_up
@@ -189,6 +189,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="holo-bench quality",
         description="Calibrate --quality auto's cost model (--calibrate), or check that "
         "auto's frames stay within their error budgets.",
+        epilog=exit_rule_epilog("a frame went over its error budget."),
     )
     p.add_argument("--calibrate", action="store_true", help="measure and write the cost model")
     p.add_argument("--model", default=None, help="cost model JSON to write or read")

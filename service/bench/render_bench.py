@@ -23,7 +23,7 @@ import numpy as np
 
 from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
-from service.cli_args import add_size_option, comma_list, plain_help, size
+from service.cli_args import add_size_option, comma_list, exit_rule_epilog, plain_help, size
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
@@ -286,6 +286,7 @@ def chart_sweep(rows: list[dict], key: str, path: Path, title: str) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The ``holo-bench render`` command line."""
     p = argparse.ArgumentParser(prog="holo-bench render", description=plain_help(__doc__),
+                                epilog=exit_rule_epilog(),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="bench-out", help="output folder")
     p.add_argument("--quick", action="store_true", help="zones 1 and 5 only, fewer repeats")

@@ -31,7 +31,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from service.cli_args import plain_help
+from service.cli_args import exit_rule_epilog, plain_help
 from service.cli_args import size as size_type
 from service.errors import HoloError
 
@@ -566,6 +566,7 @@ def compile_ahead() -> str:
 def main(argv: list[str] | None = None) -> int:
     """``holo-bench report``; returns the exit status."""
     p = argparse.ArgumentParser(prog="holo-bench report", description=plain_help(__doc__),
+                                epilog=exit_rule_epilog("no benchmark ran."),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
     p.add_argument("--quick", action="store_true", help="small settings (about 3 minutes)")

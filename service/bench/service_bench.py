@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service.cli_args import comma_list, float_range, int_range, plain_help
+from service.cli_args import comma_list, exit_rule_epilog, float_range, int_range, plain_help
 from service.net import protocol
 from service.net.client import FrameSubscriber, ServiceClient
 from service.net.frame_stream import FrameStream
@@ -575,6 +575,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="holo-bench service",
         description=plain_help(__doc__),
+        epilog=exit_rule_epilog(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--out", default="bench-out")

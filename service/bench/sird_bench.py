@@ -51,7 +51,14 @@ from service.autostereogram.output import SirdOutput
 from service.autostereogram.source import centre_depth
 from service.bench.rows import write_csv
 from service.builtin_scenes import builtin_scene
-from service.cli_args import add_size_option, comma_list, int_range, plain_help, size
+from service.cli_args import (
+    add_size_option,
+    comma_list,
+    exit_rule_epilog,
+    int_range,
+    plain_help,
+    size,
+)
 from service.display import DisplaySettings
 
 METHOD_NAMES = ("row", "interpolated", "tiw")
@@ -273,7 +280,8 @@ def write(rows: list[dict], stable: list[dict], service: list[dict], meta: dict,
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """Command-line options (each value checked here: a bad one is a usage error)."""
     ap = argparse.ArgumentParser(prog="holo-bench sird",
-                                 description=plain_help(__doc__.splitlines()[0]))
+                                 description=plain_help(__doc__.splitlines()[0]),
+                                 epilog=exit_rule_epilog())
     ap.add_argument("--out", type=Path, default=Path("bench-out/sird"), help="output folder")
     ap.add_argument("--methods", type=comma_list(_choice(METHOD_NAMES)),
                     default=",".join(METHOD_NAMES), help="comma-separated (default: %(default)s)")

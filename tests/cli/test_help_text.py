@@ -22,7 +22,10 @@ MARKUP = re.compile(r"``|:[a-z]+:`|(?<![\w*])\*[A-Za-z][^*\n]*\*(?![\w*])")
 #: Commands whose files other sessions own; their fixes are pending there (see the
 #: issue 16 report).  The xfail is strict: once fixed, drop the entry.
 PENDING_MARKUP: dict[str, str] = {}
-PENDING_RULE: dict[str, str] = {}
+PENDING_RULE: dict[str, str] = {
+    "holo-bench targets": "service/bench/targets_bench.py is the lead's: add "
+                          "epilog=exit_rule_epilog() to its parser",
+}
 #: Commands without the rule in their help: they run no loop and take no signal.
 NO_RULE: set[str] = set()
 
@@ -63,9 +66,11 @@ def test_help_has_no_markup(name, entry, argv, capsys):
     assert not found, f"{name} --help shows markup: {found[:5]}"
 
 
-@pytest.mark.parametrize("name", [n for n in SCRIPTS if n not in NO_RULE])
-def test_help_states_the_exit_rule(name, capsys):
-    text = " ".join(_help(SCRIPTS[name], ["--help"], capsys).split())
+@pytest.mark.parametrize(("name", "entry", "argv"),
+                         [c for c in _commands() if c.values[0] not in NO_RULE])
+def test_help_states_the_exit_rule(name, entry, argv, capsys):
+    """Every command's --help, and every ``holo-bench NAME --help``, ends with the rule."""
+    text = " ".join(_help(entry, argv, capsys).split())
     if "130" not in text:
         _pending(name, PENDING_RULE)
     assert "Ctrl-C (SIGINT) 130" in text and "SIGTERM 143" in text, name
