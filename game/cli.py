@@ -53,6 +53,16 @@ def build_parser() -> argparse.ArgumentParser:
         + " 1: with --seconds, no frame came within --wait.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    _add_connection_args(p)
+    _add_display_args(p)
+    _add_play_args(p)
+    _add_output_args(p)
+    _add_game_args(p)
+    return p
+
+
+def _add_connection_args(p: argparse.ArgumentParser) -> None:
+    """Where the service and the devices are, or ``--local``."""
     p.add_argument("--service", default=DEFAULT_SERVICE, type=endpoint(bind=False),
                    metavar="ADDR",
                    help=f"holo-service control address (default {DEFAULT_SERVICE})")
@@ -61,7 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--devices", default=None, type=endpoint(bind=False), metavar="ADDR",
                    help="holo-devices PUB address (input, head)")
     p.add_argument("--local", action="store_true", help="render in this process, no service")
-    _add_display_args(p)
+
+
+def _add_play_args(p: argparse.ArgumentParser) -> None:
+    """Who plays (``--bot``) and when the run stops."""
     p.add_argument("--bot", action="store_true", help="attract mode: the bot plays")
     p.add_argument(
         "--bot-gives-up",
@@ -94,10 +107,18 @@ def build_parser() -> argparse.ArgumentParser:
         "warming up on a first run compiles for minutes: 8 on a loaded 2-core machine; "
         "default 1200)",
     )
+
+
+def _add_output_args(p: argparse.ArgumentParser) -> None:
+    """Window, output folder, light and level of detail."""
     p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
     p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")
     p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
     add_lod_options(p)
+
+
+def _add_game_args(p: argparse.ArgumentParser) -> None:
+    """The game's rules, attackers, high scores and the lamp mask."""
     p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES),
                    help="the attackers' speed, how fast it grows and how near they may "
                    "come (default normal)")
@@ -122,7 +143,6 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print the lamp mask for holo-devices --lamps and exit",
     )
-    return p
 
 
 def _add_display_args(p: argparse.ArgumentParser) -> None:

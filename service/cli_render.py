@@ -66,6 +66,27 @@ def build_parser() -> argparse.ArgumentParser:
         f"a hyphen). {plain_help(EXIT_RULE)}",
     )
     p.add_argument("scene", metavar="SCENE", help="scene or mesh file, or builtin:NAME")
+    _add_display_args(p)
+    _add_method_args(p)
+    p.add_argument(
+        "--strict", action="store_true",
+        help="refuse mesh files that would otherwise be repaired on load (non-planar or "
+        "concave polygons, faces of under 3 corners, extra values on ascii PLY lines)",
+    )
+    add_lod_options(p)
+    _add_quality_args(p)
+    p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
+    p.add_argument("--out", default="render-out", help="output folder (default render-out)")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object with settings, counts and timings",
+    )
+    return p
+
+
+def _add_display_args(p: argparse.ArgumentParser) -> None:
+    """The display: view zones, viewing angle, zone image size."""
     p.add_argument("--zones", type=int_range(1, 64), default=5, metavar="N",
                    help="view zones, 1-64 (default 5)")
     p.add_argument(
@@ -73,6 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="viewing angle in degrees, 0-60 (default 16)",
     )
     add_size_option(p, (320, 240), "pixels per zone image")
+
+
+def _add_method_args(p: argparse.ArgumentParser) -> None:
+    """How the picture is made: occlusion method, light, cull, run-length fallback."""
     p.add_argument("--method", choices=METHOD_NAMES, default="zbuffer", help="occlusion method")
     p.add_argument("--light", choices=tuple(MODELS), default="blinn", help="light model")
     p.add_argument(
@@ -97,12 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="keep a run-length frame even when its depth order proved wrong (--fallback off)",
     )
-    p.add_argument(
-        "--strict", action="store_true",
-        help="refuse mesh files that would otherwise be repaired on load (non-planar or "
-        "concave polygons, faces of under 3 corners, extra values on ascii PLY lines)",
-    )
-    add_lod_options(p)
+
+
+def _add_quality_args(p: argparse.ArgumentParser) -> None:
+    """``--quality auto`` and its error budget and cost model."""
     p.add_argument(
         "--quality", choices=MODES, default=None,
         help="auto: pick the cheapest occlusion method and specular evaluation within "
@@ -120,14 +143,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="cost model JSON of --quality auto (holo-bench quality --calibrate writes one; "
         "default: the one measured on the development machine)",
     )
-    p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
-    p.add_argument("--out", default="render-out", help="output folder (default render-out)")
-    p.add_argument(
-        "--json",
-        action="store_true",
-        help="print one JSON object with settings, counts and timings",
-    )
-    return p
 
 
 def scene_problem(spec: str, first: tuple[str, ...] = ()) -> str | None:

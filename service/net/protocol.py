@@ -198,6 +198,48 @@ def _readable_type(header: dict[str, Any]) -> str | None:
     return t if isinstance(t, str) and len(t) <= 64 else None
 
 
+def _check_frame_count(body: list[Any], limits: Limits) -> None:
+    """Raise unless ``body`` has a header frame and at most ``max_frames - 1`` frames."""
+    if not body:
+        raise MessageError("bad_frames", "a request needs a header frame after the envelope")
+    if len(body) > limits.max_frames - 1:  # max_frames counts the empty delimiter
+        raise MessageError(
+            "too_large",
+            f"a request has at most {limits.max_frames - 1} frames after the delimiter "
+            f"(header and {limits.max_frames - 2} buffers), got {len(body)}",
+        )
+
+
+def _check_version_and_type(header: dict[str, Any]) -> None:
+    """Raise ``bad_version`` or ``unknown_type`` for a request header."""
+    v = header.get("v")
+    if isinstance(v, bool) or not isinstance(v, int) or v not in SUPPORTED_VERSIONS:
+        raise MessageError(
+            "bad_version",
+            f"v must be one of {list(SUPPORTED_VERSIONS)}, got {header.get('v')!r}",
+        )
+    if header.get("type") not in MESSAGE_TYPES:
+        raise MessageError(
+            "unknown_type",
+            f"type must be one of {list(MESSAGE_TYPES)}, got {str(header.get('type'))[:64]!r}",
+        )
+
+
+def _check_request(header: dict[str, Any], body: list[Any], limits: Limits) -> None:
+    """Every check of a request's header and size before its arrays are decoded."""
+    _check_version_and_type(header)
+    for key in ("id", "client_id"):
+        if key in header:
+            _check_token(header, key, limits)
+    check_strings(header, limits)
+    total = sum(memoryview(b).nbytes for b in body)
+    if total > limits.max_request_bytes:
+        raise MessageError(
+            "too_large",
+            f"request has {total} bytes (max {limits.max_request_bytes} in all frames)",
+        )
+
+
 def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, Any]:
     """Check a request body (header frame plus buffers) and resolve its arrays.
 
@@ -219,38 +261,11 @@ def parse_request(body: list[Any], limits: Limits | None = None) -> dict[str, An
         attribute holds the ``id``/``type`` read so far (for the error reply).
     """
     limits = limits or Limits()
-    if not body:
-        raise MessageError("bad_frames", "a request needs a header frame after the envelope")
-    if len(body) > limits.max_frames - 1:  # max_frames counts the empty delimiter
-        raise MessageError(
-            "too_large",
-            f"a request has at most {limits.max_frames - 1} frames after the delimiter "
-            f"(header and {limits.max_frames - 2} buffers), got {len(body)}",
-        )
+    _check_frame_count(body, limits)
     header = _header(body[0], limits)
     partial = {"id": check_id(header.get("id"), limits), "type": _readable_type(header)}
     try:
-        v = header.get("v")
-        if isinstance(v, bool) or not isinstance(v, int) or v not in SUPPORTED_VERSIONS:
-            raise MessageError(
-                "bad_version",
-                f"v must be one of {list(SUPPORTED_VERSIONS)}, got {header.get('v')!r}",
-            )
-        if header.get("type") not in MESSAGE_TYPES:
-            raise MessageError(
-                "unknown_type",
-                f"type must be one of {list(MESSAGE_TYPES)}, got {str(header.get('type'))[:64]!r}",
-            )
-        for key in ("id", "client_id"):
-            if key in header:
-                _check_token(header, key, limits)
-        check_strings(header, limits)
-        total = sum(memoryview(b).nbytes for b in body)
-        if total > limits.max_request_bytes:
-            raise MessageError(
-                "too_large",
-                f"request has {total} bytes (max {limits.max_request_bytes} in all frames)",
-            )
+        _check_request(header, body, limits)
         arrays = wire.decode_arrays(header.pop("arrays", None), body[1:], limits.max_array_bytes)
         return wire.resolve(header, arrays)
     except MessageError as exc:
@@ -371,6 +386,41 @@ def _frame_int(header: dict[str, Any], key: str, least: int, required: bool) -> 
         )
 
 
+def _stream_header(frames: list[Any]) -> tuple[str, dict[str, Any]]:
+    """The topic (``frame`` or ``hb``) and the parsed JSON header of a stream message."""
+    if len(frames) < 2:
+        raise MessageError("bad_frames", f"a stream message needs a topic and a header, "
+                           f"got {len(frames)} frame(s)")
+    topic = bytes(frames[0])
+    if topic.decode("ascii", "replace") not in STREAM_KINDS:
+        raise MessageError("bad_frames", f"unknown topic {topic[:16]!r} (frame or hb)")
+    try:
+        header = _header(frames[1], DEFAULT_LIMITS)
+    except MessageError as exc:
+        raise MessageError(exc.code, f"{topic.decode()} header: {exc.message} "
+                           "(torn or cut short?)") from exc
+    return topic.decode(), header
+
+
+def _check_frame_header(header: dict[str, Any], topic: str) -> None:
+    """Raise unless a stream header is well formed.
+
+    It needs a known ``v``, its topic's ``kind``, a ``session`` string and the
+    integers of :data:`FRAME_INTS`.
+    """
+    v = header.get("v")
+    if isinstance(v, bool) or v not in SUPPORTED_VERSIONS:
+        raise MessageError("bad_version", f"frame header: v must be one of "
+                           f"{list(SUPPORTED_VERSIONS)}, got {v!r:.40}")
+    if header.get("kind") != topic:
+        raise MessageError("bad_message", f"frame header: kind {header.get('kind')!r:.40} "
+                           f"under topic {topic!r}")
+    if not isinstance(header.get("session"), str):
+        raise MessageError("bad_message", "frame header: session must be a string")
+    for key, least, required in FRAME_INTS:
+        _frame_int(header, key, least, required)
+
+
 def parse_frame(frames: list[Any]) -> dict[str, Any]:
     """A frame stream message (topic, header, buffers): its checked header, arrays by name.
 
@@ -392,28 +442,8 @@ def parse_frame(frames: list[Any]) -> dict[str, Any]:
         cut-short header), ``bad_version``, ``bad_message`` (a key missing or of the
         wrong type: ``session``, ``seq``, ``render_id``, ``scene``...), ``bad_array``.
     """
-    if len(frames) < 2:
-        raise MessageError("bad_frames", f"a stream message needs a topic and a header, "
-                           f"got {len(frames)} frame(s)")
-    topic = bytes(frames[0])
-    if topic.decode("ascii", "replace") not in STREAM_KINDS:
-        raise MessageError("bad_frames", f"unknown topic {topic[:16]!r} (frame or hb)")
-    try:
-        header = _header(frames[1], DEFAULT_LIMITS)
-    except MessageError as exc:
-        raise MessageError(exc.code, f"{topic.decode()} header: {exc.message} "
-                           "(torn or cut short?)") from exc
-    v = header.get("v")
-    if isinstance(v, bool) or v not in SUPPORTED_VERSIONS:
-        raise MessageError("bad_version", f"frame header: v must be one of "
-                           f"{list(SUPPORTED_VERSIONS)}, got {v!r:.40}")
-    if header.get("kind") != topic.decode():
-        raise MessageError("bad_message", f"frame header: kind {header.get('kind')!r:.40} "
-                           f"under topic {topic.decode()!r}")
-    if not isinstance(header.get("session"), str):
-        raise MessageError("bad_message", "frame header: session must be a string")
-    for key, least, required in FRAME_INTS:
-        _frame_int(header, key, least, required)
+    topic, header = _stream_header(frames)
+    _check_frame_header(header, topic)
     descs = header.pop("arrays", None)
     arrays = wire.decode_arrays(descs, frames[2:], DEFAULT_LIMITS.max_message_bytes)
     names = [d.get("name") for d in descs or []]  # decode_arrays checked: a list of dicts

@@ -189,13 +189,45 @@ def render_job(
         motion,
     )
     t1 = time.perf_counter()
+    out = _job_arrays(up, display, int(job.get("order", 2)), rows)
+    t2 = time.perf_counter()
+    return out, _job_stats(renderer, up, job, rows, (t0, t1, t2))
+
+
+def _job_arrays(
+    up: RenderedUpdate, display: DisplaySettings, order: int, rows: tuple[int, int]
+) -> dict[str, np.ndarray]:
+    """The arrays of a job's reply: the render, its galpixmap and (band 0) the points.
+
+    Returns
+    -------
+    dict of ndarray
+        As :func:`render_job` returns them: ``colour`` (Z, r, C, 3), ``depth``
+        (Z, r, C), ``gp_<field>`` for every galpixmap field, and for the band that
+        starts at row 0 ``points`` (N, 2) and ``point_derivs`` (3, N, 2).
+    """
     out = {"colour": up.frame.colour, "depth": up.frame.depth}
-    gp = _galpixmap(up, display, int(job.get("order", 2)))
+    gp = _galpixmap(up, display, order)
     out.update({f"gp_{k}": getattr(gp, k) for k in FIELDS})
     if rows[0] == 0 and up.points is not None:
         out["points"] = up.points
         out["point_derivs"] = up.point_derivs
-    t2 = time.perf_counter()
+    return out
+
+
+def _job_stats(
+    renderer: Renderer,
+    up: RenderedUpdate,
+    job: dict[str, Any],
+    rows: tuple[int, int],
+    times: tuple[float, float, float],
+) -> dict[str, Any]:
+    """The stats of a job's reply (see :func:`render_job`).
+
+    ``times`` are the ``perf_counter`` readings before the render, after it and
+    after the galpixmap.
+    """
+    t0, t1, t2 = times
     ms = dict(getattr(renderer, "last_ms", {}))
     ms.update(motion=(t1 - t0) * 1e3, galpixmap=(t2 - t1) * 1e3, total=(t2 - t0) * 1e3)
     stats = {
@@ -208,7 +240,7 @@ def render_job(
     for key in ("lod", "billboards"):  # billboards: how they were drawn (docs/simplify.md)
         if key in up.frame.stats:
             stats[key] = up.frame.stats[key]
-    return out, stats
+    return stats
 
 
 def _galpixmap(up: RenderedUpdate, display: DisplaySettings, order: int) -> Galpixmap:
