@@ -167,7 +167,9 @@ class Replay:
         try:
             data = Path(path).read_bytes()
         except OSError as exc:
-            raise SettingsError(f"cannot read replay file {path}: {exc}") from exc
+            # "PATH: cannot read the replay file: REASON", not str(exc)'s "[Errno 2] ..."
+            raise SettingsError(f"{path}: cannot read the replay file: "
+                                f"{exc.strerror or exc}") from exc
         events = [e for e in HatireDecoder().feed(data, 0) if isinstance(e, PoseEvent)]
         return cls([(i / rate_hz, Pose(e.yaw, e.pitch, e.roll, e.x, e.y, e.z))
                     for i, e in enumerate(events)], loop)

@@ -35,6 +35,20 @@ def test_bad_settings_exit_2(capsys):
     assert build_parser().parse_args(["dials"]).protocol == "hatire"
 
 
+@pytest.mark.parametrize(("name", "reason"), [("missing", "No such file or directory"),
+                                             (".", "Is a directory")])
+def test_an_unreadable_replay_file_is_one_line_and_status_2(tmp_path, name, reason):
+    """It printed ``[Errno 2] No such file or directory: '/missing'`` (Python's text)."""
+    path = tmp_path / name
+    proc = subprocess.run(
+        [sys.executable, "-m", "sim_devices.cli", "tracker", "--tcp", "0", "--seconds", "1",
+         "--motion", f"replay:file={path}"],
+        capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.splitlines() == [
+        f"holo-sim: {path}: cannot read the replay file: {reason}"], proc.stderr
+
+
 @posix_only
 @pytest.mark.parametrize("protocol", ["hatire", "native"])
 def test_pty_across_processes(protocol):
