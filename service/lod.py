@@ -424,6 +424,16 @@ def build_chain(mesh: Mesh, settings: LodSettings | None = None,
     if chain is not None:
         _drop_stale_lock(folder, key)
         return chain
+    return _build_locked(mesh, settings, folder, key, notes, progress)
+
+
+def _build_locked(mesh: Mesh, settings: LodSettings, folder: Path, key: str,
+                  notes: list | None, progress: Progress | None) -> LodChain:
+    """Build the chain under its lock file and cache it (see :func:`build_chain`).
+
+    Another process may have built it while this one waited for the lock: then it
+    is read from the cache.
+    """
     with _build_lock(folder, key):
         chain, problem = _read_cache(folder, key, mesh)  # built meanwhile by another?
         if chain is not None:
@@ -995,36 +1005,27 @@ class LodState:
         objs = scene.objects
         old = getattr(self, "_tab", None)
         tab = self._tables(scene, settings)
-        names = tuple(o.name for o in objs)
-        if self.previous is None or names != self.names or self.previous.size != len(objs):
-            self.previous, self.names = np.full(len(objs), -1, np.int64), names
-        elif old is not None and tab is not old and old["ready"].size == len(objs):
-            # a chain just arrived: its objects had no level to flicker from
-            self.previous = np.where(tab["ready"] & ~old["ready"], -1, self.previous)
+        self._reset_history(objs, old, tab)
         key = (display.zones, display.rows, display.cols, display.pixel_size)
         if key != self.display_key:  # another display: the frames cost something else
             self.cost, self.display_key = FrameCost(), key
         t0 = time.perf_counter_ns()
-        scale = np.fromiter((o.transform.scale for o in objs), np.float64, len(objs))
         ppu = pixels_per_unit(display)
-        errors = tab["errors"] if clouds else tab["mesh_errors"]
-        level, predicted = select_levels(errors * scale[:, None], ppu,
-                                         settings.error_px, self.previous, settings.hysteresis)
-        if settings.budget_ms is not None and self.cost.ready and len(objs):
-            level = self._budget(objs, tab, level, scale * ppu, settings.budget_ms, clouds)
-            predicted = errors[np.arange(len(objs)), level] * scale * ppu
+        level, predicted = self._select(objs, tab, ppu, settings, clouds)
         select_ms = (time.perf_counter_ns() - t0) / 1e6
         self.previous = level
         out, boards = self._objects(scene, tab, level)
-        if self.scene is None:
-            self.scene = Scene([], [], scene.ambient)
-        self.scene.objects, self.scene.lights = out, scene.lights
-        self.scene.ambient = scene.ambient
-        if boards:
-            self.scene.billboards = boards
-        elif hasattr(self.scene, "billboards"):
-            self.scene.billboards = []
-        rows = np.arange(len(objs))
+        self._fill_scene(scene, out, boards)
+        return self.scene, self._report(scene, tab, level, predicted, boards, settings,
+                                        select_ms, ppu)
+
+    def _report(self, scene: Scene, tab: dict, level: np.ndarray, predicted: np.ndarray,
+                boards: list, settings: LodSettings, select_ms: float, ppu: float) -> dict:
+        """The frame's LOD report (see :meth:`apply`).
+
+        ``level`` and ``predicted`` (shape (n,)) are :meth:`_select`'s per object.
+        """
+        rows = np.arange(len(scene.objects))
         report = {
             "error_px": settings.error_px,
             "levels": level.tolist(),
@@ -1041,7 +1042,51 @@ class LodState:
             report.update(budget_ms=settings.budget_ms, cost_model=self.cost.as_dict(),
                           predicted_ms=(round(self.cost.predict(report["triangles"]), 3)
                                         if self.cost.ready else None))
-        return self.scene, report
+        return report
+
+    def _reset_history(self, objs: list, old: dict | None, tab: dict) -> None:
+        """Forget last frame's levels where they no longer say anything.
+
+        All of them when the objects changed (names or count); those of the objects
+        whose chain just arrived (``tab`` ready where ``old`` was not), which had no
+        level to flicker from.
+        """
+        names = tuple(o.name for o in objs)
+        if self.previous is None or names != self.names or self.previous.size != len(objs):
+            self.previous, self.names = np.full(len(objs), -1, np.int64), names
+        elif old is not None and tab is not old and old["ready"].size == len(objs):
+            self.previous = np.where(tab["ready"] & ~old["ready"], -1, self.previous)
+
+    def _select(self, objs: list, tab: dict, ppu: float, settings: LodSettings,
+                clouds: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Each object's level for the error budget, then (``budget_ms``) the time budget.
+
+        Returns
+        -------
+        level : ndarray, shape (n,), int64
+            The chosen level of each of the ``n`` objects.
+        predicted : ndarray, shape (n,), float64
+            Its predicted screen error in pixels.
+        """
+        scale = np.fromiter((o.transform.scale for o in objs), np.float64, len(objs))
+        errors = tab["errors"] if clouds else tab["mesh_errors"]
+        level, predicted = select_levels(errors * scale[:, None], ppu,
+                                         settings.error_px, self.previous, settings.hysteresis)
+        if settings.budget_ms is not None and self.cost.ready and len(objs):
+            level = self._budget(objs, tab, level, scale * ppu, settings.budget_ms, clouds)
+            predicted = errors[np.arange(len(objs)), level] * scale * ppu
+        return level, predicted
+
+    def _fill_scene(self, scene: Scene, out: list, boards: list) -> None:
+        """Put this frame's objects, billboards, lights and ambient in the kept scene."""
+        if self.scene is None:
+            self.scene = Scene([], [], scene.ambient)
+        self.scene.objects, self.scene.lights = out, scene.lights
+        self.scene.ambient = scene.ambient
+        if boards:
+            self.scene.billboards = boards
+        elif hasattr(self.scene, "billboards"):
+            self.scene.billboards = []
 
     def _objects(self, scene: Scene, tab: dict, level: np.ndarray) -> tuple[list, list]:
         """The objects at their levels, and the billboards (the scene's, then clouds).

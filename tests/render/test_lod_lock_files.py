@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from testkit import held_lock, wait_for
 
-from service.lod import LodSettings, _build_lock, build_chain, mesh_key
+from service.lod import LodSettings, _build_lock, build_chain, mesh_key, write_chain
 from service.primitives import torus
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
@@ -85,3 +85,25 @@ def test_a_waiter_ends_up_holding_the_file_at_the_path(ring, tmp_path):
         leave.set()
         waiter.join(30)
     assert seen == [True] and locks(tmp_path) == []
+
+
+def test_a_chain_built_while_waiting_for_the_lock_is_read_not_built(ring, tmp_path):
+    key = mesh_key(ring, LodSettings().recipe)
+    got: list = []
+    waiter = threading.Thread(target=lambda: got.append(build_chain(ring, cache=tmp_path)),
+                              daemon=True)
+    with _build_lock(tmp_path, key):
+        waiter.start()
+        wait_for(lambda: blocked_on(tmp_path / f"{key}.lock"), 30,
+                 "the builder waiting for the lock")
+        write_chain(tmp_path, build_chain(ring, cache=False))  # another process's build
+    waiter.join(30)
+    assert len(got) == 1 and got[0].build_ms == 0.0 and got[0].key == key
+    assert locks(tmp_path) == []
+
+
+def test_no_cache_builds_and_writes_nothing(ring, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    chain = build_chain(ring, cache=False)
+    assert chain.build_ms > 0 and len(chain.levels) > 1
+    assert list(tmp_path.iterdir()) == []
