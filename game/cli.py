@@ -112,7 +112,8 @@ def _add_play_args(p: argparse.ArgumentParser) -> None:
 def _add_output_args(p: argparse.ArgumentParser) -> None:
     """Window, output folder, light and level of detail."""
     p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
-    p.add_argument("--out", default=None, help="write screenshots, film and stats.json here")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help="write screenshots, film and stats.json here")
     p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
     add_lod_options(p)
 
@@ -122,7 +123,7 @@ def _add_game_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--difficulty", default="normal", choices=sorted(DIFFICULTIES),
                    help="the attackers' speed, how fast it grows and how near they may "
                    "come (default normal)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", metavar="N", type=int, default=0,
                    help="seed of the attackers' starts and the bot (default 0)")
     p.add_argument("--attackers", default=None, metavar="FILE",
                    help="attacker mesh file (.obj, .ply, .hobj)")
@@ -155,11 +156,12 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--zone",
+        metavar="N",
         type=int,
         default=None,
         help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
     )
-    p.add_argument("--zones", type=int_range(1, 64), default=5,
+    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=5,
                    help="view zones, 1-64 (default 5)")
     add_size_option(p, (200, 150), "pixels per zone")
     p.add_argument("--refresh", type=float_range(0, lo_open=True), default=60.0,

@@ -76,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_lod_options(p)
     _add_quality_args(p)
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
-    p.add_argument("--out", default="render-out", help="output folder (default render-out)")
+    p.add_argument("--out", metavar="DIR", default="render-out",
+                   help="output folder (default render-out)")
     p.add_argument(
         "--json",
         action="store_true",

@@ -177,6 +177,7 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
     )
     ap.add_argument(
         "--pose-scale",
+        metavar="X",
         type=float_range(0, lo_open=True),
         default=0.001,
         help="world units per tracker position unit",

@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=sorted(METHODS), default="tiw", help="algorithm (tiw)")
     p.add_argument("--eye-sep", type=float_range(2, 4096, lo_open=True), metavar="PX",
                    help="eye separation in pixels (default 2.5 in at 72 dpi, at most width/3)")
-    p.add_argument("--mu", type=float_range(0, 0.5, lo_open=True), default=1 / 3,
+    p.add_argument("--mu", metavar="F", type=float_range(0, 0.5, lo_open=True), default=1 / 3,
                    help="depth of field, (0, 0.5]; eyes do not fuse beyond 1/2 (default 1/3)")
     p.add_argument("--near", type=float_range(), metavar="D",
                    help="depth of the near plane (default: nearest finite depth)")
@@ -79,7 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="depth of the far plane (default: farthest finite depth)")
     p.add_argument("--pattern", default="random", metavar="random|colour|FILE.png",
                    help="grey dots, colour dots or an image tile (default random)")
-    p.add_argument("--seed", type=int_range(0), default=0, help="random dots' seed (0)")
+    p.add_argument("--seed", metavar="N", type=int_range(0), default=0,
+                   help="random dots' seed (0)")
     add_size_option(p, DEFAULT_SIZE, "size a scene is rendered at; a .npy is resampled "
                     "(nearest) to it only when --size is given")
     p.add_argument("--json", action="store_true", help="print one JSON object of stats")

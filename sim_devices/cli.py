@@ -58,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keep a symlink at PATH to the current pty (survives reconnects)")
     p.add_argument("--protocol", choices=("hatire", "native"), default="hatire",
                    help="tracker protocol (default: %(default)s)")
-    p.add_argument("--motion", default="sway",
+    p.add_argument("--motion", metavar="NAME[:KEY=VALUE,...]", default="sway",
                    help=f"tracker motion: {', '.join(MOTIONS)}, options as "
                    "name:key=value,... (e.g. turn:amplitude=45, replay:file=log; "
                    "default: %(default)s)")
@@ -74,11 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_command_options(p)
     p.add_argument("--enabled", action="store_true",
                    help="dial box reports without waiting for the init handshake")
-    p.add_argument("--faults", default="", help=FAULT_HELP)
+    p.add_argument("--faults", metavar="FAULT[=V],...", default="", help=FAULT_HELP)
     p.add_argument("--seconds", type=float_range(0), default=None, metavar="N",
                    help="stop after N seconds of device time (default: until Ctrl-C; "
                    "dials: 30)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", metavar="N", type=int, default=0,
                    help="seed for motion, script and noise (default: %(default)s)")
     p.add_argument("--baud", type=int_range(1), default=None, metavar="N",
                    help="rate writes are paced to (default: 115200 tracker, 9600 dials)")

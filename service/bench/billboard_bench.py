@@ -176,28 +176,33 @@ def build_parser() -> argparse.ArgumentParser:
                                 description="Billboard clouds: planes and build time vs "
                                 "EPS; image error close up and at grazing angles.",
                                 epilog=exit_rule_epilog())
-    p.add_argument("--mesh", default=str(BUNNY), help="mesh file (default: the bunny fixture)")
-    p.add_argument("--eps", type=comma_list(float_range(0, 100, lo_open=True)),
+    p.add_argument("--mesh", metavar="FILE", default=str(BUNNY),
+                   help="mesh file (default: the bunny fixture)")
+    p.add_argument("--eps", metavar="EPS,...", type=comma_list(float_range(0, 100, lo_open=True)),
                    default="0.5,1,2,4", help="EPS list, %% of the diagonal (0.5,1,2,4)")
-    p.add_argument("--view-eps", type=float_range(0, 100, lo_open=True), default=1.0,
+    p.add_argument("--view-eps", metavar="EPS", type=float_range(0, 100, lo_open=True), default=1.0,
                    help="EPS of the cloud viewed in parts 2 and 3, %% (default 1)")
-    p.add_argument("--zoom", type=comma_list(float_range(0, 64, lo_open=True)),
+    p.add_argument("--zoom", metavar="X,...", type=comma_list(float_range(0, 64, lo_open=True)),
                    default="0.5,1,2,4", help="magnifications of part 2 (0.5,1,2,4)")
-    p.add_argument("--yaws", type=comma_list(float_range(-360, 360)), default="0,60,120",
+    p.add_argument("--yaws", metavar="DEG,...", type=comma_list(float_range(-360, 360)),
+                   default="0,60,120",
                    help="orientations of part 3, degrees about y (0,60,120)")
-    p.add_argument("--texture-res", type=int_range(1, 16384), default=512,
+    p.add_argument("--texture-res", metavar="N", type=int_range(1, 16384), default=512,
                    help="texels across the diagonal (default 512)")
-    p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones (default 5)")
+    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=5,
+                   help="view zones (default 5)")
     add_size_option(p, (320, 240), "pixels per zone image")
-    p.add_argument("--cost-meshes", default="bunny,torus,spiky",
+    p.add_argument("--cost-meshes", metavar="MESH,...", default="bunny,torus,spiky",
                    help="part 4's meshes (holo-bench lod's names, or none; bunny,torus,spiky)")
-    p.add_argument("--cost-sizes", type=comma_list(float_range(1, 8192)), default="10,20,40,80,240",
+    p.add_argument("--cost-sizes", metavar="PX,...", type=comma_list(float_range(1, 8192)),
+                   default="10,20,40,80,240",
                    help="part 4's on-screen sizes, px (10,20,40,80,240)")
-    p.add_argument("--lod-error", type=float_range(0, None, lo_open=True), default=0.5,
+    p.add_argument("--lod-error", metavar="PX", type=float_range(0, None, lo_open=True),
+                   default=0.5,
                    help="part 4's LOD budget, px (0.5)")
-    p.add_argument("--repeats", type=int_range(1, 100), default=7,
+    p.add_argument("--repeats", metavar="N", type=int_range(1, 100), default=7,
                    help="part 4: renders per case, best taken (7)")
-    p.add_argument("--out", default="bench-out/billboard", help="output folder")
+    p.add_argument("--out", metavar="DIR", default="bench-out/billboard", help="output folder")
     return p
 
 

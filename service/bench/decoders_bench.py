@@ -94,11 +94,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="holo-bench decoders",
                                 description="Measure decoder throughput (MB/s per core).",
                                 epilog=exit_rule_epilog())
-    p.add_argument("--out", type=Path, required=True, help="directory for the JSON report")
-    p.add_argument("--scale", type=float_range(0, lo_open=True), default=1.0,
+    p.add_argument("--out", metavar="DIR", type=Path, required=True,
+                   help="directory for the JSON report")
+    p.add_argument("--scale", metavar="X", type=float_range(0, lo_open=True), default=1.0,
                    help="stream size factor (1: ~1 MB)")
-    p.add_argument("--chunk", type=int_range(1), default=4096, help="bytes per feed() call")
-    p.add_argument("--repeat", type=int_range(1), default=3, help="runs per case (best is kept)")
+    p.add_argument("--chunk", metavar="N", type=int_range(1), default=4096,
+                   help="bytes per feed() call")
+    p.add_argument("--repeat", metavar="N", type=int_range(1), default=3,
+                   help="runs per case (best is kept)")
     args = p.parse_args(argv)
     report = run(args.out, args.scale, args.chunk, args.repeat)
     for name, res in report["results"].items():

@@ -471,15 +471,18 @@ def main(argv: list[str] | None = None) -> int:
         prog="holo-bench filters", description=plain_help(__doc__.split("\n\n")[0]),
         epilog=exit_rule_epilog(),
     )
-    ap.add_argument("--out", required=True, type=Path, help="output folder")
+    ap.add_argument("--out", metavar="DIR", required=True, type=Path, help="output folder")
     ap.add_argument(
         "--fixture",
+        metavar="FILE",
         type=Path,
         default=DEFAULT_FIXTURE,
         help="raw Hatire capture (skipped if missing)",
     )
-    ap.add_argument("--seed", type=int, default=2012, help="RNG seed of the simulations")
-    ap.add_argument("--lead-ms", type=float_range(0), default=50.0, help="prediction lead (ms)")
+    ap.add_argument("--seed", metavar="N", type=int, default=2012,
+                    help="RNG seed of the simulations")
+    ap.add_argument("--lead-ms", metavar="MS", type=float_range(0), default=50.0,
+                    help="prediction lead (ms)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     datasets = simulated(args.seed)

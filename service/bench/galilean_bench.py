@@ -801,9 +801,9 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--case", choices=[*CASES, "scene"], default="falling")
     p.add_argument("--order", type=int, default=2, choices=ORDERS)
-    p.add_argument("--interval", type=int_range(1), default=2,
+    p.add_argument("--interval", metavar="N", type=int_range(1), default=2,
                    help="refreshes per update (default: %(default)s)")
-    p.add_argument("--frames", type=int_range(1), default=10,
+    p.add_argument("--frames", metavar="N", type=int_range(1), default=10,
                    help="refreshes to run (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--sweep", action="store_true", help="run the full sweep into --out")
@@ -813,14 +813,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="only the --time-size timing (refresh, render, shadow) into --out")
     p.add_argument("--complexity", action="store_true",
                    help="only the --time-size timing against scene complexity into --out")
-    p.add_argument("--complexity-counts", type=_counts, default=COMPLEXITY_COUNTS,
+    p.add_argument("--complexity-counts", metavar="N,...", type=_counts, default=COMPLEXITY_COUNTS,
                    help="extra triangles per complexity step, comma-separated "
                         "(default %(default)s)")
-    p.add_argument("--complexity-repeats", type=int_range(1), default=15,
+    p.add_argument("--complexity-repeats", metavar="N", type=int_range(1), default=15,
                    help="interleaved calls per complexity step (default: %(default)s)")
-    p.add_argument("--out", default="bench-out")
+    p.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="output folder (default bench-out)")
     add_size_option(p, (160, 120), "sweep render size")
-    p.add_argument("--sweep-frames", type=int_range(2), default=33,
+    p.add_argument("--sweep-frames", metavar="N", type=int_range(2), default=33,
                    help="refreshes per sweep run (default: %(default)s)")
     add_size_option(p, (640, 480), "size of the timing run", flag="--time-size")
     args = p.parse_args(argv)

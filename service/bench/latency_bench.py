@@ -430,13 +430,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="holo-bench latency",
                                  description=plain_help(__doc__.splitlines()[0]),
                                  epilog=exit_rule_epilog())
-    ap.add_argument("--out", required=True, type=Path, help="output folder")
-    ap.add_argument("--frames", type=int_range(1), default=2000, help="frames to time per wiring")
-    ap.add_argument("--rate", type=float_range(0, lo_open=True), default=200.0,
+    ap.add_argument("--out", metavar="DIR", required=True, type=Path, help="output folder")
+    ap.add_argument("--frames", metavar="N", type=int_range(1), default=2000,
+                    help="frames to time per wiring")
+    ap.add_argument("--rate", metavar="HZ", type=float_range(0, lo_open=True), default=200.0,
                     help="frames per second")
     ap.add_argument("--protocol", choices=tuple(ENCODERS), default="native")
     ap.add_argument("--transport", choices=tuple(TRANSPORTS), default="pty")
-    ap.add_argument("--wiring", default="inline",
+    ap.add_argument("--wiring", metavar="NAME,...", default="inline",
                     help="comma-separated pipelines timed side by side, from: "
                     f"{', '.join(WIRINGS)} (default: %(default)s, as holo-devices)")
     args = ap.parse_args(argv)

@@ -226,15 +226,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="holo-bench light",
                                  description=plain_help(__doc__.splitlines()[0]),
                                  epilog=exit_rule_epilog())
-    ap.add_argument("--out", type=Path, default=Path("bench-out/light"), help="output folder")
-    ap.add_argument("--scenes", type=comma_list(light_scene_name),
+    ap.add_argument("--out", metavar="DIR", type=Path, default=Path("bench-out/light"),
+                    help="output folder")
+    ap.add_argument("--scenes", metavar="NAME,...", type=comma_list(light_scene_name),
                     default="sphere,sphere-torus,game",
                     help="comma-separated: sphere or built-in scene names "
                     "(default: %(default)s)")
-    ap.add_argument("--zones", type=comma_list(int_range(1, 64)), default="1,5",
+    ap.add_argument("--zones", metavar="N,...", type=comma_list(int_range(1, 64)), default="1,5",
                     help="comma-separated zone counts, 1-64 (default: %(default)s)")
     add_size_option(ap, (320, 240), "pixels per zone")
-    ap.add_argument("--repeats", type=int_range(1), default=20,
+    ap.add_argument("--repeats", metavar="N", type=int_range(1), default=20,
                     help="timed runs per variant (median; default: %(default)s)")
     return ap.parse_args(argv)
 

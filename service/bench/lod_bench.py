@@ -366,22 +366,27 @@ def build_parser() -> argparse.ArgumentParser:
         "and lod_levels.png, lod_build.png, lod_crowd.png (README, Benchmarks).",
         epilog=exit_rule_epilog(),
     )
-    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
-    p.add_argument("--meshes", default="bunny,torus,spiky",
+    p.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="output folder (default bench-out)")
+    p.add_argument("--meshes", metavar="MESH,...", default="bunny,torus,spiky",
                    help="comma list: bunny, torus, spiky or mesh files (default all three; "
                    "an empty string for the crowd only)")
     add_size_option(p, (320, 240), "pixels per zone image")
-    p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones (default 5)")
-    p.add_argument("--repeats", type=int_range(1, 100), default=3, help="renders timed (3)")
-    p.add_argument("--crowd", type=int_range(0, 5000), default=200,
+    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=5,
+                   help="view zones (default 5)")
+    p.add_argument("--repeats", metavar="N", type=int_range(1, 100), default=3,
+                   help="renders timed (3)")
+    p.add_argument("--crowd", metavar="N", type=int_range(0, 5000), default=200,
                    help="copies in the crowd scene, 0 to skip it (default 200)")
-    p.add_argument("--crowd-mesh", default="bunny", help="the crowd's mesh (default bunny)")
+    p.add_argument("--crowd-mesh", metavar="MESH", default="bunny",
+                   help="the crowd's mesh (default bunny)")
     p.add_argument("--lod-error", type=float_range(0, None, lo_open=True), default=0.5,
                    metavar="PX", help="the crowd's LOD error budget, pixels (default 0.5)")
     p.add_argument("--crowd-budget-ms", type=float_range(0, None), default=0.0, metavar="MS",
                    help="the crowd's LOD time budget, wall ms (default 0: half the LOD-on "
                    "frame's)")
-    p.add_argument("--depth-tol", type=float_range(0, None, lo_open=True), default=0.01,
+    p.add_argument("--depth-tol", metavar="D", type=float_range(0, None, lo_open=True),
+                   default=0.01,
                    help="depth difference counted as a wrong pixel, world units (0.01)")
     return p
 

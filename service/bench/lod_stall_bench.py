@@ -55,12 +55,14 @@ def build_parser() -> argparse.ArgumentParser:
         "Writes lod_stall.csv, lod_stall.json and lod_stall.png.",
         epilog=exit_rule_epilog(),
     )
-    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
-    p.add_argument("--mesh", default=str(BUNNY),
+    p.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="output folder (default bench-out)")
+    p.add_argument("--mesh", metavar="FILE", default=str(BUNNY),
                    help="the mesh whose chain is built (default the bunny fixture)")
     add_size_option(p, (160, 120), "pixels per zone image")
-    p.add_argument("--zones", type=int_range(1, 64), default=5, help="view zones (default 5)")
-    p.add_argument("--repeats", type=int_range(1, 50), default=3,
+    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=5,
+                   help="view zones (default 5)")
+    p.add_argument("--repeats", metavar="N", type=int_range(1, 50), default=3,
                    help="builds per mode (default 3)")
     return p
 

@@ -192,11 +192,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         epilog=exit_rule_epilog("a frame went over its error budget."),
     )
     p.add_argument("--calibrate", action="store_true", help="measure and write the cost model")
-    p.add_argument("--model", default=None, help="cost model JSON to write or read")
+    p.add_argument("--model", metavar="FILE", default=None, help="cost model JSON to write or read")
     p.add_argument("--galilean-from", default=None, metavar="PATH",
                    help="--calibrate: keep this model's Galilean sweep table instead of "
                    "running the sweep again")
-    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
+    p.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="output folder (default bench-out)")
     add_size_option(p, (160, 120), "pixels per zone image of the budget check")
     p.add_argument("--quick", action="store_true", help="fewer repeats and frames")
     return p.parse_args(argv)

@@ -288,19 +288,20 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="holo-bench render", description=plain_help(__doc__),
                                 epilog=exit_rule_epilog(),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default="bench-out", help="output folder")
+    p.add_argument("--out", metavar="DIR", default="bench-out", help="output folder")
     p.add_argument("--quick", action="store_true", help="zones 1 and 5 only, fewer repeats")
-    p.add_argument("--scenes", default=",".join(SCENE_NAMES), help="comma-separated scene names")
+    p.add_argument("--scenes", metavar="NAME,...", default=",".join(SCENE_NAMES),
+                   help="comma-separated scene names")
     p.add_argument(
         "--zone-cost", action="store_true", help="only the cost of extra zones (a few seconds)"
     )
     p.add_argument("--peers", action="store_true",
                    help="also time llvmpipe and Embree beside our z-buffer (extra .[peers])")
     p.add_argument("--peers-only", action="store_true", help="only the peers (implies --peers)")
-    p.add_argument("--peer-scenes", type=comma_list(str), default=None,
+    p.add_argument("--peer-scenes", metavar="NAME,...", type=comma_list(str), default=None,
                    help="extra scenes for the peers only (default: spheres-8k,spheres-100k; "
                         "--quick: spheres-8k)")
-    p.add_argument("--peer-sizes", type=comma_list(size), default=None,
+    p.add_argument("--peer-sizes", metavar="WxH,...", type=comma_list(size), default=None,
                    help="sizes of the extra peer scenes (default: 320x240,640x480; "
                         "--quick: --size)")
     add_size_option(p, (320, 240), "pixels per zone image")

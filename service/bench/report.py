@@ -568,11 +568,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="holo-bench report", description=plain_help(__doc__),
                                 epilog=exit_rule_epilog("no benchmark ran."),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
+    p.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="output folder (default bench-out)")
     p.add_argument("--quick", action="store_true", help="small settings (about 3 minutes)")
     p.add_argument("--no-warmup", dest="warmup", action="store_false",
                    help="do not compile the numba kernels ahead in two processes")
-    p.add_argument("--only", default=None,
+    p.add_argument("--only", metavar="NAME,...", default=None,
                    help="comma-separated benchmark names to run (default: all)")
     p.add_argument("--size", type=size_type, default=None, metavar="WxH",
                    help="pixels per zone image (default: 160x120 with --quick, else 320x240)")

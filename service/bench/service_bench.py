@@ -578,18 +578,20 @@ def main(argv: list[str] | None = None) -> int:
         epilog=exit_rule_epilog(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--out", default="bench-out")
+    p.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="output folder (default bench-out)")
     p.add_argument("--quick", action="store_true", help="fewer samples (a smoke run)")
     p.add_argument(
-        "--seconds", type=float_range(0, lo_open=True), default=8.0,
+        "--seconds", metavar="S", type=float_range(0, lo_open=True), default=8.0,
         help="measuring time per worker count",
     )
     p.add_argument(
-        "--workers", type=comma_list(int_range(0, 64)), default="0,1,2,3",
+        "--workers", metavar="N,...", type=comma_list(int_range(0, 64)), default="0,1,2,3",
         help="worker counts to compare, comma-separated",
     )
     p.add_argument(
-        "--rounds", type=int_range(1), default=2, help="rounds of the worker comparison"
+        "--rounds", metavar="N", type=int_range(1), default=2,
+        help="rounds of the worker comparison"
     )
     args = p.parse_args(argv)
     out = Path(args.out)

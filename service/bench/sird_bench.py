@@ -282,14 +282,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="holo-bench sird",
                                  description=plain_help(__doc__.splitlines()[0]),
                                  epilog=exit_rule_epilog())
-    ap.add_argument("--out", type=Path, default=Path("bench-out/sird"), help="output folder")
-    ap.add_argument("--methods", type=comma_list(_choice(METHOD_NAMES)),
+    ap.add_argument("--out", metavar="DIR", type=Path, default=Path("bench-out/sird"),
+                    help="output folder")
+    ap.add_argument("--methods", metavar="NAME,...", type=comma_list(_choice(METHOD_NAMES)),
                     default=",".join(METHOD_NAMES), help="comma-separated (default: %(default)s)")
-    ap.add_argument("--scenes", type=comma_list(_choice(SCENE_NAMES)),
+    ap.add_argument("--scenes", metavar="NAME,...", type=comma_list(_choice(SCENE_NAMES)),
                     default=",".join(SCENE_NAMES), help="comma-separated (default: %(default)s)")
-    ap.add_argument("--sizes", type=comma_list(size), default="320x240,640x480,1280x720",
+    ap.add_argument("--sizes", metavar="WxH,...", type=comma_list(size),
+                    default="320x240,640x480,1280x720",
                     help="comma-separated WxH (default: %(default)s)")
-    ap.add_argument("--repeats", type=int_range(1), default=30,
+    ap.add_argument("--repeats", metavar="N", type=int_range(1), default=30,
                     help="timed runs per variant (median; default: %(default)s)")
     add_size_option(ap, default=(640, 480), flag="--service-size",
                     help="the service's SIRD cost per refresh, measured on the game scene")
