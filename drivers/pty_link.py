@@ -19,6 +19,10 @@ import time
 from service.errors import DeviceError
 
 POLL_S = 0.005
+#: Seconds the client's side must stay empty before :meth:`PtyLink.drain` returns: the
+#: kernel moves written bytes to it from a work queue, which a loaded machine runs late
+#: (three empty looks 5 ms apart once let a run close with frames still in transit).
+DRAIN_QUIET_S = 0.1
 
 
 class PtyLink:
@@ -97,14 +101,22 @@ class PtyLink:
         import struct
         import termios
 
-        deadline = time.monotonic() + timeout
+        now = time.monotonic()
+        deadline, quiet_since = now + timeout, None
         buf = bytearray(4)
-        empty = 0  # the kernel moves pty data in the background: want 3 empty looks
-        while (self._slave >= 0 and empty < 3 and time.monotonic() < deadline
+        # the kernel moves pty data in the background: the client's side must stay
+        # empty for DRAIN_QUIET_S, not just look empty once
+        while (self._slave >= 0 and now < deadline
                and not (self.stop is not None and self.stop.is_set())):
             fcntl.ioctl(self._slave, termios.FIONREAD, buf)
-            empty = empty + 1 if struct.unpack("i", buf)[0] == 0 else 0
+            if struct.unpack("i", buf)[0]:
+                quiet_since = None
+            elif quiet_since is None:
+                quiet_since = now
+            elif now - quiet_since >= DRAIN_QUIET_S:
+                return
             select.select([], [], [], POLL_S)
+            now = time.monotonic()
 
     def disconnect(self) -> None:
         """Close both ends (a client sees the device vanish).
