@@ -19,10 +19,6 @@ import time
 from service.errors import DeviceError
 
 POLL_S = 0.005
-#: Seconds the client's side must stay empty before :meth:`PtyLink.drain` returns: the
-#: kernel moves written bytes to it from a work queue, which a loaded machine runs late
-#: (three empty looks 5 ms apart once let a run close with frames still in transit).
-DRAIN_QUIET_S = 0.1
 
 
 class PtyLink:
@@ -90,6 +86,28 @@ class PtyLink:
         except (BlockingIOError, OSError):
             return b""
 
+    def unread(self) -> bool:
+        """True while the client has not read everything written to the master side.
+
+        ``FIONREAD`` alone misses bytes in transit: the kernel moves what the master
+        writes into the slave's input queue from a work queue, which runs late (most
+        looks right after a write, and a loaded machine can hold them back for longer).
+        Polling the slave for input first runs that pending work (Linux ``n_tty_poll``
+        flushes the port's buffer before it answers), so the two looks together see
+        every byte the client has not read yet.
+        """
+        import fcntl
+        import struct
+        import termios
+
+        if self._slave < 0:
+            return False
+        if select.select([self._slave], [], [], 0)[0]:
+            return True
+        buf = bytearray(4)
+        fcntl.ioctl(self._slave, termios.FIONREAD, buf)
+        return struct.unpack("i", buf)[0] > 0
+
     def drain(self, timeout: float = 10.0) -> None:
         """Wait (up to ``timeout``) until the client has read what was sent.
 
@@ -97,26 +115,10 @@ class PtyLink:
         ends by itself waits for a slow reader (a loaded machine can leave one
         seconds behind); a run stopped through ``stop`` does not wait.
         """
-        import fcntl
-        import struct
-        import termios
-
-        now = time.monotonic()
-        deadline, quiet_since = now + timeout, None
-        buf = bytearray(4)
-        # the kernel moves pty data in the background: the client's side must stay
-        # empty for DRAIN_QUIET_S, not just look empty once
-        while (self._slave >= 0 and now < deadline
+        deadline = time.monotonic() + timeout
+        while (self.unread() and time.monotonic() < deadline
                and not (self.stop is not None and self.stop.is_set())):
-            fcntl.ioctl(self._slave, termios.FIONREAD, buf)
-            if struct.unpack("i", buf)[0]:
-                quiet_since = None
-            elif quiet_since is None:
-                quiet_since = now
-            elif now - quiet_since >= DRAIN_QUIET_S:
-                return
             select.select([], [], [], POLL_S)
-            now = time.monotonic()
 
     def disconnect(self) -> None:
         """Close both ends (a client sees the device vanish).
