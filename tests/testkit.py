@@ -60,6 +60,10 @@ SMALL_SERVICE = ("--scene", "game", *TINY_DISPLAY, "--refresh", "30")
 
 #: The rule of service.signals: the exit status after a clean stop on each signal.
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+#: Seconds for a deadline that only guards against a hang, never a speed check: a loaded
+#: machine (a shared CI host, a first ``make test`` beside other work) can starve a test
+#: for seconds, and a test must then pass, slowly, not fail.
+HANG_S = 60.0
 
 
 def wait_until(predicate: Callable[[], object], timeout_s: float, step_s: float = 0.01) -> object:
