@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from service.bench.rows import zones_label
 from service.cli_args import exit_rule_epilog, plain_help
 from service.cli_args import size as size_type
 from service.errors import HoloError
@@ -248,7 +249,7 @@ def render_table(out: Path) -> Table:
     for r in rows:
         peer = best.get((r["scene"], r["zones"]))
         vs = f"{r['ms'] / peer[1]:.2f} x {peer[0]}" if peer else "no peer measured"
-        body.append([r["method"], f"{r['scene']}, {r['zones']} zones", _fmt(r["ms"]),
+        body.append([r["method"], f"{r['scene']}, {zones_label(r['zones'])}", _fmt(r["ms"]),
                      _fmt(r["pct_differ"], 4), vs])
     status = _load(out / "peers_status.json") or {}
     why = "; ".join(f"{k}: {v}" for k, v in status.get("not_started", {}).items())
@@ -264,7 +265,7 @@ def peers_table(out: Path) -> Table:
     """Peers timed in turn with our z-buffer: both ms, the ratio, depth agreement."""
     rows = _load(out / "peers.json") or []
     status = _load(out / "peers_status.json") or {}
-    body = [[r["peer"], f"{r['scene']} ({r['triangles']} triangles), {r['zones']} zones, "
+    body = [[r["peer"], f"{r['scene']} ({r['triangles']} triangles), {zones_label(r['zones'])}, "
              f"{r['size']}", _fmt(r["ours_ms"]), _fmt(r["peer_ms"]), f"{r['ratio']:.3f}",
              f"{r['pct_agree']:.4f}"] for r in rows]
     engines = "; ".join(f"{k}: {v}" for k, v in status.get("started", {}).items())
@@ -281,7 +282,7 @@ def light_table(out: Path) -> Table:
     """Light: model per evaluation, ms, mean intensity error against per-point Blinn."""
     rows = _load(out / "light_bench.json") or []
     rows = rows if isinstance(rows, list) else rows.get("rows", [])
-    body = [[f"{r['model']} per {r['evaluation']}", f"{r['scene']}, {r['zones']} zones",
+    body = [[f"{r['model']} per {r['evaluation']}", f"{r['scene']}, {zones_label(r['zones'])}",
              _fmt(r["ms"]), _fmt(r["error"], 4), "no peer measured"] for r in rows]
     return Table(["method", "scene", "ms", "error", "against the best peer"], body,
                  "error: mean absolute intensity difference from per-point Blinn (0-1).")

@@ -55,6 +55,7 @@ def test_the_occlusion_table_sets_each_method_against_the_best_peer(tmp_path):
     (tmp_path / "peers_status.json").write_text(json.dumps(
         {"not_started": {"embree": "embreex not installed"}}))
     table = report.render_table(tmp_path)
+    assert [r[1] for r in table.rows] == ["game, 5 zones", "cyclic, 1 zone"]
     assert table.rows[0][-1] == "0.50 x llvmpipe"
     assert table.rows[1][-1] == "no peer measured"
     assert "embree: embreex not installed" in table.note
