@@ -144,7 +144,7 @@ def test_subscriber_counts_gaps_skips_malformed_and_follows_a_new_session():
                         huge_seq, dials(start + 1, value=2), dials(start + 5, value=3),
                         dials(start + 2, value=99), dials(1, session="b", value=4)):
                 raw.send_multipart(msg)
-            assert sub.wait_for(lambda s: s.session == "b", 5.0)
+            assert sub.wait_for(lambda s: s.session == "b", HANG_S)
     finally:
         raw.close()
     assert sub.stats.malformed == 5

@@ -9,6 +9,7 @@ import time
 
 import pytest
 import serial
+from testkit import HANG_S
 
 from drivers.events import PoseEvent
 from drivers.protocols import hatire, make_decoder, native
@@ -65,13 +66,13 @@ def test_pty_across_processes(protocol):
         port.write(START[protocol])
         dec = make_decoder(protocol)
         poses: list[PoseEvent] = []
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + HANG_S  # a hang guard: a loaded machine is slow
         while len(poses) < 200 and time.monotonic() < deadline:
             chunk = port.read(max(1, port.in_waiting))
             poses += [e for e in dec.feed(chunk, time.monotonic_ns())
                       if isinstance(e, PoseEvent)]
         port.close()
-        out, err = proc.communicate(timeout=10)
+        out, err = proc.communicate(timeout=HANG_S)
     finally:
         proc.kill()
     assert [p.seq for p in poses] == list(range(200))
