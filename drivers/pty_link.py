@@ -19,6 +19,8 @@ import time
 from service.errors import DeviceError
 
 POLL_S = 0.005
+#: How long :meth:`PtyLink.drain` waits at most for a reader to take what was sent.
+DRAIN_TIMEOUT_S = 10.0
 
 
 class PtyLink:
@@ -108,7 +110,7 @@ class PtyLink:
         fcntl.ioctl(self._slave, termios.FIONREAD, buf)
         return struct.unpack("i", buf)[0] > 0
 
-    def drain(self, timeout: float = 10.0) -> None:
+    def drain(self, timeout: float = DRAIN_TIMEOUT_S) -> None:
         """Wait (up to ``timeout``) until the client has read what was sent.
 
         Closing the pty discards what the client has not read yet, so a run that
