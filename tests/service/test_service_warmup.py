@@ -121,7 +121,7 @@ def test_a_cold_service_keeps_its_heartbeats_says_warming_up_and_stops_on_sigter
         svc.stop()
 
 
-@pytest.mark.timeout(60)
+@pytest.mark.timeout(150)
 def test_a_shutdown_request_while_warming_up_stops_at_once(tmp_path):
     svc = _cold_service(tmp_path)
     proc, control = svc.proc, svc.control
