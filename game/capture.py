@@ -87,26 +87,34 @@ class Capture:
         """Show the next mode of the plan; screenshot the one the last tick drew.
 
         A mode is screenshotted after 3/4 of its dwell, or when its dwell is over
-        without one (ticks slower than a quarter dwell on a loaded machine).
+        without one (ticks slower than a quarter dwell on a loaded machine). The
+        next mode comes once the current one is done, so a tick longer than a dwell
+        (a loaded machine) delays the tour but never skips a mode.
         """
         if self._home is None:
             self._home = client.mode
         if not self.plan:
             return
-        if self._tour_start is None:
+        if self._showing is None:
             if client.colour is None:
                 return  # no frame yet: nothing to show in any mode
-            self._tour_start = now
-        k, into = divmod(now - self._tour_start, self.dwell_s)
-        due = self.plan[int(k)] if k < len(self.plan) else None
-        if self._showing is not None and (self._showing != due or into > 0.75 * self.dwell_s):
+            self._show(client, now)
+            return
+        into = now - self._tour_start
+        if into > 0.75 * self.dwell_s:  # a tick since set_mode drew it
             self._once(client, f"mode-{self._showing}")
-        if due is None:
-            client.set_mode(self._home)
-            self.plan, self._showing = [], None
-        else:
-            client.set_mode(due)
-            self._showing = due
+        if into >= self.dwell_s:
+            self.plan = self.plan[1:]
+            if self.plan:  # on the dwell grid: a late tour catches up a tick a mode
+                self._show(client, self._tour_start + self.dwell_s)
+            else:
+                client.set_mode(self._home)
+                self._showing = None
+
+    def _show(self, client: Any, start: float) -> None:
+        """Switch to the plan's first mode; its dwell starts at ``start``."""
+        self._showing, self._tour_start = self.plan[0], start
+        client.set_mode(self._showing)
 
     def _once(self, client: Any, name: str) -> None:
         if name not in self._taken and client.colour is not None:
