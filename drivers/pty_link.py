@@ -19,6 +19,8 @@ import time
 from service.errors import DeviceError
 
 POLL_S = 0.005
+#: How long :meth:`PtyLink.drain` waits at most for a reader to take what was sent.
+DRAIN_TIMEOUT_S = 10.0
 
 
 class PtyLink:
@@ -86,24 +88,38 @@ class PtyLink:
         except (BlockingIOError, OSError):
             return b""
 
-    def drain(self, timeout: float = 10.0) -> None:
+    def unread(self) -> bool:
+        """True while the client has not read everything written to the master side.
+
+        ``FIONREAD`` alone misses bytes in transit: the kernel moves what the master
+        writes into the slave's input queue from a work queue, which runs late (most
+        looks right after a write, and a loaded machine can hold them back for longer).
+        Polling the slave for input first runs that pending work (Linux ``n_tty_poll``
+        flushes the port's buffer before it answers), so the two looks together see
+        every byte the client has not read yet.
+        """
+        import fcntl
+        import struct
+        import termios
+
+        if self._slave < 0:
+            return False
+        if select.select([self._slave], [], [], 0)[0]:
+            return True
+        buf = bytearray(4)
+        fcntl.ioctl(self._slave, termios.FIONREAD, buf)
+        return struct.unpack("i", buf)[0] > 0
+
+    def drain(self, timeout: float = DRAIN_TIMEOUT_S) -> None:
         """Wait (up to ``timeout``) until the client has read what was sent.
 
         Closing the pty discards what the client has not read yet, so a run that
         ends by itself waits for a slow reader (a loaded machine can leave one
         seconds behind); a run stopped through ``stop`` does not wait.
         """
-        import fcntl
-        import struct
-        import termios
-
         deadline = time.monotonic() + timeout
-        buf = bytearray(4)
-        empty = 0  # the kernel moves pty data in the background: want 3 empty looks
-        while (self._slave >= 0 and empty < 3 and time.monotonic() < deadline
+        while (self.unread() and time.monotonic() < deadline
                and not (self.stop is not None and self.stop.is_set())):
-            fcntl.ioctl(self._slave, termios.FIONREAD, buf)
-            empty = empty + 1 if struct.unpack("i", buf)[0] == 0 else 0
             select.select([], [], [], POLL_S)
 
     def disconnect(self) -> None:

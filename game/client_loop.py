@@ -173,15 +173,7 @@ class GameClient:
         self.state: GameState = new_game(settings.game)
         self.over: GameOverSequence | None = None
         self.games, self.seed = 1, settings.game.seed
-        self.scores: list[int] = []
-        self.modes_shown: set[str] = set()
-        self.colour: np.ndarray | None = None
-        self.sird: np.ndarray | None = None  # the frame's autostereogram, if it has one
-        self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
-        self.latencies: deque[float] = deque(maxlen=600)
-        self.dial_events = self.disconnects = 0
-        #: (clock reading, note): the renderer's level-of-detail notes, each once
-        self.lod_notes: list[tuple[float, str]] = []
+        self._init_stats()
         self.pads = Pads()
         self.pads.open_all()
         self.quit = False
@@ -193,7 +185,24 @@ class GameClient:
         self._last = clock()
         self._render_id = -1
         self._was_connected = backend.connected
-        self._commands: dict[str, Callable[[], None]] = {
+        self._commands = self._command_table()
+        backend.update(object_states(self.state))
+
+    def _init_stats(self) -> None:
+        """What the loop counts and keeps of the frames: scores, rates, the last images."""
+        self.scores: list[int] = []
+        self.modes_shown: set[str] = set()
+        self.colour: np.ndarray | None = None
+        self.sird: np.ndarray | None = None  # the frame's autostereogram, if it has one
+        self.fps, self.refreshes, self.renders = RateMeter(), RateMeter(), RateMeter()
+        self.latencies: deque[float] = deque(maxlen=600)
+        self.dial_events = self.disconnects = 0
+        #: (clock reading, note): the renderer's level-of-detail notes, each once
+        self.lod_notes: list[tuple[float, str]] = []
+
+    def _command_table(self) -> dict[str, Callable[[], None]]:
+        """Input action name -> what it does (pause, quit, start, zone and mode changes)."""
+        return {
             "pause": self._pause,
             "quit": self._quit,
             "start": self._start,
@@ -201,7 +210,6 @@ class GameClient:
             "zone_next": lambda: self._step_zone(1),
             **{f"mode_{m}": (lambda m=m: self.set_mode(m)) for m in (*MODES, *UNAVAILABLE)},
         }
-        backend.update(object_states(self.state))
 
     # ------------------------------------------------------------- commands
     def set_mode(self, mode: str) -> None:

@@ -22,6 +22,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import zmq
 
@@ -32,6 +33,10 @@ from service.errors import HoloError
 from service.net.curve_keys import make_keys
 from service.process import setup_frame_process
 from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
+
+if TYPE_CHECKING:
+    from service.net.server import Service
+    from service.net.state import ServiceConfig
 
 
 class _DefaultsHelp(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
@@ -210,41 +215,59 @@ def main(argv: Sequence[str] | None = None) -> int:
     # before the first parallel kernel loads libgomp; workers inherit it.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     setup_frame_process()  # heap reuse and one BLAS thread (service.process)
+    service = _start(args)
+    if service is None:
+        return EXIT_USAGE
+    return _serve(service)
+
+
+def _start(args: argparse.Namespace) -> Service | None:
+    """The service, its sockets bound; None when it cannot start (said on stderr)."""
     from service.net.server import Service
-    from service.net.state import ServiceConfig
 
     try:
-        config = ServiceConfig(
-            control=args.control,
-            frames=args.frames,
-            devices=args.devices,
-            workers=max(0, args.workers),
-            worker_address=args.worker_address,
-            refresh_hz=args.refresh,
-            curve_keys=args.curve_keys,
-            render_timeout_s=args.render_timeout,
-            split=args.split,
-            io_threads=args.io_threads,
-            max_update_hz=args.max_update_hz,
-            scene=args.scene,
-            display=DisplaySettings(args.zones, args.angle, *args.size),
-            pose_scale=args.pose_scale,
-            lod_error=args.lod_error or 0.0,
-            lod_budget_ms=args.budget_ms or 0.0,
-            scene_dirs=tuple(args.scene_dir or ()),
-            warmup=args.warmup,
-        )
-        service = Service(config, log=_log)
+        service = Service(_config(args), log=_log)
     except (HoloError, OSError) as exc:
         print(f"holo-service: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return None
     except zmq.ZMQError as exc:  # address in use...
         print(f"holo-service: cannot bind: {exc} (another holo-service running? "
               "--control, --frames and --worker-address pick other ports)", file=sys.stderr)
-        return EXIT_USAGE
+        return None
     except Exception as exc:
         print(f"holo-service: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return None
+    return service
+
+
+def _config(args: argparse.Namespace) -> ServiceConfig:
+    """The service's settings from the command line."""
+    from service.net.state import ServiceConfig
+
+    return ServiceConfig(
+        control=args.control,
+        frames=args.frames,
+        devices=args.devices,
+        workers=max(0, args.workers),
+        worker_address=args.worker_address,
+        refresh_hz=args.refresh,
+        curve_keys=args.curve_keys,
+        render_timeout_s=args.render_timeout,
+        split=args.split,
+        io_threads=args.io_threads,
+        max_update_hz=args.max_update_hz,
+        scene=args.scene,
+        display=DisplaySettings(args.zones, args.angle, *args.size),
+        pose_scale=args.pose_scale,
+        lod_error=args.lod_error or 0.0,
+        lod_budget_ms=args.budget_ms or 0.0,
+        scene_dirs=tuple(args.scene_dir or ()),
+        warmup=args.warmup,
+    )
+
+
+def _serve(service: Service) -> int:
+    """Run the service until it is stopped; the exit status (130/143 on a signal)."""
     _log(
         f"control {service.control_address} frames {service.stream.address} "
         f"session {service.session}"

@@ -326,11 +326,62 @@ def _static_parts(scene: Scene) -> dict:
         return scene._static
     runs = _runs(scene)
     objs = scene.objects
-    n_v = np.array([o.mesh.n_vertices for o in objs], np.int64)
     n_p = np.array([o.mesh.n_polygons for o in objs], np.int64)
+    v0, p0, t0 = _starts(objs, n_p)
+    k = max((o.mesh.polygons.shape[1] for o in objs), default=3)
+    polygons, counts, triangles, tri_poly, closed = _run_blocks(runs, v0, p0, t0, k)
+    mats = _materials(objs)
+    poly_obj = np.repeat(np.arange(len(objs), dtype=np.int64), n_p)
+    scene._static.clear()
+    scene._static.update(
+        key=key, polygons=polygons, counts=counts, triangles=triangles,
+        triangle_polygon=tri_poly, polygon_object=poly_obj, materials=mats[poly_obj],
+        polygon_closed=closed, runs=runs, vertex_start=v0, polygon_start=p0,
+    )
+    return scene._static
+
+
+def _starts(objs: list, n_p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each object's vertices, polygons and triangles start in the scene's arrays.
+
+    Parameters
+    ----------
+    objs : list of SceneObject, length O
+    n_p : ndarray, shape (O,), int64
+        Their polygon counts.
+
+    Returns
+    -------
+    v0, p0, t0 : ndarray, shape (O + 1,), int64
+        Starts of vertices, polygons and triangles; the last entry is the total.
+    """
+    n_v = np.array([o.mesh.n_vertices for o in objs], np.int64)
     n_t = np.array([o.mesh.triangles.shape[0] for o in objs], np.int64)
     v0, p0, t0 = (np.concatenate([[0], np.cumsum(n)]) for n in (n_v, n_p, n_t))
-    k = max((o.mesh.polygons.shape[1] for o in objs), default=3)
+    return v0, p0, t0
+
+
+def _run_blocks(runs: list, v0: np.ndarray, p0: np.ndarray, t0: np.ndarray,
+                k: int) -> tuple[np.ndarray, ...]:
+    """The scene's polygon and triangle arrays, one broadcast block per run of objects.
+
+    Parameters
+    ----------
+    runs : list of (Mesh, int, int)
+        :func:`_runs`: a mesh and the objects ``a:b`` that share it.
+    v0, p0, t0 : ndarray, shape (O + 1,), int64
+        :func:`_starts`.
+    k : int
+        Most corners of a polygon.
+
+    Returns
+    -------
+    polygons : ndarray, shape (P, k), int64, padded with -1
+    counts : ndarray, shape (P,), int64
+    triangles : ndarray, shape (T, 3), int64
+    triangle_polygon : ndarray, shape (T,), int64
+    polygon_closed : ndarray, shape (P,), bool
+    """
     polygons = np.full((p0[-1], k), -1, np.int64)
     counts = np.empty(p0[-1], np.int64)
     triangles = np.empty((t0[-1], 3), np.int64)
@@ -347,18 +398,20 @@ def _static_parts(scene: Scene) -> dict:
         triangles[ts:te] = (mesh.triangles[None] + vo).reshape(-1, 3)
         tri_poly[ts:te].reshape(n, -1)[:] = mesh.triangle_polygon[None] + p0[a:b, None]
         closed[ps:pe] = mesh.is_closed
-    mats = np.array(
+    return polygons, counts, triangles, tri_poly, closed
+
+
+def _materials(objs: list) -> np.ndarray:
+    """Each object's material as a row: colour (3), ambient, diffuse, specular, shininess.
+
+    Returns
+    -------
+    ndarray, shape (O, 7), float64
+    """
+    return np.array(
         [[*o.material.colour, o.material.ambient, o.material.diffuse, o.material.specular,
           o.material.shininess] for o in objs], np.float64,
     ).reshape(-1, 7)
-    poly_obj = np.repeat(np.arange(len(objs), dtype=np.int64), n_p)
-    scene._static.clear()
-    scene._static.update(
-        key=key, polygons=polygons, counts=counts, triangles=triangles,
-        triangle_polygon=tri_poly, polygon_object=poly_obj, materials=mats[poly_obj],
-        polygon_closed=closed, runs=runs, vertex_start=v0, polygon_start=p0,
-    )
-    return scene._static
 
 
 def _placed(scene: Scene, static: dict) -> tuple[np.ndarray, np.ndarray, list]:

@@ -617,20 +617,11 @@ def warm_up(
     child = None
     try:
         child, reader = _run_first(names, kit, report, split)
-        run_here = [n for n in names if JOBS[n].part != FIRST
-                    and (child is None or JOBS[n].part not in (EARLY, APART))]
-        for name in run_here:
-            if before_job is not None:
-                before_job(name)
-            report.step(name, *_run(name, kit))
+        _run_here(names, kit, report, child is not None, before_job)
         if child is not None:
             child.wait()
             reader.join()
-            done = {s.name for s in report.steps}
-            for name in (n for n in names if JOBS[n].part in (EARLY, APART)):
-                seconds, compiled = _run(name, kit)  # loads what the child compiled
-                if name not in done:
-                    report.step(name, seconds, compiled)
+            _check_child(names, kit, report)
     finally:
         if child is not None:
             end_process(child)
@@ -638,6 +629,29 @@ def warm_up(
     n_cached = sum(s.cached for s in steps)
     return WarmupReport(len(steps), len(steps) - n_cached, n_cached,
                         time.perf_counter() - t_all, steps, cache_counts()[2])
+
+
+def _run_here(names: list[str], kit: _Kit, report: _Progress, child: bool,
+              before_job: Callable[[str], None] | None) -> None:
+    """Run the jobs after the ``FIRST`` ones here, but those a ``child`` process runs."""
+    run_here = [n for n in names if JOBS[n].part != FIRST
+                and (not child or JOBS[n].part not in (EARLY, APART))]
+    for name in run_here:
+        if before_job is not None:
+            before_job(name)
+        report.step(name, *_run(name, kit))
+
+
+def _check_child(names: list[str], kit: _Kit, report: _Progress) -> None:
+    """Run the child's (finished) jobs here again: they load what it compiled.
+
+    A job the child did not report (it failed or was stopped) is reported from here.
+    """
+    done = {s.name for s in report.steps}
+    for name in (n for n in names if JOBS[n].part in (EARLY, APART)):
+        seconds, compiled = _run(name, kit)  # loads what the child compiled
+        if name not in done:
+            report.step(name, seconds, compiled)
 
 
 def _run_first(

@@ -60,6 +60,10 @@ SMALL_SERVICE = ("--scene", "game", *TINY_DISPLAY, "--refresh", "30")
 
 #: The rule of service.signals: the exit status after a clean stop on each signal.
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+#: Seconds for a deadline that only guards against a hang, never a speed check: a loaded
+#: machine (a shared CI host, a first ``make test`` beside other work) can starve a test
+#: for seconds, and a test must then pass, slowly, not fail.
+HANG_S = 60.0
 
 
 def wait_until(predicate: Callable[[], object], timeout_s: float, step_s: float = 0.01) -> object:
@@ -264,16 +268,14 @@ class ServiceProcess:
         self.log.unlink(missing_ok=True)
 
 
-def start_service(*args: str, ready_timeout_s: float = 60.0,
-                  env: dict[str, str] | None = None) -> ServiceProcess:
-    """Start ``holo-service`` on loopback ports of its own choosing; wait until it is ready.
+def launch_service(*args: str, env: dict[str, str] | None = None,
+                   bound_timeout_s: float = HANG_S) -> ServiceProcess:
+    """Start ``holo-service`` on loopback ports of its own choosing; wait until it has bound.
 
-    Until its warm-up is over the service answers hello with ``status: warming_up``
-    (``docs/protocol.md`` 1.8); the tests want a service that renders.
-
-    Control, frames and (with local workers, not ``--workers 0``) the broker backend
-    bind ``tcp://127.0.0.1:*`` unless ``args`` name them; the bound endpoints come
-    back as ``control`` and ``frames``.
+    It may still be warming up (for that, :func:`start_service`). Control, frames and
+    (with local workers, not ``--workers 0``) the broker backend bind
+    ``tcp://127.0.0.1:*`` unless ``args`` name them; the bound endpoints come back as
+    ``control`` and ``frames`` (its first stderr line), so no two tests race for a port.
     """
     given = set(args)
     no_workers = any(a == "--workers" and b == "0" for a, b in zip(args, args[1:], strict=False))
@@ -288,9 +290,29 @@ def start_service(*args: str, ready_timeout_s: float = 60.0,
     os.close(fd)
     svc = ServiceProcess(proc, Path(name))
     try:
+        if not wait_until(lambda: proc.poll() is not None or svc.bound(), bound_timeout_s) \
+                or proc.poll() is not None:
+            raise RuntimeError(f"holo-service did not start (rc {proc.poll()}): "
+                               f"{svc.output()[-2000:]}")
+    except BaseException:
+        svc.stop()
+        raise
+    return svc
+
+
+def start_service(*args: str, ready_timeout_s: float = 60.0,
+                  env: dict[str, str] | None = None) -> ServiceProcess:
+    """Start ``holo-service`` (as :func:`launch_service`); wait until it is ready.
+
+    Until its warm-up is over the service answers hello with ``status: warming_up``
+    (``docs/protocol.md`` 1.8); the tests want a service that renders.
+    """
+    svc = launch_service(*args, env=env, bound_timeout_s=ready_timeout_s)
+    proc = svc.proc
+    try:
         hello = {"v": 1, "type": "hello", "id": 0, "versions": [1]}
         ok = wait_until(lambda: proc.poll() is not None
-                        or (svc.bound() and _is_ready(raw_request(svc.control, hello, (), 500))),
+                        or _is_ready(raw_request(svc.control, hello, (), 500)),
                         ready_timeout_s)
         if not ok or proc.poll() is not None:
             raise RuntimeError(f"holo-service did not start (rc {proc.poll()}): "

@@ -40,6 +40,7 @@ byte is discarded (``truncated`` status) and the late bytes are parsed afresh.  
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from itertools import repeat
 from types import MappingProxyType
@@ -315,6 +316,30 @@ def _place(events: list, built: list, ngood: int, stat_at: list[int],
     events.extend(out.tolist())
 
 
+def _merge_statuses(stat_at: list[int], stat_obj: list, resync_at: list[int],
+                    resyncs: list) -> tuple[list[int], list]:
+    """Re-init requests and resyncs in one list, each re-init before the resync at its place.
+
+    Parameters
+    ----------
+    stat_at, resync_at : list of int, ascending
+        The good events each goes before.
+    stat_obj, resyncs : list of StatusEvent
+        The re-init requests and the resyncs, as long as their places.
+
+    Returns
+    -------
+    at : list of int
+        The places, ascending.
+    merged : list of StatusEvent
+        The statuses in stream order.
+    """
+    keys = np.array([2 * a for a in stat_at] + [2 * a + 1 for a in resync_at])
+    order = np.argsort(keys, kind="stable")
+    merged = stat_obj + resyncs
+    return (keys[order] >> 1).tolist(), [merged[k] for k in order.tolist()]
+
+
 class SgiDecoder:
     """Incremental decoder of the box-to-host stream (see module docstring).
 
@@ -379,9 +404,9 @@ class SgiDecoder:
     def _scan(self, data: bytes, i: int, t_ns: int, events: list[Event]) -> None:
         """Byte loop from ``i``: state in locals, events built inline."""
         n, kind, button = len(data), _KIND, _BUTTON
-        counters, values, limit = self._counters, self._values, self.garbage_limit
+        counters, values = self._counters, self._values
         garbage, since = self._garbage, self._since_good
-        frames = discarded = resyncs = 0
+        frames = 0
         append, new, dial_cls, button_cls = events.append, _new, DialEvent, ButtonEvent
         d_t, d_index, d_delta, d_value = _DIAL_SET
         b_t, b_index, b_pressed = _BUTTON_SET
@@ -389,27 +414,16 @@ class SgiDecoder:
             b = data[i]
             k = kind[b]
             if not k:  # a run of garbage
-                j = i + 1
-                while j < n and not kind[data[j]]:
-                    j += 1
-                count = j - i
-                if since < limit <= since + count:
-                    append(_reinit(t_ns))
-                garbage += count
-                since += count
-                discarded += count
-                i = j
+                i, garbage, since = self._skip_garbage(data, i, t_ns, garbage, since, append)
                 continue
-            if k == 2 and i + 3 > n:
+            if k == 2 and i + 3 > n:  # a partial dial packet: kept for the next chunk
                 self._partial += data[i:]
                 self._t_start = t_ns
                 break
             if since:  # a good packet after garbage
-                if garbage:
-                    resyncs += 1
-                    append(_status(t_ns, "resync", {"discarded": garbage}))
-                    garbage = 0
-                since = 0
+                self._garbage = garbage
+                self._end_garbage(t_ns, events)
+                garbage = since = 0
             frames += 1
             if k == 2:
                 index = b - 0x30
@@ -436,10 +450,25 @@ class SgiDecoder:
                 append(ev)
                 i += 1
         self._garbage, self._since_good = garbage, since
-        stats = self.stats
-        stats.frames += frames
-        stats.bytes_discarded += discarded
-        stats.resyncs += resyncs
+        self.stats.frames += frames
+
+    def _skip_garbage(self, data: bytes, i: int, t_ns: int, garbage: int, since: int,
+                      append: Callable[[Event], None]) -> tuple[int, int, int]:
+        """Skip the run of garbage bytes at ``i`` (the byte loop's rare case).
+
+        Appends the re-init request when the run takes the bytes discarded since
+        the last good packet (``since``) to ``garbage_limit``; counts the run in
+        the stats.  Returns where the run ends and the new ``garbage``, ``since``.
+        """
+        n, kind = len(data), _KIND
+        j = i + 1
+        while j < n and not kind[data[j]]:
+            j += 1
+        count = j - i
+        if since < self.garbage_limit <= since + count:
+            append(_reinit(t_ns))
+        self.stats.bytes_discarded += count
+        return j, garbage + count, since + count
 
     def _scan_bulk(self, data: bytes, i0: int, t_ns: int, events: list[Event]) -> None:
         """What :meth:`_scan` does, for a long chunk, with numpy.
@@ -484,52 +513,64 @@ class SgiDecoder:
             Resyncs among them.
         """
         garbage, since = self._garbage, self._since_good
-        stat_at: list[int] = []
-        stat_obj: list[Event] = []
         if run_len is None:  # garbage carried in, then good packets only
-            resync_at, resync_n = [0], [garbage]
-            garbage = since = 0
+            stat_at, stat_obj, resync_at, resync_n = [], [], [0], [garbage]
+            self._garbage = self._since_good = 0
         else:
-            at_l, len_l = run_at.tolist(), run_len.tolist()
-            limit = self.garbage_limit
-            first_len = len_l[0]
-            if at_l[0] == 0:  # continues the garbage carried in
-                len_l[0] += garbage
-                before = since
-            else:
-                before = 0
-            if before < limit <= before + first_len:
-                stat_at.append(at_l[0])
-                stat_obj.append(_reinit(t_ns))
-            if limit > 0:  # later runs follow a good packet
-                for at, count in zip(at_l[1:], len_l[1:], strict=True):
-                    if count >= limit:
-                        stat_at.append(at)
-                        stat_obj.append(_reinit(t_ns))
-            if garbage and at_l[0]:  # the carried-in garbage ends at the first packet
-                resync_at, resync_n = [0], [garbage]
-            else:
-                resync_at, resync_n = [], []
-            if at_l[-1] == ngood:  # the last run goes on into the next chunk
-                garbage = len_l.pop()
-                since = (before if ngood == 0 else 0) + (first_len if ngood == 0 else garbage)
-                at_l.pop()
-            else:
-                garbage = since = 0
-            resync_at += at_l
-            resync_n += len_l
-        self._garbage, self._since_good = garbage, since
+            stat_at, stat_obj, resync_at, resync_n = self._run_statuses(
+                run_len, run_at, ngood, t_ns, garbage, since)
         if not resync_at:
             return stat_at, stat_obj, 0
         resyncs = _statuses(t_ns, "resync", "discarded", resync_n)
         if not stat_at:
             return resync_at, resyncs, len(resync_at)
-        # re-init requests go before the resync at the same place
-        keys = np.array([2 * a for a in stat_at] + [2 * a + 1 for a in resync_at])
-        order = np.argsort(keys, kind="stable")
-        merged = stat_obj + resyncs
-        return ((keys[order] >> 1).tolist(), [merged[k] for k in order.tolist()],
-                len(resync_at))
+        at, merged = _merge_statuses(stat_at, stat_obj, resync_at, resyncs)
+        return at, merged, len(resync_at)
+
+    def _run_statuses(self, run_len: np.ndarray, run_at: np.ndarray, ngood: int, t_ns: int,
+                      garbage: int, since: int) -> tuple[list[int], list[Event], list, list]:
+        """Re-init requests and resync places of a bulk chunk with garbage runs.
+
+        ``garbage`` and ``since`` are carried in from the previous chunk; the
+        garbage left to carry on (a last run that reaches the chunk's end) is kept.
+
+        Returns
+        -------
+        stat_at, stat_obj : list
+            The re-init requests: the good events they go before, and themselves.
+        resync_at, resync_n : list of int
+            Where each resync goes (ascending) and the bytes it discarded.
+        """
+        stat_at: list[int] = []
+        stat_obj: list[Event] = []
+        at_l, len_l = run_at.tolist(), run_len.tolist()
+        limit = self.garbage_limit
+        first_len = len_l[0]
+        if at_l[0] == 0:  # continues the garbage carried in
+            len_l[0] += garbage
+            before = since
+        else:
+            before = 0
+        if before < limit <= before + first_len:
+            stat_at.append(at_l[0])
+            stat_obj.append(_reinit(t_ns))
+        if limit > 0:  # later runs follow a good packet
+            for at, count in zip(at_l[1:], len_l[1:], strict=True):
+                if count >= limit:
+                    stat_at.append(at)
+                    stat_obj.append(_reinit(t_ns))
+        if garbage and at_l[0]:  # the carried-in garbage ends at the first packet
+            resync_at, resync_n = [0], [garbage]
+        else:
+            resync_at, resync_n = [], []
+        if at_l[-1] == ngood:  # the last run goes on into the next chunk
+            garbage = len_l.pop()
+            since = (before if ngood == 0 else 0) + (first_len if ngood == 0 else garbage)
+            at_l.pop()
+        else:
+            garbage = since = 0
+        self._garbage, self._since_good = garbage, since
+        return stat_at, stat_obj, resync_at + at_l, resync_n + len_l
 
     def _finish(self, data: bytes, end: int, t_ns: int, frames: int, discarded: int,
                 resyncs: int) -> None:

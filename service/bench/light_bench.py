@@ -25,7 +25,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from service.bench.rows import write_csv
+from service.bench.rows import write_csv, zones_label
 from service.builtin_scenes import SCENES as BUILTIN_SCENES
 from service.builtin_scenes import builtin_scene, scene_name
 from service.cli_args import add_size_option, comma_list, exit_rule_epilog, int_range, plain_help
@@ -247,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name in args.scenes:
         for zones in args.zones:
-            print(f"{name}, {zones} zones", file=sys.stderr, flush=True)
+            print(f"{name}, {zones_label(zones)}", file=sys.stderr, flush=True)
             rows += measure(name, zones, size, args.repeats)
     meta = {
         "what": "shade() ms per frame and mean |intensity error| vs per-point Blinn",

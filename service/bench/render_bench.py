@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.bench.rows import write_rows
+from service.bench.rows import write_rows, zones_label
 from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option, comma_list, exit_rule_epilog, plain_help, size
 from service.display import DisplaySettings
@@ -341,7 +341,7 @@ def _methods(scenes: list[str], zones: tuple, reps: int, size: tuple[int, int]) 
     rows = []
     total = len(scenes) * len(zones)
     for i, (scene, z) in enumerate(((s, z) for s in scenes for z in zones), 1):
-        print(f"[{i}/{total}] {scene}, {z} zones", file=sys.stderr, flush=True)
+        print(f"[{i}/{total}] {scene}, {zones_label(z)}", file=sys.stderr, flush=True)
         rows += measure(scene, z, 16.0, METHOD_NAMES, reps, fallback="off", size=size)
         for mode in ("frame", "pixel"):
             rows += [
@@ -403,7 +403,7 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
     configs += [(s, z, wh, False) for s in big for z in (1, 5) for wh in sizes]
     peer_rows = []
     for i, (scene, z, wh, ref) in enumerate(configs, 1):
-        print(f"[peers {i}/{len(configs)}] {scene}, {z} zones, {wh[0]}x{wh[1]}",
+        print(f"[peers {i}/{len(configs)}] {scene}, {zones_label(z)}, {wh[0]}x{wh[1]}",
               file=sys.stderr, flush=True)
         peer_rows += pr.compare(scene, z, wh, started, pr.PeerRun(reference=ref))
     for p in started:

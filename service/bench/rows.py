@@ -1,5 +1,7 @@
 """Writing a benchmark's rows: CSV, and CSV beside JSON (every ``holo-bench`` table).
 
+:func:`zones_label` is how the tables and progress lines name a zone count.
+
 Rows are dicts with the same keys; the CSV's columns are the first row's keys, in
 their order.  No rows: no CSV (there is no header to write).
 """
@@ -25,3 +27,8 @@ def write_rows(rows: list[dict], stem: Path) -> None:
     """``stem.json`` (the rows as a JSON list) and ``stem.csv`` next to each other."""
     stem.with_suffix(".json").write_text(json.dumps(rows, indent=1))
     write_csv(rows, stem.with_suffix(".csv"))
+
+
+def zones_label(count: int | str) -> str:
+    """``"1 zone"``, ``"5 zones"`` (a count read back from a CSV may be a string)."""
+    return f"{count} zone" if int(count) == 1 else f"{count} zones"

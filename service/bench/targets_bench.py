@@ -42,7 +42,7 @@ from service.bench.galilean_bench import (
     head_turn,
 )
 from service.builtin_scenes import builtin_scene
-from service.cli_args import add_size_option, int_range
+from service.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.display import DisplaySettings
 from service.galilean.motion_field import render_with_motion
 from service.galilean.stage import GalileanSettings, GalileanStage
@@ -235,16 +235,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="holo-bench targets",
         description="The open speed targets (zones, G(2) refresh, Galilean premise), each "
         "a ratio measured side by side in one run; writes targets.json and targets.csv.",
+        epilog=exit_rule_epilog(),
     )
-    p.add_argument("--out", default="bench-out", help="output folder (default bench-out)")
+    p.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="output folder (default bench-out)")
     p.add_argument("--only", choices=("zones", "refresh", "premise"), action="append",
                    help="run just these targets (repeatable; default all)")
     add_size_option(p, (640, 480), "display of the refresh and premise targets")
-    p.add_argument("--zone-size", type=str, default="320x240",
-                   help="display of the zones target (default 320x240)")
-    p.add_argument("--repeats", type=int_range(1, 1000), default=15,
+    add_size_option(p, (320, 240), "display of the zones target", flag="--zone-size")
+    p.add_argument("--repeats", metavar="N", type=int_range(1, 1000), default=15,
                    help="interleaved repeats per target (default 15)")
-    p.add_argument("--rounds", type=int_range(1, 100), default=3,
+    p.add_argument("--rounds", metavar="N", type=int_range(1, 100), default=3,
                    help="rounds of the refresh and premise targets (default 3; --quick: "
                    "1); each figure is the median round's, every round's in the JSON: "
                    "a shared host's speed drifts between seconds")
@@ -255,8 +256,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the targets; print one line each."""
-    from service.display import parse_size
-
     args = parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -265,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
     only = set(args.only or ("zones", "refresh", "premise"))
     rows: list[dict] = []
     if "zones" in only:
-        rows.append(zones_target(parse_size(args.zone_size), reps))
+        rows.append(zones_target(args.zone_size, reps))
     rounds = 1 if args.quick else args.rounds
     if "refresh" in only:
         rows += median_round([[refresh_target(args.size, reps * 3)] for _ in range(rounds)])

@@ -192,10 +192,7 @@ def finish_mesh(
     Mesh
         Its ``repair`` says what was repaired.
     """
-    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    big = too_large(vertices)  # before the repairs, which would call it degenerate
-    if big is not None:
-        raise MeshFileError(str(path), f"vertex {big[1]}", big[0])
+    vertices = _checked_vertices(path, vertices)
     report = report or MeshRepair()
     report.faces_read = int(counts.size)
     if counts.size == 0:
@@ -204,19 +201,65 @@ def finish_mesh(
     if strict:
         check_shapes(path, vertices, polygons, counts, where)
     else:
-        few = distinct_corners(polygons, counts) < 3
-        if few.any():
-            report.degenerate += int(few.sum())
-            polygons, counts = polygons[~few], counts[~few]
-        if counts.size == 0:
-            raise MeshFileError(str(path), "", "every polygon is degenerate (zero area)")
-        polygons, counts, from_split = split_bad_shapes(vertices, polygons, counts, report)
-    polygons, counts = _drop_zero_area(path, vertices, polygons, counts, from_split, strict,
-                                       report)
+        polygons, counts, from_split = _repair_shapes(path, vertices, polygons, counts, report)
+    polygons, counts = _drop_zero_area(path, vertices, polygons, counts, from_split, strict, report)
     if not strict and report.message():
-        warnings.warn(MeshRepairWarning(
-            f"{path}: repaired on load: {report.message()} (--strict refuses such files)"
-        ), stacklevel=3)
+        _warn_repaired(path, report)
+    return _mesh(path, vertices, polygons, counts, report)
+
+
+def _checked_vertices(path: str | Path, vertices: np.ndarray) -> np.ndarray:
+    """The vertices as float64 (V, 3); a vertex too large to compute with is refused.
+
+    Checked before the repairs, which would call such polygons degenerate.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    big = too_large(vertices)  # before the repairs, which would call it degenerate
+    if big is not None:
+        raise MeshFileError(str(path), f"vertex {big[1]}", big[0])
+    return vertices
+
+
+def _repair_shapes(
+    path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+    report: MeshRepair,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Skip faces of under 3 distinct corners, ear-clip non-planar or concave ones.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+    polygons : ndarray, shape (P, K), padded with -1
+    counts : ndarray, shape (P,)
+    report : MeshRepair
+        Counts the repairs.
+
+    Returns
+    -------
+    polygons : ndarray, shape (Q, K')
+    counts : ndarray, shape (Q,)
+    from_split : ndarray, shape (Q,), bool
+        Which polygons are triangles of a split one.
+    """
+    few = distinct_corners(polygons, counts) < 3
+    if few.any():
+        report.degenerate += int(few.sum())
+        polygons, counts = polygons[~few], counts[~few]
+    if counts.size == 0:
+        raise MeshFileError(str(path), "", "every polygon is degenerate (zero area)")
+    return split_bad_shapes(vertices, polygons, counts, report)
+
+
+def _warn_repaired(path: str | Path, report: MeshRepair) -> None:
+    """One :class:`MeshRepairWarning` for the file, attributed to the loader's caller."""
+    warnings.warn(MeshRepairWarning(
+        f"{path}: repaired on load: {report.message()} (--strict refuses such files)"
+    ), stacklevel=4)  # finish_mesh's stacklevel=3, one frame deeper
+
+
+def _mesh(path: str | Path, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+          report: MeshRepair) -> Mesh:
+    """The mesh (its stem for a name); a mesh fault is a :class:`MeshFileError`."""
     try:
         return Mesh(vertices, polygons.astype(np.int64), counts.astype(np.int64),
                     Path(path).stem, repair=report)

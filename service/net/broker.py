@@ -223,7 +223,7 @@ class BandClient:
                     self.resent += 1
                     sent_at[b] = self._send(job, scene_arrays, bands, b, attempts[b])
             if self.sock.poll(50):
-                self._take(self.sock.recv_multipart(copy=False), job["job"], got)
+                self._take(self.sock.recv_multipart(copy=False), job["job"], len(bands), got)
         return [got[b] for b in range(len(bands))]
 
     def _send(
@@ -239,13 +239,22 @@ class BandClient:
         return time.monotonic()
 
     @staticmethod
-    def _take(frames: list[zmq.Frame], job_id: int, got: dict) -> None:
+    def _take(frames: list[zmq.Frame], job_id: int, bands: int, got: dict) -> None:
+        """Keep a worker's reply for one of the ``bands`` bands of job ``job_id``.
+
+        A reply that is garbled, failed, for another job, or names no band of this
+        one (a remote worker of another version, say) counts as no reply: its band
+        is resent when its deadline passes.  The first good reply of a band wins.
+        """
         try:
             head = protocol.parse_reply([f.buffer for f in frames])
-        except MessageError:  # a garbled reply counts as no reply
+        except MessageError:
             return
-        if head.get("ok") and head.get("job") == job_id and isinstance(head.get("arrays"), dict):
-            got.setdefault(int(head["band"]), {**head["arrays"], "_stats": head.get("stats", {})})
+        band = head.get("band")
+        if (head.get("ok") and head.get("job") == job_id
+                and isinstance(head.get("arrays"), dict)
+                and isinstance(band, int) and not isinstance(band, bool) and 0 <= band < bands):
+            got.setdefault(band, {**head["arrays"], "_stats": head.get("stats", {})})
 
     def close(self) -> None:
         """Close the socket (LINGER 0)."""

@@ -437,9 +437,9 @@ def cloud_from_wire(spec: Any, name: str) -> Any:
         problem = array_problem(key, arr, planes.shape[0])
         if problem is not None:
             raise MessageError("bad_array", f"{name}.{key}: {problem}")
+        if key in ("rgba", "normal") and arr.shape[0] > MAX_TEXELS:  # before the copy
+            raise MessageError("too_large", f"{name} has more than {MAX_TEXELS} texels")
         arrays[key] = np.array(arr)  # writable: the kernels are compiled for those
-    if arrays["rgba"].shape[0] > MAX_TEXELS:
-        raise MessageError("too_large", f"{name} has more than {MAX_TEXELS} texels")
     problem = arrays_problem(arrays)
     if problem is not None:
         raise MessageError("bad_array", f"{name}.{problem[0]}: {problem[1]}")

@@ -16,7 +16,7 @@ import numpy as np
 
 from service.simplify.billboard_kernel import dilate_texture, shoot_texture
 from service.simplify.errors import SimplifyError
-from service.simplify.planes import PlaneSettings, choose_planes
+from service.simplify.planes import PlaneCover, PlaneSettings, choose_planes
 from service.simplify.quadric import check_triangles
 from service.simplify.rectangle import min_area_rectangle
 
@@ -163,21 +163,46 @@ def build_cloud(vertices: np.ndarray, faces: np.ndarray, eps: float, texture_res
         raise SimplifyError(f"texture resolution must be at least 1, not {texture_res}")
     s = PlaneSettings(eps=eps) if settings is None else PlaneSettings(
         **{**settings.__dict__, "eps": eps})
-    col = np.full((f.shape[0], 3), 255, np.uint8) if colours is None else np.asarray(colours)
-    if col.shape != (f.shape[0], 3):
-        raise SimplifyError(f"colours must have shape ({f.shape[0]}, 3), not {col.shape}")
+    col = _face_colours(colours, f.shape[0])
     n_source = int(f.shape[0])
     cover = choose_planes(v, f, s)
     diag = float(np.linalg.norm(v.max(0) - v.min(0))) or 1.0
     texel = diag / int(texture_res)
-    a = v[f]
-    fn = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
     # from here on, the faces on planes (pieces of cut faces keep their face's normal)
-    fn = fn[cover.parent]
+    fn = _unit_normals(v, f)[cover.parent]
     shoot = _Shoot(cover.vertices, cover.faces, fn, np.round(fn * 127).astype(np.int8),
                    cover.vertices[cover.faces].mean(axis=1), col[cover.parent].astype(np.uint8),
                    texel, int(np.ceil(dilate * eps / texel)))
+    return _shoot_cloud(shoot, cover, eps, n_source, t0)
+
+
+def _face_colours(colours: np.ndarray | None, n_faces: int) -> np.ndarray:
+    """The faces' colours, shape (F, 3): white when ``colours`` is None, else checked."""
+    col = np.full((n_faces, 3), 255, np.uint8) if colours is None else np.asarray(colours)
+    if col.shape != (n_faces, 3):
+        raise SimplifyError(f"colours must have shape ({n_faces}, 3), not {col.shape}")
+    return col
+
+
+def _unit_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Unit normals of the triangles ``f`` (F, 3) of ``v`` (V, 3): shape (F, 3).
+
+    A zero-area triangle's normal stays (near) zero instead of dividing by zero.
+    """
+    a = v[f]
+    fn = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    return fn
+
+
+def _shoot_cloud(shoot: _Shoot, cover: PlaneCover, eps: float, n_source: int,
+                 t0: float) -> BillboardCloud:
+    """Shoot every plane's texture and pack the billboards into one cloud.
+
+    ``cover`` is :func:`~service.simplify.planes.choose_planes`' answer: ``planes``
+    (B, 4) and ``owner`` (F',), the plane of each face on a plane.  The textures'
+    texels are packed one billboard after another (``tex_offset``, shape (B + 1,)).
+    """
     planes = cover.planes
     corners, shapes, rgba, normal = [], [], [], []
     for p in range(planes.shape[0]):

@@ -18,6 +18,7 @@ from testkit import ROOT, SIGNALS, STATUS, catches, linux_only, posix_only, wait
 
 from drivers.cli_devices import log_devices
 from drivers.protocols import hatire
+from drivers.pty_link import DRAIN_TIMEOUT_S
 from drivers.reader import ReaderSettings
 from drivers.recording import LogHeader, LogWriter
 from service.loaders import save_obj
@@ -120,7 +121,8 @@ def test_holo_sim_stops_at_once_with_a_client_that_does_not_read(procs, signum):
         t0 = time.monotonic()
         sim.signal(signum)
         assert sim.finish() == STATUS[signum]
-        assert time.monotonic() - t0 < 3.0
+        # a drain that waited for the client would take all of DRAIN_TIMEOUT_S
+        assert time.monotonic() - t0 < DRAIN_TIMEOUT_S
     finally:
         port.close()
     assert '"frames"' in sim.out[-1]  # the summary still comes

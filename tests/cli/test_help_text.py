@@ -22,10 +22,7 @@ MARKUP = re.compile(r"``|:[a-z]+:`|(?<![\w*])\*[A-Za-z][^*\n]*\*(?![\w*])")
 #: Commands whose files other sessions own; their fixes are pending there (see the
 #: issue 16 report).  The xfail is strict: once fixed, drop the entry.
 PENDING_MARKUP: dict[str, str] = {}
-PENDING_RULE: dict[str, str] = {
-    "holo-bench targets": "service/bench/targets_bench.py is the lead's: add "
-                          "epilog=exit_rule_epilog() to its parser",
-}
+PENDING_RULE: dict[str, str] = {}
 #: Commands without the rule in their help: they run no loop and take no signal.
 NO_RULE: set[str] = set()
 
@@ -87,10 +84,7 @@ def test_help_gives_no_flag_a_boolean_default(name, entry, argv, capsys):
 OPTION_VALUE = re.compile(r"(--[a-z][a-z0-9-]*)[ =]([A-Z][A-Z0-9_]*)(?![\w,])")
 #: Options whose argparse default placeholder says what the value is.
 CLEAR_DEFAULTS = {"--name": "NAME"}
-PENDING_METAVAR: dict[str, str] = {
-    "holo-bench targets": "service/bench/targets_bench.py is the lead's: metavar DIR for "
-                          "--out, WxH for --zone-size, N for --repeats and --rounds",
-}
+PENDING_METAVAR: dict[str, str] = {}
 
 
 @pytest.mark.parametrize(("name", "entry", "argv"), _commands())

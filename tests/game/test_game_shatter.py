@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 
 import pytest
-from testkit import free_port
+from testkit import launch_service
 
 from game.backends import BackendSettings, ServiceBackend
 from game.rules import GameSettings, new_game
@@ -30,11 +28,8 @@ def frames_after(backend: ServiceBackend, render_id: int, count: int, timeout: f
 
 @pytest.mark.timeout(120)
 def test_shatter_then_resume_keeps_the_service_rendering():
-    control, frames = (f"tcp://127.0.0.1:{free_port()}" for _ in range(2))
-    proc = subprocess.Popen([sys.executable, "-m", "service.cli_service", "--control", control,
-                             "--frames", frames, "--workers", "0",
-                             "--worker-address", f"tcp://127.0.0.1:{free_port()}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    svc = launch_service("--workers", "0")  # on ports of its own choosing
+    control, frames, proc = svc.control, svc.frames, svc.proc
     backend = ServiceBackend(control, frames, settings=BackendSettings(
         DisplaySettings(zones=2, cols=48, rows=36)), timeout_s=2.0)
     state = new_game(GameSettings(difficulty="easy"))
@@ -60,5 +55,4 @@ def test_shatter_then_resume_keeps_the_service_rendering():
         assert stats["refresh_errors"] == 0 and stats["last_refresh_error"] == "", stats
     finally:
         backend.close()
-        proc.kill()
-        proc.wait(10)
+        svc.stop()

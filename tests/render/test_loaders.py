@@ -485,3 +485,22 @@ def test_files_without_usable_polygons(tmp_path, name, content, reason):
         warnings.simplefilter("ignore")
         with pytest.raises(MeshFileError, match=reason):
             load_mesh(tmp_path / name)
+
+
+def test_a_vertex_too_large_to_compute_with_names_the_vertex(tmp_path):
+    path = tmp_path / "big.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1e31 0\nf 1 2 3\n")
+    for strict in (True, False):
+        with pytest.raises(MeshFileError, match="beyond") as info:
+            load_mesh(path, strict=strict)
+        assert info.value.where == "vertex 2" and "scale the mesh down" in info.value.reason
+
+
+def test_the_repair_warning_points_at_the_loaders_caller(tmp_path):
+    path = tmp_path / "deg.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 1 2\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_obj(path)
+    assert [w.filename for w in caught] == [__file__]
+    assert "repaired on load" in str(caught[0].message)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -167,6 +168,35 @@ def test_big_buffers_are_sent_without_copy():
         assert b.poll(1000)
         header = protocol.parse_reply(b.recv_multipart())
         np.testing.assert_array_equal(header["arrays"]["big"], big)
+    finally:
+        a.close(0)
+        b.close(0)
+        ctx.term()
+
+
+def test_send_gives_up_after_its_timeout_on_a_full_pipe_and_sends_nothing_half():
+    import zmq
+
+    ctx = zmq.Context()
+    a, b = ctx.socket(zmq.PAIR), ctx.socket(zmq.PAIR)
+    try:
+        for s in (a, b):
+            s.setsockopt(zmq.SNDHWM, 1)
+            s.setsockopt(zmq.RCVHWM, 1)
+        a.bind("inproc://wire-full")
+        b.connect("inproc://wire-full")
+        msg = wire.encode({"k": 1}, [np.arange(4, dtype=np.int32)], ["n"])
+        sent = 0
+        while wire.send(a, msg, 0):  # fill the pipe: nobody reads
+            sent += 1
+            assert sent < 100
+        t0 = time.monotonic()
+        assert not wire.send(a, wire.encode({"k": 2}, [], []), 200)
+        assert 0.15 <= time.monotonic() - t0 < 5
+        got = []
+        while b.poll(200):
+            got.append(protocol.parse_reply(b.recv_multipart())["k"])
+        assert got == [1] * sent  # the refused message left no part behind
     finally:
         a.close(0)
         b.close(0)

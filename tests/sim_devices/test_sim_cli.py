@@ -9,9 +9,11 @@ import time
 
 import pytest
 import serial
+from testkit import HANG_S
 
 from drivers.events import PoseEvent
 from drivers.protocols import hatire, make_decoder, native
+from drivers.pty_link import DRAIN_TIMEOUT_S
 from sim_devices.cli import build_parser, main
 
 START = {"hatire": hatire.encode_command("start"), "native": native.encode_command("start")}
@@ -65,13 +67,13 @@ def test_pty_across_processes(protocol):
         port.write(START[protocol])
         dec = make_decoder(protocol)
         poses: list[PoseEvent] = []
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + HANG_S  # a hang guard: a loaded machine is slow
         while len(poses) < 200 and time.monotonic() < deadline:
             chunk = port.read(max(1, port.in_waiting))
             poses += [e for e in dec.feed(chunk, time.monotonic_ns())
                       if isinstance(e, PoseEvent)]
         port.close()
-        out, err = proc.communicate(timeout=10)
+        out, err = proc.communicate(timeout=HANG_S)
     finally:
         proc.kill()
     assert [p.seq for p in poses] == list(range(200))
@@ -121,8 +123,9 @@ def test_pty_sim_stopped_by_sigterm_does_not_wait_for_a_reader():
         assert port.in_waiting > 0
         t0 = time.monotonic()
         proc.terminate()
-        proc.communicate(timeout=15)
-        assert time.monotonic() - t0 < 3.0
+        proc.communicate(timeout=HANG_S)
+        # a drain that waited for the reader would take all of DRAIN_TIMEOUT_S
+        assert time.monotonic() - t0 < DRAIN_TIMEOUT_S
         port.close()
     finally:
         proc.kill()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 
@@ -67,21 +68,37 @@ def test_loop_link_with_faults_recovers_every_intact_frame():
     assert runner.ledger.frames == 100 and runner.ledger.counts["corrupt"] > 0
 
 
+class WaitLog(threading.Event):
+    """A runner's stop event that notes every wait the runner makes (its pauses)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.waits: list[float | None] = []
+
+    def wait(self, timeout: float | None = None) -> bool:
+        self.waits.append(timeout)
+        return super().wait(timeout)
+
+
 def test_runner_paces_writes_to_the_baud_rate():
     link = LoopLink()
     sim = TrackerSim("hatire", rate_hz=1000)
     # 30 bytes per frame, 10 bits each at 30000 baud -> 10 ms per frame
     sim_runner = DeviceRunner(sim, link, seconds=0.02, realtime=False, pace=True, baud=30_000)
+    sim_runner.stop_event = paced = WaitLog()
     start = time.monotonic()
     sim_runner.run()
     elapsed = time.monotonic() - start
     assert sim_runner.ledger.frames == 20
     assert elapsed >= 20 * 0.01 * 0.9
+    assert sum(paced.waits) == pytest.approx(10 * sim_runner.bytes_sent / 30_000)
+    # unpaced: no pause at all (what it asks for, not how fast a loaded machine runs it)
     unpaced = DeviceRunner(TrackerSim("hatire", rate_hz=1000), LoopLink(), seconds=0.02,
                            realtime=False, pace=False)
-    start = time.monotonic()
+    unpaced.stop_event = idle = WaitLog()
     unpaced.run()
-    assert time.monotonic() - start < elapsed / 2
+    assert unpaced.ledger.frames == 20 and unpaced.bytes_sent == sim_runner.bytes_sent
+    assert idle.waits == []
     link.close()
 
 

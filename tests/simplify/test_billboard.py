@@ -90,6 +90,8 @@ def test_textures_cover_every_face_and_corners_bound_it():
 @pytest.mark.parametrize("kw, match", [
     ({"eps": 0.0}, "EPS"), ({"eps": -1.0}, "EPS"), ({"eps": float("nan")}, "EPS"),
     ({"texture_res": 0}, "texture resolution"),
+    ({"colours": np.zeros((3, 3), np.uint8)}, r"colours must have shape \(\d+, 3\), not \(3, 3\)"),
+    ({"colours": np.zeros((3, 3), np.uint8), "eps": 0.0}, "EPS"),  # eps is checked first
 ])
 def test_bad_settings_are_refused(kw, match):
     s = sphere(0.5, 6, 12)

@@ -122,3 +122,22 @@ def test_source_faces_defaults_to_and_may_be_zero(cloud, faces):
     if faces is not None:
         spec["source_faces"] = faces
     assert wire.cloud_from_wire(spec, "c").source_faces == 0
+
+
+def test_a_cloud_of_more_than_64m_texels_is_too_large_before_it_is_copied(cloud):
+    # the limit's check came after every array was copied (256 MB more for an rgba
+    # over it); the texel arrays here are zero-stride views of one texel: no memory
+    import tracemalloc
+
+    spec = _spec(cloud)["billboards"][0]["cloud"]
+    for key, width in (("rgba", 4), ("normal", 3)):
+        over = np.broadcast_to(spec[key][:1], (wire.MAX_TEXELS + 1, width))
+        tracemalloc.start()  # numpy reports its allocations to tracemalloc
+        try:
+            with pytest.raises(MessageError, match=f"more than {wire.MAX_TEXELS} texels") as err:
+                wire.cloud_from_wire({**spec, key: over}, "c")
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert err.value.code == "too_large"
+        assert peak < 2**20, f"{peak} bytes allocated refusing {key}"
