@@ -5,7 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from testkit import ROOT, free_port, raw_request, wait_until
+from testkit import ROOT, free_port, launch_service, raw_request, wait_until
 
 from service.net.client import FrameSubscriber, ServiceClient
 
@@ -28,44 +28,21 @@ def test_make_keys_and_curve_service(tmp_path):
         "authorized/client.key",
     ):
         assert (keys / name).is_file()
-    ports = (free_port(), free_port(), free_port())
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "service.cli_service",
-            "--curve-keys",
-            str(keys),
-            "--scene",
-            "game",
-            "--zones",
-            "2",
-            "--size",
-            "32x24",
-            "--workers",
-            "0",
-            "--control",
-            f"tcp://127.0.0.1:{ports[0]}",
-            "--frames",
-            f"tcp://127.0.0.1:{ports[1]}",
-        ],
-        cwd=ROOT,
-        stdin=subprocess.DEVNULL,
-    )
+    svc = launch_service(  # on ports of its own choosing
+        "--curve-keys", str(keys), "--scene", "game", "--zones", "2", "--size", "32x24",
+        "--workers", "0",
+    )  # fmt: skip
     try:
         with ServiceClient(
-            f"tcp://127.0.0.1:{ports[0]}", timeout_s=1.0, retries=30, curve_keys=keys
+            svc.control, timeout_s=1.0, retries=30, curve_keys=keys
         ) as c:
             assert c.hello()["version"] == 1
-            plain = raw_request(
-                f"tcp://127.0.0.1:{ports[0]}", {"v": 1, "type": "ping", "id": 1}, (), 1000
-            )
+            plain = raw_request(svc.control, {"v": 1, "type": "ping", "id": 1}, (), 1000)
             assert plain is None, "a client without keys must not be served"
-            with FrameSubscriber(f"tcp://127.0.0.1:{ports[1]}", curve_keys=keys) as frames:
+            with FrameSubscriber(svc.frames, curve_keys=keys) as frames:
                 assert wait_until(lambda: frames.next(0.5), 30), "no encrypted frames"
     finally:
-        proc.kill()
-        proc.wait(10)
+        svc.stop()
 
 
 def test_non_loopback_bind_needs_keys():

@@ -6,7 +6,7 @@ import json
 import time
 
 import zmq
-from testkit import free_port, wait_until
+from testkit import wait_until
 
 from service.net.client import FrameSubscriber, ServiceClient
 
@@ -15,10 +15,10 @@ class Source:
     """A holo-devices-like PUB socket sending tracker poses (docs/device-messages.md)."""
 
     def __init__(self, session: str) -> None:
-        self.address = f"tcp://127.0.0.1:{free_port()}"
         self.sock = zmq.Context.instance().socket(zmq.PUB)
         self.sock.setsockopt(zmq.LINGER, 0)
-        self.sock.bind(self.address)
+        # a port of its own choosing: one picked beforehand can be taken before the bind
+        self.address = f"tcp://127.0.0.1:{self.sock.bind_to_random_port('tcp://127.0.0.1')}"
         self.session = session
         self.n = 0
 
