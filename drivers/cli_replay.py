@@ -342,10 +342,15 @@ class _PtyOut:
         self.link.write(data)
 
     def flush(self) -> None:
-        """Nothing buffered here."""
+        """Wait until the client has read what was written (a stop ends the wait).
+
+        Closing the pty throws away what its client has not read yet, so a replay
+        that ends by itself would lose its last frames to a reader a little behind.
+        """
+        self.link.drain()
 
     def close(self) -> None:
-        """Close the pair (and remove the symlink)."""
+        """Close the pair (and remove the symlink); :meth:`flush` first to lose nothing."""
         self.link.close()
 
 

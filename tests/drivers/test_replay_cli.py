@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import select
 import signal
+import struct
 import subprocess
 import sys
+import termios
 import threading
 import time
 import tty
@@ -15,6 +18,7 @@ from pathlib import Path
 
 import pytest
 from drivers_fixtures import MISSING, hatire_capture
+from testkit import HANG_S, wait_for
 
 from drivers import cli_replay
 from drivers.cli_devices import header_extra, log_devices
@@ -203,6 +207,42 @@ def test_to_port_writes_the_recorded_bytes_into_a_pty(tmp_path):
     dec = make_decoder("hatire")
     poses = [e for e in dec.feed(bytes(got), 0) if isinstance(e, PoseEvent)]
     assert bytes(got) == b"".join(frames) and [p.seq for p in poses] == list(range(20))
+
+
+@posix_only
+def test_to_pty_waits_for_its_reader_before_closing(tmp_path):
+    # closing a pty throws away what its client has not read: a replay that ends by
+    # itself must wait for a reader that is behind (a loaded machine), as holo-sim does
+    log = tmp_path / "s.hlog"
+    sent = b"".join(make_log(log))
+    proc = subprocess.Popen([sys.executable, "-m", "drivers.cli_replay", str(log), "--to-pty"],
+                            cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    client = -1
+    try:
+        line = proc.stderr.readline()  # the first stderr line names the pty
+        assert line.startswith("holo-replay: device on /dev/"), line
+        client = os.open(line.split()[-1], os.O_RDONLY | os.O_NOCTTY)
+
+        def waiting() -> int:  # bytes in the pty for us (poll first: it moves them in)
+            select.select([client], [], [], 0)
+            return struct.unpack("i", fcntl.ioctl(client, termios.FIONREAD, b"\0" * 4))[0]
+
+        # the replay has written everything; nobody has read it: it must stay open
+        wait_for(lambda: waiting() >= len(sent), HANG_S, "every frame in the pty")
+        with pytest.raises(subprocess.TimeoutExpired):
+            proc.wait(timeout=1.0)
+        got = b""
+        while len(got) < len(sent):
+            got += os.read(client, 4096)
+        assert got == sent
+        assert proc.wait(HANG_S) == 0
+    finally:
+        if client >= 0:
+            os.close(client)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(HANG_S)
+        proc.stderr.close()
 
 
 @posix_only
