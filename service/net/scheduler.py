@@ -170,6 +170,10 @@ class Scheduler:
         """Stitch a finished render, hand it to the refresh thread and to render requests."""
         t_stitch = time.perf_counter()
         rendered, buf = stitch(parts, _viewer_motion(aim.job), aim.fixed, aim.job["order"])
+        d = aim.settings.display
+        if rendered.frame.colour.shape != (d.zones, d.rows, d.cols, 3):
+            raise HoloError(f"the render is {rendered.frame.colour.shape[:3]} (zones, rows, "
+                            f"columns), the display {(d.zones, d.rows, d.cols)}")
         wall = (time.monotonic_ns() - aim.t0) / 1e6
         self.st.counters.render_ms.append(wall)
         stats = {

@@ -17,7 +17,7 @@ from testkit import HANG_S, free_port, wait_until
 
 from service.net import protocol, wire
 from service.net.client import ServiceClient
-from service.net.worker import READY, split_job
+from service.net.worker import READY, StatsRenderer, handle_job, split_job
 
 #: Malformed replies, each with the job's id, band and attempt filled in.
 REPLIES = {
@@ -27,13 +27,25 @@ REPLIES = {
 }
 
 
+def _reply(kind: str, body: list) -> list:
+    """Reply frames to a job: ``REPLIES[kind]``, or a real render of the job at 16 columns."""
+    job = protocol.parse_reply(body)
+    if kind == "a real render of another size":
+        head = json.loads(bytes(body[0]))
+        head["display"]["cols"] = 16
+        return handle_job(StatsRenderer(), [json.dumps(head).encode(), *body[1:]])
+    extra, arrays = REPLIES[kind]
+    head = {"ok": True, "job": job["job"], "band": job.get("band", 0),
+            "attempt": job.get("attempt", 0), **extra}
+    return wire.encode(head, list(arrays.values()), list(arrays))
+
+
 def _rogue(backend: str, stop: threading.Event, kind: str, answered: list) -> None:
-    """A worker in this process: READY, then every job answered with ``REPLIES[kind]``."""
+    """A worker in this process: READY, then every job answered as ``kind`` says."""
     ctx = zmq.Context()
     sock = ctx.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.connect(backend)
-    extra, arrays = REPLIES[kind]
     try:
         wire.send(sock, [b"", READY, json.dumps({"pid": 999_999, "jobs": 0}).encode()], 1000)
         while not stop.is_set():
@@ -43,19 +55,15 @@ def _rogue(backend: str, stop: threading.Event, kind: str, answered: list) -> No
             envelope, body = split_job(sock.recv_multipart(copy=False))
             if body is None:
                 continue
-            job = protocol.parse_reply(body)
-            head = {"ok": True, "job": job["job"], "band": job.get("band", 0),
-                    "attempt": job.get("attempt", 0), **extra}
-            wire.send(sock, [b"", *envelope, *wire.encode(head, list(arrays.values()),
-                                                          list(arrays))], 1000)
-            answered.append(job["job"])
+            wire.send(sock, [b"", *envelope, *_reply(kind, body)], 1000)
+            answered.append(kind)
     finally:
         sock.close(0)
         ctx.term()
 
 
 @pytest.mark.parametrize("split", ["frames", "bands"])
-@pytest.mark.parametrize("kind", list(REPLIES))
+@pytest.mark.parametrize("kind", [*REPLIES, "a real render of another size"])
 def test_a_worker_with_malformed_replies_fails_renders_and_the_service_goes_on(
         service_factory, split, kind):
     backend = f"tcp://127.0.0.1:{free_port()}"
