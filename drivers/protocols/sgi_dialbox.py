@@ -66,7 +66,6 @@ SET_FILTER = 0x53
 HOST_COMMAND_ARGS = {RESET: 0, ENABLE_DIALS: 2, ENABLE_BUTTONS: 4, AUTO_BUTTONS: 4,
                      SET_LAMPS: 4, LAMPS_ON: 0, LAMPS_OFF: 0, SET_FILTER: 2}
 DIAL_TIMEOUT_NS = 10_000_000
-COUNTS_PER_TURN = 200
 #: byte -> kind code: 0 garbage, 1 reset ack, 2 dial header, 3 press, 4 release.
 _KIND = bytes(1 if b == RESET else 2 if 0x30 <= b <= 0x37 else 3 if 0xC0 <= b <= 0xDF
               else 4 if b >= 0xE0 else 0 for b in range(256))

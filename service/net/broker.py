@@ -254,7 +254,9 @@ class BandClient:
         if (head.get("ok") and head.get("job") == job_id
                 and isinstance(head.get("arrays"), dict)
                 and isinstance(band, int) and not isinstance(band, bool) and 0 <= band < bands):
-            got.setdefault(band, {**head["arrays"], "_stats": head.get("stats", {})})
+            stats = head.get("stats")
+            got.setdefault(band, {**head["arrays"], "_stats": stats if isinstance(stats, dict)
+                                  else {}})
 
     def close(self) -> None:
         """Close the socket (LINGER 0)."""

@@ -148,13 +148,32 @@ class Scheduler:
             self.st.counters.render_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
             self.st.counters.n["render_failures"] += 1
             return False
-        self.finish(aim, *got)
+        return self.deliver(aim, *got)
+
+    def deliver(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict[str, Any]) -> bool:
+        """:meth:`finish`, or count a render failure when the parts do not make a render.
+
+        The parts and stats of a render in workers are what the workers sent, and a
+        worker may be a remote one of another version: a reply whose arrays do not
+        stitch, or whose stats are not what this service reads, fails that render
+        (``render_failures``, ``last_render_error``) and the render thread goes on.
+        """
+        try:
+            self.finish(aim, parts, stats)
+        except REPLY_ERRORS as exc:
+            self.st.counters.n["render_failures"] += 1
+            self.st.last_render_error = f"render {aim.render_id}: {type(exc).__name__}: {exc}"
+            return False
         return True
 
     def finish(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict[str, Any]) -> None:
         """Stitch a finished render, hand it to the refresh thread and to render requests."""
         t_stitch = time.perf_counter()
         rendered, buf = stitch(parts, _viewer_motion(aim.job), aim.fixed, aim.job["order"])
+        d = aim.settings.display
+        if rendered.frame.colour.shape != (d.zones, d.rows, d.cols, 3):
+            raise HoloError(f"the render is {rendered.frame.colour.shape[:3]} (zones, rows, "
+                            f"columns), the display {(d.zones, d.rows, d.cols)}")
         wall = (time.monotonic_ns() - aim.t0) / 1e6
         self.st.counters.render_ms.append(wall)
         stats = {
@@ -167,12 +186,11 @@ class Scheduler:
         if "quality" in aim.job:
             stats["quality"] = aim.job["quality"]
             self.observe(aim, parts, stats)
+        lod = _lod_of(stats)
         self.st.counters.n["renders"] += 1
-        lod = stats.get("lod") or next((b["lod"] for b in stats.get("bands", ()) if "lod" in b),
-                                       None)  # bands: the first band's (each band its own)
         self.st.last_lod = {"render_id": aim.render_id, **lod} if lod else None
         if lod:
-            self._log_lod_notes(lod.get("chains", {}).get("notes", ()))
+            self._log_lod_notes(_as_dict(lod.get("chains")).get("notes", ()))
         self.st.updates.append(
             Ready(
                 aim.render_id,
@@ -190,7 +208,7 @@ class Scheduler:
 
     def _log_lod_notes(self, notes: Any) -> None:
         """Log the level-of-detail notes not logged before (each once)."""
-        for note in notes:
+        for note in map(str, notes if isinstance(notes, list | tuple) else ()):
             if note in self._lod_notes:
                 continue
             self._lod_notes[note] = None
@@ -203,7 +221,7 @@ class Scheduler:
         chooser = self._chooser
         if chooser is None or chooser[0] != aim.settings.generation:
             return
-        bands = stats.get("bands") or [stats]
+        bands = [b for b in stats.get("bands") or [stats] if isinstance(b, dict)]
         bad = sum(int(b.get("inconsistent_pixels", 0)) for b in bands)
         covered = sum(int(np.isfinite(p["depth"]).sum()) for p in parts if "depth" in p)
         chooser[1].observe(aim.job["render"]["method"], {"inconsistent_pixels": bad}, covered)
@@ -222,7 +240,9 @@ class Scheduler:
             n = max(1, len(self.st.broker.ready) + len(self.st.broker.busy), self.st.config.workers)
             got = bands.run({**job, "scene": spec}, arrays, split_rows(settings.display.rows, n))
             self.st.band_retries = bands.resent
-            if got is None:
+            if got is None:  # a band unanswered after its resends (or the service stopped)
+                self.st.last_render_error = (f"render {aim.render_id}: a band got no usable "
+                                             "reply from the workers")
                 return None
             per_band = [g.pop("_stats", {}) for g in got]
             return got, {"mode": "bands", "method": settings.method, "bands": per_band}
@@ -299,12 +319,8 @@ class Scheduler:
             self.st.counters.n["render_failures"] += 1
             self.st.last_render_error = str(head.get("error", "bad worker reply"))
             return
-        stats = {**(head.get("stats") or {}), "mode": "frames", "attempt": flight.attempt}
-        try:
-            self.finish(flight.meta, [head["arrays"]], stats)
-        except (HoloError, ValueError, KeyError) as exc:
-            self.st.counters.n["render_failures"] += 1
-            self.st.last_render_error = f"{type(exc).__name__}: {exc}"
+        stats = {**_as_dict(head.get("stats")), "mode": "frames", "attempt": flight.attempt}
+        self.deliver(flight.meta, [head["arrays"]], stats)
 
     def retry(self, pipe: FramePipe, flight: Flight) -> None:
         """A job past its deadline (its worker died or stalled): re-aim it and resend.
@@ -321,6 +337,23 @@ class Scheduler:
             self.st.last_render_error = f"render {flight.meta.render_id}: no worker answered"
             return
         self.dispatch(pipe, aim, flight.attempt + 1)
+
+
+#: What :meth:`Scheduler.finish` raises on parts and stats that a worker got wrong
+#: (arrays missing or of the wrong shapes and types, numbers that are not numbers).
+REPLY_ERRORS = (HoloError, ValueError, KeyError, TypeError)
+
+
+def _as_dict(value: Any) -> dict:
+    """``value`` when it is a dict, else an empty one (a worker's stats, read defensively)."""
+    return value if isinstance(value, dict) else {}
+
+
+def _lod_of(stats: dict[str, Any]) -> dict | None:
+    """The level-of-detail stats of a render: its own, or in bands the first band's."""
+    lod = stats.get("lod") or next(
+        (b["lod"] for b in stats.get("bands", ()) if isinstance(b, dict) and "lod" in b), None)
+    return lod if isinstance(lod, dict) and lod else None
 
 
 def _lead_s(render_ms: deque[float]) -> float:

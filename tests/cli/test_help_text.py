@@ -19,10 +19,6 @@ from service.cli_bench import BENCHES
 SCRIPTS = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
 #: ``x``, :func:`x`, *emphasis* (not 3*4 or **kwargs-like text).
 MARKUP = re.compile(r"``|:[a-z]+:`|(?<![\w*])\*[A-Za-z][^*\n]*\*(?![\w*])")
-#: Commands whose files other sessions own; their fixes are pending there (see the
-#: issue 16 report).  The xfail is strict: once fixed, drop the entry.
-PENDING_MARKUP: dict[str, str] = {}
-PENDING_RULE: dict[str, str] = {}
 #: Commands without the rule in their help: they run no loop and take no signal.
 NO_RULE: set[str] = set()
 
@@ -48,18 +44,11 @@ def _commands() -> list:
     return out
 
 
-def _pending(name: str, table: dict[str, str]) -> None:
-    if name in table:
-        pytest.xfail(reason=f"pending in another session's file: {table[name]}")
-
-
 @pytest.mark.parametrize(("name", "entry", "argv"), _commands())
 def test_help_has_no_markup(name, entry, argv, capsys):
     text = _help(entry, argv, capsys)
     assert text.strip()
     found = MARKUP.findall(text)
-    if found:
-        _pending(name, PENDING_MARKUP)
     assert not found, f"{name} --help shows markup: {found[:5]}"
 
 
@@ -68,8 +57,6 @@ def test_help_has_no_markup(name, entry, argv, capsys):
 def test_help_states_the_exit_rule(name, entry, argv, capsys):
     """Every command's --help, and every ``holo-bench NAME --help``, ends with the rule."""
     text = " ".join(_help(entry, argv, capsys).split())
-    if "130" not in text:
-        _pending(name, PENDING_RULE)
     assert "Ctrl-C (SIGINT) 130" in text and "SIGTERM 143" in text, name
 
 
@@ -84,7 +71,6 @@ def test_help_gives_no_flag_a_boolean_default(name, entry, argv, capsys):
 OPTION_VALUE = re.compile(r"(--[a-z][a-z0-9-]*)[ =]([A-Z][A-Z0-9_]*)(?![\w,])")
 #: Options whose argparse default placeholder says what the value is.
 CLEAR_DEFAULTS = {"--name": "NAME"}
-PENDING_METAVAR: dict[str, str] = {}
 
 
 @pytest.mark.parametrize(("name", "entry", "argv"), _commands())
@@ -94,8 +80,6 @@ def test_help_gives_no_option_argparse_default_placeholder(name, entry, argv, ca
     echoed = sorted({f"{opt} {value}" for opt, value in OPTION_VALUE.findall(text)
                      if value == opt[2:].replace("-", "_").upper()
                      and CLEAR_DEFAULTS.get(opt) != value})
-    if echoed:
-        _pending(name, PENDING_METAVAR)
     assert not echoed, f"{name} --help: give these a metavar: {echoed}"
 
 

@@ -330,3 +330,118 @@ def test_every_host_command_parses_with_its_argument_count():
     assert SgiCommandParser().feed(stream) == [
         (0x20, b""), (0x50, b"\xff\x0f"), (0x71, b"\xff" * 4), (0x73, b"\xff" * 4),
         (0x75, b"\x02\0\0\0"), (0x4B, b""), (0x4C, b""), (0x53, b"\x03\x04")]
+
+
+def test_a_dial_packet_completed_10_ms_after_its_first_byte_is_kept_1_ns_later_dropped():
+    # mutant: DIAL_TIMEOUT_NS one more (the rule is "more than 10 ms", not "at least")
+    kept, dropped = SgiDecoder(), SgiDecoder()
+    kept.feed(b"\x32\x00", 5)
+    dropped.feed(b"\x32\x00", 5)
+    assert kept.feed(b"\x05", 5 + 10 * MS) == [DialEvent(5 + 10 * MS, 2, 5, 5)]
+    assert [e.event for e in dropped.feed(b"\x05", 5 + 10 * MS + 1)] == ["truncated"]
+
+
+@pytest.mark.parametrize("bulk_min", [0, 10**9])
+def test_a_dial_packet_completed_across_feeds_restarts_the_garbage_count(bulk_min):
+    # mutant: the packet completed by a later feed left the count at 1, not 0, so the
+    # re-init came one garbage byte early
+    import drivers.protocols.sgi_dialbox as sgi
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sgi, "BULK_MIN_BYTES", bulk_min)
+        dec = SgiDecoder(garbage_limit=3)
+        assert dec.feed(b"\x32\x00", 0) == []
+        assert dec.feed(b"\x05", 1) == [DialEvent(1, 2, 5, 5)]
+        assert dec.feed(b"\x01\x01", 2) == []
+        assert [e.needs_reinit for e in dec.feed(b"\x01", 3)] == [True]
+
+
+def test_a_long_chunk_of_good_packets_restarts_the_garbage_count():
+    # mutant: the numpy path (a chunk of 256 bytes or more, no garbage in it) left the
+    # count at 1, not 0
+    dec = SgiDecoder(garbage_limit=3)
+    assert len(dec.feed(encode_button(4, True) * 300, 0)) == 300
+    assert dec.feed(b"\x01\x01", 1) == []
+    assert [e.needs_reinit for e in dec.feed(b"\x01", 2)] == [True]
+
+
+def test_garbage_limit_1_requests_a_reinit_for_every_run_in_a_long_chunk():
+    # mutant: the numpy path's `limit > 0` for later runs as `limit > 1`
+    press = encode_button(4, True)
+    data = (press + b"\x01" + press + b"\x01\x01" + press) * 60  # 300 bytes
+    dec, ref = SgiDecoder(garbage_limit=1), ReferenceSgi(garbage_limit=1)
+    got, expected = dec.feed(data, 0), ref.feed(data, 0)
+    assert sum(getattr(e, "needs_reinit", False) for e in expected) == 120
+    assert got == expected
+
+
+def test_filter_command_takes_dials_and_levels_0_to_7_only():
+    # mutants: encode_filter's bounds (0 <= dial < 8, 0 <= level <= 7) moved by one
+    assert encode_filter(0, 0) == b"\x53\x00\x00" and encode_filter(7, 7) == b"\x53\x07\x07"
+    for dial, level in ((-1, 0), (8, 0), (0, -1), (0, 8)):
+        with pytest.raises(ProtocolError, match="dial filter"):
+            encode_filter(dial, level)
+
+
+def test_command_parser_counts_unknown_bytes_and_keeps_a_partial_command():
+    # mutants: `unknown` not counted (or counted down), the partial-command `break`
+    # deleted (a command was returned with its arguments cut short)
+    parser = SgiCommandParser()
+    assert parser.feed(b"\x00\x99" + b"\x75\x01") == []
+    assert parser.unknown == 2
+    assert parser.feed(b"\x02\x03") == []
+    assert parser.feed(b"\x04\x4c") == [(0x75, b"\x01\x02\x03\x04"), (0x4C, b"")]
+    assert parser.unknown == 2
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_dial_values_stay_exact_past_the_int64_range(sign):
+    """``value`` is unbounded (module docstring); the numpy path must not wrap it.
+
+    Reaching 2**63 by turning takes centuries, so the running value is set directly.
+    """
+    # mutants: _BULK_VALUE_LIMIT raised to 2**63, its `and` with the chunk length an `or`,
+    # a `<` of its range check as `>` (each lets a long chunk take the int64 path with a
+    # value about to overflow)
+    dec = SgiDecoder()
+    start = sign * ((1 << 63) - 1000)
+    dec._values[:] = [start] * 8  # every dial: the range check looks at all eight
+    data = b"".join(encode_dial(3, sign * 100 * k) for k in range(1, 101))  # 300 bytes
+    assert len(data) >= 256  # long enough for the numpy path
+    assert [e.value for e in dec.feed(data, 0)] == [
+        start + sign * 100 * k for k in range(1, 101)]
+
+
+def test_the_event_setters_refuse_an_event_class_whose_fields_changed():
+    # mutant: the guard's raise deleted (the setters would write the wrong fields)
+    import drivers.protocols.sgi_dialbox as sgi
+
+    with pytest.raises(TypeError, match="fields changed"):
+        sgi._slot_setters(DialEvent, "t_ns", "index", "value", "delta")
+
+
+def test_init_steps_are_frozen_and_the_box_talks_at_9600_baud():
+    # mutants: InitStep not frozen; BAUD moved (holo-devices opens the box at BAUD)
+    from dataclasses import FrozenInstanceError
+
+    import drivers.protocols.sgi_dialbox as sgi
+    from drivers.cli_devices import build_parser
+
+    with pytest.raises(FrozenInstanceError):
+        init_sequence()[1].wait_s = 0.0
+    assert sgi.BAUD == 9600 == build_parser().parse_args([]).dials_baud
+
+
+@pytest.mark.parametrize(("head", "dials"), [
+    (b"\x31\x32\x33", [DialEvent(0, 1, 0x3233, 0x3233)]),
+    (b"\x30\x31\x00\x32\x00\x05", [DialEvent(0, 0, 0x3100, 0x3100), DialEvent(0, 2, 5, 5)]),
+])
+def test_dial_header_bytes_as_counter_bytes_in_a_long_chunk(head, dials):
+    # mutants of the numpy tokeniser's swallowed-header rule: `j >= 2` as `j > 2` and
+    # `h - hl[j - 2] <= 2` as `<= 1` (the third header byte, a counter byte of the first
+    # packet, taken for a packet of its own), that `<= 2` as `<= 3` (the header just
+    # after a whole packet taken for a counter byte)
+    press = encode_button(0, True)
+    events = SgiDecoder().feed(head + press * 300, 0)
+    assert events[:len(dials)] == dials
+    assert events[len(dials):] == SgiDecoder().feed(press * 300, 0)
