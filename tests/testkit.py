@@ -289,15 +289,21 @@ def launch_service(*args: str, env: dict[str, str] | None = None,
                             env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
     os.close(fd)
     svc = ServiceProcess(proc, Path(name))
+    _wait_or_stop(svc, svc.bound, bound_timeout_s)
+    return svc
+
+
+def _wait_or_stop(svc: ServiceProcess, done: Callable[[], object], timeout_s: float) -> None:
+    """Wait until ``done()`` while the service runs; else stop it and raise with its output."""
+    proc = svc.proc
     try:
-        if not wait_until(lambda: proc.poll() is not None or svc.bound(), bound_timeout_s) \
+        if not wait_until(lambda: proc.poll() is not None or done(), timeout_s) \
                 or proc.poll() is not None:
             raise RuntimeError(f"holo-service did not start (rc {proc.poll()}): "
                                f"{svc.output()[-2000:]}")
     except BaseException:
         svc.stop()
         raise
-    return svc
 
 
 def start_service(*args: str, ready_timeout_s: float = 60.0,
@@ -308,18 +314,9 @@ def start_service(*args: str, ready_timeout_s: float = 60.0,
     (``docs/protocol.md`` 1.8); the tests want a service that renders.
     """
     svc = launch_service(*args, env=env, bound_timeout_s=ready_timeout_s)
-    proc = svc.proc
-    try:
-        hello = {"v": 1, "type": "hello", "id": 0, "versions": [1]}
-        ok = wait_until(lambda: proc.poll() is not None
-                        or _is_ready(raw_request(svc.control, hello, (), 500)),
-                        ready_timeout_s)
-        if not ok or proc.poll() is not None:
-            raise RuntimeError(f"holo-service did not start (rc {proc.poll()}): "
-                               f"{svc.output()[-2000:]}")
-    except BaseException:
-        svc.stop()
-        raise
+    hello = {"v": 1, "type": "hello", "id": 0, "versions": [1]}
+    _wait_or_stop(svc, lambda: _is_ready(raw_request(svc.control, hello, (), 500)),
+                  ready_timeout_s)
     return svc
 
 
