@@ -136,15 +136,14 @@ def _sird_output(settings: Settings) -> Any:
 
 
 def stage_settings(settings: Settings) -> GalileanSettings:
-    """The service's Galilean stage: it holds the picture for a late render.
+    """The service's Galilean stage.
 
-    Late: past the rating (``n_prop``) and twice the usual render interval.  A
-    render that late (a loaded machine) would otherwise leave
-    the stage extrapolating a head turn for a second or more, which shears the
-    objects into scattered fragments; held, the picture waits for the render.
+    It holds (``GalileanSettings.hold``, the default): a render is propagated for
+    at most ``n_prop`` refreshes; past that, until the next render comes, each
+    frame shows the last render as it was (header ``held``), never a smear
+    extrapolated past the rating.
     """
-    return GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz,
-                            hold_after=GalileanSettings.n_prop)
+    return GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz)
 
 
 class RefreshLoop:
