@@ -235,6 +235,8 @@ class RefreshLoop:
         self._submit()
         r = self.stage.refresh()
         c.n["refreshes"] += 1
+        c.n["held_refreshes"] += r.flags["held"]
+        c.held = r.flags["held"]
         c.refresh_t.append(time.monotonic())
         if r.flags["updated"] and r.index in self.due:
             self.render_id, self.t_render_ns, self.shown_scene = self.due.pop(r.index)
@@ -351,6 +353,8 @@ class RefreshLoop:
             "input": self.input,
             "events": r.flags["events"],
             "age": r.flags["age"],
+            "held": bool(r.flags["held"]),
+            "use_by": int(r.flags["use_by"]),
             "order": int(r.flags["order"]),
         }
         arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]
