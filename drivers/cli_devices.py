@@ -16,15 +16,20 @@ characters; native devices get command frames); the dial box gets VRPN's handsha
 ``docs/drivers.md``; dial events carry ``turns`` per ``--dial-counts-per-turn``).
 With ``--pub`` the first stderr line names the bound address (``--pub`` alone binds
 the default ``tcp://127.0.0.1:5560``, ``tcp://127.0.0.1:0`` picks a free port).
-Problems with the links (errors, reconnects) also go to stderr, one line each.
+Problems with the links (errors, reconnects) also go to stderr, one line each; a
+port that does not open is tried again with a back-off (50 ms doubling to 2 s),
+each try one line (``holo-devices: tracker (/dev/ttyUSB9): open failed (try 3, same
+error); next try in 0.20 s``), until it opens, ``--seconds`` end or Ctrl-C;
+``--no-retry`` tries each port once and ends the run when one does not open.
 Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue is drained, the
 recorder closed (the log is complete) and a JSON summary of each device's statistics
 is printed on stderr.
 
 Exit status (the rule of :mod:`service.signals`): 0 when the run ended (``--seconds``)
 having opened a device; 1 when no device could ever be opened (each device's last
-error is named); 2 for bad settings (an address that cannot be bound, a log that
-cannot be created); 130 / 143 after a clean stop on SIGINT / SIGTERM.
+error is named), or with ``--no-retry`` when any port did not open; 2 for bad
+settings (an address that cannot be bound, a log that cannot be created); 130 / 143
+after a clean stop on SIGINT / SIGTERM.
 """
 
 from __future__ import annotations
@@ -54,6 +59,7 @@ from drivers.reader import (
     EventHub,
     Item,
     ReaderSettings,
+    Retry,
 )
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
@@ -73,6 +79,8 @@ from service.signals import (
 Listener = Callable[[Item, list[Event]], None]
 #: status events echoed on stderr.
 LOUD_STATUS = frozenset({"error", "reconnect"})
+#: status reasons not echoed: the retry lines (:func:`retry_line`) say them.
+SAID_BY_RETRY = frozenset({"open_failed"})
 #: An argparse type: an integer > 0.
 positive_int = int_range(1)
 
@@ -83,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="holo-devices",
         description="Read a head tracker and an SGI dial box over serial ports "
         "(pyserial URLs), publish their events on ZeroMQ, record raw bytes, dump JSON.",
-        epilog=plain_help(EXIT_RULE + " 1: no device could be opened at all."))
+        epilog=plain_help(EXIT_RULE + " 1: no device could be opened at all, or with "
+                          "--no-retry one did not open."))
     p.add_argument("--tracker", metavar="URL",
                    help="tracker port: /dev/ttyUSB0, loop://, socket://host:port, rfc2217://, "
                    "or opentrack-udp://HOST:PORT to listen for opentrack's UDP poses")
@@ -106,6 +115,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dials-watchdog", type=float_range(0), default=0.0, metavar="S",
                    help="same for the dial box, which is silent when untouched "
                    "(default: 0 = only on errors)")
+    p.add_argument("--no-retry", dest="retry", action="store_false",
+                   help="try each port once: one that does not open ends the run with "
+                   f"status 1 (default: try again after {ReaderSettings.backoff_s:g} s, "
+                   f"doubling up to {ReaderSettings.backoff_max_s:g} s, a line per try)")
     p.add_argument("--reset-wait", type=float_range(0), default=1.0, metavar="S",
                    help="longest wait for the dial box's reset answer (default: %(default)s)")
     p.add_argument("--lamps", type=int_range(0, 0xFFFFFFFF), default=0, metavar="MASK",
@@ -194,11 +207,15 @@ def dump_listener(out: TextIO, t0_ns: int,
 
 
 def stderr_listener(err: TextIO, t0_ns: int) -> Listener:
-    """A hub listener echoing link errors and reconnects on ``err``."""
+    """A hub listener echoing link errors and reconnects on ``err``.
+
+    Failed opens are left to the retry lines (:func:`retry_teller`).
+    """
 
     def echo(item: Item, events: list[Event]) -> None:
         for ev in events:
-            if isinstance(ev, StatusEvent) and ev.event in LOUD_STATUS:
+            if (isinstance(ev, StatusEvent) and ev.event in LOUD_STATUS
+                    and ev.details.get("reason") not in SAID_BY_RETRY):
                 err.write(f"{ev.device}: {ev.event} {json.dumps(dict(ev.details))}\n")
 
     return echo
@@ -223,6 +240,35 @@ def tracker_protocol(url: str, protocol: str | None) -> str:
     return chosen
 
 
+def retry_line(prog: str, retry: Retry, same_error: bool = False) -> str:
+    """One failed open on one line: the device, the try, the error, the back-off.
+
+    ``same_error``: the error is the one the previous line gave (not repeated).
+    """
+    what = (f"open failed (try {retry.attempt}, same error)" if same_error
+            else f"open failed (try {retry.attempt}): {retry.message}")
+    then = ("not retrying (--no-retry)" if retry.wait_s is None
+            else f"next try in {retry.wait_s:.2f} s")
+    return f"{prog}: {retry.reader} ({retry.url}): {what}; {then}"
+
+
+def retry_teller(prog: str, err: TextIO) -> Callable[[Retry], None]:
+    """A reader's ``on_retry``: one :func:`retry_line` per failed open on ``err``.
+
+    Called on the reader threads; each line is one write.
+    """
+    last: dict[str, str] = {}
+
+    def tell(retry: Retry) -> None:
+        same = last.get(retry.reader) == retry.message
+        last[retry.reader] = retry.message
+        with contextlib.suppress(OSError, ValueError):  # a closed stderr
+            err.write(retry_line(prog, retry, same) + "\n")
+            err.flush()
+
+    return tell
+
+
 def _settings(args: argparse.Namespace) -> list[tuple[ReaderSettings, DeviceHooks]]:
     out: list[tuple[ReaderSettings, DeviceHooks]] = []
     if args.tracker:
@@ -230,12 +276,13 @@ def _settings(args: argparse.Namespace) -> list[tuple[ReaderSettings, DeviceHook
         big = args.hatire_big_endian and proto == "hatire"
         options = {"byte_order": "big"} if big else {}
         out.append((ReaderSettings(args.tracker, proto, "tracker", args.baud,
-                                   watchdog_s=args.watchdog or None, decoder_options=options),
+                                   watchdog_s=args.watchdog or None, decoder_options=options,
+                                   retry=args.retry),
                     TrackerDriver(proto, commands_from_args(args),
                                   args.tracker_reset_on_open)))
     if args.dials:
         out.append((ReaderSettings(args.dials, "sgi", "dials", args.dials_baud,
-                                   watchdog_s=args.dials_watchdog or None),
+                                   watchdog_s=args.dials_watchdog or None, retry=args.retry),
                     DialBoxDriver(args.reset_wait, args.lamps)))
     return out
 
@@ -273,7 +320,8 @@ class DeviceSession:
         # events are published on the reader threads the moment they are decoded;
         # the hub carries the items on to the recorder, the dump and stderr
         sink = self.hub.put if self.publisher is None else self.publisher.sink(self.hub.put)
-        self.readers = [DeviceReader(s, sink, hooks=h) for s, h in specs]
+        tell = retry_teller("holo-devices", err)
+        self.readers = [DeviceReader(s, sink, hooks=h, on_retry=tell) for s, h in specs]
 
     def _open_outputs(self, err: TextIO) -> None:
         a = self.args
@@ -306,6 +354,8 @@ class DeviceSession:
         end = None if seconds is None else time.monotonic() + seconds
         while not self.stop.is_set() and (end is None or time.monotonic() < end):
             self._dispatch(0.05)
+            if any(r.gave_up for r in self.readers):  # --no-retry and a port did not open
+                return
 
     def _dispatch(self, timeout_s: float) -> int:
         n = self.hub.dispatch(self.listeners, timeout_s)
@@ -339,6 +389,11 @@ def never_opened(session: DeviceSession) -> list[str]:
             why = session.open_errors.get(r.name, "not tried")
             out.append(f"{r.name} ({r.settings.url}): {why}")
     return out
+
+
+def gave_up(session: DeviceSession) -> list[str]:
+    """``NAME (URL)`` for each reader that stopped trying (``--no-retry``)."""
+    return [f"{r.name} ({r.settings.url})" for r in session.readers if r.gave_up]
 
 
 def misframed(session: DeviceSession) -> list[str]:
@@ -405,6 +460,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ok = EXIT_FAILED if len(missing) == len(session.readers) else EXIT_OK
     if ok == EXIT_FAILED:
         print("holo-devices: no device could be opened; nothing was read", file=sys.stderr)
+    elif stopped := gave_up(session):
+        print(f"holo-devices: stopped: {', '.join(stopped)} did not open and --no-retry "
+              "was given", file=sys.stderr)
+        ok = EXIT_FAILED
     return exit_status(signum, ok)
 
 

@@ -30,6 +30,9 @@ What a reader does:
   unplugged, a pty hung up) closes the port and reopens it with exponential backoff
   (``backoff_s`` doubling up to ``backoff_max_s``; reset by the next valid frame), so
   a device unplugged and plugged back in resumes without restarting the program;
+  each failed open is told to ``on_retry`` (:class:`Retry`: the try, the wait
+  before the next, the error), and with ``retry=False`` the reader tries once and
+  ends (:attr:`DeviceReader.gave_up` says why);
   the hooks' ``on_open`` runs on every open (the dial box handshake, the tracker's
   start command);
 * clean stop (:meth:`DeviceReader.stop`): the hooks' ``on_stop`` (the tracker's stop
@@ -238,6 +241,9 @@ class ReaderSettings:
         Timeout of host-to-device writes.
     decoder_options : Mapping
         Keyword arguments of the decoder.
+    retry : bool
+        Open again (after ``backoff_s``...) when an open fails; False: the reader
+        gives up on the first failed open and its thread ends.
     """
 
     url: str
@@ -250,6 +256,7 @@ class ReaderSettings:
     backoff_max_s: float = 2.0
     write_timeout_s: float = 1.0
     decoder_options: Mapping[str, Any] = field(default_factory=dict)
+    retry: bool = True
 
     def __post_init__(self) -> None:
         canonical_protocol(self.protocol)
@@ -301,6 +308,31 @@ class ReaderCounters:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+@dataclass(frozen=True, slots=True)
+class Retry:
+    """One failed open, as :class:`DeviceReader` tells its ``on_retry`` callable.
+
+    Parameters
+    ----------
+    reader : str
+        Reader name.
+    url : str
+        The port that did not open.
+    attempt : int
+        Failed opens in this outage (1 for the first).
+    wait_s : float or None
+        Seconds until the next try (the backoff); None: no next try (``retry=False``).
+    message : str
+        The open's error.
+    """
+
+    reader: str
+    url: str
+    attempt: int
+    wait_s: float | None
+    message: str
+
+
 class DeviceHooks(Protocol):
     """Device-specific behaviour a reader calls on its own thread."""
 
@@ -344,18 +376,25 @@ class DeviceReader:
         Opens a port: ``opener(url, baudrate=..., timeout=..., write_timeout=...)``
         (:func:`drivers.udp_port.open_port`: pyserial, or a UDP listener for
         ``opentrack-udp://``).
+    on_retry : callable (Retry) -> None, optional
+        Told of each failed open on the reader thread (``holo-devices`` prints it);
+        not recorded: the session log keeps one ``open_failed`` status per outage.
 
     Attributes
     ----------
     crashed : Exception or None
         Set when the thread ended on an unexpected exception (a bug, not a device
         fault); an ``error`` status with ``reason: "reader_crashed"`` reports it.
+    gave_up : str or None
+        Why the thread ended without being stopped (``retry=False`` and the port did
+        not open); None otherwise.
     """
 
     def __init__(self, settings: ReaderSettings, sink: Sink, *,
                  hooks: DeviceHooks | None = None,
                  clock_ns: Callable[[], int] = time.monotonic_ns,
-                 opener: Callable[..., Any] = open_port) -> None:
+                 opener: Callable[..., Any] = open_port,
+                 on_retry: Callable[[Retry], None] | None = None) -> None:
         self.settings = settings
         self.name = settings.device_name
         self.stream = DeviceStream(self.name, settings.protocol, settings.decoder_options)
@@ -373,7 +412,10 @@ class DeviceReader:
         self._last_valid_ns = 0
         self._down_since_ns: int | None = None
         self._failures_in_outage = 0
+        self._open_error: str | None = None
+        self._on_retry = on_retry
         self.crashed: Exception | None = None
+        self.gave_up: str | None = None
 
     # -- life cycle -----------------------------------------------------------------
     def start(self) -> DeviceReader:
@@ -470,7 +512,12 @@ class DeviceReader:
     def _loop(self) -> None:
         while not self._stop.is_set():
             if self._port is None and not self._open():
-                self._stop.wait(self._next_backoff())
+                wait = self._next_backoff() if self.settings.retry else None
+                self._tell_retry(wait)
+                if wait is None:
+                    self.gave_up = self._open_error or "lost during its opening handshake"
+                    break
+                self._stop.wait(wait)
                 continue
             try:
                 self._read_once()
@@ -495,6 +542,7 @@ class DeviceReader:
 
     def _open(self) -> bool:
         s = self.settings
+        self._open_error = None
         try:
             port = self._opener(s.url, baudrate=s.baudrate, timeout=s.poll_s,
                                 write_timeout=s.write_timeout_s)
@@ -529,6 +577,7 @@ class DeviceReader:
         self._failures_in_outage = 0
 
     def _open_failed(self, exc: Exception) -> None:
+        self._open_error = str(exc)
         self.counters.open_failures += 1
         self._failures_in_outage += 1
         if self._down_since_ns is None:
@@ -536,6 +585,12 @@ class DeviceReader:
         if self._failures_in_outage == 1:
             self.emit("error", {"reason": "open_failed", "url": self.settings.url,
                                 "message": str(exc)})
+
+    def _tell_retry(self, wait: float | None) -> None:
+        """Tell ``on_retry`` of the failed open (not of a handshake that lost the port)."""
+        if self._on_retry is not None and self._open_error is not None:
+            self._on_retry(Retry(self.name, self.settings.url, self._failures_in_outage, wait,
+                                 self._open_error))
 
     def _next_backoff(self) -> float:
         wait = self._backoff

@@ -283,9 +283,12 @@ class Counters:
                 "errors",
                 "refresh_overruns",
                 "resends_answered",
+                "held_refreshes",
             ),
             0,
         )
+        #: whether the last refresh held the last render (past its use-by date)
+        self.held = False
         self.render_ms: deque[float] = deque(maxlen=200)
         self.refresh_ms: deque[float] = deque(maxlen=600)
         self.sird_ms: deque[float] = deque(maxlen=600)
@@ -307,6 +310,7 @@ class Counters:
         med = lambda d: float(np.median(list(d))) if d else None  # noqa: E731
         return {
             **self.n,
+            "held": self.held,
             "updates_per_s": self.rate(self.update_t),
             "refreshes_per_s": self.rate(self.refresh_t),
             "render_ms_p50": med(self.render_ms),
