@@ -40,6 +40,7 @@ from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
+from service.galilean.local_update import render_use_by
 from service.galilean.motion_field import render_with_motion
 from service.lod import LodState, lod_from
 from service.pipeline import Renderer, RenderSettings
@@ -292,8 +293,11 @@ class LocalRenderer:
                     continue  # a render of the game before: never shown
                 self._render_id += 1
                 # the burst's motion is exact and no render follows it: carried
-                # to the score screen; any other render for the stage's rating
-                self.stage.update(ru, use_by=None if burst is None else self._burst_use_by)
+                # to the score screen; any other render for the stage's rating, or
+                # less when an object turns far (seed 002's use-by date)
+                use_by = self._burst_use_by if burst is not None else render_use_by(
+                    scene, self.settings.refresh_hz, self.stage.settings.n_prop)
+                self.stage.update(ru, use_by=use_by)
                 self._grafted = (self._render_id, records_t, version)
 
     def _refresh_loop(self) -> None:

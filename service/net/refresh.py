@@ -290,6 +290,7 @@ class RefreshLoop:
                 rd.points,
                 rd.point_derivs,
                 rd.viewer_motion,
+                up.use_by,
             )
             if ok:
                 self.due[up.rendezvous] = (up.render_id, up.t_render_ns, up.scene_load)

@@ -200,6 +200,9 @@ class Ready:
     scene_version: int = 0
     #: the ``load_scene`` count of the scene rendered (:attr:`State.scene_load`)
     scene_load: int = 0
+    #: refreshes the render may be propagated (None: the stage's rating; see
+    #: :func:`service.galilean.local_update.render_use_by`)
+    use_by: int | None = None
 
 
 class ReplyCache:

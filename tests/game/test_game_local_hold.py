@@ -18,8 +18,9 @@ from testkit import HANG_S
 from game.backends import BackendSettings, LocalRenderer
 from game.gameover import BURST_SECONDS
 from game.rules import new_game
-from game.scene import game_scene, object_states
+from game.scene import apply_states, game_scene, object_states
 from service.display import DisplaySettings
+from service.galilean.local_update import render_use_by
 
 HZ = 30.0
 SETTINGS = BackendSettings(display=DisplaySettings(zones=3, angle_deg=16.0, cols=64, rows=48),
@@ -50,7 +51,9 @@ def _frames(backend: LocalRenderer, until) -> list:
 
 def test_local_mode_holds_the_last_render_when_renders_stop(local):
     state = new_game()
-    use_by = local.stage.settings.n_prop
+    scene = apply_states(local._scene, object_states(state))
+    use_by = render_use_by(scene, HZ, local.stage.settings.n_prop)
+    assert use_by == 15  # the attackers spin 45 degrees in 15.7 refreshes at 30 Hz
     for _attempt in range(3):  # a frame showing the render itself may be missed under load
         local.update(object_states(state))
         frames = _frames(local, lambda f: f[-1].render_id >= 0 and f[-1].since_render >= 3 * HZ)

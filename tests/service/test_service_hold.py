@@ -59,7 +59,8 @@ def test_a_stopped_worker_leaves_the_last_render_held_not_extrapolated(service_f
         assert 0 in last, "the frame showing the last render itself was not received"
         render_header, render = last[0]
         use_by = render_header["use_by"]
-        assert use_by == 16 and not render_header["held"]
+        # the rating, or less: the game's attackers spin 45 degrees in 15.7 refreshes
+        assert use_by == 15 and not render_header["held"]
         held = 0
         for since, (header, arrays) in sorted(last.items()):
             assert header["held"] == (since > use_by), header
