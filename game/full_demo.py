@@ -1,28 +1,32 @@
 """The whole loop (``make demo``): holo-service, holo-sim, holo-devices and holo-game.
 
 Starts the render service, a simulated head tracker (swaying) and dial box
-(scripted turns and presses) on pty pairs, the device driver publishing their
+(its ``view`` script: turns of dials the game does not bind, so it never steers
+or pauses) on pty pairs, the device driver publishing their
 events (with the game's button lamps lit), and the game.  With a display the game
 opens its window in attract mode until a key; without one the bot plays headless
 for ``--seconds`` (20, counted from the first frame: on a first run the service
 first compiles its kernels, a minute or more, while the game shows "waiting for the
-render service") and ``demo-out/`` gets screenshots of each mode, a film strip, a
-GIF and ``stats.json``, and a summary is printed.  Progress goes to stderr as it
-happens (processes started, the service's warm-up n/m, play time).  The files a
-previous run wrote in ``--out`` are removed first (only those: see
-:data:`DEMO_FILES`; anything else there is left alone).  Every process started
-here is stopped at the end, on SIGINT (Ctrl-C) and SIGTERM (exit status 128 + the
-signal's number), and when one of them fails (exit status 1).  ``--local`` leaves
-the service out (the game renders in process).
+render service") and writes screenshots of each mode, a film strip, a GIF and
+``stats.json`` into a folder of its own, ``<--out>/<time>/`` (``demo-out/latest``
+names the newest; :mod:`game.run_folders`), and a summary is printed.  Earlier runs'
+folders are never touched.  Progress goes to stderr as it happens (processes
+started, the service's warm-up n/m, play time).  Every process started here is
+stopped at the end, on SIGINT (Ctrl-C) and SIGTERM (exit status 128 + the
+signal's number), and when one of them fails (exit status 1); on a signal the
+game is given :data:`GAME_GRACE_S` to write what it has, and the run's
+``stats.json`` says ``"interrupted"``.  ``--local`` leaves the service out (the game
+renders in process).
 
-The look (:data:`DEMO_LOOK`): per-zone Blinn-Phong light at 240x180 per zone, the
-system at its best rather than the game's light default (flat ambient silhouettes
-at 200x150): the largest size that kept at least 15 renders a second, measured
-with 5 zones on this project's 2-core machine at a load of 3 (renders/s: 19.8 at
-240x180, 13.8 at 280x210, 11.2 at 320x240; 60 refreshes/s at each).
-``--light ambient`` and a smaller ``--size`` lighten the load.  The summary
-says what was used, and warns (exit status 1 when no frame came at all) when the
-rates fall below :data:`MEANT_HZ`.
+The look adapts to the machine: unless ``--light`` or ``--size`` is given, the game
+runs ``holo-game --adapt`` (:mod:`game.adapt`): through the service it will play
+through, it measures renders a second for a second and a half per look, from
+per-zone Blinn-Phong light at 240x180 per zone (the system at its best: 19.8
+renders/s on this project's quiet 2-core machine) down to flat ambient at 120x90,
+and plays with the best look that keeps :data:`MEANT_HZ`'s 10 renders a second
+with a margin.  The summary (stderr, and ``stats.json``'s ``look``) says what was
+measured, what was chosen and why, and warns (exit status 1 when no frame came at
+all) when the rates still fall below :data:`MEANT_HZ`.
 """
 
 from __future__ import annotations
@@ -39,9 +43,13 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from game.actions import lamp_mask
+from game.adapt import LADDER
 from game.display import has_display, headless_env
-from service.cli_args import add_size_option, float_range, plain_help
+from game.run_folders import new_run_folder, point_latest
+from service.cli_args import float_range, plain_help, size
+from service.errors import HoloError
 from service.signals import (
+    EXIT_FAILED,
     EXIT_RULE,
     Interrupted,
     end_process,
@@ -50,13 +58,10 @@ from service.signals import (
 )
 
 ANY = "tcp://127.0.0.1:0"
-#: What a demo run writes in ``--out`` (glob patterns), removed at the start of the next.
-DEMO_FILES = (
-    "stats.json", "highscores.json", "film.png", "demo.gif", "mode-*.png", "gameover.png",
-    "score.png", "reconnecting.png",
-)  # fmt: skip
-#: The demo's defaults: light model and pixels per zone (see the module notes).
-DEMO_LOOK = {"light": "blinn", "size": (240, 180)}
+#: Seconds the game has, once asked to stop, to write its film and stats.json.
+GAME_GRACE_S = 30.0
+#: The demo's look when only one of ``--light`` and ``--size`` is given: the best rung.
+DEMO_LOOK = LADDER[0]
 #: Rates the demo is meant to show (refreshes, renders per second); below: a warning.
 MEANT_HZ = {"refresh_hz": 50.0, "update_hz": 10.0}
 #: Seconds the game waits for its first frame (the service's first warm-up).
@@ -110,6 +115,8 @@ class Proc:
         echo: Callable[[str], bool] = lambda line: False,
     ) -> None:
         self.name, self.check = name, check
+        #: seconds it has to end after SIGTERM before it is killed
+        self.grace_s = 5.0
         self.p = subprocess.Popen(
             args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
         )
@@ -133,9 +140,9 @@ class Proc:
             tick.wait(POLL_S)
         raise RuntimeError(f"{self.name} did not start (rc={self.p.poll()}): {self.err[-5:]}")
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """Terminate, then kill if it does not go."""
-        end_process(self.p, timeout)
+    def stop(self) -> None:
+        """Terminate, then kill if it does not go within its ``grace_s`` seconds."""
+        end_process(self.p, self.grace_s)
 
 
 class Children:
@@ -206,12 +213,23 @@ def say(line: str) -> None:
     print(f"holo-demo: {line}", file=sys.stderr, flush=True)
 
 
-def clean_out(out: Path) -> list[Path]:
-    """Remove what an earlier demo run wrote in ``out`` (:data:`DEMO_FILES` only)."""
-    gone = [p for pattern in DEMO_FILES for p in sorted(out.glob(pattern)) if p.is_file()]
-    for p in gone:
-        p.unlink()
-    return gone
+def mark_stopped(run: Path, why: dict) -> Path:
+    """Add ``why`` (e.g. ``{"interrupted": "SIGINT"}``) to the run's ``stats.json``.
+
+    The game's own stats.json is kept (it says how far the run got); where the game
+    wrote none (stopped before its first frame, or killed), one is written with
+    ``why`` and the files the run left.
+    """
+    path = run / "stats.json"
+    try:
+        stats = json.loads(path.read_text())
+    except (OSError, ValueError):
+        stats = {"files": sorted(p.name for p in run.iterdir() if p.name != "stats.json")}
+    stats.update(why)
+    temp = path.with_suffix(".json.tmp")
+    temp.write_text(json.dumps(stats, indent=1))
+    temp.replace(path)
+    return path
 
 
 def _service_progress(line: str) -> bool:
@@ -282,21 +300,28 @@ def game_args(
     cmd = [
         *_script("game.cli"),
         "--devices", devices,
-        "--size", f"{args.size[0]}x{args.size[1]}",
-        *(["--full-light"] if args.light == "blinn" else []),
+        *look_args(args),
         "--bot",
-        "--highscores", str(Path(args.out) / "highscores.json"),
+        "--highscores", str(Path(args.run) / "highscores.json"),
     ]  # fmt: skip
     cmd += ["--local"] if control is None else ["--service", control]
     if headless:
         cmd += [
             "--headless",
             "--seconds", str(args.seconds),
-            "--out", args.out,
+            "--out", str(args.run),
             "--bot-gives-up", str(args.gives_up),
             "--wait", str(args.wait),
         ]  # fmt: skip
     return cmd
+
+
+def look_args(args: argparse.Namespace) -> list[str]:
+    """The game's look options: ``--adapt``, or the light and size given (one filled in)."""
+    if args.light is None and args.size is None:
+        return ["--adapt"]
+    size = args.size or DEMO_LOOK.size
+    return ["--light", args.light or DEMO_LOOK.light, "--size", f"{size[0]}x{size[1]}"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -305,7 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="holo-demo", description=plain_help(__doc__.split("\n\n")[0]),
         epilog=EXIT_RULE + " 1: a program failed to start or stopped, or no frame came.")
     ap.add_argument("--out", default="demo-out", metavar="DIR",
-                    help="screenshots, film and stats.json (default demo-out)")
+                    help="each run writes screenshots, film and stats.json into a new "
+                    "folder DIR/<time>/; DIR/latest names the newest (default demo-out)")
     ap.add_argument("--seconds", type=float_range(0, lo_open=True), default=20.0,
                     metavar="N", help="seconds of play, from the first frame (default 20)")
     ap.add_argument(
@@ -318,10 +344,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--gives-up", type=float_range(0), default=6.0, metavar="S",
                     help="the bot stops dodging after S game seconds (default 6)")
-    ap.add_argument("--light", choices=("blinn", "ambient"), default=DEMO_LOOK["light"],
-                    help="per-zone Blinn-Phong light, or the game's flat ambient (default: "
-                    "%(default)s)")
-    add_size_option(ap, DEMO_LOOK["size"], "pixels per zone")
+    ap.add_argument("--light", choices=("blinn", "ambient"), default=None,
+                    help="per-zone Blinn-Phong light, or flat ambient (default: chosen by "
+                    "measuring, see --size)")
+    ap.add_argument("--size", type=size, default=None, metavar="WxH",
+                    help="pixels per zone (default: measured at the start; the best of "
+                    + ", ".join(str(look) for look in LADDER)
+                    + " that keeps 10 renders/s)")
     ap.add_argument("--local", action="store_true", help="no service: render in the game")
     ap.add_argument("--headless", action="store_true", help="even with a display")
     ap.add_argument(
@@ -345,6 +374,7 @@ def run(args: argparse.Namespace, children: Children, headless: bool) -> int:
     game = children.start(
         "holo-game", game_args(args, control, devices, headless), env, echo=_game_progress
     )
+    game.grace_s = GAME_GRACE_S
     rc = children.wait_for(game, None if not headless else args.seconds + args.wait + 120)
     if rc != 0:
         print(f"holo-demo: holo-game exited {rc}: {game.err[-5:]}", file=sys.stderr)
@@ -362,10 +392,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     args = build_parser().parse_args(argv)
     headless = args.headless or not has_display()
-    Path(args.out).mkdir(parents=True, exist_ok=True)
-    gone = clean_out(Path(args.out))
-    if gone:
-        say(f"removed {len(gone)} files of the last run from {args.out}/ (only the demo's own)")
+    try:
+        args.run = new_run_folder(args.out)
+        point_latest(args.out, args.run)
+    except HoloError as exc:
+        print(f"holo-demo: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    say(f"writing to {args.run}/ ({Path(args.out) / 'latest'} names it; earlier runs are kept)")
     signals = Signals()
     children = Children(signals.check)
     with signals.caught():
@@ -373,6 +406,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return run(args, children, headless)
         except Interrupted as exc:
             print(f"holo-demo: {exc}: stopping every process", file=sys.stderr)
+            children.stop_all()
+            if headless:
+                kept = mark_stopped(args.run, {"interrupted": str(exc)})
+                print(f"holo-demo: kept what the run wrote in {args.run}/ ({kept.name} says "
+                      "interrupted)", file=sys.stderr)
             return exit_status(exc.signum)
         except (RuntimeError, subprocess.TimeoutExpired) as exc:
             print(f"holo-demo: {exc}; stopping every process", file=sys.stderr)
@@ -383,11 +421,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _summary(args: argparse.Namespace, control: str | None) -> int:
     """Print what the run did; 1 when no frame was shown at all, else 0."""
-    out = args.out
+    out = args.run
     stats = json.loads((Path(out) / "stats.json").read_text())
     where = "in process (--local)" if control is None else f"holo-service at {control}"
-    light = "per-zone Blinn-Phong light" if args.light == "blinn" else "ambient light"
-    print(f"holo-demo: rendered {where}, {light} at {args.size[0]}x{args.size[1]} per zone")
+    look = stats.get("look") or {}
+    w, h = look.get("size", ("?", "?"))
+    light = "per-zone Blinn-Phong light" if look.get("light") == "blinn" else \
+        f"{look.get('light')} light"
+    print(f"holo-demo: rendered {where}, {light} at {w}x{h} per zone")
+    if look.get("adapted"):
+        measured = ", ".join(f"{k} {v:g}" for k, v in look["measured"].items())
+        print(f"  chosen by measuring renders/s ({measured}): {look['reason']}")
     print(
         f"  {stats['refreshes']} refreshes ({stats['refresh_hz']} Hz), {stats['renders']} "
         f"renders ({stats['update_hz']} Hz), window {stats['fps']} fps"
@@ -401,12 +445,12 @@ def _summary(args: argparse.Namespace, control: str | None) -> int:
     print(f"  modes {', '.join(stats['modes'])}"
           + (f" (unavailable: {', '.join(missing)})" if missing else ""))
     print(f"  wrote {', '.join(stats.get('files', []))} and stats.json to {out}/")
-    for line in rate_warnings(stats, args):
+    for line in rate_warnings(stats):
         print(f"holo-demo: warning: {line}", file=sys.stderr)
     return 1 if not stats["refreshes"] else 0
 
 
-def rate_warnings(stats: dict, args: argparse.Namespace) -> list[str]:
+def rate_warnings(stats: dict) -> list[str]:
     """Lines saying where the run's rates fell short of :data:`MEANT_HZ`."""
     if not stats["refreshes"]:
         return ["refreshes 0.0 Hz: the game never got a frame; see the holo-service and "
@@ -417,10 +461,12 @@ def rate_warnings(stats: dict, args: argparse.Namespace) -> list[str]:
     if not low:
         return []
     # only what the run did not already use
-    lighter = [o for o, used in (("--light ambient", args.light == "ambient"),
-                                 ("--size 160x120", tuple(args.size) <= (160, 120))) if not used]
+    look = stats.get("look") or {}
+    light, (w, h) = look.get("light", "?"), look.get("size", (0, 0))
+    lighter = [o for o, used in (("--light ambient", light == "ambient"),
+                                 ("--size 160x120", (w, h) <= (160, 120))) if not used]
     hint = f"; {' or '.join(lighter)} lightens the load" if lighter else ""
-    return [f"{' and '.join(low)} at {args.size[0]}x{args.size[1]} per zone: the machine is "
+    return [f"{' and '.join(low)} at {w}x{h} per zone: the machine is "
             f"busy or slower than two quiet cores{hint}"]
 
 

@@ -8,6 +8,7 @@ process tree through ``/proc`` (each process's parent from ``/proc/<pid>/stat``;
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import subprocess
@@ -20,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from game.display import headless_env
+from game.run_folders import new_run_folder, read_latest
 
 pytestmark = pytest.mark.skipif(
     not sys.platform.startswith("linux"), reason="reads the process tree from /proc"
@@ -140,6 +142,30 @@ def running_game(demo: subprocess.Popen) -> dict[int, int]:
 
     return wait_until(started, 120,
                       f"{CHILDREN} children running the game, the service and holo-devices")
+
+
+def test_ctrl_c_keeps_what_was_written_and_every_earlier_run(tmp_path):
+    out = tmp_path / "out"
+    earlier = new_run_folder(out, when=0.0)  # a run of 1970: must outlive this one
+    (earlier / "stats.json").write_text('{"refreshes": 1}')
+    demo, log = start_demo(tmp_path, "--light", "ambient", "--size", "160x120")
+    try:
+        running_game(demo)
+        run = wait_until(lambda: read_latest(out) if read_latest(out) != earlier else None,
+                         30, "demo-out/latest to name this run")
+        # the first screenshot: the game has played and written something
+        wait_until(lambda: (run / "mode-head.png").exists(), 300, "the first screenshot")
+        demo.send_signal(signal.SIGINT)
+        assert demo.wait(90) == 130, log.read_text()
+    finally:
+        kill_all(demo)
+    stats = json.loads((run / "stats.json").read_text())
+    assert stats["interrupted"] == "SIGINT", stats
+    assert stats["refreshes"] > 0  # the game's own stats, as far as it got
+    assert (run / "mode-head.png").stat().st_size > 1000
+    assert "mode-head.png" in stats["files"]
+    assert (earlier / "stats.json").read_text() == '{"refreshes": 1}'
+    assert sorted(p.name for p in out.iterdir()) == sorted([earlier.name, run.name, "latest"])
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
