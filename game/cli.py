@@ -18,29 +18,42 @@ import argparse
 import json
 import os
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from game.actions import binding_help, lamp_mask
+from game.adapt import DEFAULT_LIGHT, LADDER, Choice, Look
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
 from service.cli_args import (
-    add_size_option,
     endpoint,
     float_range,
     int_range,
     output_problem,
     plain_help,
+    size,
 )
 from service.display import DisplaySettings
 from service.errors import HoloError
+from service.light import MODELS as LIGHT_MODELS
 from service.lod_cli import add_lod_options, lod_settings
 from service.process import setup_frame_process
-from service.signals import EXIT_FAILED, EXIT_OK, EXIT_RULE, EXIT_USAGE, interruptible
+from service.signals import (
+    EXIT_FAILED,
+    EXIT_OK,
+    EXIT_RULE,
+    EXIT_USAGE,
+    Interrupted,
+    interruptible,
+    stop_on_signals,
+)
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
+#: Pixels per zone without ``--size`` or ``--adapt``.
+DEFAULT_SIZE = (200, 150)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -114,7 +127,17 @@ def _add_output_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--headless", action="store_true", help="SDL dummy video and audio")
     p.add_argument("--out", metavar="DIR", default=None,
                    help="write screenshots, film and stats.json here")
-    p.add_argument("--full-light", action="store_true", help="Blinn-Phong light, not ambient")
+    p.add_argument("--light", choices=sorted(LIGHT_MODELS), default=None,
+                   help="light model: per-zone Blinn-Phong or Phong, or flat ambient "
+                   "silhouettes (thesis 5.1.1: the lightest load) (default: "
+                   f"{DEFAULT_LIGHT}, the service's)")
+    p.add_argument("--full-light", dest="light", action="store_const", const="blinn",
+                   help="the same as --light blinn")
+    p.add_argument("--adapt", action="store_true",
+                   help="measure renders/s through the service (or --local) for a few "
+                   "seconds and choose light and size from "
+                   + ", ".join(str(look) for look in LADDER)
+                   + ": the best that keeps 10 renders/s (not with --light or --size)")
     add_lod_options(p)
 
 
@@ -163,7 +186,8 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=5,
                    help="view zones, 1-64 (default 5)")
-    add_size_option(p, (200, 150), "pixels per zone")
+    p.add_argument("--size", type=size, default=None, metavar="WxH",
+                   help=f"pixels per zone (default: {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})")
     p.add_argument("--refresh", type=float_range(0, lo_open=True), default=60.0,
                    metavar="HZ", help="refresh rate, Hz (default 60)")
 
@@ -181,6 +205,11 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
         parser.error(
             f"--zone {args.zone}: the display has {args.zones} zones, 0 to {args.zones - 1}"
         )
+    if args.adapt and (args.light is not None or args.size is not None):
+        parser.error("--adapt chooses the light and size itself: leave out --light, "
+                     "--full-light and --size, or --adapt")
+    args.light = args.light or DEFAULT_LIGHT
+    args.size = args.size or DEFAULT_SIZE
     problem = output_problem(args.out, folder=True) if args.out else None
     if problem:
         parser.error(f"--out {problem}")
@@ -194,49 +223,116 @@ def _backend(args: argparse.Namespace, settings: object) -> object:
     return ServiceBackend(args.service, args.frames, args.devices, settings, shatter=args.shatter)
 
 
-def _setup(args: argparse.Namespace) -> tuple:
-    """Scene, backend, devices, window, high scores and beeper from the arguments."""
-    import pygame
-
+def _backend_settings(args: argparse.Namespace, look: Look) -> object:
+    """The backends' settings for ``look`` and the other arguments."""
     from game.backends import BackendSettings
-    from game.display import GameWindow
-    from game.gameover import Beeper
-    from game.highscores import HighScores
+
+    lod = lod_settings(args)
+    display = DisplaySettings(zones=args.zones, cols=look.size[0], rows=look.size[1])
+    return BackendSettings(display, look.light, args.refresh,
+                           lod_error=lod.error_px if lod is not None else 0.0,
+                           lod_budget_ms=(lod.budget_ms or 0.0) if lod is not None else 0.0)
+
+
+def _start(args: argparse.Namespace, look: Look, game: GameSettings) -> object:
+    """A backend for ``look``, started on the game's scene as its first game begins."""
     from game.rules import new_game
     from game.scene import apply_states, attacker_mesh, game_scene, object_states
     from service.errors import ServiceError
 
-    cols, rows = args.size
-    display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
-    light = "blinn" if args.full_light else "ambient"
-    lod = lod_settings(args)
-    settings = BackendSettings(display, light, args.refresh,
-                               lod_error=lod.error_px if lod is not None else 0.0,
-                               lod_budget_ms=(lod.budget_ms or 0.0) if lod is not None else 0.0)
-    game = GameSettings(seed=args.seed, difficulty=args.difficulty)
     first = new_game(game)  # the scene starts as the first game does (no frame at the origin)
     scene = apply_states(game_scene(
         len(first.attackers),
-        args.full_light,
+        look.light != "ambient",
         attacker_mesh(args.attackers) if args.attackers else None,
     ), object_states(first))
-    backend = _backend(args, settings)
+    backend = _backend(args, _backend_settings(args, look))
     try:
         backend.start(scene)
     except ServiceError as exc:
         print(f"holo-game: service not reachable yet ({exc}); retrying (is holo-service "
               "running there? --local plays without it)", file=sys.stderr)
+    return backend
+
+
+def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
+    """``--adapt``: measure looks through the game's own backend and choose one."""
+    from game.adapt import AdaptSettings, adapt, measure
+    from game.bot import Bot
+    from game.rules import new_game, tick
+    from game.scene import object_states
+
+    settings = AdaptSettings()
+
+    def measure_look(look: Look) -> float:
+        state, bot = new_game(game), Bot()
+
+        def step(dt: float) -> list[dict]:
+            nonlocal state
+            if tick(state, bot.act(state, dt), dt):
+                state = new_game(game)  # a game over: the probe goes on with a new one
+            return object_states(state)
+
+        backend = _start(args, look, game)
+        try:
+            hz = measure(backend, step, settings.probe_s, args.wait, on_wait=_say_waiting)
+        finally:
+            backend.close()
+        print(f"holo-game: measured {look} per zone: {hz:.1f} renders/s", file=sys.stderr,
+              flush=True)
+        return hz
+
+    print("holo-game: measuring this machine's renders/s to choose light and size "
+          f"(needs {settings.need_hz:g}: {settings.target_hz:g} with a {settings.margin:g}x "
+          "margin)", file=sys.stderr, flush=True)
+    choice = adapt(measure_look, settings=settings)
+    print(f"holo-game: chose {choice.reason}", file=sys.stderr, flush=True)
+    return choice
+
+
+def _say_waiting(backend: object) -> None:
+    from game.client_loop import waiting_lines
+
+    warming = getattr(backend, "warming", None)
+    what = ("waiting for the render service: " + waiting_lines(warming)[0]
+            if warming is not None else "waiting for the first frame")
+    print(f"holo-game: {what} (to measure)", file=sys.stderr, flush=True)
+
+
+def _setup(args: argparse.Namespace) -> tuple:
+    """Scene, backend, devices, window, high scores and beeper from the arguments.
+
+    With ``--adapt`` the light and size are measured first (:func:`choose_look`);
+    ``args.look`` keeps what was used and why (``stats.json``'s ``look``).
+    """
+    from game.display import GameWindow
+    from game.highscores import HighScores
+    from game.sound import start_pygame
+
+    game = GameSettings(seed=args.seed, difficulty=args.difficulty)
+    if args.adapt:
+        choice = choose_look(args, game)
+        args.light, args.size = choice.look.light, choice.look.size
+        args.look = choice.as_dict()
+    else:
+        args.look = {"light": args.light, "size": list(args.size), "adapted": False,
+                     "reason": "as given"}
+    backend = _start(args, Look(args.light, tuple(args.size)), game)
     devices = None
     if args.devices:
         from drivers.subscriber import DeviceSubscriber
 
         devices = DeviceSubscriber(args.devices)
-    pygame.init()
+    beeper, no_sound, other = start_pygame(muted=args.headless)
+    for line in other:
+        print(line, file=sys.stderr)
+    if no_sound is not None:
+        print(f"holo-game: no sound device ({no_sound}): the beeps are muted", file=sys.stderr)
     window = GameWindow()
     scores = HighScores.load(args.highscores, recover=True)
     if scores.recovered_from is not None:
         print(f"holo-game: {scores.recovered_from}; starting a new table", file=sys.stderr)
-    return game, backend, devices, window, scores, Beeper(muted=args.headless)
+    return game, backend, devices, window, scores, beeper
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -245,14 +341,13 @@ def run(args: argparse.Namespace) -> dict:
     The stats are also kept in ``args.stats``, written and closed down even when a
     signal (:func:`~service.signals.interruptible`) ends the game.
     """
-    import pygame
-
     from game.capture import Capture
     from game.client_loop import GameClient, LoopSettings
 
     game, backend, devices, window, scores, beeper = _setup(args)
     loop = LoopSettings(
-        game, args.mode, args.zone, args.bot, name=args.name, bot_gives_up=args.bot_gives_up
+        game, args.mode, args.zone, args.bot, name=args.name, bot_gives_up=args.bot_gives_up,
+        press_start=not args.headless,  # headless, no one could press SPACE
     )
     client = GameClient(backend, window, loop, devices, scores, beeper)
     start = time.monotonic()
@@ -268,21 +363,41 @@ def run(args: argparse.Namespace) -> dict:
         if games_over(c, args.games):
             c.quit = True
 
+    stopped_by: Interrupted | None = None
     try:
         client.run(args.seconds, after_tick, args.wait if args.seconds is not None else None)
+    except Interrupted as exc:
+        stopped_by = exc
+        raise
     finally:
-        stats = client.stats(client.played_s())
-        stats["first_frame_s"] = (None if client.first_frame_t is None
-                                  else round(client.first_frame_t - start, 2))
-        backend.close()
-        if devices is not None:
-            devices.close()
-        if capture is not None:
-            stats["files"] = [p.name for p in capture.finish()]
-            (Path(args.out) / "stats.json").write_text(json.dumps(stats, indent=1))
-        pygame.quit()
-        args.stats = stats
-    return stats
+        # a second signal (Ctrl-C reaches the demo too, which then sends SIGTERM) must
+        # not cut the film and stats.json short: it waits until they are written
+        with stop_on_signals(threading.Event()) as later:
+            _finish(args, client, backend, devices, capture, start, stopped_by)
+        if later.signum is not None and stopped_by is None:
+            raise Interrupted(later.signum)
+    return args.stats
+
+
+def _finish(args: argparse.Namespace, client: Any, backend: Any, devices: Any, capture: Any,
+            start: float, stopped_by: Interrupted | None) -> None:
+    """Close down and write the run's files; the stats go to ``args.stats``."""
+    import pygame
+
+    stats = client.stats(client.played_s())
+    stats["first_frame_s"] = (None if client.first_frame_t is None
+                              else round(client.first_frame_t - start, 2))
+    stats["look"] = args.look  # the light and size used, and why
+    if stopped_by is not None:
+        stats["interrupted"] = str(stopped_by)  # "SIGINT": what was written so far
+    backend.close()
+    if devices is not None:
+        devices.close()
+    if capture is not None:
+        stats["files"] = [p.name for p in capture.finish()]
+        (Path(args.out) / "stats.json").write_text(json.dumps(stats, indent=1))
+    pygame.quit()
+    args.stats = stats
 
 
 def games_over(client: Any, games: int | None) -> bool:
@@ -347,7 +462,12 @@ class Progress:
 
 
 def _play(args: argparse.Namespace) -> int:
-    stats = run(args)
+    from game.adapt import NoFrameError
+
+    try:
+        stats = run(args)
+    except NoFrameError:  # while measuring for --adapt
+        stats, args.seconds = {"first_frame_s": None}, args.wait
     if args.seconds is not None and stats.get("first_frame_s") is None:
         print(f"holo-game: no frame came within {args.wait:g} s; see the service's output",
               file=sys.stderr)
