@@ -8,16 +8,19 @@ import sys
 import pytest
 
 from game import full_demo
+from game.run_folders import read_latest
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
 
 
 def test_full_loop_with_simulated_devices_and_a_real_service(tmp_path, capsys):
-    out = tmp_path / "demo-out"
-    # the loop, not the look: the lightest look, so the rates hold on a busy machine
-    rc = full_demo.main(["--out", str(out), "--seconds", "9", "--gives-up", "1.5", "--headless",
-                         "--light", "ambient", "--size", "160x120"])
+    root = tmp_path / "demo-out"
+    # the look adapts (measured through the service), so the rates hold on a busy machine
+    rc = full_demo.main(["--out", str(root), "--seconds", "9", "--gives-up", "1.5",
+                         "--headless"])
     assert rc == 0, capsys.readouterr().err
+    out = read_latest(root)
+    assert out.parent == root and out.is_dir()
     stats = json.loads((out / "stats.json").read_text())
     assert set(stats) >= {
         "refreshes",
@@ -36,18 +39,27 @@ def test_full_loop_with_simulated_devices_and_a_real_service(tmp_path, capsys):
     for name in ("mode-head.png", "mode-strip.png", "mode-zone.png", "mode-autostereogram.png",
                  "film.png", "gameover.png"):
         assert (out / name).stat().st_size > 1000
+    look = stats["look"]
+    assert look["adapted"] and look["measured"] and look["reason"]
     said = capsys.readouterr().out
     assert "holo-service at tcp://127.0.0.1:" in said
-    assert "ambient light at 160x120 per zone" in said
+    w, h = look["size"]
+    assert f" light at {w}x{h} per zone" in said
+    assert "chosen by measuring renders/s (" in said and look["reason"] in said
 
 
-def test_the_demo_shows_lit_zones_by_default_and_says_so():
-    args = full_demo.build_parser().parse_args([])
+@pytest.mark.parametrize(("argv", "look"), [
+    ([], ["--adapt"]),
+    (["--light", "ambient", "--size", "96x64"], ["--light", "ambient", "--size", "96x64"]),
+    (["--size", "96x64"], ["--light", "blinn", "--size", "96x64"]),
+    (["--light", "ambient"], ["--light", "ambient", "--size", "240x180"]),
+])
+def test_the_demo_adapts_its_look_unless_one_is_given(tmp_path, argv, look):
+    args = full_demo.build_parser().parse_args(argv)
+    args.run = tmp_path
     cmd = full_demo.game_args(args, "tcp://127.0.0.1:5555", "tcp://127.0.0.1:5560", True)
-    assert "--full-light" in cmd and cmd[cmd.index("--size") + 1] == "240x180"
-    lighter = full_demo.build_parser().parse_args(["--light", "ambient", "--size", "96x64"])
-    cmd = full_demo.game_args(lighter, None, "tcp://127.0.0.1:5560", True)
-    assert "--full-light" not in cmd and cmd[cmd.index("--size") + 1] == "96x64"
+    assert cmd[cmd.index("--devices") + 2:cmd.index("--bot")] == look
+    assert cmd[cmd.index("--out") + 1] == str(tmp_path)
 
 
 @pytest.mark.parametrize(
@@ -56,9 +68,9 @@ def test_the_demo_shows_lit_zones_by_default_and_says_so():
      "renders/s (meant: 10)"), (59.9, 4.0, "4.0 renders/s"), (59.9, 15.0, None)],
 )
 def test_the_summary_warns_when_the_rates_fall_short(refresh_hz, update_hz, warned):
-    args = full_demo.build_parser().parse_args([])
-    stats = {"refreshes": int(refresh_hz * 20), "refresh_hz": refresh_hz, "update_hz": update_hz}
-    lines = full_demo.rate_warnings(stats, args)
+    stats = {"refreshes": int(refresh_hz * 20), "refresh_hz": refresh_hz, "update_hz": update_hz,
+             "look": {"light": "blinn", "size": [240, 180]}}
+    lines = full_demo.rate_warnings(stats)
     if warned is None:
         assert lines == []
     else:
@@ -66,15 +78,15 @@ def test_the_summary_warns_when_the_rates_fall_short(refresh_hz, update_hz, warn
         assert refresh_hz == 0 or "--light ambient or --size 160x120" in lines[0]
 
 
-@pytest.mark.parametrize(("argv", "hint"), [
-    (["--light", "ambient"], "; --size 160x120 lightens the load"),
-    (["--size", "160x120"], "; --light ambient lightens the load"),
-    (["--light", "ambient", "--size", "160x120"], None),
+@pytest.mark.parametrize(("light", "size", "hint"), [
+    ("ambient", [240, 180], "; --size 160x120 lightens the load"),
+    ("blinn", [160, 120], "; --light ambient lightens the load"),
+    ("ambient", [160, 120], None),
 ])
-def test_the_warning_suggests_only_what_the_run_did_not_use(argv, hint):
-    args = full_demo.build_parser().parse_args(argv)
-    stats = {"refreshes": 600, "refresh_hz": 30.0, "update_hz": 2.0}
-    (line,) = full_demo.rate_warnings(stats, args)
+def test_the_warning_suggests_only_what_the_run_did_not_use(light, size, hint):
+    stats = {"refreshes": 600, "refresh_hz": 30.0, "update_hz": 2.0,
+             "look": {"light": light, "size": size}}
+    (line,) = full_demo.rate_warnings(stats)
     if hint is None:
         assert "lightens" not in line and line.endswith("than two quiet cores")
     else:

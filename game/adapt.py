@@ -1,0 +1,263 @@
+"""Choose the zone size and light from a short measurement at start (``holo-game --adapt``).
+
+The demo (``make demo``) and ``holo-game --adapt`` do not trust a fixed look: on a
+busy machine (another program on one core) the demo's lit 240x180 zones fell to
+1.4-6.7 renders a second, under the 10 it aims for.  So, before play, the game's own
+backend (the service it will play through, or ``--local``'s renderer) renders the
+game's scene with its objects moving for :attr:`AdaptSettings.probe_s` seconds per
+look, and the game plays with the best look of :data:`LADDER` whose measured rate
+leaves a margin over the target.
+
+The choice (:func:`choose`) and the order of measurements (:func:`next_probe`) are
+pure functions of the measurements, tested on given numbers; :func:`measure` is the
+only part that touches a backend.  Render time grows with the pixels per zone (the
+demo's renders/s times pixels stayed within 6 % from 240x180 to 320x240) and is
+lower in ambient light (:data:`LIGHT_COST`), so after a look falls short the next
+one measured is the first that this cost model predicts to meet the target, not
+the next rung.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from service.errors import HoloError
+from service.light import LightSettings
+
+#: The service's default light model (one source: :class:`service.light.LightSettings`).
+DEFAULT_LIGHT = LightSettings.model
+
+
+class NoFrameError(HoloError):
+    """No frame came within the wait while measuring (the service never got ready)."""
+
+
+@dataclass(frozen=True)
+class Look:
+    """A light model and a size per zone.
+
+    Attributes
+    ----------
+    light : str
+        ``ambient``, ``phong`` or ``blinn``.
+    size : tuple of 2 ints
+        (cols, rows) per zone.
+    """
+
+    light: str
+    size: tuple[int, int]
+
+    @property
+    def pixels(self) -> int:
+        """Pixels per zone."""
+        return self.size[0] * self.size[1]
+
+    @property
+    def cost(self) -> float:
+        """Relative render time: pixels times :data:`LIGHT_COST`."""
+        return self.pixels * LIGHT_COST.get(self.light, 1.0)
+
+    def __str__(self) -> str:
+        return f"{self.light} {self.size[0]}x{self.size[1]}"
+
+
+#: Render time relative to Blinn-Phong: the game's scene at 160x120 in 5 zones took
+#: 66.5 ms of CPU per render in ambient light against 83.5 ms lit (medians of 20,
+#: interleaved, on a loaded 2-core machine).
+LIGHT_COST = {"ambient": 0.8, "phong": 1.0, "blinn": 1.0}
+#: Looks best first, each a lighter load than the one before: lit at three sizes,
+#: then flat ambient (thesis 5.1.1) at two.
+LADDER: tuple[Look, ...] = (
+    Look(DEFAULT_LIGHT, (240, 180)),
+    Look(DEFAULT_LIGHT, (200, 150)),
+    Look(DEFAULT_LIGHT, (160, 120)),
+    Look("ambient", (160, 120)),
+    Look("ambient", (120, 90)),
+)
+
+
+@dataclass(frozen=True)
+class AdaptSettings:
+    """How the look is chosen.
+
+    Attributes
+    ----------
+    target_hz : float
+        Renders a second the run must keep.
+    margin : float
+        A look is taken when it measured ``margin`` times the target: the game's
+        own drawing and the load's ups and downs take some.
+    probe_s : float
+        Seconds of renders counted per look (after its first frame).
+    max_probes : int
+        Looks measured at most.
+    """
+
+    target_hz: float = 10.0
+    margin: float = 1.3
+    probe_s: float = 1.5
+    max_probes: int = 3
+
+    @property
+    def need_hz(self) -> float:
+        """Renders a second a look must measure to be taken."""
+        return self.target_hz * self.margin
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The look chosen, and why.
+
+    Attributes
+    ----------
+    look : Look
+    measured : tuple of (Look, float)
+        Renders a second of each look measured, in the order measured.
+    met : bool
+        The look measured at least :attr:`AdaptSettings.need_hz`.
+    reason : str
+        One line: what was measured and why this look.
+    """
+
+    look: Look
+    measured: tuple[tuple[Look, float], ...]
+    met: bool
+    reason: str
+
+    def as_dict(self) -> dict:
+        """For ``stats.json``: light, size, adapted, met, measured (renders/s), reason."""
+        return {
+            "light": self.look.light,
+            "size": list(self.look.size),
+            "adapted": True,
+            "met": self.met,
+            "measured": {str(look): round(hz, 2) for look, hz in self.measured},
+            "reason": self.reason,
+        }
+
+
+def predicted_hz(measured: dict[Look, float], look: Look) -> float:
+    """The rate ``look`` should reach, from the lightest look measured (cost ratio)."""
+    base = min(measured, key=lambda m: m.cost)
+    return measured[base] * base.cost / look.cost
+
+
+def next_probe(
+    ladder: tuple[Look, ...], measured: dict[Look, float], settings: AdaptSettings
+) -> Look | None:
+    """The next look to measure; None when :func:`choose` can decide.
+
+    The first rung comes first; after a shortfall, the best untried look lighter
+    than every one measured that is predicted (:func:`predicted_hz`) to meet the
+    need, else the lightest untried one.
+    """
+    if any(hz >= settings.need_hz for hz in measured.values()):
+        return None
+    if len(measured) >= settings.max_probes:
+        return None
+    if not measured:
+        return ladder[0]
+    lightest = min(m.cost for m in measured)
+    below = [look for look in ladder if look not in measured and look.cost < lightest]
+    if not below:
+        return None
+    meets = [look for look in below if predicted_hz(measured, look) >= settings.need_hz]
+    return meets[0] if meets else below[-1]
+
+
+def choose(
+    ladder: tuple[Look, ...], measured: dict[Look, float], settings: AdaptSettings
+) -> Choice:
+    """The best look that measured the need, else the fastest measured, with the reason.
+
+    Raises
+    ------
+    ValueError
+        Nothing was measured.
+    """
+    if not measured:
+        raise ValueError("no look was measured")
+    order = tuple(measured.items())
+    need = settings.need_hz
+    why = f"{settings.target_hz:g} renders/s needed with a {settings.margin:g}x margin"
+    meets = [look for look in ladder if measured.get(look, 0.0) >= need]
+    short = [f"{look} {hz:.1f}" for look, hz in order if hz < need]
+    if meets:
+        look = meets[0]
+        reason = (f"{look}: {measured[look]:.1f} renders/s measured ({why})"
+                  + (f"; too few at {', '.join(short)}" if short else ""))
+        return Choice(look, order, True, reason)
+    look = max(measured, key=lambda m: (measured[m], -m.cost))
+    reason = (f"{look}: the fastest measured ({', '.join(short)} renders/s), none reached "
+              f"{need:g} ({why}): the machine is busy")
+    return Choice(look, order, False, reason)
+
+
+def adapt(
+    measure_look: Callable[[Look], float],
+    ladder: tuple[Look, ...] = LADDER,
+    settings: AdaptSettings | None = None,
+) -> Choice:
+    """Measure looks (``measure_look(look)`` -> renders/s) as :func:`next_probe` says; choose."""
+    settings = settings or AdaptSettings()
+    measured: dict[Look, float] = {}
+    while (look := next_probe(ladder, measured, settings)) is not None:
+        measured[look] = measure_look(look)
+    return choose(ladder, measured, settings)
+
+
+def measure(
+    backend: object,
+    step: Callable[[float], list[dict]],
+    probe_s: float,
+    wait_s: float,
+    on_wait: Callable[[object], None] = lambda backend: None,
+    clock: Callable[[], float] = time.monotonic,
+    tick_s: float = 1 / 30,
+) -> float:
+    """Renders a second a started backend grafts while the objects move.
+
+    Parameters
+    ----------
+    backend : object
+        A :mod:`game.backends` backend, started on the game's scene.
+    step : callable
+        ``step(dt)`` -> the objects' states ``dt`` seconds on (the game's rules).
+    probe_s : float
+        Seconds counted, from the first frame of a render.
+    wait_s : float
+        Seconds to wait for that first frame (a service warming up).
+    on_wait : callable
+        Called about every 5 s while waiting (progress).
+
+    Returns
+    -------
+    float
+        Distinct renders shown per second.
+
+    Raises
+    ------
+    NoFrameError
+        No frame came within ``wait_s``.
+    """
+    start = last = clock()
+    first: float | None = None
+    seen: set[int] = set()
+    next_say = start + 5.0
+    while True:
+        now = clock()
+        if first is None and now - start > wait_s:
+            raise NoFrameError(f"no frame came within {wait_s:g} s")
+        if first is not None and now - first >= probe_s:
+            return max(len(seen) - 1, 0) / (now - first)  # the first one was there at 0
+        if first is None and now >= next_say:
+            next_say = now + 5.0
+            on_wait(backend)
+        backend.update(step(min(now - last, 0.1)))
+        last = now
+        frame = backend.frame(tick_s)
+        if frame is not None and frame.render_id >= 0:
+            first = now if first is None else first
+            seen.add(frame.render_id)

@@ -1,0 +1,140 @@
+"""The demo and ``holo-game --adapt`` choose light and size from a short measurement.
+
+The choice and the order of measurements are pure functions, tested here on given
+rates; ``test_game_full_loop.py`` runs it end to end through a real service.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from game import cli
+from game.adapt import (
+    DEFAULT_LIGHT,
+    LADDER,
+    AdaptSettings,
+    Look,
+    adapt,
+    choose,
+    next_probe,
+    predicted_hz,
+)
+from service.light import LightSettings
+
+S = AdaptSettings(target_hz=10.0, margin=1.3)  # a look must measure 13 renders/s
+TOP, LIT200, LIT160, AMB160, AMB120 = LADDER
+
+
+NAMES = dict(zip(("top", "lit200", "lit160", "amb160", "amb120"), LADDER, strict=True))
+
+
+def rates(**by_name: float):
+    """A measuring function from fixed rates (0 for the others), recording what it was asked."""
+    table = {NAMES[name]: hz for name, hz in by_name.items()}
+    asked: list[Look] = []
+
+    def measure(look: Look) -> float:
+        asked.append(look)
+        return table.get(look, 0.0)
+
+    return measure, asked
+
+
+def test_the_ladder_starts_lit_in_the_services_default_light():
+    assert DEFAULT_LIGHT == LightSettings().model == "blinn"
+    assert TOP == Look("blinn", (240, 180)) and AMB120.light == "ambient"
+    assert [look.pixels for look in LADDER] == sorted((look.pixels for look in LADDER),
+                                                     reverse=True)
+
+
+def test_a_quiet_machine_keeps_the_best_look_after_one_measurement():
+    measure, asked = rates(top=19.8)
+    choice = adapt(measure, settings=S)
+    assert asked == [TOP] and choice.look == TOP and choice.met
+    assert choice.reason.startswith("blinn 240x180: 19.8 renders/s measured")
+
+
+def test_a_shortfall_jumps_to_the_first_look_the_pixels_predict_to_meet():
+    # 9.1/s at 43,200 px: 200x150 (30,000) predicts 13.1, enough -> measured next
+    assert predicted_hz({TOP: 9.1}, LIT200) == pytest.approx(13.1, abs=0.05)
+    assert next_probe(LADDER, {TOP: 9.1}, S) == LIT200
+    # 6.5/s (the busy demo of the issue): 200x150 predicts 9.4, 160x120 14.6
+    assert next_probe(LADDER, {TOP: 6.5}, S) == LIT160
+    # 1.4/s: nothing is predicted to meet: the lightest look
+    assert next_probe(LADDER, {TOP: 1.4}, S) == AMB120
+
+
+def test_the_same_size_in_ambient_light_is_lighter_than_lit():
+    assert AMB160.cost == pytest.approx(0.8 * LIT160.cost)
+    assert next_probe(LADDER, {TOP: 6.5, LIT160: 11.0}, S) == AMB160  # predicted 13.75
+    assert next_probe(LADDER, {TOP: 6.5, LIT160: 9.0}, S) == AMB120  # 11.25: too few
+
+
+def test_the_best_look_that_met_is_chosen_and_the_reason_names_the_shortfall():
+    measure, asked = rates(top=6.5, lit160=14.2)
+    choice = adapt(measure, settings=S)
+    assert asked == [TOP, LIT160] and choice.look == LIT160 and choice.met
+    assert choice.reason == ("blinn 160x120: 14.2 renders/s measured (10 renders/s needed "
+                             "with a 1.3x margin); too few at blinn 240x180 6.5")
+    d = choice.as_dict()
+    assert d["light"] == "blinn" and d["size"] == [160, 120] and d["adapted"]
+    assert d["measured"] == {"blinn 240x180": 6.5, "blinn 160x120": 14.2}
+
+
+def test_when_nothing_meets_the_fastest_measured_is_taken_and_said_so():
+    measure, asked = rates(top=1.4, amb120=8.0)
+    choice = adapt(measure, settings=S)
+    assert asked == [TOP, AMB120]  # the lightest: nothing lighter to try
+    assert choice.look == AMB120 and not choice.met
+    assert "none reached 13" in choice.reason and "the machine is busy" in choice.reason
+
+
+def test_measurements_stop_at_max_probes():
+    measure, asked = rates(top=6.5, lit160=9.0, amb160=9.5, amb120=12.0)
+    choice = adapt(measure, settings=AdaptSettings(max_probes=2))
+    assert len(asked) == 2 and choice.look == LIT160 and not choice.met
+
+
+def test_looks_that_render_nothing_end_on_the_lightest():
+    measure, asked = rates()
+    choice = adapt(measure, settings=S)
+    assert asked == [TOP, AMB120] and choice.look == AMB120 and not choice.met
+
+
+def test_choose_needs_a_measurement():
+    with pytest.raises(ValueError, match="no look was measured"):
+        choose(LADDER, {}, S)
+
+
+def test_adapt_and_a_fixed_look_do_not_mix(capsys):
+    with pytest.raises(SystemExit) as exc:
+        parser = cli.build_parser()
+        cli.check_args(parser, parser.parse_args(["--adapt", "--size", "96x64"]))
+    assert exc.value.code == 2
+    assert "--adapt chooses the light and size itself" in capsys.readouterr().err
+
+
+def test_the_game_is_lit_by_default_with_the_services_light():
+    parser = cli.build_parser()
+    args = parser.parse_args([])
+    cli.check_args(parser, args)
+    assert args.light == LightSettings().model and args.size == cli.DEFAULT_SIZE
+    args = parser.parse_args(["--full-light"])
+    assert args.light == "blinn"
+    args = parser.parse_args(["--light", "ambient"])
+    assert args.light == "ambient"
+
+
+def test_holo_game_adapt_local_measures_chooses_and_says_so(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "lod"))
+    rc = cli.main(["--local", "--headless", "--adapt", "--bot", "--seconds", "1",
+                   "--out", str(tmp_path), "--highscores", str(tmp_path / "hs.json")])
+    assert rc == 0
+    err = capsys.readouterr().err
+    look = json.loads((tmp_path / "stats.json").read_text())["look"]
+    assert look["adapted"] and look["measured"] and look["reason"]
+    assert Look(look["light"], tuple(look["size"])) in LADDER
+    assert f"holo-game: chose {look['reason']}" in err
+    assert f"zones of {look['size'][0]}x{look['size'][1]}" in err
