@@ -42,6 +42,7 @@ from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.local_update import render_use_by
 from service.galilean.motion_field import render_with_motion
+from service.light import LightSettings
 from service.lod import LodState, lod_from
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
@@ -101,7 +102,8 @@ class BackendSettings:
     ----------
     display : DisplaySettings
     light_model : str
-        ``ambient`` (the game's fast mode, thesis 5.1.1) or ``blinn`` / ``phong``.
+        ``blinn`` / ``phong``, or ``ambient`` (the game's fast mode, thesis 5.1.1);
+        by default the service's (:class:`service.light.LightSettings`).
     refresh_hz : float
     order : int
         Galpixel order of the Galilean stage.
@@ -113,7 +115,7 @@ class BackendSettings:
     """
 
     display: DisplaySettings = DisplaySettings(zones=5, angle_deg=16.0, cols=200, rows=150)
-    light_model: str = "ambient"
+    light_model: str = LightSettings.model
     refresh_hz: float = 60.0
     order: int = 2
     lod_error: float = 0.0
@@ -129,8 +131,6 @@ class LocalRenderer:
     """
 
     def __init__(self, settings: BackendSettings | None = None) -> None:
-        from service.light import LightSettings
-
         self.settings = s = settings or BackendSettings()
         self.render_settings = RenderSettings(
             method="zbuffer", light=LightSettings(s.light_model),

@@ -23,6 +23,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings
+from service.light import LightSettings
 from service.net import protocol, wire
 from service.scene import Scene
 
@@ -123,7 +124,7 @@ class Settings:
 
     display: DisplaySettings
     method: str = "zbuffer"
-    light_model: str = "blinn"
+    light_model: str = LightSettings.model
     specular: str = "polygon"
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")

@@ -1,4 +1,5 @@
-"""Ambient-only light is the game's default; ``--full-light`` switches to Blinn-Phong.
+"""The game is lit like the demo by default (the service's light, Blinn-Phong);
+``--light ambient`` draws flat ambient silhouettes (thesis 5.1.1).
 
 The settings are taken from what :func:`game.cli._setup` hands the backend, and the
 frames from the real renderer with those settings (issue 6, thesis 5.1.1).
@@ -40,8 +41,8 @@ def _colours(pixels: np.ndarray) -> np.ndarray:
     return np.unique(pixels.reshape(-1, 3), axis=0)
 
 
-def test_ambient_only_light_is_the_default(setup_from_args):
-    game, backend = setup_from_args()
+def test_light_ambient_draws_flat_silhouettes(setup_from_args):
+    game, backend = setup_from_args("--light", "ambient")
     assert isinstance(backend, LocalRenderer)
     assert backend.settings.light_model == "ambient"
     assert backend.render_settings.light.model == "ambient"
@@ -58,8 +59,9 @@ def test_ambient_only_light_is_the_default(setup_from_args):
     assert len(_colours(view.colour)) <= 1 + len(backend._scene.objects)
 
 
-def test_full_light_switches_to_blinn_phong_and_shades(setup_from_args):
-    game, backend = setup_from_args("--full-light")
+@pytest.mark.parametrize("argv", [(), ("--full-light",), ("--light", "blinn")])
+def test_blinn_phong_is_the_default_and_shades(setup_from_args, argv):
+    game, backend = setup_from_args(*argv)
     assert backend.settings.light_model == "blinn"
     assert backend.render_settings.light.model == "blinn"
 
