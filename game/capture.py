@@ -8,8 +8,9 @@ with the first frame: a service that starts slowly (a loaded machine) would
 otherwise leave the first modes without a picture to screenshot.  It also saves
 ``gameover.png`` during the spectacular display, ``score.png`` on the score
 screen and ``reconnecting.png`` when the service drops, and keeps a small frame
-every ``film_every_s`` from the first frame on for ``film.png`` (a grid of frames)
-and ``demo.gif``.
+every ``film_every_s`` from the first render shown on for ``film.png`` (a grid of
+frames) and ``demo.gif``; a tick that shows no render (a new game's black "GET
+READY", a waiting or reconnecting banner) is left out of the film.
 The GIF is written with Pillow, which matplotlib already depends on; without it
 only the PNG strip is written.
 """
@@ -76,9 +77,10 @@ class Capture:
             self._once(client, "score")
         if not client.backend.connected and now - self.start > 0.5:
             self._once(client, "reconnecting")
-        if self._next_film is None and client.colour is not None:
-            self._next_film = now  # the film too starts with the first frame
-        if self._next_film is not None and now >= self._next_film and len(self.film) < FILM_FRAMES:
+        if self._next_film is None and client.picture_shown:
+            self._next_film = now  # the film starts with the first render shown
+        if (self._next_film is not None and now >= self._next_film
+                and len(self.film) < FILM_FRAMES and client.picture_shown):
             self._next_film = now + self.film_every_s
             small = pygame.transform.smoothscale(client.window.screen, FILM_SIZE)
             self.film.append(pygame.surfarray.array3d(small).swapaxes(0, 1).copy())

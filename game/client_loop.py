@@ -36,6 +36,9 @@ from game.rules import MOVES, GameSettings, GameState, new_game, nudge, tick
 from game.scene import object_states
 
 MAX_DT = 0.1
+#: The lines under "press SPACE to start".
+START_LINES = ["arrows or WASD move, Q and E in and out", "P pauses, Esc quits",
+               "(a gamepad's A starts too)"]
 #: Seconds a level-of-detail note stays in the HUD (the log has it for good), and
 #: the characters of it the HUD shows.
 NOTE_S, NOTE_CHARS = 10.0, 90
@@ -87,6 +90,9 @@ class LoopSettings:
         Name for the high-score table.
     bot_gives_up : float or None
         Attract mode: game seconds after which the bot stops dodging.
+    press_start : bool
+        A player's first game waits for SPACE (or a pad's start) on "press SPACE to
+        start"; the bot's games start at once.
     """
 
     game: GameSettings = field(default_factory=GameSettings)
@@ -96,6 +102,7 @@ class LoopSettings:
     tick_hz: float = 30.0
     name: str = "player"
     bot_gives_up: float | None = None
+    press_start: bool = False
 
 
 def waiting_lines(warming: dict) -> list[str]:
@@ -182,6 +189,8 @@ class GameClient:
         self._hold_for_frame = False
         #: a new game waits for its first frame (the window says "get ready")
         self._get_ready = False
+        #: the player's first game waits for SPACE ("press SPACE to start")
+        self.waiting_start = settings.press_start and not settings.attract
         self._last = clock()
         self._render_id = -1
         #: whether the last frame taken held the last render, and how many did
@@ -230,6 +239,9 @@ class GameClient:
         self.quit = True
 
     def _start(self) -> None:
+        if self.waiting_start:
+            self.waiting_start = False
+            return
         if self.over is not None or self.attract:
             self.attract = False
             self.new_game()
@@ -300,6 +312,8 @@ class GameClient:
             return  # a timed run's game starts with its first frame too
         if self._get_ready:
             return  # so does a new game: nothing moves before the player can see it
+        if self.waiting_start:
+            return  # the player's first game: nothing moves before SPACE
         moves = [a for a in got.actions if a in MOVES]
         if self.attract:
             moves = self.bot.act(self.state, dt)
@@ -356,6 +370,16 @@ class GameClient:
             self.lod_notes += [(now, note) for note in take()]
 
     # ----------------------------------------------------------------- draw
+    @property
+    def picture_shown(self) -> bool:
+        """The window shows a render.
+
+        Not the black "GET READY" of a new game, nor a blank refresh from before the
+        first render, nor a waiting or reconnecting banner.
+        """
+        return (self.colour is not None and not self._get_ready and self._render_id >= 0
+                and self.backend.connected)
+
     def shown_zone(self) -> int:
         """The zone the current mode shows."""
         return self.head_zone if self.mode == "head" else self.zone
@@ -397,6 +421,8 @@ class GameClient:
             self.window.banner("GAME OVER", self._score_lines())
         elif self._get_ready:
             self.window.banner("GET READY", ["the game starts with its first frame"])
+        elif self.waiting_start:
+            self.window.banner("press SPACE to start", START_LINES)
         elif self.state.paused:
             self.window.banner("paused", ["press P to go on"])
         self.disconnects += int(self._was_connected and not connected and warming is None)
