@@ -7,6 +7,7 @@ Examples::
     holo-sim tracker --faults corrupt=0.02,burst=0.01,split,seed=3 --seconds 30
     holo-sim tracker --udp 127.0.0.1:4242        # opentrack's UDP poses, one datagram each
     holo-sim dials --pty --seconds 20            # answers the init handshake, then plays
+    holo-sim dials --pty --script random         # any dial, any button (the game's pause too)
 
 The first stdout line is the path or URL a client opens (flushed at once).  When the
 run ends a JSON summary (bytes sent, faults applied; for a tracker, the host
@@ -30,7 +31,7 @@ from drivers.tracker_driver import add_command_options, commands_from_args
 from service.cli_args import float_range, int_range, output_problem, plain_help
 from service.errors import HoloError
 from service.signals import EXIT_FAILED, EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
-from sim_devices.dialbox import DialBoxSim, demo_script
+from sim_devices.dialbox import DEFAULT_SCRIPT, SCRIPTS, VIEW_DIALS, DialBoxSim
 from sim_devices.endpoints import DeviceRunner, TcpLink, UdpLink, udp_target
 from sim_devices.faults import FaultSpec
 from sim_devices.motion import MOTIONS, make_motion
@@ -85,6 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tracker waits for the host's start command before streaming "
                    "(again after each simulated unplug)")
     add_command_options(p)
+    p.add_argument("--script", choices=tuple(SCRIPTS), default=DEFAULT_SCRIPT,
+                   help="what the dial box plays: view turns only dials "
+                   f"{VIEW_DIALS[0]}-{VIEW_DIALS[-1]} (no game binds them: it never steers "
+                   "or pauses), random turns any dial and presses any button (the game's "
+                   "pause too), none plays nothing (default: %(default)s)")
     p.add_argument("--enabled", action="store_true",
                    help="dial box reports without waiting for the init handshake")
     p.add_argument("--faults", metavar="FAULT[=V],...", default="", help=FAULT_HELP)
@@ -126,7 +132,8 @@ def _device(args: argparse.Namespace) -> TrackerSim | DialBoxSim:
         return TrackerSim(args.protocol, motion, args.rate, args.byte_order,
                           commands_from_args(args),
                           autostart=not args.wait_start)
-    return DialBoxSim(demo_script(args.seed, args.seconds or 30.0), enabled=args.enabled)
+    script = SCRIPTS[args.script](args.seed, args.seconds or 30.0)
+    return DialBoxSim(script, enabled=args.enabled)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

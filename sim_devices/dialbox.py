@@ -41,8 +41,26 @@ class Press:
 Step = Turn | Press
 
 
+#: Dials the ``view`` script turns: none of them is bound by the game (it steers with
+#: dials 0-2 and its buttons move and pause), so the script shows the box alive in
+#: ``holo-view`` and the event counts without playing the game.
+VIEW_DIALS = (3, 4, 5, 6, 7)
+
+
+def view_script(seed: int = 0, seconds: float = 5.0, rate_hz: float = 2.0) -> list[Step]:
+    """A seeded script that only turns :data:`VIEW_DIALS`: no press, no steering."""
+    rng = random.Random(seed)
+    return [Turn(k / rate_hz, rng.choice(VIEW_DIALS), rng.choice((-1, 1)) * rng.randint(1, 30))
+            for k in range(int(seconds * rate_hz))]
+
+
+def no_script(seed: int = 0, seconds: float = 5.0) -> list[Step]:
+    """Nothing: the box answers the host and reports only what a test turns."""
+    return []
+
+
 def demo_script(seed: int = 0, seconds: float = 5.0, rate_hz: float = 10.0) -> list[Step]:
-    """A seeded script: turns of random dials and occasional presses."""
+    """A seeded script: turns of random dials and occasional presses of any button."""
     rng = random.Random(seed)
     steps: list[Step] = []
     n = int(seconds * rate_hz)
@@ -53,6 +71,16 @@ def demo_script(seed: int = 0, seconds: float = 5.0, rate_hz: float = 10.0) -> l
         else:
             steps.append(Press(t, rng.randrange(32), hold_s=0.5 / rate_hz))
     return steps
+
+
+#: ``holo-sim dials --script NAME`` -> the script maker ``(seed, seconds) -> steps``.
+SCRIPTS: dict[str, Callable[[int, float], list[Step]]] = {
+    "view": view_script,
+    "random": demo_script,
+    "none": no_script,
+}
+#: The script a dial box plays unless asked otherwise: it never steers or pauses.
+DEFAULT_SCRIPT = "view"
 
 
 class DialBoxSim:

@@ -91,3 +91,17 @@ def test_dial_box_script_decodes_to_the_script():
     assert all(finals.get(d, 0) == totals[d] for d in range(8))
     buttons = [e for e in events if isinstance(e, ButtonEvent)]
     assert len(buttons) == 2 * len(presses)
+
+
+def test_the_default_dial_script_never_steers_or_pauses_the_game():
+    from game.actions import DIAL_AXES
+    from sim_devices.cli import build_parser
+    from sim_devices.dialbox import DEFAULT_SCRIPT, SCRIPTS, VIEW_DIALS
+
+    assert build_parser().parse_args(["dials"]).script == DEFAULT_SCRIPT == "view"
+    script = SCRIPTS["view"](1, 60.0)
+    assert script and all(isinstance(step, Turn) for step in script)  # no button pressed
+    assert {step.dial for step in script} == set(VIEW_DIALS)
+    assert not set(VIEW_DIALS) & set(DIAL_AXES)  # the game steers with none of them
+    assert SCRIPTS["none"](1, 60.0) == []
+    assert any(isinstance(step, Press) for step in SCRIPTS["random"](1, 60.0))
