@@ -124,7 +124,15 @@ class Capture:
             self.files.append(client.window.screenshot(self.out / f"{name}.png"))
 
     def finish(self) -> list[Path]:
-        """Write the film strip (and the GIF when Pillow is there); returns every file."""
+        """Write the film strip (and the GIF when Pillow is there); returns every file.
+
+        A screenshot saved just as a signal stopped the run (before it was noted)
+        is listed too.
+        """
+        for name in sorted(self._taken):
+            path = self.out / f"{name}.png"
+            if path not in self.files and path.is_file():
+                self.files.append(path)
         if self.film:
             rows = -(-len(self.film) // FILM_COLUMNS)
             h, w = self.film[0].shape[:2]
