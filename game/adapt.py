@@ -6,7 +6,7 @@ busy machine (another program on one core) the demo's lit 240x180 zones fell to
 backend (the service it will play through, or ``--local``'s renderer) renders the
 game's scene with its objects moving for :attr:`AdaptSettings.probe_s` seconds per
 look, and the game plays with the best look of :data:`LADDER` whose measured rate
-leaves a margin over the target.
+leaves a margin over the target (when none does, the lightest look measured).
 
 The choice (:func:`choose`) and the order of measurements (:func:`next_probe`) are
 pure functions of the measurements, tested on given numbers; :func:`measure` is the
@@ -170,7 +170,7 @@ def next_probe(
 def choose(
     ladder: tuple[Look, ...], measured: dict[Look, float], settings: AdaptSettings
 ) -> Choice:
-    """The best look that measured the need, else the fastest measured, with the reason.
+    """The best look that measured the need, else the lightest measured, with the reason.
 
     Raises
     ------
@@ -189,8 +189,10 @@ def choose(
         reason = (f"{look}: {measured[look]:.1f} renders/s measured ({why})"
                   + (f"; too few at {', '.join(short)}" if short else ""))
         return Choice(look, order, True, reason)
-    look = max(measured, key=lambda m: (measured[m], -m.cost))
-    reason = (f"{look}: the fastest measured ({', '.join(short)} renders/s), none reached "
+    # the lightest: on a busy machine one 1.5 s measurement can be off by 3x or more
+    # (load 14 on 2 cores: 12.6 then 2.7 renders/s for the same look), the cost is not
+    look = min(measured, key=lambda m: m.cost)
+    reason = (f"{look}: the lightest measured ({', '.join(short)} renders/s), none reached "
               f"{need:g} ({why}): the machine is busy")
     return Choice(look, order, False, reason)
 

@@ -83,7 +83,7 @@ def test_the_best_look_that_met_is_chosen_and_the_reason_names_the_shortfall():
     assert d["measured"] == {"blinn 240x180": 6.5, "blinn 160x120": 14.2}
 
 
-def test_when_nothing_meets_the_fastest_measured_is_taken_and_said_so():
+def test_when_nothing_meets_the_lightest_measured_is_taken_and_said_so():
     measure, asked = rates(top=1.4, amb120=8.0)
     choice = adapt(measure, settings=S)
     assert asked == [TOP, AMB120]  # the lightest: nothing lighter to try
@@ -95,6 +95,13 @@ def test_measurements_stop_at_max_probes():
     measure, asked = rates(top=6.5, lit160=9.0, amb160=9.5, amb120=12.0)
     choice = adapt(measure, settings=AdaptSettings(max_probes=2))
     assert len(asked) == 2 and choice.look == LIT160 and not choice.met
+
+
+def test_a_noisy_busy_machine_gets_the_lightest_look_not_a_lucky_heavy_one():
+    # measured on a load of 14: the same looks gave 4.6, 0.7 and 1.3 renders/s
+    measure, asked = rates(top=4.6, amb160=0.7, amb120=1.3)
+    choice = adapt(measure, settings=S)
+    assert choice.look == AMB120 and "the lightest measured" in choice.reason
 
 
 def test_looks_that_render_nothing_end_on_the_lightest():
