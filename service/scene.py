@@ -183,6 +183,14 @@ class Scene:
         """
         return flatten(self)
 
+    def prepare_flatten(self) -> None:
+        """Build the placement-free arrays :meth:`flatten` caches, without placing anything.
+
+        Scenes moved from this one (:mod:`service.scene_motion`) share them: call
+        this before moving a scene several times, so they are built once.
+        """
+        _static_parts(self)
+
 
 @dataclass(frozen=True)
 class SceneArrays:
@@ -332,8 +340,9 @@ def _static_parts(scene: Scene) -> dict:
     polygons, counts, triangles, tri_poly, closed = _run_blocks(runs, v0, p0, t0, k)
     mats = _materials(objs)
     poly_obj = np.repeat(np.arange(len(objs), dtype=np.int64), n_p)
-    scene._static.clear()
-    scene._static.update(
+    # a new dict, not the old one refilled: scenes moved from this one share it
+    # (service.scene_motion), and one of them changed must not change the others'
+    scene._static = dict(
         key=key, polygons=polygons, counts=counts, triangles=triangles,
         triangle_polygon=tri_poly, polygon_object=poly_obj, materials=mats[poly_obj],
         polygon_closed=closed, runs=runs, vertex_start=v0, polygon_start=p0,

@@ -83,9 +83,12 @@ def advance_scene(scene: Scene, dt: float) -> Scene:
         m2 = MotionState(m.velocity + m.acceleration * dt, m.acceleration,
                          m.angular_velocity + m.angular_acceleration * dt, m.angular_acceleration)
         objs.append(replace(o, transform=advance_transform(o.transform, m, dt), motion=m2))
-    # billboard clouds carry no motion: they stay where they are
+    # billboard clouds carry no motion: they stay where they are.  The meshes and
+    # materials are the same, in the same order: the placement-free arrays that
+    # Scene.flatten caches (polygons, triangulation, materials) carry over, so the
+    # moved scene's flatten re-does only the transforms
     return Scene(objects=objs, lights=list(scene.lights), ambient=scene.ambient,
-                 billboards=list(scene.billboards))
+                 billboards=list(scene.billboards), _static=scene._static)
 
 
 def view_scene(scene: Scene, viewer: Transform) -> Scene:
@@ -109,7 +112,9 @@ def view_scene(scene: Scene, viewer: Transform) -> Scene:
     for li in scene.lights:
         vec = rt @ (li.vector - viewer.position) if li.kind == "point" else rt @ li.vector
         lights.append(replace(li, vector=vec))
-    return Scene(objects=objs, lights=lights, ambient=scene.ambient, billboards=boards)
+    # the same meshes and materials in the same order: share flatten's cached arrays
+    return Scene(objects=objs, lights=lights, ambient=scene.ambient, billboards=boards,
+                 _static=scene._static)
 
 
 def scene_at(

@@ -29,8 +29,7 @@ from service.billboard_render import draw_billboards, quad_points
 from service.display import DisplaySettings
 from service.frame import Frame
 from service.galilean.galpixmap import RGB_TO_ABC
-from service.light import shade, shade_linear
-from service.occlusion import Visibility
+from service.light import polygon_motion_tables, shade, shade_linear
 from service.pipeline import Renderer, RenderSettings
 from service.projection import project
 from service.scene import MotionState, Scene, Transform
@@ -231,6 +230,74 @@ def colour_derivatives(
     return out
 
 
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _motion_pixels(
+    tri_map: np.ndarray, geometry: tuple, vd: np.ndarray, tables: tuple,
+    der: np.ndarray, colour: np.ndarray, dcol: np.ndarray, obj: np.ndarray,
+) -> None:
+    """Every per-pixel map of an update in one pass over the visibility buffer.
+
+    Motion derivatives as :func:`interpolate` finds them (the same arithmetic), the
+    object each pixel shows, and, from per-polygon tables, the colour and its
+    derivatives (a copy per pixel: flat light is the same over a polygon).
+
+    Parameters
+    ----------
+    tri_map : ndarray, shape (Z, R, C), int32
+    geometry : tuple
+        ``(triangles (T, 3), triangle_polygon (T,), polygon_object (P,), proj (Z, V,
+        3))`` at the render time.
+    vd : ndarray, shape (3, Z, V, 3)
+        Vertex derivatives.
+    tables : tuple
+        ``(table (Z, P, 3) uint8, dtable (4, Z, P) float32, background (3,) uint8)``
+        (:func:`service.light.polygon_motion_tables`).
+    der : ndarray, shape (9, Z*R*C), float32
+        Out: the derivatives (zero where empty).
+    colour : ndarray, shape (Z*R*C, 3) or (0, 3), uint8
+        Out, unless it has no rows: colour (the background where empty).
+    dcol : ndarray, shape (4, Z*R*C) or (4, 0), float32
+        Out, unless it has no columns: colour derivatives (zero where empty).
+    obj : ndarray, shape (Z*R*C,), int32
+        Out: object index (-1 where empty).
+    """
+    triangles, tri_poly, poly_obj, proj = geometry
+    table, dtable, bg = tables
+    paint, dpaint = colour.shape[0] > 0, dcol.shape[1] > 0
+    nz, nr, nc = tri_map.shape
+    for zr in nb.prange(nz * nr):
+        z, r = zr // nr, zr % nr
+        y, base = r + 0.5, zr * nc
+        coef = np.empty((2, 9))  # A, B per derivative (k, d)
+        last = -1
+        for c in range(nc):
+            i, t = base + c, tri_map[z, r, c]
+            if t < 0:
+                for j in range(9):
+                    der[j, i] = 0.0
+                obj[i] = -1
+                if paint:
+                    colour[i, 0], colour[i, 1], colour[i, 2] = bg[0], bg[1], bg[2]
+                if dpaint:
+                    for j in range(4):
+                        dcol[j, i] = 0.0
+                continue
+            if t != last:
+                last = t
+                _row_setup(triangles[t], proj[z], vd[:, z], y, coef)
+            x = c + 0.5
+            for j in range(9):
+                der[j, i] = coef[0, j] + coef[1, j] * x
+            p = tri_poly[t]
+            obj[i] = poly_obj[p]
+            if paint:
+                colour[i, 0], colour[i, 1], colour[i, 2] = table[z, p, 0], table[z, p, 1], \
+                    table[z, p, 2]
+            if dpaint:
+                for j in range(4):
+                    dcol[j, i] = dtable[j, z, p]
+
+
 def render_with_motion(
     renderer: Renderer,
     scene: Scene,
@@ -244,6 +311,14 @@ def render_with_motion(
     h: float = 0.25,
 ) -> RenderedUpdate:
     """Render the scene at time ``t`` (seconds after its state) with per-pixel motion.
+
+    One visibility pass, at ``t``; the scene is only placed (not rendered) at the
+    other four times, for the vertex derivatives.  With flat (``polygon``) light,
+    light at ``t - h, t, t + h`` is one pass over the polygons shown
+    (:func:`service.light.polygon_motion_tables`), and one pass over the pixels
+    (:func:`_motion_pixels`) writes colour, colour derivatives, motion derivatives
+    and the object map.  Per-vertex and per-point light shade the pixels at the
+    three times (:func:`service.light.shade_linear`).
 
     Parameters
     ----------
@@ -259,7 +334,7 @@ def render_with_motion(
     viewer, viewer_motion : optional
         The viewer's pose and motion at time 0 (None: fixed at the identity).
     colour_motion : bool
-        Also compute colour derivatives (two extra shading passes).
+        Also compute colour derivatives.
     h : float
         Difference step in refreshes.
 
@@ -274,39 +349,55 @@ def render_with_motion(
         scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod, clouds=False)
     t0 = time.perf_counter()
     period = 1.0 / refresh_hz
+    scene.prepare_flatten()  # the five placements below share its cached arrays
     scenes = [scene_at(scene, t + k * h * period, viewer, viewer_motion) for k in (-2, -1, 0, 1, 2)]
     arrays = [s.flatten() for s in scenes]
     projs = np.stack([project(a.vertices, display) for a in arrays])
-    vis, _, _ = renderer.visibility(arrays[2], display, settings)
+    now = arrays[2]
+    vis, _, _ = renderer.visibility(now, display, settings)
     boards = None
     if scenes[2].billboards:  # into the same depth buffer, as Renderer.render draws them
         boards = draw_billboards(scenes[2].billboards, display, vis, settings.method,
                                  scenes[2].lights, scenes[2].ambient, settings.light)
         stats["billboards"] = boards.stats
-    lin = [shade_linear(arrays[i], projs[i], vis, display, scenes[i].lights, scenes[i].ambient,
-                        settings.light) for i in (1, 2, 3)]
-    colour = shade(arrays[2], projs[2], vis, display, scenes[2].lights, scenes[2].ambient,
-                   settings.light)  # quantised exactly as Renderer.render does
-    if boards is not None:
-        boards.paint(colour)
     vd = vertex_derivatives(projs, h)
-    der = interpolate(np.ascontiguousarray(vis.triangle, np.int32), arrays[2].triangles,
-                      np.ascontiguousarray(projs[2]), np.ascontiguousarray(vd))
-    if boards is not None:  # billboard pixels move with their (rigid, planar) quads
+    tri_map = np.ascontiguousarray(vis.triangle, np.int32)
+    zrc = tri_map.shape
+    der = np.empty((3, 3, *zrc), np.float32)
+    obj = np.empty(zrc, np.int32)
+    flat = settings.light.evaluation == "polygon"
+    times = (1, 2, 3) if colour_motion else (2,)
+    if flat:
+        colour = np.empty((*zrc, 3), np.uint8)
+        dcol = np.empty((4, *zrc), np.float32) if colour_motion else None
+        tables = polygon_motion_tables(
+            [arrays[i] for i in times], vis, display, [scenes[i].lights for i in times],
+            scenes[2].ambient, settings.light, (255.0 / (2.0 * h), 255.0 / (h * h)),
+            RGB_TO_ABC)
+    else:
+        colour = shade(now, projs[2], vis, display, scenes[2].lights, scenes[2].ambient,
+                       settings.light)  # quantised exactly as Renderer.render does
+        dcol = colour_derivatives(
+            [shade_linear(arrays[i], projs[i], vis, display, scenes[i].lights,
+                          scenes[i].ambient, settings.light) for i in (1, 2, 3)],
+            h) if colour_motion else None
+        tables = (np.zeros((0, 0, 3), np.uint8), np.zeros((4, 0, 0), np.float32),
+                  np.zeros(3, np.uint8))
+    n = tri_map.size
+    _motion_pixels(
+        tri_map, (now.triangles, now.triangle_polygon, now.polygon_object,
+                  np.ascontiguousarray(projs[2])),
+        np.ascontiguousarray(vd), tables, der.reshape(9, n),
+        colour.reshape(n, 3) if flat else np.empty((0, 3), np.uint8),
+        dcol.reshape(4, n) if flat and dcol is not None else np.empty((4, 0), np.float32),
+        obj.reshape(n))
+    if boards is not None:  # billboard pixels: their colour, moving with their quads
+        boards.paint(colour)
         corners = [project(quad_points(s.billboards), display) for s in scenes]
         boards.write_motion(vertex_derivatives(np.stack(corners), h), der)
-    dcol = colour_derivatives(lin, h) if colour_motion else None
-    obj = _object_map(vis, arrays[2].triangle_polygon, arrays[2].polygon_object)
     if lod:  # the LOD time budget's cost model learns from this render's cost
-        renderer.lod.observe(arrays[2].triangles.shape[0], (time.perf_counter() - t0) * 1e3)
+        renderer.lod.observe(now.triangles.shape[0], (time.perf_counter() - t0) * 1e3)
     frame = Frame(colour=colour, depth=vis.depth, stats=stats)
     points = projs[2][..., :2].reshape(-1, 2)
     pder = vd[..., :2].reshape(3, -1, 2)
     return RenderedUpdate(frame, der, dcol, obj, viewer_motion or MotionState(), points, pder)
-
-
-def _object_map(vis: Visibility, tri_poly: np.ndarray, poly_obj: np.ndarray) -> np.ndarray:
-    """Object index per pixel (Z, R, C) int32, -1 where empty."""
-    t = vis.triangle
-    obj = poly_obj[tri_poly[np.maximum(t, 0)]] if tri_poly.size else np.zeros(t.shape, np.int64)
-    return np.where(t >= 0, obj, -1).astype(np.int32)
