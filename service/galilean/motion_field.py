@@ -32,8 +32,8 @@ from service.galilean.galpixmap import RGB_TO_ABC
 from service.light import polygon_motion_tables, shade, shade_linear
 from service.pipeline import Renderer, RenderSettings
 from service.projection import project
-from service.scene import MotionState, Scene, Transform
-from service.scene_motion import scene_at
+from service.scene import MotionState, Scene, Transform, flatten
+from service.scene_motion import advance_transform, placements, scene_at, view_lights
 
 #: Five-point central-difference weights of the 1st and 2nd derivative, offsets -2..2
 #: (the 3rd uses ``(p2 - 2 p1 + 2 m1 - m2) / 2``).
@@ -262,40 +262,54 @@ def _motion_pixels(
         Out: object index (-1 where empty).
     """
     triangles, tri_poly, poly_obj, proj = geometry
-    table, dtable, bg = tables
-    paint, dpaint = colour.shape[0] > 0, dcol.shape[1] > 0
     nz, nr, nc = tri_map.shape
     for zr in nb.prange(nz * nr):
         z, r = zr // nr, zr % nr
-        y, base = r + 0.5, zr * nc
         coef = np.empty((2, 9))  # A, B per derivative (k, d)
-        last = -1
-        for c in range(nc):
-            i, t = base + c, tri_map[z, r, c]
-            if t < 0:
-                for j in range(9):
-                    der[j, i] = 0.0
-                obj[i] = -1
-                if paint:
-                    colour[i, 0], colour[i, 1], colour[i, 2] = bg[0], bg[1], bg[2]
-                if dpaint:
-                    for j in range(4):
-                        dcol[j, i] = 0.0
-                continue
-            if t != last:
-                last = t
-                _row_setup(triangles[t], proj[z], vd[:, z], y, coef)
-            x = c + 0.5
-            for j in range(9):
-                der[j, i] = coef[0, j] + coef[1, j] * x
-            p = tri_poly[t]
-            obj[i] = poly_obj[p]
-            if paint:
-                colour[i, 0], colour[i, 1], colour[i, 2] = table[z, p, 0], table[z, p, 1], \
-                    table[z, p, 2]
-            if dpaint:
-                for j in range(4):
-                    dcol[j, i] = dtable[j, z, p]
+        c = 0
+        while c < nc:  # runs of one triangle (or none): each map is written run by run
+            t, end = tri_map[z, r, c], c + 1
+            while end < nc and tri_map[z, r, end] == t:
+                end += 1
+            if t >= 0:
+                _row_setup(triangles[t], proj[z], vd[:, z], r + 0.5, coef)
+            else:
+                coef[:] = 0.0
+            _write_run(z, zr * nc, c, end, t, coef, tri_poly, poly_obj, tables, der, colour, dcol,
+                       obj)
+            c = end
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _write_run(
+    z: int, base: int, c0: int, c1: int, t: int, coef: np.ndarray, tri_poly: np.ndarray,
+    poly_obj: np.ndarray, tables: tuple, der: np.ndarray, colour: np.ndarray,
+    dcol: np.ndarray, obj: np.ndarray,
+) -> None:
+    """:func:`_motion_pixels` for columns ``c0..c1-1`` of a row, all showing triangle ``t``.
+
+    ``z`` is the zone, ``base`` the row's first flat index.  Map by map, so that
+    each loop writes one array in order (and vectorises).
+    """
+    table, dtable, bg = tables
+    for j in range(9):
+        a, b = coef[0, j], coef[1, j]
+        for c in range(c0, c1):
+            der[j, base + c] = a + b * (c + 0.5)
+    p = tri_poly[t] if t >= 0 else -1
+    o = poly_obj[p] if t >= 0 else -1
+    for c in range(c0, c1):
+        obj[base + c] = o
+    if colour.shape[0] > 0:
+        rgb = bg if t < 0 else table[z, p]
+        for c in range(c0, c1):
+            for ch in range(3):
+                colour[base + c, ch] = rgb[ch]
+    if dcol.shape[1] > 0:
+        for j in range(4):
+            v = 0.0 if t < 0 else dtable[j, z, p]
+            for c in range(c0, c1):
+                dcol[j, base + c] = v
 
 
 def render_with_motion(
@@ -349,16 +363,20 @@ def render_with_motion(
         scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod, clouds=False)
     t0 = time.perf_counter()
     period = 1.0 / refresh_hz
-    scene.prepare_flatten()  # the five placements below share its cached arrays
-    scenes = [scene_at(scene, t + k * h * period, viewer, viewer_motion) for k in (-2, -1, 0, 1, 2)]
-    arrays = [s.flatten() for s in scenes]
+    dts = [t + k * h * period for k in (-2, -1, 0, 1, 2)]
+    pos, quat = placements(scene, dts, viewer, viewer_motion)
+    arrays = [flatten(scene, quat[i], pos[i]) for i in range(5)]
     projs = np.stack([project(a.vertices, display) for a in arrays])
     now = arrays[2]
+    lights = [scene.lights] * 5 if viewer is None else [
+        view_lights(scene.lights, advance_transform(viewer, viewer_motion or MotionState(), dt))
+        for dt in dts]
     vis, _, _ = renderer.visibility(now, display, settings)
     boards = None
-    if scenes[2].billboards:  # into the same depth buffer, as Renderer.render draws them
-        boards = draw_billboards(scenes[2].billboards, display, vis, settings.method,
-                                 scenes[2].lights, scenes[2].ambient, settings.light)
+    if scene.billboards:  # into the same depth buffer, as Renderer.render draws them
+        clouds = [scene_at(scene, dt, viewer, viewer_motion).billboards for dt in dts]
+        boards = draw_billboards(clouds[2], display, vis, settings.method, lights[2],
+                                 scene.ambient, settings.light)
         stats["billboards"] = boards.stats
     vd = vertex_derivatives(projs, h)
     tri_map = np.ascontiguousarray(vis.triangle, np.int32)
@@ -371,15 +389,15 @@ def render_with_motion(
         colour = np.empty((*zrc, 3), np.uint8)
         dcol = np.empty((4, *zrc), np.float32) if colour_motion else None
         tables = polygon_motion_tables(
-            [arrays[i] for i in times], vis, display, [scenes[i].lights for i in times],
-            scenes[2].ambient, settings.light, (255.0 / (2.0 * h), 255.0 / (h * h)),
+            [arrays[i] for i in times], vis, display, [lights[i] for i in times],
+            scene.ambient, settings.light, (255.0 / (2.0 * h), 255.0 / (h * h)),
             RGB_TO_ABC)
     else:
-        colour = shade(now, projs[2], vis, display, scenes[2].lights, scenes[2].ambient,
+        colour = shade(now, projs[2], vis, display, lights[2], scene.ambient,
                        settings.light)  # quantised exactly as Renderer.render does
         dcol = colour_derivatives(
-            [shade_linear(arrays[i], projs[i], vis, display, scenes[i].lights,
-                          scenes[i].ambient, settings.light) for i in (1, 2, 3)],
+            [shade_linear(arrays[i], projs[i], vis, display, lights[i], scene.ambient,
+                          settings.light) for i in (1, 2, 3)],
             h) if colour_motion else None
         tables = (np.zeros((0, 0, 3), np.uint8), np.zeros((4, 0, 0), np.float32),
                   np.zeros(3, np.uint8))
@@ -393,7 +411,7 @@ def render_with_motion(
         obj.reshape(n))
     if boards is not None:  # billboard pixels: their colour, moving with their quads
         boards.paint(colour)
-        corners = [project(quad_points(s.billboards), display) for s in scenes]
+        corners = [project(quad_points(c), display) for c in clouds]
         boards.write_motion(vertex_derivatives(np.stack(corners), h), der)
     if lod:  # the LOD time budget's cost model learns from this render's cost
         renderer.lod.observe(now.triangles.shape[0], (time.perf_counter() - t0) * 1e3)
