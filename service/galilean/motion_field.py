@@ -109,6 +109,69 @@ def _weighted(weights: np.ndarray, p: np.ndarray) -> np.ndarray:
     return out
 
 
+def project_motion(vertices: np.ndarray, display: DisplaySettings,
+                   h: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~service.projection.project` at the five times and :func:`vertex_derivatives`.
+
+    One pass over the vertices, the same values bit for bit.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (5, V, 3)
+        World vertices at ``t - 2h .. t + 2h``.
+    display : DisplaySettings
+    h : float
+        Step in refreshes.
+
+    Returns
+    -------
+    projections : ndarray, shape (5, Z, V, 3)
+    derivatives : ndarray, shape (3, Z, V, 3)
+    """
+    n = vertices.shape[1]
+    proj = np.empty((5, display.zones, n, 3))
+    vd = np.empty((3, display.zones, n, 3))
+    _project_motion(np.ascontiguousarray(vertices, np.float64), display.shears(),
+                    (display.pixel_size, display.width / 2, display.height / 2),
+                    STENCIL, (h, h**2, 2 * h**3), proj, vd)
+    return proj, vd
+
+
+@nb.njit(cache=True, nogil=True)
+def _project_motion(vertices: np.ndarray, shears: np.ndarray, grid: tuple, stencil: np.ndarray,
+                    steps: tuple, proj: np.ndarray, vd: np.ndarray) -> None:
+    """:func:`project_motion` into ``proj`` (5, Z, V, 3) and ``vd`` (3, Z, V, 3).
+
+    ``grid`` is ``(pixel size, half width, half height)``, ``steps`` ``(h, h^2,
+    2 h^3)``; each value is found as :func:`service.projection.project` and
+    :func:`vertex_derivatives` find it, operation by operation.
+    """
+    s, half_width, half_height = grid
+    w1, w2 = stencil[0], stencil[1]
+    for v in range(vertices.shape[1]):
+        for k in range(shears.shape[0]):
+            for i in range(5):
+                x, y, z = vertices[i, v, 0], vertices[i, v, 1], vertices[i, v, 2]
+                proj[i, k, v, 0] = (x - z * shears[k] + half_width) / s
+                proj[i, k, v, 1] = (half_height - y) / s
+                proj[i, k, v, 2] = -z
+            for d in range(3):
+                p0, p1, p2 = proj[0, k, v, d], proj[1, k, v, d], proj[2, k, v, d]
+                p3, p4 = proj[3, k, v, d], proj[4, k, v, d]
+                a = w1[0] * p0
+                a += w1[1] * p1
+                a += w1[3] * p3  # w1[2] is 0: vertex_derivatives skips it too
+                a += w1[4] * p4
+                vd[0, k, v, d] = a / steps[0]
+                a = w2[0] * p0
+                a += w2[1] * p1
+                a += w2[2] * p2
+                a += w2[3] * p3
+                a += w2[4] * p4
+                vd[1, k, v, d] = a / steps[1]
+                vd[2, k, v, d] = (p4 - 2 * p3 + 2 * p1 - p0) / steps[2]
+
+
 @nb.njit(cache=True, nogil=True, parallel=True)
 def interpolate(
     tri_map: np.ndarray, triangles: np.ndarray, proj: np.ndarray, vd: np.ndarray
@@ -262,54 +325,53 @@ def _motion_pixels(
         Out: object index (-1 where empty).
     """
     triangles, tri_poly, poly_obj, proj = geometry
+    table, dtable, bg = tables
+    paint, dpaint = colour.shape[0] > 0, dcol.shape[1] > 0
     nz, nr, nc = tri_map.shape
     for zr in nb.prange(nz * nr):
         z, r = zr // nr, zr % nr
+        y, base = r + 0.5, zr * nc
         coef = np.empty((2, 9))  # A, B per derivative (k, d)
-        c = 0
-        while c < nc:  # runs of one triangle (or none): each map is written run by run
-            t, end = tri_map[z, r, c], c + 1
-            while end < nc and tri_map[z, r, end] == t:
-                end += 1
-            if t >= 0:
-                _row_setup(triangles[t], proj[z], vd[:, z], r + 0.5, coef)
-            else:
-                coef[:] = 0.0
-            _write_run(z, zr * nc, c, end, t, coef, tri_poly, poly_obj, tables, der, colour, dcol,
-                       obj)
-            c = end
+        last, c = -1, 0
+        while c < nc:
+            t = tri_map[z, r, c]
+            if t < 0:  # a run of empty pixels, written map by map
+                end = c + 1
+                while end < nc and tri_map[z, r, end] < 0:
+                    end += 1
+                _write_empty(base + c, base + end, bg, der, colour, dcol, obj)
+                c = end
+                continue
+            if t != last:
+                last = t
+                _row_setup(triangles[t], proj[z], vd[:, z], y, coef)
+            i, x = base + c, c + 0.5
+            for j in range(9):
+                der[j, i] = coef[0, j] + coef[1, j] * x
+            p = tri_poly[t]
+            obj[i] = poly_obj[p]
+            if paint:
+                colour[i, 0], colour[i, 1], colour[i, 2] = table[z, p, 0], table[z, p, 1], \
+                    table[z, p, 2]
+            if dpaint:
+                for j in range(4):
+                    dcol[j, i] = dtable[j, z, p]
+            c += 1
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _write_run(
-    z: int, base: int, c0: int, c1: int, t: int, coef: np.ndarray, tri_poly: np.ndarray,
-    poly_obj: np.ndarray, tables: tuple, der: np.ndarray, colour: np.ndarray,
-    dcol: np.ndarray, obj: np.ndarray,
+def _write_empty(
+    i0: int, i1: int, bg: np.ndarray, der: np.ndarray, colour: np.ndarray, dcol: np.ndarray,
+    obj: np.ndarray,
 ) -> None:
-    """:func:`_motion_pixels` for columns ``c0..c1-1`` of a row, all showing triangle ``t``.
-
-    ``z`` is the zone, ``base`` the row's first flat index.  Map by map, so that
-    each loop writes one array in order (and vectorises).
-    """
-    table, dtable, bg = tables
+    """:func:`_motion_pixels`' empty pixels ``i0..i1-1``: map by map, each loop in order."""
     for j in range(9):
-        a, b = coef[0, j], coef[1, j]
-        for c in range(c0, c1):
-            der[j, base + c] = a + b * (c + 0.5)
-    p = tri_poly[t] if t >= 0 else -1
-    o = poly_obj[p] if t >= 0 else -1
-    for c in range(c0, c1):
-        obj[base + c] = o
-    if colour.shape[0] > 0:
-        rgb = bg if t < 0 else table[z, p]
-        for c in range(c0, c1):
-            for ch in range(3):
-                colour[base + c, ch] = rgb[ch]
-    if dcol.shape[1] > 0:
-        for j in range(4):
-            v = 0.0 if t < 0 else dtable[j, z, p]
-            for c in range(c0, c1):
-                dcol[j, base + c] = v
+        der[j, i0:i1] = 0.0
+    obj[i0:i1] = -1
+    for i in range(i0, min(i1, colour.shape[0])):
+        colour[i, 0], colour[i, 1], colour[i, 2] = bg[0], bg[1], bg[2]
+    for j in range(dcol.shape[0] if dcol.shape[1] > 0 else 0):
+        dcol[j, i0:i1] = 0.0
 
 
 def render_with_motion(
@@ -366,7 +428,7 @@ def render_with_motion(
     dts = [t + k * h * period for k in (-2, -1, 0, 1, 2)]
     pos, quat = placements(scene, dts, viewer, viewer_motion)
     arrays = [flatten(scene, quat[i], pos[i]) for i in range(5)]
-    projs = np.stack([project(a.vertices, display) for a in arrays])
+    projs, vd = project_motion(np.stack([a.vertices for a in arrays]), display, h)
     now = arrays[2]
     lights = [scene.lights] * 5 if viewer is None else [
         view_lights(scene.lights, advance_transform(viewer, viewer_motion or MotionState(), dt))
@@ -378,7 +440,6 @@ def render_with_motion(
         boards = draw_billboards(clouds[2], display, vis, settings.method, lights[2],
                                  scene.ambient, settings.light)
         stats["billboards"] = boards.stats
-    vd = vertex_derivatives(projs, h)
     tri_map = np.ascontiguousarray(vis.triangle, np.int32)
     zrc = tri_map.shape
     der = np.empty((3, 3, *zrc), np.float32)
