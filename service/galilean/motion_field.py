@@ -137,39 +137,54 @@ def project_motion(vertices: np.ndarray, display: DisplaySettings,
     return proj, vd
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _project_motion(vertices: np.ndarray, shears: np.ndarray, grid: tuple, stencil: np.ndarray,
                     steps: tuple, proj: np.ndarray, vd: np.ndarray) -> None:
     """:func:`project_motion` into ``proj`` (5, Z, V, 3) and ``vd`` (3, Z, V, 3).
 
     ``grid`` is ``(pixel size, half width, half height)``, ``steps`` ``(h, h^2,
     2 h^3)``; each value is found as :func:`service.projection.project` and
-    :func:`vertex_derivatives` find it, operation by operation.
+    :func:`vertex_derivatives` find it, operation by operation.  Zones differ only
+    in the column: a vertex's row and depth, and their derivatives, are found once
+    and copied.  Vertices in parallel.
     """
     s, half_width, half_height = grid
-    w1, w2 = stencil[0], stencil[1]
-    for v in range(vertices.shape[1]):
-        for k in range(shears.shape[0]):
-            for i in range(5):
-                x, y, z = vertices[i, v, 0], vertices[i, v, 1], vertices[i, v, 2]
+    zones = shears.shape[0]
+    for v in nb.prange(vertices.shape[1]):
+        for i in range(5):
+            x, y, z = vertices[i, v, 0], vertices[i, v, 1], vertices[i, v, 2]
+            row = (half_height - y) / s
+            for k in range(zones):
                 proj[i, k, v, 0] = (x - z * shears[k] + half_width) / s
-                proj[i, k, v, 1] = (half_height - y) / s
+                proj[i, k, v, 1] = row
                 proj[i, k, v, 2] = -z
-            for d in range(3):
-                p0, p1, p2 = proj[0, k, v, d], proj[1, k, v, d], proj[2, k, v, d]
-                p3, p4 = proj[3, k, v, d], proj[4, k, v, d]
-                a = w1[0] * p0
-                a += w1[1] * p1
-                a += w1[3] * p3  # w1[2] is 0: vertex_derivatives skips it too
-                a += w1[4] * p4
-                vd[0, k, v, d] = a / steps[0]
-                a = w2[0] * p0
-                a += w2[1] * p1
-                a += w2[2] * p2
-                a += w2[3] * p3
-                a += w2[4] * p4
-                vd[1, k, v, d] = a / steps[1]
-                vd[2, k, v, d] = (p4 - 2 * p3 + 2 * p1 - p0) / steps[2]
+        for k in range(zones):
+            _stencil(proj, k, v, 0, stencil, steps, vd, k + 1)
+        _stencil(proj, 0, v, 1, stencil, steps, vd, zones)
+        _stencil(proj, 0, v, 2, stencil, steps, vd, zones)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _stencil(proj: np.ndarray, k: int, v: int, d: int, stencil: np.ndarray, steps: tuple,
+             vd: np.ndarray, k_end: int) -> None:
+    """:func:`vertex_derivatives` of ``proj[:, k, v, d]`` into ``vd[:, k:k_end, v, d]``."""
+    w1, w2 = stencil[0], stencil[1]
+    p0, p1, p2 = proj[0, k, v, d], proj[1, k, v, d], proj[2, k, v, d]
+    p3, p4 = proj[3, k, v, d], proj[4, k, v, d]
+    a = w1[0] * p0
+    a += w1[1] * p1
+    a += w1[3] * p3  # w1[2] is 0: vertex_derivatives skips it too
+    a += w1[4] * p4
+    b = w2[0] * p0
+    b += w2[1] * p1
+    b += w2[2] * p2
+    b += w2[3] * p3
+    b += w2[4] * p4
+    c = (p4 - 2 * p3 + 2 * p1 - p0) / steps[2]
+    for kk in range(k, k_end):
+        vd[0, kk, v, d] = a / steps[0]
+        vd[1, kk, v, d] = b / steps[1]
+        vd[2, kk, v, d] = c
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
