@@ -187,7 +187,6 @@ def _stencil(proj: np.ndarray, k: int, v: int, d: int, stencil: np.ndarray, step
         vd[2, kk, v, d] = c
 
 
-@nb.njit(cache=True, nogil=True, parallel=True)
 def interpolate(
     tri_map: np.ndarray, triangles: np.ndarray, proj: np.ndarray, vd: np.ndarray
 ) -> np.ndarray:
@@ -196,7 +195,9 @@ def interpolate(
     Along a row a triangle's barycentrics, and so each interpolated derivative,
     are affine in the column: ``A + B x`` (``x`` the pixel centre).  A row sets up
     ``A`` and ``B`` for its nine derivatives where the triangle changes, and a pixel
-    then costs nine multiply-adds.  Rows run in parallel.
+    then costs nine multiply-adds.  Rows run in parallel.  This is
+    :func:`_motion_pixels` (which :func:`render_with_motion` runs) without the maps
+    other than the derivatives.
 
     Parameters
     ----------
@@ -213,26 +214,16 @@ def interpolate(
     ndarray, shape (3, 3, Z, R, C), float32
         Zero where empty; a degenerate (zero-area) triangle gets its vertices' mean.
     """
-    nz, nr, nc = tri_map.shape
-    out = np.empty((3, 3, nz, nr, nc), np.float32)
-    flat = out.reshape(9, nz * nr * nc)
-    for zr in nb.prange(nz * nr):
-        z, r = zr // nr, zr % nr
-        y, base = r + 0.5, zr * nc
-        coef = np.empty((2, 9))  # A, B per derivative (k, d)
-        last = -1
-        for c in range(nc):
-            t = tri_map[z, r, c]
-            if t < 0:
-                for j in range(9):
-                    flat[j, base + c] = 0.0
-                continue
-            if t != last:
-                last = t
-                _row_setup(triangles[t], proj[z], vd[:, z], y, coef)
-            x = c + 0.5
-            for j in range(9):
-                flat[j, base + c] = coef[0, j] + coef[1, j] * x
+    tri_map = np.ascontiguousarray(tri_map, np.int32)
+    out = np.empty((3, 3, *tri_map.shape), np.float32)
+    n = tri_map.size
+    none = (np.zeros((0, 0, 3), np.uint8), np.zeros((4, 0, 0), np.float32), np.zeros(3, np.uint8))
+    geometry = (np.ascontiguousarray(triangles, np.int64),
+                np.zeros(triangles.shape[0], np.int64), np.zeros(1, np.int64),
+                np.ascontiguousarray(proj, np.float64))
+    _motion_pixels(tri_map, geometry, np.ascontiguousarray(vd, np.float64), none,
+                   out.reshape(9, n), np.empty((0, 3), np.uint8), np.empty((4, 0), np.float32),
+                   np.empty(n, np.int32))
     return out
 
 
