@@ -63,9 +63,10 @@ from drivers.reader import (
 )
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
+from drivers.udp_port import is_udp_url, parse_udp_url
 from service.addresses import default_address
 from service.cli_args import endpoint, float_range, int_range, output_problem, plain_help
-from service.errors import HoloError
+from service.errors import HoloError, SettingsError
 from service.signals import (
     EXIT_FAILED,
     EXIT_OK,
@@ -93,9 +94,11 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=plain_help(EXIT_RULE + " 1: no device could be opened at all, or with "
                           "--no-retry one did not open."))
     p.add_argument("--tracker", metavar="URL",
-                   help="tracker port: /dev/ttyUSB0, loop://, socket://host:port, rfc2217://")
-    p.add_argument("--tracker-protocol", choices=("hatire", "native"), default="hatire",
-                   help="tracker byte protocol (default: %(default)s)")
+                   help="tracker port: /dev/ttyUSB0, loop://, socket://host:port, rfc2217://, "
+                   "or opentrack-udp://HOST:PORT to listen for opentrack's UDP poses")
+    p.add_argument("--tracker-protocol", choices=("hatire", "native", "opentrack"),
+                   default=None, help="tracker protocol (default: opentrack for an "
+                   "opentrack-udp:// URL, else hatire)")
     p.add_argument("--dials", metavar="URL", help="SGI dial and button box port")
     add_publish_options(p)
     p.add_argument("--record", metavar="FILE", help="record raw bytes to a new session log")
@@ -218,6 +221,25 @@ def stderr_listener(err: TextIO, t0_ns: int) -> Listener:
     return echo
 
 
+def tracker_protocol(url: str, protocol: str | None) -> str:
+    """The tracker's protocol: ``opentrack`` exactly for ``opentrack-udp://`` URLs.
+
+    Raises
+    ------
+    SettingsError
+        A malformed ``opentrack-udp://`` URL, or a protocol that does not fit the URL.
+    """
+    udp = is_udp_url(url)
+    if udp:
+        parse_udp_url(url)
+    chosen = protocol or ("opentrack" if udp else "hatire")
+    if udp != (chosen == "opentrack"):
+        raise SettingsError(
+            f"--tracker-protocol {chosen} does not fit --tracker {url}: opentrack poses come "
+            "over UDP (opentrack-udp://HOST:PORT), serial trackers over a port")
+    return chosen
+
+
 def retry_line(prog: str, retry: Retry, same_error: bool = False) -> str:
     """One failed open on one line: the device, the try, the error, the back-off.
 
@@ -250,12 +272,13 @@ def retry_teller(prog: str, err: TextIO) -> Callable[[Retry], None]:
 def _settings(args: argparse.Namespace) -> list[tuple[ReaderSettings, DeviceHooks]]:
     out: list[tuple[ReaderSettings, DeviceHooks]] = []
     if args.tracker:
-        big = args.hatire_big_endian and args.tracker_protocol == "hatire"
+        proto = tracker_protocol(args.tracker, args.tracker_protocol)
+        big = args.hatire_big_endian and proto == "hatire"
         options = {"byte_order": "big"} if big else {}
-        out.append((ReaderSettings(args.tracker, args.tracker_protocol, "tracker", args.baud,
+        out.append((ReaderSettings(args.tracker, proto, "tracker", args.baud,
                                    watchdog_s=args.watchdog or None, decoder_options=options,
                                    retry=args.retry),
-                    TrackerDriver(args.tracker_protocol, commands_from_args(args),
+                    TrackerDriver(proto, commands_from_args(args),
                                   args.tracker_reset_on_open)))
     if args.dials:
         out.append((ReaderSettings(args.dials, "sgi", "dials", args.dials_baud,
@@ -399,6 +422,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("give --tracker URL and/or --dials URL")
     if args.pub_pose and not args.pub:
         parser.error("--pub-pose needs --pub")
+    if args.tracker:
+        try:
+            args.tracker_protocol = tracker_protocol(args.tracker, args.tracker_protocol)
+        except SettingsError as exc:
+            parser.error(str(exc))
     problem = output_problem(args.record) if args.record else None
     if args.record and not problem and os.path.lexists(args.record):
         problem = f"{args.record}: already exists (a log is never overwritten; name a new file)"
