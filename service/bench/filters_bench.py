@@ -342,11 +342,11 @@ def _panel(ax, lines: dict[str, list], xlabel: str, ylabel: str, title: str) -> 
 #: The simulated-motion panels: (x as (dataset, key), y as (dataset, key), title in words).
 SIM_PANELS = (
     (("sway", "ang_lag_ms"), ("still", "ang_rms_err"),
-     "Angle: jitter standing still against lag on a sway"),
+     "Angle: jitter standing still vs lag"),
     (("sway", "ang_vel_lag_ms"), ("still", "ang_vel_rms_err"),
-     "Angular velocity: jitter standing still against lag on a sway"),
+     "Angular velocity: jitter vs lag"),
     (("sway", "ang_lag_ms"), ("turn", "ang_pred_rms_err"),
-     "Pose predicted ahead through a head turn: error against lag on a sway"),
+     "Head turn: prediction error vs lag"),
 )
 
 
@@ -380,7 +380,7 @@ def capture_chart(rows: list[dict], path: Path) -> Figure:
     lines = _points(rows, ("capture", "ang_lag_ms"), ("capture", "ang_vel_hf_jitter"))
     _panel(ax, lines, "angle lag behind raw samples (ms)",
            "high-frequency velocity noise (deg/s RMS)",
-           "Recorded Hatire capture: velocity noise against lag (no truth)")
+           "Recorded Hatire capture: velocity noise vs lag")
     ax.legend(fontsize=7)
     fig.tight_layout()
     return save_chart(fig, path, dpi=110)

@@ -20,6 +20,21 @@ from service.bench.rows import zones_label
 
 #: The error budget of "cheapest within": % of pixels (occlusion) or of full intensity.
 BUDGET_PCT = 0.5
+#: A benchmark that got less CPU than this share of its wall time ran on a busy machine.
+BUSY_SHARE = 0.5
+
+
+def busy_caveat(bench: str, seconds: float, cpu_s: float) -> str:
+    """A sentence when ``bench`` ran on a busy machine (its timings then mislead), else "".
+
+    Its process got under :data:`BUSY_SHARE` of the wall time on a CPU: other
+    programs (or compiling) had the cores, and its milliseconds are not its own.
+    """
+    if seconds <= 0 or cpu_s >= BUSY_SHARE * seconds:
+        return ""
+    return (f" Caution: holo-bench {bench} got {cpu_s:.0f} s of CPU in {seconds:.0f} s of "
+            "wall time (the machine was busy), so these speed picks may be wrong; run it "
+            "again on a quiet machine before trusting them.")
 
 
 @dataclass(frozen=True)
@@ -87,13 +102,13 @@ def tally(picks: list[Pick]) -> str:
     def count(items: list[str | None]) -> str:
         seen = [i for i in items if i is not None]
         if not seen:
-            return "none in any case"
+            return f"none in any of {len(items)} cases"
         wins = sorted({i: seen.count(i) for i in seen}.items(), key=lambda kv: -kv[1])
-        return ", ".join(f"{m} in {n} of {len(items)}" for m, n in wins)
+        return ", ".join(f"{m} in {n}" for m, n in wins) + f" of {len(items)} cases"
 
     exact = count([p.exact[0] if p.exact else None for p in picks])
     within = count([p.within[0] if p.within else None for p in picks])
-    return (f"{picks[0].stage.capitalize()}: the fastest exact method is {exact} cases; the "
+    return (f"{picks[0].stage.capitalize()}: the fastest exact method is {exact}; the "
             f"cheapest within {BUDGET_PCT:g} % error is {within}.")
 
 

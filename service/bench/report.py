@@ -39,6 +39,7 @@ from pathlib import Path
 from service.bench.picks import (
     BUDGET_PCT,
     Pick,
+    busy_caveat,
     galilean_pays,
     light_picks,
     occlusion_picks,
@@ -603,9 +604,9 @@ def section_html(res: Outcome) -> str:
     return "".join(parts)
 
 
-def _folder(results: list[Outcome], bench: str) -> Path | None:
-    """The output folder of ``bench`` when it ran, else None."""
-    return next((r.out for r in results if r.plan.bench == bench and r.ok), None)
+def _ran(results: list[Outcome], bench: str) -> Outcome | None:
+    """The outcome of ``bench`` when it ran, else None."""
+    return next((r for r in results if r.plan.bench == bench and r.ok), None)
 
 
 def picks_table(picks: list[Pick]) -> Table:
@@ -631,21 +632,24 @@ def recommendations(results: list[Outcome]) -> tuple[list[str], list[Pick]]:
     sources = (("render", "render_bench.json", occlusion_picks, "occlusion"),
                ("light", "light_bench.json", light_picks, "light"))
     for bench, name, picker, stage in sources:
-        folder = _folder(results, bench)
-        rows = _load(folder / name) if folder else None
+        res = _ran(results, bench)
+        rows = _load(res.out / name) if res else None
         rows = rows.get("rows", []) if isinstance(rows, dict) else rows
         if not rows:
             lines.append(f"{stage.capitalize()}: not measured in this run (holo-bench {bench} "
                          "did not run).")
             continue
         found = picker(rows)
-        lines.append(tally(found))
+        lines.append(tally(found) + busy_caveat(bench, res.seconds, res.cpu_s))
         picks += found
-    folder = _folder(results, "galilean")
-    cx = _load(folder / "galilean_complexity.json") if folder else None
-    sweep = (_load(folder / "galilean_sweep.json") or {}).get("rows", []) if folder else []
-    lines += galilean_pays(cx, sweep) if cx else [
-        "Galilean stage: not measured in this run (holo-bench galilean did not run)."]
+    res = _ran(results, "galilean")
+    cx = _load(res.out / "galilean_complexity.json") if res else None
+    sweep = (_load(res.out / "galilean_sweep.json") or {}).get("rows", []) if res else []
+    pays = galilean_pays(cx, sweep) if cx else []
+    if pays:
+        pays[0] += busy_caveat("galilean", res.seconds, res.cpu_s)
+    lines += pays or ["Galilean stage: not measured in this run (holo-bench galilean did "
+                      "not run)."]
     return lines, picks
 
 

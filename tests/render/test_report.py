@@ -134,7 +134,9 @@ def test_picks_are_the_fastest_exact_and_the_cheapest_within_half_a_percent():
     assert cyclic.exact is None and cyclic.within is None  # nothing exact, nothing within
     assert picks.tally([game, cyclic]) == (
         "Occlusion: the fastest exact method is zbuffer in 1 of 2 cases; the cheapest within "
-        "0.5 % error is runlength in 1 of 2.")
+        "0.5 % error is runlength in 1 of 2 cases.")
+    assert picks.tally([game, game, cyclic]).startswith(
+        "Occlusion: the fastest exact method is zbuffer in 2 of 3 cases;")
     light = picks.light_picks([{"scene": "sphere", "zones": 1, "model": m, "evaluation": e,
                                 "ms": ms, "error": err}
                                for m, e, ms, err in (("blinn", "point", 0.76, 0.0),
@@ -187,8 +189,9 @@ def test_the_page_opens_with_what_to_pick_and_no_empty_peer_table(tmp_path):
     top = text.index('id="picks"')
     assert top < text.index('id="render"') and top < text.index('id="galilean"')
     picks_part = text[top:text.index('id="render"')]
-    assert "fastest exact method is zbuffer in 1 of 1" in picks_part
-    assert "cheapest within 0.5 % error is runlength in 1 of 1" in picks_part
+    assert "fastest exact method is zbuffer in 1 of 1 cases" in picks_part
+    assert "cheapest within 0.5 % error is runlength in 1 of 1 cases" in picks_part
+    assert "Caution" not in picks_part  # no seconds measured: no caveat
     assert "Light: not measured in this run" in picks_part
     assert "pays soonest with 30,204 triangles" in picks_part
     # no peer ran: no peer table and no column of "no peer measured", one line why
@@ -245,3 +248,14 @@ def test_an_interrupted_report_leaves_the_previous_page_and_data_together(procs,
         f"holo-bench report: {out} left as it was; what ran so far is in {staged[0]}",
         "holo-bench report: interrupted (SIGINT)"]
     assert staged[0].is_dir()  # what was written so far is kept, not deleted
+
+
+def test_speed_picks_from_a_busy_machine_say_so(tmp_path):
+    render = _ran(tmp_path, "render", {"render_bench.json": [occ("game", 1, "zbuffer", 1.3, 0)]})
+    render.seconds, render.cpu_s = 109.0, 5.2  # other programs had the cores
+    (line, *_), _ = report.recommendations([render])
+    assert line.endswith("Caution: holo-bench render got 5 s of CPU in 109 s of wall time "
+                         "(the machine was busy), so these speed picks may be wrong; run it "
+                         "again on a quiet machine before trusting them.")
+    render.cpu_s = 80.0
+    assert "Caution" not in report.recommendations([render])[0][0]

@@ -120,3 +120,7 @@ def test_the_pose_filter_charts_are_titled_in_words_and_labels_do_not_overlap(tm
         assert "_" not in title and len(title.split()) >= 5, title
     for fig in figs:
         assert overlapping_ticklabels(fig) == []
+        whole = fig.bbox
+        for ax in fig.axes:  # each title whole on the figure, none cut at its edge
+            box = ax.title.get_window_extent()
+            assert whole.x0 <= box.x0 and box.x1 <= whole.x1, ax.get_title()
