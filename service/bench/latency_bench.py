@@ -65,6 +65,7 @@ from drivers.protocols import hatire, native, opentrack
 from drivers.publisher import Publisher
 from drivers.reader import DeviceReader, EventHub, Item, ReaderSettings
 from drivers.udp_port import UdpPort
+from service.bench.charts import save_chart
 from service.cli_args import exit_rule_epilog, float_range, int_range, plain_help
 
 TARGET_P99_MS = 2.0
@@ -458,8 +459,7 @@ def plot(curves: dict[str, np.ndarray], path: Path, title: str) -> None:
     ax1.legend(fontsize=7, loc="lower right")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
 
 
 def _line(name: str, s: dict[str, float]) -> str:
