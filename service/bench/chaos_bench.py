@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from service.bench.service_bench import Running
+from service.bench.running import Running
 from service.cli_args import exit_rule_epilog, float_range, plain_help
 from service.net.client import FrameSubscriber
 

@@ -203,6 +203,11 @@ class Supervisor:
         out = self.broker.info()
         with self._lock:
             slots = {s.pid: s for s in self.slots if s.proc is not None and not s.dead}
+            # a local worker found dead stays in the broker's books until its next loop
+            out["workers"] = [w for w in out["workers"]
+                              if w["pid"] in slots or w["pid"] not in self.started]
+            out["ready"] = sum(not w["busy"] for w in out["workers"])
+            out["busy"] = sum(w["busy"] for w in out["workers"])
             for w in out["workers"]:
                 slot = slots.pop(w["pid"], None)
                 w["restarts"], w["local"] = (slot.restarts, True) if slot else (0, False)
