@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-from testkit import ROOT, raw_request
+from testkit import HANG_S, ROOT, raw_request, wait_until
 
 from service.net import protocol
 
@@ -178,10 +178,13 @@ def _stats_row() -> str:
     return next(line for line in _section("### 1.5").splitlines() if line.startswith("| `stats`"))
 
 
-def test_the_worker_stats_are_documented_and_served(svc):
+def test_the_worker_stats_are_documented_and_served(service_factory):
     """Every worker field of ``stats`` is in the doc's ``stats`` row, and the reverse."""
     row = _stats_row()
-    st = ask(svc, {"type": "stats", "id": 16})["stats"]
+    workers = service_factory("--scene", "game", "--zones", "2", "--size", "32x24",
+                              "--refresh", "30", "--workers", "1")
+    assert wait_until(lambda: ask(workers, {"type": "stats"})["stats"]["worker_pids"], HANG_S)
+    st = ask(workers, {"type": "stats", "id": 16})["stats"]
     for key in ("workers", "worker_pids", "worker_deaths", "worker_restarts", "worker_error",
                 "jobs_resent", "split"):
         assert f"`{key}`" in row and key in st, key
