@@ -175,13 +175,17 @@ def run_chaos(
         rss0, t0 = _rss_kb(svc.proc.pid), time.monotonic()
         rss: list[tuple[float, int]] = [(0.0, rss0)]
         children: set[int] = set()
-        next_chaos = t0 + 1.0
+        trace: list[dict[str, Any]] = []
+        next_chaos, next_trace = t0 + 1.0, t0
         try:
             while (now := time.monotonic()) < t0 + seconds:
                 if now >= next_chaos:
                     chaos.step(t0)
                     next_chaos += every_s
                 chaos.continue_due(t0)
+                if now >= next_trace:
+                    trace.append(_trace_row(c.stats(), now - t0))
+                    next_trace += 0.5
                 children |= _descendants(svc.proc.pid)
                 rss.append((now - t0, _rss_kb(svc.proc.pid)))
                 threading.Event().wait(0.1)
@@ -194,8 +198,16 @@ def run_chaos(
     left = _wait_gone(chaos.pids | children, 10.0)
     times = [t - t0 for t in updates.times if t >= t0]
     res = _results(stats, times, seconds, chaos, left, (rss0, rss1), (load0, os.getloadavg()))
-    res["rss_kb"] = rss
+    res["rss_kb"], res["trace"] = rss, trace
     return res, times
+
+
+def _trace_row(st: dict[str, Any], t: float) -> dict[str, Any]:
+    """What the service said at ``t``: split, live workers, counters, render ms."""
+    return {"t": round(t, 3), "split": st["split"],
+            "live": sum(w["alive"] for w in st["workers"]["workers"]),
+            **{k: st[k] for k in ("updates", "renders", "incomplete_updates", "late_refused",
+                                  "jobs_resent", "render_ms_p50", "worker_deaths")}}
 
 
 def _wait(pred: Any, timeout_s: float) -> bool:

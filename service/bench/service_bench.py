@@ -576,7 +576,7 @@ def main(argv: list[str] | None = None) -> int:
         _step(f"chaos: a worker killed and another stopped every 5 s for {chaos_s:g} s")
         chaos, times = chaos_bench.run_chaos(max(5.0, chaos_s))
         chaos_bench.write(chaos, times, out)
-        res["chaos"] = {k: v for k, v in chaos.items() if k not in ("events", "rss_kb")}
+        res["chaos"] = {k: v for k, v in chaos.items() if k not in ("events", "rss_kb", "trace")}
     (out / "service.json").write_text(json.dumps(res, indent=1))
     write_csv(res["workers_rounds"], out / "service_workers.csv")
     plot(res, out / "service.png")

@@ -48,6 +48,7 @@ class Scheduler:
         self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
         self._local: StatsRenderer | None = None  # renders in process while no worker lives
         self.local_ms: deque[float] = deque(maxlen=50)  # their times, ms
+        self._local_renders = 0
 
     def run(self) -> None:
         """Render until the service stops."""
@@ -155,8 +156,9 @@ class Scheduler:
         if aim is None:
             return False
         got = self.run_job(renderer, bands, aim)
-        if local:
+        if local and self._local_renders > 0:  # the first one loaded the kernels
             self.local_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
+        self._local_renders += local
         if got is None:
             self.st.counters.render_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
             self.st.counters.n["render_failures"] += 1
