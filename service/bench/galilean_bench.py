@@ -19,6 +19,13 @@
     Writes ``galilean_sweep.json``/``.csv``, ``galilean_timing.json``,
     ``galilean_complexity.json``/``.csv`` and PNG charts.
 
+``holo-bench galilean --starvation --out DIR [--starve-seconds S]``
+    The stage starved of renders (:mod:`service.bench.galilean_starvation`): one
+    render, then none for S seconds (default 3); at every refresh the error against
+    the true render, holding the last render past its use-by (the stage as it runs)
+    against extrapolating on and against the render alone.  Writes
+    ``galilean_starvation.json``/``.csv``/``.png`` (``--sweep`` writes them too).
+
 ``holo-bench galilean --complexity --out DIR [--complexity-counts 0,1000,...]``
     Against scene complexity (the rotating cube scene plus a grid of spinning,
     drifting spheres of growing tessellation, about 250 to 100,000 triangles):
@@ -39,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench import galilean_starvation
 from service.bench.galilean_experiments import (
     CASES,
     ONE_D,
@@ -48,7 +56,13 @@ from service.bench.galilean_experiments import (
     run_tracker,
 )
 from service.bench.rows import write_csv
-from service.cli_args import add_size_option, exit_rule_epilog, int_range, plain_help
+from service.cli_args import (
+    add_size_option,
+    exit_rule_epilog,
+    float_range,
+    int_range,
+    plain_help,
+)
 from service.display import DisplaySettings
 from service.galilean.fixed_point import (
     FixedPoint,
@@ -747,6 +761,8 @@ def print_case(res: dict) -> None:
 # -------------------------------------------------------------------- main
 #: ``--sweep --quick``: the motions and intervals swept (no variants, 3 complexity repeats).
 QUICK_MOTIONS, QUICK_INTERVALS = ("linear", "rotating-cube"), (1, 4, 16)
+#: Seconds without a render of the starvation runs (issue 29: 3 s of refreshes).
+STARVE_S = 3.0
 
 
 def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[int, int],
@@ -770,6 +786,8 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
     print("galilean sweep: timing", file=sys.stderr, flush=True)
     tm = run_timing(out, time_size)
     cx = run_complexity(out, time_size, counts, 3 if quick else 15)
+    sv = run_starvation(out, size, STARVE_S, QUICK_MOTIONS if quick else
+                        galilean_starvation.STARVED_MOTIONS)
     doc = {"size": f"{size[0]}x{size[1]}", "frames": frames, "refresh_hz": HZ,
            "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": var,
            "thought_experiments": te}
@@ -779,7 +797,24 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
         write_csv(var, out / "galilean_variants.csv")
     chart_sweep(rows, out / "galilean_sweep.png")
     chart_thought(te, out / "galilean_thought.png")
-    print(json.dumps({"timing": tm, "complexity": cx, "variants": var}, indent=1))
+    print(json.dumps({"timing": tm, "complexity": cx, "variants": var,
+                      "starvation": sv["summary"]}, indent=1))
+
+
+def run_starvation(out: Path, size: tuple[int, int], seconds: float,
+                   motions: tuple[str, ...] = galilean_starvation.STARVED_MOTIONS) -> dict:
+    """``galilean_starvation.*``: ``motions`` starved ``seconds`` at ``size``; returns the JSON."""
+    out.mkdir(parents=True, exist_ok=True)
+    settings = RenderSettings(light=LightSettings("blinn"))
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    refreshes = max(1, round(seconds * HZ))
+    rows = []
+    for motion in motions:
+        print(f"galilean starvation: {motion}", file=sys.stderr, flush=True)
+        rows += galilean_starvation.starve(
+            bench_scene(motion), motion, display, settings, refreshes, HZ,
+            lambda a, b: (psnr(a, b), pct_wrong(a, b)))
+    return galilean_starvation.write(rows, GalileanSettings.n_prop, HZ, out)
 
 
 def _counts(text: str) -> tuple[int, ...]:
@@ -811,6 +846,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="with --sweep: two motions, intervals 1,4,16, no variants")
     p.add_argument("--timing", action="store_true",
                    help="only the --time-size timing (refresh, render, shadow) into --out")
+    p.add_argument("--starvation", action="store_true",
+                   help="only the starvation runs (one render, then none) into --out")
+    p.add_argument("--starve-seconds", metavar="S", type=float_range(0.05, 60.0),
+                   default=STARVE_S,
+                   help="seconds without a render in the starvation runs (default: %(default)s)")
     p.add_argument("--complexity", action="store_true",
                    help="only the --time-size timing against scene complexity into --out")
     p.add_argument("--complexity-counts", metavar="N,...", type=_counts, default=COMPLEXITY_COUNTS,
@@ -829,6 +869,10 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(run_complexity(Path(args.out), args.time_size,
                                         args.complexity_counts, args.complexity_repeats),
                          indent=1))
+        return 0
+    if args.starvation:
+        doc = run_starvation(Path(args.out), args.size, args.starve_seconds)
+        print(json.dumps(doc["summary"], indent=1))
         return 0
     if args.timing:
         print(json.dumps(run_timing(Path(args.out), args.time_size), indent=1))

@@ -106,7 +106,10 @@ PLANS = (
           "10x cheaper than rendering.",
           "galilean_complexity.png": "Render, update and G(2) refresh ms against the triangles "
           "in the scene (log-log); where the render crosses the dashed 10x-refresh line, "
-          "refreshing pays."},
+          "refreshing pays.",
+          "galilean_starvation.png": "One render, then none for 3 s: error against the true "
+          "render at each refresh, holding the last render past its use-by (grey line, the "
+          "stage as it runs) against extrapolating on and against the render alone."},
          "galilean"),
     Plan("quality", "--quality auto (method chosen per frame)",
          (("--quick", "--size", "{size}"),), (("--size", "{size}"),), {}, "quality"),

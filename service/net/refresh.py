@@ -136,15 +136,14 @@ def _sird_output(settings: Settings) -> Any:
 
 
 def stage_settings(settings: Settings) -> GalileanSettings:
-    """The service's Galilean stage: it holds the picture for a late render.
+    """The service's Galilean stage.
 
-    Late: past the rating (``n_prop``) and twice the usual render interval.  A
-    render that late (a loaded machine) would otherwise leave
-    the stage extrapolating a head turn for a second or more, which shears the
-    objects into scattered fragments; held, the picture waits for the render.
+    It holds (``GalileanSettings.hold``, the default): a render is propagated for
+    at most ``n_prop`` refreshes; past that, until the next render comes, each
+    frame shows the last render as it was (header ``held``), never a smear
+    extrapolated past the rating.
     """
-    return GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz,
-                            hold_after=GalileanSettings.n_prop)
+    return GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz)
 
 
 class RefreshLoop:
@@ -236,6 +235,8 @@ class RefreshLoop:
         self._submit()
         r = self.stage.refresh()
         c.n["refreshes"] += 1
+        c.n["held_refreshes"] += r.flags["held"]
+        c.held = r.flags["held"]
         c.refresh_t.append(time.monotonic())
         if r.flags["updated"] and r.index in self.due:
             self.render_id, self.t_render_ns, self.shown_scene = self.due.pop(r.index)
@@ -289,6 +290,7 @@ class RefreshLoop:
                 rd.points,
                 rd.point_derivs,
                 rd.viewer_motion,
+                up.use_by,
             )
             if ok:
                 self.due[up.rendezvous] = (up.render_id, up.t_render_ns, up.scene_load)
@@ -352,6 +354,8 @@ class RefreshLoop:
             "input": self.input,
             "events": r.flags["events"],
             "age": r.flags["age"],
+            "held": bool(r.flags["held"]),
+            "use_by": int(r.flags["use_by"]),
             "order": int(r.flags["order"]),
         }
         arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]

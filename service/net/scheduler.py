@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from service.errors import HoloError
+from service.galilean import GalileanSettings
+from service.galilean.local_update import render_use_by
 from service.net import wire
 from service.net.broker import BandClient, Flight, FramePipe, split_rows
 from service.net.state import Aim, Ready, ServiceState, Settings
@@ -216,6 +218,8 @@ class Scheduler:
                 aim.t0,
                 aim.scene_version,
                 aim.scene_load,
+                render_use_by(aim.scene, aim.job["refresh_hz"], GalileanSettings.n_prop,
+                              rendered.viewer_motion),
             )
         )
         mark = (aim.settings.generation, aim.scene_version)

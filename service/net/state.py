@@ -201,6 +201,9 @@ class Ready:
     scene_version: int = 0
     #: the ``load_scene`` count of the scene rendered (:attr:`State.scene_load`)
     scene_load: int = 0
+    #: refreshes the render may be propagated (None: the stage's rating; see
+    #: :func:`service.galilean.local_update.render_use_by`)
+    use_by: int | None = None
 
 
 class ReplyCache:
@@ -284,9 +287,12 @@ class Counters:
                 "errors",
                 "refresh_overruns",
                 "resends_answered",
+                "held_refreshes",
             ),
             0,
         )
+        #: whether the last refresh held the last render (past its use-by date)
+        self.held = False
         self.render_ms: deque[float] = deque(maxlen=200)
         self.refresh_ms: deque[float] = deque(maxlen=600)
         self.sird_ms: deque[float] = deque(maxlen=600)
@@ -308,6 +314,7 @@ class Counters:
         med = lambda d: float(np.median(list(d))) if d else None  # noqa: E731
         return {
             **self.n,
+            "held": self.held,
             "updates_per_s": self.rate(self.update_t),
             "refreshes_per_s": self.rate(self.refresh_t),
             "render_ms_p50": med(self.render_ms),

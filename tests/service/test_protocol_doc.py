@@ -196,3 +196,21 @@ def test_the_worker_stats_are_documented_and_served(service_factory):
     got = st["workers"]["workers"]
     assert got, "the service's worker is not listed"
     assert sorted(got[0]) == sorted(documented)
+
+
+def test_the_frame_header_table_is_a_real_frame_header(svc):
+    """Section 2: every key of the table is in a published frame's header, and back."""
+    table = DOC.split("Frame header:")[1].split("Heartbeat header")[0]
+    rows = re.findall(r"^\| (`[^|]+`) \|", table, re.M)
+    documented = {k for row in rows for k in re.findall(r"`(\w+)`", row)}
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.SUBSCRIBE, b"frame")
+    sub.setsockopt(zmq.RCVTIMEO, 10000)
+    sub.connect(svc.frames)
+    try:
+        header = json.loads(sub.recv_multipart()[1])
+    finally:
+        sub.close(0)
+    # v, kind and session are the envelope every message of the stream has
+    assert documented == set(header) - {"v", "kind", "session"}
+    assert header["held"] in (True, False) and 0 <= header["use_by"] <= 16
