@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from service.bench.charts import save_chart
 from service.bench.running import Running
 from service.cli_args import exit_rule_epilog, float_range, plain_help
 from service.net.client import FrameSubscriber
@@ -284,8 +285,7 @@ def plot(res: dict[str, Any], times: list[float], path: Path) -> None:
     ax2.set_ylabel("service RSS, MiB")
     ax2.set_ylim(bottom=0)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_chart(fig, path, dpi=90)
 
 
 def write(res: dict[str, Any], times: list[float], out: Path) -> None:

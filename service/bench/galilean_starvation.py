@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench.charts import save_chart
 from service.bench.rows import write_csv
 from service.display import DisplaySettings
 from service.galilean.motion_field import render_with_motion
@@ -109,8 +110,7 @@ def chart(rows: list[dict], n_prop: int, hz: float, path: Path) -> None:
     axes[0][0].legend(fontsize=8)
     fig.suptitle("Galilean stage starved of renders: error against the truth at each refresh")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_chart(fig, path, dpi=90)
 
 
 def summary(rows: list[dict]) -> list[dict]:

@@ -60,6 +60,7 @@ from drivers.events import Event, PoseEvent
 from drivers.protocols import hatire, native
 from drivers.publisher import Publisher
 from drivers.reader import DeviceReader, EventHub, Item, ReaderSettings
+from service.bench.charts import save_chart
 from service.cli_args import exit_rule_epilog, float_range, int_range, plain_help
 
 TARGET_P99_MS = 2.0
@@ -414,8 +415,7 @@ def plot(curves: dict[str, np.ndarray], path: Path, title: str) -> None:
     ax1.legend(fontsize=7, loc="lower right")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
 
 
 def _line(name: str, s: dict[str, float]) -> str:

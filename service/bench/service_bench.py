@@ -45,6 +45,7 @@ import numpy as np
 import zmq
 
 from service.bench import chaos_bench
+from service.bench.charts import save_chart
 from service.bench.running import Running
 from service.bench.running import port as _port
 from service.cli_args import comma_list, exit_rule_epilog, float_range, int_range, plain_help
@@ -506,8 +507,7 @@ def plot(res: dict[str, Any], path: Path) -> None:
     ax[1, 1].set(title="motion to photon (pose into the pty -> frame)", xlabel="ms", ylabel="CDF")
     ax[1, 1].legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_chart(fig, path, dpi=100)
 
 
 def _step(what: str) -> None:
