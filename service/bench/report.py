@@ -157,7 +157,11 @@ PLANS = (
     Plan("service", "Render service",
          (("--quick", "--seconds", "0.5", "--workers", "1,2", "--rounds", "1"),),
          ((),), {"service.png": "Transport overhead, round trip, worker scaling and "
-                 "motion-to-photon of the render service; lower is better."}, "generic"),
+                 "motion-to-photon of the render service; lower is better.",
+                 "chaos.png": "Workers under chaos (holo-bench chaos): every 5 s one worker "
+                 "killed and another stopped; left, the gap before each update (target: "
+                 "none over 1 s, red), right, the service's RSS (flat is right)."},
+         "generic"),
     Plan("filters", "Pose filters", ((),), ((),),
          {"jitter_lag_sim.png": "Each pose filter (and a sweep of its parameters): jitter "
           "against lag on simulated head motion; lower-left is better.",
