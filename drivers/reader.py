@@ -9,7 +9,9 @@ listener ever needs a lock.
 What a reader does:
 
 * opens its port by pyserial URL (:func:`serial.serial_for_url`: ``/dev/ttyUSB0``,
-  ``loop://``, ``socket://host:port``, ``rfc2217://...``) with a short read timeout;
+  ``loop://``, ``socket://host:port``, ``rfc2217://...``) with a short read timeout,
+  or, for ``opentrack-udp://HOST:PORT``, binds a UDP socket there
+  (:mod:`drivers.udp_port`) and reads it one datagram per chunk;
 * waits for bytes without a fixed sleep and never longer than ``poll_s``: a port with
   a file descriptor (a tty, a pty: pyserial's POSIX ports) is waited on with
   :func:`select.select` and read with one :func:`os.read` of up to
@@ -65,6 +67,7 @@ import serial
 
 from drivers.events import Event, StatusEvent
 from drivers.protocols import DEVICE_OF, make_decoder
+from drivers.udp_port import UdpPort, open_port
 from service.errors import DeviceError, LogFileError, SettingsError
 
 #: Protocol name in a log header for a device's control records.
@@ -75,7 +78,7 @@ CONTROL_SUFFIX = ":control"
 MAX_CHUNK = 4096
 #: Protocol aliases accepted in log headers.
 PROTOCOL_ALIASES = {"sgi_dialbox": "sgi", "dialbox": "sgi", "sgi": "sgi",
-                    "hatire": "hatire", "native": "native"}
+                    "hatire": "hatire", "native": "native", "opentrack": "opentrack"}
 
 
 def canonical_protocol(name: str) -> str:
@@ -83,7 +86,8 @@ def canonical_protocol(name: str) -> str:
     try:
         return PROTOCOL_ALIASES[name]
     except KeyError:
-        raise SettingsError(f"unknown protocol {name!r}; known: hatire, native, sgi") from None
+        raise SettingsError(f"unknown protocol {name!r}; "
+                            "known: hatire, native, opentrack, sgi") from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -369,7 +373,9 @@ class DeviceReader:
     clock_ns : callable () -> int
         Receive-time clock (:func:`time.monotonic_ns`).
     opener : callable
-        Opens a port: ``opener(url, baudrate=..., timeout=..., write_timeout=...)``.
+        Opens a port: ``opener(url, baudrate=..., timeout=..., write_timeout=...)``
+        (:func:`drivers.udp_port.open_port`: pyserial, or a UDP listener for
+        ``opentrack-udp://``).
     on_retry : callable (Retry) -> None, optional
         Told of each failed open on the reader thread (``holo-devices`` prints it);
         not recorded: the session log keeps one ``open_failed`` status per outage.
@@ -387,7 +393,7 @@ class DeviceReader:
     def __init__(self, settings: ReaderSettings, sink: Sink, *,
                  hooks: DeviceHooks | None = None,
                  clock_ns: Callable[[], int] = time.monotonic_ns,
-                 opener: Callable[..., Any] = serial.serial_for_url,
+                 opener: Callable[..., Any] = open_port,
                  on_retry: Callable[[Retry], None] | None = None) -> None:
         self.settings = settings
         self.name = settings.device_name
@@ -597,6 +603,9 @@ class DeviceReader:
             raise serial.SerialException("port closed")
         if fd is not None:
             data = self._read_fd(fd)
+            t_ns = self._clock()
+        elif isinstance(port, UdpPort):  # one datagram per chunk: the decoder needs them whole
+            data = port.read_datagram()
             t_ns = self._clock()
         else:
             data = port.read(1)

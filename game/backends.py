@@ -40,6 +40,7 @@ from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
+from service.galilean.local_update import render_use_by
 from service.galilean.motion_field import render_with_motion
 from service.lod import LodState, lod_from
 from service.pipeline import Renderer, RenderSettings
@@ -292,17 +293,20 @@ class LocalRenderer:
                     continue  # a render of the game before: never shown
                 self._render_id += 1
                 # the burst's motion is exact and no render follows it: carried
-                # to the score screen; any other render for the stage's rating
-                self.stage.update(ru, use_by=None if burst is None else self._burst_use_by)
+                # to the score screen; any other render for the stage's rating, or
+                # less when an object turns far (seed 002's use-by date)
+                use_by = self._burst_use_by if burst is not None else render_use_by(
+                    scene, self.settings.refresh_hz, self.stage.settings.n_prop)
+                self.stage.update(ru, use_by=use_by)
                 self._grafted = (self._render_id, records_t, version)
 
     def _refresh_loop(self) -> None:
         period = 1.0 / self.settings.refresh_hz
         next_t = time.monotonic()
-        graft_index = 0
+        graft_index, missed = 0, 0
         while not self._stop.is_set():
             with self._stage_lock:
-                out = self.stage.refresh()
+                out = self.stage.refresh(1 + missed)  # missed ticks count towards use-by
                 render_id, records_t, version = self._grafted
             if out.flags.get("updated"):
                 graft_index = out.index
@@ -321,7 +325,7 @@ class LocalRenderer:
             with self._cv:
                 self._latest = view
                 self._cv.notify_all()
-            next_t = max(next_t + period, time.monotonic() - period)
+            next_t, missed = _next_tick(next_t, period, time.monotonic())
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
 
@@ -584,6 +588,13 @@ class ServiceBackend:
         if self._stats is not None:
             self._stats.close()
         self.client.close()
+
+
+def _next_tick(next_t: float, period: float, now: float) -> tuple[float, int]:
+    """The next tick after ``next_t`` and the ticks missed: more than a period late skips."""
+    next_t += period
+    missed = math.floor((now - next_t) / period) if now - next_t > period else 0
+    return next_t + missed * period, missed
 
 
 def new_notes(lod: dict | None, seen: set[str]) -> list[str]:

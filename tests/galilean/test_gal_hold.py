@@ -13,8 +13,9 @@ from test_gal_stage import scene_update, stage
 
 from service.errors import SettingsError
 from service.galilean.galpixmap import GalileanError
+from service.galilean.local_update import render_use_by
 from service.galilean.stage import GalileanSettings
-from service.scene import MotionState
+from service.scene import MotionState, Scene
 
 HZ = 60.0
 STARVED = int(3 * HZ)  # 3 s of refreshes without a render
@@ -167,3 +168,40 @@ def test_bad_hold_settings_are_refused():
     for bad in (-1, 2.5, "16"):
         with pytest.raises(GalileanError, match="use_by"):
             st.update(scene_update(SQUARES), 0, use_by=bad)
+
+
+def _spinning(rad_per_s: float) -> Scene:
+    from service.mesh import Mesh
+    from service.scene import SceneObject
+
+    still = SceneObject(Mesh.from_triangles(np.eye(3), [[0, 1, 2]]))
+    spin = SceneObject(still.mesh, motion=MotionState(angular_velocity=[0.0, rad_per_s, 0.0]))
+    return Scene([still, spin])
+
+
+def test_a_render_is_used_by_the_refresh_before_an_object_turns_45_degrees():
+    """Seed 002 section 4.1: past 45 degrees a turn's parabola breaks down."""
+    fast = np.pi / 4 / (10.5 / HZ)  # 45 degrees in 10.5 refreshes
+    assert render_use_by(_spinning(fast), HZ, 16) == 10
+    assert render_use_by(_spinning(fast / 10), HZ, 16) == 16  # the rating comes first
+    assert render_use_by(_spinning(0.0), HZ, 16) == 16
+    head = MotionState(angular_velocity=[0.0, -fast, 0.0])  # the viewer turning too
+    assert render_use_by(_spinning(0.0), HZ, 16, viewer=head) == 10
+    assert render_use_by(_spinning(fast * 20), HZ, 16) == 0  # held from the first refresh
+
+
+def test_missed_refresh_periods_count_towards_the_use_by():
+    """A busy machine computes 1 refresh in 5 periods: held once 16 periods have passed."""
+    st = stage(2, refresh_hz=HZ)
+    st.update(scene_update(SQUARES), 0)
+    render = st.refresh()
+    frames = [st.refresh(periods=5) for _ in range(5)]
+    assert [f.flags["held"] for f in frames] == [False] * 3 + [True] * 2  # at 15, 20 periods
+    assert [f.flags["age"] for f in frames] == [1, 2, 3, 4, 5]  # refreshes computed
+    assert all(_same(f, render) for f in frames[3:])
+    st.update(scene_update(SQUARES), st.index)  # a render starts the count again
+    st.refresh(periods=3)
+    assert [f.flags["held"] for f in _starve(st, 16)] == [False] * 16
+    for bad in (0, 1.5):
+        with pytest.raises(GalileanError, match="periods"):
+            st.refresh(periods=bad)

@@ -97,3 +97,14 @@ def test_the_hud_says_when_the_frame_holds_the_last_render(pygame_headless):
         seen.append(HELD_LINE in client.hud(clock[0]).text())
     assert seen == [False] * 9 + [True] * 11
     assert client.stats(1.0)["held_frames"] == 11
+
+
+def test_service_frames_carry_held_from_the_header():
+    """docs/protocol.md: ``held`` in the frame header; a service older than it: not held."""
+    from game.backends import _view
+
+    colour = np.zeros((2, 4, 6, 3), np.uint8)
+    base = {"seq": 3, "render_id": 1, "since_render": 20, "t_ns": 5}
+    assert _view({**base, "held": True}, {"colour": colour}).held is True
+    assert _view({**base, "held": False}, {"colour": colour}).held is False
+    assert _view(base, {"colour": colour}).held is False
