@@ -510,7 +510,7 @@ FAILURES = (
              "tests/galilean/test_gal_hold.py::"
              "test_a_render_is_used_by_the_refresh_before_an_object_turns_45_degrees",
              "tests/service/test_service_hold.py::"
-             "test_a_stopped_worker_leaves_the_last_render_held_not_extrapolated")),
+             "test_renders_that_stop_coming_leave_the_last_render_held_not_extrapolated")),
     Failure("G(3) (up to jerk)",
             "noisy derivatives (a tracker differentiated three times): the jerk term "
             "amplifies the noise and the prediction diverges",
