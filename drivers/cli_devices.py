@@ -20,7 +20,8 @@ Problems with the links (errors, reconnects) also go to stderr, one line each; a
 port that does not open is tried again with a back-off (50 ms doubling to 2 s),
 each try one line (``holo-devices: tracker (/dev/ttyUSB9): open failed (try 3, same
 error); next try in 0.20 s``), until it opens, ``--seconds`` end or Ctrl-C;
-``--no-retry`` tries each port once and ends the run when one does not open.
+``--no-retry`` tries each port once (and a lost one once again) and ends the run
+when one does not open.
 Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue is drained, the
 recorder closed (the log is complete) and a JSON summary of each device's statistics
 is printed on stderr.
@@ -47,6 +48,8 @@ from typing import Any, TextIO
 
 from drivers.dialbox_driver import DialBoxDriver
 from drivers.events import DEFAULT_COUNTS_PER_TURN, Event, StatusEvent
+from drivers.filters import FILTERS
+from drivers.opentrack_forward import DEFAULT_FILTER, ForwardSettings, OpentrackForwarder
 from drivers.protocols.framing import FramingCheck
 from drivers.protocols.sgi_dialbox import BAUD as SGI_BAUD
 from drivers.publisher import Publisher
@@ -64,7 +67,7 @@ from drivers.reader import (
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
 from drivers.udp_port import is_udp_url, parse_udp_url
-from service.addresses import default_address
+from service.addresses import default_address, host_port
 from service.cli_args import endpoint, float_range, int_range, output_problem, plain_help
 from service.errors import HoloError, SettingsError
 from service.signals import (
@@ -116,14 +119,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="same for the dial box, which is silent when untouched "
                    "(default: 0 = only on errors)")
     p.add_argument("--no-retry", dest="retry", action="store_false",
-                   help="try each port once: one that does not open ends the run with "
-                   f"status 1 (default: try again after {ReaderSettings.backoff_s:g} s, "
-                   f"doubling up to {ReaderSettings.backoff_max_s:g} s, a line per try)")
+                   help="try each port once (a lost one once more): one that does not "
+                   "open ends the run with status 1 (default: try again after "
+                   f"{ReaderSettings.backoff_s:g} s, doubling up to "
+                   f"{ReaderSettings.backoff_max_s:g} s, a line per try)")
     p.add_argument("--reset-wait", type=float_range(0), default=1.0, metavar="S",
                    help="longest wait for the dial box's reset answer (default: %(default)s)")
     p.add_argument("--lamps", type=int_range(0, 0xFFFFFFFF), default=0, metavar="MASK",
                    help="dial box lamps to light after init, e.g. 0xffffffff")
     add_tracker_options(p)
+    add_forward_options(p)
     p.add_argument("--dial-counts-per-turn", type=positive_int, default=DEFAULT_COUNTS_PER_TURN,
                    metavar="N", help="dial counts per turn, for the 'turns' of dial events "
                    "(default: %(default)s, VRPN's value)")
@@ -149,6 +154,36 @@ def add_tracker_options(p: argparse.ArgumentParser) -> None:
                    help="send the reset command before the start command on every open")
     p.add_argument("--hatire-big-endian", action="store_true",
                    help="Hatire frames are big-endian (default: little-endian)")
+
+
+def add_forward_options(p: argparse.ArgumentParser) -> None:
+    """``--forward-opentrack HOST:PORT``, ``--forward-filter NAME``, ``--forward-predict-ms``."""
+    p.add_argument("--forward-opentrack", metavar="HOST:PORT", type=_host_port_arg,
+                   help="also send the tracker's filtered poses to HOST:PORT as opentrack UDP "
+                   "datagrams (opentrack's 'UDP over network' input listens on 4242)")
+    p.add_argument("--forward-filter", choices=sorted(FILTERS), default=DEFAULT_FILTER,
+                   help="pose filter of --forward-opentrack (default: %(default)s)")
+    p.add_argument("--forward-predict-ms", type=float_range(0, 1000), default=0.0,
+                   metavar="MS", help="forward the pose predicted MS ms ahead (default: 0)")
+
+
+def forwarding_line(prog: str, fwd: OpentrackForwarder, done: bool = False) -> str:
+    """``PROG: forwarding poses to opentrack at HOST:PORT (FILTER)``; at the end, the counts."""
+    s = fwd.settings
+    where = f"opentrack at {s.host}:{s.port}"
+    if done:
+        st = fwd.stats()
+        return (f"{prog}: forwarded {st['sent']} poses to {where} ({st['skipped']} skipped, "
+                f"{st['send_errors']} send errors)")
+    ahead = f", {s.predict_ms:g} ms ahead" if s.predict_ms else ""
+    return f"{prog}: forwarding poses to {where} (filter {s.filter}{ahead})"
+
+
+def _host_port_arg(text: str) -> tuple[str, int]:
+    try:
+        return host_port(text)
+    except SettingsError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def publishing_line(prog: str, pub: Publisher) -> str:
@@ -310,6 +345,7 @@ class DeviceSession:
         self.t0_ns = self.header.start_monotonic_ns
         self.writer: LogWriter | None = None
         self.publisher: Publisher | None = None
+        self.forwarder: OpentrackForwarder | None = None
         self.listeners: list[Listener] = []
         self.open_errors: dict[str, str] = {}
         try:
@@ -319,7 +355,8 @@ class DeviceSession:
             raise
         # events are published on the reader threads the moment they are decoded;
         # the hub carries the items on to the recorder, the dump and stderr
-        sink = self.hub.put if self.publisher is None else self.publisher.sink(self.hub.put)
+        sink = self.hub.put if self.forwarder is None else self.forwarder.sink(self.hub.put)
+        sink = sink if self.publisher is None else self.publisher.sink(sink)
         tell = retry_teller("holo-devices", err)
         self.readers = [DeviceReader(s, sink, hooks=h, on_retry=tell) for s, h in specs]
 
@@ -331,6 +368,10 @@ class DeviceSession:
         if a.pub:
             self.publisher = Publisher(a.pub, self.t0_ns, pose_address=a.pub_pose,
                                        counts_per_turn=a.dial_counts_per_turn)
+        if a.forward_opentrack:
+            host, port = a.forward_opentrack
+            self.forwarder = OpentrackForwarder(
+                ForwardSettings(host, port, a.forward_filter, a.forward_predict_ms))
         if a.dump:
             self.listeners.append(dump_listener(self.out, self.t0_ns, a.dial_counts_per_turn))
         self.listeners.append(stderr_listener(err, self.t0_ns))
@@ -379,6 +420,8 @@ class DeviceSession:
             self.writer.close()
         if self.publisher is not None:
             self.publisher.close()
+        if self.forwarder is not None:
+            self.forwarder.close()
 
 
 def never_opened(session: DeviceSession) -> list[str]:
@@ -392,8 +435,13 @@ def never_opened(session: DeviceSession) -> list[str]:
 
 
 def gave_up(session: DeviceSession) -> list[str]:
-    """``NAME (URL)`` for each reader that stopped trying (``--no-retry``)."""
-    return [f"{r.name} ({r.settings.url})" for r in session.readers if r.gave_up]
+    """What each reader that stopped trying (``--no-retry``) did, one string each.
+
+    ``NAME (URL) did not open``, or ``... was lost and did not reopen``.
+    """
+    return [f"{r.name} ({r.settings.url}) "
+            + ("was lost and did not reopen" if r.counters.opens else "did not open")
+            for r in session.readers if r.gave_up]
 
 
 def misframed(session: DeviceSession) -> list[str]:
@@ -440,6 +488,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     if session.publisher is not None:
         print(publishing_line("holo-devices", session.publisher), file=sys.stderr, flush=True)
+    if session.forwarder is not None:
+        print(forwarding_line("holo-devices", session.forwarder), file=sys.stderr, flush=True)
     signum = None
     try:
         with stop_on_signals(session.stop) as got:
@@ -451,6 +501,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     finally:
         session.close()
+    if session.forwarder is not None:
+        print(forwarding_line("holo-devices", session.forwarder, done=True), file=sys.stderr)
     print(json.dumps({"stats": session.stats()}), file=sys.stderr)
     missing = never_opened(session)
     for line in missing:
@@ -461,8 +513,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if ok == EXIT_FAILED:
         print("holo-devices: no device could be opened; nothing was read", file=sys.stderr)
     elif stopped := gave_up(session):
-        print(f"holo-devices: stopped: {', '.join(stopped)} did not open and --no-retry "
-              "was given", file=sys.stderr)
+        print(f"holo-devices: stopped: {', '.join(stopped)} (--no-retry)", file=sys.stderr)
         ok = EXIT_FAILED
     return exit_status(signum, ok)
 

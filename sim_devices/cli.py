@@ -28,11 +28,12 @@ from collections.abc import Sequence
 
 from drivers.pty_link import PtyLink
 from drivers.tracker_driver import add_command_options, commands_from_args
+from service.addresses import host_port
 from service.cli_args import float_range, int_range, output_problem, plain_help
 from service.errors import HoloError
 from service.signals import EXIT_FAILED, EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
 from sim_devices.dialbox import DEFAULT_SCRIPT, SCRIPTS, VIEW_DIALS, DialBoxSim
-from sim_devices.endpoints import DeviceRunner, TcpLink, UdpLink, udp_target
+from sim_devices.endpoints import DeviceRunner, TcpLink, UdpLink
 from sim_devices.faults import FaultSpec
 from sim_devices.motion import MOTIONS, make_motion
 from sim_devices.tracker import PROTOCOLS, TrackerSim
@@ -45,7 +46,7 @@ FAULT_HELP = ("comma-separated faults, e.g. 'corrupt=0.02,drop=0.01,truncate=0.0
 def _udp_arg(text: str) -> tuple[str, int]:
     """``--udp HOST:PORT`` (argparse prints the one-line reason)."""
     try:
-        return udp_target(text)
+        return host_port(text)
     except HoloError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 

@@ -174,21 +174,6 @@ class TcpLink:
         self._server.close()
 
 
-def udp_target(text: str) -> tuple[str, int]:
-    """``(host, port)`` of ``HOST:PORT`` (an argparse type: errors are one line).
-
-    Raises
-    ------
-    SettingsError
-        No colon, no host, or a port outside 1-65535.
-    """
-    host, _, port = text.rpartition(":")
-    host = host.strip("[]")
-    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise SettingsError(f"give HOST:PORT with a port in 1-65535, not {text!r}")
-    return host, int(port)
-
-
 class UdpLink:
     """Sends every write as one UDP datagram to ``(host, port)`` (see module docstring)."""
 

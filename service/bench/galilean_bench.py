@@ -43,10 +43,12 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from service.bench import galilean_starvation
+from service.bench.charts import save_chart
 from service.bench.galilean_experiments import (
     CASES,
     ONE_D,
@@ -88,6 +90,9 @@ from service.scene import (
     axis_angle_quaternion,
 )
 from service.scene_motion import advance_scene, control_points, view_scene
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 ORDERS = (0, 1, 2, 3)
 INTERVALS = (1, 2, 4, 8, 16)
@@ -381,7 +386,7 @@ def shadow_timing(size: tuple[int, int], settings: RenderSettings, repeats: int 
     return out
 
 
-def chart_timing(tm: dict, path: Path) -> None:
+def chart_timing(tm: dict, path: Path) -> Figure:
     """Bar chart: ms per refresh per order against the render of the same frame."""
     import matplotlib
 
@@ -401,8 +406,7 @@ def chart_timing(tm: dict, path: Path) -> None:
     ax.tick_params(axis="x", labelrotation=30)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=90)
 
 
 def run_timing(out: Path, time_size: tuple[int, int]) -> dict:
@@ -561,7 +565,7 @@ def _crossing(triangles: int | None) -> str:
     return "not in the range" if triangles is None else f"from {triangles} triangles"
 
 
-def chart_complexity(cx: dict, path: Path) -> None:
+def chart_complexity(cx: dict, path: Path) -> Figure:
     """Log-log ms against triangles: render, ``render_with_motion``, refresh and 10x refresh.
 
     Parameters
@@ -591,8 +595,7 @@ def chart_complexity(cx: dict, path: Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=90)
 
 
 def run_complexity(out: Path, time_size: tuple[int, int],
@@ -651,8 +654,7 @@ def chart_sweep(rows: list[dict], path: Path) -> None:
     ax.set(title="cost vs quality", xlabel="ms per refresh", ylabel="PSNR dB")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
 
 
 def chart_thought(te: dict, path: Path) -> None:
@@ -677,8 +679,7 @@ def chart_thought(te: dict, path: Path) -> None:
     for ax in axes:
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
 
 
 # ------------------------------------------------------------------- cases
@@ -801,6 +802,26 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
                       "starvation": sv["summary"]}, indent=1))
 
 
+def _starved(motion: str, display: DisplaySettings, settings: RenderSettings,
+             refreshes: int) -> tuple:
+    """The one render of a starvation run and ``truth(k)``, the true render k refreshes on."""
+    scene, r = bench_scene(motion), Renderer()
+    if motion != "head-turn":
+        return (render_with_motion(r, scene, display, 0.0, HZ, settings),
+                lambda k: r.render(advance_scene(scene, k / HZ), display, settings).colour)
+    yaw, _ = head_track(refreshes + 1)
+    up = render_with_motion(r, scene, display, 0.0, HZ, settings, viewer=_viewer(yaw[0]),
+                            viewer_motion=_starved_viewer(refreshes)(0))
+    return up, lambda k: r.render(view_scene(scene, _viewer(yaw[k])), display, settings).colour
+
+
+def _starved_viewer(refreshes: int):
+    """``viewer(k)``: the head turn's filtered motion at refresh k (as :func:`prepare`)."""
+    _, est = head_track(refreshes + 1)
+    return lambda k: MotionState(angular_velocity=[0, est[k][1], 0],
+                                 angular_acceleration=[0, est[k][2], 0])
+
+
 def run_starvation(out: Path, size: tuple[int, int], seconds: float,
                    motions: tuple[str, ...] = galilean_starvation.STARVED_MOTIONS) -> dict:
     """``galilean_starvation.*``: ``motions`` starved ``seconds`` at ``size``; returns the JSON."""
@@ -812,8 +833,9 @@ def run_starvation(out: Path, size: tuple[int, int], seconds: float,
     for motion in motions:
         print(f"galilean starvation: {motion}", file=sys.stderr, flush=True)
         rows += galilean_starvation.starve(
-            bench_scene(motion), motion, display, settings, refreshes, HZ,
-            lambda a, b: (psnr(a, b), pct_wrong(a, b)))
+            *_starved(motion, display, settings, refreshes), motion, display, refreshes, HZ,
+            lambda a, b: (psnr(a, b), pct_wrong(a, b)),
+            _starved_viewer(refreshes) if motion == "head-turn" else None)
     return galilean_starvation.write(rows, GalileanSettings.n_prop, HZ, out)
 
 
