@@ -20,7 +20,8 @@ Problems with the links (errors, reconnects) also go to stderr, one line each; a
 port that does not open is tried again with a back-off (50 ms doubling to 2 s),
 each try one line (``holo-devices: tracker (/dev/ttyUSB9): open failed (try 3, same
 error); next try in 0.20 s``), until it opens, ``--seconds`` end or Ctrl-C;
-``--no-retry`` tries each port once and ends the run when one does not open.
+``--no-retry`` tries each port once (and a lost one once again) and ends the run
+when one does not open.
 Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue is drained, the
 recorder closed (the log is complete) and a JSON summary of each device's statistics
 is printed on stderr.
@@ -118,9 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="same for the dial box, which is silent when untouched "
                    "(default: 0 = only on errors)")
     p.add_argument("--no-retry", dest="retry", action="store_false",
-                   help="try each port once: one that does not open ends the run with "
-                   f"status 1 (default: try again after {ReaderSettings.backoff_s:g} s, "
-                   f"doubling up to {ReaderSettings.backoff_max_s:g} s, a line per try)")
+                   help="try each port once (a lost one once more): one that does not "
+                   "open ends the run with status 1 (default: try again after "
+                   f"{ReaderSettings.backoff_s:g} s, doubling up to "
+                   f"{ReaderSettings.backoff_max_s:g} s, a line per try)")
     p.add_argument("--reset-wait", type=float_range(0), default=1.0, metavar="S",
                    help="longest wait for the dial box's reset answer (default: %(default)s)")
     p.add_argument("--lamps", type=int_range(0, 0xFFFFFFFF), default=0, metavar="MASK",
@@ -433,8 +435,13 @@ def never_opened(session: DeviceSession) -> list[str]:
 
 
 def gave_up(session: DeviceSession) -> list[str]:
-    """``NAME (URL)`` for each reader that stopped trying (``--no-retry``)."""
-    return [f"{r.name} ({r.settings.url})" for r in session.readers if r.gave_up]
+    """What each reader that stopped trying (``--no-retry``) did, one string each.
+
+    ``NAME (URL) did not open``, or ``... was lost and did not reopen``.
+    """
+    return [f"{r.name} ({r.settings.url}) "
+            + ("was lost and did not reopen" if r.counters.opens else "did not open")
+            for r in session.readers if r.gave_up]
 
 
 def misframed(session: DeviceSession) -> list[str]:
@@ -506,8 +513,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if ok == EXIT_FAILED:
         print("holo-devices: no device could be opened; nothing was read", file=sys.stderr)
     elif stopped := gave_up(session):
-        print(f"holo-devices: stopped: {', '.join(stopped)} did not open and --no-retry "
-              "was given", file=sys.stderr)
+        print(f"holo-devices: stopped: {', '.join(stopped)} (--no-retry)", file=sys.stderr)
         ok = EXIT_FAILED
     return exit_status(signum, ok)
 

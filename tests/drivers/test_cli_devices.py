@@ -186,5 +186,18 @@ def test_no_retry_tries_each_port_once_and_exits_1(procs, tmp_path):
     # one device read, the other missing: still status 1, the run ends at once
     both = procs("drivers.cli_devices", "--tracker", "loop://", "--dials", path, "--no-retry")
     assert both.finish() == 1
-    assert both.err[-1] == f"holo-devices: stopped: dials ({path}) did not open and " \
-        "--no-retry was given"
+    assert both.err[-1] == f"holo-devices: stopped: dials ({path}) did not open (--no-retry)"
+
+
+@posix_only
+def test_no_retry_ends_the_run_when_a_lost_device_does_not_reopen(procs, tmp_path):
+    path = str(tmp_path / "tracker")
+    link = PtyLink(symlink=path)
+    live = procs("drivers.cli_devices", "--tracker", path, "--dump", "--no-retry")
+    try:
+        live.wait_lines(lambda: any('"message":"opened"' in line for line in live.out))
+    finally:
+        link.close()  # unplugged: the port and its name are gone
+    assert live.finish() == 1
+    assert live.err[-1] == f"holo-devices: stopped: tracker ({path}) was lost and did not " \
+        "reopen (--no-retry)"
