@@ -40,6 +40,7 @@ from service.display import DisplaySettings
 from service.errors import HoloError
 from service.light import MODELS as LIGHT_MODELS
 from service.lod_cli import add_lod_options, lod_settings
+from service.lookingglass import DEFAULT_VIEWS, Interleaver, parse_display
 from service.process import setup_frame_process
 from service.signals import (
     EXIT_FAILED,
@@ -184,8 +185,14 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
     )
-    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=5,
-                   help="view zones, 1-64 (default 5)")
+    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=None,
+                   help="view zones, 1-64 (default 5; 45 with --display lookingglass:...)")
+    p.add_argument(
+        "--display", metavar="lookingglass:CALIBRATION.json", default=None,
+        help="play on a Looking Glass: full screen at the panel's resolution, every view "
+        "interleaved each refresh by the calibration (the device's visual.json), whose "
+        "viewCone sets the viewing angle (--zones sets the view count, default 45)",
+    )
     p.add_argument("--size", type=size, default=None, metavar="WxH",
                    help=f"pixels per zone (default: {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})")
     p.add_argument("--refresh", type=float_range(0, lo_open=True), default=60.0,
@@ -197,6 +204,14 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
 
     Fills in ``args.zone`` (the middle zone) when it was not given.
     """
+    args.calibration = None
+    if args.display is not None:
+        try:
+            args.calibration = parse_display(args.display, args.zones or DEFAULT_VIEWS)
+        except HoloError as exc:
+            parser.error(str(exc))
+        args.zones = args.calibration.views
+    args.zones = args.zones or 5
     if args.zones < 1:
         parser.error(f"--zones {args.zones}: the display needs at least one zone")
     if args.zone is None:
@@ -228,7 +243,10 @@ def _backend_settings(args: argparse.Namespace, look: Look) -> object:
     from game.backends import BackendSettings
 
     lod = lod_settings(args)
-    display = DisplaySettings(zones=args.zones, cols=look.size[0], rows=look.size[1])
+    cal = args.calibration
+    angle = cal.view_cone if cal is not None else DisplaySettings.angle_deg
+    display = DisplaySettings(zones=args.zones, angle_deg=angle, cols=look.size[0],
+                              rows=look.size[1])
     return BackendSettings(display, look.light, args.refresh,
                            lod_error=lod.error_px if lod is not None else 0.0,
                            lod_budget_ms=(lod.budget_ms or 0.0) if lod is not None else 0.0)
@@ -328,7 +346,8 @@ def _setup(args: argparse.Namespace) -> tuple:
         print(line, file=sys.stderr)
     if no_sound is not None:
         print(f"holo-game: no sound device ({no_sound}): the beeps are muted", file=sys.stderr)
-    window = GameWindow()
+    cal = args.calibration
+    window = GameWindow(panel=Interleaver(cal) if cal is not None else None)
     scores = HighScores.load(args.highscores, recover=True)
     if scores.recovered_from is not None:
         print(f"holo-game: {scores.recovered_from}; starting a new table", file=sys.stderr)
