@@ -30,10 +30,6 @@ from service.pipeline import Renderer
 from service.quality import QualityChooser, QualitySettings, choose, parse_budget
 from service.scene import MotionState, Scene
 
-#: Seconds without a finished render, while workers hold jobs, after which one render
-#: runs in process (:meth:`Scheduler.stall_s`): the gap between updates stays short
-#: even before a stopped worker is found dead (3 worker heartbeats, 0.6 s).
-STALL_S = 0.5
 #: Level-of-detail notes (a failed chain build, a damaged cache) remembered so each is
 #: logged once, however many renders and workers report it.
 LOD_NOTES_LOGGED = 256
@@ -55,7 +51,6 @@ class Scheduler:
         self._local: StatsRenderer | None = None  # renders in process while no worker lives
         self.local_ms: deque[float] = deque(maxlen=50)  # their times, ms
         self._local_renders = 0
-        self._done_t: deque[float] = deque(maxlen=20)  # when recent renders finished
 
     def run(self) -> None:
         """Render until the service stops."""
@@ -210,7 +205,6 @@ class Scheduler:
             self.observe(aim, parts, stats)
         lod = _lod_of(stats)
         self.st.counters.n["renders"] += 1
-        self._done_t.append(time.monotonic())
         self.st.last_lod = {"render_id": aim.render_id, **lod} if lod else None
         if lod:
             self._log_lod_notes(_as_dict(lod.get("chains")).get("notes", ()))
@@ -302,19 +296,16 @@ class Scheduler:
 
         With no live worker (none connected or started yet, or every one dead or
         stuck; see :meth:`ServiceState.to_workers`) it renders in process, so renders
-        never wait for a worker that may never come; and while the workers hold jobs
-        but none has finished for :meth:`stall_s`, one render runs in process meanwhile.
+        never wait for a worker that may never come.
         """
         pipe = FramePipe(self.st.ctx, "inproc://holo-broker", self.st.config.render_timeout_s)
         self.st.pipe = pipe
         render_id, next_start = 0, 0.0
-        self._done_t.append(time.monotonic())
         try:
             while not self.st.stop.is_set():
                 capacity, remote = self.capacity(), self.st.to_workers()
                 now = time.monotonic()
-                stalled = bool(pipe.flights) and now - self._done_t[-1] > self.stall_s()
-                if (not remote or stalled) and now >= next_start:
+                if not remote and now >= next_start:
                     done = self.render_once(self.local(), None, render_id)
                     render_id += int(done)
                     next_start = now + (self.cap_s() if done else 0.02)
@@ -342,17 +333,6 @@ class Scheduler:
         if self._local is None:
             self._local = StatsRenderer()
         return self._local
-
-    def stall_s(self) -> float:
-        """How long the workers may go without finishing a render before one runs here.
-
-        :data:`STALL_S`, or four of the recent intervals between finished renders when
-        longer (a heavy scene, a ``--max-update-hz`` cap), so only a real stall (a
-        worker stopped and not yet found dead, workers starved of CPU) triggers it.
-        """
-        t = list(self._done_t)
-        typical = float(np.median(np.diff(t))) if len(t) > 2 else 0.0
-        return max(STALL_S, 4 * typical)
 
     def dispatch(self, pipe: FramePipe, aim: Aim, attempt: int) -> None:
         """Send a whole-frame job (the aim's scene and settings) to the workers."""
