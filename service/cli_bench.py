@@ -71,6 +71,10 @@ BENCHES = {
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
     ),
+    "lookingglass": (
+        "service.bench.lookingglass_bench",
+        "Looking Glass interleave: ms per 2560x1600 panel from 45 views, by threads",
+    ),
     "report": (
         "service.bench.report",
         "every benchmark at one size into one self-contained OUT/index.html",
