@@ -12,7 +12,7 @@ with, per kind,
 
 ========  ===============================================================
 pose      ``yaw, pitch, roll`` (degrees), ``x, y, z`` (device units, mm for
-          the native protocol), ``seq`` (frame counter); optional ``quat``
+          the native protocol and opentrack), ``seq`` (frame counter); optional ``quat``
           ``[w, x, y, z]`` and ``device_t_us`` when the protocol sends them
 dial      ``index`` (0-7), ``delta`` (counts since the last report),
           ``value`` (absolute counts, unwrapped across the 16-bit wrap),

@@ -116,6 +116,35 @@ class UdpPort:
         self._sock.close()
 
 
+class UdpSender:
+    """The other end: every :meth:`write` one datagram to ``opentrack-udp://HOST:PORT``.
+
+    What ``holo-replay --to-port opentrack-udp://...`` writes a recorded opentrack
+    session's datagrams into (one record, one datagram, as they were received).
+    """
+
+    def __init__(self, url: str) -> None:
+        host, port = parse_udp_url(url)
+        self.url = url
+        self._to = (host, port)
+        self._sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET,
+                                   socket.SOCK_DGRAM)
+
+    def write(self, data: bytes) -> int:
+        """Send ``data`` as one datagram (a failed send is lost, as UDP is)."""
+        try:
+            return self._sock.sendto(data, self._to)
+        except OSError:
+            return 0
+
+    def flush(self) -> None:
+        """Nothing is buffered."""
+
+    def close(self) -> None:
+        """Close the socket."""
+        self._sock.close()
+
+
 def open_port(url: str, **kwargs: Any) -> Any:
     """The readers' opener: :class:`UdpPort` for ``opentrack-udp://``, else pyserial's."""
     if is_udp_url(url):

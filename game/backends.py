@@ -303,10 +303,10 @@ class LocalRenderer:
     def _refresh_loop(self) -> None:
         period = 1.0 / self.settings.refresh_hz
         next_t = time.monotonic()
-        graft_index = 0
+        graft_index, missed = 0, 0
         while not self._stop.is_set():
             with self._stage_lock:
-                out = self.stage.refresh()
+                out = self.stage.refresh(1 + missed)  # missed ticks count towards use-by
                 render_id, records_t, version = self._grafted
             if out.flags.get("updated"):
                 graft_index = out.index
@@ -325,7 +325,7 @@ class LocalRenderer:
             with self._cv:
                 self._latest = view
                 self._cv.notify_all()
-            next_t = max(next_t + period, time.monotonic() - period)
+            next_t, missed = _next_tick(next_t, period, time.monotonic())
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
 
@@ -588,6 +588,13 @@ class ServiceBackend:
         if self._stats is not None:
             self._stats.close()
         self.client.close()
+
+
+def _next_tick(next_t: float, period: float, now: float) -> tuple[float, int]:
+    """The next tick after ``next_t`` and the ticks missed: more than a period late skips."""
+    next_t += period
+    missed = math.floor((now - next_t) / period) if now - next_t > period else 0
+    return next_t + missed * period, missed
 
 
 def new_notes(lod: dict | None, seen: set[str]) -> list[str]:

@@ -45,6 +45,10 @@ BENCHES = {
         "service.bench.service_bench",
         "render service: transport overhead, round trip, workers, motion-to-photon",
     ),
+    "chaos": (
+        "service.bench.chaos_bench",
+        "render workers killed and stopped every 5 s: longest gap between updates, jobs",
+    ),
     "filters": ("service.bench.filters_bench", "pose filters: jitter vs lag"),
     "latency": (
         "service.bench.latency_bench",
@@ -66,6 +70,10 @@ BENCHES = {
     "sird": (
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
+    ),
+    "lookingglass": (
+        "service.bench.lookingglass_bench",
+        "Looking Glass interleave: ms per 2560x1600 panel from 45 views, by threads",
     ),
     "report": (
         "service.bench.report",

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 import struct
+from typing import Any
 
 from drivers.events import DecoderStats, Event, PoseEvent, StatusEvent
 
@@ -152,7 +153,7 @@ class OpentrackDecoder:
             return "out_of_range"
         return None
 
-    def _bad_run(self, reason: str, t_ns: int, seq: int, details: dict) -> list[Event]:
+    def _bad_run(self, reason: str, t_ns: int, seq: int, details: dict[str, Any]) -> list[Event]:
         """An ``error`` status for the first bad datagram of a run (of one reason)."""
         if self._bad == reason:
             return []

@@ -802,6 +802,26 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
                       "starvation": sv["summary"]}, indent=1))
 
 
+def _starved(motion: str, display: DisplaySettings, settings: RenderSettings,
+             refreshes: int) -> tuple:
+    """The one render of a starvation run and ``truth(k)``, the true render k refreshes on."""
+    scene, r = bench_scene(motion), Renderer()
+    if motion != "head-turn":
+        return (render_with_motion(r, scene, display, 0.0, HZ, settings),
+                lambda k: r.render(advance_scene(scene, k / HZ), display, settings).colour)
+    yaw, _ = head_track(refreshes + 1)
+    up = render_with_motion(r, scene, display, 0.0, HZ, settings, viewer=_viewer(yaw[0]),
+                            viewer_motion=_starved_viewer(refreshes)(0))
+    return up, lambda k: r.render(view_scene(scene, _viewer(yaw[k])), display, settings).colour
+
+
+def _starved_viewer(refreshes: int):
+    """``viewer(k)``: the head turn's filtered motion at refresh k (as :func:`prepare`)."""
+    _, est = head_track(refreshes + 1)
+    return lambda k: MotionState(angular_velocity=[0, est[k][1], 0],
+                                 angular_acceleration=[0, est[k][2], 0])
+
+
 def run_starvation(out: Path, size: tuple[int, int], seconds: float,
                    motions: tuple[str, ...] = galilean_starvation.STARVED_MOTIONS) -> dict:
     """``galilean_starvation.*``: ``motions`` starved ``seconds`` at ``size``; returns the JSON."""
@@ -813,8 +833,9 @@ def run_starvation(out: Path, size: tuple[int, int], seconds: float,
     for motion in motions:
         print(f"galilean starvation: {motion}", file=sys.stderr, flush=True)
         rows += galilean_starvation.starve(
-            bench_scene(motion), motion, display, settings, refreshes, HZ,
-            lambda a, b: (psnr(a, b), pct_wrong(a, b)))
+            *_starved(motion, display, settings, refreshes), motion, display, refreshes, HZ,
+            lambda a, b: (psnr(a, b), pct_wrong(a, b)),
+            _starved_viewer(refreshes) if motion == "head-turn" else None)
     return galilean_starvation.write(rows, GalileanSettings.n_prop, HZ, out)
 
 

@@ -15,6 +15,7 @@ gap, side by side on the same render:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,60 +23,64 @@ import numpy as np
 from service.bench.charts import save_chart
 from service.bench.rows import write_csv
 from service.display import DisplaySettings
-from service.galilean.motion_field import render_with_motion
+from service.galilean.motion_field import RenderedUpdate
 from service.galilean.stage import GalileanSettings, GalileanStage
-from service.pipeline import Renderer, RenderSettings
-from service.scene import Scene
-from service.scene_motion import advance_scene
+from service.scene import MotionState
 
 #: The ways of filling a gap between renders, as charted (name -> stage ``hold``, None:
 #: no stage, the render itself).
 WAYS = {"hold": True, "extrapolate": False, "render-only": None}
-#: Motions of :func:`service.bench.galilean_bench.bench_scene` starved.
-STARVED_MOTIONS = ("linear", "falling", "rotating-cube")
+#: Motions of :func:`service.bench.galilean_bench.bench_scene` starved (head-turn: the
+#: viewer turns, its filtered motion handed to the stage at every refresh).
+STARVED_MOTIONS = ("linear", "falling", "rotating-cube", "head-turn")
 
 
-def starve(scene: Scene, motion: str, display: DisplaySettings, settings: RenderSettings,
-           refreshes: int, hz: float, score) -> list[dict]:
+def starve(update: RenderedUpdate, truth: Callable[[int], np.ndarray], motion: str,
+           display: DisplaySettings, refreshes: int, hz: float, score,
+           viewer: Callable[[int], MotionState] | None = None) -> list[dict]:
     """Rows of one motion: per refresh after the render and per way, the error.
 
     Parameters
     ----------
-    scene : Scene
-        The scene at t = 0 (it moves by its objects' motion).
+    update : RenderedUpdate
+        The one render (``render_with_motion`` at t = 0).
+    truth : callable
+        ``truth(k)``: the true render (Z, R, C, 3) uint8 ``k`` refreshes later.
     motion : str
         Its name, for the rows.
     display : DisplaySettings
-    settings : RenderSettings
     refreshes : int
         Refreshes without a render after the one that grafts it.
     hz : float
         Refresh rate.
     score : callable
         ``score(shown, truth) -> (psnr, pct_wrong)`` of two (Z, R, C, 3) uint8 images.
+    viewer : callable, optional
+        ``viewer(k)``: the filtered head motion handed to the stages before
+        refresh ``k`` (the head-motion update; a held stage keeps it for later).
 
     Returns
     -------
     list of dict
         ``motion``, ``way``, ``refreshes``, ``seconds``, ``psnr``, ``pct_wrong``, ``held``.
     """
-    r = Renderer()
-    up = render_with_motion(r, scene, display, 0.0, hz, settings)
     stages = {}
     for way, hold in WAYS.items():
         if hold is None:
             continue
         st = GalileanStage(display, GalileanSettings(order=2, refresh_hz=hz, hold=hold))
-        st.update(up, 0)
+        st.update(update, 0)
         st.refresh()
         stages[way] = st
     rows = []
     for k in range(1, refreshes + 1):
-        truth = r.render(advance_scene(scene, k / hz), display, settings).colour
+        true = truth(k)
         for way in WAYS:
+            if way in stages and viewer is not None:
+                stages[way].viewer(viewer(k))
             out = stages[way].refresh() if way in stages else None
-            shown = up.frame.colour if out is None else out.colour
-            ps, wrong = score(shown, truth)
+            shown = update.frame.colour if out is None else out.colour
+            ps, wrong = score(shown, true)
             rows.append({"motion": motion, "way": way, "refreshes": k,
                          "seconds": round(k / hz, 4), "psnr": round(ps, 3),
                          "pct_wrong": round(wrong, 3),

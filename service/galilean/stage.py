@@ -245,6 +245,8 @@ class GalileanStage:
         self._last_viewer = MotionState()
         #: refreshes the last global update may be propagated (its use-by date)
         self._use_by = s.n_prop
+        #: refresh periods missed (not computed) since the last global update
+        self._missed = 0
         #: rows a galpixel of ``self.map`` can move in one refresh (None: unknown)
         self._reach: int | None = None
         #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
@@ -403,8 +405,18 @@ class GalileanStage:
         self._viewer_next = motion
 
     # ---------------------------------------------------------------- refresh
-    def refresh(self) -> Refresh:
-        """Produce the next displayed frame."""
+    def refresh(self, periods: int = 1) -> Refresh:
+        """Produce the next displayed frame.
+
+        ``periods``: refresh periods since the last refresh, more than 1 when the
+        caller missed ticks (a busy machine).  The map is still propagated one
+        refresh (motion is per refresh), but the missed periods count towards the
+        render's use-by, so that a picture is held once the rated propagation
+        time has passed on the clock, not only in refreshes computed.
+        """
+        if not (isinstance(periods, int) and periods >= 1):
+            raise GalileanError(f"periods must be an integer >= 1, got {periods!r}")
+        self._missed += periods - 1
         with self._thread_limit():
             return self._refresh()
 
@@ -485,8 +497,9 @@ class GalileanStage:
     def _hold(self, global_due: bool) -> bool:
         """Whether this refresh holds the last render: it is past its use-by, none is due.
 
-        The refresh would show the last global update propagated ``age + 1``
-        refreshes, past its use-by (``n_prop`` or its own ``use_by``).  The first
+        The refresh would show the last global update ``age + 1`` refreshes (and
+        the periods missed since) after its graft, past its use-by (``n_prop`` or
+        its own ``use_by``).  The first
         held refresh puts the last render back into the map as it came (with the
         local updates grafted since); the map then stays as it is (shown again each
         refresh, local grafts shown where they land) until the next global update.
@@ -494,7 +507,7 @@ class GalileanStage:
         if not self.settings.hold or not self._started or global_due:
             self._held = False
             return False
-        if not self._held and self.age >= self._use_by:
+        if not self._held and self.age + self._missed >= self._use_by:
             if self._last is not None:  # None: local updates only, the map stays as it is
                 self._restore_last()
             self._held = True
@@ -660,7 +673,7 @@ class GalileanStage:
             if self.cache is not None:
                 self.cache[0].debris.fill(1)
             self._guard_update(p)
-            self.age = 0
+            self.age = self._missed = 0
             self._viewer = p.viewer or self._viewer
             self._use_by = self.settings.n_prop if p.use_by is None else p.use_by
             if self.settings.hold:
@@ -702,7 +715,7 @@ class GalileanStage:
                 c.debris.fill(1)
         self._started = self._held = False
         self._last = None
-        self.age = 0
+        self.age = self._missed = 0
         self.reset_guard()
 
     def reset_guard(self) -> None:

@@ -164,6 +164,8 @@ class RefreshLoop:
         self.t_render_ns = 0
         self.since = 0
         self.prepared: tuple[Any, dict[str, Any]] | None = None
+        #: ticks skipped before the coming one (their periods count towards a use-by)
+        self.missed = 0
         self.input: dict[str, Any] | None = None
         self.sird = None  # service.autostereogram.SirdOutput while that encoding is on
 
@@ -209,6 +211,7 @@ class RefreshLoop:
         if now - next_t > period:
             missed = math.floor((now - next_t) / period)
             self.st.counters.n["refresh_overruns"] += missed
+            self.missed += missed
             next_t += missed * period
         if next_t > now:
             self.st.stop.wait(next_t - now)
@@ -233,7 +236,8 @@ class RefreshLoop:
             st.stream.heartbeat()
         t0 = time.perf_counter()
         self._submit()
-        r = self.stage.refresh()
+        r = self.stage.refresh(1 + self.missed)
+        self.missed = 0
         c.n["refreshes"] += 1
         c.n["held_refreshes"] += r.flags["held"]
         c.held = r.flags["held"]

@@ -146,3 +146,14 @@ def test_holo_sim_over_udp_into_holo_devices_recorded_and_replayed(procs, tmp_pa
     replay = procs("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump")
     assert replay.finish(HANG_S) == 0
     assert replay.out == live.out  # datagram by datagram, the same lines
+
+    # and back onto UDP, at the recorded timing, into a listener of our own
+    port2, c = free_udp_port(), Collector()
+    with listen(port2, c, watchdog_s=None) as reader:
+        wait_for(lambda: opened(c), HANG_S, "the second listener opened")
+        again = procs("drivers.cli_replay", str(log), "--to-port",
+                      f"opentrack-udp://127.0.0.1:{port2}", "--speed", "4")
+        assert again.finish(HANG_S) == 0
+        wait_for(lambda: reader.stats()["chunks"] == stats["chunks"], HANG_S,
+                 "every recorded datagram sent again")
+    assert [e.x for e in c.snapshot() if isinstance(e, PoseEvent)] == [p["x"] for p in poses]

@@ -108,7 +108,7 @@ def test_cli_starvation(tmp_path, capsys):
     doc = json.loads((tmp_path / "galilean_starvation.json").read_text())
     assert doc["summary"] == summary and doc["n_prop"] == 16
     rows = doc["rows"]
-    assert {r["motion"] for r in rows} == {"linear", "falling", "rotating-cube"}
+    assert {r["motion"] for r in rows} == {"linear", "falling", "rotating-cube", "head-turn"}
     by = {(r["motion"], r["way"], r["refreshes"]): r for r in rows}
     for (motion, way, k), r in by.items():
         assert r["held"] == (way == "hold" and k > 16)

@@ -188,3 +188,20 @@ def test_a_render_is_used_by_the_refresh_before_an_object_turns_45_degrees():
     head = MotionState(angular_velocity=[0.0, -fast, 0.0])  # the viewer turning too
     assert render_use_by(_spinning(0.0), HZ, 16, viewer=head) == 10
     assert render_use_by(_spinning(fast * 20), HZ, 16) == 0  # held from the first refresh
+
+
+def test_missed_refresh_periods_count_towards_the_use_by():
+    """A busy machine computes 1 refresh in 5 periods: held once 16 periods have passed."""
+    st = stage(2, refresh_hz=HZ)
+    st.update(scene_update(SQUARES), 0)
+    render = st.refresh()
+    frames = [st.refresh(periods=5) for _ in range(5)]
+    assert [f.flags["held"] for f in frames] == [False] * 3 + [True] * 2  # at 15, 20 periods
+    assert [f.flags["age"] for f in frames] == [1, 2, 3, 4, 5]  # refreshes computed
+    assert all(_same(f, render) for f in frames[3:])
+    st.update(scene_update(SQUARES), st.index)  # a render starts the count again
+    st.refresh(periods=3)
+    assert [f.flags["held"] for f in _starve(st, 16)] == [False] * 16
+    for bad in (0, 1.5):
+        with pytest.raises(GalileanError, match="periods"):
+            st.refresh(periods=bad)

@@ -65,8 +65,10 @@ def test_local_mode_holds_the_last_render_when_renders_stop(local):
     else:
         pytest.fail("never saw the frame that shows a render itself")
     render = mine[0]
-    held = [f for f in mine if f.since_render > use_by]
-    assert all(f.held == (f.since_render > use_by) for f in mine)
+    held = [f for f in mine if f.held]
+    # held past the use-by; sooner when the refresh thread missed ticks (a busy machine)
+    assert all(f.held for f in mine if f.since_render > use_by)
+    assert not render.held
     assert len(held) >= 3 * HZ - use_by - 10  # a few frames may be taken late, not many
     for f in held:  # the render itself, not one pixel of an expired galpixel
         assert np.array_equal(f.colour, render.colour), f"held frame {f.since_render}"
@@ -82,3 +84,12 @@ def test_the_game_over_burst_is_carried_to_the_score_screen(local):
     assert not any(f.held for f in flying)  # past the rating, and not held
     assert not np.array_equal(flying[0].colour, flying[-1].colour)  # the pieces fly
     assert local._burst_use_by == int(np.ceil(BURST_SECONDS * HZ))
+
+
+def test_the_local_refresh_loop_counts_the_ticks_it_missed():
+    from game.backends import _next_tick
+
+    assert _next_tick(0.0, 0.1, 0.05) == (0.1, 0)
+    assert _next_tick(0.0, 0.1, 0.15) == (0.1, 0)  # late, less than a period: no skip
+    t, missed = _next_tick(0.0, 0.1, 0.35)
+    assert missed == 2 and t == pytest.approx(0.3)

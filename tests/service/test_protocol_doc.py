@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-from testkit import ROOT, raw_request
+from testkit import HANG_S, ROOT, raw_request, wait_until
 
 from service.net import protocol
 
@@ -172,6 +172,30 @@ def test_load_scene_counts_polygons_as_the_mesh_holds_them(svc, tmp_path: Path):
     got = ask(svc, {"type": "load_scene", "id": 15, "path": str(quad)})
     assert got["ok"] and got["polygons"] == 1  # one quad
     ask(svc, {"type": "load_scene", "id": 16, "builtin": "game"})
+
+
+def _stats_row() -> str:
+    return next(line for line in _section("### 1.5").splitlines() if line.startswith("| `stats`"))
+
+
+def test_the_worker_stats_are_documented_and_served(service_factory):
+    """Every worker field of ``stats`` is in the doc's ``stats`` row, and the reverse."""
+    row = _stats_row()
+    workers = service_factory("--scene", "game", "--zones", "2", "--size", "32x24",
+                              "--refresh", "30", "--workers", "1")
+    assert wait_until(lambda: ask(workers, {"type": "stats"})["stats"]["worker_pids"], HANG_S)
+    st = ask(workers, {"type": "stats", "id": 16})["stats"]
+    for key in ("workers", "worker_pids", "worker_deaths", "worker_restarts", "worker_error",
+                "jobs_resent", "split"):
+        assert f"`{key}`" in row and key in st, key
+    for key in st["workers"]:
+        assert f"`{key}`" in row, key
+    entry = re.search(r"`\{(pid, [a-z_, ]+)\}`", row)
+    assert entry, "no per-worker entry in the stats row"
+    documented = [k.strip() for k in entry.group(1).split(",")]
+    got = st["workers"]["workers"]
+    assert got, "the service's worker is not listed"
+    assert sorted(got[0]) == sorted(documented)
 
 
 def test_the_frame_header_table_is_a_real_frame_header(svc):

@@ -1,15 +1,15 @@
 """A service whose renders stop holds the last render, and says so (seed 002 use-by).
 
-The only worker is stopped (SIGSTOP) for more than 3 s of refreshes: the frames go
-on at the refresh rate, propagated for ``use_by`` refreshes after the last render,
-then showing that render bit for bit (``held`` in the frame header and in
-``stats``); once the worker goes on, the next render ends the hold.
+Renders come once every 4 s (``--max-update-hz 0.25``), more than 3 s of refreshes
+apart: the frames go on at the refresh rate, propagated for ``use_by`` refreshes
+after the last render, then showing that render bit for bit (``held`` in the frame
+header and in ``stats``); the next render ends the hold.  (A stopped worker no
+longer stops the renders: it is killed and replaced, and the service renders in
+process meanwhile; ``docs/service.md``, "Supervised workers".)
 """
 
 from __future__ import annotations
 
-import os
-import signal
 import time
 
 import numpy as np
@@ -40,22 +40,18 @@ def _starve(frames: FrameSubscriber, c: ServiceClient) -> tuple[dict, dict, dict
             held_stats = c.stats()
         if header["since_render"] >= STARVED:
             return seen[header["render_id"]], held_stats
-    raise AssertionError("renders never stopped for 3 s with the worker stopped")
+    raise AssertionError("renders never stopped for 3 s")
 
 
-def test_a_stopped_worker_leaves_the_last_render_held_not_extrapolated(service_factory):
+def test_renders_that_stop_coming_leave_the_last_render_held_not_extrapolated(
+        service_factory):
     svc = service_factory(
         "--scene", "game", "--zones", "2", "--size", "48x32", "--workers", "1",
-        "--render-timeout", "60", "--refresh", str(HZ),
+        "--max-update-hz", "0.25", "--refresh", str(HZ),
     )  # fmt: skip
     with ServiceClient(svc.control, timeout_s=5) as c, FrameSubscriber(svc.frames) as frames:
-        (worker,) = c.stats()["worker_pids"]
-        assert wait_until(lambda: c.stats()["updates"] >= 3, HANG_S), "the worker never rendered"
-        os.kill(worker, signal.SIGSTOP)
-        try:
-            last, held_stats = _starve(frames, c)
-        finally:
-            os.kill(worker, signal.SIGCONT)
+        assert wait_until(lambda: c.stats()["updates"] >= 1, HANG_S), "the service never rendered"
+        last, held_stats = _starve(frames, c)
         assert 0 in last, "the frame showing the last render itself was not received"
         render_header, render = last[0]
         use_by = render_header["use_by"]
@@ -63,15 +59,16 @@ def test_a_stopped_worker_leaves_the_last_render_held_not_extrapolated(service_f
         assert use_by == 15 and not render_header["held"]
         held = 0
         for since, (header, arrays) in sorted(last.items()):
-            assert header["held"] == (since > use_by), header
-            if since > use_by:  # every pixel the render's own: none from an expired galpixel
+            # held past the use-by; sooner when the loaded refresh thread missed ticks
+            assert header["held"] or since <= use_by, header
+            if header["held"]:  # every pixel the render's own: none from an expired galpixel
                 held += 1
                 for name in ("colour", "depth"):
                     assert np.array_equal(arrays[name], render[name]), (since, name)
         assert held >= STARVED - use_by - 10  # a few frames may be dropped, not many
         assert held_stats["held"] is True and held_stats["held_refreshes"] > 0
-        # the worker goes on: the next render ends the hold
+        # the next render ends the hold
         assert wait_until(lambda: (f := frames.next(1.0)) is not None
                           and f[0]["render_id"] > render_header["render_id"]
-                          and not f[0]["held"], HANG_S), "no render after the worker went on"
+                          and not f[0]["held"], HANG_S), "no render after the hold"
         assert wait_until(lambda: c.stats()["held"] is False, HANG_S)
