@@ -4,8 +4,9 @@ One page, served by the standard library's HTTP server on loopback: the current
 frame as an MJPEG stream (``/stream.mjpg``; layout ``zone``, ``strip``, ``quilt``,
 ``depth`` or ``autostereogram``), and ``/status.json`` (polled by the page twice a
 second): whether the service is alive, refreshes/s and renders/s (plotted live by
-the page), the service's ``stats``, the viewer pose of the newest frame and the
-warm-up progress.  The page posts what it shows to ``/seen`` once a second (the
+the page), the service's ``stats``, the viewer pose (position, orientation and motion, from
+an empty ``set_viewer``, which changes nothing) and the zone of the newest frame, and
+the warm-up progress.  The page posts what it shows to ``/seen`` once a second (the
 frame it drew, a checksum of its pixels and its status line), so the server can
 count browsers watching (``viewers``) and tests can read what a real browser saw.
 
@@ -121,6 +122,7 @@ class Watcher:
         self.frames = 0
         self.stats: dict[str, Any] | None = None
         self.stats_error = ""
+        self.viewer: dict[str, Any] | None = None
         self.alive = False
         self.seen: dict[str, Any] = {}
         self.viewers: dict[str, float] = {}
@@ -159,12 +161,15 @@ class Watcher:
         try:
             while not self._stop.wait(1.0):
                 try:
-                    stats = client.stats()
-                    error = ""
+                    stats, error = client.stats(), ""
+                    # set_viewer without a pose or devices changes nothing, and answers
+                    # with the pose in use (docs/protocol.md 1.5)
+                    viewer = client.set_viewer().get("viewer")
                 except Exception as exc:  # noqa: BLE001 - any failure is "no stats"
-                    stats, error = None, str(exc).splitlines()[0] if str(exc) else repr(exc)
+                    stats, viewer = None, None
+                    error = str(exc).splitlines()[0] if str(exc) else repr(exc)
                 with self.lock:
-                    self.stats, self.stats_error = stats, error
+                    self.stats, self.stats_error, self.viewer = stats, error, viewer
         finally:
             client.close()
 
@@ -200,7 +205,7 @@ class Watcher:
                 "alive": self.alive and stats is not None,
                 "frames": self.frames, "seq": h.get("seq"), "zone": h.get("zone"),
                 "zones": int(self.arrays["colour"].shape[0]) if "colour" in self.arrays else None,
-                "held": h.get("held") is True, "viewer": h.get("viewer"),
+                "held": h.get("held") is True, "viewer": self.viewer,
                 "pose": {k: h.get(k) for k in ("pose_n", "pose_seq", "pose_t_ns")},
                 "refreshes_per_s": (stats or {}).get("refreshes_per_s"),
                 "updates_per_s": (stats or {}).get("updates_per_s"),
@@ -396,7 +401,9 @@ async function poll() {
     document.getElementById('rhz').textContent = (s.refreshes_per_s || 0).toFixed(1);
     document.getElementById('uhz').textContent = (s.updates_per_s || 0).toFixed(1);
     document.getElementById('pose').textContent = 'frame ' + s.seq + ', zone ' + s.zone +
-      ' of ' + s.zones + (s.viewer ? ', viewer ' + JSON.stringify(s.viewer) : '');
+      ' of ' + s.zones + (s.viewer && s.viewer.position ? ', viewer at ' +
+      JSON.stringify(s.viewer.position) + ' facing ' + JSON.stringify(s.viewer.orientation)
+      : ', no viewer pose (straight on)');
     document.getElementById('warm').textContent = s.warmup ?
       'warm-up: ' + JSON.stringify(s.warmup) : '';
     document.getElementById('stats').textContent = JSON.stringify(s.stats, null, 1);

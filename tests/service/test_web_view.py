@@ -82,6 +82,13 @@ def test_the_page_status_and_every_layout_are_served(web):
         assert b"--holoframe" in head and b"image/jpeg" in head
 
 
+def test_the_viewer_pose_is_shown(service, web):
+    with ServiceClient(service.control) as c:
+        c.set_viewer(position=[0.25, 0.0, 1.5])
+    assert wait_until(lambda: (_status(web)["viewer"] or {}).get("position"), HANG_S)
+    assert _status(web)["viewer"]["position"] == pytest.approx([0.25, 0.0, 1.5])
+
+
 def test_a_stopped_service_is_reported(service, web):
     wait_until(lambda: _status(web)["alive"], HANG_S)
     service.stop()
