@@ -177,13 +177,14 @@ def _billboard_words(report: dict) -> str:
     return f", {quads} billboards" if quads else ""
 
 
-def _load(spec: str, strict: bool = False) -> tuple[Scene, list[str]]:
-    """The scene, and the one-line repair warnings its mesh files gave."""
+def _load(spec: str, strict: bool = False,
+          display: DisplaySettings | None = None) -> tuple[Scene, list[str]]:
+    """The scene (a lone mesh fitted to ``display``), and its files' repair warnings."""
     if spec.startswith("builtin:"):
         return builtin_scene(spec.split(":", 1)[1]), []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MeshRepairWarning)
-        scene = load_scene(Path(spec), strict)
+        scene = load_scene(Path(spec), strict, display)
     for w in caught:
         if not issubclass(w.category, MeshRepairWarning):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -284,7 +285,7 @@ def run(args: argparse.Namespace) -> dict:
         painter_fallback=_fallback(args),
     )
     start = time.perf_counter()
-    scene, repairs = _load(args.scene, args.strict)
+    scene, repairs = _load(args.scene, args.strict, display)
     load_ms = (time.perf_counter() - start) * 1e3
     for line in repairs:
         print(f"holo-render: warning: {line}", file=sys.stderr)
