@@ -67,6 +67,10 @@ BENCHES = {
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
     ),
+    "compile": (
+        "service.bench.compile_bench",
+        "cold compile: wall and CPU seconds per warm-up job and kernel, empty cache",
+    ),
     "report": (
         "service.bench.report",
         "every benchmark at one size into one self-contained OUT/index.html",
