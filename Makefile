@@ -49,4 +49,4 @@ bench: $(STAMP)
 	$(BIN)/holo-bench report --out bench-out
 
 clean:
-	rm -rf $(VENV) demo-out render-demo-out bench-out
+	rm -rf $(VENV) demo-out render-demo-out bench-out bench-out.partial-*

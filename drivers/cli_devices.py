@@ -16,15 +16,21 @@ characters; native devices get command frames); the dial box gets VRPN's handsha
 ``docs/drivers.md``; dial events carry ``turns`` per ``--dial-counts-per-turn``).
 With ``--pub`` the first stderr line names the bound address (``--pub`` alone binds
 the default ``tcp://127.0.0.1:5560``, ``tcp://127.0.0.1:0`` picks a free port).
-Problems with the links (errors, reconnects) also go to stderr, one line each.
+Problems with the links (errors, reconnects) also go to stderr, one line each; a
+port that does not open is tried again with a back-off (50 ms doubling to 2 s),
+each try one line (``holo-devices: tracker (/dev/ttyUSB9): open failed (try 3, same
+error); next try in 0.20 s``), until it opens, ``--seconds`` end or Ctrl-C;
+``--no-retry`` tries each port once (and a lost one once again) and ends the run
+when one does not open.
 Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue is drained, the
 recorder closed (the log is complete) and a JSON summary of each device's statistics
 is printed on stderr.
 
 Exit status (the rule of :mod:`service.signals`): 0 when the run ended (``--seconds``)
 having opened a device; 1 when no device could ever be opened (each device's last
-error is named); 2 for bad settings (an address that cannot be bound, a log that
-cannot be created); 130 / 143 after a clean stop on SIGINT / SIGTERM.
+error is named), or with ``--no-retry`` when any port did not open; 2 for bad
+settings (an address that cannot be bound, a log that cannot be created); 130 / 143
+after a clean stop on SIGINT / SIGTERM.
 """
 
 from __future__ import annotations
@@ -42,6 +48,8 @@ from typing import Any, TextIO
 
 from drivers.dialbox_driver import DialBoxDriver
 from drivers.events import DEFAULT_COUNTS_PER_TURN, Event, StatusEvent
+from drivers.filters import FILTERS
+from drivers.opentrack_forward import DEFAULT_FILTER, ForwardSettings, OpentrackForwarder
 from drivers.protocols.framing import FramingCheck
 from drivers.protocols.sgi_dialbox import BAUD as SGI_BAUD
 from drivers.publisher import Publisher
@@ -54,12 +62,14 @@ from drivers.reader import (
     EventHub,
     Item,
     ReaderSettings,
+    Retry,
 )
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
-from service.addresses import default_address
+from drivers.udp_port import is_udp_url, parse_udp_url
+from service.addresses import default_address, host_port
 from service.cli_args import endpoint, float_range, int_range, output_problem, plain_help
-from service.errors import HoloError
+from service.errors import HoloError, SettingsError
 from service.signals import (
     EXIT_FAILED,
     EXIT_OK,
@@ -72,6 +82,8 @@ from service.signals import (
 Listener = Callable[[Item, list[Event]], None]
 #: status events echoed on stderr.
 LOUD_STATUS = frozenset({"error", "reconnect"})
+#: status reasons not echoed: the retry lines (:func:`retry_line`) say them.
+SAID_BY_RETRY = frozenset({"open_failed"})
 #: An argparse type: an integer > 0.
 positive_int = int_range(1)
 
@@ -82,11 +94,14 @@ def build_parser() -> argparse.ArgumentParser:
         prog="holo-devices",
         description="Read a head tracker and an SGI dial box over serial ports "
         "(pyserial URLs), publish their events on ZeroMQ, record raw bytes, dump JSON.",
-        epilog=plain_help(EXIT_RULE + " 1: no device could be opened at all."))
+        epilog=plain_help(EXIT_RULE + " 1: no device could be opened at all, or with "
+                          "--no-retry one did not open."))
     p.add_argument("--tracker", metavar="URL",
-                   help="tracker port: /dev/ttyUSB0, loop://, socket://host:port, rfc2217://")
-    p.add_argument("--tracker-protocol", choices=("hatire", "native"), default="hatire",
-                   help="tracker byte protocol (default: %(default)s)")
+                   help="tracker port: /dev/ttyUSB0, loop://, socket://host:port, rfc2217://, "
+                   "or opentrack-udp://HOST:PORT to listen for opentrack's UDP poses")
+    p.add_argument("--tracker-protocol", choices=("hatire", "native", "opentrack"),
+                   default=None, help="tracker protocol (default: opentrack for an "
+                   "opentrack-udp:// URL, else hatire)")
     p.add_argument("--dials", metavar="URL", help="SGI dial and button box port")
     add_publish_options(p)
     p.add_argument("--record", metavar="FILE", help="record raw bytes to a new session log")
@@ -103,11 +118,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dials-watchdog", type=float_range(0), default=0.0, metavar="S",
                    help="same for the dial box, which is silent when untouched "
                    "(default: 0 = only on errors)")
+    p.add_argument("--no-retry", dest="retry", action="store_false",
+                   help="try each port once (a lost one once more): one that does not "
+                   "open ends the run with status 1 (default: try again after "
+                   f"{ReaderSettings.backoff_s:g} s, doubling up to "
+                   f"{ReaderSettings.backoff_max_s:g} s, a line per try)")
     p.add_argument("--reset-wait", type=float_range(0), default=1.0, metavar="S",
                    help="longest wait for the dial box's reset answer (default: %(default)s)")
     p.add_argument("--lamps", type=int_range(0, 0xFFFFFFFF), default=0, metavar="MASK",
                    help="dial box lamps to light after init, e.g. 0xffffffff")
     add_tracker_options(p)
+    add_forward_options(p)
     p.add_argument("--dial-counts-per-turn", type=positive_int, default=DEFAULT_COUNTS_PER_TURN,
                    metavar="N", help="dial counts per turn, for the 'turns' of dial events "
                    "(default: %(default)s, VRPN's value)")
@@ -133,6 +154,36 @@ def add_tracker_options(p: argparse.ArgumentParser) -> None:
                    help="send the reset command before the start command on every open")
     p.add_argument("--hatire-big-endian", action="store_true",
                    help="Hatire frames are big-endian (default: little-endian)")
+
+
+def add_forward_options(p: argparse.ArgumentParser) -> None:
+    """``--forward-opentrack HOST:PORT``, ``--forward-filter NAME``, ``--forward-predict-ms``."""
+    p.add_argument("--forward-opentrack", metavar="HOST:PORT", type=_host_port_arg,
+                   help="also send the tracker's filtered poses to HOST:PORT as opentrack UDP "
+                   "datagrams (opentrack's 'UDP over network' input listens on 4242)")
+    p.add_argument("--forward-filter", choices=sorted(FILTERS), default=DEFAULT_FILTER,
+                   help="pose filter of --forward-opentrack (default: %(default)s)")
+    p.add_argument("--forward-predict-ms", type=float_range(0, 1000), default=0.0,
+                   metavar="MS", help="forward the pose predicted MS ms ahead (default: 0)")
+
+
+def forwarding_line(prog: str, fwd: OpentrackForwarder, done: bool = False) -> str:
+    """``PROG: forwarding poses to opentrack at HOST:PORT (FILTER)``; at the end, the counts."""
+    s = fwd.settings
+    where = f"opentrack at {s.host}:{s.port}"
+    if done:
+        st = fwd.stats()
+        return (f"{prog}: forwarded {st['sent']} poses to {where} ({st['skipped']} skipped, "
+                f"{st['send_errors']} send errors)")
+    ahead = f", {s.predict_ms:g} ms ahead" if s.predict_ms else ""
+    return f"{prog}: forwarding poses to {where} (filter {s.filter}{ahead})"
+
+
+def _host_port_arg(text: str) -> tuple[str, int]:
+    try:
+        return host_port(text)
+    except SettingsError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def publishing_line(prog: str, pub: Publisher) -> str:
@@ -191,28 +242,82 @@ def dump_listener(out: TextIO, t0_ns: int,
 
 
 def stderr_listener(err: TextIO, t0_ns: int) -> Listener:
-    """A hub listener echoing link errors and reconnects on ``err``."""
+    """A hub listener echoing link errors and reconnects on ``err``.
+
+    Failed opens are left to the retry lines (:func:`retry_teller`).
+    """
 
     def echo(item: Item, events: list[Event]) -> None:
         for ev in events:
-            if isinstance(ev, StatusEvent) and ev.event in LOUD_STATUS:
+            if (isinstance(ev, StatusEvent) and ev.event in LOUD_STATUS
+                    and ev.details.get("reason") not in SAID_BY_RETRY):
                 err.write(f"{ev.device}: {ev.event} {json.dumps(dict(ev.details))}\n")
 
     return echo
 
 
+def tracker_protocol(url: str, protocol: str | None) -> str:
+    """The tracker's protocol: ``opentrack`` exactly for ``opentrack-udp://`` URLs.
+
+    Raises
+    ------
+    SettingsError
+        A malformed ``opentrack-udp://`` URL, or a protocol that does not fit the URL.
+    """
+    udp = is_udp_url(url)
+    if udp:
+        parse_udp_url(url)
+    chosen = protocol or ("opentrack" if udp else "hatire")
+    if udp != (chosen == "opentrack"):
+        raise SettingsError(
+            f"--tracker-protocol {chosen} does not fit --tracker {url}: opentrack poses come "
+            "over UDP (opentrack-udp://HOST:PORT), serial trackers over a port")
+    return chosen
+
+
+def retry_line(prog: str, retry: Retry, same_error: bool = False) -> str:
+    """One failed open on one line: the device, the try, the error, the back-off.
+
+    ``same_error``: the error is the one the previous line gave (not repeated).
+    """
+    what = (f"open failed (try {retry.attempt}, same error)" if same_error
+            else f"open failed (try {retry.attempt}): {retry.message}")
+    then = ("not retrying (--no-retry)" if retry.wait_s is None
+            else f"next try in {retry.wait_s:.2f} s")
+    return f"{prog}: {retry.reader} ({retry.url}): {what}; {then}"
+
+
+def retry_teller(prog: str, err: TextIO) -> Callable[[Retry], None]:
+    """A reader's ``on_retry``: one :func:`retry_line` per failed open on ``err``.
+
+    Called on the reader threads; each line is one write.
+    """
+    last: dict[str, str] = {}
+
+    def tell(retry: Retry) -> None:
+        same = last.get(retry.reader) == retry.message
+        last[retry.reader] = retry.message
+        with contextlib.suppress(OSError, ValueError):  # a closed stderr
+            err.write(retry_line(prog, retry, same) + "\n")
+            err.flush()
+
+    return tell
+
+
 def _settings(args: argparse.Namespace) -> list[tuple[ReaderSettings, DeviceHooks]]:
     out: list[tuple[ReaderSettings, DeviceHooks]] = []
     if args.tracker:
-        big = args.hatire_big_endian and args.tracker_protocol == "hatire"
+        proto = tracker_protocol(args.tracker, args.tracker_protocol)
+        big = args.hatire_big_endian and proto == "hatire"
         options = {"byte_order": "big"} if big else {}
-        out.append((ReaderSettings(args.tracker, args.tracker_protocol, "tracker", args.baud,
-                                   watchdog_s=args.watchdog or None, decoder_options=options),
-                    TrackerDriver(args.tracker_protocol, commands_from_args(args),
+        out.append((ReaderSettings(args.tracker, proto, "tracker", args.baud,
+                                   watchdog_s=args.watchdog or None, decoder_options=options,
+                                   retry=args.retry),
+                    TrackerDriver(proto, commands_from_args(args),
                                   args.tracker_reset_on_open)))
     if args.dials:
         out.append((ReaderSettings(args.dials, "sgi", "dials", args.dials_baud,
-                                   watchdog_s=args.dials_watchdog or None),
+                                   watchdog_s=args.dials_watchdog or None, retry=args.retry),
                     DialBoxDriver(args.reset_wait, args.lamps)))
     return out
 
@@ -240,6 +345,7 @@ class DeviceSession:
         self.t0_ns = self.header.start_monotonic_ns
         self.writer: LogWriter | None = None
         self.publisher: Publisher | None = None
+        self.forwarder: OpentrackForwarder | None = None
         self.listeners: list[Listener] = []
         self.open_errors: dict[str, str] = {}
         try:
@@ -249,8 +355,10 @@ class DeviceSession:
             raise
         # events are published on the reader threads the moment they are decoded;
         # the hub carries the items on to the recorder, the dump and stderr
-        sink = self.hub.put if self.publisher is None else self.publisher.sink(self.hub.put)
-        self.readers = [DeviceReader(s, sink, hooks=h) for s, h in specs]
+        sink = self.hub.put if self.forwarder is None else self.forwarder.sink(self.hub.put)
+        sink = sink if self.publisher is None else self.publisher.sink(sink)
+        tell = retry_teller("holo-devices", err)
+        self.readers = [DeviceReader(s, sink, hooks=h, on_retry=tell) for s, h in specs]
 
     def _open_outputs(self, err: TextIO) -> None:
         a = self.args
@@ -260,6 +368,10 @@ class DeviceSession:
         if a.pub:
             self.publisher = Publisher(a.pub, self.t0_ns, pose_address=a.pub_pose,
                                        counts_per_turn=a.dial_counts_per_turn)
+        if a.forward_opentrack:
+            host, port = a.forward_opentrack
+            self.forwarder = OpentrackForwarder(
+                ForwardSettings(host, port, a.forward_filter, a.forward_predict_ms))
         if a.dump:
             self.listeners.append(dump_listener(self.out, self.t0_ns, a.dial_counts_per_turn))
         self.listeners.append(stderr_listener(err, self.t0_ns))
@@ -283,6 +395,8 @@ class DeviceSession:
         end = None if seconds is None else time.monotonic() + seconds
         while not self.stop.is_set() and (end is None or time.monotonic() < end):
             self._dispatch(0.05)
+            if any(r.gave_up for r in self.readers):  # --no-retry and a port did not open
+                return
 
     def _dispatch(self, timeout_s: float) -> int:
         n = self.hub.dispatch(self.listeners, timeout_s)
@@ -306,6 +420,8 @@ class DeviceSession:
             self.writer.close()
         if self.publisher is not None:
             self.publisher.close()
+        if self.forwarder is not None:
+            self.forwarder.close()
 
 
 def never_opened(session: DeviceSession) -> list[str]:
@@ -316,6 +432,16 @@ def never_opened(session: DeviceSession) -> list[str]:
             why = session.open_errors.get(r.name, "not tried")
             out.append(f"{r.name} ({r.settings.url}): {why}")
     return out
+
+
+def gave_up(session: DeviceSession) -> list[str]:
+    """What each reader that stopped trying (``--no-retry``) did, one string each.
+
+    ``NAME (URL) did not open``, or ``... was lost and did not reopen``.
+    """
+    return [f"{r.name} ({r.settings.url}) "
+            + ("was lost and did not reopen" if r.counters.opens else "did not open")
+            for r in session.readers if r.gave_up]
 
 
 def misframed(session: DeviceSession) -> list[str]:
@@ -344,6 +470,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("give --tracker URL and/or --dials URL")
     if args.pub_pose and not args.pub:
         parser.error("--pub-pose needs --pub")
+    if args.tracker:
+        try:
+            args.tracker_protocol = tracker_protocol(args.tracker, args.tracker_protocol)
+        except SettingsError as exc:
+            parser.error(str(exc))
     problem = output_problem(args.record) if args.record else None
     if args.record and not problem and os.path.lexists(args.record):
         problem = f"{args.record}: already exists (a log is never overwritten; name a new file)"
@@ -357,6 +488,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     if session.publisher is not None:
         print(publishing_line("holo-devices", session.publisher), file=sys.stderr, flush=True)
+    if session.forwarder is not None:
+        print(forwarding_line("holo-devices", session.forwarder), file=sys.stderr, flush=True)
     signum = None
     try:
         with stop_on_signals(session.stop) as got:
@@ -368,6 +501,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     finally:
         session.close()
+    if session.forwarder is not None:
+        print(forwarding_line("holo-devices", session.forwarder, done=True), file=sys.stderr)
     print(json.dumps({"stats": session.stats()}), file=sys.stderr)
     missing = never_opened(session)
     for line in missing:
@@ -377,6 +512,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ok = EXIT_FAILED if len(missing) == len(session.readers) else EXIT_OK
     if ok == EXIT_FAILED:
         print("holo-devices: no device could be opened; nothing was read", file=sys.stderr)
+    elif stopped := gave_up(session):
+        print(f"holo-devices: stopped: {', '.join(stopped)} (--no-retry)", file=sys.stderr)
+        ok = EXIT_FAILED
     return exit_status(signum, ok)
 
 

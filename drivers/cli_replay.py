@@ -91,6 +91,7 @@ from drivers.recording import (
     Record,
 )
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
+from drivers.udp_port import UdpSender, is_udp_url
 from service.cli_args import float_range, int_range, output_problem, plain_help
 from service.errors import DeviceError, HoloError, LogFileError, SettingsError
 from service.signals import (
@@ -134,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dump", action="store_true",
                    help="print one JSON line per event (implied without another output)")
     out = p.add_mutually_exclusive_group()
-    out.add_argument("--to-port", metavar="URL", help="write a device's bytes into this port")
+    out.add_argument("--to-port", metavar="URL", help="write a device's bytes into this port "
+                     "(opentrack-udp://HOST:PORT: a recorded opentrack session's datagrams)")
     out.add_argument("--to-pty", action="store_true",
                      help="play the device on a new pty pair (its path is printed on stderr)")
     p.add_argument("--pty-link", metavar="PATH", help="with --to-pty: a symlink to the pty")
@@ -425,6 +427,9 @@ class ReplaySession:
             self.port = _PtyOut(PtyLink(a.pty_link, stop=self.stop))
             return
         proto = dict(data_devices(self.source.header))[self.port_device]
+        if is_udp_url(a.to_port):  # a recorded opentrack session: one record, one datagram
+            self.port = UdpSender(a.to_port)
+            return
         baud = a.baud or RAW_BAUD.get(proto, 115200)
         try:
             self.port = serial.serial_for_url(a.to_port, baudrate=baud, write_timeout=2.0)

@@ -12,7 +12,7 @@ with, per kind,
 
 ========  ===============================================================
 pose      ``yaw, pitch, roll`` (degrees), ``x, y, z`` (device units, mm for
-          the native protocol), ``seq`` (frame counter); optional ``quat``
+          the native protocol and opentrack), ``seq`` (frame counter); optional ``quat``
           ``[w, x, y, z]`` and ``device_t_us`` when the protocol sends them
 dial      ``index`` (0-7), ``delta`` (counts since the last report),
           ``value`` (absolute counts, unwrapped across the 16-bit wrap),
@@ -303,7 +303,10 @@ class DecoderStats:
         Frames cut short (a new header came before the frame ended, a dial packet
         timed out, or bytes were left over at ``flush``).
     out_of_range : int
-        Frames with values outside the documented range (still delivered).
+        Frames with values outside the documented range (Hatire and native deliver
+        them; opentrack drops them, and counts NaN / infinity here too).
+    bad_size : int
+        Datagrams of the wrong size (opentrack UDP; dropped, their bytes discarded).
     """
 
     frames: int = 0
@@ -314,6 +317,7 @@ class DecoderStats:
     crc_errors: int = 0
     truncated: int = 0
     out_of_range: int = 0
+    bad_size: int = 0
 
     def as_dict(self) -> dict[str, int]:
         """The counters as a plain dict."""

@@ -9,7 +9,9 @@ listener ever needs a lock.
 What a reader does:
 
 * opens its port by pyserial URL (:func:`serial.serial_for_url`: ``/dev/ttyUSB0``,
-  ``loop://``, ``socket://host:port``, ``rfc2217://...``) with a short read timeout;
+  ``loop://``, ``socket://host:port``, ``rfc2217://...``) with a short read timeout,
+  or, for ``opentrack-udp://HOST:PORT``, binds a UDP socket there
+  (:mod:`drivers.udp_port`) and reads it one datagram per chunk;
 * waits for bytes without a fixed sleep and never longer than ``poll_s``: a port with
   a file descriptor (a tty, a pty: pyserial's POSIX ports) is waited on with
   :func:`select.select` and read with one :func:`os.read` of up to
@@ -28,6 +30,9 @@ What a reader does:
   unplugged, a pty hung up) closes the port and reopens it with exponential backoff
   (``backoff_s`` doubling up to ``backoff_max_s``; reset by the next valid frame), so
   a device unplugged and plugged back in resumes without restarting the program;
+  each failed open is told to ``on_retry`` (:class:`Retry`: the try, the wait
+  before the next, the error), and with ``retry=False`` the reader tries once and
+  ends (:attr:`DeviceReader.gave_up` says why);
   the hooks' ``on_open`` runs on every open (the dial box handshake, the tracker's
   start command);
 * clean stop (:meth:`DeviceReader.stop`): the hooks' ``on_stop`` (the tracker's stop
@@ -62,6 +67,7 @@ import serial
 
 from drivers.events import Event, StatusEvent
 from drivers.protocols import DEVICE_OF, make_decoder
+from drivers.udp_port import UdpPort, open_port
 from service.errors import DeviceError, LogFileError, SettingsError
 
 #: Protocol name in a log header for a device's control records.
@@ -72,7 +78,7 @@ CONTROL_SUFFIX = ":control"
 MAX_CHUNK = 4096
 #: Protocol aliases accepted in log headers.
 PROTOCOL_ALIASES = {"sgi_dialbox": "sgi", "dialbox": "sgi", "sgi": "sgi",
-                    "hatire": "hatire", "native": "native"}
+                    "hatire": "hatire", "native": "native", "opentrack": "opentrack"}
 
 
 def canonical_protocol(name: str) -> str:
@@ -80,7 +86,8 @@ def canonical_protocol(name: str) -> str:
     try:
         return PROTOCOL_ALIASES[name]
     except KeyError:
-        raise SettingsError(f"unknown protocol {name!r}; known: hatire, native, sgi") from None
+        raise SettingsError(f"unknown protocol {name!r}; "
+                            "known: hatire, native, opentrack, sgi") from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -234,6 +241,9 @@ class ReaderSettings:
         Timeout of host-to-device writes.
     decoder_options : Mapping
         Keyword arguments of the decoder.
+    retry : bool
+        Open again (after ``backoff_s``...) when an open fails; False: the reader
+        gives up on the first failed open and its thread ends.
     """
 
     url: str
@@ -246,6 +256,7 @@ class ReaderSettings:
     backoff_max_s: float = 2.0
     write_timeout_s: float = 1.0
     decoder_options: Mapping[str, Any] = field(default_factory=dict)
+    retry: bool = True
 
     def __post_init__(self) -> None:
         canonical_protocol(self.protocol)
@@ -297,6 +308,31 @@ class ReaderCounters:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+@dataclass(frozen=True, slots=True)
+class Retry:
+    """One failed open, as :class:`DeviceReader` tells its ``on_retry`` callable.
+
+    Parameters
+    ----------
+    reader : str
+        Reader name.
+    url : str
+        The port that did not open.
+    attempt : int
+        Failed opens in this outage (1 for the first).
+    wait_s : float or None
+        Seconds until the next try (the backoff); None: no next try (``retry=False``).
+    message : str
+        The open's error.
+    """
+
+    reader: str
+    url: str
+    attempt: int
+    wait_s: float | None
+    message: str
+
+
 class DeviceHooks(Protocol):
     """Device-specific behaviour a reader calls on its own thread."""
 
@@ -337,19 +373,28 @@ class DeviceReader:
     clock_ns : callable () -> int
         Receive-time clock (:func:`time.monotonic_ns`).
     opener : callable
-        Opens a port: ``opener(url, baudrate=..., timeout=..., write_timeout=...)``.
+        Opens a port: ``opener(url, baudrate=..., timeout=..., write_timeout=...)``
+        (:func:`drivers.udp_port.open_port`: pyserial, or a UDP listener for
+        ``opentrack-udp://``).
+    on_retry : callable (Retry) -> None, optional
+        Told of each failed open on the reader thread (``holo-devices`` prints it);
+        not recorded: the session log keeps one ``open_failed`` status per outage.
 
     Attributes
     ----------
     crashed : Exception or None
         Set when the thread ended on an unexpected exception (a bug, not a device
         fault); an ``error`` status with ``reason: "reader_crashed"`` reports it.
+    gave_up : str or None
+        Why the thread ended without being stopped (``retry=False`` and the port did
+        not open); None otherwise.
     """
 
     def __init__(self, settings: ReaderSettings, sink: Sink, *,
                  hooks: DeviceHooks | None = None,
                  clock_ns: Callable[[], int] = time.monotonic_ns,
-                 opener: Callable[..., Any] = serial.serial_for_url) -> None:
+                 opener: Callable[..., Any] = open_port,
+                 on_retry: Callable[[Retry], None] | None = None) -> None:
         self.settings = settings
         self.name = settings.device_name
         self.stream = DeviceStream(self.name, settings.protocol, settings.decoder_options)
@@ -367,7 +412,10 @@ class DeviceReader:
         self._last_valid_ns = 0
         self._down_since_ns: int | None = None
         self._failures_in_outage = 0
+        self._open_error: str | None = None
+        self._on_retry = on_retry
         self.crashed: Exception | None = None
+        self.gave_up: str | None = None
 
     # -- life cycle -----------------------------------------------------------------
     def start(self) -> DeviceReader:
@@ -464,7 +512,12 @@ class DeviceReader:
     def _loop(self) -> None:
         while not self._stop.is_set():
             if self._port is None and not self._open():
-                self._stop.wait(self._next_backoff())
+                wait = self._next_backoff() if self.settings.retry else None
+                self._tell_retry(wait)
+                if wait is None:
+                    self.gave_up = self._open_error or "lost during its opening handshake"
+                    break
+                self._stop.wait(wait)
                 continue
             try:
                 self._read_once()
@@ -489,6 +542,7 @@ class DeviceReader:
 
     def _open(self) -> bool:
         s = self.settings
+        self._open_error = None
         try:
             port = self._opener(s.url, baudrate=s.baudrate, timeout=s.poll_s,
                                 write_timeout=s.write_timeout_s)
@@ -523,6 +577,7 @@ class DeviceReader:
         self._failures_in_outage = 0
 
     def _open_failed(self, exc: Exception) -> None:
+        self._open_error = str(exc)
         self.counters.open_failures += 1
         self._failures_in_outage += 1
         if self._down_since_ns is None:
@@ -530,6 +585,12 @@ class DeviceReader:
         if self._failures_in_outage == 1:
             self.emit("error", {"reason": "open_failed", "url": self.settings.url,
                                 "message": str(exc)})
+
+    def _tell_retry(self, wait: float | None) -> None:
+        """Tell ``on_retry`` of the failed open (not of a handshake that lost the port)."""
+        if self._on_retry is not None and self._open_error is not None:
+            self._on_retry(Retry(self.name, self.settings.url, self._failures_in_outage, wait,
+                                 self._open_error))
 
     def _next_backoff(self) -> float:
         wait = self._backoff
@@ -542,6 +603,9 @@ class DeviceReader:
             raise serial.SerialException("port closed")
         if fd is not None:
             data = self._read_fd(fd)
+            t_ns = self._clock()
+        elif isinstance(port, UdpPort):  # one datagram per chunk: the decoder needs them whole
+            data = port.read_datagram()
             t_ns = self._clock()
         else:
             data = port.read(1)

@@ -13,7 +13,9 @@ Commands per protocol:
 * ``hatire``: single bytes, configurable (:class:`~drivers.protocols.hatire.HatireCommands`;
   defaults ``S`` start, ``s`` stop, ``R`` reset);
 * ``native``: command frames (type ``0x10`` start, ``0x11`` stop, ``0x12`` reset;
-  ``docs/native-protocol.md``).
+  ``docs/native-protocol.md``);
+* ``opentrack``: none (its UDP output streams unasked and takes no commands), so
+  the hooks send nothing.
 
 The commands are host-to-device bytes only: they are not recorded in a session log
 and give no event.
@@ -75,8 +77,8 @@ class TrackerDriver:
 
     Parameters
     ----------
-    protocol : {"hatire", "native"}
-        The tracker's byte protocol.
+    protocol : {"hatire", "native", "opentrack"}
+        The tracker's byte protocol (opentrack: no commands are sent).
     commands : HatireCommands or None
         Hatire command bytes (default ``S`` / ``s`` / ``R``); ignored for native.
     reset_on_open : bool
@@ -91,7 +93,7 @@ class TrackerDriver:
     def __init__(self, protocol: str = "hatire", commands: hatire.HatireCommands | None = None,
                  reset_on_open: bool = False) -> None:
         self.protocol = canonical_protocol(protocol)
-        if self.protocol not in ("hatire", "native"):
+        if self.protocol not in ("hatire", "native", "opentrack"):
             raise SettingsError(f"not a tracker protocol: {protocol!r}")
         self.commands = commands or hatire.HatireCommands()
         self.reset_on_open = reset_on_open
@@ -112,6 +114,8 @@ class TrackerDriver:
         serial.SerialException
             A write failed (the reader then treats the device as lost).
         """
+        if self.protocol == "opentrack":
+            return
         if self.reset_on_open:
             self.send(reader, "reset")
         self.send(reader, "start")
@@ -121,7 +125,8 @@ class TrackerDriver:
 
     def on_stop(self, reader: DeviceReader) -> None:
         """Clean stop: ask the device to stop streaming (best effort)."""
-        self.send(reader, "stop")
+        if self.protocol != "opentrack":
+            self.send(reader, "stop")
 
     def send(self, reader: DeviceReader, name: str) -> None:
         """Write command ``name`` to ``reader``'s port.

@@ -26,6 +26,7 @@ refreshes at a fixed rate), so the game also runs with no service (``--local``).
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -33,12 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from game.gameover import burst_derivatives, burst_records, explosion_scene
+from game.gameover import BURST_SECONDS, burst_derivatives, burst_records, explosion_scene
 from game.scene import apply_states
 from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings, GalileanStage
+from service.galilean.local_update import render_use_by
 from service.galilean.motion_field import render_with_motion
 from service.lod import LodState, lod_from
 from service.pipeline import Renderer, RenderSettings
@@ -75,6 +77,9 @@ class FrameView:
         The version of the scene the frame was rendered from (the service's
         ``load_scene`` count; the local renderer's game count); None from a
         service older than the ``scene`` key.
+    held : bool
+        The frame holds the last render as it was: none came within its use-by
+        date (the Galilean stage's rating), so nothing is extrapolated further.
     """
 
     colour: np.ndarray
@@ -85,6 +90,7 @@ class FrameView:
     latency_ms: float | None = None
     sird: np.ndarray | None = None
     scene: int | None = None
+    held: bool = False
 
 
 @dataclass(frozen=True)
@@ -135,6 +141,8 @@ class LocalRenderer:
         )
         self.connected = True
         self.warming: dict | None = None
+        #: refreshes the game-over burst is carried (its use-by): until the score screen
+        self._burst_use_by = math.ceil(BURST_SECONDS * s.refresh_hz)
         self._renderer = Renderer()
         # a chain not cached yet is built in the background (as the service's workers
         # do): the full mesh is drawn meanwhile, no render stalls seconds for the build
@@ -284,16 +292,21 @@ class LocalRenderer:
                 if version != self._scene_version:
                     continue  # a render of the game before: never shown
                 self._render_id += 1
-                self.stage.update(ru)
+                # the burst's motion is exact and no render follows it: carried
+                # to the score screen; any other render for the stage's rating, or
+                # less when an object turns far (seed 002's use-by date)
+                use_by = self._burst_use_by if burst is not None else render_use_by(
+                    scene, self.settings.refresh_hz, self.stage.settings.n_prop)
+                self.stage.update(ru, use_by=use_by)
                 self._grafted = (self._render_id, records_t, version)
 
     def _refresh_loop(self) -> None:
         period = 1.0 / self.settings.refresh_hz
         next_t = time.monotonic()
-        graft_index = 0
+        graft_index, missed = 0, 0
         while not self._stop.is_set():
             with self._stage_lock:
-                out = self.stage.refresh()
+                out = self.stage.refresh(1 + missed)  # missed ticks count towards use-by
                 render_id, records_t, version = self._grafted
             if out.flags.get("updated"):
                 graft_index = out.index
@@ -307,11 +320,12 @@ class LocalRenderer:
                 sird=self._sird.frame(out.depth[out.depth.shape[0] // 2])
                 if self._sird is not None and self.sird_wanted else None,
                 scene=version,
+                held=bool(out.flags["held"]),
             )
             with self._cv:
                 self._latest = view
                 self._cv.notify_all()
-            next_t = max(next_t + period, time.monotonic() - period)
+            next_t, missed = _next_tick(next_t, period, time.monotonic())
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
 
@@ -576,6 +590,13 @@ class ServiceBackend:
         self.client.close()
 
 
+def _next_tick(next_t: float, period: float, now: float) -> tuple[float, int]:
+    """The next tick after ``next_t`` and the ticks missed: more than a period late skips."""
+    next_t += period
+    missed = math.floor((now - next_t) / period) if now - next_t > period else 0
+    return next_t + missed * period, missed
+
+
 def new_notes(lod: dict | None, seen: set[str]) -> list[str]:
     """The notes of a render's ``lod`` report (``chains.notes``) not in ``seen``; adds them."""
     notes = ((lod or {}).get("chains") or {}).get("notes") or ()
@@ -612,4 +633,5 @@ def _view(header: dict, arrays: dict) -> FrameView:
         latency_ms=latency,
         sird=arrays.get("autostereogram"),
         scene=header.get("scene"),
+        held=header.get("held") is True,
     )

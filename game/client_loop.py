@@ -184,6 +184,8 @@ class GameClient:
         self._get_ready = False
         self._last = clock()
         self._render_id = -1
+        #: whether the last frame taken held the last render, and how many did
+        self.held, self.held_frames = False, 0
         self._was_connected = backend.connected
         self._commands = self._command_table()
         backend.update(object_states(self.state))
@@ -336,6 +338,8 @@ class GameClient:
         if self.first_frame_t is None:
             self.first_frame_t = now
         self.sird = frame.sird
+        self.held = frame.held
+        self.held_frames += frame.held
         self.refreshes.add(now)
         if frame.render_id != self._render_id:
             self._render_id = frame.render_id
@@ -372,6 +376,7 @@ class GameClient:
             self.mode,
             self.shown_zone(),
             lines,
+            held=self.held,
         )
 
     def _draw(self, now: float) -> None:
@@ -462,6 +467,8 @@ class GameClient:
             "disconnects": self.disconnects,
             # frames of a scene replaced since (the game over's), not shown
             "stale_frames": getattr(self.backend, "stale_frames", 0),
+            # frames that held the last render (none came within its use-by date)
+            "held_frames": self.held_frames,
             # frames with no colour to draw (another client's set_display), not shown
             "unusable_frames": getattr(self.backend, "unusable_frames", 0),
             "latency_ms_p50": float(np.median(self.latencies)) if self.latencies else None,

@@ -129,6 +129,10 @@ def zone_for_head(
     return int(np.argmin(np.abs(centres - angle)))
 
 
+#: The HUD's line while the frame shown holds the last render (renders are late).
+HELD_LINE = "held: renders late, last render shown as it was"
+
+
 @dataclass
 class Hud:
     """What the HUD shows.
@@ -146,6 +150,9 @@ class Hud:
     zone : int
     lines : list of str
         Extra lines (pause, notices, attract mode).
+    held : bool
+        The frame shown holds the last render: none came within its use-by date,
+        so it is shown as it was rather than extrapolated (docs/galilean.md).
     """
 
     score: int = 0
@@ -157,6 +164,7 @@ class Hud:
     mode: str = "head"
     zone: int = 0
     lines: list[str] = field(default_factory=list)
+    held: bool = False
 
     def text(self) -> list[str]:
         """The HUD's lines."""
@@ -166,6 +174,7 @@ class Hud:
             f"fps {self.fps:4.1f}   updates {self.update_hz:4.1f} Hz / refreshes "
             f"{self.refresh_hz:4.1f} Hz   latency {lat}",
             f"mode {self.mode} (zone {self.zone})",
+            *([HELD_LINE] if self.held else []),
             *self.lines,
         ]
 

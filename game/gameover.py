@@ -34,6 +34,9 @@ TIMETABLE: tuple[tuple[float, str], ...] = (
     (0.8, "explode"),
     (3.3, "score"),
 )
+#: Seconds from the explosion to the score screen: the burst's galpixels fly that long.
+BURST_SECONDS = (next(t for t, step in TIMETABLE if step == "score")
+                 - next(t for t, step in TIMETABLE if step == "explode"))
 #: Seconds the score screen stays before attract mode starts a new game.
 SCORE_SECONDS = 4.0
 BEEP_HZ = 880.0

@@ -27,7 +27,7 @@ import re
 
 from service.errors import SettingsError
 
-__all__ = ["DEFAULT_PORTS", "check_endpoint", "default_address"]
+__all__ = ["DEFAULT_PORTS", "check_endpoint", "default_address", "host_port"]
 
 DEFAULT_PORTS = {"control": 5555, "frames": 5556, "workers": 5557, "devices": 5560,
                  "pose": 5561}
@@ -78,6 +78,22 @@ def check_endpoint(address: str, bind: bool = True) -> str:
         raise SettingsError(f"{address!r}: unknown transport {transport}:// (known: {known})")
     _check_host_port(address, rest.rsplit(";", 1)[-1], bind)
     return address
+
+
+def host_port(text: str) -> tuple[str, int]:
+    """``(host, port)`` of ``HOST:PORT`` or ``[V6]:PORT``: where UDP datagrams go.
+
+    Raises
+    ------
+    SettingsError
+        No host, or a port that is not a number in 1-65535.
+    """
+    host, _, port = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not host or not re.fullmatch(r"[0-9]{1,5}", port) or not 1 <= int(port) <= 65535:
+        raise SettingsError(f"give HOST:PORT with a port in 1-65535, not {text!r}")
+    return host, int(port)
 
 
 def _check_host_port(address: str, rest: str, bind: bool) -> None:

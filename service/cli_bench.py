@@ -45,6 +45,10 @@ BENCHES = {
         "service.bench.service_bench",
         "render service: transport overhead, round trip, workers, motion-to-photon",
     ),
+    "chaos": (
+        "service.bench.chaos_bench",
+        "render workers killed and stopped every 5 s: longest gap between updates, jobs",
+    ),
     "filters": ("service.bench.filters_bench", "pose filters: jitter vs lag"),
     "latency": (
         "service.bench.latency_bench",

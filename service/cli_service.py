@@ -117,8 +117,9 @@ def _add_rendering(ap: argparse.ArgumentParser) -> None:
         type=int_range(0),
         metavar="N",
         default=1,
-        help="render worker processes behind the LRU broker (0: render in the service's "
-        "own process, where numba kernels hold the GIL and delay refreshes)",
+        help="render worker processes behind the LRU broker, supervised: one that dies or "
+        "stops answering is replaced (0: render in the service's own process, where numba "
+        "kernels hold the GIL and delay refreshes)",
     )
     ap.add_argument(
         "--split",
@@ -150,7 +151,8 @@ def _add_rendering(ap: argparse.ArgumentParser) -> None:
         type=float_range(0, lo_open=True),
         metavar="S",
         default=5.0,
-        help="seconds before a render job is resent to another worker",
+        help="seconds a worker may hold one render job: past it the worker counts as "
+        "stuck (killed and replaced if local) and the job is resent",
     )
 
 

@@ -10,7 +10,8 @@ prints where each listens::
 Tables (each optional; at least one):
 
 - ``[sim.tracker]``, ``[sim.dials]``: ``holo-sim tracker`` / ``holo-sim dials`` on a
-  pty (or ``tcp = PORT``); the path each prints is what ``holo-devices`` opens.
+  pty (or ``tcp = PORT``; the tracker also ``udp = "HOST:PORT"``, opentrack's UDP
+  poses); the path or URL each prints is what ``holo-devices`` opens.
 - ``[devices]``: ``holo-devices``.  ``tracker`` / ``dials`` name real ports; left
   out, the simulator of the same name is used.  It always publishes: ``pub``
   (default ``tcp://127.0.0.1:5560``).
@@ -184,7 +185,7 @@ def plan(doc: dict[str, Any], path: Path) -> list[Part]:
                 part.wired[key] = source
         if table == "devices":
             part.argv += _devices_defaults(body, present)
-        if table.startswith("sim.") and "tcp" not in body:
+        if table.startswith("sim.") and "tcp" not in body and "udp" not in body:
             part.argv += ["--pty"]
         check_options(part, where)
         parts.append(part)

@@ -508,6 +508,143 @@ def _point_pixels(
             _store(out, z, r, c, rgb, scale, offset)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _lit_at(
+    i: int, p: int, z: int, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+    normals: np.ndarray, materials: np.ndarray, views: np.ndarray, lights: tuple,
+    ambient: float, code: int,
+) -> tuple:
+    """:func:`_polygon_table`'s colour of polygon ``p`` in zone ``z`` at time ``i``.
+
+    ``vertices`` (K, V, 3), ``normals`` (K, P, 3) and the light vectors ``lights[0]``
+    (K, J, 3) hold the K times; the arithmetic is :func:`_polygon_table`'s, in its order.
+    """
+    cx = cy = cz = 0.0
+    for k in range(counts[p]):
+        q = polygons[p, k]
+        cx += vertices[i, q, 0]
+        cy += vertices[i, q, 1]
+        cz += vertices[i, q, 2]
+    s = _facing(normals[i], p, views[z])
+    return _light_rgb(
+        cx / counts[p], cy / counts[p], cz / counts[p],
+        s * normals[i, p, 0], s * normals[i, p, 1], s * normals[i, p, 2],
+        materials[p], views[z], (lights[0][i], lights[1], lights[2]), ambient, code,
+    )
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _polygon_motion_table(
+    geometry: tuple, materials: np.ndarray, views: np.ndarray, needed: np.ndarray,
+    lights: tuple, ambient: float, code: int, steps: tuple, weights: np.ndarray,
+    table: np.ndarray, dtable: np.ndarray,
+) -> None:
+    """Flat colour at the middle time, and its time derivatives, per needed polygon and zone.
+
+    ``geometry`` is ``(vertices (K, V, 3), polygons (P, M), counts (P,), normals (K, P,
+    3))`` at K = 1 or 3 times (``t - h, t, t + h``); ``lights`` is :func:`pack_lights`'
+    ``(lvec (K, J, 3), lpoint, lrgb)``.  ``table`` (1, Z, P, 3) uint8 gets the middle
+    time's colour as :func:`shade` stores it; with three times, ``dtable`` (4, Z, P)
+    gets the central differences of the float32 colour (:func:`shade_linear`'s
+    values) through ``weights`` (3, 3) (colour to channels), in float64: rows 0-2
+    ``steps[0] * weights @ (c(t + h) - c(t - h))``, row 3 ``steps[1] * weights[0] @
+    (c(t + h) - 2 c(t) + c(t - h))``.
+    """
+    vertices, polygons, counts, normals = geometry
+    kt, zones = vertices.shape[0], views.shape[0]
+    mid = kt // 2
+    w = weights
+    for p in nb.prange(normals.shape[1]):
+        for z in range(zones):
+            if not needed[z, p]:
+                continue
+            c = _lit_at(mid, p, z, vertices, polygons, counts, normals, materials, views,
+                        lights, ambient, code)
+            _store(table, 0, z, p, c, 255.0, 0.5)
+            if kt != 3:
+                continue
+            m = _lit_at(0, p, z, vertices, polygons, counts, normals, materials, views,
+                        lights, ambient, code)
+            q = _lit_at(2, p, z, vertices, polygons, counts, normals, materials, views,
+                        lights, ambient, code)
+            for j in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += w[j, k] * (np.float64(np.float32(q[k])) - np.float64(np.float32(m[k])))
+                dtable[j, z, p] = acc * steps[0]
+            acc = 0.0
+            for k in range(3):
+                acc += w[0, k] * (np.float64(np.float32(q[k])) - 2.0 * np.float64(np.float32(c[k]))
+                                  + np.float64(np.float32(m[k])))
+            dtable[3, z, p] = acc * steps[1]
+
+
+def polygon_motion_tables(
+    scenes: list[SceneArrays], vis: Visibility, display: DisplaySettings,
+    lights: list[list[Light]], ambient_level: float, settings: LightSettings,
+    steps: tuple[float, float], weights: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat (``polygon``) light at ``t`` and its time derivatives, as tables per polygon.
+
+    One pass over the polygons each zone shows gives what :func:`shade` and
+    :func:`shade_linear` at ``t - h, t, t + h`` would give their pixels: light per
+    polygon is the same at every pixel of it, so its differences are too.
+
+    Parameters
+    ----------
+    scenes : list of 1 or 3 SceneArrays
+        The flattened scene at ``t`` (one) or at ``t - h, t, t + h`` (three), of one
+        layout (the same objects moved).
+    vis : Visibility
+        Triangle seen at each pixel at ``t``, shape (Z, R, C).
+    display : DisplaySettings
+    lights : list of 1 or 3 lists of Light
+        The scene's lights at each time (they move with a moving viewer).
+    ambient_level : float
+    settings : LightSettings
+        Its ``evaluation`` must be ``"polygon"``.
+    steps : (float, float)
+        Factors of the first and the second difference (``1 / (2h)`` and ``1 / h^2``
+        in the units wanted).
+    weights : ndarray, shape (3, 3)
+        RGB to the derivative's three channels (the second difference takes row 0).
+
+    Returns
+    -------
+    table : ndarray, shape (Z, P, 3), uint8
+        Colour at ``t`` of each polygon shown (others undefined).
+    dtable : ndarray, shape (4, Z, P), float32
+        The three first-difference channels and the second difference's first (three
+        times only; shape (4, 0, 0) with one).
+    background : ndarray, shape (3,), uint8
+    """
+    centre = scenes[len(scenes) // 2]
+    if settings.evaluation != "polygon" or len(scenes) not in (1, 3):
+        raise RenderError("polygon_motion_tables needs polygon light and 1 or 3 times")
+    zrc = (display.zones, display.rows, display.cols)
+    if vis.triangle.shape != zrc:
+        raise RenderError(f"visibility buffers are {vis.triangle.shape}, display needs {zrc}")
+    needed = vis.shown
+    if needed is None or needed.shape != (display.zones, centre.n_polygons):
+        needed = mark_shown(np.ascontiguousarray(vis.triangle, np.int32),
+                            centre.triangle_polygon, centre.n_polygons)
+    packs = [pack_lights(li) for li in lights]
+    lvec = np.stack([pk[0] for pk in packs]) if packs[0][0].size else np.zeros(
+        (len(packs), 0, 3))
+    geometry = (np.stack([s.vertices for s in scenes]), centre.polygons, centre.counts,
+                np.stack([s.normals for s in scenes]))
+    zp = (display.zones, centre.n_polygons)
+    table = np.empty((1, *zp, 3), np.uint8)
+    dtable = np.empty((4, *zp) if len(scenes) == 3 else (4, 0, 0), np.float32)
+    _polygon_motion_table(geometry, centre.materials, display.view_vectors(), needed,
+                          (lvec, packs[0][1], packs[0][2]), float(ambient_level),
+                          MODELS[settings.model], (float(steps[0]), float(steps[1])),
+                          np.ascontiguousarray(weights, np.float64), table, dtable)
+    bg = np.empty((1, 1, 1, 3), np.uint8)
+    _store_background(np.asarray(settings.background, np.float64) / 255.0, 255.0, 0.5, bg)
+    return table[0], dtable, bg[0, 0, 0]
+
+
 def to_uint8(x: np.ndarray) -> np.ndarray:
     """Colours in [0, 1] to uint8 ``floor(255 * x + 0.5)`` (x rounded to float32 first).
 

@@ -183,6 +183,14 @@ class Scene:
         """
         return flatten(self)
 
+    def prepare_flatten(self) -> None:
+        """Build the placement-free arrays :meth:`flatten` caches, without placing anything.
+
+        Scenes moved from this one (:mod:`service.scene_motion`) share them: call
+        this before moving a scene several times, so they are built once.
+        """
+        _static_parts(self)
+
 
 @dataclass(frozen=True)
 class SceneArrays:
@@ -332,8 +340,9 @@ def _static_parts(scene: Scene) -> dict:
     polygons, counts, triangles, tri_poly, closed = _run_blocks(runs, v0, p0, t0, k)
     mats = _materials(objs)
     poly_obj = np.repeat(np.arange(len(objs), dtype=np.int64), n_p)
-    scene._static.clear()
-    scene._static.update(
+    # a new dict, not the old one refilled: scenes moved from this one share it
+    # (service.scene_motion), and one of them changed must not change the others'
+    scene._static = dict(
         key=key, polygons=polygons, counts=counts, triangles=triangles,
         triangle_polygon=tri_poly, polygon_object=poly_obj, materials=mats[poly_obj],
         polygon_closed=closed, runs=runs, vertex_start=v0, polygon_start=p0,
@@ -414,10 +423,14 @@ def _materials(objs: list) -> np.ndarray:
     ).reshape(-1, 7)
 
 
-def _placed(scene: Scene, static: dict) -> tuple[np.ndarray, np.ndarray, list]:
+def _placed(
+    scene: Scene, static: dict, orientations: np.ndarray | None = None,
+    positions: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, list]:
     """World vertices (V, 3), world polygon normals (P, 3) and (mesh, rotation) per object.
 
-    One batched matrix product per run of objects sharing a mesh.
+    One batched matrix product per run of objects sharing a mesh.  ``orientations``
+    (O, 4) and ``positions`` (O, 3), when given, replace the objects' transforms.
     """
     objs = scene.objects
     v0, p0 = static["vertex_start"], static["polygon_start"]
@@ -425,8 +438,10 @@ def _placed(scene: Scene, static: dict) -> tuple[np.ndarray, np.ndarray, list]:
     normals = np.empty((p0[-1], 3))
     if not objs:
         return verts, normals, []
-    rot = quaternion_matrices(np.array([o.transform.orientation for o in objs]))
-    pos = np.array([o.transform.position for o in objs])
+    if orientations is None:
+        orientations = np.array([o.transform.orientation for o in objs])
+    rot = quaternion_matrices(orientations)
+    pos = positions if positions is not None else np.array([o.transform.position for o in objs])
     scale = np.array([o.transform.scale for o in objs], np.float64)
     for mesh, a, b in static["runs"]:
         n = b - a
@@ -446,19 +461,25 @@ def _cat(parts: list, empty_shape: tuple, dtype: type) -> np.ndarray:
     )
 
 
-def flatten(scene: Scene) -> SceneArrays:
+def flatten(
+    scene: Scene, orientations: np.ndarray | None = None, positions: np.ndarray | None = None
+) -> SceneArrays:
     """Concatenate every object's polygons into one world-space list (thesis 3.2).
 
     Parameters
     ----------
     scene : Scene
+    orientations, positions : ndarray, shape (O, 4) and (O, 3), optional
+        Place the objects here instead of at their transforms (unit quaternions;
+        :func:`service.scene_motion.placements`): the scene at another time without
+        building it.
 
     Returns
     -------
     SceneArrays
     """
     static = _static_parts(scene)
-    verts, normals, corners = _placed(scene, static)
+    verts, normals, corners = _placed(scene, static, orientations, positions)
     return SceneArrays(
         vertices=verts,
         polygons=static["polygons"],

@@ -27,6 +27,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.projection import project
 from service.scene import (
+    Light,
     MotionState,
     Scene,
     Transform,
@@ -83,9 +84,12 @@ def advance_scene(scene: Scene, dt: float) -> Scene:
         m2 = MotionState(m.velocity + m.acceleration * dt, m.acceleration,
                          m.angular_velocity + m.angular_acceleration * dt, m.angular_acceleration)
         objs.append(replace(o, transform=advance_transform(o.transform, m, dt), motion=m2))
-    # billboard clouds carry no motion: they stay where they are
+    # billboard clouds carry no motion: they stay where they are.  The meshes and
+    # materials are the same, in the same order: the placement-free arrays that
+    # Scene.flatten caches (polygons, triangulation, materials) carry over, so the
+    # moved scene's flatten re-does only the transforms
     return Scene(objects=objs, lights=list(scene.lights), ambient=scene.ambient,
-                 billboards=list(scene.billboards))
+                 billboards=list(scene.billboards), _static=scene._static)
 
 
 def view_scene(scene: Scene, viewer: Transform) -> Scene:
@@ -105,11 +109,74 @@ def view_scene(scene: Scene, viewer: Transform) -> Scene:
 
     objs = [seen(o) for o in scene.objects]
     boards = [seen(b) for b in scene.billboards]
-    lights = []
-    for li in scene.lights:
+    lights = view_lights(scene.lights, viewer)
+    # the same meshes and materials in the same order: share flatten's cached arrays
+    return Scene(objects=objs, lights=lights, ambient=scene.ambient, billboards=boards,
+                 _static=scene._static)
+
+
+def view_lights(lights: list[Light], viewer: Transform) -> list[Light]:
+    """The lights in the viewer's frame (:func:`view_scene`'s): they stay with the world."""
+    rt = quaternion_matrix(viewer.orientation).T
+    out = []
+    for li in lights:
         vec = rt @ (li.vector - viewer.position) if li.kind == "point" else rt @ li.vector
-        lights.append(replace(li, vector=vec))
-    return Scene(objects=objs, lights=lights, ambient=scene.ambient, billboards=boards)
+        out.append(replace(li, vector=vec))
+    return out
+
+
+def placements(
+    scene: Scene, dts: list[float], viewer: Transform | None = None,
+    viewer_motion: MotionState | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every object's placement at several times, as :func:`scene_at` places them.
+
+    The same arithmetic, bit for bit, without building a scene per time: a
+    time's objects are advanced together (what each object alone needs, its
+    rotation's angle and sine, is found per object, as :func:`advance_transform`
+    finds it).
+
+    Parameters
+    ----------
+    scene : Scene
+    dts : list of float, length K
+        Seconds after the scene's state.
+    viewer, viewer_motion : optional
+        As :func:`scene_at`.
+
+    Returns
+    -------
+    positions : ndarray, shape (K, O, 3)
+    orientations : ndarray, shape (K, O, 4)
+        Unit quaternions; with :func:`service.scene.flatten` they give the scene's
+        arrays at each time.
+    """
+    objs = scene.objects
+    pos = np.empty((len(dts), len(objs), 3))
+    quat = np.empty((len(dts), len(objs), 4))
+    if not objs:
+        return pos, quat
+    p0 = np.array([o.transform.position for o in objs])
+    q0 = np.array([o.transform.orientation for o in objs]).T  # (4, O): rows w, x, y, z
+    v, a, w, al = (np.array([getattr(o.motion, f) for o in objs]) for f in
+                   ("velocity", "acceleration", "angular_velocity", "angular_acceleration"))
+    for i, dt in enumerate(dts):
+        pos[i] = p0 + v * dt + 0.5 * a * dt * dt
+        turn = np.array([_exp_quaternion(phi) for phi in w * dt + 0.5 * al * dt * dt]).T
+        quat[i] = _unit(quaternion_multiply(turn, q0).T)
+        if viewer is None:
+            continue
+        pose = advance_transform(viewer, viewer_motion or MotionState(), dt)
+        rt = quaternion_matrix(pose.orientation).T
+        pos[i] = [rt @ (p - pose.position) for p in pos[i]]
+        conj = pose.orientation * np.array([1.0, -1.0, -1.0, -1.0])
+        quat[i] = _unit(quaternion_multiply(conj, quat[i].T).T)
+    return pos, quat
+
+
+def _unit(q: np.ndarray) -> np.ndarray:
+    """Quaternions (N, 4) over their norms, each as :class:`Transform` normalises one."""
+    return q / np.array([np.linalg.norm(x) for x in q])[:, None]
 
 
 def scene_at(

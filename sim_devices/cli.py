@@ -5,6 +5,7 @@ Examples::
     holo-sim tracker --pty                       # prints /dev/pts/N, streams Hatire
     holo-sim tracker --protocol native --tcp 7001 --motion turn:amplitude=45
     holo-sim tracker --faults corrupt=0.02,burst=0.01,split,seed=3 --seconds 30
+    holo-sim tracker --udp 127.0.0.1:4242        # opentrack's UDP poses, one datagram each
     holo-sim dials --pty --seconds 20            # answers the init handshake, then plays
 
 The first stdout line is the path or URL a client opens (flushed at once).  When the
@@ -26,25 +27,35 @@ from collections.abc import Sequence
 
 from drivers.pty_link import PtyLink
 from drivers.tracker_driver import add_command_options, commands_from_args
+from service.addresses import host_port
 from service.cli_args import float_range, int_range, output_problem, plain_help
 from service.errors import HoloError
 from service.signals import EXIT_FAILED, EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
 from sim_devices.dialbox import DialBoxSim, demo_script
-from sim_devices.endpoints import DeviceRunner, TcpLink
+from sim_devices.endpoints import DeviceRunner, TcpLink, UdpLink
 from sim_devices.faults import FaultSpec
 from sim_devices.motion import MOTIONS, make_motion
-from sim_devices.tracker import TrackerSim
+from sim_devices.tracker import PROTOCOLS, TrackerSim
 
 FAULT_HELP = ("comma-separated faults, e.g. 'corrupt=0.02,drop=0.01,truncate=0.01,"
               "burst=0.01,burst_len=4-40,wrong_baud=0.005,split,max_split=8,pause=0.01,"
               "pause_s=0.1,disconnect=0.001,reconnect_s=1,seed=3' (probabilities per frame)")
 
 
+def _udp_arg(text: str) -> tuple[str, int]:
+    """``--udp HOST:PORT`` (argparse prints the one-line reason)."""
+    try:
+        return host_port(text)
+    except HoloError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also used for ``--help``)."""
     p = argparse.ArgumentParser(
-        prog="holo-sim", description="Simulated head tracker (Hatire or native protocol) "
-        "or SGI dial and button box, served on a pty pair or a TCP port on 127.0.0.1.",
+        prog="holo-sim", description="Simulated head tracker (Hatire or native protocol, "
+        "or opentrack's UDP poses) or SGI dial and button box, served on a pty pair or a TCP "
+        "port on 127.0.0.1 (opentrack: sent to --udp HOST:PORT).",
         epilog=plain_help("The first line on stdout is what a client opens (a /dev/pts "
                           "path or a socket:// URL); a JSON summary follows when the run "
                           "ends. " + EXIT_RULE + " 1: no client came to --tcp within "
@@ -54,10 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--pty", action="store_true", help="serve on a pty pair (default)")
     where.add_argument("--tcp", type=int_range(0, 65535), metavar="PORT",
                        help="serve on 127.0.0.1:PORT (0 = any free port)")
+    where.add_argument("--udp", type=_udp_arg, metavar="HOST:PORT",
+                       help="tracker: send opentrack UDP poses to HOST:PORT (as opentrack's "
+                       "'UDP over network' output does; implies --protocol opentrack)")
     p.add_argument("--pty-link", metavar="PATH",
                    help="keep a symlink at PATH to the current pty (survives reconnects)")
-    p.add_argument("--protocol", choices=("hatire", "native"), default="hatire",
-                   help="tracker protocol (default: %(default)s)")
+    p.add_argument("--protocol", choices=PROTOCOLS, default=None,
+                   help="tracker protocol (default: opentrack with --udp, else hatire)")
     p.add_argument("--motion", metavar="NAME[:KEY=VALUE,...]", default="sway",
                    help=f"tracker motion: {', '.join(MOTIONS)}, options as "
                    "name:key=value,... (e.g. turn:amplitude=45, replay:file=log; "
@@ -89,6 +103,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _link(args: argparse.Namespace) -> TcpLink | PtyLink | UdpLink:
+    if args.udp is not None:
+        return UdpLink(*args.udp)
+    return TcpLink(args.tcp) if args.tcp is not None else PtyLink(args.pty_link)
+
+
+def _protocol_problem(args: argparse.Namespace) -> str | None:
+    """Fill in ``args.protocol``; a one-line problem when it and the link do not fit."""
+    udp = args.udp is not None
+    args.protocol = args.protocol or ("opentrack" if udp else "hatire")
+    if udp and args.device != "tracker":
+        return "--udp is for the tracker (opentrack's UDP poses)"
+    if udp != (args.protocol == "opentrack"):
+        return (f"--protocol {args.protocol} does not fit: opentrack poses go over UDP "
+                "(--udp HOST:PORT), hatire and native over --pty or --tcp")
+    return None
+
+
 def _device(args: argparse.Namespace) -> TrackerSim | DialBoxSim:
     if args.device == "tracker":
         motion = make_motion(args.motion, args.seed, args.noise, 2.5 * args.noise)
@@ -105,16 +137,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem:  # the link is made once the pty is open: a traceback there before
         print(f"holo-sim: --pty-link {problem}", file=sys.stderr)
         return EXIT_USAGE
+    problem = _protocol_problem(args)
+    if problem:
+        print(f"holo-sim: {problem}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         device = _device(args)
         faults = FaultSpec.parse(args.faults)
-        link = TcpLink(args.tcp) if args.tcp is not None else PtyLink(args.pty_link)
+        link = _link(args)
+        pace = not args.no_pace and args.udp is None  # datagrams are not paced to a baud rate
         runner = DeviceRunner(device, link, faults, args.seconds, realtime=not args.fast,
-                              pace=not args.no_pace, baud=args.baud)
+                              pace=pace, baud=args.baud)
     except HoloError as exc:
         print(f"holo-sim: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    print(getattr(link, "path", link.name), flush=True)
+    print(getattr(link, "path", link.name), flush=True)  # what a client opens
     signum, failure = None, None
     try:
         if isinstance(link, PtyLink):

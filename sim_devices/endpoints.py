@@ -11,6 +11,10 @@ Links (all offer ``name``, ``write``, ``read_available``, ``disconnect``,
 * :class:`TcpLink` - a TCP server on 127.0.0.1 only; clients open
   ``socket://127.0.0.1:PORT``.  A disconnect closes the client connection and a
   reconnect waits for the next client.
+* :class:`UdpLink` - opentrack's "UDP over network" output: every write is one
+  datagram to ``HOST:PORT``, where a client listens on
+  ``opentrack-udp://HOST:PORT``.  A disconnect is a sender that stops (nothing is
+  sent until the reconnect); there is no client to wait for and no host bytes.
 
 :class:`DeviceRunner` plays a device's ``frames()`` through a
 :class:`~sim_devices.faults.FaultInjector` into a link, in real time or as fast as
@@ -33,6 +37,7 @@ from typing import Protocol
 
 import serial
 
+from drivers.protocols.opentrack import URL_SCHEME
 from service.errors import DeviceError, SettingsError
 from sim_devices.faults import Disconnect, FaultInjector, FaultLedger, FaultSpec, Pause, Write
 
@@ -167,6 +172,54 @@ class TcpLink:
         """Close the connection and the server."""
         self.disconnect()
         self._server.close()
+
+
+class UdpLink:
+    """Sends every write as one UDP datagram to ``(host, port)`` (see module docstring)."""
+
+    def __init__(self, host: str, port: int) -> None:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+        self.target = (host, port)
+        self.name = f"{URL_SCHEME}://{f'[{host}]' if ':' in host else host}:{port}"
+        self.sending = True
+
+    def wait_client(self, stop: threading.Event | None = None) -> None:
+        """Nobody to wait for: datagrams go out whether or not anyone listens."""
+
+    def write(self, data: bytes) -> None:
+        """Send ``data`` as one datagram (nothing while disconnected).
+
+        Raises
+        ------
+        DeviceError
+            The datagram could not be sent (no route, too large).
+        """
+        if not self.sending:
+            return
+        try:
+            self._sock.sendto(data, self.target)
+        except OSError as exc:
+            raise DeviceError(f"cannot send to {self.name}: {exc}") from exc
+
+    def read_available(self) -> bytes:
+        """Nothing: opentrack's output receives nothing."""
+        return b""
+
+    def drain(self, timeout: float = 2.0) -> None:
+        """Nothing is queued."""
+
+    def disconnect(self) -> None:
+        """The sender stops."""
+        self.sending = False
+
+    def reconnect(self, stop: threading.Event | None = None) -> None:
+        """The sender goes on."""
+        self.sending = True
+
+    def close(self) -> None:
+        """Close the socket."""
+        self._sock.close()
 
 
 class DeviceRunner:

@@ -1,4 +1,4 @@
-"""Simulated head tracker speaking Hatire or the native protocol.
+"""Simulated head tracker speaking Hatire, the native protocol or opentrack's UDP poses.
 
 :class:`TrackerSim` samples a motion at ``rate_hz`` and encodes each sample as a
 frame; :meth:`TrackerSim.frames` yields ``(t_seconds, frame_bytes)``.  It also
@@ -16,13 +16,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from functools import partial
 
-from drivers.protocols import hatire, native
+from drivers.protocols import hatire, native, opentrack
 from service.errors import SettingsError
 from sim_devices.motion import Motion, Sway
 
-PROTOCOLS = ("hatire", "native")
-#: default serial rate per protocol (8N1).
-DEFAULT_BAUD = {"hatire": 115200, "native": 115200}
+PROTOCOLS = ("hatire", "native", "opentrack")
+#: default serial rate per protocol (8N1; opentrack's datagrams are not paced).
+DEFAULT_BAUD = {"hatire": 115200, "native": 115200, "opentrack": 115200}
 
 
 class TrackerSim:
@@ -30,8 +30,8 @@ class TrackerSim:
 
     Parameters
     ----------
-    protocol : {"hatire", "native"}
-        Byte protocol.
+    protocol : {"hatire", "native", "opentrack"}
+        Byte protocol (opentrack: one datagram per pose, our axes mapped to its).
     motion : Motion or None
         Head motion (default :class:`~sim_devices.motion.Sway`).
     rate_hz : float
@@ -79,6 +79,8 @@ class TrackerSim:
         if self.protocol == "hatire":
             return hatire.encode_pose(seq, p.yaw, p.pitch, p.roll, p.x, p.y, p.z,
                                       self.byte_order)
+        if self.protocol == "opentrack":
+            return opentrack.encode_pose(p.x, p.y, p.z, p.yaw, p.pitch, p.roll)
         quat = native.quat_from_euler(p.yaw, p.pitch, p.roll)
         return native.encode_pose(seq, round(t * 1e6), (p.x, p.y, p.z), quat)
 
@@ -116,6 +118,8 @@ class TrackerSim:
         self.streaming = self.autostart
 
     def _text(self, code: int, text: str, t: float) -> bytes:
+        if self.protocol == "opentrack":  # no text, no commands: never reached by a host
+            return b""
         if self.protocol == "hatire":
             return hatire.encode_text(code, text, self.byte_order)
         return native.encode_text(self.seq, round(t * 1e6), text)

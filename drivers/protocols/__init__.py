@@ -10,7 +10,8 @@ Every decoder follows one interface (:class:`Decoder`)::
 
 Rules every decoder keeps:
 
-* ``feed(data, t_ns)`` takes arbitrary byte chunks and returns the events they
+* ``feed(data, t_ns)`` takes arbitrary byte chunks (``opentrack`` excepted: it
+  takes one UDP datagram a call, :mod:`drivers.protocols.opentrack`) and returns the events they
   complete, in stream order; a partial frame is kept for the next call.  Events carry
   ``t_ns`` (the receive time given to ``feed``; :func:`time.monotonic_ns` domain).
 * The same bytes fed with the same ``t_ns`` give the same events however they are
@@ -30,6 +31,7 @@ Encoders (module-level functions, pure, return ``bytes``):
 =========  ===================================================================
 hatire     ``encode_pose``, ``encode_text``, ``encode_command``
 native     ``encode_pose``, ``encode_text``, ``encode_command``, ``encode_frame``
+opentrack  ``encode_pose`` (our axes), ``encode_raw`` (opentrack's)
 sgi        box to host: ``encode_dial``, ``encode_button``; host to box:
            ``encode_reset``, ``encode_enable_dials``, ``encode_enable_buttons``,
            ``encode_auto_report_buttons``, ``encode_lamps``, ``encode_all_lamps``,
@@ -45,10 +47,11 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from drivers.events import DecoderStats, Event
-from drivers.protocols import hatire, native, sgi_dialbox
+from drivers.protocols import hatire, native, opentrack, sgi_dialbox
 from service.errors import ProtocolError
 
-__all__ = ["DECODERS", "DEVICE_OF", "Decoder", "DecoderStats", "make_decoder"]
+__all__ = ["DATAGRAM_PROTOCOLS", "DECODERS", "DEVICE_OF", "Decoder", "DecoderStats",
+           "make_decoder"]
 
 
 class Decoder(Protocol):
@@ -75,9 +78,12 @@ DECODERS: dict[str, type] = {
     "hatire": hatire.HatireDecoder,
     "native": native.NativeDecoder,
     "sgi": sgi_dialbox.SgiDecoder,
+    "opentrack": opentrack.OpentrackDecoder,
 }
+#: Protocols whose ``feed`` takes one datagram a call (any other takes any chunking).
+DATAGRAM_PROTOCOLS = frozenset({"opentrack"})
 #: protocol name -> the device its events come from.
-DEVICE_OF = {"hatire": "tracker", "native": "tracker", "sgi": "dials"}
+DEVICE_OF = {"hatire": "tracker", "native": "tracker", "sgi": "dials", "opentrack": "tracker"}
 
 
 def make_decoder(name: str, **options: Any) -> Decoder:

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from service.bench import billboard_cost
+from service.bench.charts import save_chart
 from service.bench.lod_bench import BUNNY, LIGHTS, MATERIAL, image_error
 from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject, draw_billboards
@@ -166,8 +167,7 @@ def charts(build: list, zoom: list, grazing: list, cost: list, out: Path) -> Non
     if cost:
         billboard_cost.chart(ax[3], cost)
     fig.tight_layout()
-    fig.savefig(out / "billboard_bench.png", dpi=110)
-    plt.close(fig)
+    save_chart(fig, out / "billboard_bench.png", dpi=110)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -40,6 +40,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,7 +55,11 @@ from drivers.filters import (
     run_filter,
 )
 from drivers.recording import RawCaptureReader
+from service.bench.charts import save_chart
 from service.cli_args import exit_rule_epilog, float_range, plain_help
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 DEFAULT_FIXTURE = Path("/work/shared/fixtures/hatire/opentrack-putty-capture.log")
 #: Nominal Hatire capture rate: 4765 frames in one minute.
@@ -334,47 +339,60 @@ def _panel(ax, lines: dict[str, list], xlabel: str, ylabel: str, title: str) -> 
     ax.grid(True, which="both", alpha=0.3)
 
 
-def charts(rows: list[dict], out: Path, lead_ms: float, has_capture: bool) -> list[Path]:
-    """Write the jitter/lag charts; return their paths."""
+#: The simulated-motion panels: (x as (dataset, key), y as (dataset, key), title in words).
+SIM_PANELS = (
+    (("sway", "ang_lag_ms"), ("still", "ang_rms_err"),
+     "Angle: jitter standing still vs lag"),
+    (("sway", "ang_vel_lag_ms"), ("still", "ang_vel_rms_err"),
+     "Angular velocity: jitter vs lag"),
+    (("sway", "ang_lag_ms"), ("turn", "ang_pred_rms_err"),
+     "Head turn: prediction error vs lag"),
+)
+
+
+def sim_chart(rows: list[dict], path: Path, lead_ms: float) -> Figure:
+    """Three panels of jitter (or prediction error) against lag on simulated motion."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(18, 5.5))
-    specs = (
-        (("sway", "ang_lag_ms"), ("still", "ang_rms_err"), "angle jitter on still (deg RMS)"),
-        (("sway", "ang_vel_lag_ms"), ("still", "ang_vel_rms_err"), "velocity jitter (deg/s RMS)"),
-        (
-            ("sway", "ang_lag_ms"),
-            ("turn", "ang_pred_rms_err"),
-            f"turn: prediction error at {lead_ms:g} ms (deg RMS)",
-        ),
-    )
+    ylabels = ("angle jitter on still (deg RMS)", "velocity jitter (deg/s RMS)",
+               f"turn: prediction error at {lead_ms:g} ms (deg RMS)")
     xl = ("angle lag on sway (ms)", "velocity lag on sway (ms)", "angle lag on sway (ms)")
-    for ax, (x, y, ylabel), xlabel in zip(axes, specs, xl, strict=True):
-        _panel(ax, _points(rows, x, y), xlabel, ylabel, f"{y[1]} vs {x[1]}")
+    for ax, (x, y, title), xlabel, ylabel in zip(axes, SIM_PANELS, xl, ylabels, strict=True):
+        _panel(ax, _points(rows, x, y), xlabel, ylabel, title)
     axes[0].legend(fontsize=7)
     fig.suptitle("Pose filters on simulated motion: jitter (down) against lag (left)")
     fig.tight_layout()
+    return save_chart(fig, path, dpi=110)
+
+
+def capture_chart(rows: list[dict], path: Path) -> Figure:
+    """Velocity noise against lag on the recorded Hatire capture (no truth)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    lines = _points(rows, ("capture", "ang_lag_ms"), ("capture", "ang_vel_hf_jitter"))
+    _panel(ax, lines, "angle lag behind raw samples (ms)",
+           "high-frequency velocity noise (deg/s RMS)",
+           "Recorded Hatire capture: velocity noise vs lag")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save_chart(fig, path, dpi=110)
+
+
+def charts(rows: list[dict], out: Path, lead_ms: float, has_capture: bool) -> list[Path]:
+    """Write the jitter/lag charts; return their paths."""
     paths = [out / "jitter_lag_sim.png"]
-    fig.savefig(paths[0], dpi=110)
-    plt.close(fig)
+    sim_chart(rows, paths[0], lead_ms)
     if has_capture:
-        fig, ax = plt.subplots(figsize=(8, 5.5))
-        lines = _points(rows, ("capture", "ang_lag_ms"), ("capture", "ang_vel_hf_jitter"))
-        _panel(
-            ax,
-            lines,
-            "angle lag behind raw samples (ms)",
-            "high-frequency velocity noise (deg/s RMS)",
-            "Hatire capture (no truth)",
-        )
-        ax.legend(fontsize=7)
-        fig.tight_layout()
         paths.append(out / "jitter_lag_capture.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        capture_chart(rows, paths[-1])
     return paths
 
 
@@ -404,8 +422,7 @@ def trace_chart(ds: Dataset, out: Path) -> Path:
     a0.legend(fontsize=7)
     fig.tight_layout()
     path = out / "turn_trace.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
     return path
 
 

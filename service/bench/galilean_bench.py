@@ -19,6 +19,13 @@
     Writes ``galilean_sweep.json``/``.csv``, ``galilean_timing.json``,
     ``galilean_complexity.json``/``.csv`` and PNG charts.
 
+``holo-bench galilean --starvation --out DIR [--starve-seconds S]``
+    The stage starved of renders (:mod:`service.bench.galilean_starvation`): one
+    render, then none for S seconds (default 3); at every refresh the error against
+    the true render, holding the last render past its use-by (the stage as it runs)
+    against extrapolating on and against the render alone.  Writes
+    ``galilean_starvation.json``/``.csv``/``.png`` (``--sweep`` writes them too).
+
 ``holo-bench galilean --complexity --out DIR [--complexity-counts 0,1000,...]``
     Against scene complexity (the rotating cube scene plus a grid of spinning,
     drifting spheres of growing tessellation, about 250 to 100,000 triangles):
@@ -36,9 +43,12 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.bench import galilean_starvation
+from service.bench.charts import save_chart
 from service.bench.galilean_experiments import (
     CASES,
     ONE_D,
@@ -48,7 +58,13 @@ from service.bench.galilean_experiments import (
     run_tracker,
 )
 from service.bench.rows import write_csv
-from service.cli_args import add_size_option, exit_rule_epilog, int_range, plain_help
+from service.cli_args import (
+    add_size_option,
+    exit_rule_epilog,
+    float_range,
+    int_range,
+    plain_help,
+)
 from service.display import DisplaySettings
 from service.galilean.fixed_point import (
     FixedPoint,
@@ -74,6 +90,9 @@ from service.scene import (
     axis_angle_quaternion,
 )
 from service.scene_motion import advance_scene, control_points, view_scene
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 ORDERS = (0, 1, 2, 3)
 INTERVALS = (1, 2, 4, 8, 16)
@@ -367,7 +386,7 @@ def shadow_timing(size: tuple[int, int], settings: RenderSettings, repeats: int 
     return out
 
 
-def chart_timing(tm: dict, path: Path) -> None:
+def chart_timing(tm: dict, path: Path) -> Figure:
     """Bar chart: ms per refresh per order against the render of the same frame."""
     import matplotlib
 
@@ -387,8 +406,7 @@ def chart_timing(tm: dict, path: Path) -> None:
     ax.tick_params(axis="x", labelrotation=30)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=90)
 
 
 def run_timing(out: Path, time_size: tuple[int, int]) -> dict:
@@ -547,7 +565,7 @@ def _crossing(triangles: int | None) -> str:
     return "not in the range" if triangles is None else f"from {triangles} triangles"
 
 
-def chart_complexity(cx: dict, path: Path) -> None:
+def chart_complexity(cx: dict, path: Path) -> Figure:
     """Log-log ms against triangles: render, ``render_with_motion``, refresh and 10x refresh.
 
     Parameters
@@ -577,8 +595,7 @@ def chart_complexity(cx: dict, path: Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=90)
 
 
 def run_complexity(out: Path, time_size: tuple[int, int],
@@ -637,8 +654,7 @@ def chart_sweep(rows: list[dict], path: Path) -> None:
     ax.set(title="cost vs quality", xlabel="ms per refresh", ylabel="PSNR dB")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
 
 
 def chart_thought(te: dict, path: Path) -> None:
@@ -663,8 +679,7 @@ def chart_thought(te: dict, path: Path) -> None:
     for ax in axes:
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
 
 
 # ------------------------------------------------------------------- cases
@@ -747,6 +762,8 @@ def print_case(res: dict) -> None:
 # -------------------------------------------------------------------- main
 #: ``--sweep --quick``: the motions and intervals swept (no variants, 3 complexity repeats).
 QUICK_MOTIONS, QUICK_INTERVALS = ("linear", "rotating-cube"), (1, 4, 16)
+#: Seconds without a render of the starvation runs (issue 29: 3 s of refreshes).
+STARVE_S = 3.0
 
 
 def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[int, int],
@@ -770,6 +787,8 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
     print("galilean sweep: timing", file=sys.stderr, flush=True)
     tm = run_timing(out, time_size)
     cx = run_complexity(out, time_size, counts, 3 if quick else 15)
+    sv = run_starvation(out, size, STARVE_S, QUICK_MOTIONS if quick else
+                        galilean_starvation.STARVED_MOTIONS)
     doc = {"size": f"{size[0]}x{size[1]}", "frames": frames, "refresh_hz": HZ,
            "wrong_levels": WRONG_LEVELS, "rows": rows, "variants": var,
            "thought_experiments": te}
@@ -779,7 +798,45 @@ def run_sweep(out: Path, size: tuple[int, int], frames: int, time_size: tuple[in
         write_csv(var, out / "galilean_variants.csv")
     chart_sweep(rows, out / "galilean_sweep.png")
     chart_thought(te, out / "galilean_thought.png")
-    print(json.dumps({"timing": tm, "complexity": cx, "variants": var}, indent=1))
+    print(json.dumps({"timing": tm, "complexity": cx, "variants": var,
+                      "starvation": sv["summary"]}, indent=1))
+
+
+def _starved(motion: str, display: DisplaySettings, settings: RenderSettings,
+             refreshes: int) -> tuple:
+    """The one render of a starvation run and ``truth(k)``, the true render k refreshes on."""
+    scene, r = bench_scene(motion), Renderer()
+    if motion != "head-turn":
+        return (render_with_motion(r, scene, display, 0.0, HZ, settings),
+                lambda k: r.render(advance_scene(scene, k / HZ), display, settings).colour)
+    yaw, _ = head_track(refreshes + 1)
+    up = render_with_motion(r, scene, display, 0.0, HZ, settings, viewer=_viewer(yaw[0]),
+                            viewer_motion=_starved_viewer(refreshes)(0))
+    return up, lambda k: r.render(view_scene(scene, _viewer(yaw[k])), display, settings).colour
+
+
+def _starved_viewer(refreshes: int):
+    """``viewer(k)``: the head turn's filtered motion at refresh k (as :func:`prepare`)."""
+    _, est = head_track(refreshes + 1)
+    return lambda k: MotionState(angular_velocity=[0, est[k][1], 0],
+                                 angular_acceleration=[0, est[k][2], 0])
+
+
+def run_starvation(out: Path, size: tuple[int, int], seconds: float,
+                   motions: tuple[str, ...] = galilean_starvation.STARVED_MOTIONS) -> dict:
+    """``galilean_starvation.*``: ``motions`` starved ``seconds`` at ``size``; returns the JSON."""
+    out.mkdir(parents=True, exist_ok=True)
+    settings = RenderSettings(light=LightSettings("blinn"))
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    refreshes = max(1, round(seconds * HZ))
+    rows = []
+    for motion in motions:
+        print(f"galilean starvation: {motion}", file=sys.stderr, flush=True)
+        rows += galilean_starvation.starve(
+            *_starved(motion, display, settings, refreshes), motion, display, refreshes, HZ,
+            lambda a, b: (psnr(a, b), pct_wrong(a, b)),
+            _starved_viewer(refreshes) if motion == "head-turn" else None)
+    return galilean_starvation.write(rows, GalileanSettings.n_prop, HZ, out)
 
 
 def _counts(text: str) -> tuple[int, ...]:
@@ -811,6 +868,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="with --sweep: two motions, intervals 1,4,16, no variants")
     p.add_argument("--timing", action="store_true",
                    help="only the --time-size timing (refresh, render, shadow) into --out")
+    p.add_argument("--starvation", action="store_true",
+                   help="only the starvation runs (one render, then none) into --out")
+    p.add_argument("--starve-seconds", metavar="S", type=float_range(0.05, 60.0),
+                   default=STARVE_S,
+                   help="seconds without a render in the starvation runs (default: %(default)s)")
     p.add_argument("--complexity", action="store_true",
                    help="only the --time-size timing against scene complexity into --out")
     p.add_argument("--complexity-counts", metavar="N,...", type=_counts, default=COMPLEXITY_COUNTS,
@@ -829,6 +891,10 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(run_complexity(Path(args.out), args.time_size,
                                         args.complexity_counts, args.complexity_repeats),
                          indent=1))
+        return 0
+    if args.starvation:
+        doc = run_starvation(Path(args.out), args.size, args.starve_seconds)
+        print(json.dumps(doc["summary"], indent=1))
         return 0
     if args.timing:
         print(json.dumps(run_timing(Path(args.out), args.time_size), indent=1))

@@ -3,11 +3,14 @@
 Usage::
 
     python -m service.bench.latency_bench --out DIR [--frames N] [--rate HZ]
-                                    [--protocol native|hatire] [--transport pty|loop]
+                                    [--protocol NAME,...] [--transport pty|loop|udp]
                                     [--wiring inline|hub|inline,hub]
 
 The benchmark writes one tracker frame at a time into the master side of a pty pair
-(or a ``loop://`` port); a :class:`~drivers.reader.DeviceReader` reads the slave side
+(or a ``loop://`` port; or, for ``--protocol opentrack``, sends it as one UDP datagram
+to a reader listening on ``opentrack-udp://127.0.0.1:PORT``, ``--transport udp``,
+which opentrack's poses imply; ``--protocol opentrack,native`` times both side by side,
+frames round-robin); a :class:`~drivers.reader.DeviceReader` reads the slave side
 on its thread and the pose goes out through :class:`~drivers.publisher.Publisher`
 (tcp://127.0.0.1) wired as in ``holo-devices`` (``inline``: published on the reader
 thread; ``hub``: the older hand-off to a consumer thread, kept for comparison).  A
@@ -43,6 +46,7 @@ import json
 import os
 import platform
 import queue
+import socket
 import sys
 import threading
 import time
@@ -57,9 +61,11 @@ import serial
 import zmq
 
 from drivers.events import Event, PoseEvent
-from drivers.protocols import hatire, native
+from drivers.protocols import hatire, native, opentrack
 from drivers.publisher import Publisher
 from drivers.reader import DeviceReader, EventHub, Item, ReaderSettings
+from drivers.udp_port import UdpPort
+from service.bench.charts import save_chart
 from service.cli_args import exit_rule_epilog, float_range, int_range, plain_help
 
 TARGET_P99_MS = 2.0
@@ -67,9 +73,15 @@ TARGET_P99_MS = 2.0
 ENCODERS: dict[str, Callable[[int], bytes]] = {
     "native": lambda k: native.encode_pose(k, k * 1000, (1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0)),
     "hatire": lambda k: hatire.encode_pose(k, 10.0, 5.0, 1.0, 1.0, 2.0, 3.0),
+    # opentrack has no frame counter: the frame number travels as x, in whole centimetres
+    "opentrack": lambda k: opentrack.encode_raw(k, 2.0, 3.0, 10.0, 5.0, 1.0),
 }
 #: protocol -> frame counter modulus.
-SEQ_MOD = {"native": 1 << 32, "hatire": 1000}
+SEQ_MOD = {"native": 1 << 32, "hatire": 1000, "opentrack": 500}
+#: protocol -> the frame number of a pose, from its ``seq`` and ``x`` (default: ``seq``).
+FRAME_OF: dict[str, Callable[[int, float], int]] = {
+    "opentrack": lambda seq, x_mm: round(x_mm / 10.0),
+}
 #: x-axis ticks of the charts (ms).
 TICKS_MS = (0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100)
 #: per-frame stamps, in CSV column order.
@@ -115,7 +127,26 @@ def loop_transport() -> Transport:
     return Transport("loop://", lambda url, **kw: port, port.write, port.close)
 
 
-TRANSPORTS = {"pty": pty_transport, "loop": loop_transport}
+def udp_transport() -> Transport:
+    """A UDP listener on 127.0.0.1 (the reader's port) and a socket sending it datagrams."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:  # a free port (racy)
+        probe.bind(("127.0.0.1", 0))
+        port_no = probe.getsockname()[1]
+    url = f"opentrack-udp://127.0.0.1:{port_no}"
+    port = UdpPort(url)
+    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def close() -> None:
+        out.close()
+        port.close()
+
+    return Transport(url, lambda url, **kw: port,
+                     lambda data: out.sendto(data, ("127.0.0.1", port_no)), close)
+
+
+TRANSPORTS = {"pty": pty_transport, "loop": loop_transport, "udp": udp_transport}
+#: protocol -> the only transport it comes over (others: any but these).
+TRANSPORT_OF = {"opentrack": "udp"}
 
 
 class TimedPublisher(Publisher):
@@ -125,14 +156,20 @@ class TimedPublisher(Publisher):
     stamp so the queue costs nothing in the figure.
     """
 
-    def __init__(self, address: str) -> None:
+    def __init__(self, address: str, frame_of: Callable[[int, float], int]) -> None:
         super().__init__(address)
+        self.frame_of = frame_of
         self.sent: queue.SimpleQueue[tuple[int, int, int]] = queue.SimpleQueue()
 
     def _pose(self, ev: PoseEvent) -> None:
         super()._pose(ev)
         now = time.monotonic_ns()
-        self.sent.put((ev.seq, ev.t_ns, now))
+        self.sent.put((self.frame_of(ev.seq, ev.x), ev.t_ns, now))
+
+
+def frame_of(protocol: str) -> Callable[[int, float], int]:
+    """How to tell a pose's frame number (:data:`FRAME_OF`, else its ``seq``)."""
+    return FRAME_OF.get(protocol, lambda seq, x_mm: seq)
 
 
 class Pipeline:
@@ -152,7 +189,7 @@ class Pipeline:
         self.transport = transport
         self.wiring = wiring
         self.hub = EventHub()
-        self.publisher = TimedPublisher("tcp://127.0.0.1:0")
+        self.publisher = TimedPublisher("tcp://127.0.0.1:0", frame_of(protocol))
         pub = self.publisher
         self._listeners: list[Callable[[Item, list[Event]], None]] = []
         sink: Callable[[Item, list[Event]], None] = self.hub.put
@@ -239,6 +276,7 @@ class Probe:
         self.sub.setsockopt(zmq.SUBSCRIBE, b"pose")
         self.sub.connect(self.pipe.publisher.address)
         self.encode, self.mod = ENCODERS[protocol], SEQ_MOD[protocol]
+        self.frame_of = frame_of(protocol)
         self.k = 0
         self.body_size = 0
 
@@ -261,7 +299,8 @@ class Probe:
                 return None
             _topic, body = self.sub.recv_multipart()
             now = time.monotonic_ns()
-            if json.loads(body)["seq"] == seq:
+            d = json.loads(body)
+            if self.frame_of(d["seq"], d["x"]) == seq:
                 self.body_size = len(body)
                 return now
 
@@ -293,23 +332,29 @@ class Probe:
         self.pipe.close()
 
 
-def measure(frames: int, rate_hz: float, protocol: str, transport_name: str,
-            wirings: tuple[str, ...] = ("inline",)) -> dict[str, Any]:
+def measure(frames: int, rate_hz: float, specs: dict[str, tuple[str, str, str]]
+            ) -> dict[str, Any]:
     """Run the benchmark.
 
-    Frames go round-robin to one pipeline per wiring, so wirings compared in one run
+    Frames go round-robin to one pipeline per spec, so pipelines compared in one run
     see the same load; a bare hop follows each frame half a period later.
+
+    Parameters
+    ----------
+    specs : dict
+        label -> ``(protocol, transport, wiring)`` of each pipeline.
 
     Returns
     -------
     dict
-        ``rows``: wiring -> list of per-frame stamp dicts; ``bare_hop``: ns samples;
-        ``lost``: wiring -> frames that never arrived (``"bare_hop"`` included).
+        ``rows``: label -> list of per-frame stamp dicts; ``bare_hop``: ns samples;
+        ``lost``: label -> frames that never arrived (``"bare_hop"`` included).
     """
-    probes = [Probe(transport_name, protocol, w) for w in wirings]
+    labels = list(specs)
+    probes = [Probe(t, p, w) for p, t, w in specs.values()]
     hop: BareHop | None = None
-    rows: dict[str, list[dict[str, int]]] = {w: [] for w in wirings}
-    lost = {w: 0 for w in (*wirings, "bare_hop")}
+    rows: dict[str, list[dict[str, int]]] = {w: [] for w in labels}
+    lost = {w: 0 for w in (*labels, "bare_hop")}
     hops: list[int] = []
     try:
         for p in probes:
@@ -324,13 +369,13 @@ def measure(frames: int, rate_hz: float, protocol: str, transport_name: str,
                 tick.wait((target - now) / 1e9)
 
         for i in range(frames * len(probes)):
-            probe = probes[i % len(probes)]
+            label, probe = labels[i % len(probes)], probes[i % len(probes)]
             wait_until(start + i * period_ns)
             stamps = probe.frame(1000)
             if stamps is None:
-                lost[probe.pipe.wiring] += 1
+                lost[label] += 1
             else:
-                rows[probe.pipe.wiring].append(stamps)
+                rows[label].append(stamps)
             wait_until(start + i * period_ns + period_ns // 2)
             ns = hop.once(1000)
             if ns is None:
@@ -414,8 +459,7 @@ def plot(curves: dict[str, np.ndarray], path: Path, title: str) -> None:
     ax1.legend(fontsize=7, loc="lower right")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_chart(fig, path, dpi=110)
 
 
 def _line(name: str, s: dict[str, float]) -> str:
@@ -432,11 +476,14 @@ def main(argv: list[str] | None = None) -> int:
                                  epilog=exit_rule_epilog())
     ap.add_argument("--out", metavar="DIR", required=True, type=Path, help="output folder")
     ap.add_argument("--frames", metavar="N", type=int_range(1), default=2000,
-                    help="frames to time per wiring")
+                    help="frames to time per pipeline (protocol x wiring)")
     ap.add_argument("--rate", metavar="HZ", type=float_range(0, lo_open=True), default=200.0,
                     help="frames per second")
-    ap.add_argument("--protocol", choices=tuple(ENCODERS), default="native")
-    ap.add_argument("--transport", choices=tuple(TRANSPORTS), default="pty")
+    ap.add_argument("--protocol", metavar="NAME,...", default="native",
+                    help=f"tracker protocols timed side by side, from: {', '.join(ENCODERS)} "
+                    "(default: %(default)s)")
+    ap.add_argument("--transport", choices=tuple(TRANSPORTS), default=None,
+                    help="default: udp for opentrack, else pty")
     ap.add_argument("--wiring", metavar="NAME,...", default="inline",
                     help="comma-separated pipelines timed side by side, from: "
                     f"{', '.join(WIRINGS)} (default: %(default)s, as holo-devices)")
@@ -444,14 +491,25 @@ def main(argv: list[str] | None = None) -> int:
     wirings = tuple(args.wiring.split(","))
     if not wirings or not set(wirings) <= set(WIRINGS) or len(set(wirings)) < len(wirings):
         ap.error(f"--wiring takes distinct names from {', '.join(WIRINGS)}")
+    protocols = tuple(args.protocol.split(","))
+    if not set(protocols) <= set(ENCODERS) or len(set(protocols)) < len(protocols):
+        ap.error(f"--protocol takes distinct names from {', '.join(ENCODERS)}")
+    if args.transport == "udp" and set(protocols) != {"opentrack"}:
+        ap.error("--transport udp goes with --protocol opentrack alone")
+    transport = {p: TRANSPORT_OF.get(p) or args.transport or "pty" for p in protocols}
+    specs = {(w if len(protocols) == 1 else f"{p} {w}"): (p, transport[p], w)
+             for p in protocols for w in wirings}
     args.out.mkdir(parents=True, exist_ok=True)
-    res = measure(args.frames, args.rate, args.protocol, args.transport, wirings)
+    res = measure(args.frames, args.rate, specs)
+    wirings = tuple(specs)  # the pipelines' labels from here on
+    over = ", ".join(f"{p} over {t}" for p, t in transport.items())
     hops = res["bare_hop"]
     per = {w: figures(res["rows"][w], hops) for w in wirings}
     head = per[wirings[0]]["published"]
     report: dict[str, Any] = {
         "settings": {"frames": args.frames, "rate_hz": args.rate, "protocol": args.protocol,
-                     "transport": args.transport, "wirings": list(wirings)},
+                     "transport": ",".join(transport[p] for p in protocols),
+                     "wirings": list(wirings)},
         "host": {"python": sys.version.split()[0], "platform": platform.platform(),
                  "cpus": os.cpu_count(), "load_avg": list(os.getloadavg())},
         "target_p99_ms": TARGET_P99_MS,
@@ -470,9 +528,9 @@ def main(argv: list[str] | None = None) -> int:
     curves["bare PUB -> SUB hop"] = hops
     if any(v.size for v in curves.values()):
         plot(curves, args.out / "latency.png",
-             f"{args.protocol} over {args.transport}, {args.frames} frames per wiring at "
+             f"{over}, {args.frames} frames per pipeline at "
              f"{args.rate:g} Hz, load {os.getloadavg()[0]:.1f}")
-    print(f"latency {args.protocol}/{args.transport}, lost {res['lost']}:")
+    print(f"latency {over}, lost {res['lost']}:")
     for w in wirings:
         for name in ("published", "received", "to_arrival"):
             print(_line(f"{w} {name}", report["wirings"][w][name]))

@@ -21,10 +21,12 @@ import platform
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
+from service.bench.charts import save_chart
 from service.bench.rows import write_csv, zones_label
 from service.builtin_scenes import SCENES as BUILTIN_SCENES
 from service.builtin_scenes import builtin_scene, scene_name
@@ -38,6 +40,9 @@ from service.occlusion.zbuffer import zbuffer
 from service.primitives import sphere
 from service.projection import project
 from service.scene import Light, Material, Scene, SceneArrays, SceneObject
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 #: (model, evaluation) pairs measured; ("blinn", "point") is the reference.
 VARIANTS = (
@@ -140,7 +145,7 @@ MODEL_COLOURS = {"ambient": "tab:grey", "phong": "tab:orange", "blinn": "tab:blu
 EVAL_MARKERS = {"polygon": "s", "vertex": "^", "point": "o"}
 
 
-def chart(rows: list[dict], path: Path) -> None:
+def chart(rows: list[dict], path: Path) -> Figure:
     """Scatter of ms per frame (log) against intensity error, one panel per scene.
 
     Colour is the light model, the marker where it is evaluated (both in the legend,
@@ -173,8 +178,7 @@ def chart(rows: list[dict], path: Path) -> None:
                fontsize=8, title="colour: light model; marker: where it is evaluated; "
                "lower-left is better", title_fontsize=8)
     fig.tight_layout(rect=(0, 0.13 if wide else 0.2, 1, 1))  # room for the legend below
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=110)
 
 
 def _legend_handles() -> list:

@@ -51,6 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench.charts import save_chart
 from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject
 from service.cli_args import add_size_option, exit_rule_epilog, float_range, int_range
@@ -316,15 +317,13 @@ def level_charts(levels: list[dict], out: Path) -> None:
     fig.suptitle("LOD chain levels vs the full mesh: quadric edge collapse (o) and "
                  "billboard clouds at EPS 1 % of the diagonal (*)")
     fig.tight_layout()
-    fig.savefig(out / "lod_levels.png", dpi=110)
-    plt.close(fig)
+    save_chart(fig, out / "lod_levels.png", dpi=110)
     fig, ax = plt.subplots(figsize=(6, 4))
     builds = [next(r["build_ms"] for r in levels if r["mesh"] == n) / 1e3 for n in names]
     ax.bar(names, builds)
     ax.set_ylabel("chain build, s (decimation + error, no cache)")
     fig.tight_layout()
-    fig.savefig(out / "lod_build.png", dpi=110)
-    plt.close(fig)
+    save_chart(fig, out / "lod_build.png", dpi=110)
 
 
 def crowd_chart(crowd: list[dict], out: Path) -> None:
@@ -351,8 +350,7 @@ def crowd_chart(crowd: list[dict], out: Path) -> None:
         ax.set_xticks(x + 0.27, kinds)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "lod_crowd.png", dpi=110)
-    plt.close(fig)
+    save_chart(fig, out / "lod_crowd.png", dpi=110)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.bench.charts import save_chart
 from service.bench.rows import write_csv
 from service.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.display import DisplaySettings
@@ -126,8 +127,7 @@ def chart(rows: list[dict], out: Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "lod_stall.png", dpi=110)
-    plt.close(fig)
+    save_chart(fig, out / "lod_stall.png", dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,15 +18,20 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.bench.charts import save_chart
 from service.bench.rows import write_rows, zones_label
 from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option, comma_list, exit_rule_epilog, plain_help, size
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 ZONES = (1, 5, 9, 17, 33)
 SCENE_NAMES = ("game", "sphere-torus", "cyclic")
@@ -143,7 +148,7 @@ def zone_cost(
     ]
 
 
-def chart_zone_cost(rows: list[dict], path: Path) -> None:
+def chart_zone_cost(rows: list[dict], path: Path) -> Figure:
     """Stacked bars: milliseconds per stage against the zone count."""
     import matplotlib
 
@@ -173,8 +178,7 @@ def chart_zone_cost(rows: list[dict], path: Path) -> None:
     ax.set_title(f"{rows[0]['scene']} scene: cost of extra zones")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=110)
 
 
 FINE_ZONES = 64  # directions sampled across the viewing angle for the continuous error
@@ -204,7 +208,7 @@ def continuous_error(scene_name: str, zones: int, angle: float, size=(320, 240))
     return round(100.0 * float(np.mean(obj[shown[zone_of]] != obj[truth])), 4)
 
 
-def chart_methods(rows: list[dict], path: Path, peer_rows: list[dict] = ()) -> None:
+def chart_methods(rows: list[dict], path: Path, peer_rows: list[dict] = ()) -> Figure:
     """One panel per scene: ms per update (x, log) against % pixels differing (y).
 
     ``peer_rows`` (from :func:`service.bench.peers.compare`) add each peer as a dashed
@@ -249,11 +253,10 @@ def chart_methods(rows: list[dict], path: Path, peer_rows: list[dict] = ()) -> N
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=110)
 
 
-def chart_sweep(rows: list[dict], key: str, path: Path, title: str) -> None:
+def chart_sweep(rows: list[dict], key: str, path: Path, title: str) -> Figure:
     """Run-length error (no fallback) against ``key`` (viewing angle or zones).
 
     Two errors on a log scale: at the zone centres (the sort's mistakes) and for a
@@ -279,8 +282,7 @@ def chart_sweep(rows: list[dict], key: str, path: Path, title: str) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=110)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -414,7 +416,7 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
     return peer_rows
 
 
-def chart_peers(rows: list[dict], path: Path) -> None:
+def chart_peers(rows: list[dict], path: Path) -> Figure:
     """Bars: our ms / the peer's ms per configuration (below 1: we are faster)."""
     import matplotlib
 
@@ -440,8 +442,7 @@ def chart_peers(rows: list[dict], path: Path) -> None:
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return save_chart(fig, path, dpi=110)
 
 
 def print_peers(rows: list[dict]) -> None:

@@ -9,6 +9,11 @@ failure map (each method, where it fails, and the tests that show the failure an
 its detection); and what did not run, with the reason.  A benchmark that fails is
 reported on the page and the rest go on.
 
+Everything is written into ``OUT.partial-TIME/`` beside ``OUT`` and moved into
+``OUT`` when the run ends, so an interrupted run leaves ``OUT``'s page and data as
+they were (the partial folder keeps what ran; stderr names it).  Files in ``OUT``
+that no report wrote stay.
+
 ``--quick`` runs each benchmark at small settings (about 3 minutes from an empty
 numba cache on two quiet cores); without it, the benchmarks' own defaults at
 ``--size``.  Exit status 0 when the page is written, 1 when no benchmark ran.
@@ -31,7 +36,17 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from service.bench.picks import (
+    BUDGET_PCT,
+    Pick,
+    busy_caveat,
+    galilean_pays,
+    light_picks,
+    occlusion_picks,
+    tally,
+)
 from service.bench.rows import zones_label
+from service.bench.staging import MANIFEST, move_into_place, owned_entries, staging_folder
 from service.cli_args import exit_rule_epilog, plain_help
 from service.cli_args import size as size_type
 from service.errors import HoloError
@@ -106,7 +121,10 @@ PLANS = (
           "10x cheaper than rendering.",
           "galilean_complexity.png": "Render, update and G(2) refresh ms against the triangles "
           "in the scene (log-log); where the render crosses the dashed 10x-refresh line, "
-          "refreshing pays."},
+          "refreshing pays.",
+          "galilean_starvation.png": "One render, then none for 3 s: error against the true "
+          "render at each refresh, holding the last render past its use-by (grey line, the "
+          "stage as it runs) against extrapolating on and against the render alone."},
          "galilean"),
     Plan("quality", "--quality auto (method chosen per frame)",
          (("--quick", "--size", "{size}"),), (("--size", "{size}"),), {}, "quality"),
@@ -139,15 +157,23 @@ PLANS = (
     Plan("service", "Render service",
          (("--quick", "--seconds", "0.5", "--workers", "1,2", "--rounds", "1"),),
          ((),), {"service.png": "Transport overhead, round trip, worker scaling and "
-                 "motion-to-photon of the render service; lower is better."}, "generic"),
+                 "motion-to-photon of the render service; lower is better.",
+                 "chaos.png": "Workers under chaos (holo-bench chaos): every 5 s one worker "
+                 "killed and another stopped; left, the gap before each update (target: "
+                 "none over 1 s, red), right, the service's RSS (flat is right)."},
+         "generic"),
     Plan("filters", "Pose filters", ((),), ((),),
          {"jitter_lag_sim.png": "Each pose filter (and a sweep of its parameters): jitter "
           "against lag on simulated head motion; lower-left is better.",
           "jitter_lag_capture.png": "The same on a recorded capture.",
           "turn_trace.png": "A head turn: raw and filtered angle over time."}, "filters"),
-    Plan("latency", "Device drivers: latency", (("--frames", "200"),), ((),),
-         {"latency.png": "Byte arrival to published event: CDFs per wiring and the tail; "
-          "left is faster."}, "latency"),
+    # a serial tracker (native over a pty) and opentrack's UDP datagrams, side by side
+    Plan("latency", "Device drivers: latency",
+         (("--frames", "200", "--protocol", "native,opentrack"),),
+         (("--protocol", "native,opentrack"),),
+         {"latency.png": "Byte arrival to published event: CDFs per pipeline (native frames "
+          "from a pty, opentrack datagrams over UDP) and the tail; left is faster."},
+         "latency"),
     # best of 3: a single run timed the first decoder cold (sgi at 0.6 MB/s, "below target")
     Plan("decoders", "Serial protocol decoders", (("--scale", "0.2", "--repeat", "3"),), ((),),
          {}, "decoders"),
@@ -251,8 +277,17 @@ def _csv_rows(path: Path) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
+def peers_not_run(status: dict) -> str:
+    """Why no peer ran, from ``peers_status.json`` (each peer and its reason)."""
+    why = "; ".join(f"{k}: {v}" for k, v in status.get("not_started", {}).items())
+    return why or "the render benchmark ran without --peers"
+
+
 def render_table(out: Path) -> Table:
-    """Occlusion: method, ms, % pixels unlike ray casting, ms / the best peer's ms."""
+    """Occlusion: method, ms, % pixels unlike ray casting, ms / the best peer's ms.
+
+    Without any peer measured the last column is left out and the note says why.
+    """
     rows = _load(out / "render_bench.json") or []
     peers = _load(out / "peers.json") or []
     best: dict = {}
@@ -267,19 +302,27 @@ def render_table(out: Path) -> Table:
         body.append([r["method"], f"{r['scene']}, {zones_label(r['zones'])}", _fmt(r["ms"]),
                      _fmt(r["pct_differ"], 4), vs])
     status = _load(out / "peers_status.json") or {}
+    heads = ["method", "scene", "ms", "error %", "against the best peer"]
+    note = "error: % of pixels whose visible polygon differs from ray casting."
+    if not best:
+        return Table(heads[:-1], [row[:-1] for row in body],
+                     f"{note} No peer ran ({peers_not_run(status)}).")
     why = "; ".join(f"{k}: {v}" for k, v in status.get("not_started", {}).items())
-    note = ("error: % of pixels whose visible polygon differs from ray casting. Against the "
-            "best peer: our ms over the fastest peer's on the same scene and zones (below 1: "
-            "ours is faster); the methods and the peers ran one after the other, not in turn: "
-            "the next table has the ratios measured side by side.")
-    return Table(["method", "scene", "ms", "error %", "against the best peer"], body,
-                 note + (f" Peers not measured: {why}." if why else ""))
+    note += (" Against the best peer: our ms over the fastest peer's on the same scene and "
+             "zones (below 1: ours is faster); the methods and the peers ran one after the "
+             "other, not in turn: the next table has the ratios measured side by side.")
+    return Table(heads, body, note + (f" Peers not measured: {why}." if why else ""))
 
 
 def peers_table(out: Path) -> Table:
-    """Peers timed in turn with our z-buffer: both ms, the ratio, depth agreement."""
+    """Peers timed in turn with our z-buffer: both ms, the ratio, depth agreement.
+
+    No rows (no peer ran): no table, one line saying why.
+    """
     rows = _load(out / "peers.json") or []
     status = _load(out / "peers_status.json") or {}
+    if not rows:
+        return Table([], [], f"No peer ran, so there is no peer table: {peers_not_run(status)}.")
     body = [[r["peer"], f"{r['scene']} ({r['triangles']} triangles), {zones_label(r['zones'])}, "
              f"{r['size']}", _fmt(r["ours_ms"]), _fmt(r["peer_ms"]), f"{r['ratio']:.3f}",
              f"{r['pct_agree']:.4f}"] for r in rows]
@@ -350,7 +393,7 @@ def decoders_table(out: Path) -> Table:
 
 
 def latency_table(out: Path) -> Table:
-    """Drivers' latency: per wiring and leg, p50 / p95 / p99 / max ms and the target."""
+    """Drivers' latency: per pipeline and leg, p50 / p95 / p99 / max ms and the target."""
     data = _load(out / "latency.json") or {}
     body = []
     for wiring, legs in data.get("wirings", {}).items():
@@ -363,10 +406,11 @@ def latency_table(out: Path) -> Table:
         body.append(["(reference)", "bare_hop", *(_fmt(s.get(k)) for k in LATENCY_STATS),
                      str(s.get("n")), str(lost)])
     met = {True: "met", False: "NOT met"}.get(data.get("target_met"), "not measured")
-    return Table(["wiring", "leg", "p50 ms", "p95 ms", "p99 ms", "max ms", "frames", "lost"],
+    return Table(["pipeline", "leg", "p50 ms", "p95 ms", "p99 ms", "max ms", "frames", "lost"],
                  body, f"Target: {data.get('headline', 'arrival -> published')} p99 <= "
                  f"{_fmt(data.get('target_p99_ms'))} ms: {met}. Legs: to_arrival, the device's "
-                 "write to the reader's arrival stamp (kernel pty and reader wake-up); "
+                 "write to the reader's arrival stamp (kernel pty or UDP socket, and reader "
+                 "wake-up); "
                  "published, arrival to the publisher's send; received, arrival to a "
                  "subscriber in the same process; total, write to received; bare_hop, a bare "
                  "PUB -> SUB send and receive timed beside them, nothing else in the path.")
@@ -485,6 +529,17 @@ FAILURES = (
             ("tests/galilean/test_gal_render.py::test_error_estimate_orders_re_renders",
              "tests/galilean/test_gal_render.py::test_use_by_date_fires_past_45_degrees",
              "tests/render/test_quality.py::test_galilean_order_and_interval_fit_the_budget")),
+    Failure("Galilean stage past its use-by (renders late)",
+            "past the rated propagation time (or 45 degrees of turn) the extrapolation's "
+            "error grows without bound: moving objects smear, turning ones fly apart",
+            ("tests/galilean/test_gal_experiments.py::test_error_grows_past_rating",
+             "tests/galilean/test_gal_bench_cli.py::test_cli_starvation"),
+            ("tests/galilean/test_gal_hold.py::"
+             "test_a_starved_stage_shows_the_last_render_once_it_is_past_its_use_by",
+             "tests/galilean/test_gal_hold.py::"
+             "test_a_render_is_used_by_the_refresh_before_an_object_turns_45_degrees",
+             "tests/service/test_service_hold.py::"
+             "test_renders_that_stop_coming_leave_the_last_render_held_not_extrapolated")),
     Failure("G(3) (up to jerk)",
             "noisy derivatives (a tracker differentiated three times): the jerk term "
             "amplifies the noise and the prediction diverges",
@@ -593,8 +648,66 @@ def section_html(res: Outcome) -> str:
                                                           p.name))
     parts += [image_html(p, res.plan.charts.get(p.name, GENERIC_SENTENCE)) for p in charts]
     for key in res.plan.table.split(","):
-        parts.append("<h3>Stage table</h3>" + table_html(TABLES[key](res.out)))
+        table = TABLES[key](res.out)  # one without headers is a line saying why
+        parts.append(("<h3>Stage table</h3>" if table.headers else "") + table_html(table))
     return "".join(parts)
+
+
+def _ran(results: list[Outcome], bench: str) -> Outcome | None:
+    """The outcome of ``bench`` when it ran, else None."""
+    return next((r for r in results if r.plan.bench == bench and r.ok), None)
+
+
+def picks_table(picks: list[Pick]) -> Table:
+    """Per case: the fastest exact method and the cheapest within the error budget."""
+    def cell(choice, error: bool) -> str:
+        if choice is None:
+            return "none measured"
+        text = f"{choice[0]} ({_fmt(choice[1])} ms"
+        return text + (f", {_fmt(choice[2], 4)} %)" if error else ")")
+
+    body = [[p.stage, p.case, cell(p.exact, False), cell(p.within, True)] for p in picks]
+    return Table(["stage", "case", "fastest exact", f"cheapest within {BUDGET_PCT:g} % error"],
+                 body, "Exact: no pixel unlike ray casting (occlusion), no intensity unlike "
+                 "per-point Blinn (light). Error: % of pixels (occlusion), % of full "
+                 "intensity (light). From this run's medians; the stage tables below have "
+                 "every method.")
+
+
+def recommendations(results: list[Outcome]) -> tuple[list[str], list[Pick]]:
+    """Sentences and per-case picks from the runs of render, light and galilean."""
+    lines: list[str] = []
+    picks: list[Pick] = []
+    sources = (("render", "render_bench.json", occlusion_picks, "occlusion"),
+               ("light", "light_bench.json", light_picks, "light"))
+    for bench, name, picker, stage in sources:
+        res = _ran(results, bench)
+        rows = _load(res.out / name) if res else None
+        rows = rows.get("rows", []) if isinstance(rows, dict) else rows
+        if not rows:
+            lines.append(f"{stage.capitalize()}: not measured in this run (holo-bench {bench} "
+                         "did not run).")
+            continue
+        found = picker(rows)
+        lines.append(tally(found) + busy_caveat(bench, res.seconds, res.cpu_s))
+        picks += found
+    res = _ran(results, "galilean")
+    cx = _load(res.out / "galilean_complexity.json") if res else None
+    sweep = (_load(res.out / "galilean_sweep.json") or {}).get("rows", []) if res else []
+    pays = galilean_pays(cx, sweep) if cx else []
+    if pays:
+        pays[0] += busy_caveat("galilean", res.seconds, res.cpu_s)
+    lines += pays or ["Galilean stage: not measured in this run (holo-bench galilean did "
+                      "not run)."]
+    return lines, picks
+
+
+def picks_html(results: list[Outcome]) -> str:
+    """The section at the top of the page: what to pick, from this run's data."""
+    lines, picks = recommendations(results)
+    items = "".join(f"<li>{html.escape(line)}</li>" for line in lines)
+    table = table_html(picks_table(picks)) if picks else ""
+    return f'<h2 id="picks">What to pick (from this run)</h2><ul>{items}</ul>{table}'
 
 
 def machine_line() -> str:
@@ -620,7 +733,8 @@ def page(results: list[Outcome], meta: dict, root: Path) -> str:
             f'<p class="note">{html.escape(meta["machine"])}</p>')
     return ("<!DOCTYPE html><html><head><meta charset=\"utf-8\">"
             f"<title>Holo-realizer benchmark report</title><style>{CSS}</style></head><body>"
-            f"<h1>Holo-realizer benchmark report</h1>{head}<ul>{toc}"
+            f"<h1>Holo-realizer benchmark report</h1>{head}{picks_html(results)}"
+            f'<h2>Contents</h2><ul><li><a href="#picks">What to pick</a></li>{toc}'
             '<li><a href="#failure-map">Failure map</a></li></ul>'
             + "".join(section_html(r) for r in results)
             + '<h2 id="failure-map">Failure map</h2>' + table_html(fail)
@@ -647,13 +761,13 @@ def compile_ahead() -> str:
             f"warm-up jobs compiled, {rep.cached} loaded from the cache, {rep.seconds:.0f} s.")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``holo-bench report``; returns the exit status."""
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``holo-bench report``."""
     p = argparse.ArgumentParser(prog="holo-bench report", description=plain_help(__doc__),
                                 epilog=exit_rule_epilog("no benchmark ran."),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", metavar="DIR", default="bench-out",
-                   help="output folder (default bench-out)")
+                   help="output folder (default bench-out); filled when the run ends")
     p.add_argument("--quick", action="store_true", help="small settings (about 3 minutes)")
     p.add_argument("--no-warmup", dest="warmup", action="store_false",
                    help="do not compile the numba kernels ahead in two processes")
@@ -661,38 +775,66 @@ def main(argv: list[str] | None = None) -> int:
                    help="comma-separated benchmark names to run (default: all)")
     p.add_argument("--size", type=size_type, default=None, metavar="WxH",
                    help="pixels per zone image (default: 160x120 with --quick, else 320x240)")
-    args = p.parse_args(argv)
-    args.size = args.size or ((160, 120) if args.quick else (320, 240))
+    return p
+
+
+def run_all(args: argparse.Namespace, work: Path) -> tuple[list[Outcome], dict]:
+    """Every planned benchmark into ``work/NAME/``; the outcomes and the page's meta."""
     from service.cli_bench import BENCHES
 
     plans = [pl for pl in PLANS if args.only is None or pl.bench in args.only.split(",")]
     planned = {n for pl in PLANS for n in (pl.bench, *ALIASES.get(pl.bench, ()))}
     unplanned = [n for n in BENCHES if n not in planned and n != "report"]
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     wall0, cpu0 = time.perf_counter(), cpu_seconds()
     size = f"{args.size[0]}x{args.size[1]}"
     warm = compile_ahead() if args.warmup else "Kernels not compiled ahead (--no-warmup)."
     results = []
     for i, plan in enumerate(plans, 1):
         print(f"[report {i}/{len(plans)}] {plan.bench}", file=sys.stderr, flush=True)
-        results.append(run_plan(plan, BENCHES, out, args.quick, size))
+        results.append(run_plan(plan, BENCHES, work, args.quick, size))
     for name in unplanned if args.only is None else ():
-        res = Outcome(Plan(name, BENCHES[name][1], (), (), {}, "generic"), name, out / name)
+        res = Outcome(Plan(name, BENCHES[name][1], (), (), {}, "generic"), name, work / name)
         res.reason = "registered, but the report has no plan for it yet (run it by hand)"
         results.append(res)
     meta = {"what": f"holo-bench report{' --quick' if args.quick else ''} at {size}",
             "wall_s": time.perf_counter() - wall0, "cpu_s": cpu_seconds() - cpu0,
             "machine": machine_line(), "warmup": warm}
+    return results, meta
+
+
+def write_page(results: list[Outcome], meta: dict, work: Path) -> None:
+    """``index.html`` and ``report.json`` (whose ``benches`` name the folders) in ``work``."""
     root = Path(__file__).resolve().parents[2]
-    (out / "index.html").write_text(page(results, meta, root))
-    (out / "report.json").write_text(json.dumps(
+    (work / "index.html").write_text(page(results, meta, root))
+    (work / MANIFEST).write_text(json.dumps(
         {**meta, "benches": {r.plan.bench: {"ran": r.ok, "seconds": round(r.seconds, 2),
                                             "cpu_s": round(r.cpu_s, 2), "reason": r.reason}
                              for r in results}}, indent=1))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``holo-bench report``; returns the exit status.
+
+    Everything is written into a staging folder beside ``--out`` and moved into
+    place at the end (:mod:`service.bench.staging`): an interrupted run leaves the
+    previous page and its data as they were, and the staging folder with what ran.
+    """
+    args = build_parser().parse_args(argv)
+    args.size = args.size or ((160, 120) if args.quick else (320, 240))
+    out = Path(os.path.abspath(args.out))
+    work = staging_folder(out)
+    try:
+        results, meta = run_all(args, work)
+        write_page(results, meta, work)
+        move_into_place(work, out, owned_entries(out))
+    except BaseException:
+        print(f"holo-bench report: {args.out} left as it was; what ran so far is in {work}",
+              file=sys.stderr, flush=True)
+        raise
     for r in results:
         state = f"ok {r.seconds:.1f} s (CPU {r.cpu_s:.1f} s)" if r.ok else \
             f"not run: {r.reason}"
         print(f"  {r.plan.bench:11s} {state}")
-    print(f"wrote {out / 'index.html'} in {meta['wall_s']:.0f} s (CPU {meta['cpu_s']:.0f} s)")
+    print(f"wrote {Path(args.out) / 'index.html'} in {meta['wall_s']:.0f} s "
+          f"(CPU {meta['cpu_s']:.0f} s)")
     return 0 if any(r.ok for r in results) else 1

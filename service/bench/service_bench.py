@@ -34,7 +34,6 @@ import argparse
 import json
 import os
 import platform
-import socket
 import subprocess
 import sys
 import threading
@@ -45,22 +44,19 @@ from typing import Any
 import numpy as np
 import zmq
 
+from service.bench import chaos_bench
+from service.bench.charts import save_chart
+from service.bench.running import Running
+from service.bench.running import port as _port
 from service.cli_args import comma_list, exit_rule_epilog, float_range, int_range, plain_help
 from service.net import protocol
-from service.net.client import FrameSubscriber, ServiceClient
+from service.net.client import FrameSubscriber
 from service.net.frame_stream import FrameStream
-from service.signals import end_process
 
 TRANSPORT_TARGET = 1.5
 MTP_TARGET_MS = 20.0
 SHAPE = (5, 120, 160)
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _pct(samples: list[float]) -> dict[str, float]:
@@ -175,56 +171,6 @@ def bench_transport(n: int) -> dict[str, Any]:
         "target": TRANSPORT_TARGET,
         "target_met": m["p50"] / r["p50"] <= TRANSPORT_TARGET,
     }
-
-
-# ------------------------------------------------------------ real services
-#: Longest wait for a started service to finish warming up (a cold cache on a loaded
-#: 2-core machine took 485 s).
-WARMUP_WAIT_S = 900.0
-
-
-class Running:
-    """A ``holo-service`` subprocess on free ports (killed on exit)."""
-
-    def __init__(self, *args: str) -> None:
-        self.control, self.frames = f"tcp://127.0.0.1:{_port()}", f"tcp://127.0.0.1:{_port()}"
-        cmd = [
-            sys.executable,
-            "-m",
-            "service.cli_service",
-            "--control",
-            self.control,
-            "--frames",
-            self.frames,
-            "--worker-address",
-            f"tcp://127.0.0.1:{_port()}",
-            *args,
-        ]
-        self.proc = subprocess.Popen(
-            cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-        )
-        self.client = ServiceClient(self.control, timeout_s=2.0, retries=30)
-
-    def __enter__(self) -> Running:
-        try:  # a service that has to compile answers "warming up" until it is ready
-            self.client.wait_ready(timeout_s=WARMUP_WAIT_S)
-        except BaseException:
-            self.__exit__()
-            raise
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.client.close()
-        end_process(self.proc)
-
-    def wait_updates(self, n: int, timeout_s: float) -> bool:
-        """Poll stats until ``n`` updates were grafted."""
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            if self.client.stats()["updates"] >= n:
-                return True
-            threading.Event().wait(0.1)
-        return False
 
 
 def bench_round_trip(n: int) -> dict[str, Any]:
@@ -561,8 +507,7 @@ def plot(res: dict[str, Any], path: Path) -> None:
     ax[1, 1].set(title="motion to photon (pose into the pty -> frame)", xlabel="ms", ylabel="CDF")
     ax[1, 1].legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_chart(fig, path, dpi=100)
 
 
 def _step(what: str) -> None:
@@ -593,6 +538,11 @@ def main(argv: list[str] | None = None) -> int:
         "--rounds", metavar="N", type=int_range(1), default=2,
         help="rounds of the worker comparison"
     )
+    p.add_argument(
+        "--chaos-seconds", metavar="S", type=float_range(0), default=None,
+        help="length of the chaos part (holo-bench chaos: workers killed and stopped; "
+        "default 60, 10 with --quick; 0 skips it)",
+    )
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -621,10 +571,18 @@ def main(argv: list[str] | None = None) -> int:
     res["motion_to_photon"] = bench_motion_to_photon(60 if q else 400)
     if not q:  # the same with one libzmq I/O thread (frames share it with worker replies)
         res["motion_to_photon_1io"] = bench_motion_to_photon(400, io_threads=1)
+    chaos_s = args.chaos_seconds if args.chaos_seconds is not None else (10.0 if q else 60.0)
+    if chaos_s > 0:
+        _step(f"chaos: a worker killed and another stopped every 5 s for {chaos_s:g} s")
+        chaos, times = chaos_bench.run_chaos(max(5.0, chaos_s))
+        chaos_bench.write(chaos, times, out)
+        res["chaos"] = {k: v for k, v in chaos.items() if k not in ("events", "rss_kb", "trace")}
     (out / "service.json").write_text(json.dumps(res, indent=1))
     write_csv(res["workers_rounds"], out / "service_workers.csv")
     plot(res, out / "service.png")
     print(summary(res))
+    if "chaos" in res:
+        print(chaos_bench.summary(chaos))
     return 0
 
 

@@ -49,6 +49,7 @@ from service.autostereogram.decode import (
 from service.autostereogram.depth_scenes import seed_slope, sphere, steps
 from service.autostereogram.output import SirdOutput
 from service.autostereogram.source import centre_depth
+from service.bench.charts import save_chart
 from service.bench.rows import write_csv
 from service.builtin_scenes import builtin_scene
 from service.cli_args import (
@@ -232,8 +233,7 @@ def chart(rows: list[dict], service: list[dict], path: Path) -> None:
     handles = [plt.Line2D([], [], marker="o", ls="", color=c, label=m) for m, c in colours.items()]
     fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=8)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_chart(fig, path, dpi=100)
 
 
 def _service_panel(ax, service: list[dict], colours: dict[str, str]) -> None:

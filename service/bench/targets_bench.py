@@ -4,6 +4,10 @@
   game scene, renders of both counts interleaved (target <= 2); the figure is the
   scene frozen, as before, and the scene moving as the game shows it is timed beside
   it (``ratio_moving``; see :func:`zones_target`).
+* ``update``: ``render_with_motion`` (what every Galilean update costs: colour, depth,
+  motion and colour derivatives) over ``Renderer.render``, the game scene at 5 zones
+  x 240x180, Blinn, interleaved (target <= 2 for G(2), <= 2.5 for G(3): the update
+  is the same call for both).
 * ``refresh``: a G(2) refresh at 640x480 (one zone) after a head turn, so that
   every galpixel moves, beside a refresh of the same update without one (target
   <= 4 ms); both re-updated every 15 refreshes, as ``holo-bench galilean`` times
@@ -98,6 +102,43 @@ def zones_target(size: tuple[int, int], repeats: int, scene_name: str = "game",
             "ratio_moving_cpu": round(float(np.median(cpu["moving", 5])
                                             / np.median(cpu["moving", 1])), 3),
             "figure": round(five / one, 3), "goal": 2.0, "met": five / one <= 2.0}
+
+
+def update_target(size: tuple[int, int], repeats: int, scene_name: str = "game",
+                  rounds: int = 3) -> dict:
+    """``render_with_motion`` (a Galilean update) over ``Renderer.render``, side by side.
+
+    The game scene (moving, as the game shows it), 5 zones, Blinn light per polygon:
+    each round times ``repeats`` pairs, a render then an update of the same scene
+    and time, alternating.  ``figure`` is the ratio of the medians over all rounds,
+    ``ratio_min`` that of the best calls, ``ratio_cpu`` that of the median process
+    CPU time.  The update always carries derivatives up to the jerk, so it is the
+    one update of G(2) and G(3) alike (goals 2 and 2.5: the G(2) goal decides).
+    """
+    scene = builtin_scene(scene_name)
+    display = DisplaySettings(zones=5, cols=size[0], rows=size[1])
+    r, s = Renderer(), RenderSettings(light=LightSettings("blinn"))
+    calls = {"render": lambda sc: r.render(sc, display, s),
+             "update": lambda sc: render_with_motion(r, sc, display, 0.0, HZ, s)}
+    for f in calls.values():  # compiled and warm before timing
+        f(scene)
+    ms: dict[str, list[float]] = {k: [] for k in calls}
+    cpu: dict[str, list[float]] = {k: [] for k in calls}
+    for i in range(rounds * repeats):
+        moved = advance_scene(scene, (i % 16) / 30)
+        for k, f in calls.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            f(moved)
+            ms[k].append((time.perf_counter() - t0) * 1e3)
+            cpu[k].append((time.process_time() - c0) * 1e3)
+    med = {k: float(np.median(v)) for k, v in ms.items()}
+    ratio = med["update"] / med["render"]
+    return {"target": "update", "what": f"render_with_motion / Renderer.render, {scene_name} "
+            f"scene, 5 zones, {size[0]}x{size[1]}, Blinn, ms, median",
+            "ms_render": round(med["render"], 3), "ms_update": round(med["update"], 3),
+            "ratio_min": round(min(ms["update"]) / min(ms["render"]), 3),
+            "ratio_cpu": round(float(np.median(cpu["update"]) / np.median(cpu["render"])), 3),
+            "figure": round(ratio, 3), "goal": 2.0, "goal_g3": 2.5, "met": ratio <= 2.0}
 
 
 def _regraft(st: GalileanStage, up, head: bool) -> None:
@@ -233,16 +274,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The options of ``holo-bench targets``."""
     p = argparse.ArgumentParser(
         prog="holo-bench targets",
-        description="The open speed targets (zones, G(2) refresh, Galilean premise), each "
-        "a ratio measured side by side in one run; writes targets.json and targets.csv.",
+        description="The open speed targets (zones, update, G(2) refresh, Galilean premise), "
+        "each a ratio measured side by side in one run; writes targets.json and targets.csv.",
         epilog=exit_rule_epilog(),
     )
     p.add_argument("--out", metavar="DIR", default="bench-out",
                    help="output folder (default bench-out)")
-    p.add_argument("--only", choices=("zones", "refresh", "premise"), action="append",
+    p.add_argument("--only", choices=("zones", "update", "refresh", "premise"), action="append",
                    help="run just these targets (repeatable; default all)")
     add_size_option(p, (640, 480), "display of the refresh and premise targets")
     add_size_option(p, (320, 240), "display of the zones target", flag="--zone-size")
+    add_size_option(p, (240, 180), "display of the update target", flag="--update-size")
     p.add_argument("--repeats", metavar="N", type=int_range(1, 1000), default=15,
                    help="interleaved repeats per target (default 15)")
     p.add_argument("--rounds", metavar="N", type=int_range(1, 100), default=3,
@@ -261,11 +303,13 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     warm_up(RenderSettings())
     reps = 7 if args.quick else args.repeats
-    only = set(args.only or ("zones", "refresh", "premise"))
+    only = set(args.only or ("zones", "update", "refresh", "premise"))
     rows: list[dict] = []
     if "zones" in only:
         rows.append(zones_target(args.zone_size, reps))
     rounds = 1 if args.quick else args.rounds
+    if "update" in only:
+        rows.append(update_target(args.update_size, reps, rounds=rounds))
     if "refresh" in only:
         rows += median_round([[refresh_target(args.size, reps * 3)] for _ in range(rounds)])
     if "premise" in only:

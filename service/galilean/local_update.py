@@ -40,7 +40,7 @@ from service.galilean.galpixmap import (
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.galilean.shadow import shadow_depth, shadow_into
 from service.pipeline import Renderer, RenderSettings
-from service.scene import Scene
+from service.scene import MotionState, Scene
 from service.scene_motion import rotation_angle
 
 #: Default use-by limit: the paper's rule of thumb for parabolic extrapolation.
@@ -235,6 +235,26 @@ def use_by_refreshes(scene: Scene, refresh_hz: float, limit_deg: float = USE_BY_
             if not np.any(o.motion.angular_velocity) and not np.any(o.motion.angular_acceleration):
                 break
     return out
+
+
+def render_use_by(scene: Scene, refresh_hz: float, n_prop: int,
+                  viewer: MotionState | None = None, limit_deg: float = USE_BY_DEG) -> int:
+    """The use-by date of a global render of ``scene``, in refreshes after its graft.
+
+    The last refresh, at most ``n_prop`` (the rated propagation time), at which no
+    object, nor the viewer, has turned more than ``limit_deg`` since the render:
+    past that, parabolic extrapolation of the turn breaks down (section 4.1) and
+    the Galilean stage holds the render instead (``GalileanStage.update``'s
+    ``use_by``).  Objects that do not turn cost one check each.
+    """
+    lim = np.radians(limit_deg)
+    motions = [o.motion for o in scene.objects] + ([viewer] if viewer is not None else [])
+    turning = [m for m in motions
+               if np.any(m.angular_velocity) or np.any(m.angular_acceleration)]
+    for k in range(1, n_prop + 1):
+        if any(rotation_angle(m, k / refresh_hz) > lim for m in turning):
+            return k - 1
+    return n_prop
 
 
 def object_errors(

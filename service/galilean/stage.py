@@ -24,7 +24,6 @@ numerically differentiated motion falls back to G(2)) and flags it.
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -70,10 +69,6 @@ STEADY_MIN = 3.0
 #: one count per change decides.
 STILL_MIN = 0.25
 
-#: How many times its usual interval a render must be overdue before the stage
-#: holds the picture (``GalileanSettings.hold_after``); the usual interval is the
-#: median of the last :data:`INTERVALS_KEPT` intervals between global updates.
-LATE_FACTOR, INTERVALS_KEPT = 2.0, 16
 
 
 @dataclass(frozen=True)
@@ -112,15 +107,17 @@ class GalileanSettings:
         and ``holo-bench`` set) two threads were 1.2-1.5x faster than one on this
         2-core machine when idle and no slower beside a busy render process; with
         spinning threads a busy neighbour made both 2.5x slower.
-    hold_after : int
-        Refreshes after a global update from which, while no new one has come,
-        the stage holds the picture (shows the map as it is, no propagation, no
-        head-motion update) instead of extrapolating further; 0: never.  Renders
-        that come steadily but slowly are not held: the stage waits at least
-        :data:`LATE_FACTOR` times the median of the last global updates' intervals.
-        Past the rating a head turn's motion extrapolated for a second shears
-        objects into scattered fragments (docs/galilean.md, "Holding past the
-        rating"); ``holo-service`` holds after ``n_prop``.
+    hold : bool
+        Hold the last render once it is past its use-by date (True, the default):
+        a global update is propagated for at most its use-by (``n_prop``
+        refreshes, or the update's own ``use_by`` when it gives one); after that,
+        until the next global update, every refresh shows the last render (and
+        the local updates grafted since) exactly as rendered: no propagation, no
+        head-motion update (flag ``held``).  False: extrapolate on past the
+        rating (benchmarks of the error past it).  Extrapolated for a second, a
+        head turn shears objects into scattered fragments and a 1.4 renders/s
+        demo melted every attacker into a smear (docs/galilean.md, "Holding past
+        the use-by date").
     """
 
     order: int = 2
@@ -136,7 +133,7 @@ class GalileanSettings:
     colour_motion: bool = True
     order_guard: bool = True
     threads: int = 0
-    hold_after: int = 0
+    hold: bool = True
 
     def __post_init__(self) -> None:
         checks = {
@@ -150,7 +147,7 @@ class GalileanSettings:
             "neighbours": self.neighbours in (1, 2, 3, 4),
             "expansion": self.expansion in EXPANSION_MODES,
             "threads": isinstance(self.threads, int) and 0 <= self.threads <= 1024,
-            "hold_after": isinstance(self.hold_after, int) and self.hold_after >= 0,
+            "hold": isinstance(self.hold, bool),
         }
         for name, ok in checks.items():
             if not ok:
@@ -173,9 +170,11 @@ class Refresh:
         Pixels showing debris (G(0) fallback) rather than a galpixel.
     flags : dict
         ``updated`` (a graft happened), ``age`` (refreshes since the last global
-        update), ``past_rating`` (age > N_prop), ``held`` (the picture is held,
-        see ``GalileanSettings.hold_after``), ``order`` (order in use),
-        ``order_fallback``, ``events`` (incomplete updates, late renders refused).
+        update), ``past_rating`` (age > N_prop), ``use_by`` (the refreshes the
+        last global update may be propagated), ``held`` (the picture is the last
+        render as rendered, see ``GalileanSettings.hold``), ``order`` (order in
+        use), ``order_fallback``, ``events`` (incomplete updates, late renders
+        refused).
     stats : dict
         Kernel counters (see :data:`service.galilean.propagate.STAT_NAMES`) and ``ms``.
     """
@@ -198,6 +197,7 @@ class _Pending:
     points: np.ndarray | None = None
     point_derivs: np.ndarray | None = None
     viewer: MotionState | None = None
+    use_by: int | None = None
 
 
 @dataclass
@@ -236,10 +236,17 @@ class GalileanStage:
         self._viewer_next: MotionState | None = None
         self._guard = _Guard(np.zeros(s.order + 1))
         self._started = False
-        #: whether the picture is held (``hold_after``) until the next global update
+        #: whether the picture is held (``hold``) until the next global update
         self._held = False
-        #: refreshes between the last global updates (the usual render interval)
-        self._intervals: deque[int] = deque(maxlen=INTERVALS_KEPT)
+        #: the last render as it came (the last global update's buffer with the
+        #: local updates grafted since) and the viewer motion in it; kept only
+        #: with ``hold``: a held refresh shows it
+        self._last: Galpixmap | None = None
+        self._last_viewer = MotionState()
+        #: refreshes the last global update may be propagated (its use-by date)
+        self._use_by = s.n_prop
+        #: refresh periods missed (not computed) since the last global update
+        self._missed = 0
         #: rows a galpixel of ``self.map`` can move in one refresh (None: unknown)
         self._reach: int | None = None
         #: 1 where ``map`` and ``_spare`` hold the same static galpixel, and the
@@ -292,6 +299,7 @@ class GalileanStage:
         objects: tuple[int, ...] | None = None,
         complete: bool = True,
         unfinished: tuple[int, ...] = (),
+        use_by: int | None = None,
     ) -> bool:
         """Hand in a render to graft at refresh ``rendezvous`` (default: the next one).
 
@@ -301,7 +309,11 @@ class GalileanStage:
         (cache-only out-of-view buffering); a render of :func:`margin_display`'s
         size fills the margin too (full out-of-view buffering).  Returns False (and
         records an event) when the rendezvous has already passed: late renders are
-        never grafted.
+        never grafted.  ``use_by`` (global updates): the refreshes after its graft
+        for which the render may be propagated (its use-by date, seed 002 section
+        4.1: sooner for an object that turns far, see
+        :func:`~service.galilean.local_update.use_by_refreshes`; later only for
+        motion known to be exact, such as the game's burst); None: ``n_prop``.
         """
         fr = rendered.frame
         shown = (self.display.zones, self.display.rows, self.display.cols)
@@ -335,6 +347,7 @@ class GalileanStage:
             rendered.points,
             rendered.point_derivs,
             rendered.viewer_motion,
+            use_by,
         )
 
     def submit(
@@ -347,13 +360,18 @@ class GalileanStage:
         points: np.ndarray | None = None,
         point_derivs: np.ndarray | None = None,
         viewer: MotionState | None = None,
+        use_by: int | None = None,
     ) -> bool:
         """Queue a galpixmap (e.g. a Flinders Street buffer) for grafting; see :meth:`update`.
 
         ``points``/``point_derivs`` feed the order guard; ``viewer`` is the viewer
-        motion baked into the buffer's motion (None: the stage's current one).
+        motion baked into the buffer's motion (None: the stage's current one);
+        ``use_by`` as in :meth:`update`.  With ``hold`` the stage keeps ``buffer``
+        as the last render (a held refresh shows it): do not write to it after.
         """
         check_points(points, point_derivs)
+        if use_by is not None and not (isinstance(use_by, int) and use_by >= 0):
+            raise GalileanError(f"use_by must be a number of refreshes >= 0, got {use_by!r}")
         if buffer.shape != self.shape or buffer.order != self.settings.order:
             raise GalileanError(
                 f"buffer must be a G({self.settings.order}) map of shape "
@@ -373,6 +391,7 @@ class GalileanStage:
                 points,
                 point_derivs,
                 viewer,
+                use_by,
             )
         )
         return True
@@ -386,8 +405,18 @@ class GalileanStage:
         self._viewer_next = motion
 
     # ---------------------------------------------------------------- refresh
-    def refresh(self) -> Refresh:
-        """Produce the next displayed frame."""
+    def refresh(self, periods: int = 1) -> Refresh:
+        """Produce the next displayed frame.
+
+        ``periods``: refresh periods since the last refresh, more than 1 when the
+        caller missed ticks (a busy machine).  The map is still propagated one
+        refresh (motion is per refresh), but the missed periods count towards the
+        render's use-by, so that a picture is held once the rated propagation
+        time has passed on the clock, not only in refreshes computed.
+        """
+        if not (isinstance(periods, int) and periods >= 1):
+            raise GalileanError(f"periods must be an integer >= 1, got {periods!r}")
+        self._missed += periods - 1
         with self._thread_limit():
             return self._refresh()
 
@@ -454,6 +483,7 @@ class GalileanStage:
             "updated": bool(due),
             "age": self.age,
             "past_rating": self.age > self.settings.n_prop,
+            "use_by": self._use_by,
             "held": held,
             "order": self.order,
             "order_fallback": self.order < self.settings.order,
@@ -465,20 +495,34 @@ class GalileanStage:
         return out
 
     def _hold(self, global_due: bool) -> bool:
-        """Whether this refresh holds the picture: the render is late and none is due.
+        """Whether this refresh holds the last render: it is past its use-by, none is due.
 
-        Late: ``hold_after`` refreshes have passed since the last global update,
-        and :data:`LATE_FACTOR` times the usual interval between them.  The map is
-        left as it is (shown again each refresh) until the next global update; a
-        local graft meanwhile is shown where it lands.
+        The refresh would show the last global update ``age + 1`` refreshes (and
+        the periods missed since) after its graft, past its use-by (``n_prop`` or
+        its own ``use_by``).  The first
+        held refresh puts the last render back into the map as it came (with the
+        local updates grafted since); the map then stays as it is (shown again each
+        refresh, local grafts shown where they land) until the next global update.
         """
-        n = self.settings.hold_after
-        if not n or not self._started or global_due:
+        if not self.settings.hold or not self._started or global_due:
             self._held = False
             return False
-        usual = float(np.median(self._intervals)) if self._intervals else 0.0
-        self._held = self.age >= max(n, LATE_FACTOR * usual)
+        if not self._held and self.age + self._missed >= self._use_by:
+            if self._last is not None:  # None: local updates only, the map stays as it is
+                self._restore_last()
+            self._held = True
         return self._held
+
+    def _restore_last(self) -> None:
+        """Put the last render back into the map, as it came (the start of a hold)."""
+        self._map_changed()
+        for name, arr in zip(FIELDS, self._last.arrays(), strict=True):
+            np.copyto(getattr(self.map, name), arr)
+        if self.cache is not None:
+            self.cache[0].debris.fill(1)
+        if self.order < self.settings.order:
+            _drop_orders(self.map, self.order)
+        self._viewer = self._last_viewer
 
     def _show(self, shown: tuple) -> None:
         """Copy the displayed window of the map into ``shown`` (no expansion)."""
@@ -624,17 +668,20 @@ class GalileanStage:
     def _graft(self, p: _Pending) -> None:
         self._map_changed()
         if p.objects is None:
-            if self._started:
-                self._intervals.append(self.age + 1)
             for name, arr in zip(FIELDS, p.buffer.arrays(), strict=True):
                 np.copyto(getattr(self.map, name), arr)
             if self.cache is not None:
                 self.cache[0].debris.fill(1)
             self._guard_update(p)
-            self.age = 0
+            self.age = self._missed = 0
             self._viewer = p.viewer or self._viewer
+            self._use_by = self.settings.n_prop if p.use_by is None else p.use_by
+            if self.settings.hold:
+                self._last, self._last_viewer = p.buffer, self._viewer
         else:
             graft(self.map, p.buffer, p.objects)
+            if self._last is not None and not self._held:
+                graft(self._last, p.buffer, p.objects)
         if not p.complete:
             self._events.append(
                 {
@@ -667,7 +714,8 @@ class GalileanStage:
             for c in self.cache:
                 c.debris.fill(1)
         self._started = self._held = False
-        self.age = 0
+        self._last = None
+        self.age = self._missed = 0
         self.reset_guard()
 
     def reset_guard(self) -> None:

@@ -4,17 +4,26 @@ The ZeroMQ guide's load-balancing broker: a ROUTER frontend (the render thread's
 DEALER, ``inproc://`` inside the service) and a ROUTER backend (workers' DEALERs,
 ``tcp://``, on this machine or others).  A worker announces itself with ``READY``;
 each job goes to the worker idle the longest; its reply makes it ready again.
-Idle workers repeat ``READY`` every heartbeat; one not heard from for three is
-forgotten.  A worker that dies mid-job simply never answers: the requester's
-deadline expires and it resends the job, which goes to another worker
-(:class:`FramePipe` for whole-frame jobs, the default; :class:`BandClient` for
-bands of one update).  ``ROUTER_MANDATORY`` makes a send to a vanished worker an
-error, so the broker drops it and tries the next one.
+
+The broker also tells the living from the dead (``docs/service.md``, "Supervised
+workers").  Workers repeat ``READY`` every worker heartbeat while idle and ``BUSY``
+while they render; one silent for three heartbeats, or holding a job past the job
+timeout, is **dead at once**: it leaves the books, the job it held comes back to
+its requester as a ``lost`` reply (``{"job", "band", "attempt", "ok": false,
+"lost": true, "error"}``) so the requester resends it now rather than at its
+deadline, and its pid and the reason go to :meth:`Broker.take_deaths` (the
+:mod:`~service.net.supervisor` kills and replaces a local one).  A worker of an
+older version (no ``heartbeat_s`` in its ``READY``) is judged by its idle ``READY``
+every :data:`~service.net.protocol.HEARTBEAT_S` and by the job timeout only.
+``ROUTER_MANDATORY`` makes a send to a vanished worker an error, so the broker
+drops it and tries the next one.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import queue
 import threading
 import time
 from collections import OrderedDict
@@ -27,7 +36,32 @@ import zmq
 
 from service.errors import MessageError
 from service.net import protocol, wire
-from service.net.worker import READY
+from service.net.worker import BUSY, READY
+
+
+@dataclass
+class Book:
+    """What the broker knows of one live worker."""
+
+    pid: int | None
+    #: when it was last heard from (any message), monotonic seconds
+    seen: float
+    #: its heartbeat while busy (``READY``'s ``heartbeat_s``); None: an older worker
+    heartbeat_s: float | None = None
+    #: when it was given the job it holds (None: idle)
+    busy_since: float | None = None
+    #: (requester identity, job header frame) of the job it holds
+    holding: tuple[bytes, Any] | None = None
+    #: jobs it answered
+    jobs: int = 0
+
+    def silent_limit_s(self) -> float | None:
+        """How long it may be silent before it is dead (None: no limit while busy)."""
+        if self.heartbeat_s is not None:
+            return self.heartbeat_s * protocol.HEARTBEAT_LIVENESS
+        if self.busy_since is None:
+            return protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
+        return None
 
 
 class Broker:
@@ -40,9 +74,8 @@ class Broker:
         Bind addresses (requesters, workers).
     secure : callable, optional
         CurveZMQ server setup applied to the backend before binding.
-    busy_limit_s : float
-        A worker busy this long without answering is forgotten (it died mid-job; if
-        it was only slow, its late reply makes it ready again).
+    job_timeout_s : float
+        A worker holding a job this long is dead (stuck), whatever its heartbeats say.
     """
 
     def __init__(
@@ -51,9 +84,9 @@ class Broker:
         frontend: str,
         backend: str,
         secure: Any = None,
-        busy_limit_s: float = 10.0,
+        job_timeout_s: float = 5.0,
     ) -> None:
-        self.busy_limit_s = busy_limit_s
+        self.job_timeout_s = job_timeout_s
         self.front = context.socket(zmq.ROUTER)
         self.back = context.socket(zmq.ROUTER)
         for s in (self.front, self.back):
@@ -67,31 +100,60 @@ class Broker:
         self.front.bind(frontend)
         self.back.bind(backend)
         self.backend_address = self.back.getsockopt_string(zmq.LAST_ENDPOINT)
-        self.ready: OrderedDict[bytes, float] = OrderedDict()  # worker -> last heard
-        self.busy: dict[bytes, float] = {}
-        self.pids: dict[bytes, int] = {}
-        # ready, busy and pids change on the broker's thread and are read by info() on
-        # the service's: a worker moved between them is never seen in neither or both
+        self.ready: OrderedDict[bytes, None] = OrderedDict()  # idle workers, LRU first
+        self.books: dict[bytes, Book] = {}  # every live worker
+        # ready and books change on the broker's thread and are read by info() on the
+        # service's: a worker moved between states is never seen in neither or both
         self._books = threading.Lock()
-        self.dispatched = 0
-        self.dropped = 0
+        self._forget: queue.SimpleQueue[int] = queue.SimpleQueue()
+        self._deaths: queue.SimpleQueue[tuple[int | None, str]] = queue.SimpleQueue()
+        self.dispatched = 0  # jobs sent to a worker
+        self.answered = 0  # replies passed on to their requester
+        self.lost = 0  # jobs held by a worker found dead, handed back
+        self.refused = 0  # jobs handed back at once: no live worker
+        self.dropped = 0  # messages whose requester was gone
         self._stop = threading.Event()
 
     def stop(self) -> None:
         """Ask :meth:`run` to return."""
         self._stop.set()
 
+    def live(self) -> int:
+        """Live workers (idle or busy)."""
+        return len(self.books)
+
+    def forget(self, pid: int) -> None:
+        """Drop the worker of process ``pid`` (it exited); any thread.  Not a death report."""
+        self._forget.put(pid)
+
+    def take_deaths(self) -> list[tuple[int | None, str]]:
+        """Workers found dead since the last call: (pid, why), oldest first; any thread."""
+        out = []
+        while True:
+            try:
+                out.append(self._deaths.get_nowait())
+            except queue.Empty:
+                return out
+
     def info(self) -> dict[str, Any]:
-        """Worker counts and pids (for the service's stats)."""
+        """Worker counts and each live worker (for the service's stats)."""
+        now = time.monotonic()
         with self._books:
-            return {
-                "ready": len(self.ready),
-                "busy": len(self.busy),
-                "dispatched": self.dispatched,
-                "dropped": self.dropped,
-                "workers": [{"pid": self.pids.get(w), "busy": w in self.busy}
-                            for w in [*self.ready, *self.busy]],
-            }
+            workers = [
+                {"pid": b.pid, "alive": True, "busy": b.busy_since is not None, "jobs": b.jobs,
+                 "last_seen_s": round(now - b.seen, 3)}
+                for b in self.books.values()
+            ]
+        return {
+            "ready": sum(not w["busy"] for w in workers),
+            "busy": sum(w["busy"] for w in workers),
+            "dispatched": self.dispatched,
+            "answered": self.answered,
+            "lost": self.lost,
+            "refused": self.refused,
+            "dropped": self.dropped,
+            "workers": workers,
+        }
 
     def run(self) -> None:
         """Route until :meth:`stop`; closes both sockets on return."""
@@ -100,10 +162,10 @@ class Broker:
         poller.register(self.front, zmq.POLLIN)
         try:
             while not self._stop.is_set():
-                events = dict(poller.poll(100))
+                events = dict(poller.poll(20))
                 if self.back in events:
                     self._from_worker(self.back.recv_multipart(copy=False))
-                if self.front in events and self.ready:
+                if self.front in events and (self.ready or not self.books):
                     self._to_worker(self.front.recv_multipart(copy=False))
                 self._expire()
         finally:
@@ -112,28 +174,43 @@ class Broker:
 
     def _from_worker(self, frames: list[zmq.Frame]) -> None:
         worker = bytes(frames[0].buffer)
-        if len(frames) >= 3 and bytes(frames[2].buffer) == READY:
-            with self._books:
-                self.busy.pop(worker, None)
-                self.ready[worker] = time.monotonic()
-                self.ready.move_to_end(worker)
-                self._note_pid(worker, frames[3:])
-            return
-        if len(frames) < 5:
-            return
+        kind = bytes(frames[2].buffer) if len(frames) >= 3 else b""
+        now = time.monotonic()
         with self._books:
-            self.busy.pop(worker, None)
-            self.ready[worker] = time.monotonic()
-        try:
-            self.front.send_multipart(frames[2:], copy=False)
-        except zmq.ZMQError:
-            self.dropped += 1  # the requester is gone; nothing to do
+            book = self.books.get(worker)
+            if book is not None:
+                book.seen = now
+            if kind == BUSY or (book is None and kind != READY):
+                return  # a heartbeat; or a late reply of a worker already dropped
+            if kind == READY:
+                book = book or self._admit(worker, frames[3:], now)
+            if book.busy_since is not None and kind != READY:
+                book.jobs += 1
+            book.busy_since, book.holding = None, None
+            self.ready[worker] = None
+            self.ready.move_to_end(worker)
+        if kind != READY and len(frames) >= 5:
+            try:
+                self.front.send_multipart(frames[2:], copy=False)
+                self.answered += 1
+            except zmq.ZMQError:
+                self.dropped += 1  # the requester is gone; nothing to do
 
-    def _note_pid(self, worker: bytes, rest: list[zmq.Frame]) -> None:
+    def _admit(self, worker: bytes, rest: list[zmq.Frame], now: float) -> Book:
+        """A new worker's book from its ``READY`` info (``{"pid", "heartbeat_s"}``)."""
         try:
-            self.pids[worker] = int(json.loads(bytes(rest[0].buffer))["pid"])
-        except (IndexError, ValueError, KeyError, TypeError):
-            pass
+            info = json.loads(bytes(rest[0].buffer))
+        except (IndexError, ValueError):
+            info = {}
+        info = info if isinstance(info, dict) else {}
+        pid, beat = info.get("pid"), info.get("heartbeat_s")
+        book = Book(
+            pid if isinstance(pid, int) and not isinstance(pid, bool) else None,
+            now,
+            float(beat) if isinstance(beat, int | float) and 0 < beat <= 60 else None,
+        )
+        self.books[worker] = book
+        return book
 
     def _to_worker(self, frames: list[zmq.Frame]) -> None:
         while True:
@@ -141,28 +218,76 @@ class Broker:
                 if not self.ready:
                     break
                 worker, _ = self.ready.popitem(last=False)
-                self.busy[worker] = time.monotonic()
+                book = self.books[worker]
+                book.busy_since = time.monotonic()
+                book.holding = (bytes(frames[0].buffer), frames[2] if len(frames) > 2 else None)
             try:
                 self.back.send_multipart([worker, b"", *frames], copy=False)
             except zmq.ZMQError:
-                with self._books:
-                    self.busy.pop(worker, None)
-                    self.pids.pop(worker, None)
+                book.holding = None  # not sent: the next worker gets it
+                self._dead(worker, "gone (its connection closed)")
                 continue  # vanished: try the next one
             self.dispatched += 1
             return
-        self.dropped += 1  # no worker took it: the requester's deadline resends
+        # no live worker took it: lost now, so the requester renders it in process
+        holding = (bytes(frames[0].buffer), frames[2] if len(frames) > 2 else None)
+        self.refused += self._lost(Book(None, 0.0, holding=holding), "no live worker")
 
     def _expire(self) -> None:
-        limit = protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
+        """Drop workers forgotten, silent past their limit, or past the job timeout."""
+        gone: set[int] = set()
+        while True:
+            try:
+                gone.add(self._forget.get_nowait())
+            except queue.Empty:
+                break
         now = time.monotonic()
+        dead: list[tuple[bytes, str, bool]] = []
         with self._books:
-            for w in [w for w, t in self.ready.items() if now - t > limit]:
-                del self.ready[w]
-                self.pids.pop(w, None)
-            for w in [w for w, t in self.busy.items() if now - t > self.busy_limit_s]:
-                del self.busy[w]
-                self.pids.pop(w, None)
+            for w, b in self.books.items():
+                limit = b.silent_limit_s()
+                if b.pid in gone:
+                    dead.append((w, "its process ended", False))
+                elif limit is not None and now - b.seen > limit:
+                    dead.append((w, f"silent for {now - b.seen:.1f} s", True))
+                elif b.busy_since is not None and now - b.busy_since > self.job_timeout_s:
+                    dead.append((w, f"a job past its {self.job_timeout_s:g} s timeout", True))
+        for w, why, report in dead:
+            self._dead(w, why, report)
+
+    def _dead(self, worker: bytes, why: str, report: bool = True) -> None:
+        """Drop a worker; its job back to its requester as ``lost``; report it (pid, why)."""
+        with self._books:
+            book = self.books.pop(worker, None)
+            self.ready.pop(worker, None)
+        if book is None:
+            return
+        if report:
+            self._deaths.put((book.pid, why))
+        if book.holding is not None:
+            self.lost += self._lost(book, why)
+
+    def _lost(self, book: Book, why: str) -> bool:
+        """Tell the requester of the job ``book`` held that it is lost (resend it now).
+
+        Returns whether the notice went out (False: a garbled job, or its requester gone).
+        """
+        requester, header = book.holding
+        try:
+            job = json.loads(bytes(header.buffer)) if header is not None else {}
+        except ValueError:
+            return False
+        if not isinstance(job, dict):
+            return False
+        who = "" if book.pid is None else f"worker {book.pid}: "
+        head = {"job": job.get("job"), "band": job.get("band"), "attempt": job.get("attempt"),
+                "ok": False, "lost": True, "error": who + why}
+        try:
+            self.front.send_multipart([requester, b"", *wire.encode(head, [])])
+        except zmq.ZMQError:
+            self.dropped += 1  # the requester is gone
+            return False
+        return True
 
 
 class BandClient:
@@ -223,7 +348,10 @@ class BandClient:
                     self.resent += 1
                     sent_at[b] = self._send(job, scene_arrays, bands, b, attempts[b])
             if self.sock.poll(50):
-                self._take(self.sock.recv_multipart(copy=False), job["job"], len(bands), got)
+                lost = self._take(self.sock.recv_multipart(copy=False), job["job"], len(bands),
+                                  got)
+                if lost is not None and lost not in got:
+                    sent_at[lost] = -math.inf  # its worker died: resend it now
         return [got[b] for b in range(len(bands))]
 
     def _send(
@@ -239,24 +367,33 @@ class BandClient:
         return time.monotonic()
 
     @staticmethod
-    def _take(frames: list[zmq.Frame], job_id: int, bands: int, got: dict) -> None:
+    def _take(frames: list[zmq.Frame], job_id: int, bands: int, got: dict) -> int | None:
         """Keep a worker's reply for one of the ``bands`` bands of job ``job_id``.
 
         A reply that is garbled, failed, for another job, or names no band of this
         one (a remote worker of another version, say) counts as no reply: its band
         is resent when its deadline passes.  The first good reply of a band wins.
+
+        Returns
+        -------
+        int or None
+            The band of a ``lost`` notice (its worker died: resend it now), else None.
         """
         try:
             head = protocol.parse_reply([f.buffer for f in frames])
         except MessageError:
-            return
+            return None
         band = head.get("band")
-        if (head.get("ok") and head.get("job") == job_id
-                and isinstance(head.get("arrays"), dict)
-                and isinstance(band, int) and not isinstance(band, bool) and 0 <= band < bands):
+        if (head.get("job") != job_id or not isinstance(band, int) or isinstance(band, bool)
+                or not 0 <= band < bands):
+            return None
+        if head.get("lost") is True:
+            return band
+        if head.get("ok") and isinstance(head.get("arrays"), dict):
             stats = head.get("stats")
             got.setdefault(band, {**head["arrays"], "_stats": stats if isinstance(stats, dict)
                                   else {}})
+        return None
 
     def close(self) -> None:
         """Close the socket (LINGER 0)."""
@@ -323,12 +460,15 @@ class FramePipe:
             flight = self.flights.get(head.get("job")) if isinstance(head.get("job"), int) else None
             if flight is None or head.get("attempt") != flight.attempt:
                 continue  # a reply to an attempt already given up on
+            if head.get("lost") is True:  # its worker died: resend it now
+                flight.sent_at = -math.inf
+                continue
             del self.flights[head["job"]]
             done.append((flight, head))
         return done
 
     def expired(self) -> list[Flight]:
-        """Jobs past their deadline (removed: the caller resends or gives up)."""
+        """Jobs past their deadline or lost with their worker (removed: resend or give up)."""
         now = time.monotonic()
         late = [f for f in self.flights.values() if now - f.sent_at > self.timeout_s]
         for f in late:

@@ -198,10 +198,10 @@ def stats(st: ServiceState, req: dict[str, Any]) -> tuple:
         clients=len(st.clients),
         pose_count=st.state.viewer.poses,
         zone=st.state.viewer.zone,
-        workers=st.broker.info() if st.broker else None,
-        worker_pids=[p.pid for p in st.workers],
+        **_worker_stats(st),
         band_retries=st.band_retries,
         render_retries=st.band_retries,
+        jobs_resent=st.band_retries,
         split=st.config.split if st.to_workers() else "in_process",
         max_in_flight=st.pipe.max_in_flight if st.pipe is not None else None,
         last_render_error=st.last_render_error,
@@ -212,6 +212,20 @@ def stats(st: ServiceState, req: dict[str, Any]) -> tuple:
         **st.status(),
     )
     return ({"stats": s},)
+
+
+def _worker_stats(st: ServiceState) -> dict[str, Any]:
+    """The workers' part of ``stats`` (``docs/protocol.md``).
+
+    ``workers``, ``worker_pids`` (live only), ``worker_deaths``, ``worker_restarts``
+    and ``worker_error`` (why local workers were given up; "" while none was).
+    """
+    sup = st.supervisor
+    if sup is None:
+        return {"workers": None, "worker_pids": [], "worker_deaths": 0, "worker_restarts": 0,
+                "worker_error": ""}
+    return {"workers": sup.info(), "worker_pids": sup.pids(), "worker_deaths": sup.deaths,
+            "worker_restarts": sup.restarts, "worker_error": "; ".join(sup.errors())}
 
 
 def shutdown(st: ServiceState, req: dict[str, Any]) -> tuple:

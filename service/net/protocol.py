@@ -25,6 +25,10 @@ SERVICE_NAME = "holo-service"
 HEARTBEAT_S = 1.0
 #: a peer not heard from for this many heartbeats is dead.
 HEARTBEAT_LIVENESS = 3
+#: render workers' heartbeat (``READY`` while idle, ``BUSY`` while rendering): a
+#: worker silent for HEARTBEAT_LIVENESS of these is dead (``docs/service.md``,
+#: "Supervised workers"); short, so a stopped worker's job is resent within a second.
+WORKER_HEARTBEAT_S = 0.2
 
 MESSAGE_TYPES = (
     "hello",

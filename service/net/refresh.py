@@ -136,15 +136,14 @@ def _sird_output(settings: Settings) -> Any:
 
 
 def stage_settings(settings: Settings) -> GalileanSettings:
-    """The service's Galilean stage: it holds the picture for a late render.
+    """The service's Galilean stage.
 
-    Late: past the rating (``n_prop``) and twice the usual render interval.  A
-    render that late (a loaded machine) would otherwise leave
-    the stage extrapolating a head turn for a second or more, which shears the
-    objects into scattered fragments; held, the picture waits for the render.
+    It holds (``GalileanSettings.hold``, the default): a render is propagated for
+    at most ``n_prop`` refreshes; past that, until the next render comes, each
+    frame shows the last render as it was (header ``held``), never a smear
+    extrapolated past the rating.
     """
-    return GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz,
-                            hold_after=GalileanSettings.n_prop)
+    return GalileanSettings(order=settings.galpixel_order, refresh_hz=settings.refresh_hz)
 
 
 class RefreshLoop:
@@ -165,6 +164,8 @@ class RefreshLoop:
         self.t_render_ns = 0
         self.since = 0
         self.prepared: tuple[Any, dict[str, Any]] | None = None
+        #: ticks skipped before the coming one (their periods count towards a use-by)
+        self.missed = 0
         self.input: dict[str, Any] | None = None
         self.sird = None  # service.autostereogram.SirdOutput while that encoding is on
 
@@ -210,6 +211,7 @@ class RefreshLoop:
         if now - next_t > period:
             missed = math.floor((now - next_t) / period)
             self.st.counters.n["refresh_overruns"] += missed
+            self.missed += missed
             next_t += missed * period
         if next_t > now:
             self.st.stop.wait(next_t - now)
@@ -234,8 +236,11 @@ class RefreshLoop:
             st.stream.heartbeat()
         t0 = time.perf_counter()
         self._submit()
-        r = self.stage.refresh()
+        r = self.stage.refresh(1 + self.missed)
+        self.missed = 0
         c.n["refreshes"] += 1
+        c.n["held_refreshes"] += r.flags["held"]
+        c.held = r.flags["held"]
         c.refresh_t.append(time.monotonic())
         if r.flags["updated"] and r.index in self.due:
             self.render_id, self.t_render_ns, self.shown_scene = self.due.pop(r.index)
@@ -289,6 +294,7 @@ class RefreshLoop:
                 rd.points,
                 rd.point_derivs,
                 rd.viewer_motion,
+                up.use_by,
             )
             if ok:
                 self.due[up.rendezvous] = (up.render_id, up.t_render_ns, up.scene_load)
@@ -352,6 +358,8 @@ class RefreshLoop:
             "input": self.input,
             "events": r.flags["events"],
             "age": r.flags["age"],
+            "held": bool(r.flags["held"]),
+            "use_by": int(r.flags["use_by"]),
             "order": int(r.flags["order"]),
         }
         arrays = [r.flags[n] if n == "autostereogram" else getattr(r, n) for n in names]

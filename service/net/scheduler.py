@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from service.errors import HoloError
+from service.galilean import GalileanSettings
+from service.galilean.local_update import render_use_by
 from service.net import wire
 from service.net.broker import BandClient, Flight, FramePipe, split_rows
 from service.net.state import Aim, Ready, ServiceState, Settings
@@ -46,6 +48,9 @@ class Scheduler:
         self._lod_notes: dict[str, None] = {}  # insertion-ordered: the oldest go first
         self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
         self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
+        self._local: StatsRenderer | None = None  # renders in process while no worker lives
+        self.local_ms: deque[float] = deque(maxlen=50)  # their times, ms
+        self._local_renders = 0
 
     def run(self) -> None:
         """Render until the service stops."""
@@ -79,8 +84,12 @@ class Scheduler:
             if bands is not None:
                 bands.close()
 
-    def aim(self, render_id: int) -> Aim | None:
-        """Snapshot the scene and aim a render at a rendezvous after every earlier one."""
+    def aim(self, render_id: int, local: bool = False) -> Aim | None:
+        """Snapshot the scene and aim a render at a rendezvous after every earlier one.
+
+        ``local``: it renders in process now; aimed by the times of renders in process
+        (:meth:`render_ms`), not those of the workers' pipelined ones.
+        """
         state = self.st.state
         with state.lock:
             scene, scene_t, settings = state.scene, state.scene_t, state.settings
@@ -92,7 +101,7 @@ class Scheduler:
         if gen != settings.generation:
             return None
         hz = settings.refresh_hz
-        lead = _lead_s(self.st.counters.render_ms)
+        lead = _lead_s(self.render_ms(local))
         rendezvous = index + math.ceil(lead * hz) + 1
         if gen == self._last_aim[0]:
             rendezvous = max(rendezvous, self._last_aim[1] + 1)  # one render per rendezvous
@@ -122,7 +131,11 @@ class Scheduler:
         job["render"] = {**job["render"], "method": q.method, "specular": q.specular}
         job["quality"] = q.as_dict()
 
-    def ahead(self) -> bool:
+    def render_ms(self, local: bool) -> deque[float]:
+        """Recent render times, ms: in process (``local``, once there are some), or all."""
+        return self.local_ms if local and self.local_ms else self.st.counters.render_ms
+
+    def ahead(self, local: bool = False) -> bool:
         """Whether the last render is aimed past the rendezvous one started now would get.
 
         Renders one at a time (in process, or in bands) wait for the refresh clock
@@ -134,16 +147,20 @@ class Scheduler:
         if gen != self._last_aim[0]:
             return False
         hz = self.st.state.settings.refresh_hz
-        return self._last_aim[1] >= index + math.ceil(_lead_s(self.st.counters.render_ms) * hz) + 1
+        return self._last_aim[1] >= index + math.ceil(_lead_s(self.render_ms(local)) * hz) + 1
 
     def render_once(self, renderer: Renderer, bands: BandClient | None, render_id: int) -> bool:
         """Render one update in process or in bands; False when none was due or it failed."""
-        if self.ahead():
+        local = bands is None
+        if self.ahead(local):
             return False
-        aim = self.aim(render_id)
+        aim = self.aim(render_id, local)
         if aim is None:
             return False
         got = self.run_job(renderer, bands, aim)
+        if local and self._local_renders > 0:  # the first one loaded the kernels
+            self.local_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
+        self._local_renders += local
         if got is None:
             self.st.counters.render_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
             self.st.counters.n["render_failures"] += 1
@@ -201,6 +218,8 @@ class Scheduler:
                 aim.t0,
                 aim.scene_version,
                 aim.scene_load,
+                render_use_by(aim.scene, aim.job["refresh_hz"], GalileanSettings.n_prop,
+                              rendered.viewer_motion),
             )
         )
         mark = (aim.settings.generation, aim.scene_version)
@@ -237,9 +256,13 @@ class Scheduler:
                 out, stats = render_job(renderer, job, aim.scene)
                 return [out], {**stats, "mode": "in_process"}
             spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
-            n = max(1, len(self.st.broker.ready) + len(self.st.broker.busy), self.st.config.workers)
+            n = max(1, self.st.broker.live(), self.st.config.workers)
             got = bands.run({**job, "scene": spec}, arrays, split_rows(settings.display.rows, n))
-            self.st.band_retries = bands.resent
+            self.st.band_retries += bands.resent
+            bands.resent = 0
+            if got is None and not self.st.stop.is_set() and not self.st.to_workers():
+                self.st.band_retries += 1  # every worker died: render it here instead
+                return self.run_job(renderer, None, aim)
             if got is None:  # a band unanswered after its resends (or the service stopped)
                 self.st.last_render_error = (f"render {aim.render_id}: a band got no usable "
                                              "reply from the workers")
@@ -254,7 +277,7 @@ class Scheduler:
     def capacity(self) -> int:
         """Renders to keep in flight: one per worker the broker knows (at least one)."""
         b = self.st.broker
-        return max(1, len(b.ready) + len(b.busy)) if b is not None else 1
+        return max(1, b.live()) if b is not None else 1
 
     def cap_s(self) -> float:
         """The shortest time between render starts (``--max-update-hz``; 0: no cap)."""
@@ -271,21 +294,19 @@ class Scheduler:
     def pipeline_loop(self) -> None:
         """Whole-frame renders for successive rendezvous, one in flight per worker.
 
-        With no local workers and none connected (``--workers 0`` with a
-        ``--worker-address``; see :meth:`ServiceState.to_workers`) it renders in process, so
-        renders never wait for a worker that may never come.
+        With no live worker (none connected or started yet, or every one dead or
+        stuck; see :meth:`ServiceState.to_workers`) it renders in process, so renders
+        never wait for a worker that may never come.
         """
         pipe = FramePipe(self.st.ctx, "inproc://holo-broker", self.st.config.render_timeout_s)
         self.st.pipe = pipe
-        local: StatsRenderer | None = None
         render_id, next_start = 0, 0.0
         try:
             while not self.st.stop.is_set():
                 capacity, remote = self.capacity(), self.st.to_workers()
                 now = time.monotonic()
                 if not remote and now >= next_start:
-                    local = local or StatsRenderer()
-                    done = self.render_once(local, None, render_id)
+                    done = self.render_once(self.local(), None, render_id)
                     render_id += int(done)
                     next_start = now + (self.cap_s() if done else 0.02)
                 elif remote and len(pipe.flights) < capacity and now >= next_start:
@@ -307,6 +328,12 @@ class Scheduler:
         finally:
             pipe.close()
 
+    def local(self) -> StatsRenderer:
+        """The renderer of renders in process (made on first use)."""
+        if self._local is None:
+            self._local = StatsRenderer()
+        return self._local
+
     def dispatch(self, pipe: FramePipe, aim: Aim, attempt: int) -> None:
         """Send a whole-frame job (the aim's scene and settings) to the workers."""
         spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
@@ -323,15 +350,17 @@ class Scheduler:
         self.deliver(flight.meta, [head["arrays"]], stats)
 
     def retry(self, pipe: FramePipe, flight: Flight) -> None:
-        """A job past its deadline (its worker died or stalled): re-aim it and resend.
+        """A job lost with its worker or past its deadline: re-aim it and resend it.
 
         The resend is aimed at a new rendezvous from the present, so the render is
-        never grafted late; after 3 resends, or when the broker knows no worker any
-        more, the render counts as failed.
+        never grafted late.  With no live worker left it renders in process now;
+        after 3 resends it counts as failed.  Each counts in ``jobs_resent``.
         """
         self.st.band_retries += 1
-        retry = flight.attempt < 3 and self.st.to_workers()  # none: renders run in process
-        aim = self.aim(flight.meta.render_id) if retry else None
+        if not self.st.to_workers():  # every worker dead or stuck: render it here
+            self.render_once(self.local(), None, flight.meta.render_id)
+            return
+        aim = self.aim(flight.meta.render_id) if flight.attempt < 3 else None
         if aim is None:
             self.st.counters.n["render_failures"] += 1
             self.st.last_render_error = f"render {flight.meta.render_id}: no worker answered"

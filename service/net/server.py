@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import os
 import queue
-import subprocess
 import sys
 import threading
 import time
@@ -44,8 +43,8 @@ from service.net.state import (
     ServiceConfig,
     service_state,
 )
+from service.net.supervisor import Supervisor
 from service.readiness import Warmup
-from service.signals import end_process
 
 
 class Service:
@@ -128,7 +127,7 @@ class Service:
             raise
 
     def _start_broker(self) -> None:
-        """Bind the broker's backend and start ``config.workers`` local workers (maybe 0)."""
+        """Bind the broker's backend; start it and the workers' supervisor (no worker yet)."""
         c = self.config
         address = c.worker_address or DEFAULT_WORKER_ADDRESS
         self.st.broker = Broker(
@@ -136,17 +135,19 @@ class Service:
             "inproc://holo-broker",
             address,
             self._secure(address),
-            busy_limit_s=2 * c.render_timeout_s,
+            job_timeout_s=c.render_timeout_s,
         )
-        t = threading.Thread(target=self.st.broker.run, name="broker", daemon=True)
-        t.start()
-        self._threads.append(t)
+        self.st.supervisor = Supervisor(
+            self.st.broker, self._worker_command(), _worker_env(c.workers), self.log
+        )
+        for name, target in (("broker", self.st.broker.run), ("supervisor",
+                                                                self.st.supervisor.run)):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
 
-    def _start_workers(self) -> None:
-        """Start ``config.workers`` local workers (after the warm-up: they load its cache)."""
-        c = self.config
-        if self.st.broker is None or c.workers <= 0:
-            return
+    def _worker_command(self) -> list[str]:
+        """A local worker's command line (it connects to the broker's backend)."""
         cmd = [
             sys.executable,
             "-m",
@@ -157,12 +158,16 @@ class Service:
             "--parent",
             str(_pid()),
         ]
-        if c.curve_keys:
-            cmd += ["--curve-keys", str(c.curve_keys)]
-        env = _worker_env(c.workers)
-        self.st.workers = [
-            subprocess.Popen(cmd, stdin=subprocess.DEVNULL, env=env) for _ in range(c.workers)
-        ]
+        if self.config.curve_keys:
+            cmd += ["--curve-keys", str(self.config.curve_keys)]
+        return cmd
+
+    def _start_workers(self) -> None:
+        """Start ``config.workers`` local workers (after the warm-up: they load its cache)."""
+        sup = self.st.supervisor
+        if sup is None or self.config.workers <= 0 or sup.slots:
+            return
+        sup.start(self.config.workers)
 
     def _prepare(self) -> None:
         """What needs the kernels: the ``--scene`` and the local workers."""
@@ -170,8 +175,7 @@ class Service:
             self.st.state.scene = load_builtin(self.config.scene)
             self.st.state.scene_t = time.monotonic()
             self.st.state.scene_load += 1
-        if not self.st.workers:
-            self._start_workers()
+        self._start_workers()
 
     # ------------------------------------------------------------- control
     @property
@@ -215,7 +219,7 @@ class Service:
                 break
             self.stream.extra = self.status()
             self.stream.heartbeat()
-            if not self.st.workers and self.st.warmup.phase == "loading":
+            if self.st.warmup.phase == "loading":
                 self._start_workers()  # the cache is full: they load it while this does
             if self.router.poll(20):
                 self._serve_one(self.router.recv_multipart(copy=False))
@@ -338,11 +342,13 @@ class Service:
             self.st.warmup.stop()
         if self.st.broker is not None:
             self.st.broker.stop()
+        if self.st.supervisor is not None:
+            self.st.supervisor.stop()
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(5.0)
-        for p in self.st.workers:
-            end_process(p, 3.0)
+        if self.st.supervisor is not None:
+            self.st.supervisor.close()
         for sock in (
             getattr(self, "router", None),
             getattr(getattr(self, "stream", None), "sock", None),

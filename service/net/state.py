@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from service.net.broker import Broker, FramePipe
     from service.net.frame_stream import FrameStream
     from service.net.refresh import ViewerTracker
+    from service.net.supervisor import Supervisor
     from service.readiness import Warmup
 
 #: Frame encodings a client may subscribe to: arrays of a refresh by attribute name.
@@ -200,6 +201,9 @@ class Ready:
     scene_version: int = 0
     #: the ``load_scene`` count of the scene rendered (:attr:`State.scene_load`)
     scene_load: int = 0
+    #: refreshes the render may be propagated (None: the stage's rating; see
+    #: :func:`service.galilean.local_update.render_use_by`)
+    use_by: int | None = None
 
 
 class ReplyCache:
@@ -283,9 +287,12 @@ class Counters:
                 "errors",
                 "refresh_overruns",
                 "resends_answered",
+                "held_refreshes",
             ),
             0,
         )
+        #: whether the last refresh held the last render (past its use-by date)
+        self.held = False
         self.render_ms: deque[float] = deque(maxlen=200)
         self.refresh_ms: deque[float] = deque(maxlen=600)
         self.sird_ms: deque[float] = deque(maxlen=600)
@@ -307,6 +314,7 @@ class Counters:
         med = lambda d: float(np.median(list(d))) if d else None  # noqa: E731
         return {
             **self.n,
+            "held": self.held,
             "updates_per_s": self.rate(self.update_t),
             "refreshes_per_s": self.rate(self.refresh_t),
             "render_ms_p50": med(self.render_ms),
@@ -326,7 +334,7 @@ class ServiceState:
 
     It needs no socket: :func:`service_state` builds one from a configuration and the
     handlers run against it in process.  The server sets ``ctx``, ``stream``,
-    ``broker``, ``workers`` and ``warmup`` when it starts them.
+    ``broker``, ``supervisor`` and ``warmup`` when it starts them.
     """
 
     config: ServiceConfig
@@ -354,7 +362,8 @@ class ServiceState:
     stream: FrameStream | None = None
     broker: Broker | None = None
     pipe: FramePipe | None = None
-    workers: list = field(default_factory=list)
+    #: the local workers' supervisor (with the broker; it also counts remote deaths)
+    supervisor: Supervisor | None = None
     warmup: Warmup | None = None
 
     @property
@@ -371,15 +380,12 @@ class ServiceState:
     def to_workers(self) -> bool:
         """Whether renders go through the broker rather than run in process.
 
-        They do when the broker knows a worker (ready or busy), and always when this
-        service started local workers (they say ``READY`` once warmed up; jobs wait
-        for them).  With only remote workers expected (``--workers 0`` and a
-        ``--worker-address``), renders run in process while none is connected.
+        They do while the broker knows a live worker (idle or busy).  With none (none
+        connected yet, local ones still starting, or every one dead or stuck) renders
+        run in process until one is back, so renders never wait for a worker that
+        may never come (``stats.split`` is then ``in_process``).
         """
-        b = self.broker
-        if b is None:
-            return False
-        return self.config.workers > 0 or len(b.ready) + len(b.busy) > 0
+        return self.broker is not None and self.broker.live() > 0
 
     def scene_mark(self) -> tuple[int, int]:
         """(settings generation, scene version): what a render request must see."""

@@ -1,8 +1,9 @@
 """Render workers: one update (a whole frame, or a band of its hololines), in its own process.
 
 A worker connects a DEALER to the broker's backend (``service/net/broker.py``), says
-``READY`` (and again every heartbeat while idle, so the broker can forget dead
-ones), and answers each job with the arrays of its rows (all of them for a
+``READY`` (and again every worker heartbeat while idle, ``BUSY`` every heartbeat
+while it renders, so the broker tells a dead or stopped worker from a busy one
+within three heartbeats), and answers each job with the arrays of its rows (all of them for a
 whole-frame job, the default) and the render's stats.  A job is a JSON header plus
 the scene's buffers (``docs/protocol.md`` array rules: JSON and raw buffers only)::
 
@@ -26,6 +27,7 @@ import argparse
 import json
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any
 
@@ -50,8 +52,10 @@ from service.scene import (
     quaternion_matrix,
 )
 
-#: galpixmap fields a band reply carries (as ``gp_<field>``), joined along axis -2.
+#: an idle worker's message to the broker (with ``{"pid", "jobs", "heartbeat_s"}``).
 READY = b"READY"
+#: a rendering worker's heartbeat to the broker (it is alive, its job still running).
+BUSY = b"BUSY"
 
 
 def display_from(d: dict[str, Any]) -> DisplaySettings:
@@ -304,6 +308,10 @@ def handle_job(renderer: Renderer, body: list[Any]) -> list[Any]:
 class Worker:
     """The worker loop: READY, then jobs, until stopped or the deadline.
 
+    A job renders on a thread of its own while the loop sends ``BUSY`` every
+    :data:`~service.net.protocol.WORKER_HEARTBEAT_S` (the socket stays on the loop's
+    thread), so a long render is told from a stopped process.
+
     Parameters
     ----------
     address : str
@@ -324,24 +332,35 @@ class Worker:
         self.sock.connect(address)
         self.renderer = StatsRenderer()
         self.jobs = 0
+        self._render = ThreadPoolExecutor(1, thread_name_prefix="render")
 
     def _ready(self) -> None:
-        info = json.dumps({"pid": os.getpid(), "jobs": self.jobs}).encode()
-        wire.send(self.sock, [b"", READY, info], 1000)
+        info = {"pid": os.getpid(), "jobs": self.jobs, "heartbeat_s": protocol.WORKER_HEARTBEAT_S}
+        wire.send(self.sock, [b"", READY, json.dumps(info).encode()], 1000)
+
+    def _answer(self, body: list[Any]) -> list[Any]:
+        """Render a job on the render thread, sending ``BUSY`` every heartbeat meanwhile."""
+        job = self._render.submit(handle_job, self.renderer, body)
+        while True:
+            try:
+                return job.result(protocol.WORKER_HEARTBEAT_S)
+            except TimeoutError:
+                wire.send(self.sock, [b"", BUSY], 1000)
 
     def run(self, stop_after_s: float | None = None, parent: int | None = None) -> None:
-        """Serve jobs; sends READY every heartbeat while idle.
+        """Serve jobs; sends READY every worker heartbeat while idle.
 
         Stops after ``stop_after_s`` or when process ``parent`` is no longer its parent.
         """
         end = None if stop_after_s is None else time.monotonic() + stop_after_s
+        beat = protocol.WORKER_HEARTBEAT_S
         self._ready()
         last = time.monotonic()
         while (end is None or time.monotonic() < end) and (
             parent is None or os.getppid() == parent
         ):
-            if not self.sock.poll(200):
-                if time.monotonic() - last >= protocol.HEARTBEAT_S:
+            if not self.sock.poll(int(beat * 1000)):
+                if time.monotonic() - last >= beat:
                     self._ready()
                     last = time.monotonic()
                 continue
@@ -349,13 +368,14 @@ class Worker:
             envelope, body = split_job(frames)
             if body is None:
                 continue
-            reply = handle_job(self.renderer, body)
+            reply = self._answer(body)
             self.jobs += 1
             wire.send(self.sock, [b"", *envelope, *reply], 5000)
             last = time.monotonic()
 
     def close(self) -> None:
-        """Close the socket and the context."""
+        """Stop the render thread; close the socket and the context."""
+        self._render.shutdown(wait=False)
         self.sock.close(0)
         self.ctx.term()
 

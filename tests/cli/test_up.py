@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import signal
+import socket
 import subprocess
 import sys
 
@@ -63,6 +65,33 @@ def test_dry_run_shows_the_wiring(tmp_path, capsys):
     assert "--tracker-protocol native --tracker '<holo-sim tracker address>' --dials " \
            "'<holo-sim dials address>'" in lines[2]
     assert lines[3].endswith("--workers 0 --zones 2 --devices '<holo-devices address>'")
+
+
+def test_a_simulated_opentrack_sender_is_wired_to_a_udp_listener(tmp_path, capsys):
+    path = _config(tmp_path, '[sim.tracker]\nudp = "127.0.0.1:4242"\n' + DEVICES)
+    assert cli_up.main([str(path), "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].endswith("tracker --udp 127.0.0.1:4242")  # no --pty beside it
+    assert "--tracker '<holo-sim tracker address>'" in lines[1]  # its URL says opentrack
+
+
+@linux_only
+def test_up_runs_an_opentrack_sender_into_holo_devices(procs, tmp_path):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    text = f'[sim.tracker]\nudp = "127.0.0.1:{port}"\nrate = 100\n' + DEVICES
+    up = procs("service.cli_up", str(_config(tmp_path, text)))
+    up.wait_lines(lambda: "holo-up: running; Ctrl-C stops everything" in up.out, 120)
+    assert _where(up, "holo-sim tracker") == f"on opentrack-udp://127.0.0.1:{port}"
+    publisher = _where(up, "holo-devices").split()[2]
+    view = subprocess.run([sys.executable, "-m", "drivers.cli_view", publisher, "--json",
+                           "--count", "30", "--timeout", "30"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+    assert view.returncode == 0, view.stderr
+    assert json.loads(view.stdout.splitlines()[-1])["pose"] is not None
+    up.signal(signal.SIGTERM)
+    assert up.finish(60) == STATUS[signal.SIGTERM]
 
 
 def test_the_example_config_is_valid(capsys):

@@ -39,6 +39,27 @@ def test_benchmark_writes_every_figure_for_each_wiring(tmp_path, transport, caps
     assert "target: arrival -> published p99" in capsys.readouterr().out
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
+def test_opentrack_over_udp_and_native_over_a_pty_side_by_side(tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert bench_latency.main(["--out", str(out), "--frames", "10", "--rate", "500",
+                               "--protocol", "opentrack,native"]) == 0
+    report = json.loads((out / "latency.json").read_text())
+    assert report["headline"] == "opentrack inline: arrival -> published"
+    assert report["settings"]["transport"] == "udp,pty"
+    for label in ("opentrack inline", "native inline"):
+        assert report["wirings"][label]["published"]["n"] == 10 - report["lost"][label]
+    assert "opentrack over udp, native over pty" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["--protocol", "morse"], ["--protocol", "native,native"],
+                                  ["--protocol", "native", "--transport", "udp"]])
+def test_bad_protocols_are_usage_errors(tmp_path, argv):
+    with pytest.raises(SystemExit) as exc:
+        bench_latency.main(["--out", str(tmp_path), *argv])
+    assert exc.value.code == 2
+
+
 def test_unknown_wiring_is_a_usage_error(tmp_path):
     with pytest.raises(SystemExit):
         bench_latency.main(["--out", str(tmp_path), "--wiring", "inline,bogus"])

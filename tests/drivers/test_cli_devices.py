@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import select
 import signal
 import tty
@@ -13,6 +14,7 @@ from drivers_fixtures import MISSING, hatire_capture
 from testkit import posix_only
 
 from drivers import cli_devices
+from drivers.pty_link import PtyLink
 from drivers.recording import LogReader
 from drivers.subscriber import DeviceSubscriber
 
@@ -138,3 +140,64 @@ def test_bad_settings_exit_2(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         cli_devices.main(["--dump"])
     assert exc.value.code == 2
+
+
+RETRY = re.compile(r"holo-devices: tracker \((?P<url>[^)]*)\): open failed \(try (?P<n>\d+)"
+                   r"(?P<same>, same error)?\)(?P<msg>: .*)?; (?P<then>.*)$")
+
+
+def retries(lines: list[str]) -> list[re.Match]:
+    return [m for m in map(RETRY.match, lines) if m]
+
+
+@posix_only
+def test_a_missing_port_says_each_retry_with_its_back_off_until_it_appears(procs, tmp_path):
+    path = str(tmp_path / "ttyUSB9")  # no such port yet
+    live = procs("drivers.cli_devices", "--tracker", path, "--dump")
+    live.wait_lines(lambda: len(retries(live.err)) >= 4)
+    first, *later = retries(live.err)[:4]
+    assert first["url"] == path and first["n"] == "1" and "No such file" in first["msg"]
+    assert first["then"] == "next try in 0.05 s"
+    assert [m["n"] for m in later] == ["2", "3", "4"]
+    assert all(m["same"] and not m["msg"] for m in later)  # the error is not repeated
+    assert [m["then"] for m in later] == [f"next try in {w} s" for w in ("0.10", "0.20", "0.40")]
+    assert not any("open_failed" in line for line in live.err)  # no second, raw report
+    link = PtyLink(symlink=path)  # the device is plugged in: read, and no more retry lines
+    try:
+        live.wait_lines(lambda: any('"message":"opened"' in line for line in live.out))
+        tries = len(retries(live.err))
+        live.p.send_signal(signal.SIGINT)
+        assert live.finish() == 130
+    finally:
+        link.close()
+    assert len(retries(live.err)) == tries
+    assert json.loads(live.err[-1])["stats"]["tracker"]["opens"] == 1
+
+
+def test_no_retry_tries_each_port_once_and_exits_1(procs, tmp_path):
+    path = str(tmp_path / "ttyUSB9")
+    live = procs("drivers.cli_devices", "--tracker", path, "--no-retry")
+    assert live.finish() == 1
+    (only,) = retries(live.err)
+    assert only["n"] == "1" and only["then"] == "not retrying (--no-retry)"
+    assert json.loads(live.err[-3])["stats"]["tracker"]["open_failures"] == 1
+    assert live.err[-2].startswith(f"holo-devices: never opened tracker ({path}): ")
+    assert live.err[-1] == "holo-devices: no device could be opened; nothing was read"
+    # one device read, the other missing: still status 1, the run ends at once
+    both = procs("drivers.cli_devices", "--tracker", "loop://", "--dials", path, "--no-retry")
+    assert both.finish() == 1
+    assert both.err[-1] == f"holo-devices: stopped: dials ({path}) did not open (--no-retry)"
+
+
+@posix_only
+def test_no_retry_ends_the_run_when_a_lost_device_does_not_reopen(procs, tmp_path):
+    path = str(tmp_path / "tracker")
+    link = PtyLink(symlink=path)
+    live = procs("drivers.cli_devices", "--tracker", path, "--dump", "--no-retry")
+    try:
+        live.wait_lines(lambda: any('"message":"opened"' in line for line in live.out))
+    finally:
+        link.close()  # unplugged: the port and its name are gone
+    assert live.finish() == 1
+    assert live.err[-1] == f"holo-devices: stopped: tracker ({path}) was lost and did not " \
+        "reopen (--no-retry)"

@@ -95,3 +95,30 @@ def test_targets_refresh_and_premise_rows_print(tmp_path):
     assert lines[1].startswith("premise-flat") and "CPU time" in lines[1]
     met = [r["met"] for r in rows]
     assert "CPU" in lines[0] and [("NOT met" not in x) for x in lines] == met
+
+
+def test_cli_starvation(tmp_path, capsys):
+    """One render then none: held past the use-by, where it is the render itself."""
+    assert main(["--starvation", "--starve-seconds", "0.5", "--size", "48x32",
+                 "--out", str(tmp_path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    for name in ("galilean_starvation.json", "galilean_starvation.csv",
+                 "galilean_starvation.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    doc = json.loads((tmp_path / "galilean_starvation.json").read_text())
+    assert doc["summary"] == summary and doc["n_prop"] == 16
+    rows = doc["rows"]
+    assert {r["motion"] for r in rows} == {"linear", "falling", "rotating-cube", "head-turn"}
+    by = {(r["motion"], r["way"], r["refreshes"]): r for r in rows}
+    for (motion, way, k), r in by.items():
+        assert r["held"] == (way == "hold" and k > 16)
+        if r["held"]:  # the held frame is the render: scored as the render alone
+            alone = by[(motion, "render-only", k)]
+            assert (r["psnr"], r["pct_wrong"]) == (alone["psnr"], alone["pct_wrong"])
+    assert max(k for _, _, k in by) == 30
+
+
+def test_cli_starvation_refuses_a_bad_gap(capsys):
+    with pytest.raises(SystemExit):
+        main(["--starvation", "--starve-seconds", "0"])
+    assert "--starve-seconds" in capsys.readouterr().err

@@ -189,45 +189,6 @@ def test_past_rating_flag():
     assert flags == [False] * 5 + [True] * 2
 
 
-def test_hold_after_holds_the_picture_until_the_next_global_update():
-    """``hold_after``: past it the map is shown as it is; head motion waits for the render."""
-    st = stage(2, hold_after=3)
-    sq = [(5, 8, 4, 7, 1.0, (9, 9, 9), (1.0, 0.0), (0, 0))]
-    st.update(scene_update(sq), 0)
-    frames = [st.refresh() for _ in range(7)]
-    # the square's right edge (it leaves its debris behind it)
-    cols = [int(np.nonzero(f.colour[0, 6, :, 0] == 9)[0][-1]) for f in frames]
-    assert cols[:4] == [6, 7, 8, 9] and cols[4:] == [9, 9, 9]  # moved 3 refreshes, then held
-    assert [f.flags["held"] for f in frames] == [False] * 4 + [True] * 3
-    assert [f.flags["age"] for f in frames] == list(range(7))
-    st.viewer(MotionState(velocity=[0.5, 0.0, 0.0]))
-    assert "viewer_updated" not in st.refresh().stats  # kept for the next render's map
-    st.update(scene_update(sq), st.index)
-    again = [st.refresh()]  # the render carries the viewer motion it was made with
-    st.viewer(MotionState(velocity=[0.5, 0.0, 0.0]))
-    again += [st.refresh() for _ in range(2)]
-    assert not any(f.flags["held"] for f in again)
-    assert again[1].stats["viewer_updated"] > 0  # head motion goes on from the new map
-    assert int(np.nonzero(again[2].colour[0, 6, :, 0] == 9)[0][-1]) > 6  # moving again
-    with pytest.raises(SettingsError, match="hold_after"):
-        GalileanSettings(hold_after=-1)
-
-
-def test_hold_waits_for_renders_that_are_slow_but_steady():
-    """Renders every 10 refreshes are not late: held only past twice that."""
-    st = stage(2, hold_after=3)
-    sq = [(5, 8, 4, 7, 1.0, (9, 9, 9), (0.1, 0.0), (0, 0))]
-    held = []
-    for _ in range(4):
-        st.update(scene_update(sq), st.index)
-        held += [st.refresh().flags["held"] for _ in range(10)]
-    assert held[:4] == [False] * 4 and all(held[4:10])  # the first: nothing known yet
-    assert not any(held[10:])  # then intervals of 10 are the usual pace
-    st.update(scene_update(sq), st.index)
-    late = [st.refresh().flags["held"] for _ in range(25)]
-    assert late == [False] * 21 + [True] * 4  # the graft, then 20 refreshes carried
-
-
 def test_bad_motion_is_clamped_and_flagged():
     u = scene_update([(5, 9, 4, 9, 1.0, (9, 9, 9), (0.5, 0.0), (0, 0))])
     u.derivatives[0, 0, 0, 5, 4] = np.nan

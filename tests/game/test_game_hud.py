@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import numpy as np
 from game_fakes import RecordingBackend
 
 from game.client_loop import GameClient, LoopSettings
-from game.display import HUD_COLOUR, GameWindow, Hud
+from game.display import HELD_LINE, HUD_COLOUR, GameWindow, Hud
 from game.rules import GameSettings
 
 
@@ -73,3 +74,37 @@ def test_the_game_loop_fills_the_hud_from_its_frames(pygame_headless):
         round(hud.update_hz, 1),
         round(hud.refresh_hz, 1),
     ]
+
+
+class _HeldAfter(RecordingBackend):
+    """Frames that hold the last render from the 10th on (renders stopped)."""
+
+    def frame(self, timeout_s: float = 0.0):
+        view = super().frame(timeout_s)
+        return replace(view, held=self.seq >= 10)
+
+
+def test_the_hud_says_when_the_frame_holds_the_last_render(pygame_headless):
+    assert HELD_LINE not in Hud().text()
+    assert Hud(held=True).text()[3] == HELD_LINE
+    clock = [0.0]
+    client = GameClient(_HeldAfter(3), GameWindow((320, 200)), LoopSettings(GameSettings()),
+                        clock=lambda: clock[0])
+    seen = []
+    for _ in range(20):
+        clock[0] += 1 / 60
+        client.tick()
+        seen.append(HELD_LINE in client.hud(clock[0]).text())
+    assert seen == [False] * 9 + [True] * 11
+    assert client.stats(1.0)["held_frames"] == 11
+
+
+def test_service_frames_carry_held_from_the_header():
+    """docs/protocol.md: ``held`` in the frame header; a service older than it: not held."""
+    from game.backends import _view
+
+    colour = np.zeros((2, 4, 6, 3), np.uint8)
+    base = {"seq": 3, "render_id": 1, "since_render": 20, "t_ns": 5}
+    assert _view({**base, "held": True}, {"colour": colour}).held is True
+    assert _view({**base, "held": False}, {"colour": colour}).held is False
+    assert _view(base, {"colour": colour}).held is False

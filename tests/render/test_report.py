@@ -3,9 +3,12 @@
 import base64
 import json
 import re
+import signal
 from pathlib import Path
 
-from service.bench import report
+import pytest
+
+from service.bench import picks, report
 
 ROOT = Path(__file__).resolve().parents[2]
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -114,3 +117,145 @@ def test_the_filters_table_has_one_row_per_filter_setting(tmp_path):
     assert [r[:4] for r in table.rows] == [["alpha-beta", "theta=0.5", "32", "0.119"],
                                            ["raw", "-", "-", "0.149"]]
     assert table.rows[0][5] == "-" and table.rows[0][-1] == "17.0"  # missing; us/sample
+
+
+# ------------------------------------------------------------------ what to pick
+def occ(scene, zones, method, ms, pct):
+    return {"scene": scene, "zones": zones, "method": method, "ms": ms, "pct_differ": pct}
+
+
+def test_picks_are_the_fastest_exact_and_the_cheapest_within_half_a_percent():
+    rows = [occ("game", 5, "zbuffer", 1.3, 0.0), occ("game", 5, "bsp", 5.0, 0.0),
+            occ("game", 5, "runlength", 0.9, 0.3), occ("game", 5, "sloppy", 0.2, 2.0),
+            occ("cyclic", 1, "runlength", 0.1, 0.7)]
+    game, cyclic = picks.occlusion_picks(rows)
+    assert (game.case, game.exact, game.within) == ("game, 5 zones", ("zbuffer", 1.3),
+                                                    ("runlength", 0.9, 0.3))
+    assert cyclic.exact is None and cyclic.within is None  # nothing exact, nothing within
+    assert picks.tally([game, cyclic]) == (
+        "Occlusion: the fastest exact method is zbuffer in 1 of 2 cases; the cheapest within "
+        "0.5 % error is runlength in 1 of 2 cases.")
+    assert picks.tally([game, game, cyclic]).startswith(
+        "Occlusion: the fastest exact method is zbuffer in 2 of 3 cases;")
+    light = picks.light_picks([{"scene": "sphere", "zones": 1, "model": m, "evaluation": e,
+                                "ms": ms, "error": err}
+                               for m, e, ms, err in (("blinn", "point", 0.76, 0.0),
+                                                     ("blinn", "vertex", 0.38, 0.004),
+                                                     ("blinn", "polygon", 0.17, 0.033))])
+    assert light[0].exact == ("blinn per point", 0.76)
+    assert light[0].within == ("blinn per vertex", 0.38, 0.4)  # error in % of full intensity
+
+
+def test_the_galilean_stage_pays_from_the_break_even_interval():
+    step = {"triangles": 30204, "render_ms": 7.0, "refresh_ms": 1.0,
+            "render_with_motion_ms": 55.0}
+    # one update and k - 1 refreshes against k renders: 55 + (k - 1) < 7 k from k > 9
+    assert picks.break_even_refreshes(step) == 9.0
+    flat = {"triangles": 12, "render_ms": 0.5, "refresh_ms": 0.6, "render_with_motion_ms": 5.0}
+    assert picks.break_even_refreshes(flat) == float("inf")
+    sweep = [{"order": 2, "interval": i, "psnr": p} for i, p in ((1, None), (4, 31.0),
+                                                                  (4, 29.0), (4, 30.0))]
+    first, quality = picks.galilean_pays({"size": "160x120", "refresh_hz": 60.0,
+                                          "steps": [flat, step]}, sweep)
+    assert first.startswith("The Galilean stage pays soonest with 30,204 triangles: one "
+                            "update serving 9 refreshes or more (an update every 0.15 s at "
+                            "60 Hz)")
+    assert "with 12 triangles never (a refresh costs as much as a render)" in first
+    assert "30.0 dB with an update every 4 refreshes" in quality
+    (never,) = picks.galilean_pays({"steps": [flat]}, [])
+    assert never.startswith("The Galilean stage does not pay at any size measured")
+
+
+def _ran(tmp_path, bench: str, files: dict) -> report.Outcome:
+    folder = tmp_path / bench
+    folder.mkdir()
+    for name, data in files.items():
+        (folder / name).write_text(json.dumps(data))
+    plan = next(p for p in report.PLANS if p.bench == bench)
+    return report.Outcome(plan, bench, folder, ok=True)
+
+
+def test_the_page_opens_with_what_to_pick_and_no_empty_peer_table(tmp_path):
+    not_started = {"llvmpipe": "moderngl not installed; pip install -e '.[peers]'"}
+    render = _ran(tmp_path, "render", {
+        "render_bench.json": [occ("game", 5, "zbuffer", 1.3, 0.0),
+                              occ("game", 5, "runlength", 0.9, 0.3)],
+        "peers_status.json": {"started": {}, "not_started": not_started}})
+    galilean = _ran(tmp_path, "galilean", {"galilean_complexity.json": {"steps": [
+        {"triangles": 30204, "render_ms": 7.0, "refresh_ms": 1.0,
+         "render_with_motion_ms": 55.0}]}})
+    meta = {"what": "t", "wall_s": 0.0, "cpu_s": 0.0, "machine": "m"}
+    text = report.page([render, galilean], meta, ROOT)
+    top = text.index('id="picks"')
+    assert top < text.index('id="render"') and top < text.index('id="galilean"')
+    picks_part = text[top:text.index('id="render"')]
+    assert "fastest exact method is zbuffer in 1 of 1 cases" in picks_part
+    assert "cheapest within 0.5 % error is runlength in 1 of 1 cases" in picks_part
+    assert "Caution" not in picks_part  # no seconds measured: no caveat
+    assert "Light: not measured in this run" in picks_part
+    assert "pays soonest with 30,204 triangles" in picks_part
+    # no peer ran: no peer table and no column of "no peer measured", one line why
+    assert "ours / peer" not in text and "no peer measured" not in text
+    assert text.count("moderngl not installed") == 2  # the occlusion table's note, the line
+    assert "No peer ran, so there is no peer table: llvmpipe: moderngl not installed" in text
+
+
+# ------------------------------------------------------------------ keep what the user had
+def _old_report(out: Path) -> dict[str, bytes]:
+    """A previous report's page and data in ``out`` plus a file no report wrote."""
+    (out / "decoders").mkdir(parents=True)
+    (out / "render").mkdir()
+    (out / "index.html").write_text("<p>the previous page</p>")
+    (out / "report.json").write_text(json.dumps({"benches": {"decoders": {}, "render": {}}}))
+    (out / "decoders" / "decoder_throughput.json").write_text('{"old": 1}')
+    (out / "render" / "render_bench.json").write_text("[]")
+    (out / "mine.png").write_bytes(PNG)  # e.g. a chart of a benchmark run by hand
+    return _snapshot(out)
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+def test_a_finished_report_replaces_the_previous_one_and_keeps_other_files(tmp_path):
+    out = tmp_path / "bench-out"
+    _old_report(out)
+    assert report.main(["--no-warmup", "--only", "decoders", "--out", str(out)]) == 0
+    files = _snapshot(out)
+    assert files["mine.png"] == PNG  # not the report's: kept
+    assert "render/render_bench.json" not in files  # the previous run's data: gone with it
+    assert b"previous page" not in files["index.html"]
+    assert "old" not in json.loads(files["decoders/decoder_throughput.json"])
+    assert list(json.loads(files["report.json"])["benches"]) == ["decoders"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bench-out"]  # no staging left
+
+
+@pytest.mark.timeout(240)
+def test_an_interrupted_report_leaves_the_previous_page_and_data_together(procs, tmp_path):
+    out = tmp_path / "bench-out"
+    before = _old_report(out)
+    run = procs("service.cli_bench", "report", "--quick", "--no-warmup", "--only",
+                "light,decoders", "--size", "32x24", "--out", str(out))
+    # the first benchmark has begun writing into the staging folder beside OUT
+    run.wait_lines(lambda: any(tmp_path.glob("bench-out.partial-*/light")), timeout=120)
+    staged = [p for p in tmp_path.iterdir() if p.name.startswith("bench-out.partial-")]
+    assert len(staged) == 1
+    run.signal(signal.SIGINT)  # Ctrl-C in the middle of the first benchmark
+    assert run.finish(120) == 130
+    assert _snapshot(out) == before  # the previous page and its data, untouched
+    assert run.err[-2:] == [
+        f"holo-bench report: {out} left as it was; what ran so far is in {staged[0]}",
+        "holo-bench report: interrupted (SIGINT)"]
+    assert staged[0].is_dir()  # what was written so far is kept, not deleted
+
+
+def test_speed_picks_from_a_busy_machine_say_so(tmp_path):
+    render = _ran(tmp_path, "render", {"render_bench.json": [occ("game", 1, "zbuffer", 1.3, 0)]})
+    render.seconds, render.cpu_s = 109.0, 5.2  # other programs had the cores
+    (line, *_), _ = report.recommendations([render])
+    assert line.endswith("Caution: holo-bench render got 5 s of CPU in 109 s of wall time "
+                         "(the machine was busy), so these speed picks may be wrong; run it "
+                         "again on a quiet machine before trusting them.")
+    render.cpu_s = 80.0
+    assert "Caution" not in report.recommendations([render])[0][0]

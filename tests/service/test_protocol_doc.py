@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-from testkit import ROOT, raw_request
+from testkit import HANG_S, ROOT, raw_request, wait_until
 
 from service.net import protocol
 
@@ -172,3 +172,45 @@ def test_load_scene_counts_polygons_as_the_mesh_holds_them(svc, tmp_path: Path):
     got = ask(svc, {"type": "load_scene", "id": 15, "path": str(quad)})
     assert got["ok"] and got["polygons"] == 1  # one quad
     ask(svc, {"type": "load_scene", "id": 16, "builtin": "game"})
+
+
+def _stats_row() -> str:
+    return next(line for line in _section("### 1.5").splitlines() if line.startswith("| `stats`"))
+
+
+def test_the_worker_stats_are_documented_and_served(service_factory):
+    """Every worker field of ``stats`` is in the doc's ``stats`` row, and the reverse."""
+    row = _stats_row()
+    workers = service_factory("--scene", "game", "--zones", "2", "--size", "32x24",
+                              "--refresh", "30", "--workers", "1")
+    assert wait_until(lambda: ask(workers, {"type": "stats"})["stats"]["worker_pids"], HANG_S)
+    st = ask(workers, {"type": "stats", "id": 16})["stats"]
+    for key in ("workers", "worker_pids", "worker_deaths", "worker_restarts", "worker_error",
+                "jobs_resent", "split"):
+        assert f"`{key}`" in row and key in st, key
+    for key in st["workers"]:
+        assert f"`{key}`" in row, key
+    entry = re.search(r"`\{(pid, [a-z_, ]+)\}`", row)
+    assert entry, "no per-worker entry in the stats row"
+    documented = [k.strip() for k in entry.group(1).split(",")]
+    got = st["workers"]["workers"]
+    assert got, "the service's worker is not listed"
+    assert sorted(got[0]) == sorted(documented)
+
+
+def test_the_frame_header_table_is_a_real_frame_header(svc):
+    """Section 2: every key of the table is in a published frame's header, and back."""
+    table = DOC.split("Frame header:")[1].split("Heartbeat header")[0]
+    rows = re.findall(r"^\| (`[^|]+`) \|", table, re.M)
+    documented = {k for row in rows for k in re.findall(r"`(\w+)`", row)}
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.SUBSCRIBE, b"frame")
+    sub.setsockopt(zmq.RCVTIMEO, 10000)
+    sub.connect(svc.frames)
+    try:
+        header = json.loads(sub.recv_multipart()[1])
+    finally:
+        sub.close(0)
+    # v, kind and session are the envelope every message of the stream has
+    assert documented == set(header) - {"v", "kind", "session"}
+    assert header["held"] in (True, False) and 0 <= header["use_by"] <= 16

@@ -10,7 +10,7 @@ import fcntl
 import os
 
 import pytest
-from testkit import shared_fixture, wait_until
+from testkit import HANG_S, shared_fixture, wait_until
 
 from service.errors import ServiceError
 from service.loaders import load_scene
@@ -149,6 +149,9 @@ def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
     with ServiceClient(svc.control, timeout_s=30, retries=0) as c, \
             open(tmp_path / f"{key}.lock", "ab") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # the chain cannot be built while this is held
+        # renders run in process until the worker is up (docs/service.md, "Supervised
+        # workers"): the bunny is for the worker's renderer, so it comes after
+        assert wait_until(lambda: c.stats()["split"] == "frames", HANG_S), "no worker came up"
         c.load_scene(path=str(BUNNY))
         c.update_objects([{"index": 0, "scale": 0.2}])  # small: coarse levels will do
         for _ in range(2):

@@ -34,7 +34,14 @@ def test_bad_settings_exit_2(capsys):
     assert main(["tracker", "--motion", "moonwalk", "--seconds", "0"]) == 2
     assert "unknown motion" in capsys.readouterr().err
     assert main(["tracker", "--faults", "corrupt=7", "--seconds", "0"]) == 2
-    assert build_parser().parse_args(["dials"]).protocol == "hatire"
+    assert "corrupt must be in 0..1" in capsys.readouterr().err
+    assert build_parser().parse_args(["dials"]).protocol is None  # main makes it hatire
+    assert main(["tracker", "--udp", "127.0.0.1:4242", "--protocol", "native"]) == 2
+    assert main(["dials", "--udp", "127.0.0.1:4242"]) == 2
+    assert main(["tracker", "--protocol", "opentrack", "--tcp", "0"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert "opentrack poses go over UDP" in err[0] and "--udp is for the tracker" in err[1]
+    assert "--protocol opentrack does not fit" in err[2]
 
 
 @pytest.mark.parametrize(("name", "reason"), [("missing", "No such file or directory"),
