@@ -424,9 +424,10 @@ SERVICE_JOBS: tuple[str, ...] = tuple(name for name, job in JOBS.items() if job.
 
 #: The jobs a ``holo-service`` on a cold cache compiles before its first frame
 #: (:mod:`service.readiness`, "first frame first"): the mesh builders of its scene,
-#: its render at the starting settings, the Galilean refresh at its starting order (with the made-up-map job,
-#: which compiles the refresh's stage kernels in the second process beside the render
-#: path) and the autostereogram encoding a client may ask for.  Every other job,
+#: its render at the starting settings, the Galilean refresh at its starting order
+#: (with the made-up-map job, which compiles the refresh's stage kernels in the
+#: second process beside the render path) and the autostereogram encoding a client
+#: may ask for.  Every other job,
 #: the refresh's other orders and settings too, compiles in the background once the
 #: service is ready.
 FIRST_FRAME_JOBS: tuple[str, ...] = tuple(n for n, job in JOBS.items() if job.first_frame)
