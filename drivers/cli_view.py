@@ -47,7 +47,14 @@ from drivers.events import Event
 from drivers.subscriber import DeviceSubscriber
 from service.addresses import default_address
 from service.cli_args import endpoint, float_range, int_range, plain_help
-from service.signals import EXIT_FAILED, EXIT_OK, EXIT_RULE, exit_status, stop_on_signals
+from service.signals import (
+    EXIT_FAILED,
+    EXIT_OK,
+    EXIT_RULE,
+    EXIT_USAGE,
+    exit_status,
+    stop_on_signals,
+)
 
 #: Topics shown (the publisher's ``stats`` too).
 TOPICS = (b"pose", b"dials", b"status", b"stats")
@@ -82,7 +89,49 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float_range(0, 1000, lo_open=True), default=20.0,
                    metavar="HZ", help="most snapshots or redraws per second "
                    "(default: %(default)s)")
+    web = p.add_argument_group("web view (--web: a running holo-service in a browser)")
+    web.add_argument("--web", action="store_true",
+                     help="serve a live page of a running holo-service instead: its frame "
+                     "(zone, strip, quilt, depth, autostereogram), rates, stats, viewer pose "
+                     "and warm-up, at http://HOST:PORT/")
+    web.add_argument("--port", type=int_range(0, 65535), default=8080, metavar="NUMBER",
+                     help="the web view's port (default: %(default)s; 0 picks a free one)")
+    web.add_argument("--host", default="127.0.0.1", metavar="IP",
+                     help="where the web view listens (default: %(default)s, loopback only)")
+    web.add_argument("--service", type=endpoint(bind=False), metavar="ADDR",
+                     default=default_address("control"),
+                     help="the service's control address (default: %(default)s)")
+    web.add_argument("--frames", type=endpoint(bind=False), metavar="ADDR",
+                     default=default_address("frames"),
+                     help="the service's frame stream (default: %(default)s)")
     return p
+
+
+def run_web(args: argparse.Namespace) -> int:
+    """``holo-view --web``: serve the page until Ctrl-C / SIGTERM; the exit status."""
+    from service.web_view import WebSettings, serve
+
+    settings = WebSettings(control=args.service, frames=args.frames, host=args.host,
+                           port=args.port)
+    try:
+        server, watcher = serve(settings)
+    except OSError as exc:
+        print(f"holo-view: error: cannot listen on {args.host}:{args.port}: "
+              f"{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
+    host, port = server.server_address[:2]
+    print(f"holo-view: web view of {args.service} at http://{host}:{port}/ (Ctrl-C quits)",
+          file=sys.stderr, flush=True)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    stop = threading.Event()
+    with stop_on_signals(stop) as got:
+        stop.wait()
+    server.stopping.set()
+    server.shutdown()
+    server.server_close()
+    watcher.stop()
+    return exit_status(got.signum, EXIT_OK)
 
 
 def event_dict(ev: Event) -> dict[str, Any]:
@@ -224,6 +273,8 @@ class Viewer:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``holo-view``; returns the exit status (see the module docstring)."""
     args = build_parser().parse_args(argv)
+    if args.web:
+        return run_web(args)
     viewer = Viewer(args, sys.stdout, live=sys.stdout.isatty())
     got_any = True
     try:

@@ -37,6 +37,7 @@ from service.cli_args import (
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.lod_cli import add_lod_options, lod_settings
+from service.lookingglass import DEFAULT_VIEWS, Interleaver, parse_display
 from service.process import setup_frame_process
 from service.signals import EXIT_FAILED, EXIT_OK, EXIT_RULE, EXIT_USAGE, interruptible
 
@@ -161,8 +162,14 @@ def _add_display_args(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the fixed zone of --mode zone, 0 to --zones - 1 (default the middle one)",
     )
-    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=5,
-                   help="view zones, 1-64 (default 5)")
+    p.add_argument("--zones", metavar="N", type=int_range(1, 64), default=None,
+                   help="view zones, 1-64 (default 5; 45 with --display lookingglass:...)")
+    p.add_argument(
+        "--display", metavar="lookingglass:CALIBRATION.json", default=None,
+        help="play on a Looking Glass: full screen at the panel's resolution, every view "
+        "interleaved each refresh by the calibration (the device's visual.json), whose "
+        "viewCone sets the viewing angle (--zones sets the view count, default 45)",
+    )
     add_size_option(p, (200, 150), "pixels per zone")
     p.add_argument("--refresh", type=float_range(0, lo_open=True), default=60.0,
                    metavar="HZ", help="refresh rate, Hz (default 60)")
@@ -173,6 +180,14 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
 
     Fills in ``args.zone`` (the middle zone) when it was not given.
     """
+    args.calibration = None
+    if args.display is not None:
+        try:
+            args.calibration = parse_display(args.display, args.zones or DEFAULT_VIEWS)
+        except HoloError as exc:
+            parser.error(str(exc))
+        args.zones = args.calibration.views
+    args.zones = args.zones or 5
     if args.zones < 1:
         parser.error(f"--zones {args.zones}: the display needs at least one zone")
     if args.zone is None:
@@ -207,7 +222,9 @@ def _setup(args: argparse.Namespace) -> tuple:
     from service.errors import ServiceError
 
     cols, rows = args.size
-    display = DisplaySettings(zones=args.zones, cols=cols, rows=rows)
+    cal = args.calibration
+    angle = cal.view_cone if cal is not None else DisplaySettings.angle_deg
+    display = DisplaySettings(zones=args.zones, angle_deg=angle, cols=cols, rows=rows)
     light = "blinn" if args.full_light else "ambient"
     lod = lod_settings(args)
     settings = BackendSettings(display, light, args.refresh,
@@ -232,7 +249,7 @@ def _setup(args: argparse.Namespace) -> tuple:
 
         devices = DeviceSubscriber(args.devices)
     pygame.init()
-    window = GameWindow()
+    window = GameWindow(panel=Interleaver(cal) if cal is not None else None)
     scores = HighScores.load(args.highscores, recover=True)
     if scores.recovered_from is not None:
         print(f"holo-game: {scores.recovered_from}; starting a new table", file=sys.stderr)

@@ -37,6 +37,7 @@ import pygame
 
 from service.display import DisplaySettings
 from service.frame import view_strip
+from service.lookingglass import Interleaver
 
 #: Modes that can be shown, in the order the demo screenshots them.
 MODES = ("head", "strip", "zone", "autostereogram")
@@ -219,23 +220,33 @@ class GameWindow:
     title : str
     """
 
-    def __init__(self, size: tuple[int, int] = WINDOW, title: str = "holo-game") -> None:
+    def __init__(self, size: tuple[int, int] = WINDOW, title: str = "holo-game",
+                 panel: Interleaver | None = None) -> None:
         pygame.display.init()
         pygame.font.init()
-        self.screen = pygame.display.set_mode(size)
+        if panel is not None:  # the Looking Glass: full screen at the panel's resolution
+            size = (panel.cal.screen_w, panel.cal.screen_h)
+        flags = pygame.FULLSCREEN if panel is not None and has_display() else 0
+        self.screen = pygame.display.set_mode(size, flags)
         pygame.display.set_caption(title)
         self.font = pygame.font.Font(None, 24)
         self.big = pygame.font.Font(None, 72)
+        self.panel = panel
+        self._panel_image = None if panel is None else np.zeros(panel.shape, np.uint8)
 
     def draw(self, colour: np.ndarray | None, mode: str, zone: int, hud: Hud,
              sird: np.ndarray | None = None) -> None:
         """The frame in the given mode with the HUD over it.
 
         ``sird`` is the frame's stereogram, (R, C) uint8, shown in ``autostereogram``
-        mode (the zone's colour image stands in while none has arrived).
+        mode (the zone's colour image stands in while none has arrived).  On a Looking
+        Glass (``panel``) a frame with every view is interleaved onto the whole screen
+        whatever the mode.
         """
         self.screen.fill(BACKGROUND)
-        if colour is not None:
+        if self._draw_panel(colour):
+            pass
+        elif colour is not None:
             image = _surface(_image(colour, mode, zone, sird))
             area = self.screen.get_rect().inflate(-20, -90).move(0, 35)
             rect = _fit(image.get_size(), area)
@@ -247,6 +258,15 @@ class GameWindow:
                 backing.fill(HUD_BACKING)
                 self.screen.blit(backing, (6, 6 + 20 * k))
             self.screen.blit(text, (10, 8 + 20 * k))
+
+    def _draw_panel(self, colour: np.ndarray | None) -> bool:
+        """Interleave ``colour``'s views onto the screen; False when it is not for the panel."""
+        if self.panel is None or colour is None or colour.shape[0] != self.panel.cal.views:
+            return False
+        image = self.panel(colour, self._panel_image)
+        w, h = self.panel.cal.screen_w, self.panel.cal.screen_h
+        self.screen.blit(pygame.image.frombuffer(image, (w, h), "RGB"), (0, 0))
+        return True
 
     def banner(self, title: str, lines: list[str] = (), dim: bool = True) -> None:
         """A large centred title with lines under it, over a dimmed picture."""

@@ -75,6 +75,10 @@ BENCHES = {
         "service.bench.compile_bench",
         "cold compile: wall and CPU seconds per warm-up job and kernel, empty cache",
     ),
+    "lookingglass": (
+        "service.bench.lookingglass_bench",
+        "Looking Glass interleave: ms per 2560x1600 panel from 45 views, by threads",
+    ),
     "report": (
         "service.bench.report",
         "every benchmark at one size into one self-contained OUT/index.html",

@@ -34,13 +34,15 @@ from service.cli_args import (
 )
 from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
-from service.errors import HoloError
+from service.errors import HoloError, SettingsError
 from service.frame import Frame, write_quilt, write_strip, write_zones
 from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import MESH_LOADERS, SCENE_EXTENSIONS, load_scene
 from service.lod_cli import add_lod_options, budget_frames, lod_settings, lod_state
+from service.lookingglass import DEFAULT_VIEWS, Calibration, Interleaver, parse_display
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.png import write_png
 from service.process import setup_frame_process
 from service.quality import (
     MODES,
@@ -76,6 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_lod_options(p)
     _add_quality_args(p)
     p.add_argument("--quilt", action="store_true", help="also write a Looking Glass quilt")
+    p.add_argument(
+        "--display", metavar="lookingglass:CALIBRATION.json", default=None,
+        help="render for a Looking Glass: its calibration (the device's visual.json) sets "
+        "the viewing angle (viewCone) and the panel; writes the quilt and the interleaved "
+        "panel image lookingglass-WxH.png (--zones sets the view count, default 45)",
+    )
     p.add_argument("--out", metavar="DIR", default="render-out",
                    help="output folder (default render-out)")
     p.add_argument(
@@ -88,11 +96,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_display_args(p: argparse.ArgumentParser) -> None:
     """The display: view zones, viewing angle, zone image size."""
-    p.add_argument("--zones", type=int_range(1, 64), default=5, metavar="N",
-                   help="view zones, 1-64 (default 5)")
+    p.add_argument("--zones", type=int_range(1, 64), default=None, metavar="N",
+                   help="view zones, 1-64 (default 5; 45 with --display lookingglass:...)")
     p.add_argument(
-        "--angle", type=float_range(0, 60), default=16.0, metavar="DEG",
-        help="viewing angle in degrees, 0-60 (default 16)",
+        "--angle", type=float_range(0, 60), default=None, metavar="DEG",
+        help="viewing angle in degrees, 0-60 (default 16; the calibration's viewCone with "
+        "--display)",
     )
     add_size_option(p, (320, 240), "pixels per zone image")
 
@@ -168,13 +177,14 @@ def _billboard_words(report: dict) -> str:
     return f", {quads} billboards" if quads else ""
 
 
-def _load(spec: str, strict: bool = False) -> tuple[Scene, list[str]]:
-    """The scene, and the one-line repair warnings its mesh files gave."""
+def _load(spec: str, strict: bool = False,
+          display: DisplaySettings | None = None) -> tuple[Scene, list[str]]:
+    """The scene (a lone mesh fitted to ``display``), and its files' repair warnings."""
     if spec.startswith("builtin:"):
         return builtin_scene(spec.split(":", 1)[1]), []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MeshRepairWarning)
-        scene = load_scene(Path(spec), strict)
+        scene = load_scene(Path(spec), strict, display)
     for w in caught:
         if not issubclass(w.category, MeshRepairWarning):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -241,10 +251,32 @@ def _fallback(args: argparse.Namespace) -> str:
     return "off" if args.no_fallback else args.fallback or "pixel"
 
 
+def _display(args: argparse.Namespace) -> tuple[DisplaySettings, Calibration | None]:
+    """The display the arguments ask for, and the Looking Glass calibration if any.
+
+    Fills in ``args.zones`` and ``args.angle`` (for the report).
+    """
+    cal = None
+    if args.display is not None:
+        if args.angle is not None:
+            raise SettingsError("--angle: with --display the calibration's viewCone sets it")
+        cal = parse_display(args.display, args.zones or DEFAULT_VIEWS)
+        args.zones, args.angle = cal.views, cal.view_cone
+    args.zones = args.zones or 5
+    args.angle = 16.0 if args.angle is None else args.angle
+    cols, rows = args.size
+    return DisplaySettings(zones=args.zones, angle_deg=args.angle, cols=cols, rows=rows), cal
+
+
+def write_lookingglass(frame: Frame, cal: Calibration, out: Path) -> Path:
+    """Write the panel image of ``frame`` interleaved for ``cal``; returns its path."""
+    panel = Interleaver(cal)(frame.colour)
+    return write_png(out / f"lookingglass-{cal.screen_w}x{cal.screen_h}.png", panel)
+
+
 def run(args: argparse.Namespace) -> dict:
     """Render as the parsed arguments say; return the JSON report."""
-    cols, rows = args.size
-    display = DisplaySettings(zones=args.zones, angle_deg=args.angle, cols=cols, rows=rows)
+    display, cal = _display(args)
     settings = RenderSettings(
         lod=lod_settings(args),
         method=args.method,
@@ -253,7 +285,7 @@ def run(args: argparse.Namespace) -> dict:
         painter_fallback=_fallback(args),
     )
     start = time.perf_counter()
-    scene, repairs = _load(args.scene, args.strict)
+    scene, repairs = _load(args.scene, args.strict, display)
     load_ms = (time.perf_counter() - start) * 1e3
     for line in repairs:
         print(f"holo-render: warning: {line}", file=sys.stderr)
@@ -276,8 +308,10 @@ def run(args: argparse.Namespace) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     write_zones(frame, out)
     write_strip(frame, out / "strip.png")
-    if args.quilt:
+    if args.quilt or cal is not None:
         write_quilt(frame, out)
+    if cal is not None:
+        write_lookingglass(frame, cal, out)
     return _report(args, settings, quality, frame, scene, (load_ms, flatten_ms), out)
 
 

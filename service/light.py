@@ -544,10 +544,10 @@ def _polygon_motion_table(
     ``geometry`` is ``(vertices (K, V, 3), polygons (P, M), counts (P,), normals (K, P,
     3))`` at K = 1 or 3 times (``t - h, t, t + h``); ``lights`` is :func:`pack_lights`'
     ``(lvec (K, J, 3), lpoint, lrgb)``.  ``table`` (1, Z, P, 3) uint8 gets the middle
-    time's colour as :func:`shade` stores it; with three times, ``dtable`` (4, Z, P)
+    time's colour as :func:`shade` stores it; with three times, ``dtable`` (Z, P, 4)
     gets the central differences of the float32 colour (:func:`shade_linear`'s
-    values) through ``weights`` (3, 3) (colour to channels), in float64: rows 0-2
-    ``steps[0] * weights @ (c(t + h) - c(t - h))``, row 3 ``steps[1] * weights[0] @
+    values) through ``weights`` (3, 3) (colour to channels), in float64: channels 0-2
+    ``steps[0] * weights @ (c(t + h) - c(t - h))``, channel 3 ``steps[1] * weights[0] @
     (c(t + h) - 2 c(t) + c(t - h))``.
     """
     vertices, polygons, counts, normals = geometry
@@ -571,12 +571,12 @@ def _polygon_motion_table(
                 acc = 0.0
                 for k in range(3):
                     acc += w[j, k] * (np.float64(np.float32(q[k])) - np.float64(np.float32(m[k])))
-                dtable[j, z, p] = acc * steps[0]
+                dtable[z, p, j] = acc * steps[0]
             acc = 0.0
             for k in range(3):
                 acc += w[0, k] * (np.float64(np.float32(q[k])) - 2.0 * np.float64(np.float32(c[k]))
                                   + np.float64(np.float32(m[k])))
-            dtable[3, z, p] = acc * steps[1]
+            dtable[z, p, 3] = acc * steps[1]
 
 
 def polygon_motion_tables(
@@ -613,9 +613,9 @@ def polygon_motion_tables(
     -------
     table : ndarray, shape (Z, P, 3), uint8
         Colour at ``t`` of each polygon shown (others undefined).
-    dtable : ndarray, shape (4, Z, P), float32
+    dtable : ndarray, shape (Z, P, 4), float32
         The three first-difference channels and the second difference's first (three
-        times only; shape (4, 0, 0) with one).
+        times only; shape (0, 0, 4) with one).
     background : ndarray, shape (3,), uint8
     """
     centre = scenes[len(scenes) // 2]
@@ -635,7 +635,7 @@ def polygon_motion_tables(
                 np.stack([s.normals for s in scenes]))
     zp = (display.zones, centre.n_polygons)
     table = np.empty((1, *zp, 3), np.uint8)
-    dtable = np.empty((4, *zp) if len(scenes) == 3 else (4, 0, 0), np.float32)
+    dtable = np.empty((*zp, 4) if len(scenes) == 3 else (0, 0, 4), np.float32)
     _polygon_motion_table(geometry, centre.materials, display.view_vectors(), needed,
                           (lvec, packs[0][1], packs[0][2]), float(ambient_level),
                           MODELS[settings.model], (float(steps[0]), float(steps[1])),

@@ -327,6 +327,15 @@ def _autostereograms(kit: _Kit) -> None:
         warm_up_sird(method)
 
 
+def _lookingglass(kit: _Kit) -> None:
+    """The Looking Glass interleave (holo-render and the game's ``--display lookingglass:``)."""
+    from service.lookingglass import Calibration, Interleaver
+
+    cal = Calibration(pitch=50.0, slope=5.5, center=0.1, view_cone=40.0, inv_view=True,
+                      dpi=300.0, screen_w=16, screen_h=10, views=3)
+    Interleaver(cal)(np.zeros((3, 5, 8, 3), np.uint8))
+
+
 def _level_of_detail(kit: _Kit) -> None:
     """Level of detail (``--lod``): decimation errors, billboard clouds built and drawn.
 
@@ -409,6 +418,7 @@ JOBS: dict[str, _Job] = {
     "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE, service=True,
                                                     first_frame=True),
     "level of detail, billboard clouds": _Job(_level_of_detail, HERE),
+    "looking glass interleave": _Job(_lookingglass, HERE),
 }
 
 

@@ -177,6 +177,10 @@ PLANS = (
     # best of 3: a single run timed the first decoder cold (sgi at 0.6 MB/s, "below target")
     Plan("decoders", "Serial protocol decoders", (("--scale", "0.2", "--repeat", "3"),), ((),),
          {}, "decoders"),
+    Plan("lookingglass", "Looking Glass interleave", (("--repeat", "5"),), (("--repeat", "15"),),
+         {"lookingglass.png": "Milliseconds to interleave 45 views onto a 2560x1600 panel, "
+          "per numba thread count: wall and the process's CPU time; the red line is the "
+          "2 ms target. Lower is better."}, "generic"),
     Plan("lod-stall", "Frame times while a level-of-detail chain builds",
          (("--repeats", "1"),), ((),),
          {"lod_stall.png": "The share of frames slower than x ms (log y), per mode: the "

@@ -217,7 +217,7 @@ def interpolate(
     tri_map = np.ascontiguousarray(tri_map, np.int32)
     out = np.empty((3, 3, *tri_map.shape), np.float32)
     n = tri_map.size
-    none = (np.zeros((0, 0, 3), np.uint8), np.zeros((4, 0, 0), np.float32), np.zeros(3, np.uint8))
+    none = (np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0, 4), np.float32), np.zeros(3, np.uint8))
     geometry = (np.ascontiguousarray(triangles, np.int64),
                 np.zeros(triangles.shape[0], np.int64), np.zeros(1, np.int64),
                 np.ascontiguousarray(proj, np.float64))
@@ -319,7 +319,7 @@ def _motion_pixels(
     vd : ndarray, shape (3, Z, V, 3)
         Vertex derivatives.
     tables : tuple
-        ``(table (Z, P, 3) uint8, dtable (4, Z, P) float32, background (3,) uint8)``
+        ``(table (Z, P, 3) uint8, dtable (Z, P, 4) float32, background (3,) uint8)``
         (:func:`service.light.polygon_motion_tables`).
     der : ndarray, shape (9, Z*R*C), float32
         Out: the derivatives (zero where empty).
@@ -361,7 +361,7 @@ def _motion_pixels(
                     table[z, p, 2]
             if dpaint:
                 for j in range(4):
-                    dcol[j, i] = dtable[j, z, p]
+                    dcol[j, i] = dtable[z, p, j]
             c += 1
 
 
@@ -374,8 +374,11 @@ def _write_empty(
     for j in range(9):
         der[j, i0:i1] = 0.0
     obj[i0:i1] = -1
-    for i in range(i0, min(i1, colour.shape[0])):
-        colour[i, 0], colour[i, 1], colour[i, 2] = bg[0], bg[1], bg[2]
+    if colour.shape[0] > 0 and bg[0] == bg[1] == bg[2]:  # one byte value: a fill
+        colour.reshape(-1)[3 * i0 : 3 * i1] = bg[0]
+    else:
+        for i in range(i0, min(i1, colour.shape[0])):
+            colour[i, 0], colour[i, 1], colour[i, 2] = bg[0], bg[1], bg[2]
     for j in range(dcol.shape[0] if dcol.shape[1] > 0 else 0):
         dcol[j, i0:i1] = 0.0
 
@@ -466,7 +469,7 @@ def render_with_motion(
             [shade_linear(arrays[i], projs[i], vis, display, lights[i], scene.ambient,
                           settings.light) for i in (1, 2, 3)],
             h) if colour_motion else None
-        tables = (np.zeros((0, 0, 3), np.uint8), np.zeros((4, 0, 0), np.float32),
+        tables = (np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0, 4), np.float32),
                   np.zeros(3, np.uint8))
     n = tri_map.size
     _motion_pixels(

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from service.billboard_render import BillboardObject
+from service.display import DisplaySettings
 from service.errors import MeshFileError
 from service.loaders.obj import load_obj, save_obj
 from service.loaders.ply import load_ply, save_ply
@@ -36,7 +37,9 @@ MESH_LOADERS = {".hobj": load_thesis_object, ".ply": load_ply, ".obj": load_obj}
 
 SCENE_EXTENSIONS = (".toml",)
 FIT_WIDTH = 1.6
-"""A lone mesh loaded as a scene is scaled so its largest extent is this (world units)."""
+""":func:`fit_transform`'s default largest extent (world units; benchmarks place by it)."""
+FIT_FRACTION = 0.8
+"""A lone mesh loaded as a scene fills this fraction of every zone's view, at most."""
 
 __all__ = [
     "MESH_LOADERS", "load_mesh", "load_obj", "load_ply", "load_scene", "load_scene_file",
@@ -79,30 +82,65 @@ def fit_transform(mesh: Mesh, width: float = FIT_WIDTH) -> Transform:
     return Transform(position=-(lo + hi) / 2 * scale, scale=scale)
 
 
-def load_scene(path: str | Path, strict: bool = False) -> Scene:
+def fit_view(points: np.ndarray, display: DisplaySettings,
+             fraction: float = FIT_FRACTION) -> Transform:
+    """Placement showing ``points`` whole in every zone of ``display``, shear included.
+
+    The points' bounding box is centred on the origin and scaled as large as keeps
+    every point within ``fraction`` of the half width and half height of every
+    zone's view (a zone's column is ``x - z tan(theta)``, so depth widens the outer
+    zones' picture).
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        The object's vertices (object coordinates).
+    display : DisplaySettings
+    fraction : float
+        Share of the view the object may fill each way, 0 < fraction <= 1.
+
+    Returns
+    -------
+    Transform
+    """
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    p = points - (lo + hi) / 2
+    cols = p[None, :, 0] - p[None, :, 2] * display.shears()[:, None]  # (Z, N)
+    half = (float(np.abs(cols).max()), float(np.abs(p[:, 1]).max()))
+    room = (display.width / 2, display.height / 2)
+    scales = [fraction * r / h for r, h in zip(room, half, strict=True) if h > 0]
+    scale = min(scales) if scales else 1.0
+    return Transform(position=-(lo + hi) / 2 * scale, scale=scale)
+
+
+def load_scene(path: str | Path, strict: bool = False,
+               display: DisplaySettings | None = None) -> Scene:
     """Read a scene file, or a single mesh file as a one-object scene.
 
-    A lone mesh gets the default :class:`Material` and :class:`Light`, and is centred
-    and scaled to fit ``FIT_WIDTH`` world units (inside the default display width 2).
+    A lone mesh (or billboard cloud) gets the default :class:`Material` and
+    :class:`Light`, and is centred and scaled to fill ``FIT_FRACTION`` of every zone's
+    view of ``display`` (:func:`fit_view`).
 
     Parameters
     ----------
     path : str or Path
     strict : bool
         Passed to :func:`load_mesh` for every mesh file.
+    display : DisplaySettings, optional
+        The display a lone mesh is fitted to (default: ``DisplaySettings()``).
 
     Returns
     -------
     Scene
     """
-    path = Path(path)
+    path, display = Path(path), display or DisplaySettings()
     if path.suffix.lower() in SCENE_EXTENSIONS:
         return load_scene_file(path, partial(load_mesh, strict=strict))
     if path.suffix.lower() == ".hbc":  # a lone billboard cloud, placed as a lone mesh is
         cloud = load_cloud(path)
-        box = Mesh.from_triangles(cloud.corners.reshape(-1, 3), [[0, 1, 2]])
-        obj = BillboardObject(cloud, Material(), fit_transform(box), name=path.stem)
+        place = fit_view(cloud.corners.reshape(-1, 3), display)
+        obj = BillboardObject(cloud, Material(), place, name=path.stem)
         return Scene(objects=[], lights=[Light()], billboards=[obj])
     mesh = load_mesh(path, strict)
-    obj = SceneObject(mesh, Material(), fit_transform(mesh), name=mesh.name)
+    obj = SceneObject(mesh, Material(), fit_view(mesh.vertices, display), name=mesh.name)
     return Scene(objects=[obj], lights=[Light()])

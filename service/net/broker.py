@@ -182,6 +182,8 @@ class Broker:
                 book.seen = now
             if kind == BUSY or (book is None and kind != READY):
                 return  # a heartbeat; or a late reply of a worker already dropped
+            if kind == READY and book is not None and book.busy_since is not None:
+                return  # sent before the job reached it: a heartbeat, the job is still held
             if kind == READY:
                 book = book or self._admit(worker, frames[3:], now)
             if book.busy_since is not None and kind != READY:

@@ -386,10 +386,18 @@ def _lod_of(stats: dict[str, Any]) -> dict | None:
 
 
 def _lead_s(render_ms: deque[float]) -> float:
-    """How far ahead to aim a render: its 90th percentile time plus a little."""
+    """How far ahead to aim a render: its 90th percentile time plus a little.
+
+    The slowest of the last 3 renders counts too, so a machine that just got slower
+    (load, workers restarting beside the renders) moves the aim at once: with the
+    percentile alone, every render missed its rendezvous (refused, no update) until
+    five slow ones had come.
+    """
     if not render_ms:
         return 0.5
-    return float(np.percentile(list(render_ms)[-50:], 90)) / 1e3 * 1.2 + 0.01
+    recent = list(render_ms)
+    slow = max(float(np.percentile(recent[-50:], 90)), *recent[-3:])
+    return slow / 1e3 * 1.2 + 0.01
 
 
 def _viewer_motion(job: dict[str, Any]) -> MotionState:

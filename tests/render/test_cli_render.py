@@ -5,10 +5,12 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from service.loaders import save_obj
 from service.png import read_png
 from service.primitives import torus
+from tests.testkit import shared_fixture
 
 
 def run(*args, cwd=None):
@@ -103,3 +105,23 @@ def test_help_lists_the_options():
         "--json",
     ):
         assert opt in r.stdout
+
+
+@pytest.mark.parametrize("display", [("--zones", "5"), ("--zones", "9", "--angle", "40",
+                                                         "--size", "96x160")],
+                         ids=["default", "wide-angle-tall"])
+def test_a_lone_mesh_fits_inside_every_zones_view(tmp_path, display):
+    """The bunny's ear tips and feet (taller than wide) and the outer zones' shear
+    stay inside the frame: no covered pixel touches an edge in any zone."""
+    bunny = shared_fixture("meshes/bunny.ply")
+    if not bunny.is_file():
+        pytest.skip(f"no {bunny}")
+    out = tmp_path / "out"
+    r = run(str(bunny), *display, "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    zones = int(display[1])
+    for k in range(zones):
+        covered = np.isfinite(np.load(out / f"depth-{k:02d}.npy"))
+        assert covered.sum() > 0.1 * covered.size  # fitted, not shrunk to a speck
+        edges = (covered[0], covered[-1], covered[:, 0], covered[:, -1])
+        assert not any(e.any() for e in edges), f"zone {k} touches the frame edge"
