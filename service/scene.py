@@ -183,14 +183,6 @@ class Scene:
         """
         return flatten(self)
 
-    def prepare_flatten(self) -> None:
-        """Build the placement-free arrays :meth:`flatten` caches, without placing anything.
-
-        Scenes moved from this one (:mod:`service.scene_motion`) share them: call
-        this before moving a scene several times, so they are built once.
-        """
-        _static_parts(self)
-
 
 @dataclass(frozen=True)
 class SceneArrays:

@@ -107,7 +107,7 @@ def test_project_motion_is_project_and_vertex_derivatives():
 
 def test_moved_scenes_share_the_flatten_cache_and_a_change_stays_their_own():
     scene = builtin_scene("game")
-    scene.prepare_flatten()
+    scene.flatten()  # builds the placement-free arrays the moved copies share
     moved = advance_scene(scene, 0.1)
     assert moved._static is scene._static  # built once, for every moved copy
     moved.objects = moved.objects[1:]  # one object fewer in the moved scene only
