@@ -34,6 +34,7 @@ import numpy as np
 from service.autostereogram.output import SirdOutput
 from service.errors import HoloError
 from service.frame import default_grid, depth_grey, quilt, view_strip
+from service.net import protocol
 from service.net.client import FrameSubscriber, ServiceClient
 
 #: The layouts a browser can ask for.
@@ -147,11 +148,16 @@ class Watcher:
             t.join(5)
 
     def _frames(self) -> None:
+        limit = protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
         with FrameSubscriber(self.settings.frames) as sub:
+            heard = -limit  # a message's arrival (a reconnect also resets last_heard)
             while not self._stop.is_set():
+                before = (sub.last_heard, sub.reconnects)
                 got = sub.latest(0.5)
+                if sub.reconnects == before[1] and sub.last_heard != before[0]:
+                    heard = sub.last_heard
                 with self.lock:
-                    self.alive = sub.alive
+                    self.alive = time.monotonic() - heard < limit
                     self.heartbeat = (sub.status, sub.warmup)
                     if got is not None:
                         self.header, self.arrays = got
