@@ -33,7 +33,9 @@ TEST_WORKERS ?= $(shell $(PYTHON) -c 'import os; \
 test: warmup
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
-demo: warmup
+# No `warmup` first: the demo's service compiles what its first frame needs, then
+# the rest in the background at low priority (docs/service.md, "First frame first").
+demo: $(STAMP)
 	$(BIN)/python -m game.full_demo --out demo-out
 
 render-demo: warmup

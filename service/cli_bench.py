@@ -71,6 +71,10 @@ BENCHES = {
         "service.bench.sird_bench",
         "autostereograms: ms per frame vs decoded depth and streaks, dot stability",
     ),
+    "compile": (
+        "service.bench.compile_bench",
+        "cold compile: wall and CPU seconds per warm-up job and kernel, empty cache",
+    ),
     "lookingglass": (
         "service.bench.lookingglass_bench",
         "Looking Glass interleave: ms per 2560x1600 panel from 45 views, by threads",

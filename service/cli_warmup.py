@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "kernels in a second process meanwhile; 1: one process")
     p.add_argument("--job", action="append", choices=list(JOBS), metavar="NAME",
                    help="run only this job (repeat it); one of: " + "; ".join(JOBS))
+    p.add_argument("--nice", type=int_range(0, 19), default=0, metavar="N",
+                   help="lower this process's priority by N first (0-19; 0: as is), as a "
+                   "service's background compile does, so that it takes only idle CPU")
     p.add_argument("--parent-pid", type=int, default=0, help=argparse.SUPPRESS)
     # warm_up's second process: wait for a line on stdin before this job (its parent
     # is still compiling the render kernels that job uses)
@@ -110,7 +113,8 @@ def _run(args: argparse.Namespace) -> int:
             sys.stdin.readline()  # the parent's release, or end of file if it is gone
 
     report = warm_up(progress, args.processes, args.job, before_job)
-    mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
+    if args.job is None:  # only every job's kernels make the cache warm
+        mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
     done = {"event": "done", "total": report.total, "compiled": report.compiled,
             "cached": report.cached, "seconds": round(report.seconds, 3),
             "kernels": report.kernels}
@@ -138,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         # each cache file whole (a temporary file, then a rename)
         end_with_parent(args.parent_pid, signal.SIGKILL)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as holo-service, before numba
+    if args.nice:
+        os.nice(args.nice)  # the second process, started later, inherits it
     return interruptible("holo-warmup", lambda: _run(args))
 
 

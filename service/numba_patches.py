@@ -11,8 +11,12 @@ session").  :func:`faster_copy_propagation` swaps in the same iteration with the
 shallow snapshot: the same copies found, so the same IR and machine code, and
 numba's cache sees no difference.
 
-The fix applies only to the function it was written against: if numba's source
-of ``copy_propagate`` differs (another numba version), numba is left alone.
+:func:`faster_inlining` does the like for the inliner's copy of a callee's IR (one
+deepcopy memo for all its blocks), and :func:`locked_cache_saves` makes numba's
+cache saves atomic between processes.  :func:`apply_all` applies every one.
+
+Each fix applies only to the function it was written against: if numba's source
+differs (another numba version), numba is left alone.
 """
 
 from __future__ import annotations
@@ -95,3 +99,115 @@ def faster_copy_propagation() -> bool:
     ir_utils.copy_propagate = copy_propagate
     parfor.copy_propagate = copy_propagate
     return True
+
+
+#: File in a numba cache folder that :func:`locked_cache_saves` locks around a save.
+CACHE_LOCK = ".holo-cache.lock"
+
+
+def _locked(save: Callable) -> Callable:
+    """``save`` run under an exclusive ``flock`` of the cache folder's :data:`CACHE_LOCK`."""
+    import fcntl
+    import functools
+    import os
+
+    @functools.wraps(save)
+    def locked_save(self, key, data) -> None:  # noqa: ANN001 -- numba's own arguments
+        try:
+            fd = os.open(os.path.join(self._cache_path, CACHE_LOCK), os.O_RDWR | os.O_CREAT,
+                         0o644)
+        except OSError:  # a read-only cache: numba's own save fails quietly there too
+            return save(self, key, data)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            return save(self, key, data)
+        finally:
+            os.close(fd)  # closing releases the lock
+
+    return locked_save
+
+
+def locked_cache_saves() -> bool:
+    """Make numba's cache saves atomic between processes; True if in use.
+
+    numba adds a kernel signature to its cache by reading the kernel's index,
+    taking the first free data-file number and writing the index and the data
+    file (``IndexDataCacheFile.save``).  Two processes adding different signatures
+    of one kernel at once can both take number 1, and the index then names the
+    other's machine code.  Under an exclusive ``flock`` of one file per cache folder
+    the read-number-write is one step (a few milliseconds per compile, never held
+    while compiling).  The service's background compile (:mod:`service.readiness`)
+    runs beside processes that may compile too.  Idempotent; POSIX only (False
+    elsewhere).
+    """
+    try:
+        import fcntl  # noqa: F401 -- POSIX only
+    except ImportError:
+        return False
+    from numba.core.caching import IndexDataCacheFile
+
+    if getattr(IndexDataCacheFile.save, "__wrapped__", None) is None:
+        IndexDataCacheFile.save = _locked(IndexDataCacheFile.save)
+    return True
+
+
+#: sha256 of ``InlineWorker.inline_ir``'s source that :func:`faster_inlining` edits
+#: (numba 0.68.1).
+INLINE_IR_SHA256 = "26fd2b7600c9d9295c925c2dd4d498929ef6ae43c09bf285298255527da5362b"
+#: numba's copy of a callee's IR: each block deep-copied on its own ...
+_COPY_EACH = """            for block_label, block in the_ir.blocks.items():
+                new_block = copy.deepcopy(the_ir.blocks[block_label])
+"""
+#: ... and the same with one memo for all blocks: their shared scope copied once.
+_COPY_SHARED = """            memo = {}
+            for block_label, block in the_ir.blocks.items():
+                new_block = copy.deepcopy(the_ir.blocks[block_label], memo)
+"""
+
+
+def faster_inlining() -> bool:
+    """Use numba's ``inline_ir`` with one deepcopy memo for a callee's blocks; True if so.
+
+    Inlining a function (``inline="always"``) copies its IR twice, block by block,
+    with ``copy.deepcopy``; every block refers to the function's one ``Scope``, which
+    holds every variable of the function, so each block's copy copies the whole
+    scope again: blocks x variables (numba issue #8989).  The Galilean scatter's
+    body (:mod:`service.galilean.scatter_bands`) has hundreds of blocks; its two
+    inlines took 14.7 s of CPU of a cold warm-up (docs/compile-time.md).  One memo
+    for all blocks copies the scope once and keeps what the blocks shared shared,
+    as in the function's own IR; the inliner then points every inlined block at the
+    caller's scope anyway (its step 7), so the inlined code, and the machine code,
+    are the same (``tests/warmup/test_numba_patches.py`` compares them).
+
+    numba's source of ``InlineWorker.inline_ir`` with that one edit, compiled in
+    numba's module; numba is left alone (False) unless the source is the one this
+    was written against (:data:`INLINE_IR_SHA256`).  Idempotent; numba's method stays
+    reachable as ``__wrapped__``.
+    """
+    import textwrap
+
+    from numba.core import inline_closurecall as icc
+
+    current = icc.InlineWorker.inline_ir
+    if getattr(current, "__wrapped__", None) is not None:
+        return True
+    source = inspect.getsource(current)
+    if _source_digest(current) != INLINE_IR_SHA256 or source.count(_COPY_EACH) != 1:
+        return False
+    namespace: dict = {}
+    code = compile(textwrap.dedent(source.replace(_COPY_EACH, _COPY_SHARED)),
+                   inspect.getsourcefile(current) or "<numba inline_ir>", "exec")
+    exec(code, vars(icc), namespace)  # noqa: S102 -- numba's own source, checked above
+    patched = namespace["inline_ir"]
+    patched.__wrapped__ = current
+    icc.InlineWorker.inline_ir = patched
+    return True
+
+
+def apply_all() -> dict[str, bool]:
+    """Every patch of this module (what :func:`service.warmup.warm_up` compiles under).
+
+    Returns each patch's name and whether it is in use.
+    """
+    return {fn.__name__: fn() for fn in (faster_copy_propagation, faster_inlining,
+                                          locked_cache_saves)}

@@ -24,6 +24,18 @@ and even its heartbeats, so clients took it for dead.  Instead:
    so nothing compiles once the service is ready;
 4. then the service is ready and starts its workers and loops.
 
+**First frame first.**  On a cold cache the child of step 2 compiles only the jobs
+of :data:`service.warmup.FIRST_FRAME_JOBS` (``--job`` for each: the render at the
+starting settings, the Galilean refresh at its starting order, the autostereogram
+encoding) and step 3 loads those, so the first frame waits for them alone.  Once ready, a second,
+*background* child (``holo-warmup --jsonl --nice 10``) compiles every other job
+at low priority while the service runs; ``stats`` says how far it is
+(``compile``, :meth:`Warmup.background_dict`) and the log says when it ends.  It
+writes the warm stamp when it is done, so the next start skips both children.
+numba's cache saves are locked between processes
+(:func:`service.numba_patches.locked_cache_saves`): a render that needs a kernel
+the background has not reached yet compiles it in its own process meanwhile.
+
 If the child fails (it crashed, or ``service.cli_warmup`` is missing), step 3
 compiles in process instead (slower, but the service still gets ready and its
 heartbeats go on).  :meth:`Warmup.as_dict` is what replies and heartbeats carry.
@@ -60,6 +72,8 @@ from service.signals import end_process
 PHASES = ("starting", "compiling", "loading", "ready", "failed")
 #: The child's command (``holo-warmup --jsonl``).
 CHILD = (sys.executable, "-m", "service.cli_warmup", "--jsonl")
+#: Niceness of the background compile (every job the service did not need first).
+BACKGROUND_NICE = 10
 
 
 class _Abort(Exception):  # noqa: N818 -- control flow, never leaves this module
@@ -81,7 +95,14 @@ class Warmup:
         Skip the child when :func:`is_warm` (default); False always runs it.
     jobs : sequence of str, optional
         The warm-up jobs run in this process (step 3); default
-        :data:`service.warmup.SERVICE_JOBS`.  The child always runs every job.
+        :data:`service.warmup.SERVICE_JOBS`.
+    background : bool
+        First frame first (default): on a cold cache the child compiles only
+        ``first`` and, once ready, a background child compiles the rest.  False: the
+        child compiles every job before ready.
+    first : sequence of str, optional
+        The jobs of a cold start's first phase; default
+        :data:`service.warmup.FIRST_FRAME_JOBS` (``jobs`` when ``jobs`` is given).
     """
 
     def __init__(
@@ -91,10 +112,15 @@ class Warmup:
         env: dict[str, str] | None = None,
         trust_stamp: bool = True,
         jobs: tuple[str, ...] | None = None,
+        background: bool = True,
+        first: tuple[str, ...] | None = None,
     ) -> None:
         self.log = log or (lambda line: None)
         self.trust_stamp = trust_stamp
         self.jobs = _service_jobs() if jobs is None else tuple(jobs)
+        self.first = tuple(first) if first is not None else (
+            _first_frame_jobs() if jobs is None else self.jobs)
+        self.background = background and bool(self.first)
         self.child_cmd, self.env = tuple(child), env
         self.phase = "starting"
         self.done, self.total = 0, _job_count()
@@ -104,6 +130,8 @@ class Warmup:
         self.compile_s: float | None = None
         self.load_s: float | None = None
         self.child: subprocess.Popen | None = None
+        self.bg: dict[str, Any] = {"phase": "none", "done": 0, "total": 0, "seconds": None}
+        self.bg_child: subprocess.Popen | None = None
         self.ready = threading.Event()
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -124,9 +152,10 @@ class Warmup:
         """
         self._stop.set()
         with self._lock:
-            child = self.child
-        if child is not None:
-            _end_group(child, 3.0)
+            children = (self.child, self.bg_child)
+        for child in children:
+            if child is not None:
+                _end_group(child, 3.0)
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
 
@@ -143,6 +172,15 @@ class Warmup:
                 "note": self.note,
             }
 
+    def background_dict(self) -> dict[str, Any]:
+        """The background compile (``stats``' ``compile``): phase, jobs done and total.
+
+        ``phase``: ``none`` (nothing to compile: the cache was warm, or first frame
+        first is off), ``compiling``, ``done`` or ``failed``; ``seconds`` once it ended.
+        """
+        with self._lock:
+            return dict(self.bg)
+
     def summary(self) -> str:
         """One line for the log once ready."""
         comp = "" if self.compile_s is None else f"child {self.compile_s:.1f} s, "
@@ -152,13 +190,17 @@ class Warmup:
 
     # ------------------------------------------------------------- thread
     def _run(self) -> None:
+        rest = False  # the child compiled only this service's jobs: the rest follow
         try:
-            ok = True if self.trust_stamp and is_warm() else self._child()
+            warm = self.trust_stamp and is_warm()
+            ok = True if warm else self._child(self.first if self.background else None)
+            rest = ok and not warm and self.background
             if self._stop.is_set():
                 return
             if not ok:
                 self._set(phase="compiling", done=0, note=self.note)
-            if self._in_process("loading" if ok else "compiling") == 0 and ok:
+            jobs = tuple(n for n in self.jobs if n in self.first) if rest else self.jobs
+            if self._in_process("loading" if ok else "compiling", jobs) == 0 and ok and not rest:
                 mark_warm()
         except _Abort:
             return
@@ -169,21 +211,63 @@ class Warmup:
         if not self._stop.is_set():
             self._set(phase="ready", done=self.total)
             self.ready.set()
+        if rest and not self._stop.is_set():
+            self._background()
 
     def _set(self, **fields: Any) -> None:
         with self._lock:
             for k, v in fields.items():
                 setattr(self, k, v)
 
-    def _child(self) -> bool:
-        """Run the child to the end; True when it filled the cache (exit 0)."""
+    def _background(self) -> None:
+        """Compile every other job in a low-priority child while the service runs."""
+        from service.warmup import JOBS
+
+        t0 = time.monotonic()
+        left = len([n for n in JOBS if n not in self.first])
+        self._set(bg={"phase": "compiling", "done": 0, "total": len(JOBS), "seconds": None})
+        self.log(f"ready first; compiling the other {left} warm-up jobs in the background "
+                 f"(nice {BACKGROUND_NICE}); stats: compile")
+        try:
+            proc = subprocess.Popen(
+                (*self.child_cmd, f"--nice={BACKGROUND_NICE}"), stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=self.env,
+                start_new_session=True,
+            )
+        except OSError as exc:
+            self._set(bg={**self.bg, "phase": "failed"})
+            self.log(f"background compile did not start ({exc}); kernels compile when first "
+                     "used")
+            return
+        with self._lock:
+            self.bg_child = proc
+        if self._stop.is_set():
+            _end_group(proc, 3.0)
+        with proc.stdout:
+            for line in proc.stdout:
+                with contextlib.suppress(ValueError):
+                    ev = json.loads(line)
+                    if isinstance(ev, dict) and ev.get("event") == "kernel":
+                        self._set(bg={**self.bg, "done": int(ev.get("done", 0))})
+        rc = proc.wait()
+        seconds = round(time.monotonic() - t0, 1)
+        phase = "done" if rc == 0 else "failed"
+        self._set(bg={**self.bg, "phase": phase, "seconds": seconds})
+        if not self._stop.is_set():
+            self.log(f"background compile {phase} after {seconds} s"
+                     + ("" if rc == 0 else f" (exit status {rc}); kernels compile when first "
+                        "used"))
+
+    def _child(self, only: tuple[str, ...] | None = None) -> bool:
+        """Run the child to the end (``only``: just these jobs); True when it exited 0."""
         t0 = time.monotonic()
         self._set(phase="compiling")
+        cmd = (*self.child_cmd, *(f"--job={name}" for name in only or ()))
         # stderr to a file, not a pipe: warnings there must never fill a pipe and stall it
         err_file = tempfile.TemporaryFile("w+")
         try:
             proc = subprocess.Popen(
-                self.child_cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                 stderr=err_file, text=True, env=self.env, start_new_session=True,
             )
         except OSError as exc:
@@ -222,7 +306,7 @@ class Warmup:
         word = "loading" if cached else "compiling"
         self.log(f"warming up: {word} {self.done}/{self.total} {self.step} ({how})")
 
-    def _in_process(self, phase: str) -> int:
+    def _in_process(self, phase: str, jobs: tuple[str, ...]) -> int:
         """The service's warm-up jobs in this process (loads what the child compiled).
 
         When one of them had to compile (the cache was not as warm as the stamp or
@@ -233,7 +317,7 @@ class Warmup:
         from service.warmup import JOBS, warm_up
 
         t0 = time.monotonic()
-        self._set(phase=phase, done=0, total=len(self.jobs))
+        self._set(phase=phase, done=0, total=len(jobs))
         offset = 0
 
         def progress(step: Any) -> None:
@@ -241,10 +325,10 @@ class Warmup:
                 raise _Abort
             self._set(done=offset + step.done, total=offset + step.total, step=step.name)
 
-        compiled = warm_up(progress, only=list(self.jobs)).compiled
-        rest = [name for name in JOBS if name not in self.jobs]
+        compiled = warm_up(progress, only=list(jobs)).compiled
+        rest = [name for name in JOBS if name not in jobs]
         if compiled and rest:
-            offset = len(self.jobs)
+            offset = len(jobs)
             self._set(phase="compiling", note="the cache lacked kernels; warming up every job")
             self.log(f"warming up: {self.note}")
             compiled += warm_up(progress, only=rest).compiled
@@ -272,6 +356,15 @@ def _job_count() -> int:
     except ImportError:
         return 0
     return len(JOBS)
+
+
+def _first_frame_jobs() -> tuple[str, ...]:
+    """A cold start's first jobs (none when the module is missing)."""
+    try:
+        from service.warmup import FIRST_FRAME_JOBS
+    except ImportError:
+        return ()
+    return FIRST_FRAME_JOBS
 
 
 def _service_jobs() -> tuple[str, ...]:

@@ -32,12 +32,12 @@ from typing import Any
 import numpy as np
 
 from service.display import DisplaySettings
-from service.numba_patches import faster_copy_propagation
+from service.numba_patches import apply_all as numba_patches
 from service.signals import end_process
 
 __all__ = [
-    "JOBS", "SERVICE_JOBS", "WarmupReport", "WarmupStep", "cache_counts", "cache_files",
-    "dispatchers", "read_record", "record_path", "warm_up", "write_record",
+    "FIRST_FRAME_JOBS", "JOBS", "SERVICE_JOBS", "WarmupReport", "WarmupStep", "cache_counts",
+    "cache_files", "dispatchers", "read_record", "record_path", "warm_up", "write_record",
 ]
 
 
@@ -388,19 +388,22 @@ class _Job:
     part: str
     #: a ``holo-service`` loads it before it is ready (:data:`SERVICE_JOBS`)
     service: bool = False
+    #: a cold ``holo-service`` compiles it before its first frame (:data:`FIRST_FRAME_JOBS`)
+    first_frame: bool = False
 
 
 #: The warm-up's jobs, in order: name -> job.  Each runs the real code path on tiny
 #: inputs, so the kernels compile for the types they are really called with.
 JOBS: dict[str, _Job] = {
-    "scenes: normals, triangulation": _Job(_scenes, FIRST),
-    "render zbuffer": _Job(_render("zbuffer"), FIRST, service=True),
+    "scenes: normals, triangulation": _Job(_scenes, FIRST, first_frame=True),
+    "render zbuffer": _Job(_render("zbuffer"), FIRST, service=True, first_frame=True),
     "light ambient": _Job(_render("zbuffer", "ambient"), FIRST),
     "light phong": _Job(_render("zbuffer", "phong"), FIRST),
-    "motion field": _Job(_motion(True, "blinn"), FIRST, service=True),
+    "motion field": _Job(_motion(True, "blinn"), FIRST, service=True, first_frame=True),
     "motion field, no colour motion": _Job(_motion(False, "ambient"), FIRST),
-    "galilean: refresh kernels, made-up map": _Job(_galilean_kernels, EARLY),
-    "galilean: service refresh": _Job(_galilean_service, APART, service=True),
+    "galilean: refresh kernels, made-up map": _Job(_galilean_kernels, EARLY, first_frame=True),
+    "galilean: service refresh": _Job(_galilean_service, APART, service=True,
+                                      first_frame=True),
     "galilean: game refresh": _Job(_galilean_game, APART),
     "galilean: orders, cache, margin": _Job(_galilean_variants, APART, service=True),
     "galilean: local updates": _Job(_galilean_local, APART),
@@ -412,7 +415,8 @@ JOBS: dict[str, _Job] = {
     "render raycast": _Job(_render("raycast"), HERE),
     "light vertex (Gouraud)": _Job(_render("zbuffer", "blinn", "vertex"), HERE),
     "light point (per pixel)": _Job(_render("zbuffer", "blinn", "point"), HERE),
-    "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE, service=True),
+    "autostereograms: row, interpolated, tiw": _Job(_autostereograms, HERE, service=True,
+                                                    first_frame=True),
     "level of detail, billboard clouds": _Job(_level_of_detail, HERE),
     "looking glass interleave": _Job(_lookingglass, HERE),
 }
@@ -427,6 +431,16 @@ JOBS: dict[str, _Job] = {
 #: handler: a warm start's in-process jobs took 1.7 s of CPU, these 0.6 s
 #: (2026-11-26, one numba thread, side by side on the loaded machine).
 SERVICE_JOBS: tuple[str, ...] = tuple(name for name, job in JOBS.items() if job.service)
+
+#: The jobs a ``holo-service`` on a cold cache compiles before its first frame
+#: (:mod:`service.readiness`, "first frame first"): the mesh builders of its scene,
+#: its render at the starting settings, the Galilean refresh at its starting order
+#: (with the made-up-map job, which compiles the refresh's stage kernels in the
+#: second process beside the render path) and the autostereogram encoding a client
+#: may ask for.  Every other job,
+#: the refresh's other orders and settings too, compiles in the background once the
+#: service is ready.
+FIRST_FRAME_JOBS: tuple[str, ...] = tuple(n for n, job in JOBS.items() if job.first_frame)
 
 
 # ------------------------------------------------------------ cache counters
@@ -618,7 +632,9 @@ def warm_up(
     -------
     WarmupReport
     """
-    faster_copy_propagation()  # before anything compiles: 12 % less CPU (docs/compile-time.md)
+    # before anything compiles: the same machine code at less CPU (docs/compile-time.md),
+    # and cache saves locked against other processes compiling into the same cache
+    numba_patches()
     names = [n for n in JOBS if only is None or n in only]
     kit = _Kit()
     report = _Progress(len(names), progress)

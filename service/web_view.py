@@ -34,6 +34,7 @@ import numpy as np
 from service.autostereogram.output import SirdOutput
 from service.errors import HoloError
 from service.frame import default_grid, depth_grey, quilt, view_strip
+from service.net import protocol
 from service.net.client import FrameSubscriber, ServiceClient
 
 #: The layouts a browser can ask for.
@@ -124,6 +125,8 @@ class Watcher:
         self.stats_error = ""
         self.viewer: dict[str, Any] | None = None
         self.alive = False
+        #: the frame stream's newest (status, warmup): heartbeats say so while warming up
+        self.heartbeat: tuple[str | None, dict | None] = (None, None)
         self.seen: dict[str, Any] = {}
         self.viewers: dict[str, float] = {}
         self._cache: dict[tuple, bytes] = {}
@@ -145,11 +148,17 @@ class Watcher:
             t.join(5)
 
     def _frames(self) -> None:
+        limit = protocol.HEARTBEAT_S * protocol.HEARTBEAT_LIVENESS
         with FrameSubscriber(self.settings.frames) as sub:
+            heard = -limit  # a message's arrival (a reconnect also resets last_heard)
             while not self._stop.is_set():
+                before = (sub.last_heard, sub.reconnects)
                 got = sub.latest(0.5)
+                if sub.reconnects == before[1] and sub.last_heard != before[0]:
+                    heard = sub.last_heard
                 with self.lock:
-                    self.alive = sub.alive
+                    self.alive = time.monotonic() - heard < limit
+                    self.heartbeat = (sub.status, sub.warmup)
                     if got is not None:
                         self.header, self.arrays = got
                         self.frames += 1
@@ -159,19 +168,29 @@ class Watcher:
     def _stats(self) -> None:
         client = ServiceClient(self.settings.control, timeout_s=1.0)
         try:
-            while not self._stop.wait(1.0):
-                try:
-                    stats, error = client.stats(), ""
+            while not self._stop.is_set():
+                stats, error = self._ask(client.stats)
+                viewer = None
+                if stats is not None and stats.get("status") != "warming_up":
                     # set_viewer without a pose or devices changes nothing, and answers
                     # with the pose in use (docs/protocol.md 1.5)
-                    viewer = client.set_viewer().get("viewer")
-                except Exception as exc:  # noqa: BLE001 - any failure is "no stats"
-                    stats, viewer = None, None
-                    error = str(exc).splitlines()[0] if str(exc) else repr(exc)
+                    viewer = (self._ask(client.set_viewer)[0] or {}).get("viewer")
                 with self.lock:
                     self.stats, self.stats_error, self.viewer = stats, error, viewer
+                self._stop.wait(1.0)
         finally:
             client.close()
+
+    @staticmethod
+    def _ask(request: Any) -> tuple[dict | None, str]:
+        """A request's reply and "", or None (a warming-up service: its progress) and why."""
+        try:
+            return request(), ""
+        except Exception as exc:  # noqa: BLE001 - any failure is "no reply"
+            error = str(exc).splitlines()[0] if str(exc) else repr(exc)
+            if getattr(exc, "warmup", None):  # warming up: no stats yet, but progress
+                return {"status": "warming_up", "warmup": exc.warmup}, error
+            return None, error
 
     def jpeg(self, layout: str, zone: int) -> tuple[int, bytes | None]:
         """The newest frame's number and its JPEG in ``layout`` (encoded once per frame)."""
@@ -201,15 +220,20 @@ class Watcher:
             h, stats = self.header or {}, self.stats
             now = time.monotonic()
             viewers = sum(1 for t in self.viewers.values() if now - t < 3.0)
+            beat_status, beat_warmup = self.heartbeat
+            warming = beat_status == "warming_up" or (stats or {}).get("status") == "warming_up"
             return {
-                "alive": self.alive and stats is not None,
+                # frames or heartbeats heard, or requests answered (a warming-up service
+                # answers stats with its progress; its heartbeats may lag on a busy host)
+                "alive": self.alive or stats is not None,
                 "frames": self.frames, "seq": h.get("seq"), "zone": h.get("zone"),
                 "zones": int(self.arrays["colour"].shape[0]) if "colour" in self.arrays else None,
                 "held": h.get("held") is True, "viewer": self.viewer,
                 "pose": {k: h.get(k) for k in ("pose_n", "pose_seq", "pose_t_ns")},
                 "refreshes_per_s": (stats or {}).get("refreshes_per_s"),
                 "updates_per_s": (stats or {}).get("updates_per_s"),
-                "status": (stats or {}).get("status"), "warmup": (stats or {}).get("warmup"),
+                "status": "warming_up" if warming else (stats or {}).get("status"),
+                "warmup": (stats or {}).get("warmup") or beat_warmup,
                 "stats": stats, "error": self.stats_error, "viewers": viewers,
                 "layouts": list(LAYOUTS), "seen": self.seen,
             }

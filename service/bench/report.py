@@ -187,9 +187,20 @@ PLANS = (
           "bunny's chain built in a thread of the rendering process (quadric decimation "
           "holds the GIL, frames wait), in a child process (as the service and the game "
           "build), and no build. Lower is better."}, "generic"),
+    # quick: the render path and the Galilean refresh kernels (the costliest job)
+    Plan("compile", "Compile time (empty numba cache)",
+         (("--job", "render zbuffer", "--job", "galilean: refresh kernels, made-up map"),),
+         ((),),
+         {"compile.png": "Top: each warm-up job's wall and CPU seconds from an empty numba "
+          "cache, one after the other (red: the 15 s budget a job); bottom: the costliest "
+          "kernel signatures' own CPU seconds. Shorter is better: a new user pays all of "
+          "it before the first frame."}, "compile"),
 )
 #: Benchmarks that may be registered under another name once they land.
 ALIASES = {"billboards": ("billboard", "billboard-cloud")}
+# benchmarks that another plan's benchmark runs as its last part (chaos.png is in the
+# service section), so the page has their figures without a plan of their own
+RUN_INSIDE = {"chaos": "service"}
 GENERIC_SENTENCE = "See the README's Benchmarks section for how to read this chart."
 
 
@@ -456,10 +467,31 @@ def _num(text: str):
         return text
 
 
+def compile_table(out: Path) -> Table:
+    """Cold compile: wall and CPU seconds per warm-up job, and the whole warm-up's."""
+    data = _load(out / "compile.json") or {}
+    budget = data.get("budget", {})
+    body = [[j["job"], _fmt(j["wall_s"]), _fmt(j["cpu_s"]), str(j["kernels"]),
+             "over" if j["job"] in data.get("over_budget", []) else "within"]
+            for j in data.get("jobs", [])]
+    w = data.get("whole")
+    if w:
+        over = w["wall_s"] > budget.get("whole_wall_s", float("inf"))
+        body.append(["whole holo-warmup (2 processes)", _fmt(w["wall_s"]), _fmt(w["cpu_s"]),
+                     "", "over" if over else "within"])
+    load = data.get("load", ["?", "?"])
+    return Table(["job", "wall s", "CPU s", "kernels", "budget"], body,
+                 f"From an empty numba cache, jobs one after the other in one process; load "
+                 f"{load[0]}-{load[1]} on {data.get('cores', '?')} cores (wall time stretches "
+                 f"with the load, CPU time much less). Budget: "
+                 f"{_fmt(budget.get('job_wall_s'))} s a job, "
+                 f"{_fmt(budget.get('whole_wall_s'))} s the whole warm-up on 2 quiet cores.")
+
+
 TABLES = {"render": render_table, "peers": peers_table, "light": light_table,
           "galilean": galilean_table, "sird": sird_table, "quality": quality_table,
           "decoders": decoders_table, "latency": latency_table, "filters": filters_table,
-          "generic": generic_table}
+          "generic": generic_table, "compile": compile_table}
 
 
 # ------------------------------------------------------------------ failure map
@@ -759,6 +791,7 @@ def run_all(args: argparse.Namespace, work: Path) -> tuple[list[Outcome], dict]:
 
     plans = [pl for pl in PLANS if args.only is None or pl.bench in args.only.split(",")]
     planned = {n for pl in PLANS for n in (pl.bench, *ALIASES.get(pl.bench, ()))}
+    planned |= set(RUN_INSIDE)
     unplanned = [n for n in BENCHES if n not in planned and n != "report"]
     wall0, cpu0 = time.perf_counter(), cpu_seconds()
     size = f"{args.size[0]}x{args.size[1]}"

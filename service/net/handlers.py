@@ -208,6 +208,7 @@ def stats(st: ServiceState, req: dict[str, Any]) -> tuple:
         last_refresh_error=st.last_refresh_error,
         lod=st.last_lod,
         session=st.session,
+        compile=st.warmup.background_dict() if st.warmup is not None else None,
         **st.status(),
     )
     return ({"stats": s},)

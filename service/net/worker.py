@@ -407,6 +407,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.nice > 0:
         os.nice(args.nice)
     worker = Worker(args.connect, args.curve_keys)
+    from service.numba_patches import locked_cache_saves
+
+    locked_cache_saves()  # a service's background compile may write the same cache
     if args.warm_up:
         from service.pipeline import warm_up
 

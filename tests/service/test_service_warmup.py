@@ -188,3 +188,58 @@ def test_warmup_lines_say_loading_for_a_cached_job_and_compiling_for_a_compiled_
         warmup.stop()
     assert "warming up: loading 1/2 a (cached)" in lines, lines
     assert "warming up: compiling 2/2 b (3.2 s)" in lines, lines
+
+
+@pytest.mark.timeout(120)
+def test_a_cold_warmup_compiles_the_services_jobs_first_and_the_rest_in_the_background(
+        tmp_path):
+    """First frame first: the child gets ``--job`` for the service's jobs only; once ready
+    a second child (every job, ``--nice``) runs in the background and ``compile`` says so."""
+    from service.readiness import BACKGROUND_NICE, Warmup
+
+    calls = tmp_path / "calls.jsonl"
+    gate = tmp_path / "go"  # the background child waits for it: its progress is seen first
+    script = (
+        "import json, os, sys, time\n"
+        f"open({str(calls)!r}, 'a').write(json.dumps(sys.argv[1:]) + '\\n')\n"
+        "if not any(a.startswith('--job=') for a in sys.argv[1:]):\n"
+        f"    print(json.dumps({{'event': 'kernel', 'done': 1, 'total': 2, 'name': 'x',"
+        " 'cached': False, 'seconds': 0.1}), flush=True)\n"
+        f"    while not os.path.exists({str(gate)!r}): time.sleep(0.01)\n"
+    )
+    job = "scenes: normals, triangulation"  # loads from the session's warm cache
+    lines: list[str] = []
+    warmup = Warmup(lines.append, child=(sys.executable, "-c", script), trust_stamp=False,
+                    jobs=(job, "mesh files: repair"), first=(job,))
+    warmup.start()
+    try:
+        assert warmup.ready.wait(100), warmup.as_dict()
+        assert warmup.as_dict()["phase"] == "ready"
+        assert wait_until(lambda: warmup.background_dict()["done"] == 1, HANG_S), \
+            warmup.background_dict()
+        assert warmup.background_dict()["phase"] == "compiling"
+        gate.write_text("")
+        assert wait_until(lambda: warmup.background_dict()["phase"] == "done", HANG_S), \
+            warmup.background_dict()
+    finally:
+        warmup.stop()
+    first, second = (json.loads(line) for line in calls.read_text().splitlines())
+    assert first == [f"--job={job}"]  # the first frame's jobs, nothing else, before ready
+    assert second == [f"--nice={BACKGROUND_NICE}"]  # every job, at low priority, after
+    assert warmup.background_dict()["seconds"] is not None
+    assert any("in the background" in ln for ln in lines), lines
+    assert any("background compile done" in ln for ln in lines), lines
+
+
+@pytest.mark.timeout(60)
+def test_a_warm_start_has_no_background_compile():
+    from service.readiness import Warmup
+
+    warmup = Warmup(child=(sys.executable, "-c", "pass"), trust_stamp=False, jobs=(),
+                    background=True)
+    warmup.start()
+    try:
+        assert warmup.ready.wait(50), warmup.as_dict()
+        assert warmup.background_dict()["phase"] == "none"
+    finally:
+        warmup.stop()

@@ -8,6 +8,7 @@ saying so; the HTTP tests run everywhere.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import shutil
@@ -17,7 +18,15 @@ import tempfile
 import urllib.request
 
 import pytest
-from testkit import HANG_S, SMALL_SERVICE, Proc, start_service, wait_until
+from testkit import (
+    HANG_S,
+    SMALL_SERVICE,
+    TINY_DISPLAY,
+    Proc,
+    launch_service,
+    start_service,
+    wait_until,
+)
 
 from service.net.client import ServiceClient
 from service.web_view import LAYOUTS
@@ -45,11 +54,11 @@ def service():
     svc.stop()
 
 
-@pytest.fixture
-def web(service):
-    """``holo-view --web --port 0`` on the service; yields its base URL."""
-    proc = Proc("drivers.cli_view", "--web", "--port", "0", "--service", service.control,
-                "--frames", service.frames)
+@contextlib.contextmanager
+def web_view(svc):
+    """``holo-view --web --port 0`` on ``svc``; yields its base URL."""
+    proc = Proc("drivers.cli_view", "--web", "--port", "0", "--service", svc.control,
+                "--frames", svc.frames)
     found = {}
 
     def bound() -> bool:
@@ -67,10 +76,28 @@ def web(service):
         assert proc.finish(HANG_S) == 143
 
 
+@pytest.fixture
+def web(service):
+    with web_view(service) as url:
+        yield url
+
+
+def test_a_warming_up_service_shows_its_progress(tmp_path):
+    svc = launch_service("--scene", "game", *TINY_DISPLAY[:-2],
+                         env={"NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")})
+    try:
+        with web_view(svc) as url:
+            assert wait_until(lambda: _status(url)["status"] == "warming_up", HANG_S)
+            status = _status(url)
+            assert status["alive"] and {"done", "total"} <= set(status["warmup"] or {}), status
+    finally:
+        svc.stop()
+
+
 def test_the_page_status_and_every_layout_are_served(web):
     kind, page = _get(web + "/")
     assert kind.startswith("text/html") and b"/stream.mjpg" in page
-    wait_until(lambda: _status(web)["alive"] and _status(web)["frames"] > 0, HANG_S)
+    assert wait_until(lambda: _status(web)["frames"] > 0 and _status(web)["stats"], HANG_S)
     status = _status(web)
     assert status["zones"] == 2 and status["stats"]["refreshes_per_s"] is not None
     for layout in LAYOUTS:

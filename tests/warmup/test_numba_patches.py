@@ -89,3 +89,134 @@ def test_leaves_another_numba_alone(numba_original, monkeypatch):
     monkeypatch.setattr(numba_patches, "COPY_PROPAGATE_SHA256", "0" * 64)
     assert numba_patches.faster_copy_propagation() is False
     assert parfor.copy_propagate is numba_original
+
+
+def _inlining_source():
+    """A fresh parallel kernel whose prange inlines a body with a loop and a branch twice."""
+
+    @nb.njit(inline="always")
+    def body(a, i, n):
+        s = 0.0
+        for k in range(n):
+            if a[i] > k:
+                s += a[i] - k
+            else:
+                t = s
+                s = t * 0.5
+        return s
+
+    def f(a, b, n):
+        for i in nb.prange(a.shape[0]):
+            b[i] = body(a, i, n) + body(a, i, n + 1)
+        return b
+
+    return nb.njit(parallel=True, cache=False)(f)
+
+
+def _same_names(asm: str) -> str:
+    """Machine code without what differs between two compiles of one source.
+
+    Each compile numbers its function (``...B2v17B...``; its name's length, in string
+    sizes, with it) and names its gufunc after an address (``0x7f...``): the lines
+    that name a symbol are left out, every instruction of the bodies stays.
+    """
+    return "\n".join(line for line in asm.splitlines() if "_ZN" not in line and "0x" not in line)
+
+
+@pytest.fixture
+def inline_original(monkeypatch):
+    """numba's own ``InlineWorker.inline_ir`` in place for the test (restored after)."""
+    from numba.core.inline_closurecall import InlineWorker
+
+    original = InlineWorker.inline_ir
+    original = getattr(original, "__wrapped__", original)
+    monkeypatch.setattr(InlineWorker, "inline_ir", original)
+    if numba_patches._source_digest(original) != numba_patches.INLINE_IR_SHA256:
+        pytest.skip(f"numba {nb.__version__}'s inline_ir is not the one the patch edits")
+    return original
+
+
+def test_inlining_with_one_memo_makes_the_same_machine_code(inline_original):
+    from numba.core.inline_closurecall import InlineWorker
+
+    a = np.linspace(-2.0, 5.0, 11)
+    theirs = _inlining_source()
+    want = theirs(a, np.empty_like(a), 5)
+    assert numba_patches.faster_inlining() is True
+    assert InlineWorker.inline_ir.__wrapped__ is inline_original
+    assert numba_patches.faster_inlining() is True  # idempotent
+    ours = _inlining_source()
+    np.testing.assert_array_equal(ours(a, np.empty_like(a), 5), want)
+    asm = [k.inspect_asm(k.signatures[0]) for k in (theirs, ours)]
+    assert "gufunc" in asm[0]  # the parallel loop's body is in it
+    body = _same_names(asm[0])
+    assert body.count("\n") > 100 and body == _same_names(asm[1])
+
+
+def test_inlining_leaves_another_numba_alone(inline_original, monkeypatch):
+    from numba.core.inline_closurecall import InlineWorker
+
+    monkeypatch.setattr(numba_patches, "INLINE_IR_SHA256", "0" * 64)
+    assert numba_patches.faster_inlining() is False
+    assert InlineWorker.inline_ir is inline_original
+
+
+_SAVER = '''
+import os, sys
+sys.path.insert(0, sys.argv[1])
+from service.numba_patches import locked_cache_saves
+assert locked_cache_saves()
+import kern
+print(kern.f._cache._cache_path, flush=True)
+sys.stdin.readline()
+print(kern.f(20), flush=True)
+'''
+
+
+def _waiting_for_a_lock(pid: int) -> bool:
+    """Whether ``pid`` waits for a file lock (``/proc/locks`` lists waiters with ``->``)."""
+    try:
+        lines = open("/proc/locks").read().splitlines()
+    except OSError:
+        return False
+    return any("->" in line and f" {pid} " in f" {line} " for line in lines)
+
+
+@pytest.mark.skipif(not __import__("os").path.exists("/proc/locks"), reason="needs /proc/locks")
+@pytest.mark.timeout(120)
+def test_a_cache_save_waits_while_another_process_holds_the_cache_lock(tmp_path):
+    """The index and data of a new signature are written only under the folder's lock."""
+    import fcntl
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from testkit import HANG_S, wait_until
+
+    (tmp_path / "kern.py").write_text(
+        "import numba\n\n@numba.njit(cache=True)\ndef f(n):\n    return n * (n + 1) // 2\n")
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=str(root))
+    child = subprocess.Popen([sys.executable, "-c", _SAVER, str(tmp_path)], env=env,
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        cache = Path(child.stdout.readline().strip())
+        cache.mkdir(parents=True, exist_ok=True)
+        fd = os.open(cache / numba_patches.CACHE_LOCK, os.O_RDWR | os.O_CREAT)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        try:
+            child.stdin.write("go\n")
+            child.stdin.flush()
+            # compiled, then blocked in the save: nothing of the kernel written yet
+            assert wait_until(lambda: _waiting_for_a_lock(child.pid), 90), "never waited"
+            assert not list(cache.glob("*.nb[ic]"))
+        finally:
+            os.close(fd)  # releases the lock
+        assert child.stdout.readline().strip() == "210"
+        assert child.wait(HANG_S) == 0
+        assert len(list(cache.glob("*.nbi"))) == 1 and len(list(cache.glob("*.nbc"))) == 1
+    finally:
+        child.kill()
+        child.wait()
