@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import tokenize
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
@@ -56,7 +57,9 @@ def read_npy(data: bytes) -> np.ndarray:
         version = npformat.read_magic(fp)
         if version not in _HEADERS:
             raise ValueError(f"format version {version} (read: 1.0, 2.0)")
-        shape, fortran, dtype = _HEADERS[version](fp)
+        with warnings.catch_warnings():  # a garbled header's '\\o' is damage, not a warning
+            warnings.simplefilter("ignore", (SyntaxWarning, DeprecationWarning))
+            shape, fortran, dtype = _HEADERS[version](fp)
     except _HEADER_ERRORS as exc:
         raise ValueError(f"not a readable .npy header ({type(exc).__name__}: {exc})"[:200]) \
             from None

@@ -8,6 +8,7 @@ LOD-cache readers go through these functions instead.
 from __future__ import annotations
 
 import io
+import warnings
 import zipfile
 
 import numpy as np
@@ -125,3 +126,13 @@ def test_an_npz_member_not_npy_is_named_even_when_its_bytes_are_an_array(tmp_pat
         z.writestr("notes.txt", _npy(np.ones(3)))
     with pytest.raises(ValueError, match=r"notes\.txt: not an \.npy member"):
         read_npz(path)
+
+
+def test_a_header_with_a_stray_escape_is_a_value_error_and_no_warning():
+    # ast.literal_eval of a garbled header warns "invalid escape sequence" (found by fuzzing)
+    data = _claim(_npy(np.zeros(3)), "'descr'", "'d\\o'")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(ValueError, match="not a readable .npy header"):
+            read_npy(data)
+    assert [str(w.message) for w in caught] == []
