@@ -38,12 +38,14 @@ from game.gameover import BURST_SECONDS, burst_derivatives, burst_records, explo
 from game.scene import apply_states
 from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.display import DisplaySettings
-from service.errors import SettingsError
+from service.errors import ServiceError, SettingsError
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.local_update import render_use_by
 from service.galilean.motion_field import render_with_motion
 from service.light import LightSettings
-from service.lod import LodState, lod_from
+from service.lod.settings import lod_from
+from service.lod.state import LodState
+from service.net.client import FrameSubscriber, ServiceClient, WarmingUpError
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
@@ -358,8 +360,6 @@ class ServiceBackend:
         timeout_s: float = 0.5,
         shatter: bool = True,
     ) -> None:
-        from service.net.client import FrameSubscriber, ServiceClient
-
         self.settings = settings or BackendSettings()
         self.devices = devices
         self.shatter = shatter
@@ -400,8 +400,6 @@ class ServiceBackend:
         A service that is warming up is not an error: ``warming`` says how far it is
         and the loop keeps trying.
         """
-        from service.net.client import WarmingUpError
-
         self._scene = scene
         try:
             self._connect()
@@ -444,8 +442,6 @@ class ServiceBackend:
 
     def _call(self, fn: Any, *args: Any) -> None:
         """Run a request; on failure mark the link down (the loop reconnects)."""
-        from service.errors import ServiceError
-
         if not self.connected:
             self._retry()
             return
@@ -456,9 +452,6 @@ class ServiceBackend:
             self._next_try = time.monotonic() + 0.5
 
     def _retry(self) -> None:
-        from service.errors import ServiceError
-        from service.net.client import WarmingUpError
-
         if time.monotonic() < self._next_try:
             return
         self._next_try = time.monotonic() + 0.5
@@ -526,8 +519,6 @@ class ServiceBackend:
         ``lod_reply_s`` (:data:`LOD_REPLY_S`) is dropped (``stats_dropped``) and the next period
         asks again; an error reply is left to the frame stream to notice.
         """
-        from service.errors import ServiceError
-
         s, now = self.settings, time.monotonic()
         if not self.connected or (s.lod_error <= 0 and s.lod_budget_ms <= 0):
             return []

@@ -39,7 +39,7 @@ from service.cli_args import (
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.light import MODELS as LIGHT_MODELS
-from service.lod_cli import add_lod_options, lod_settings
+from service.lod.options import add_lod_options, lod_settings
 from service.lookingglass import DEFAULT_VIEWS, Interleaver, parse_display
 from service.process import setup_frame_process
 from service.signals import (

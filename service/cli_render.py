@@ -38,7 +38,7 @@ from service.errors import HoloError, SettingsError
 from service.frame import Frame, write_quilt, write_strip, write_zones
 from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import MESH_LOADERS, SCENE_EXTENSIONS, load_scene
-from service.lod_cli import add_lod_options, budget_frames, lod_settings, lod_state
+from service.lod.options import add_lod_options, budget_frames, lod_settings, lod_state
 from service.lookingglass import DEFAULT_VIEWS, Calibration, Interleaver, parse_display
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up

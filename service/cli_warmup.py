@@ -28,8 +28,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from service.cli_args import int_range, plain_help
-from service.kernel_cache import drop_stale
-from service.readiness import mark_warm
+from service.kernel_cache import drop_stale, mark_warm
 from service.signals import EXIT_RULE, end_with_parent, interruptible
 from service.warmup import JOBS, cache_files, warm_up, write_record
 

@@ -21,12 +21,18 @@ nothing to drop.
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import json
 import os
 import re
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["StaleKernel", "cache_dir_of", "drop_stale", "module_imports", "stale_kernels"]
+import numba
+
+__all__ = ["StaleKernel", "cache_dir_of", "drop_stale", "fingerprint", "is_warm", "mark_warm",
+           "module_imports", "stale_kernels", "stamp_path"]
 
 #: The package whose kernels are checked (all of the project's numba code is in it).
 PACKAGE = "service"
@@ -196,3 +202,40 @@ def drop_stale(root: Path | None = None, package: str = PACKAGE) -> list[StaleKe
             with contextlib.suppress(OSError):
                 path.unlink()
     return stale
+
+
+def stamp_path() -> Path:
+    """Where the warm-cache stamp lives: beside numba's cache."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    base = Path(root) if root else Path(__file__).resolve().parent / "__pycache__"
+    return base / "holo-warmup-stamp.json"
+
+
+def fingerprint() -> dict[str, str]:
+    """What the cache was filled for: the ``service`` sources, numba and Python."""
+    pkg = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(pkg.rglob("*.py")):
+        st = path.stat()
+        h.update(f"{path.relative_to(pkg)}:{st.st_mtime_ns}:{st.st_size}\n".encode())
+    return {"sources": h.hexdigest(), "numba": numba.__version__, "python": sys.version}
+
+
+def is_warm() -> bool:
+    """Whether a warm-up found every kernel cached since the sources last changed."""
+    try:
+        return json.loads(stamp_path().read_text()) == fingerprint()
+    except (OSError, ValueError):
+        return False
+
+
+def mark_warm() -> None:
+    """Write the stamp (after a warm-up that filled, or found, every kernel cached)."""
+    path = stamp_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(fingerprint()))
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only cache: the next start goes through the child again

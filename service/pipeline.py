@@ -25,7 +25,8 @@ from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.frame import Frame
 from service.light import LightSettings, mark_shown, shade
-from service.lod import LodSettings, LodState
+from service.lod.settings import LodSettings
+from service.lod.state import LodState
 from service.occlusion import Visibility
 from service.occlusion.bsp import BspCache, bsp
 from service.occlusion.raycast import raycast

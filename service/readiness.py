@@ -42,18 +42,18 @@ heartbeats go on).  :meth:`Warmup.as_dict` is what replies and heartbeats carry.
 
 **A warm cache skips the child.**  Starting a Python process that imports numba and
 loads 60 kernels costs seconds (14 s on a loaded 2-core machine), on every start.
-So once a warm-up has found every kernel in the cache, :func:`mark_warm` writes a
-small JSON stamp beside the cache (``holo-warmup-stamp.json`` in ``NUMBA_CACHE_DIR``,
-else in ``service/__pycache__``) naming the sources (every ``service`` module's
-size and mtime), numba's and Python's versions.  While the stamp matches
-(:func:`is_warm`), the service goes straight to step 3.  Any edit of a module, a
-new numba or an emptied cache voids it.  ``holo-warmup`` writes it too.
+So once a warm-up has found every kernel in the cache, it writes a small JSON stamp
+beside the cache (:func:`service.kernel_cache.mark_warm`: ``holo-warmup-stamp.json``
+in ``NUMBA_CACHE_DIR``, else in ``service/__pycache__``) naming the sources (every
+``service`` module's size and mtime), numba's and Python's versions.  While the stamp
+matches (:func:`service.kernel_cache.is_warm`), the service goes straight to step 3.
+Any edit of a module, a new numba or an emptied cache voids it.  ``holo-warmup``
+writes it too.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import signal
@@ -63,10 +63,11 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
+from service.kernel_cache import is_warm, mark_warm
 from service.signals import end_process
+from service.warmup import FIRST_FRAME_JOBS, JOBS, SERVICE_JOBS, warm_up
 
 #: The phases in order; ``ready`` and ``failed`` are final.
 PHASES = ("starting", "compiling", "loading", "ready", "failed")
@@ -117,13 +118,13 @@ class Warmup:
     ) -> None:
         self.log = log or (lambda line: None)
         self.trust_stamp = trust_stamp
-        self.jobs = _service_jobs() if jobs is None else tuple(jobs)
+        self.jobs = SERVICE_JOBS if jobs is None else tuple(jobs)
         self.first = tuple(first) if first is not None else (
-            _first_frame_jobs() if jobs is None else self.jobs)
+            FIRST_FRAME_JOBS if jobs is None else self.jobs)
         self.background = background and bool(self.first)
         self.child_cmd, self.env = tuple(child), env
         self.phase = "starting"
-        self.done, self.total = 0, _job_count()
+        self.done, self.total = 0, len(JOBS)
         self.step = ""
         self.note = ""
         self.t0 = time.monotonic()
@@ -221,8 +222,6 @@ class Warmup:
 
     def _background(self) -> None:
         """Compile every other job in a low-priority child while the service runs."""
-        from service.warmup import JOBS
-
         t0 = time.monotonic()
         left = len([n for n in JOBS if n not in self.first])
         self._set(bg={"phase": "compiling", "done": 0, "total": len(JOBS), "seconds": None})
@@ -314,8 +313,6 @@ class Warmup:
         compiles later inside the refresh loop.  Returns the number of jobs that
         had to compile (0: all came from the cache).
         """
-        from service.warmup import JOBS, warm_up
-
         t0 = time.monotonic()
         self._set(phase=phase, done=0, total=len(jobs))
         offset = 0
@@ -349,68 +346,3 @@ def _end_group(proc: subprocess.Popen, timeout_s: float) -> None:
     end_process(proc, timeout_s)
 
 
-def _job_count() -> int:
-    """The number of warm-up jobs (0 when :mod:`service.warmup` is missing)."""
-    try:
-        from service.warmup import JOBS
-    except ImportError:
-        return 0
-    return len(JOBS)
-
-
-def _first_frame_jobs() -> tuple[str, ...]:
-    """A cold start's first jobs (none when the module is missing)."""
-    try:
-        from service.warmup import FIRST_FRAME_JOBS
-    except ImportError:
-        return ()
-    return FIRST_FRAME_JOBS
-
-
-def _service_jobs() -> tuple[str, ...]:
-    """The jobs a service loads before it is ready (none when the module is missing)."""
-    try:
-        from service.warmup import SERVICE_JOBS
-    except ImportError:
-        return ()
-    return SERVICE_JOBS
-
-
-# ------------------------------------------------------------------ stamp
-def stamp_path() -> Path:
-    """Where the warm-cache stamp lives: beside numba's cache."""
-    root = os.environ.get("NUMBA_CACHE_DIR")
-    base = Path(root) if root else Path(__file__).resolve().parent / "__pycache__"
-    return base / "holo-warmup-stamp.json"
-
-
-def fingerprint() -> dict[str, str]:
-    """What the cache was filled for: the ``service`` sources, numba and Python."""
-    import numba
-
-    pkg = Path(__file__).resolve().parent
-    h = hashlib.sha256()
-    for path in sorted(pkg.rglob("*.py")):
-        st = path.stat()
-        h.update(f"{path.relative_to(pkg)}:{st.st_mtime_ns}:{st.st_size}\n".encode())
-    return {"sources": h.hexdigest(), "numba": numba.__version__, "python": sys.version}
-
-
-def is_warm() -> bool:
-    """Whether a warm-up found every kernel cached since the sources last changed."""
-    try:
-        return json.loads(stamp_path().read_text()) == fingerprint()
-    except (OSError, ValueError):
-        return False
-
-
-def mark_warm() -> None:
-    """Write the stamp (after a warm-up that filled, or found, every kernel cached)."""
-    path = stamp_path()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(fingerprint()))
-        os.replace(tmp, path)
-    except OSError:
-        pass  # a read-only cache: the next start goes through the child again

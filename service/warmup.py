@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from service.display import DisplaySettings
+from service.kernel_cache import fingerprint, stamp_path
 from service.numba_patches import apply_all as numba_patches
 from service.signals import end_process
 
@@ -345,7 +346,8 @@ def _level_of_detail(kit: _Kit) -> None:
 
     from service.billboard_render import BillboardObject
     from service.galilean.motion_field import render_with_motion
-    from service.lod import LodSettings, LodState
+    from service.lod.settings import LodSettings
+    from service.lod.state import LodState
     from service.pipeline import Renderer, RenderSettings
 
     scene = kit.scene()
@@ -495,8 +497,6 @@ def cache_files() -> dict[str, list[int]]:
 
 def record_path() -> Path:
     """Where :func:`write_record` keeps the last full warm-up's record."""
-    from service.readiness import stamp_path
-
     return stamp_path().parent / RECORD_NAME
 
 
@@ -509,8 +509,6 @@ def write_record(empty_at_start: bool, events: list[dict]) -> None:
     this way instead of compiling every kernel a second time).  A read-only cache
     gets no record.
     """
-    from service.readiness import fingerprint
-
     path = record_path()
     record = {"fingerprint": fingerprint(), "empty_at_start": empty_at_start,
               "jobs": list(JOBS), "events": events, "files": cache_files()}
@@ -529,8 +527,6 @@ def read_record() -> dict | None:
     It does while the sources, numba and Python are those it was made with, it ran
     every job of :data:`JOBS`, and the cache's files are exactly those it left.
     """
-    from service.readiness import fingerprint
-
     try:
         record = json.loads(record_path().read_text())
     except (OSError, ValueError):

@@ -75,8 +75,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     own deadline: a service a test starts would miss its ready deadline on a busy
     machine.  ``make test`` runs the warm-up just before, so this finds it warm.
     """
-    from service.kernel_cache import drop_stale
-    from service.readiness import is_warm
+    from service.kernel_cache import drop_stale, is_warm
 
     config = session.config
     if _xdist_worker(config):

@@ -158,3 +158,56 @@ def test_every_exception_class_joins_the_one_hierarchy():
                     and not cls_name.startswith("_")):
                 outside.append(f"{name}.{cls_name}")
     assert not outside, f"not HoloErrors: {outside}"
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles of ``graph`` (module -> modules it imports), as module lists."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = [stack.pop()]
+            while comp[-1] != v:
+                comp.append(stack.pop())
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    """Every module -> the modules of ours it imports (inside functions too).
+
+    A module's own packages are left out: importing ``a.b.c`` runs ``a/b/__init__``
+    first, which is not a cycle of the code's making.
+    """
+    return {name: {i for i in imports if _is_module(i) and i != name
+                   and not name.startswith(i + ".")}
+            for name, (imports, _) in MODULES.items()}
+
+
+def test_no_import_cycles():
+    # an import inside a function hides a cycle until run time; there are none
+    assert _cycles(_graph()) == []
+
+
+def test_the_cycle_finder_finds_a_cycle_through_a_function_import():
+    a = _imports(ast.parse("from service.lod.cache import read_chain\n"))
+    b = _imports(ast.parse("def f():\n    from service.lod.state import LodState\n"))
+    graph = {"service.lod.state": {i for i in a if _is_module(i)},
+             "service.lod.cache": {i for i in b if _is_module(i)}}
+    assert _cycles(graph) == [["service.lod.cache", "service.lod.state"]]

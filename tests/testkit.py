@@ -424,7 +424,7 @@ def copy_numba_cache(dst: Path) -> None:
     from numba.core.caching import _CacheLocator
 
     import service.warmup
-    from service.readiness import stamp_path
+    from service.kernel_cache import stamp_path
     from service.warmup import cache_files, record_path
 
     root = os.environ.get("NUMBA_CACHE_DIR")

@@ -20,7 +20,9 @@ from service.bench.lod_bench import LIGHTS, MATERIAL, MESHES
 from service.billboard_render import BillboardObject
 from service.display import DisplaySettings
 from service.light import LightSettings
-from service.lod import LodSettings, build_chain, pixels_per_unit, select_levels
+from service.lod.cache import build_chain
+from service.lod.select import pixels_per_unit, select_levels
+from service.lod.settings import LodSettings
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene, SceneObject, Transform, euler_quaternion, quaternion_matrix
 

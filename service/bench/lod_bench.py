@@ -58,7 +58,9 @@ from service.cli_args import add_size_option, exit_rule_epilog, float_range, int
 from service.display import DisplaySettings
 from service.light import LightSettings
 from service.loaders import fit_transform, load_mesh
-from service.lod import LodSettings, build_chain, pixels_per_unit
+from service.lod.cache import build_chain
+from service.lod.select import pixels_per_unit
+from service.lod.settings import LodSettings
 from service.mesh import Mesh
 from service.pipeline import Renderer, RenderSettings, warm_up
 from service.primitives import attacker, torus

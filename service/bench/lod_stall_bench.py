@@ -3,10 +3,10 @@
 A renderer draws a small scene (three tori, the service test's 5 x 160 x 120 by
 default) frame after frame while the bunny's chain is built beside it, no cache:
 
-* ``thread``: :func:`service.lod.build_chain` in a thread of this process at nice +5
+* ``thread``: :func:`service.lod.cache.build_chain` in a thread of this process at nice +5
   (how a build without a cache folder ran until the builds moved to a child; quadric
   decimation holds the GIL for 20-40 ms a call, so a frame waits for it);
-* ``child``: :class:`service.lod_build.ChainBuilds` (the build in a child process,
+* ``child``: :class:`service.lod.builds.ChainBuilds` (the build in a child process,
   the chain handed back through a temporary folder), as the service and the game do;
 * ``idle``: no build, the frames alone.
 
@@ -34,8 +34,10 @@ from service.bench.rows import write_csv
 from service.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.display import DisplaySettings
 from service.loaders import load_mesh
-from service.lod import BUILD_NICE, LodError, LodSettings, build_chain, mesh_key
-from service.lod_build import ChainBuilds
+from service.lod.builds import ChainBuilds
+from service.lod.cache import build_chain
+from service.lod.chain import mesh_key
+from service.lod.settings import BUILD_NICE, LodError, LodSettings
 from service.mesh import Mesh
 from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus

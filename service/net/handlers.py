@@ -23,11 +23,11 @@ from service.net.state import (
     ENCODINGS,
     MAX_INDEX,
     SIRD_METHODS,
-    VIEWER_POSE_FIELDS,
     ServiceState,
     Settings,
     State,
 )
+from service.net.viewer import VIEWER_POSE_FIELDS
 from service.pipeline import METHOD_NAMES
 from service.quality import MODES as QUALITY_MODES
 from service.quality import parse_budget

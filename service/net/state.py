@@ -24,7 +24,8 @@ from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings
 from service.light import LightSettings
-from service.net import protocol, wire
+from service.net import protocol
+from service.net.viewer import ViewerTracker
 from service.scene import Scene
 
 if TYPE_CHECKING:
@@ -32,7 +33,6 @@ if TYPE_CHECKING:
 
     from service.net.broker import Broker, FramePipe
     from service.net.frame_stream import FrameStream
-    from service.net.refresh import ViewerTracker
     from service.net.supervisor import Supervisor
     from service.readiness import Warmup
 
@@ -41,8 +41,6 @@ ENCODINGS = ("colour", "depth", "debris", "autostereogram")
 #: SIRD methods of the ``autostereogram`` encoding (service.autostereogram).
 SIRD_METHODS = ("tiw", "row", "interpolated")
 DEFAULT_WORKER_ADDRESS = "tcp://127.0.0.1:5557"
-#: ``set_viewer`` keys of a pose (the other form names ``devices``).
-VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)
 #: the largest object index a request may name (an int64); past the scene's end: not_found.
 MAX_INDEX = 2**63 - 1
 #: What a warming-up service answers as usual (with its ``status``); every other
@@ -167,12 +165,6 @@ class Settings:
         }
 
 
-def _new_viewer() -> ViewerTracker:
-    from service.net.refresh import ViewerTracker  # refresh imports this module
-
-    return ViewerTracker()
-
-
 @dataclass
 class State:
     """Everything the three loops share (guard with ``lock``)."""
@@ -185,7 +177,7 @@ class State:
     #: and the render replies' ``scene``; ``docs/protocol.md`` 2)
     scene_load: int = 0
     devices: str | None = None
-    viewer: ViewerTracker = field(default_factory=_new_viewer)
+    viewer: ViewerTracker = field(default_factory=ViewerTracker)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 

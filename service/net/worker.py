@@ -39,7 +39,8 @@ from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.light import LightSettings
-from service.lod import LodState, lod_from
+from service.lod.settings import lod_from
+from service.lod.state import LodState
 from service.net import protocol, wire
 from service.pipeline import Renderer, RenderSettings, StageClock
 from service.process import setup_frame_process

@@ -54,7 +54,7 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, target_fraction: float,
         In (0, 1]; 1 returns the mesh unchanged (error 0).
     agg : int
         fast-simplification's aggressiveness (its default 7; lower collapses more
-        carefully: the LOD chain uses 4, see :data:`service.lod.QUADRIC_AGG`).
+        carefully: the LOD chain uses 4, see :data:`service.lod.settings.QUADRIC_AGG`).
 
     Returns
     -------

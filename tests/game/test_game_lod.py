@@ -75,7 +75,8 @@ def test_budget_ms_reaches_the_service(service_factory, setup_from_args, tmp_pat
 def _tear_ship_cache(folder):
     """A torn cache file of the ship's chain (arrays without their header): a note."""
     from game.scene import game_scene
-    from service.lod import LodSettings, mesh_key
+    from service.lod.chain import mesh_key
+    from service.lod.settings import LodSettings
 
     key = mesh_key(game_scene(1).objects[0].mesh, LodSettings().recipe)
     folder.mkdir(parents=True, exist_ok=True)
@@ -154,7 +155,8 @@ def test_closing_the_local_renderer_ends_a_chain_build_at_once(setup_from_args, 
     from testkit import held_lock, wait_for
 
     from game.scene import game_scene
-    from service.lod import LodSettings, mesh_key
+    from service.lod.chain import mesh_key
+    from service.lod.settings import LodSettings
 
     keys = {mesh_key(o.mesh, LodSettings().recipe) for o in game_scene(1).objects}
     with contextlib.ExitStack() as held:

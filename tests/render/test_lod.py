@@ -1,4 +1,4 @@
-"""Level of detail (service/lod.py): the selector's promises, the cache, the pipeline hook.
+"""Level of detail (service/lod/): the selector's promises, the cache, the pipeline hook.
 
 Where it can fail: a level over the error budget, a measured screen error larger than
 the predicted one, flicker at a threshold, a stale or corrupt cache file, bad settings.
@@ -17,16 +17,11 @@ from hypothesis import strategies as st
 
 from service.display import DisplaySettings
 from service.errors import SettingsError
-from service.lod import (
-    FrameCost,
-    LodCacheWarning,
-    LodSettings,
-    LodState,
-    build_chain,
-    degrade_to_budget,
-    pixels_per_unit,
-    select_levels,
-)
+from service.lod.cache import build_chain
+from service.lod.cost import FrameCost
+from service.lod.select import degrade_to_budget, pixels_per_unit, select_levels
+from service.lod.settings import LodCacheWarning, LodSettings
+from service.lod.state import LodState
 from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
 from service.scene import Scene, SceneObject, Transform, euler_quaternion
@@ -339,7 +334,7 @@ def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path, monk
 
     (Without the budget's dead band, which aims 10 % under the budget: see below.)
     """
-    monkeypatch.setattr("service.lod.BUDGET_BAND", 0.0)
+    monkeypatch.setattr("service.lod.state.BUDGET_BAND", 0.0)
     display = DisplaySettings(zones=3, cols=160, rows=120)
     places = [(-0.6, -0.2, 1.0), (-0.2, -2.0, 1.0), (0.2, -0.2, 0.3), (0.6, -2.0, 0.3)]
     scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, z]), scale=s),
@@ -364,7 +359,7 @@ def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path, monk
 def test_an_unwritable_cache_warns_and_still_renders(ring, tmp_path, monkeypatch):
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("a file where the cache folder should be")
-    from service.lod import LodCacheWarning
+    from service.lod.settings import LodCacheWarning
 
     with pytest.warns(LodCacheWarning, match="not written"):
         chain = build_chain(ring, cache=blocker / "lod")
@@ -476,7 +471,7 @@ def test_the_chosen_levels_stay_within_their_prediction_supersampled(tmp_path):
 
 def test_a_level_before_an_error_jump_goes_to_its_plateau_end():
     """Error 1 down to 20 % of the triangles, then 3: the 40 % level moves towards 20 %."""
-    from service.lod import _plateau_ends
+    from service.lod.chain import _plateau_ends
     from service.mesh import Mesh
 
     def level(frac: float):

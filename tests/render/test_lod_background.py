@@ -14,7 +14,10 @@ import pytest
 from testkit import held_lock
 
 from service.display import DisplaySettings
-from service.lod import LodCacheWarning, LodSettings, LodState, build_chain, mesh_key, read_chain
+from service.lod.cache import build_chain, read_chain
+from service.lod.chain import mesh_key
+from service.lod.settings import LodCacheWarning, LodSettings
+from service.lod.state import LodState
 from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
 from service.scene import Scene, SceneObject, Transform

@@ -5,7 +5,7 @@ a transient one (the build process killed, a full disk) never retried; a frame t
 draws anything but the full mesh while its chain is missing; a build without a cache
 folder run in the rendering process (its GIL stalls renders).
 
-Every build here is a real child process (``python -m service.lod_build``).  Faults
+Every build here is a real child process (``python -m service.lod.builds``).  Faults
 come from outside it: its environment (a ``fast_simplification`` module that cannot
 be imported, or whose import raises OSError, put first on its ``PYTHONPATH``), a
 signal, a cache path that is a file.  A build is held back by holding its lock file,
@@ -21,8 +21,10 @@ import pytest
 from testkit import held_lock, posix_only, wait_until
 
 from service.display import DisplaySettings
-from service.lod import LodSettings, LodState, mesh_key
-from service.lod_build import ChainBuilds
+from service.lod.builds import ChainBuilds
+from service.lod.chain import mesh_key
+from service.lod.settings import LodSettings
+from service.lod.state import LodState
 from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
 from service.scene import Scene, SceneObject, Transform

@@ -16,7 +16,9 @@ from pathlib import Path
 import pytest
 from testkit import held_lock, wait_for
 
-from service.lod import LodSettings, _build_lock, build_chain, mesh_key, write_chain
+from service.lod.cache import _build_lock, build_chain, write_chain
+from service.lod.chain import mesh_key
+from service.lod.settings import LodSettings
 from service.primitives import torus
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),

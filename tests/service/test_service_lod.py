@@ -14,7 +14,8 @@ from testkit import HANG_S, shared_fixture, wait_until
 
 from service.errors import ServiceError
 from service.loaders import load_scene
-from service.lod import LodSettings, mesh_key
+from service.lod.chain import mesh_key
+from service.lod.settings import LodSettings
 from service.net.client import ServiceClient
 
 BUNNY = shared_fixture("meshes/bunny.ply")
@@ -54,7 +55,7 @@ def test_lod_error_turns_level_of_detail_on_and_off(service_factory, tmp_path, m
 NO_SIMPLIFIER_IN_BUILDS = """
 import importlib, os, sys
 main = getattr(sys.modules.get("__main__"), "__spec__", None)
-if main is not None and main.name == "service.lod_build":
+if main is not None and main.name == "service.lod.builds":
     raise ImportError("simplifier left out of the build process")
 here = os.path.dirname(os.path.abspath(__file__))
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != here]

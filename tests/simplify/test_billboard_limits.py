@@ -17,7 +17,8 @@ from service.bench.lod_bench import silhouette_px
 from service.billboard_render import BillboardObject, draw_billboards
 from service.display import DisplaySettings
 from service.light import LightSettings
-from service.lod import cloud_error, pixels_per_unit, select_levels
+from service.lod.chain import cloud_error
+from service.lod.select import pixels_per_unit, select_levels
 from service.occlusion import Visibility
 from service.pipeline import Renderer
 from service.primitives import sphere

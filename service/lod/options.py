@@ -13,13 +13,15 @@ from typing import TextIO
 from service.cli_args import float_range
 from service.display import DisplaySettings
 from service.frame import Frame
-from service.lod import LodSettings, LodState, cache_dir
+from service.lod.cache import cache_dir
+from service.lod.settings import LodSettings
+from service.lod.state import LodState
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
 #: Frames ``holo-render`` draws when given ``--budget-ms``: a render with nothing
 #: measured is chosen by error alone, so the first ones measure the renderer's cost
-#: model (:class:`service.lod.FrameCost`) and the last one is written.
+#: model (:class:`service.lod.cost.FrameCost`) and the last one is written.
 BUDGET_FRAMES = 3
 
 
@@ -91,7 +93,7 @@ class ChainProgress:
         self._name: str | None = None
 
     def __call__(self, name: str, done: int, planned: int) -> None:
-        """``progress`` of :class:`service.lod.LodState`: ``done`` of ``planned`` decimations."""
+        """``progress`` of :class:`~service.lod.state.LodState`: ``done`` of ``planned``."""
         tty = self.stream.isatty()
         if name != self._name or done == 1:
             self.end()

@@ -1,7 +1,7 @@
 """Level-of-detail chains built off the render path, each in a child process of its own.
 
-:class:`ChainBuilds` (used by :class:`service.lod.LodState` with ``background``) runs
-``python -m service.lod_build MESH.npz FOLDER OUT RECIPE.json PARENT_PID`` for a chain
+:class:`ChainBuilds` (used by :class:`service.lod.state.LodState` with ``background``) runs
+``python -m service.lod.builds MESH.npz FOLDER OUT RECIPE.json PARENT_PID`` for a chain
 that is neither in memory nor in the cache, one at a time, from a daemon thread.
 Quadric decimation (fast-simplification) holds the GIL for 20-40 ms a call on the
 bunny: in a thread of the rendering process it stalled renders and the service's
@@ -11,10 +11,10 @@ folder or without one.
 **The child.**  The mesh's arrays come in a numpy file (``vertices``, ``polygons``,
 ``counts``; read with ``allow_pickle=False``), the chain's settings as JSON
 (``fractions``, ``cloud_eps``, ``texture_res``, ``name``).  ``FOLDER`` is the cache
-folder (``-`` for none): the chain is built there (:func:`service.lod.build_chain`,
+folder (``-`` for none): the chain is built there (:func:`service.lod.cache.build_chain`,
 which takes its lock file).  Where it is not in the cache afterwards (no cache, or
 the folder could not be written) the child writes it to ``OUT``, a temporary folder
-of the parent's, in the cache's own format (:func:`service.lod.write_chain`: numpy
+of the parent's, in the cache's own format (:func:`service.lod.cache.write_chain`: numpy
 files and JSON, no pickle).  On stdout, one line each: ``note: TEXT`` for what went
 wrong with the cache, then ``levels: N`` and ``folder: PATH`` (where to read it).
 A build that fails says why in one line on stderr and exits :data:`EXIT_FAILED` (the
@@ -46,18 +46,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.lod import (
-    BUILD_NICE,
-    NOTES_KEPT,
-    LodChain,
-    LodError,
-    LodSettings,
-    build_chain,
-    cache_dir,
-    full_only,
-    read_chain,
-    write_chain,
-)
+from service.lod.cache import build_chain, cache_dir, read_chain, write_chain
+from service.lod.chain import LodChain, full_only
+from service.lod.settings import BUILD_NICE, NOTES_KEPT, LodError, LodSettings
 from service.mesh import Mesh
 from service.signals import end_with_parent
 
@@ -94,7 +85,7 @@ class _Job:
 class ChainBuilds:
     """Chains built off the render path: a daemon thread while any is queued, one at a time.
 
-    :meth:`service.lod.LodState.chain` (with ``background``) hands a mesh whose chain
+    :meth:`service.lod.state.LodState.chain` (with ``background``) hands a mesh whose chain
     is neither in memory nor in the cache to :meth:`submit` and draws the full mesh
     meanwhile; each frame it asks :meth:`take` whether the chain is done.  Each chain
     is built in a child process (see the module notes), at :data:`BUILD_NICE`.
@@ -102,7 +93,7 @@ class ChainBuilds:
     Parameters
     ----------
     cache : Path, True or False
-        As :func:`service.lod.build_chain`'s ``cache``.
+        As :func:`service.lod.cache.build_chain`'s ``cache``.
     retry_s : tuple of float
         Waits before the retries of a build that failed for a reason that may pass.
     """
@@ -231,7 +222,7 @@ class ChainBuilds:
             recipe = {"fractions": list(job.settings.fractions),
                       "cloud_eps": list(job.settings.cloud_eps),
                       "texture_res": job.settings.texture_res, "name": mesh.name}
-            args = [sys.executable, "-m", "service.lod_build", str(src),
+            args = [sys.executable, "-m", "service.lod.builds", str(src),
                     str(folder) if folder is not None else NO_CACHE, str(out / "chain"),
                     json.dumps(recipe), str(os.getpid())]
             with self._lock:
