@@ -218,8 +218,15 @@ def measure(
     on_wait: Callable[[object], None] = lambda backend: None,
     clock: Callable[[], float] = time.monotonic,
     tick_s: float = 1 / 30,
+    busy: Callable[[], str | None] = lambda: None,
+    busy_wait_s: float = 180.0,
+    on_busy: Callable[[str], None] = lambda why: None,
 ) -> float:
     """Renders a second a started backend grafts while the objects move.
+
+    A rate measured while the service compiles kernels in the background (on the
+    same cores) is not the machine's: while ``busy()`` says so, frames are taken but
+    not counted, for at most ``busy_wait_s`` seconds (then counted anyway).
 
     Parameters
     ----------
@@ -233,6 +240,13 @@ def measure(
         Seconds to wait for that first frame (a service warming up).
     on_wait : callable
         Called about every 5 s while waiting (progress).
+    busy : callable
+        ``busy()`` -> why not to count yet (a line, e.g. a background compile's
+        progress), or None; asked about once a second once frames come.
+    busy_wait_s : float
+        Seconds to wait for ``busy`` to end before counting anyway.
+    on_busy : callable
+        ``on_busy(why)`` about every 5 s while ``busy`` holds the count back.
 
     Returns
     -------
@@ -248,9 +262,10 @@ def measure(
     first: float | None = None
     seen: set[int] = set()
     next_say = start + 5.0
+    gate = _BusyGate(busy, busy_wait_s, on_busy)
     while True:
         now = clock()
-        if first is None and now - start > wait_s:
+        if first is None and now - start > wait_s + gate.waited_s:
             raise NoFrameError(f"no frame came within {wait_s:g} s")
         if first is not None and now - first >= probe_s:
             return max(len(seen) - 1, 0) / (now - first)  # the first one was there at 0
@@ -260,6 +275,36 @@ def measure(
         backend.update(step(min(now - last, 0.1)))
         last = now
         frame = backend.frame(tick_s)
-        if frame is not None and frame.render_id >= 0:
+        if frame is not None and frame.render_id >= 0 and gate.clear(now):
             first = now if first is None else first
             seen.add(frame.render_id)
+
+
+class _BusyGate:
+    """Holds a measurement back while ``busy()`` names a reason, up to ``limit_s``."""
+
+    def __init__(self, busy: Callable[[], str | None], limit_s: float,
+                 say: Callable[[str], None]) -> None:
+        self.busy, self.limit_s, self.say = busy, limit_s, say
+        self.since: float | None = None
+        self.waited_s = 0.0
+        self._next_ask = self._next_say = float("-inf")
+        self._open = False
+
+    def clear(self, now: float) -> bool:
+        """True once nothing holds the count back (asked at most once a second)."""
+        if self._open:
+            return True
+        if now < self._next_ask:
+            return False
+        self._next_ask = now + 1.0
+        self.since = now if self.since is None else self.since
+        self.waited_s = now - self.since
+        why = self.busy()
+        if why is None or self.waited_s >= self.limit_s:
+            self._open = True
+            return True
+        if now >= self._next_say:
+            self._next_say = now + 5.0
+            self.say(why)
+        return False

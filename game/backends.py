@@ -213,6 +213,10 @@ class LocalRenderer:
                 self.stage.new_scene()
                 self._grafted = (-1, 0.0, -1)
 
+    def compiling(self) -> str | None:
+        """Always None: in process, kernels compile inside the first render that needs them."""
+        return None
+
     def lod_notes(self) -> list[str]:
         """Level-of-detail notes (a chain not built, a damaged cache) new since the last call.
 
@@ -507,6 +511,21 @@ class ServiceBackend:
         """
         self._reload = self._reload or self._frozen
         self._frozen = False
+
+    def compiling(self) -> str | None:
+        """The service's background compile while it runs (one line), else None.
+
+        From ``stats``' ``compile`` (:mod:`service.readiness`): the kernels the first
+        frame did not need compile in a child at low priority, but on the same cores.
+        """
+        try:
+            bg = self.client.stats().get("compile") or {}
+        except (ServiceError, OSError):
+            return None
+        if bg.get("phase") != "compiling":
+            return None
+        return (f"the service compiles kernels in the background ({bg.get('done', 0)} of "
+                f"{bg.get('total', '?')} jobs)")
 
     def lod_notes(self) -> list[str]:
         """Level-of-detail notes the service reported, new since the last call (each once).

@@ -293,7 +293,8 @@ def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
 
         backend = _start(args, look, game)
         try:
-            hz = measure(backend, step, settings.probe_s, args.wait, on_wait=_say_waiting)
+            hz = measure(backend, step, settings.probe_s, args.wait, on_wait=_say_waiting,
+                         busy=backend.compiling, on_busy=_say_busy)
         finally:
             backend.close()
         print(f"holo-game: measured {look} per zone: {hz:.1f} renders/s", file=sys.stderr,
@@ -306,6 +307,10 @@ def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
     choice = adapt(measure_look, settings=settings)
     print(f"holo-game: chose {choice.reason}", file=sys.stderr, flush=True)
     return choice
+
+
+def _say_busy(why: str) -> None:
+    print(f"holo-game: {why}; measuring once it is done", file=sys.stderr, flush=True)
 
 
 def _say_waiting(backend: object) -> None:

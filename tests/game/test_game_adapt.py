@@ -7,6 +7,7 @@ rates; ``test_game_full_loop.py`` runs it end to end through a real service.
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
@@ -18,6 +19,7 @@ from game.adapt import (
     Look,
     adapt,
     choose,
+    measure,
     next_probe,
     predicted_hz,
 )
@@ -145,3 +147,54 @@ def test_holo_game_adapt_local_measures_chooses_and_says_so(tmp_path, capsys, mo
     assert Look(look["light"], tuple(look["size"])) in LADDER
     assert f"holo-game: chose {look['reason']}" in err
     assert f"zones of {look['size'][0]}x{look['size'][1]}" in err
+
+
+def _local_probe():
+    """A started in-process backend on the game's scene, and a step of its rules."""
+    from game.backends import BackendSettings, LocalRenderer
+    from game.bot import Bot
+    from game.rules import GameSettings, new_game, tick
+    from game.scene import apply_states, game_scene, object_states
+    from service.display import DisplaySettings
+
+    state, bot = new_game(GameSettings()), Bot()
+    backend = LocalRenderer(BackendSettings(display=DisplaySettings(zones=2, cols=48, rows=36)))
+    backend.start(apply_states(game_scene(len(state.attackers), True), object_states(state)))
+
+    def step(dt: float) -> list[dict]:
+        tick(state, bot.act(state, dt), dt)
+        return object_states(state)
+
+    return backend, step
+
+
+def test_renders_are_not_counted_while_the_service_compiles_in_the_background():
+    backend, step = _local_probe()
+    asked: list[float] = []
+    said: list[str] = []
+
+    def busy():  # the background compile ends at the third question (about 2 s)
+        asked.append(time.monotonic())
+        return "compiling kernels (3 of 16 jobs)" if len(asked) < 3 else None
+
+    try:
+        t0 = time.monotonic()
+        hz = measure(backend, step, 0.5, 120.0, busy=busy, on_busy=said.append)
+        took = time.monotonic() - t0
+    finally:
+        backend.close()
+    assert len(asked) == 3 and said == ["compiling kernels (3 of 16 jobs)"]
+    assert asked[2] - asked[0] >= 2.0 - 0.05  # asked once a second, not in a spin
+    assert took >= asked[2] - t0 + 0.5 - 0.05  # the 0.5 s counted began when it ended
+    assert hz > 0
+
+
+def test_a_compile_that_does_not_end_is_waited_for_only_so_long():
+    backend, step = _local_probe()
+    said: list[str] = []
+    try:
+        hz = measure(backend, step, 0.3, 120.0, busy=lambda: "compiling",
+                     busy_wait_s=1.0, on_busy=said.append)
+    finally:
+        backend.close()
+    assert said == ["compiling"] and hz > 0
