@@ -42,10 +42,9 @@ from service.errors import ServiceError, SettingsError
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.local_update import render_use_by
 from service.galilean.motion_field import render_with_motion
-from service.light import LightSettings
-from service.lod.settings import lod_from
 from service.lod.state import LodState
 from service.net.client import FrameSubscriber, ServiceClient, WarmingUpError
+from service.net.settings_wire import display_to_wire, render_to_wire
 from service.pipeline import Renderer, RenderSettings
 from service.scene import Scene
 
@@ -103,25 +102,24 @@ class BackendSettings:
     Attributes
     ----------
     display : DisplaySettings
-    light_model : str
-        ``blinn`` / ``phong``, or ``ambient`` (the game's fast mode, thesis 5.1.1);
-        by default the service's (:class:`service.light.LightSettings`).
+    render : RenderSettings
+        The pipeline's own render settings (light model, level of detail, ...),
+        defaults included; the service gets them through
+        :mod:`service.net.settings_wire`, the local renderer as they are.
     refresh_hz : float
     order : int
         Galpixel order of the Galilean stage.
-    lod_error : float
-        Level-of-detail error budget in pixels (:mod:`service.lod`); 0: off.
-    lod_budget_ms : float
-        Level-of-detail time budget per render, ms (``--budget-ms``); 0: none.  Alone
-        it turns level of detail on at 0.5 px.
     """
 
     display: DisplaySettings = DisplaySettings(zones=5, angle_deg=16.0, cols=200, rows=150)
-    light_model: str = LightSettings.model
+    render: RenderSettings = RenderSettings()
     refresh_hz: float = 60.0
     order: int = 2
-    lod_error: float = 0.0
-    lod_budget_ms: float = 0.0
+
+    @property
+    def lod_on(self) -> bool:
+        """Level of detail is on (its notes are worth asking the service for)."""
+        return self.render.lod is not None and self.render.lod.enabled
 
 
 class LocalRenderer:
@@ -134,10 +132,7 @@ class LocalRenderer:
 
     def __init__(self, settings: BackendSettings | None = None) -> None:
         self.settings = s = settings or BackendSettings()
-        self.render_settings = RenderSettings(
-            method="zbuffer", light=LightSettings(s.light_model),
-            lod=lod_from(s.lod_error, s.lod_budget_ms),
-        )
+        self.render_settings = s.render
         self.stage = GalileanStage(
             s.display, GalileanSettings(order=s.order, refresh_hz=s.refresh_hz, colour_motion=False)
         )
@@ -422,18 +417,11 @@ class ServiceBackend:
         s = self.settings
         d = s.display
         self.client.set_display(
-            zones=d.zones,
-            angle_deg=d.angle_deg,
-            cols=d.cols,
-            rows=d.rows,
-            width=d.width,
-            method="zbuffer",
-            light_model=s.light_model,
+            **display_to_wire(d),
+            **render_to_wire(s.render),
             galpixel_order=s.order,
             refresh_hz=s.refresh_hz,
             encodings=["colour", "autostereogram"] if _sird_output(d) else ["colour"],
-            **({"lod_error": s.lod_error} if s.lod_error > 0 else {}),
-            **({"lod_budget_ms": s.lod_budget_ms} if s.lod_budget_ms > 0 else {}),
         )
         self.load_scene(apply_states(self._scene, self._records) if self._records else
                         self._scene)
@@ -539,7 +527,7 @@ class ServiceBackend:
         asks again; an error reply is left to the frame stream to notice.
         """
         s, now = self.settings, time.monotonic()
-        if not self.connected or (s.lod_error <= 0 and s.lod_budget_ms <= 0):
+        if not self.connected or not s.lod_on:
             return []
         if self._stats is None:
             from service.net.client import PendingRequest

@@ -39,8 +39,10 @@ from service.cli_args import (
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.light import MODELS as LIGHT_MODELS
+from service.light import LightSettings
 from service.lod.options import add_lod_options, lod_settings
 from service.lookingglass import DEFAULT_VIEWS, Interleaver, parse_display
+from service.pipeline import RenderSettings
 from service.process import setup_frame_process
 from service.signals import (
     EXIT_FAILED,
@@ -247,9 +249,8 @@ def _backend_settings(args: argparse.Namespace, look: Look) -> object:
     angle = cal.view_cone if cal is not None else DisplaySettings.angle_deg
     display = DisplaySettings(zones=args.zones, angle_deg=angle, cols=look.size[0],
                               rows=look.size[1])
-    return BackendSettings(display, look.light, args.refresh,
-                           lod_error=lod.error_px if lod is not None else 0.0,
-                           lod_budget_ms=(lod.budget_ms or 0.0) if lod is not None else 0.0)
+    render = RenderSettings(light=LightSettings(look.light), lod=lod)
+    return BackendSettings(display, render, args.refresh)
 
 
 def _start(args: argparse.Namespace, look: Look, game: GameSettings) -> object:

@@ -30,7 +30,9 @@ from service.builtin_scenes import scene_name
 from service.cli_args import add_size_option, endpoint, float_range, int_range, plain_help
 from service.display import DisplaySettings
 from service.errors import HoloError
+from service.lod.settings import lod_from
 from service.net.curve_keys import make_keys
+from service.pipeline import RenderSettings
 from service.process import setup_frame_process
 from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
@@ -261,8 +263,7 @@ def _config(args: argparse.Namespace) -> ServiceConfig:
         scene=args.scene,
         display=DisplaySettings(args.zones, args.angle, *args.size),
         pose_scale=args.pose_scale,
-        lod_error=args.lod_error or 0.0,
-        lod_budget_ms=args.budget_ms or 0.0,
+        render=RenderSettings(lod=lod_from(args.lod_error, args.budget_ms)),
         scene_dirs=tuple(args.scene_dir or ()),
         warmup=args.warmup,
     )

@@ -17,8 +17,8 @@ from typing import Any
 
 from service.display import MAX_PIXELS, DisplaySettings
 from service.errors import HoloError, MeshFileError, MessageError, SettingsError
-from service.light import EVALUATIONS, MODELS
 from service.net import protocol, wire
+from service.net.settings_wire import display_from_wire, render_from_wire
 from service.net.state import (
     ENCODINGS,
     MAX_INDEX,
@@ -28,7 +28,6 @@ from service.net.state import (
     State,
 )
 from service.net.viewer import VIEWER_POSE_FIELDS
-from service.pipeline import METHOD_NAMES
 from service.quality import MODES as QUALITY_MODES
 from service.quality import parse_budget
 from service.scene import Scene
@@ -321,26 +320,12 @@ def _check_sird(cols: int, eye_sep: float) -> None:
 
 
 def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
-    d = s.display
-    disp = {
-        "zones": wire.integer(req.get("zones", d.zones), "zones", 1, 64),
-        "angle_deg": wire.number(req.get("angle_deg", d.angle_deg), "angle_deg", 0, 60),
-        "cols": wire.integer(req.get("cols", d.cols), "cols", 1, 8192),
-        "rows": wire.integer(req.get("rows", d.rows), "rows", 1, 8192),
-        "width": wire.number(req.get("width", d.width), "width", 1e-6, 1e6),
-    }
-    choices = {
-        "method": METHOD_NAMES,
-        "light_model": tuple(MODELS),
-        "specular": tuple(EVALUATIONS),
-        "sird_method": SIRD_METHODS,
-    }
-    kw: dict[str, Any] = {}
-    for key, allowed in choices.items():
-        if key in req:
-            if req[key] not in allowed:
-                raise MessageError("bad_settings", f"{key} must be one of {list(allowed)}")
-            kw[key] = req[key]
+    """``s`` with the fields of a ``set_display`` request (checked; a new generation)."""
+    kw: dict[str, Any] = {"render": render_from_wire(req, s.render)}
+    if "sird_method" in req:
+        if req["sird_method"] not in SIRD_METHODS:
+            raise MessageError("bad_settings", f"sird_method must be one of {list(SIRD_METHODS)}")
+        kw["sird_method"] = req["sird_method"]
     if "galpixel_order" in req:
         kw["galpixel_order"] = wire.integer(req["galpixel_order"], "galpixel_order", 0, 3)
     if "encodings" in req:
@@ -349,16 +334,19 @@ def _apply_display(s: Settings, req: dict[str, Any]) -> Settings:
         kw["refresh_hz"] = wire.number(req["refresh_hz"], "refresh_hz", 1.0, 240.0)
     if "sird_eye_sep" in req:
         kw["sird_eye_sep"] = wire.number(req["sird_eye_sep"], "sird_eye_sep", 0.0, 4096.0)
-    if "autostereogram" in kw.get("encodings", s.encodings):
-        _check_sird(disp["cols"], kw.get("sird_eye_sep", s.sird_eye_sep))
-    if "lod_error" in req:  # pixels; 0 turns level of detail off
-        kw["lod_error"] = wire.number(req["lod_error"], "lod_error", 0.0, 1e6)
-    if "lod_budget_ms" in req:  # ms per render; 0: no time budget
-        kw["lod_budget_ms"] = wire.number(req["lod_budget_ms"], "lod_budget_ms", 0.0, 1e6)
     kw.update(_quality_fields(req))
-    if disp["cols"] * disp["rows"] * disp["zones"] > MAX_PIXELS:
+    display = _display(req, s.display)
+    if "autostereogram" in kw.get("encodings", s.encodings):
+        _check_sird(display.cols, kw.get("sird_eye_sep", s.sird_eye_sep))
+    return replace(s, display=display, generation=s.generation + 1, **kw)
+
+
+def _display(req: dict[str, Any], d: DisplaySettings) -> DisplaySettings:
+    """The display a ``set_display`` request asks for (``too_large`` past MAX_PIXELS)."""
+    size = [wire.integer(req.get(k, getattr(d, k)), k, 1, 8192) for k in ("zones", "cols", "rows")]
+    if size[0] * size[1] * size[2] > MAX_PIXELS:
         raise MessageError("too_large", f"display has more than {MAX_PIXELS:,} pixels")
-    return replace(s, display=DisplaySettings(**disp), generation=s.generation + 1, **kw)
+    return display_from_wire(req, d)
 
 
 def _quality_fields(req: dict[str, Any]) -> dict[str, str]:

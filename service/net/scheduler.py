@@ -24,6 +24,7 @@ from service.galilean import GalileanSettings
 from service.galilean.local_update import render_use_by
 from service.net import wire
 from service.net.broker import BandClient, Flight, FramePipe, split_rows
+from service.net.settings_wire import display_to_wire, render_to_wire
 from service.net.state import Aim, Ready, ServiceState, Settings
 from service.net.worker import StatsRenderer, render_job, stitch
 from service.pipeline import Renderer
@@ -111,8 +112,8 @@ class Scheduler:
             "job": render_id,
             "t": t_target - scene_t,
             "refresh_hz": hz,
-            "display": settings.as_dict(),
-            "render": settings.as_dict(),
+            "display": display_to_wire(settings.display),
+            "render": render_to_wire(settings.render),
             "viewer": viewer,
             "order": order,
         }
@@ -127,7 +128,7 @@ class Scheduler:
         if self._chooser is None or self._chooser[0] != gen:
             self._chooser = (gen, QualityChooser(
                 QualitySettings("auto", parse_budget(settings.max_error))))
-        q = choose(self._chooser[1], scene, settings.display, settings.light_model)
+        q = choose(self._chooser[1], scene, settings.display, settings.render.light.model)
         job["render"] = {**job["render"], "method": q.method, "specular": q.specular}
         job["quality"] = q.as_dict()
 
@@ -268,7 +269,7 @@ class Scheduler:
                                              "reply from the workers")
                 return None
             per_band = [g.pop("_stats", {}) for g in got]
-            return got, {"mode": "bands", "method": settings.method, "bands": per_band}
+            return got, {"mode": "bands", "method": settings.render.method, "bands": per_band}
         except (HoloError, ValueError) as exc:
             self.st.last_render_error = str(exc)
             return None

@@ -23,9 +23,10 @@ import numpy as np
 from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.galilean import GalileanSettings
-from service.light import LightSettings
 from service.net import protocol
+from service.net.settings_wire import display_to_wire, render_to_wire
 from service.net.viewer import ViewerTracker
+from service.pipeline import RenderSettings
 from service.scene import Scene
 
 if TYPE_CHECKING:
@@ -69,10 +70,9 @@ class ServiceConfig:
         default_factory=lambda: DisplaySettings(zones=5, cols=160, rows=120)
     )
     pose_scale: float = 0.001
-    #: level-of-detail error budget in pixels (0: off); ``set_display`` can change it
-    lod_error: float = 0.0
-    #: level-of-detail time budget per render, ms (0: none; alone it turns LOD on)
-    lod_budget_ms: float = 0.0
+    #: the starting render options (level of detail from ``--lod-error``/``--budget-ms``);
+    #: ``set_display`` changes them
+    render: RenderSettings = field(default_factory=RenderSettings)
     #: directories ``path`` requests may read from (empty: any file the service can read).
     scene_dirs: tuple[str, ...] = ()
     #: with workers: ``frames`` (each worker renders whole updates for successive
@@ -119,22 +119,20 @@ def check_config(config: ServiceConfig) -> None:
 
 @dataclass(frozen=True)
 class Settings:
-    """What ``set_display`` changes (``generation`` counts changes)."""
+    """What ``set_display`` changes (``generation`` counts changes).
+
+    The render options are the pipeline's own :class:`~service.pipeline.RenderSettings`
+    (defaults included); :mod:`service.net.settings_wire` is the only place that turns
+    them, and the display, into wire keys and back.
+    """
 
     display: DisplaySettings
-    method: str = "zbuffer"
-    light_model: str = LightSettings.model
-    specular: str = "polygon"
+    render: RenderSettings = field(default_factory=RenderSettings)
     galpixel_order: int = 2
     encodings: tuple[str, ...] = ("colour", "depth")
     refresh_hz: float = 60.0
     sird_method: str = "tiw"
     sird_eye_sep: float = 0.0
-    #: level-of-detail error budget in pixels (:mod:`service.lod`); 0: off
-    lod_error: float = 0.0
-    #: level-of-detail time budget per render in ms (:mod:`service.lod`); 0: none.
-    #: Given without ``lod_error`` it turns level of detail on at 0.5 px.
-    lod_budget_ms: float = 0.0
     generation: int = 0
     #: "auto": each render's method and specular chosen within ``max_error``
     #: (service.quality); "fixed": as set.
@@ -143,23 +141,14 @@ class Settings:
 
     def as_dict(self) -> dict[str, Any]:
         """The settings as ``set_display`` replies them."""
-        d = self.display
         return {
-            "zones": d.zones,
-            "angle_deg": d.angle_deg,
-            "cols": d.cols,
-            "rows": d.rows,
-            "width": d.width,
-            "method": self.method,
-            "light_model": self.light_model,
-            "specular": self.specular,
+            **display_to_wire(self.display),
+            **render_to_wire(self.render),
             "galpixel_order": self.galpixel_order,
             "encodings": list(self.encodings),
             "refresh_hz": self.refresh_hz,
             "sird_method": self.sird_method,
             "sird_eye_sep": self.sird_eye_sep,
-            "lod_error": self.lod_error,
-            "lod_budget_ms": self.lod_budget_ms,
             "quality": self.quality,
             "max_error": self.max_error,
         }
@@ -396,8 +385,7 @@ def service_state(config: ServiceConfig) -> ServiceState:
     """
     check_config(config)
     state = State(
-        Settings(config.display, refresh_hz=config.refresh_hz, lod_error=config.lod_error,
-                 lod_budget_ms=config.lod_budget_ms),
+        Settings(config.display, config.render, refresh_hz=config.refresh_hz),
         devices=config.devices,
     )
     state.viewer.scale = config.pose_scale

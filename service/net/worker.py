@@ -38,11 +38,10 @@ from service.display import DisplaySettings
 from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.galpixmap import FIELDS, Galpixmap, build
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
-from service.light import LightSettings
-from service.lod.settings import lod_from
 from service.lod.state import LodState
 from service.net import protocol, wire
-from service.pipeline import Renderer, RenderSettings, StageClock
+from service.net.settings_wire import display_from_wire, render_from_wire
+from service.pipeline import Renderer, StageClock
 from service.process import setup_frame_process
 from service.scene import (
     Light,
@@ -57,25 +56,6 @@ from service.scene import (
 READY = b"READY"
 #: a rendering worker's heartbeat to the broker (it is alive, its job still running).
 BUSY = b"BUSY"
-
-
-def display_from(d: dict[str, Any]) -> DisplaySettings:
-    """DisplaySettings from its dict form."""
-    return DisplaySettings(
-        int(d["zones"]), float(d["angle_deg"]), int(d["cols"]), int(d["rows"]), float(d["width"])
-    )
-
-
-def render_settings_from(d: dict[str, Any]) -> RenderSettings:
-    """RenderSettings from ``{"method", "light_model", "specular", "lod_error", ...}``.
-
-    ``lod_error`` is optional: pixels of level-of-detail error, 0 or absent for off;
-    so is ``lod_budget_ms`` (a render-time budget, ms; alone it turns LOD on at 0.5 px).
-    """
-    return RenderSettings(
-        method=d["method"], light=LightSettings(model=d["light_model"], evaluation=d["specular"]),
-        lod=lod_from(d.get("lod_error"), d.get("lod_budget_ms")),
-    )
 
 
 def _shift_scene(scene: Scene, dy: float) -> Scene:
@@ -178,7 +158,7 @@ def render_job(
         ``gp_obj`` (Z, r, C) int32; band 0 also ``points`` (N, 2) and
         ``point_derivs`` (3, N, 2).
     """
-    display = display_from(job["display"])
+    display = display_from_wire(job["display"])
     viewer, motion = viewer_from(job.get("viewer"))
     rows = (int(job["rows"][0]), int(job["rows"][1]))
     scene, band, viewer = band_setup(scene, display, rows, viewer)
@@ -189,7 +169,7 @@ def render_job(
         band,
         float(job["t"]),
         float(job["refresh_hz"]),
-        render_settings_from(job["render"]),
+        render_from_wire(job["render"]),
         viewer,
         motion,
     )

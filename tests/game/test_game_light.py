@@ -44,7 +44,7 @@ def _colours(pixels: np.ndarray) -> np.ndarray:
 def test_light_ambient_draws_flat_silhouettes(setup_from_args):
     game, backend = setup_from_args("--light", "ambient")
     assert isinstance(backend, LocalRenderer)
-    assert backend.settings.light_model == "ambient"
+    assert backend.settings.render.light.model == "ambient"
     assert backend.render_settings.light.model == "ambient"
 
     frame = Renderer().render(
@@ -62,7 +62,7 @@ def test_light_ambient_draws_flat_silhouettes(setup_from_args):
 @pytest.mark.parametrize("argv", [(), ("--full-light",), ("--light", "blinn")])
 def test_blinn_phong_is_the_default_and_shades(setup_from_args, argv):
     game, backend = setup_from_args(*argv)
-    assert backend.settings.light_model == "blinn"
+    assert backend.settings.render.light.model == "blinn"
     assert backend.render_settings.light.model == "blinn"
 
     frame = Renderer().render(

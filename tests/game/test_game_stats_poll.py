@@ -31,7 +31,9 @@ from game.display import GameWindow
 from game.scene import game_scene
 from service.display import DisplaySettings
 from service.errors import ServiceError
+from service.lod.settings import LodSettings
 from service.net.client import PendingRequest
+from service.pipeline import RenderSettings
 
 TICK_HZ = 30.0
 #: The first ``stats`` reply's delay: longer than any test, so it is always dropped.
@@ -73,7 +75,8 @@ def slower_service():
 
 def test_slow_stats_replies_do_not_lengthen_ticks(slower_service, pygame_headless):
     control, frames = slower_service
-    settings = BackendSettings(DisplaySettings(zones=3, cols=32, rows=24), lod_error=0.5)
+    settings = BackendSettings(DisplaySettings(zones=3, cols=32, rows=24),
+                               RenderSettings(lod=LodSettings(error_px=0.5)))
     backend = ServiceBackend(control, frames, settings=settings)
     backend.lod_poll_s, backend.lod_reply_s = 0.2, REPLY_S
     backend.start(game_scene(1))

@@ -221,13 +221,13 @@ def test_the_pipeline_draws_the_chosen_levels(ring, chain, monkeypatch, tmp_path
 def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp_path):
     """render_with_motion (the service's workers and the game's local renderer) applies it."""
     from service.galilean.motion_field import render_with_motion
-    from service.net.worker import render_settings_from
+    from service.net.settings_wire import render_from_wire
 
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
-    settings = render_settings_from({"method": "zbuffer", "light_model": "ambient",
+    settings = render_from_wire({"method": "zbuffer", "light_model": "ambient",
                                      "specular": "polygon", "lod_error": 0.5})
     assert settings.lod is not None and settings.lod.error_px == 0.5
-    assert render_settings_from({"method": "zbuffer", "light_model": "ambient",
+    assert render_from_wire({"method": "zbuffer", "light_model": "ambient",
                                  "specular": "polygon"}).lod is None
     scene = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.5]), scale=0.05),
                                name="far")])
@@ -236,7 +236,7 @@ def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp
     up = render_with_motion(renderer, scene, display, 0.0, 60.0, settings)
     assert up.frame.stats["lod"]["levels"][0] >= 3
     # with a time budget the renders there feed the cost model, and the budget acts
-    budget = render_settings_from({"method": "zbuffer", "light_model": "ambient",
+    budget = render_from_wire({"method": "zbuffer", "light_model": "ambient",
                                    "specular": "polygon", "lod_budget_ms": 1e-6})
     assert budget.lod.budget_ms == 1e-6 and budget.lod.error_px == 0.5  # alone: LOD on
     near = Scene([SceneObject(ring, transform=Transform(np.array([0, 0, -0.5])), name="near")])

@@ -214,3 +214,13 @@ def test_the_frame_header_table_is_a_real_frame_header(svc):
     # v, kind and session are the envelope every message of the stream has
     assert documented == set(header) - {"v", "kind", "session"}
     assert header["held"] in (True, False) and 0 <= header["use_by"] <= 16
+
+
+def test_every_set_display_key_is_documented():
+    from service.display import DisplaySettings
+    from service.net.state import Settings
+
+    row = next(line for line in DOC.splitlines() if line.startswith("| `set_display` |"))
+    named = set(re.findall(r"`(\w+)`", row.split("|")[2]))
+    missing = set(Settings(DisplaySettings()).as_dict()) - named
+    assert not missing, f"set_display keys not in docs/protocol.md: {sorted(missing)}"
