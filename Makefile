@@ -36,10 +36,10 @@ test: warmup
 # No `warmup` first: the demo's service compiles what its first frame needs, then
 # the rest in the background at low priority (docs/service.md, "First frame first").
 demo: $(STAMP)
-	$(BIN)/python -m game.full_demo --out demo-out
+	$(BIN)/python -m game.commands.make_demo --out demo-out
 
 render-demo: warmup
-	$(BIN)/python -m service.demo --out render-demo-out
+	$(BIN)/python -m service.commands.render_demo --out render-demo-out
 
 lint: $(STAMP)
 	$(BIN)/ruff check service drivers game sim_devices tests

@@ -5,6 +5,6 @@
 :mod:`.dialbox_driver` (host commands), :mod:`.filters` (pose filtering and
 prediction), :mod:`.publisher` and :mod:`.subscriber` (events over ZeroMQ),
 :mod:`.recording` and :mod:`.replay_clock` (session logs), :mod:`.pty_link` (a pty
-pair as a serial port); commands :mod:`.cli_devices`, :mod:`.cli_replay`,
-:mod:`.cli_view`.  See ``docs/drivers.md``.
+pair as a serial port); commands in :mod:`.commands` (``holo-devices``,
+``holo-replay``, ``holo-view``).  See ``docs/drivers.md``.
 """

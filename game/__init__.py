@@ -4,8 +4,8 @@
 :mod:`.bot` (attract mode), :mod:`.actions` and :mod:`.pads` (input), :mod:`.backends`
 (frames from the service or in process), :mod:`.client_loop` (the loop),
 :mod:`.display` (the pygame window), :mod:`.gameover`, :mod:`.highscores`,
-:mod:`.capture` (screenshots, film); commands :mod:`.cli` (``holo-game``) and
-:mod:`.full_demo` (``make demo``).
+:mod:`.capture` (screenshots, film); commands in :mod:`.commands`: ``holo-game``
+and ``make demo``.
 """
 
 import os

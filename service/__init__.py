@@ -9,10 +9,12 @@
 * **Galilean stage** (seed 002): :mod:`.galilean`.
 * **ZeroMQ render service**: :mod:`.net` (server, state, request handlers, render
   scheduler, refresh loop, broker and workers, protocol and wire, frame stream, client
-  library, CurveZMQ keys; its ``__init__`` lists them); its command is :mod:`.cli_service`.
+  library, CurveZMQ keys; its ``__init__`` lists them).
 * **Base** (imported by every package; imports nothing above it): :mod:`.errors`,
   :mod:`.signals`, :mod:`.heap`, :mod:`.addresses`, :mod:`.cli_args`.
-* **Commands and benchmarks**: ``cli_*.py``, :mod:`.demo`, :mod:`.bench`.
+* **Level of detail**: :mod:`.lod`; **simplification**: :mod:`.simplify`.
+* **Commands and benchmarks**: :mod:`.commands` (one module per console script),
+  :mod:`.bench`.
 
 The layers are in README.md ("Layout") and checked by ``tests/test_layers.py``.
 """

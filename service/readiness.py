@@ -7,7 +7,7 @@ and even its heartbeats, so clients took it for dead.  Instead:
 1. the service binds its sockets and answers requests at once, saying it is
    *warming up* (``docs/protocol.md`` 1.8); its control loop keeps sending
    heartbeats;
-2. :class:`Warmup` runs ``python -m service.cli_warmup --jsonl`` as a **child
+2. :class:`Warmup` runs ``python -m service.commands.holo_warmup --jsonl`` as a **child
    process** that fills numba's cache (``NUMBA_CACHE_DIR`` or ``__pycache__``) and
    reports one JSON line per warm-up job; the service's progress follows it
    (``compiling n/m``).  A child, not a thread: a compile holds the GIL for long
@@ -36,7 +36,7 @@ numba's cache saves are locked between processes
 (:func:`service.numba_patches.locked_cache_saves`): a render that needs a kernel
 the background has not reached yet compiles it in its own process meanwhile.
 
-If the child fails (it crashed, or ``service.cli_warmup`` is missing), step 3
+If the child fails (it crashed, or ``service.commands.holo_warmup`` is missing), step 3
 compiles in process instead (slower, but the service still gets ready and its
 heartbeats go on).  :meth:`Warmup.as_dict` is what replies and heartbeats carry.
 
@@ -72,7 +72,7 @@ from service.warmup import FIRST_FRAME_JOBS, JOBS, SERVICE_JOBS, warm_up
 #: The phases in order; ``ready`` and ``failed`` are final.
 PHASES = ("starting", "compiling", "loading", "ready", "failed")
 #: The child's command (``holo-warmup --jsonl``).
-CHILD = (sys.executable, "-m", "service.cli_warmup", "--jsonl")
+CHILD = (sys.executable, "-m", "service.commands.holo_warmup", "--jsonl")
 #: Niceness of the background compile (every job the service did not need first).
 BACKGROUND_NICE = 10
 

@@ -11,7 +11,7 @@ long it took and whether every kernel it needed came from the cache.
 
 A job is *cached* when no kernel missed numba's cache during it (the dispatchers'
 ``stats.cache_misses`` did not grow); a second process with the same cache
-compiles nothing (``tests/warmup``).  ``holo-warmup`` (:mod:`service.cli_warmup`)
+compiles nothing (``tests/warmup``).  ``holo-warmup`` (:mod:`service.commands.holo_warmup`)
 is the command; ``make venv`` runs it.
 """
 
@@ -572,7 +572,7 @@ def _second_process(
     With ``hold_before`` the child waits for a line on its stdin (:func:`_release`)
     before it runs that job.
     """
-    cmd = [sys.executable, "-m", "service.cli_warmup", "--jsonl", "--processes", "1",
+    cmd = [sys.executable, "-m", "service.commands.holo_warmup", "--jsonl", "--processes", "1",
            f"--parent-pid={os.getpid()}", *(f"--job={n}" for n in names)]
     if hold_before is not None:
         cmd.append(f"--hold-before={hold_before}")

@@ -82,7 +82,8 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         return  # the controller did it before starting this worker
     stale = config.stash[_STALE] = drop_stale()
     if stale or not is_warm():
-        subprocess.run([sys.executable, "-m", "service.cli_warmup"], check=False, timeout=1800)
+        subprocess.run([sys.executable, "-m", "service.commands.holo_warmup"], check=False,
+                       timeout=1800)
     if _xdist_controller(config) and _may_select(config, COLD_WARMUP_TESTS):
         cold = config.stash[_COLD] = ColdWarmup()
         cold.announce()

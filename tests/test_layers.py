@@ -16,8 +16,8 @@ this file.  From the bottom up:
   drivers (the service subscribes to devices and filters poses), never sim_devices
   or game.
 * **game** - a client of the service.
-* **top** - command-line modules and benchmarks (``service.bench``): anything; and
-  nothing below them imports them.
+* **top** - commands (each package's ``commands`` folder) and benchmarks
+  (``service.bench``): anything; and nothing below them imports them.
 """
 
 from __future__ import annotations
@@ -64,15 +64,22 @@ def _imports(tree: ast.Module) -> set[str]:
     return _ours(found)
 
 
-def _is_command(name: str, tree: ast.Module, scripts: set[str]) -> bool:
-    """A console script's module, or a ``python -m`` one named as a command (cli, demo).
+def _is_command(name: str, scripts: set[str]) -> bool:
+    """A command: a module of a package's ``commands`` folder (each console script's).
 
     ``service.net.worker`` also runs as ``python -m``, but it is the service's own worker
     process, started by the service: not a command.
     """
-    runs = any(isinstance(n, ast.If) and "__main__" in ast.unparse(n.test) for n in tree.body)
-    last = name.rsplit(".", 1)[-1]
-    return name in scripts or (runs and (last.startswith("cli") or last.endswith("demo")))
+    return ".commands." in name or name in scripts
+
+
+def test_every_console_script_is_in_a_commands_folder():
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    for script, entry in scripts.items():
+        module = entry.split(":")[0]
+        assert ".commands." in module, f"{script} runs {module}, outside a commands folder"
+        # named after the script, so a newcomer finds holo-render in holo_render.py
+        assert script.replace("-", "_").startswith(module.rsplit(".", 1)[1]), script
 
 
 def _modules() -> dict[str, tuple[set[str], bool]]:
@@ -84,7 +91,7 @@ def _modules() -> dict[str, tuple[set[str], bool]]:
         for path in sorted((ROOT / package).rglob("*.py")):
             tree = ast.parse(path.read_text(), str(path))
             name = _name(path)
-            out[name] = (_imports(tree), _is_command(name, tree, commands))
+            out[name] = (_imports(tree), _is_command(name, commands))
     return out
 
 
@@ -114,7 +121,7 @@ def _within(name: str, prefixes: tuple[str, ...]) -> bool:
 def test_every_module_is_read():
     assert {"service.net.server", "drivers.reader", "sim_devices.tracker", "game.rules"} <= set(
         MODULES)
-    assert layer("service.cli_render") == "top" and layer("service.errors") == "base"
+    assert layer("service.commands.holo_render") == "top" and layer("service.errors") == "base"
 
 
 @pytest.mark.parametrize("name", sorted(MODULES))
@@ -211,3 +218,12 @@ def test_the_cycle_finder_finds_a_cycle_through_a_function_import():
     graph = {"service.lod.state": {i for i in a if _is_module(i)},
              "service.lod.cache": {i for i in b if _is_module(i)}}
     assert _cycles(graph) == [["service.lod.cache", "service.lod.state"]]
+
+
+def test_the_readme_layout_table_names_every_package_folder():
+    readme = (ROOT / "README.md").read_text()
+    table = readme[readme.index("## Layout"):readme.index("The packages import each other")]
+    folders = sorted({str(p.parent.relative_to(ROOT)) for package in PACKAGES
+                      for p in (ROOT / package).rglob("__init__.py")})
+    missing = [f for f in folders if f"`{f}/`" not in table]
+    assert not missing, f"README's layout table does not name {missing}"

@@ -284,7 +284,7 @@ def launch_service(*args: str, env: dict[str, str] | None = None,
         default["--worker-address"] = "tcp://127.0.0.1:*"
     extra = [x for k, v in default.items() if k not in given for x in (k, v)]
     fd, name = tempfile.mkstemp(prefix="holo-service-", suffix=".log")
-    cmd = [sys.executable, "-m", "service.cli_service", *extra, *args]
+    cmd = [sys.executable, "-m", "service.commands.holo_service", *extra, *args]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stderr=fd,
                             env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
     os.close(fd)
@@ -367,7 +367,7 @@ class ColdWarmup:
             return
         with (self.folder / "out").open("w") as out, (self.folder / "err").open("w") as err:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "service.cli_warmup", "--jsonl"], cwd=ROOT,
+                [sys.executable, "-m", "service.commands.holo_warmup", "--jsonl"], cwd=ROOT,
                 env=self.env, stdin=subprocess.DEVNULL, stdout=out, stderr=err,
                 preexec_fn=lambda: os.nice(10),
             )

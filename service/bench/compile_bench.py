@@ -142,7 +142,7 @@ def whole() -> dict:
     with tempfile.TemporaryDirectory(prefix="holo-compile-") as cache:
         t0 = time.perf_counter()
         c0 = os.times()
-        proc = subprocess.run([sys.executable, "-m", "service.cli_warmup", "--jsonl"],
+        proc = subprocess.run([sys.executable, "-m", "service.commands.holo_warmup", "--jsonl"],
                               env=_cold_env(cache), capture_output=True, text=True,
                               check=False)
         c1 = os.times()

@@ -787,7 +787,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run_all(args: argparse.Namespace, work: Path) -> tuple[list[Outcome], dict]:
     """Every planned benchmark into ``work/NAME/``; the outcomes and the page's meta."""
-    from service.cli_bench import BENCHES
+    from service.commands.holo_bench import BENCHES
 
     plans = [pl for pl in PLANS if args.only is None or pl.bench in args.only.split(",")]
     planned = {n for pl in PLANS for n in (pl.bench, *ALIASES.get(pl.bench, ()))}

@@ -35,7 +35,7 @@ class Running:
         cmd = [
             sys.executable,
             "-m",
-            "service.cli_service",
+            "service.commands.holo_service",
             "--control",
             self.control,
             "--frames",

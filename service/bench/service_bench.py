@@ -297,7 +297,7 @@ def _devices(pub: str) -> tuple[subprocess.Popen, int]:
     cmd = [
         sys.executable,
         "-m",
-        "drivers.cli_devices",
+        "drivers.commands.holo_devices",
         "--tracker",
         os.ttyname(slave),
         "--tracker-protocol",

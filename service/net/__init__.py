@@ -10,5 +10,5 @@
 * :mod:`.frame_stream` - the PUB frame stream; :mod:`.client` - the client library;
 * :mod:`.curve_keys` - CurveZMQ keys.
 
-The command is :mod:`service.cli_service` (a CLI, the top layer).
+The command is :mod:`service.commands.holo_service` (a CLI, the top layer).
 """

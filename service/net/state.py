@@ -51,7 +51,7 @@ WHILE_WARMING = frozenset({"hello", "ping", "stats", "shutdown"})
 
 @dataclass
 class ServiceConfig:
-    """Command-line settings of ``holo-service`` (see :mod:`service.cli_service`)."""
+    """Command-line settings of ``holo-service`` (see :mod:`service.commands.holo_service`)."""
 
     control: str = "tcp://127.0.0.1:5555"
     frames: str = "tcp://127.0.0.1:5556"

@@ -370,7 +370,7 @@ def split_job(frames: list[Any]) -> tuple[list[bytes], list[Any] | None]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m service.net.worker``."""
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.cli_service.main
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.commands.holo_service.main
     setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     ap = argparse.ArgumentParser(prog="holo-service-worker")
     ap.add_argument("--connect", default="tcp://127.0.0.1:5557")

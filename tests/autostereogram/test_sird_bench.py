@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from service import cli_bench
+from service.commands import holo_bench as cli_bench
 
 
 def test_a_small_run_writes_csv_json_and_chart(tmp_path, capsys):

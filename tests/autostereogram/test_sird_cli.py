@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from service.autostereogram.depth_scenes import sphere
-from service.cli_sird import main
+from service.commands.holo_sird import main
 from service.png import read_png, write_png
 
 

@@ -8,7 +8,7 @@ import sys
 import pytest
 from testkit import ROOT
 
-from service import cli_bench
+from service.commands import holo_bench as cli_bench
 
 #: (benchmark, bad option and value, words of the message)
 BAD = [
@@ -52,7 +52,7 @@ def test_bad_values_are_usage_errors(bench, argv, words, capsys, tmp_path):
                                   ["render", "--scenes", "nosuch", "--quick"]],
                          ids=["light-zones", "light-size", "render-scenes"])
 def test_as_a_user_runs_it(argv, tmp_path):
-    r = subprocess.run([sys.executable, "-m", "service.cli_bench", *argv, "--out",
+    r = subprocess.run([sys.executable, "-m", "service.commands.holo_bench", *argv, "--out",
                         str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2
     errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
@@ -74,7 +74,7 @@ def test_unknown_benchmark_and_the_help(capsys):
 ], ids=["a-file", "under-a-file"])
 def test_an_unwritable_out_folder_is_refused_before_any_work(out, words, tmp_path):
     """The folder is checked before the benchmark starts (it used to end in an errno line)."""
-    r = subprocess.run([sys.executable, "-m", "service.cli_bench", "report", "--quick",
+    r = subprocess.run([sys.executable, "-m", "service.commands.holo_bench", "report", "--quick",
                         "--out", out], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"holo-bench report: error: --out {out}: {words}"]

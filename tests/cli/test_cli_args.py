@@ -9,9 +9,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers import cli_devices, cli_replay, cli_view
+from drivers.commands import holo_devices as cli_devices
+from drivers.commands import holo_replay as cli_replay
+from drivers.commands import holo_view as cli_view
 from drivers.publisher import Publisher
-from service import cli_service
 from service.addresses import DEFAULT_PORTS, check_endpoint, default_address
 from service.builtin_scenes import SCENES, builtin_scene, canonical_scene_name, scene_name
 from service.cli_args import (
@@ -23,6 +24,7 @@ from service.cli_args import (
     plain_help,
     size,
 )
+from service.commands import holo_service as cli_service
 from service.errors import SettingsError
 from service.net.state import DEFAULT_WORKER_ADDRESS
 

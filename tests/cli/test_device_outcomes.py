@@ -5,8 +5,9 @@ from __future__ import annotations
 import json
 import random
 
-from drivers import cli_devices, cli_replay
-from drivers.cli_devices import log_devices
+from drivers.commands import holo_devices as cli_devices
+from drivers.commands import holo_replay as cli_replay
+from drivers.commands.holo_devices import log_devices
 from drivers.protocols import hatire
 from drivers.reader import ReaderSettings
 from drivers.recording import LogHeader, LogWriter

@@ -16,7 +16,7 @@ import pytest
 import serial
 from testkit import ROOT, SIGNALS, STATUS, catches, linux_only, posix_only, wait_for
 
-from drivers.cli_devices import log_devices
+from drivers.commands.holo_devices import log_devices
 from drivers.protocols import hatire
 from drivers.pty_link import DRAIN_TIMEOUT_S
 from drivers.reader import ReaderSettings
@@ -82,7 +82,7 @@ def test_signals_helpers_give_the_rule(child, signum):
 @posix_only
 @SIGNALS
 def test_holo_devices(procs, signum):
-    live = procs("drivers.cli_devices", "--tracker", "loop://", "--dump")
+    live = procs("drivers.commands.holo_devices", "--tracker", "loop://", "--dump")
     live.wait_lines(lambda: live.out)  # the 'opened' status: the run loop is going
     live.signal(signum)
     assert live.finish() == STATUS[signum]
@@ -101,7 +101,7 @@ def _log(path, frames: int = 50) -> None:
 @SIGNALS
 def test_holo_replay(procs, tmp_path, signum):
     _log(tmp_path / "s.hlog")
-    replay = procs("drivers.cli_replay", str(tmp_path / "s.hlog"), "--loop", "--dump")
+    replay = procs("drivers.commands.holo_replay", str(tmp_path / "s.hlog"), "--loop", "--dump")
     replay.wait_lines(lambda: len(replay.out) >= 3)
     replay.signal(signum)
     assert replay.finish() == STATUS[signum]
@@ -113,7 +113,7 @@ def test_holo_replay(procs, tmp_path, signum):
 def test_holo_sim_stops_at_once_with_a_client_that_does_not_read(procs, signum):
     # frames queue in the pty; a stop by signal must not wait for the client to read
     # them (SIGINT used to take 10 s: the drain waited for a reader)
-    sim = procs("sim_devices.cli", "tracker", "--pty", "--rate", "500", "--no-pace")
+    sim = procs("sim_devices.commands.holo_sim", "tracker", "--pty", "--rate", "500", "--no-pace")
     sim.wait_lines(lambda: sim.out)
     port = serial.serial_for_url(sim.out[0], timeout=0.05)
     try:
@@ -143,14 +143,14 @@ def _one_line(proc, prog: str, signum: int) -> None:
 @linux_only
 @SIGNALS
 def test_holo_bench_render(procs, tmp_path, signum):
-    bench = procs("service.cli_bench", "render", "--out", str(tmp_path))
+    bench = procs("service.commands.holo_bench", "render", "--out", str(tmp_path))
     _interrupt_when_at_work(bench, signum)
     _one_line(bench, "holo-bench render", signum)
 
 
 @linux_only
 def test_holo_bench_galilean_sweep(procs, tmp_path):
-    bench = procs("service.cli_bench", "galilean", "--sweep", "--out", str(tmp_path))
+    bench = procs("service.commands.holo_bench", "galilean", "--sweep", "--out", str(tmp_path))
     bench.wait_lines(lambda: any("galilean sweep" in ln for ln in bench.err), timeout=120)
     bench.signal(signal.SIGINT)
     _one_line(bench, "holo-bench galilean", signal.SIGINT)
@@ -161,7 +161,7 @@ def test_holo_bench_galilean_sweep(procs, tmp_path):
 def test_holo_render(procs, tmp_path, signum):
     mesh = tmp_path / "ball.obj"
     save_obj(mesh, sphere(0.5, 200, 400))  # some seconds to load and ray-cast
-    render = procs("service.cli_render", str(mesh), "--method", "raycast", "--size",
+    render = procs("service.commands.holo_render", str(mesh), "--method", "raycast", "--size",
                    "640x480", "--out", str(tmp_path / "out"))
     _interrupt_when_at_work(render, signum)
     _one_line(render, "holo-render", signum)
@@ -170,7 +170,7 @@ def test_holo_render(procs, tmp_path, signum):
 @linux_only
 @SIGNALS
 def test_holo_game(procs, tmp_path, signum):
-    game = procs("game.cli", "--local", "--headless", "--bot", "--seconds", "300",
+    game = procs("game.commands.holo_game", "--local", "--headless", "--bot", "--seconds", "300",
                  "--size", "40x30", "--highscores", str(tmp_path / "scores.json"))
     game.wait_lines(lambda: any("playing" in ln for ln in game.err), timeout=60)
     game.signal(signum)

@@ -14,7 +14,7 @@ import tomllib
 import pytest
 from testkit import ROOT
 
-from service.cli_bench import BENCHES
+from service.commands.holo_bench import BENCHES
 
 SCRIPTS = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
 #: ``x``, :func:`x`, *emphasis* (not 3*4 or **kwargs-like text).

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from service import cli_render
+from service.commands import holo_render as cli_render
 from service.pipeline import METHOD_NAMES
 
 #: Counters each method adds to the common ones.
@@ -85,7 +85,7 @@ def test_max_error_with_quality_fixed_is_bad_usage(tmp_path, capsys):
 def test_summary_of_a_billboard_cloud_counts_its_billboards(tmp_path, capsys):
     """Before: 'holo-render bunny.hbc' said '0 polygons, ... 0 seen in a zone' of a frame
     full of billboards."""
-    from service import cli_simplify
+    from service.commands import holo_simplify as cli_simplify
     from service.loaders import save_obj
     from service.primitives import sphere
 

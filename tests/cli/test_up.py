@@ -20,7 +20,7 @@ from testkit import (
     posix_only,
 )
 
-from service import cli_up
+from service.commands import holo_up as cli_up
 
 ANY = "tcp://127.0.0.1:0"
 SIMS = """
@@ -81,11 +81,11 @@ def test_up_runs_an_opentrack_sender_into_holo_devices(procs, tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     text = f'[sim.tracker]\nudp = "127.0.0.1:{port}"\nrate = 100\n' + DEVICES
-    up = procs("service.cli_up", str(_config(tmp_path, text)))
+    up = procs("service.commands.holo_up", str(_config(tmp_path, text)))
     up.wait_lines(lambda: "holo-up: running; Ctrl-C stops everything" in up.out, 120)
     assert _where(up, "holo-sim tracker") == f"on opentrack-udp://127.0.0.1:{port}"
     publisher = _where(up, "holo-devices").split()[2]
-    view = subprocess.run([sys.executable, "-m", "drivers.cli_view", publisher, "--json",
+    view = subprocess.run([sys.executable, "-m", "drivers.commands.holo_view", publisher, "--json",
                            "--count", "30", "--timeout", "30"], cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
     assert view.returncode == 0, view.stderr
@@ -135,7 +135,7 @@ def _where(up, name: str) -> str:
 @linux_only
 @SIGNALS
 def test_starts_wires_and_stops_everything(procs, tmp_path, signum):
-    up = procs("service.cli_up", str(_config(tmp_path, SIMS + DEVICES + SERVICE)))
+    up = procs("service.commands.holo_up", str(_config(tmp_path, SIMS + DEVICES + SERVICE)))
     up.wait_lines(lambda: "holo-up: running; Ctrl-C stops everything" in up.out, 120)
     assert _where(up, "holo-sim tracker").startswith("on /dev/")
     assert _where(up, "holo-sim dials").startswith("on /dev/")
@@ -143,7 +143,7 @@ def test_starts_wires_and_stops_everything(procs, tmp_path, signum):
     assert publisher.startswith("tcp://127.0.0.1:") and not publisher.endswith(":0")
     assert _where(up, "holo-service").startswith("control tcp://127.0.0.1:")
     # the simulated tracker reaches the publisher through holo-devices
-    view = subprocess.run([sys.executable, "-m", "drivers.cli_view", publisher, "--json",
+    view = subprocess.run([sys.executable, "-m", "drivers.commands.holo_view", publisher, "--json",
                            "--count", "30", "--timeout", "30"], cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
     assert view.returncode == 0, view.stderr
@@ -164,7 +164,7 @@ def test_a_program_that_fails_stops_the_others(procs, tmp_path):
     try:
         address = taken.getsockopt_string(zmq.LAST_ENDPOINT)
         text = SIMS + DEVICES.replace(ANY, address)
-        up = procs("service.cli_up", str(_config(tmp_path, text)))
+        up = procs("service.commands.holo_up", str(_config(tmp_path, text)))
         assert up.finish(60) == 1
     finally:
         taken.close(0)
@@ -187,7 +187,7 @@ def test_ctrl_c_at_the_terminal_stops_the_programs_in_order(tmp_path):
     import signal
     import threading
 
-    p = subprocess.Popen([sys.executable, "-m", "service.cli_up",
+    p = subprocess.Popen([sys.executable, "-m", "service.commands.holo_up",
                           str(_config(tmp_path, SIMS + DEVICES))], cwd=ROOT, text=True,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          stdin=subprocess.DEVNULL, start_new_session=True)

@@ -13,7 +13,7 @@ import tty
 import pytest
 from testkit import SIGNALS, STATUS, catches, linux_only, posix_only, wait_for
 
-from drivers import cli_view
+from drivers.commands import holo_view as cli_view
 from drivers.events import ButtonEvent, DialEvent, PoseEvent
 from drivers.publisher import Publisher
 
@@ -59,7 +59,7 @@ def stream():
 
 
 def test_json_snapshots_hold_the_latest_state(procs, stream):
-    view = procs("drivers.cli_view", stream.pub.address, "--json", "--count", "40",
+    view = procs("drivers.commands.holo_view", stream.pub.address, "--json", "--count", "40",
                  "--rate", "100")
     assert view.finish() == 0
     snaps = [json.loads(ln) for ln in view.out]
@@ -77,7 +77,7 @@ def test_each_event_comes_once_in_the_snapshot_after_it(procs):
     go = threading.Event()
     stream = Stream(go)
     try:
-        view = procs("drivers.cli_view", stream.pub.address, "--json", "--count", "60",
+        view = procs("drivers.commands.holo_view", stream.pub.address, "--json", "--count", "60",
                      "--rate", "100")
         view.wait_lines(lambda: len(view.out) >= 3)  # subscribed and showing poses
         go.set()
@@ -98,7 +98,7 @@ def test_each_event_comes_once_in_the_snapshot_after_it(procs):
 
 
 def test_once_and_plain_lines(procs, stream):
-    view = procs("drivers.cli_view", stream.pub.address, "--once")
+    view = procs("drivers.commands.holo_view", stream.pub.address, "--once")
     assert view.finish() == 0 and len(view.out) == 1
     line = view.out[0]
     assert line.startswith("t ") and ("pose yaw" in line or "pose no pose yet" in line)
@@ -131,7 +131,7 @@ def test_live_panel_in_a_terminal_redraws_in_place_and_stops_cleanly(procs, stre
     master, slave = os.openpty()
     tty.setraw(slave)
     try:
-        view = procs("drivers.cli_view", stream.pub.address, "--rate", "50", stdout=slave)
+        view = procs("drivers.commands.holo_view", stream.pub.address, "--rate", "50", stdout=slave)
         text: list[str] = []
 
         def panel_shows_state() -> bool:
@@ -155,7 +155,7 @@ def test_live_panel_in_a_terminal_redraws_in_place_and_stops_cleanly(procs, stre
 
 @linux_only
 def test_sigint_while_waiting_for_a_publisher(procs):
-    view = procs("drivers.cli_view", "tcp://127.0.0.1:1", "--json")
+    view = procs("drivers.commands.holo_view", "tcp://127.0.0.1:1", "--json")
     view.wait_lines(lambda: catches(view.p.pid, signal.SIGTERM))
     view.signal(signal.SIGINT)
     assert view.finish() == 130 and view.out == []
@@ -175,7 +175,8 @@ def test_poses_from_the_pose_only_endpoint(procs):
     thread = threading.Thread(target=run, daemon=True)
     thread.start()
     try:
-        view = procs("drivers.cli_view", pub.address, "--pose", pub.pose_address, "--json",
+        view = procs("drivers.commands.holo_view", pub.address, "--pose", pub.pose_address,
+                     "--json",
                      "--count", "20", "--rate", "100")
         assert view.finish() == 0
     finally:

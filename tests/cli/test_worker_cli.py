@@ -14,7 +14,8 @@ from service.net.worker import READY
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "service.cli_worker", *args], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "service.commands.holo_service_worker", *args],
+                          cwd=ROOT,
                           text=True, capture_output=True, timeout=60)
 
 
@@ -41,7 +42,7 @@ def test_it_says_where_it_connects_and_stops_with_the_signal_status(signum):
     broker = ctx.socket(zmq.ROUTER)
     broker.setsockopt(zmq.LINGER, 0)
     port = broker.bind_to_random_port("tcp://127.0.0.1")
-    p = subprocess.Popen([sys.executable, "-m", "service.cli_worker", "--connect",
+    p = subprocess.Popen([sys.executable, "-m", "service.commands.holo_service_worker", "--connect",
                           f"tcp://127.0.0.1:{port}", "--nice", "0"], cwd=ROOT, text=True,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:

@@ -13,7 +13,7 @@ import pytest
 from drivers_fixtures import MISSING, hatire_capture
 from testkit import posix_only
 
-from drivers import cli_devices
+from drivers.commands import holo_devices as cli_devices
 from drivers.pty_link import PtyLink
 from drivers.recording import LogReader
 from drivers.subscriber import DeviceSubscriber
@@ -35,13 +35,14 @@ def test_live_dump_equals_replay_dump_and_sigterm_closes_the_log(procs, tmp_path
     # a faulty tracker that also drops off and comes back, and a dial box on a pty
     log = tmp_path / "session.hlog"
     # the tracker on TCP (socket:// URL; a reconnect cannot reach a recycled pty number)
-    tracker = procs("sim_devices.cli", "tracker", "--tcp", "0", "--protocol", "native",
+    tracker = procs("sim_devices.commands.holo_sim", "tracker", "--tcp", "0", "--protocol",
+                    "native",
                     "--rate", "200", "--faults",
                     "corrupt=0.03,burst=0.03,split,disconnect=0.01,reconnect_s=0.1,seed=5")
-    dials = procs("sim_devices.cli", "dials", "--pty", "--seed", "3")
+    dials = procs("sim_devices.commands.holo_sim", "dials", "--pty", "--seed", "3")
     tracker.wait_lines(lambda: tracker.out)
     dials.wait_lines(lambda: dials.out)
-    live = procs("drivers.cli_devices", "--tracker", tracker.out[0], "--tracker-protocol",
+    live = procs("drivers.commands.holo_devices", "--tracker", tracker.out[0], "--tracker-protocol",
                  "native", "--dials", dials.out[0], "--record", str(log), "--dump",
                  "--pub", "tcp://127.0.0.1:0", "--reset-wait", "0.5")
     live.wait_lines(lambda: live.err)
@@ -61,7 +62,7 @@ def test_live_dump_equals_replay_dump_and_sigterm_closes_the_log(procs, tmp_path
 
     reader = LogReader(log, warn=False)
     assert len(list(reader)) > 0 and reader.stats.torn == 0 and reader.stats.corrupt == 0
-    replay = procs("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump")
+    replay = procs("drivers.commands.holo_replay", str(log), "--as-fast-as-possible", "--dump")
     assert replay.finish(30) == 0
     assert replay.out == live.out  # line by line, same values and times
 
@@ -85,7 +86,7 @@ def test_clean_stop_reports_the_torn_last_frame_as_replay_does(procs, tmp_path):
     master, slave = os.openpty()
     tty.setraw(slave)
     try:
-        live = procs("drivers.cli_devices", "--tracker", os.ttyname(slave), "--dump",
+        live = procs("drivers.commands.holo_devices", "--tracker", os.ttyname(slave), "--dump",
                      "--watchdog", "0", "--record", str(tmp_path / "s.hlog"))
         live.wait_lines(lambda: live.out)  # opened: from now on nothing written is lost
         view = memoryview(capture)
@@ -104,11 +105,12 @@ def test_clean_stop_reports_the_torn_last_frame_as_replay_does(procs, tmp_path):
     stats = json.loads(live.err[-1])["stats"]["tracker"]
     assert (stats["frames"], stats["counter_gaps"], stats["truncated"]) == (4765, 2, 1)
     # what the replay of the raw capture reports, in the same order
-    replay = procs("drivers.cli_replay", str(FIXTURE), "--protocol", "hatire",
+    replay = procs("drivers.commands.holo_replay", str(FIXTURE), "--protocol", "hatire",
                    "--as-fast-as-possible", "--dump")
     assert replay.finish(60) == 0
     assert device_events(live.out) == device_events(replay.out)
-    recorded = procs("drivers.cli_replay", str(tmp_path / "s.hlog"), "--as-fast-as-possible",
+    recorded = procs("drivers.commands.holo_replay", str(tmp_path / "s.hlog"),
+                     "--as-fast-as-possible",
                      "--dump")
     assert recorded.finish(60) == 0 and recorded.out == live.out
 
@@ -153,7 +155,7 @@ def retries(lines: list[str]) -> list[re.Match]:
 @posix_only
 def test_a_missing_port_says_each_retry_with_its_back_off_until_it_appears(procs, tmp_path):
     path = str(tmp_path / "ttyUSB9")  # no such port yet
-    live = procs("drivers.cli_devices", "--tracker", path, "--dump")
+    live = procs("drivers.commands.holo_devices", "--tracker", path, "--dump")
     live.wait_lines(lambda: len(retries(live.err)) >= 4)
     first, *later = retries(live.err)[:4]
     assert first["url"] == path and first["n"] == "1" and "No such file" in first["msg"]
@@ -176,7 +178,7 @@ def test_a_missing_port_says_each_retry_with_its_back_off_until_it_appears(procs
 
 def test_no_retry_tries_each_port_once_and_exits_1(procs, tmp_path):
     path = str(tmp_path / "ttyUSB9")
-    live = procs("drivers.cli_devices", "--tracker", path, "--no-retry")
+    live = procs("drivers.commands.holo_devices", "--tracker", path, "--no-retry")
     assert live.finish() == 1
     (only,) = retries(live.err)
     assert only["n"] == "1" and only["then"] == "not retrying (--no-retry)"
@@ -184,7 +186,8 @@ def test_no_retry_tries_each_port_once_and_exits_1(procs, tmp_path):
     assert live.err[-2].startswith(f"holo-devices: never opened tracker ({path}): ")
     assert live.err[-1] == "holo-devices: no device could be opened; nothing was read"
     # one device read, the other missing: still status 1, the run ends at once
-    both = procs("drivers.cli_devices", "--tracker", "loop://", "--dials", path, "--no-retry")
+    both = procs("drivers.commands.holo_devices", "--tracker", "loop://", "--dials", path,
+                 "--no-retry")
     assert both.finish() == 1
     assert both.err[-1] == f"holo-devices: stopped: dials ({path}) did not open (--no-retry)"
 
@@ -193,7 +196,7 @@ def test_no_retry_tries_each_port_once_and_exits_1(procs, tmp_path):
 def test_no_retry_ends_the_run_when_a_lost_device_does_not_reopen(procs, tmp_path):
     path = str(tmp_path / "tracker")
     link = PtyLink(symlink=path)
-    live = procs("drivers.cli_devices", "--tracker", path, "--dump", "--no-retry")
+    live = procs("drivers.commands.holo_devices", "--tracker", path, "--dump", "--no-retry")
     try:
         live.wait_lines(lambda: any('"message":"opened"' in line for line in live.out))
     finally:

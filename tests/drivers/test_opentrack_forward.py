@@ -9,7 +9,7 @@ import socket
 import pytest
 from testkit import HANG_S, posix_only
 
-from drivers import cli_devices
+from drivers.commands import holo_devices as cli_devices
 from drivers.events import PoseEvent, StatusEvent
 from drivers.opentrack_forward import ForwardSettings, OpentrackForwarder
 from drivers.protocols.opentrack import OpentrackDecoder
@@ -84,10 +84,11 @@ def test_bad_forward_settings_are_refused(capsys):
 
 @posix_only
 def test_holo_devices_forwards_a_hatire_trackers_poses(procs, listener):
-    sim = procs("sim_devices.cli", "tracker", "--pty", "--rate", "100", "--motion", "turn")
+    sim = procs("sim_devices.commands.holo_sim", "tracker", "--pty", "--rate", "100", "--motion",
+                "turn")
     sim.wait_lines(lambda: sim.out)
     host, port = listener.getsockname()
-    live = procs("drivers.cli_devices", "--tracker", sim.out[0], "--dump",
+    live = procs("drivers.commands.holo_devices", "--tracker", sim.out[0], "--dump",
                  "--forward-opentrack", f"{host}:{port}", "--forward-filter", "raw")
     got = received(listener, 20)
     live.wait_lines(lambda: len(live.out) > 25)

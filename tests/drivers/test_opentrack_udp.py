@@ -10,7 +10,7 @@ import pytest
 from reader_helpers import Collector
 from testkit import HANG_S, posix_only, wait_for
 
-from drivers import cli_devices
+from drivers.commands import holo_devices as cli_devices
 from drivers.events import PoseEvent
 from drivers.protocols.opentrack import encode_pose
 from drivers.reader import Chunk, DeviceReader, ReaderSettings
@@ -117,10 +117,11 @@ def test_holo_devices_refuses_urls_that_do_not_fit(argv, message, capsys):
 def test_holo_sim_over_udp_into_holo_devices_recorded_and_replayed(procs, tmp_path, sender):
     """Poses with faults (short datagrams, random ones, a sender that stops) end to end."""
     port, log = free_udp_port(), tmp_path / "ot.hlog"
-    live = procs("drivers.cli_devices", "--tracker", f"opentrack-udp://127.0.0.1:{port}",
+    live = procs("drivers.commands.holo_devices", "--tracker", f"opentrack-udp://127.0.0.1:{port}",
                  "--dump", "--record", str(log), "--watchdog", "0.4")
     live.wait_lines(lambda: any('"opened"' in line for line in live.out))
-    sim = procs("sim_devices.cli", "tracker", "--udp", f"127.0.0.1:{port}", "--rate", "200",
+    sim = procs("sim_devices.commands.holo_sim", "tracker", "--udp", f"127.0.0.1:{port}", "--rate",
+                "200",
                 "--seconds", "3", "--faults",
                 "truncate=0.03,drop=0.02,burst=0.02,disconnect=0.004,reconnect_s=0.6,seed=4")
     sim.wait_lines(lambda: sim.out)
@@ -143,7 +144,7 @@ def test_holo_sim_over_udp_into_holo_devices_recorded_and_replayed(procs, tmp_pa
     assert stats["bad_size"] >= summary["faults"].get("truncate", 0)
     poses = [r for r in records if r["kind"] == "pose"]
     assert len(poses) == stats["frames"] - stats["out_of_range"]
-    replay = procs("drivers.cli_replay", str(log), "--as-fast-as-possible", "--dump")
+    replay = procs("drivers.commands.holo_replay", str(log), "--as-fast-as-possible", "--dump")
     assert replay.finish(HANG_S) == 0
     assert replay.out == live.out  # datagram by datagram, the same lines
 
@@ -151,7 +152,7 @@ def test_holo_sim_over_udp_into_holo_devices_recorded_and_replayed(procs, tmp_pa
     port2, c = free_udp_port(), Collector()
     with listen(port2, c, watchdog_s=None) as reader:
         wait_for(lambda: opened(c), HANG_S, "the second listener opened")
-        again = procs("drivers.cli_replay", str(log), "--to-port",
+        again = procs("drivers.commands.holo_replay", str(log), "--to-port",
                       f"opentrack-udp://127.0.0.1:{port2}", "--speed", "4")
         assert again.finish(HANG_S) == 0
         wait_for(lambda: reader.stats()["chunks"] == stats["chunks"], HANG_S,

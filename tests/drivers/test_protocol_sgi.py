@@ -425,7 +425,7 @@ def test_init_steps_are_frozen_and_the_box_talks_at_9600_baud():
     from dataclasses import FrozenInstanceError
 
     import drivers.protocols.sgi_dialbox as sgi
-    from drivers.cli_devices import build_parser
+    from drivers.commands.holo_devices import build_parser
 
     with pytest.raises(FrozenInstanceError):
         init_sequence()[1].wait_s = 0.0

@@ -20,8 +20,8 @@ import pytest
 from drivers_fixtures import MISSING, hatire_capture
 from testkit import HANG_S, wait_for
 
-from drivers import cli_replay
-from drivers.cli_devices import header_extra, log_devices
+from drivers.commands import holo_replay as cli_replay
+from drivers.commands.holo_devices import header_extra, log_devices
 from drivers.events import PoseEvent
 from drivers.protocols import hatire, make_decoder
 from drivers.protocols import sgi_dialbox as sgi
@@ -56,7 +56,7 @@ def dump(capsys, *argv: str) -> list[dict]:
 def test_hatire_fixture_as_fast_as_possible_gives_4765_pose_lines():
     if not FIXTURE.is_file():
         pytest.skip(MISSING)
-    out = subprocess.run([sys.executable, "-m", "drivers.cli_replay", str(FIXTURE),
+    out = subprocess.run([sys.executable, "-m", "drivers.commands.holo_replay", str(FIXTURE),
                           "--protocol", "hatire", "--as-fast-as-possible", "--dump"],
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
@@ -135,7 +135,8 @@ def test_dial_turns_follow_the_logged_or_given_counts_per_turn(tmp_path, capsys)
 def test_replay_publishes_on_the_address_it_prints(tmp_path):
     log = tmp_path / "s.hlog"
     make_log(log)
-    proc = subprocess.Popen([sys.executable, "-m", "drivers.cli_replay", str(log), "--loop",
+    proc = subprocess.Popen([sys.executable, "-m", "drivers.commands.holo_replay", str(log),
+                             "--loop",
                              "--pub", "tcp://127.0.0.1:0"],
                             cwd=ROOT, stderr=subprocess.PIPE, text=True)
     try:
@@ -188,7 +189,7 @@ def test_to_port_writes_the_recorded_bytes_into_a_pty(tmp_path):
     tty.setraw(slave)
     os.set_blocking(master, False)
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "drivers.cli_replay", str(log),
+        proc = subprocess.Popen([sys.executable, "-m", "drivers.commands.holo_replay", str(log),
                                  "--speed", "4", "--to-port", os.ttyname(slave)], cwd=ROOT)
         try:
             got = bytearray()
@@ -215,7 +216,8 @@ def test_to_pty_waits_for_its_reader_before_closing(tmp_path):
     # itself must wait for a reader that is behind (a loaded machine), as holo-sim does
     log = tmp_path / "s.hlog"
     sent = b"".join(make_log(log))
-    proc = subprocess.Popen([sys.executable, "-m", "drivers.cli_replay", str(log), "--to-pty"],
+    proc = subprocess.Popen([sys.executable, "-m", "drivers.commands.holo_replay", str(log),
+                             "--to-pty"],
                             cwd=ROOT, stderr=subprocess.PIPE, text=True)
     client = -1
     try:
@@ -249,7 +251,8 @@ def test_to_pty_waits_for_its_reader_before_closing(tmp_path):
 def test_to_pty_plays_a_live_device_for_a_reader(tmp_path):
     log = tmp_path / "s.hlog"
     make_log(log)
-    proc = subprocess.Popen([sys.executable, "-m", "drivers.cli_replay", str(log), "--to-pty",
+    proc = subprocess.Popen([sys.executable, "-m", "drivers.commands.holo_replay", str(log),
+                             "--to-pty",
                              "--loop"], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     seqs: list[int] = []
     reader = None

@@ -12,8 +12,8 @@ import random
 import pytest
 from drivers_fixtures import MISSING, hatire_capture
 
-from drivers import cli_replay
-from drivers.cli_devices import log_devices
+from drivers.commands import holo_replay as cli_replay
+from drivers.commands.holo_devices import log_devices
 from drivers.protocols import hatire
 from drivers.protocols import sgi_dialbox as sgi
 from drivers.protocols.framing import FramingCheck, check_framing, protocols_that_frame
@@ -172,7 +172,7 @@ def test_holo_devices_names_a_port_whose_bytes_do_not_frame(capsys):
     """A Hatire tracker on the dial box's port: the live run says so at its end."""
     import threading
 
-    from drivers import cli_devices
+    from drivers.commands import holo_devices as cli_devices
     from drivers.pty_link import PtyLink
 
     link, stop = PtyLink(), threading.Event()

@@ -12,7 +12,7 @@ import pytest
 from reader_helpers import Collector
 from testkit import posix_only, wait_for
 
-from drivers import cli_devices
+from drivers.commands import holo_devices as cli_devices
 from drivers.events import PoseEvent, StatusEvent
 from drivers.protocols import native
 from drivers.protocols.hatire import HatireCommands
@@ -117,7 +117,7 @@ def test_start_after_a_watchdog_reopen_and_stop_on_a_clean_stop(protocol, reset_
 def test_holo_devices_starts_a_tracker_that_waits_for_its_start_character(tmp_path):
     """The audit's case: holo-sim --wait-start read by holo-devices (big-endian, own chars)."""
     sim = subprocess.Popen(
-        [sys.executable, "-m", "sim_devices.cli", "tracker", "--pty", "--wait-start",
+        [sys.executable, "-m", "sim_devices.commands.holo_sim", "tracker", "--pty", "--wait-start",
          "--rate", "100", "--byte-order", "big", "--hatire-start", "G", "--hatire-stop", "H"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = tmp_path / "s.hlog"
@@ -125,7 +125,7 @@ def test_holo_devices_starts_a_tracker_that_waits_for_its_start_character(tmp_pa
         path = sim.stdout.readline().strip()
         assert path.startswith("/dev/"), sim.stderr.read()
         live = subprocess.run(
-            [sys.executable, "-m", "drivers.cli_devices", "--tracker", path, "--dump",
+            [sys.executable, "-m", "drivers.commands.holo_devices", "--tracker", path, "--dump",
              "--seconds", "1.5", "--hatire-start", "G", "--hatire-stop", "0x48",
              "--hatire-big-endian", "--record", str(log)],
             cwd=ROOT, capture_output=True, text=True, timeout=60)
@@ -147,7 +147,7 @@ def test_holo_devices_starts_a_tracker_that_waits_for_its_start_character(tmp_pa
     assert stats["watchdog_trips"] == 0 and stats["opens"] == 1
     assert json.loads(out.splitlines()[-1])["commands"] == {"start": 1, "stop": 1, "reset": 0}
     # the log header keeps the byte order: the replay prints the same lines
-    replay = subprocess.run([sys.executable, "-m", "drivers.cli_replay", str(log),
+    replay = subprocess.run([sys.executable, "-m", "drivers.commands.holo_replay", str(log),
                              "--as-fast-as-possible", "--dump"],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert replay.returncode == 0, replay.stderr

@@ -4,7 +4,7 @@ import math
 import pytest
 
 from service.bench.galilean_bench import main
-from service.cli_bench import main as holo_bench
+from service.commands.holo_bench import main as holo_bench
 
 
 def test_cli_json_falling(capsys):

@@ -30,7 +30,7 @@ def setup_from_args(tmp_path, monkeypatch):
     ``local=False`` leaves ``--local`` out (the game then uses ``--service``).
     The level-of-detail cache goes to a temporary folder.
     """
-    from game import cli
+    from game.commands import holo_game as cli
 
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "lod"))
     opened = []

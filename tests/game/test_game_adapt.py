@@ -11,7 +11,6 @@ import time
 
 import pytest
 
-from game import cli
 from game.adapt import (
     DEFAULT_LIGHT,
     LADDER,
@@ -23,6 +22,7 @@ from game.adapt import (
     next_probe,
     predicted_hz,
 )
+from game.commands import holo_game as cli
 from service.light import LightSettings
 
 S = AdaptSettings(target_hz=10.0, margin=1.3)  # a look must measure 13 renders/s

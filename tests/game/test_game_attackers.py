@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pygame
 
-from game import cli
+from game.commands import holo_game as cli
 from game.scene import MAX_POLYGONS
 
 

@@ -11,7 +11,7 @@ from testkit import ROOT
 
 
 def _game(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "game.cli", "--local", "--headless",
+    return subprocess.run([sys.executable, "-m", "game.commands.holo_game", "--local", "--headless",
                            "--seconds", "1", *args], cwd=ROOT, text=True,
                           capture_output=True, timeout=120)
 

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pygame
 
-from game import cli
 from game.actions import (
     BUTTON_BINDINGS,
     DIAL_AXES,
@@ -20,6 +19,7 @@ from game.actions import (
     PAD_AXES,
     PAD_BUTTONS,
 )
+from game.commands import holo_game as cli
 from game.display import headless_env
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -106,7 +106,7 @@ def expected(pairs) -> dict[str, set[str]]:
 
 def test_help_lists_every_key_dial_box_and_gamepad_binding():
     run = subprocess.run(
-        [sys.executable, "-m", "game.cli", "--help"],
+        [sys.executable, "-m", "game.commands.holo_game", "--help"],
         cwd=ROOT, env=headless_env(), capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr

@@ -1,6 +1,6 @@
 """The whole-loop demo stops every process it started: on SIGTERM, SIGINT and errors.
 
-Each test runs ``python -m game.full_demo`` as a real process and watches its
+Each test runs ``python -m game.commands.make_demo`` as a real process and watches its
 process tree through ``/proc`` (each process's parent from ``/proc/<pid>/stat``;
 ``/proc/<pid>/task/*/children`` needs a kernel option that not every kernel has).
 """
@@ -86,7 +86,8 @@ def start_demo(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, Path]:
     log = tmp_path / "demo.log"
     with log.open("w") as sink:
         demo = subprocess.Popen(
-            [sys.executable, "-m", "game.full_demo", "--headless", "--out", str(tmp_path / "out"),
+            [sys.executable, "-m", "game.commands.make_demo", "--headless", "--out",
+             str(tmp_path / "out"),
              "--seconds", "120", *extra],
             cwd=ROOT, env=headless_env(), stdout=sink, stderr=subprocess.STDOUT, text=True,
         )  # fmt: skip
@@ -128,7 +129,7 @@ def running_game(demo: subprocess.Popen) -> dict[int, int]:
 
     A child counts once it runs its own program: between fork and exec its
     ``/proc/<pid>/cmdline`` is still the demo's (a loaded machine once showed the
-    game's child there, as ``game.full_demo``, after all five had forked).
+    game's child there, as ``game.commands.make_demo``, after all five had forked).
     """
 
     def started() -> dict[int, int]:
@@ -137,7 +138,8 @@ def running_game(demo: subprocess.Popen) -> dict[int, int]:
         direct = [p for p in kids if (st := stat(p)) and st[1] == demo.pid]
         programs = " ".join(cmdline(p) for p in kids)
         running = all(name in programs
-                      for name in ("game.cli", "service.cli_service", "drivers.cli_devices"))
+                      for name in ("game.commands.holo_game", "service.commands.holo_service",
+                                   "drivers.commands.holo_devices"))
         return kids if len(direct) >= CHILDREN and running else {}
 
     return wait_until(started, 120,
@@ -199,7 +201,7 @@ def test_a_child_dying_mid_game_stops_the_others(tmp_path):
     demo, log = start_demo(tmp_path)
     try:
         kids = running_game(demo)
-        (driver,) = [p for p in kids if "drivers.cli_devices" in cmdline(p)]
+        (driver,) = [p for p in kids if "drivers.commands.holo_devices" in cmdline(p)]
         os.kill(driver, signal.SIGKILL)
         assert demo.wait(60) == 1
         assert "holo-devices exited -9 while holo-game ran" in log.read_text()

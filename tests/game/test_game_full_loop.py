@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from game import full_demo
+from game.commands import make_demo as full_demo
 from game.run_folders import read_latest
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")

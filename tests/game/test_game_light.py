@@ -1,7 +1,7 @@
 """The game is lit like the demo by default (the service's light, Blinn-Phong);
 ``--light ambient`` draws flat ambient silhouettes (thesis 5.1.1).
 
-The settings are taken from what :func:`game.cli._setup` hands the backend, and the
+The settings are taken from what :func:`game.commands.holo_game._setup` hands the backend, and the
 frames from the real renderer with those settings (issue 6, thesis 5.1.1).
 """
 

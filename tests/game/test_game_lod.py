@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from testkit import wait_until
 
-from game import cli
 from game.backends import LocalRenderer
+from game.commands import holo_game as cli
 from game.rules import new_game
 from game.scene import object_states
 
@@ -87,8 +87,8 @@ def _tear_ship_cache(folder):
 def test_the_service_lod_notes_reach_the_hud_and_the_log_once(
         service_factory, setup_from_args, tmp_path, monkeypatch, capsys):
     from game.backends import ServiceBackend
-    from game.cli import Progress
     from game.client_loop import GameClient, LoopSettings
+    from game.commands.holo_game import Progress
     from game.display import GameWindow
 
     key = _tear_ship_cache(tmp_path / "lod")  # the folder both processes use

@@ -32,7 +32,7 @@ def test_the_game_takes_views_and_angle_from_the_calibration(setup_from_args, ca
 def test_the_game_refuses_a_malformed_calibration_in_one_line(tmp_path):
     bad = tmp_path / "visual.json"
     bad.write_text("{not json")
-    proc = subprocess.run([sys.executable, "-m", "game.cli", "--local", "--headless",
+    proc = subprocess.run([sys.executable, "-m", "game.commands.holo_game", "--local", "--headless",
                            "--seconds", "1", "--display", f"lookingglass:{bad}"],
                           cwd=ROOT, text=True, capture_output=True, timeout=120)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def holo_game(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
     """``holo-game`` in a real process, headless."""
     return subprocess.run(
-        [sys.executable, "-m", "game.cli", *args],
+        [sys.executable, "-m", "game.commands.holo_game", *args],
         cwd=ROOT,
         env=headless_env(),
         capture_output=True,

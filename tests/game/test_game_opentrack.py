@@ -21,7 +21,7 @@ def free_udp_port() -> int:
 
 def test_the_head_view_follows_opentrack_datagrams(pygame_headless, procs):
     port = free_udp_port()
-    devices = procs("drivers.cli_devices", "--tracker", f"opentrack-udp://127.0.0.1:{port}",
+    devices = procs("drivers.commands.holo_devices", "--tracker", f"opentrack-udp://127.0.0.1:{port}",
                     "--pub", "tcp://127.0.0.1:0")
     devices.wait_lines(lambda: devices.err)
     address = devices.err[0].split()[-1]

@@ -22,7 +22,7 @@ def start_service(control: str, frames: str) -> subprocess.Popen:
         [
             sys.executable,
             "-m",
-            "service.cli_service",
+            "service.commands.holo_service",
             "--control",
             control,
             "--frames",

@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from game import full_demo
+from game.commands import make_demo as full_demo
 from game.run_folders import RunFolderError, new_run_folder, point_latest, read_latest
 
 NOON = 1_795_000_000.0  # any fixed time

@@ -15,7 +15,7 @@ from tests.testkit import shared_fixture
 
 def run(*args, cwd=None):
     return subprocess.run(
-        [sys.executable, "-m", "service.cli_render", *args],
+        [sys.executable, "-m", "service.commands.holo_render", *args],
         capture_output=True,
         text=True,
         timeout=300,

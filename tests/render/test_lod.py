@@ -150,7 +150,8 @@ def test_bad_settings_are_a_clear_error(kwargs):
                                   ["--lod", "maybe"]])
 def test_holo_render_refuses_bad_lod_options(args, tmp_path):
     run = subprocess.run(
-        [sys.executable, "-m", "service.cli_render", "builtin:game", "--out", str(tmp_path),
+        [sys.executable, "-m", "service.commands.holo_render", "builtin:game", "--out",
+         str(tmp_path),
          *args], capture_output=True, text=True, timeout=60,
     )
     assert run.returncode == 2
@@ -405,7 +406,7 @@ def test_holo_render_lod_json_report_and_quality_auto(tmp_path):
     env = {**os.environ, "HOLO_LOD_CACHE": str(tmp_path / "lod")}
     for extra in ([], ["--quality", "auto"]):
         run = subprocess.run(
-            [sys.executable, "-m", "service.cli_render", "builtin:demo", "--lod", "on",
+            [sys.executable, "-m", "service.commands.holo_render", "builtin:demo", "--lod", "on",
              "--size", "96x72", "--json", "--out", str(tmp_path / "out"), *extra],
             capture_output=True, text=True, timeout=300, env=env,
         )
@@ -493,7 +494,8 @@ def test_holo_render_budget_measures_before_the_frame_it_writes(tmp_path):
 
     env = {**os.environ, "HOLO_LOD_CACHE": str(tmp_path / "lod")}
     run = subprocess.run(
-        [sys.executable, "-m", "service.cli_render", "builtin:demo", "--budget-ms", "0.001",
+        [sys.executable, "-m", "service.commands.holo_render", "builtin:demo", "--budget-ms",
+         "0.001",
          "--size", "96x72", "--json", "--out", str(tmp_path / "out")],
         capture_output=True, text=True, timeout=300, env=env,
     )

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from service import cli_render
+from service.commands import holo_render as cli_render
 from service.frame import quilt_name
 from service.lookingglass import Interleaver, load_calibration
 from service.png import read_png

@@ -110,7 +110,8 @@ def test_ascii_ply_trailing_values_on_vertex_lines(tmp_path):
 
 def test_cli_json_mesh_block_warning_and_strict(corpus, tmp_path):
     path = str(corpus["knot.obj"])
-    cmd = [sys.executable, "-m", "service.cli_render", path, "--zones", "2", "--size", "32x24",
+    cmd = [sys.executable, "-m", "service.commands.holo_render", path, "--zones", "2", "--size",
+           "32x24",
            "--out", str(tmp_path / "o"), "--json"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr

@@ -81,7 +81,7 @@ def test_peers_that_cannot_start_are_named_and_the_bench_goes_on(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(tmp_path / "shadow"))
     out = tmp_path / "out"
     proc = subprocess.run(
-        [sys.executable, "-m", "service.cli_bench", "render", "--peers-only", "--quick",
+        [sys.executable, "-m", "service.commands.holo_bench", "render", "--peers-only", "--quick",
          "--scenes", "cyclic", "--out", str(out)],
         env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr

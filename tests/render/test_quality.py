@@ -139,7 +139,7 @@ def test_cost_model_files_are_checked(tmp_path):
 
 
 def _render_json(capsys, *argv):
-    from service import cli_render
+    from service.commands import holo_render as cli_render
 
     try:
         code = cli_render.main([*argv, "--json"])

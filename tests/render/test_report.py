@@ -39,7 +39,7 @@ def test_a_tiny_report_writes_every_section_with_valid_inline_images(tmp_path, c
 
 
 def test_a_benchmark_not_built_is_a_row_saying_so(tmp_path):
-    from service.cli_bench import BENCHES
+    from service.commands.holo_bench import BENCHES
 
     plan = report.Plan("no-such-bench", "Something not written yet", ((),), ((),))
     res = report.run_plan(plan, BENCHES, tmp_path, True, "32x24")
@@ -82,7 +82,7 @@ def test_every_failure_the_issue_lists_has_a_row():
 
 def test_every_registered_benchmark_has_a_plan():
     """A benchmark without one shows in the page as "not run" with no figures."""
-    from service.cli_bench import BENCHES
+    from service.commands.holo_bench import BENCHES
 
     planned = {n for p in report.PLANS for n in (p.bench, *report.ALIASES.get(p.bench, ()))}
     inside = {n for n, host in report.RUN_INSIDE.items() if host in planned}
@@ -236,7 +236,7 @@ def test_a_finished_report_replaces_the_previous_one_and_keeps_other_files(tmp_p
 def test_an_interrupted_report_leaves_the_previous_page_and_data_together(procs, tmp_path):
     out = tmp_path / "bench-out"
     before = _old_report(out)
-    run = procs("service.cli_bench", "report", "--quick", "--no-warmup", "--only",
+    run = procs("service.commands.holo_bench", "report", "--quick", "--no-warmup", "--only",
                 "light,decoders", "--size", "32x24", "--out", str(out))
     # the first benchmark has begun writing into the staging folder beside OUT
     run.wait_lines(lambda: any(tmp_path.glob("bench-out.partial-*/light")), timeout=120)

@@ -10,13 +10,14 @@ from pathlib import Path
 import pytest
 from testkit import ROOT
 
-from service.cli_service import build_parser
+from service.commands.holo_service import build_parser
 
 
 def _help_entries() -> dict[str, str]:
     """``holo-service --help`` run as a command: option -> its entry, lines joined."""
     script = Path(sys.executable).with_name("holo-service")
-    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "service.cli_service"]
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m",
+                                                 "service.commands.holo_service"]
     out = subprocess.run(
         [*cmd, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60, check=True
     ).stdout
@@ -58,7 +59,7 @@ def test_bad_settings_are_refused_before_the_service_says_it_runs():
     for bad in (["--refresh", "0"], ["--refresh", "-1"], ["--render-timeout", "0"],
                 ["--workers", "-1"], ["--scene", "nosuch"]):
         out = subprocess.run(
-            [sys.executable, "-m", "service.cli_service", "--control", "tcp://127.0.0.1:0",
+            [sys.executable, "-m", "service.commands.holo_service", "--control", "tcp://127.0.0.1:0",
              "--frames", "tcp://127.0.0.1:0", *bad],
             cwd=ROOT, capture_output=True, text=True, timeout=60,
         )  # fmt: skip

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import zmq
 
-from service.cli_service import main
+from service.commands.holo_service import main
 from service.signals import EXIT_USAGE
 
 

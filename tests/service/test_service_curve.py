@@ -13,7 +13,7 @@ from service.net.client import FrameSubscriber, ServiceClient
 def test_make_keys_and_curve_service(tmp_path):
     keys = tmp_path / "keys"
     out = subprocess.run(
-        [sys.executable, "-m", "service.cli_service", "--make-keys", str(keys)],
+        [sys.executable, "-m", "service.commands.holo_service", "--make-keys", str(keys)],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -50,7 +50,7 @@ def test_non_loopback_bind_needs_keys():
         [
             sys.executable,
             "-m",
-            "service.cli_service",
+            "service.commands.holo_service",
             "--control",
             f"tcp://0.0.0.0:{free_port()}",
             "--workers",

@@ -30,7 +30,7 @@ def zone_after(frames: FrameSubscriber, send, zone: int) -> dict:
 
 def test_opentrack_head_moves_pick_the_zone_through_holo_devices(procs, service_factory):
     port = free_udp_port()
-    devices = procs("drivers.cli_devices", "--tracker", f"opentrack-udp://127.0.0.1:{port}",
+    devices = procs("drivers.commands.holo_devices", "--tracker", f"opentrack-udp://127.0.0.1:{port}",
                     "--pub", "tcp://127.0.0.1:0")
     devices.wait_lines(lambda: devices.err)
     assert devices.err[0].startswith("holo-devices: publishing on tcp://127.0.0.1:")

@@ -57,7 +57,7 @@ def service():
 @contextlib.contextmanager
 def web_view(svc):
     """``holo-view --web --port 0`` on ``svc``; yields its base URL."""
-    proc = Proc("drivers.cli_view", "--web", "--port", "0", "--service", svc.control,
+    proc = Proc("drivers.commands.holo_view", "--web", "--port", "0", "--service", svc.control,
                 "--frames", svc.frames)
     found = {}
 
@@ -158,7 +158,7 @@ def test_a_port_in_use_is_one_line_and_status_2():
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        proc = Proc("drivers.cli_view", "--web", "--port", str(port))
+        proc = Proc("drivers.commands.holo_view", "--web", "--port", str(port))
         assert proc.finish(HANG_S) == 2
     assert len(proc.err) == 1 and proc.err[0].startswith(
         f"holo-view: error: cannot listen on 127.0.0.1:{port}"), proc.err

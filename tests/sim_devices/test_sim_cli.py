@@ -14,7 +14,7 @@ from testkit import HANG_S
 from drivers.events import PoseEvent
 from drivers.protocols import hatire, make_decoder, native
 from drivers.pty_link import DRAIN_TIMEOUT_S
-from sim_devices.cli import build_parser, main
+from sim_devices.commands.holo_sim import build_parser, main
 
 START = {"hatire": hatire.encode_command("start"), "native": native.encode_command("start")}
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="pty pairs need POSIX")
@@ -50,7 +50,8 @@ def test_an_unreadable_replay_file_is_one_line_and_status_2(tmp_path, name, reas
     """It printed ``[Errno 2] No such file or directory: '/missing'`` (Python's text)."""
     path = tmp_path / name
     proc = subprocess.run(
-        [sys.executable, "-m", "sim_devices.cli", "tracker", "--tcp", "0", "--seconds", "1",
+        [sys.executable, "-m", "sim_devices.commands.holo_sim", "tracker", "--tcp", "0",
+         "--seconds", "1",
          "--motion", f"replay:file={path}"],
         capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and proc.stdout == ""
@@ -62,7 +63,8 @@ def test_an_unreadable_replay_file_is_one_line_and_status_2(tmp_path, name, reas
 @pytest.mark.parametrize("protocol", ["hatire", "native"])
 def test_pty_across_processes(protocol):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sim_devices.cli", "tracker", "--pty", "--protocol", protocol,
+        [sys.executable, "-m", "sim_devices.commands.holo_sim", "tracker", "--pty", "--protocol",
+         protocol,
          "--rate", "200", "--seconds", "1", "--seed", "3", "--faults", "burst=0.05,seed=1",
          "--wait-start"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -91,7 +93,8 @@ def test_pty_across_processes(protocol):
 
 def _sim(*args: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "sim_devices.cli", "tracker", "--pty", "--protocol", "native",
+        [sys.executable, "-m", "sim_devices.commands.holo_sim", "tracker", "--pty", "--protocol",
+         "native",
          "--rate", "200", "--seed", "3", "--wait-start", *args],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

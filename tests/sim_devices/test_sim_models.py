@@ -95,7 +95,7 @@ def test_dial_box_script_decodes_to_the_script():
 
 def test_the_default_dial_script_never_steers_or_pauses_the_game():
     from game.actions import DIAL_AXES
-    from sim_devices.cli import build_parser
+    from sim_devices.commands.holo_sim import build_parser
     from sim_devices.dialbox import DEFAULT_SCRIPT, SCRIPTS, VIEW_DIALS
 
     assert build_parser().parse_args(["dials"]).script == DEFAULT_SCRIPT == "view"

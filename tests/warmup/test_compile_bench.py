@@ -26,7 +26,8 @@ JOB = "mesh files: repair"
 def test_compile_times_a_job_and_its_kernels_from_an_empty_cache(tmp_path):
     before = cache_files()
     out = tmp_path / "compile"
-    proc = subprocess.run([sys.executable, "-m", "service.cli_bench", "compile", "--job", JOB,
+    proc = subprocess.run([sys.executable, "-m", "service.commands.holo_bench", "compile", "--job",
+                           JOB,
                            "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
                           timeout=280, check=False)
     assert proc.returncode == 0, proc.stderr
@@ -65,7 +66,7 @@ def test_the_report_table_lists_jobs_the_whole_warmup_and_the_budget(tmp_path):
 
 
 def test_a_bad_job_name_is_a_usage_error():
-    proc = subprocess.run([sys.executable, "-m", "service.cli_bench", "compile", "--job",
+    proc = subprocess.run([sys.executable, "-m", "service.commands.holo_bench", "compile", "--job",
                            "no such job", "--out", "/tmp/x"], cwd=ROOT, capture_output=True,
                           text=True, timeout=HANG_S * 6, check=False)
     assert proc.returncode == 2 and "invalid choice" in proc.stderr

@@ -41,7 +41,7 @@ FRAMES_DEADLINE_S = 60.0
 #: Per-dispatcher cache stats of a process that ran ``holo-warmup`` (last line of stdout).
 _STATS = """
 import json
-from service.cli_warmup import main
+from service.commands.holo_warmup import main
 from service.warmup import dispatchers, read_record
 rc = main(["--jsonl", "--processes", "1"])
 out = {}

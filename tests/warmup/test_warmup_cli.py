@@ -36,7 +36,7 @@ def _env(cache: Path) -> dict[str, str]:
 @pytest.mark.timeout(SIGNAL_WAIT_S + 120)
 def test_sigint_while_compiling_is_one_line_and_130(cache):
     env = _env(cache)
-    p = subprocess.Popen([sys.executable, "-m", "service.cli_warmup", "--jsonl",
+    p = subprocess.Popen([sys.executable, "-m", "service.commands.holo_warmup", "--jsonl",
                           *(f"--job={j}" for j in _JOBS)], cwd=ROOT,
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -55,7 +55,7 @@ def test_sigint_while_compiling_is_one_line_and_130(cache):
 
 
 def test_bad_option_is_usage_error():
-    p = subprocess.run([sys.executable, "-m", "service.cli_warmup", "--nope"], cwd=ROOT,
+    p = subprocess.run([sys.executable, "-m", "service.commands.holo_warmup", "--nope"], cwd=ROOT,
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "error:" in p.stderr
 
@@ -64,7 +64,7 @@ def test_bad_option_is_usage_error():
 #: pid, and passes its JSON lines through.
 _PARENT = """
 import os, subprocess, sys
-child = subprocess.Popen([sys.executable, "-m", "service.cli_warmup", "--jsonl",
+child = subprocess.Popen([sys.executable, "-m", "service.commands.holo_warmup", "--jsonl",
                           "--processes", "1", f"--parent-pid={os.getpid()}",
                           *(f"--job={j}" for j in sys.argv[1:])])
 print(child.pid, flush=True)
@@ -118,7 +118,7 @@ def _reading_stdin(pid: int) -> bool:
 @pytest.mark.timeout(SIGNAL_WAIT_S + 120)
 def test_second_process_holds_before_the_named_job_until_released(cache):
     """``--hold-before``: the Galilean child waits there while its parent compiles."""
-    p = subprocess.Popen([sys.executable, "-m", "service.cli_warmup", "--jsonl",
+    p = subprocess.Popen([sys.executable, "-m", "service.commands.holo_warmup", "--jsonl",
                           *(f"--job={j}" for j in _JOBS), f"--hold-before={_JOBS[1]}"],
                          cwd=ROOT, env=_env(cache), stdin=subprocess.PIPE,
                          stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)

@@ -69,10 +69,10 @@ from service.signals import (
 #: Table -> (module run with ``python -m``, its parser's module, fixed arguments), in
 #: start order: simulators, then the driver reading them, then the service using it.
 PROGRAMS: dict[str, tuple[str, tuple[str, ...]]] = {
-    "sim.tracker": ("sim_devices.cli", ("tracker",)),
-    "sim.dials": ("sim_devices.cli", ("dials",)),
-    "devices": ("drivers.cli_devices", ()),
-    "service": ("service.cli_service", ()),
+    "sim.tracker": ("sim_devices.commands.holo_sim", ("tracker",)),
+    "sim.dials": ("sim_devices.commands.holo_sim", ("dials",)),
+    "devices": ("drivers.commands.holo_devices", ()),
+    "service": ("service.commands.holo_service", ()),
 }
 NAMES = {"sim.tracker": "holo-sim tracker", "sim.dials": "holo-sim dials",
          "devices": "holo-devices", "service": "holo-service"}

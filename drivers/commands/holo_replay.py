@@ -55,7 +55,7 @@ from typing import Any, TextIO
 
 import serial
 
-from drivers.cli_devices import (
+from drivers.commands.holo_devices import (
     Listener,
     add_publish_options,
     dump_listener,

@@ -248,7 +248,7 @@ def _script(name: str) -> list[str]:
 
 def start_devices(children: Children, seconds: float) -> str:
     """holo-sim tracker and dial box on ptys, holo-devices publishing; returns its address."""
-    sim = _script("sim_devices.cli")
+    sim = _script("sim_devices.commands.holo_sim")
     tracker = children.start(
         "holo-sim tracker", [*sim, "tracker", "--pty", "--motion", "sway:scale=2"]
     )
@@ -261,7 +261,7 @@ def start_devices(children: Children, seconds: float) -> str:
     devices = children.start(
         "holo-devices",
         [
-            *_script("drivers.cli_devices"),
+            *_script("drivers.commands.holo_devices"),
             "--tracker", t_path,
             "--dials", d_path,
             "--pub", ANY,
@@ -280,7 +280,7 @@ def start_service(children: Children, extra: Sequence[str] = ()) -> str:
     svc = children.start(
         "holo-service",
         [
-            *_script("service.cli_service"),
+            *_script("service.commands.holo_service"),
             "--control", ANY,
             "--frames", ANY,
             "--worker-address", ANY,
@@ -298,7 +298,7 @@ def game_args(
 ) -> list[str]:
     """The holo-game command line."""
     cmd = [
-        *_script("game.cli"),
+        *_script("game.commands.holo_game"),
         "--devices", devices,
         *look_args(args),
         "--bot",

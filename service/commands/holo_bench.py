@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{', '.join(BENCHES)} (holo-bench --help says what each does)", file=sys.stderr)
         return EXIT_USAGE
     # as holo-service does: OpenMP threads that spin while waiting steal the core
-    # the measured code needs (see service.cli_service.main); set before numba loads
+    # the measured code needs (see service.commands.holo_service.main); set before numba loads
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     setup_frame_process()  # heap reuse and one BLAS thread (service.process)
     prog = f"holo-bench {argv[0]}"

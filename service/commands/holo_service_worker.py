@@ -76,7 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return EXIT_USAGE
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.cli_service.main
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.commands.holo_service.main
     from service.net.worker import Worker
     from service.process import setup_frame_process
 

@@ -43,7 +43,7 @@ from service.cli_args import (
     output_problem,
     plain_help,
 )
-from service.cli_render import scene_problem
+from service.commands.holo_render import scene_problem
 from service.errors import HoloError
 from service.png import write_png
 from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit status."""
     argv = sys.argv[1:] if argv is None else argv
     # as holo-bench does: OpenMP threads that spin while waiting steal the core the
-    # timed kernel needs (service.cli_service.main); set before numba starts its threads
+    # timed kernel needs (service.commands.holo_service.main); set before numba starts its threads
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = build_parser().parse_args(argv)
     args.size_given = _size_given(argv)

@@ -33,7 +33,8 @@ def _median_frame(renderer: Renderer, scene, display, settings, repeats: int):
 
 def main(argv: list[str] | None = None) -> int:
     """Render the demo scene; return the exit status."""
-    p = argparse.ArgumentParser(prog="python -m service.demo", description=plain_help(__doc__),
+    p = argparse.ArgumentParser(prog="python -m service.commands.render_demo",
+                                description=plain_help(__doc__),
                                 epilog=EXIT_RULE)
     p.add_argument(
         "--out", default="render-demo-out", help="output folder (default render-demo-out)"

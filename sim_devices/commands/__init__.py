@@ -1,0 +1,4 @@
+"""The console commands of ``sim_devices``: one module each, named after its script.
+
+``holo-render`` is ``holo_render.py``; the scripts are listed in ``pyproject.toml``.
+"""
