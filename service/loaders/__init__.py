@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.billboard_render import BillboardObject
+from service.billboard_render import ALPHA_OPAQUE, BillboardObject
 from service.display import DisplaySettings
 from service.errors import MeshFileError
 from service.loaders.obj import load_obj, save_obj
@@ -137,8 +137,9 @@ def load_scene(path: str | Path, strict: bool = False,
     if path.suffix.lower() in SCENE_EXTENSIONS:
         return load_scene_file(path, partial(load_mesh, strict=strict))
     if path.suffix.lower() == ".hbc":  # a lone billboard cloud, placed as a lone mesh is
-        cloud = load_cloud(path)
-        place = fit_view(cloud.corners.reshape(-1, 3), display)
+        cloud = load_cloud(path)  # by what it shows: its rectangles reach past the mesh
+        shown = cloud.shown_points(ALPHA_OPAQUE)
+        place = fit_view(shown if len(shown) else cloud.corners.reshape(-1, 3), display)
         obj = BillboardObject(cloud, Material(), place, name=path.stem)
         return Scene(objects=[], lights=[Light()], billboards=[obj])
     mesh = load_mesh(path, strict)

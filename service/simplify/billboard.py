@@ -70,6 +70,24 @@ class BillboardCloud:
         """Number of billboards P."""
         return int(self.planes.shape[0])
 
+    def shown_points(self, alpha: int) -> np.ndarray:
+        """Centres of the texels with alpha >= ``alpha`` (either layer), shape (N, 3).
+
+        The surface the cloud shows (within ``eps`` and the dilation of the mesh),
+        unlike ``corners``: the rectangles bound every face's projection plus whole
+        texels, so they reach past the mesh.
+        """
+        out = []
+        for p in range(self.n_billboards):
+            rows, cols = (int(x) for x in self.tex_shape[p])
+            sl = slice(self.tex_offset[p], self.tex_offset[p + 1])
+            shown = (self.rgba[sl, 3].reshape(LAYERS, rows, cols) >= alpha).any(axis=0)
+            r, c = np.nonzero(shown)
+            o, u, v = self.corners[p, 0], self.corners[p, 1] - self.corners[p, 0], \
+                self.corners[p, 3] - self.corners[p, 0]
+            out.append(o + np.outer((c + 0.5) / cols, u) + np.outer((r + 0.5) / rows, v))
+        return np.concatenate(out) if out else np.zeros((0, 3))
+
     def texture(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         """Billboard ``p``'s textures (LAYERS, H, W, 4) uint8 and normals (LAYERS, H, W, 3)."""
         h, w = self.tex_shape[p]
