@@ -14,11 +14,16 @@ of its own process group.  A thread (:meth:`Supervisor.run`) looks every
   (:meth:`~service.net.broker.Broker.forget`: its job comes back ``lost`` and is
   resent) and started again.
 
-A worker that had said ``READY`` is restarted at once.  One that dies before it
-ever said ``READY`` failed to start: it is restarted after a back-off (0.5, 1, 2,
-4 s), and after :data:`MAX_FAILED_STARTS` failures in a row the slot is given up
-with one line in ``stats`` (``worker_error``) and on stderr.  Every death counts in
-``worker_deaths``, every start after the first in ``worker_restarts``.
+A worker that had said ``READY`` is restarted at once, unless it died within
+:data:`QUICK_S` of saying it twice in a row or more (a worker that crashes on every
+job): then after a back-off (0.5, 1, 2 ... s, at most :data:`MAX_BACKOFF_S`), never
+given up (renders go on in process meanwhile).  One that dies before it ever said
+``READY`` failed to start, and so did one that has not said it :data:`STARTUP_S`
+after it started (hung: it is killed with its process group): it is restarted after
+a back-off (0.5, 1, 2, 4 s), and after :data:`MAX_FAILED_STARTS` failures in a row
+the slot is given up with one line in ``stats`` (``worker_error``) and on stderr.
+Every death counts in ``worker_deaths``, every start after the first in
+``worker_restarts``.
 """
 
 from __future__ import annotations
@@ -41,6 +46,13 @@ TICK_S = 0.05
 MAX_FAILED_STARTS = 5
 #: the back-off after the first failed start, doubled after each further one
 BACKOFF_S = 0.5
+#: seconds a started worker has to say ``READY`` (its kernels load or compile first:
+#: a cold cache on a busy 2-core machine took 100 s) before it is killed as hung
+STARTUP_S = 300.0
+#: a worker that dies this soon after ``READY`` counts as a quick death
+QUICK_S = 10.0
+#: the longest back-off between restarts of a worker that keeps dying quickly
+MAX_BACKOFF_S = 30.0
 #: seconds a worker gets to end after SIGTERM when the service closes
 CLOSE_S = 3.0
 
@@ -57,6 +69,11 @@ class Slot:
     failed_starts: int = 0
     #: the process said ``READY`` (the broker knew it)
     ready: bool = False
+    #: when the current process started, and when it said ``READY`` (monotonic s)
+    started_at: float = 0.0
+    ready_at: float = 0.0
+    #: deaths within :data:`QUICK_S` of ``READY`` in a row
+    quick_deaths: int = 0
     #: the current process's death is counted (it was found dead or killed)
     dead: bool = False
     #: when to start the next process (monotonic s; None: none due)
@@ -97,6 +114,8 @@ class Supervisor:
     command: list[str]
     env: dict[str, str]
     log: Callable[[str], None] = lambda line: None
+    #: seconds a worker has to say ``READY`` (:data:`STARTUP_S`)
+    startup_s: float = STARTUP_S
     slots: list[Slot] = field(default_factory=list)
     deaths: int = 0
     restarts: int = 0
@@ -128,8 +147,8 @@ class Supervisor:
                 self._reported(pid, why, now)
             known = {w["pid"] for w in self.broker.info()["workers"]}
             for slot in self.slots:
-                if slot.proc is not None and slot.pid in known:
-                    slot.ready, slot.failed_starts = True, 0
+                if slot.proc is not None and slot.pid in known and not slot.ready:
+                    slot.ready, slot.ready_at, slot.failed_starts = True, now, 0
                 self._check(slot, now)
 
     def _reported(self, pid: int | None, why: str, now: float) -> None:
@@ -148,6 +167,10 @@ class Supervisor:
 
     def _check(self, slot: Slot, now: float) -> None:
         """Count a slot's exited process, reap it and start the next when due."""
+        if (slot.proc is not None and not slot.ready and not slot.dead
+                and now - slot.started_at > self.startup_s):
+            self._died(slot, f"no READY {self.startup_s:g} s after it started; killed", now)
+            _kill_group(slot.proc, signal.SIGKILL)  # hung at start-up: the group goes
         if slot.proc is not None and slot.proc.poll() is not None:
             if not slot.dead:
                 self._died(slot, _exit_text(slot.proc.returncode), now)
@@ -161,8 +184,13 @@ class Supervisor:
         self.deaths += 1
         slot.dead, slot.last_death = True, why
         if slot.ready:
-            slot.start_at = now
-            self.log(f"worker {slot.pid} died ({why}); restarting it")
+            slot.quick_deaths = slot.quick_deaths + 1 if now - slot.ready_at < QUICK_S else 0
+            wait = (min(MAX_BACKOFF_S, BACKOFF_S * 2 ** (slot.quick_deaths - 2))
+                    if slot.quick_deaths >= 2 else 0.0)
+            slot.start_at = now + wait
+            self.log(f"worker {slot.pid} died ({why}); restarting it"
+                     + (f" in {wait:g} s (it died within {QUICK_S:g} s of starting work "
+                        f"{slot.quick_deaths} times in a row)" if wait else ""))
             return
         slot.failed_starts += 1
         if slot.failed_starts >= MAX_FAILED_STARTS:
@@ -181,6 +209,7 @@ class Supervisor:
                                      process_group=0)
         self.started.add(slot.proc.pid)
         slot.dead, slot.ready, slot.start_at = False, False, None
+        slot.started_at = time.monotonic()
         self.restarts += slot.starts > 0
         slot.starts += 1
 

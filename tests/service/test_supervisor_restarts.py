@@ -1,0 +1,82 @@
+"""The supervisor against real processes: a worker hung before ``READY`` is killed, and
+one that dies right after ``READY`` again and again is restarted with a back-off.
+
+The broker is real (ZeroMQ on 127.0.0.1, on its own thread); the workers are real
+processes: one that never connects (hung at start-up) and one that says ``READY`` the
+way ``service.net.worker`` does, then exits (a worker that crashes as soon as it
+works).  Every wait is on a condition with a timeout.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+
+import pytest
+import zmq
+from testkit import HANG_S, alive, wait_until
+
+from service.net.broker import Broker
+from service.net.supervisor import Supervisor
+
+#: a worker that says READY (as service/net/worker.py does), lives half a second, dies
+CRASHER = """
+import json, os, sys, time, zmq
+sock = zmq.Context().socket(zmq.DEALER)
+sock.connect(sys.argv[1])
+sock.send_multipart([b"", b"READY", json.dumps({"pid": os.getpid(), "heartbeat_s": 0.2}).encode()])
+time.sleep(0.5)  # the supervisor sees it READY before it dies
+sys.exit(3)
+"""
+
+
+@pytest.fixture
+def rig():
+    """(make a supervisor for a worker command, its log lines)."""
+    ctx = zmq.Context()
+    broker = Broker(ctx, "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
+    threads = [threading.Thread(target=broker.run, daemon=True)]
+    threads[0].start()
+    made: list[Supervisor] = []
+    log: list[str] = []
+
+    def make(command: list[str], **kw) -> Supervisor:
+        sup = Supervisor(broker, command, dict(os.environ), log.append, **kw)
+        made.append(sup)
+        sup.start(1)
+        threads.append(threading.Thread(target=sup.run, daemon=True))
+        threads[-1].start()
+        return sup
+
+    try:
+        yield make, log, broker.backend_address
+    finally:
+        for sup in made:
+            sup.close()
+        broker.stop()
+        for t in threads:
+            t.join(5)
+        ctx.term()
+
+
+def test_a_worker_hung_before_ready_is_killed_and_started_again(rig):
+    make, log, _ = rig
+    sup = make([sys.executable, "-c", "import time; time.sleep(600)"], startup_s=1.0)
+    first = wait_until(lambda: sup.pids(), HANG_S)
+    assert first, "the worker never started"
+    assert wait_until(lambda: sup.deaths >= 1, HANG_S), log
+    assert wait_until(lambda: not alive(first[0]), HANG_S), "the hung worker lives on"
+    assert any("no READY 1 s after it started; killed" in line for line in log), log
+    assert wait_until(lambda: sup.restarts >= 1, HANG_S), "it was not started again"
+
+
+def test_a_worker_that_dies_right_after_ready_is_restarted_with_a_back_off(rig):
+    make, log, backend = rig
+    sup = make([sys.executable, "-c", CRASHER, backend])
+    assert wait_until(lambda: sup.deaths >= 4, 4 * HANG_S), log
+    waits = [line for line in log if "died within 10 s of starting work" in line]
+    # the first quick death restarts at once; then 0.5 s, 1 s, 2 s ...
+    assert waits and "restarting it in 0.5 s" in waits[0], log
+    assert any("restarting it in 1 s" in line for line in waits), log
+    assert sup.errors() == []  # never given up: renders go on in process meanwhile
