@@ -134,6 +134,25 @@ def zone_for_head(
 HELD_LINE = "held: renders late, last render shown as it was"
 
 
+#: the picture's margins across and down (pixels), and its top (under the HUD lines)
+PICTURE_MARGIN = (20, 90)
+PICTURE_TOP = 80
+
+
+def picture_area(size: tuple[int, int]) -> pygame.Rect:
+    """Where the frame goes in a window of ``size``: below the HUD lines, with a margin.
+
+    A window where the margins would leave the picture under a quarter of it (under
+    120 px tall) gets the picture over all of it, the HUD on top, rather than a
+    sliver or a negative size.
+    """
+    w, h = size
+    if w - PICTURE_MARGIN[0] >= w // 4 and h - PICTURE_MARGIN[1] >= h // 4:
+        return pygame.Rect(PICTURE_MARGIN[0] // 2, PICTURE_TOP, w - PICTURE_MARGIN[0],
+                           h - PICTURE_MARGIN[1])
+    return pygame.Rect(0, 0, w, h)
+
+
 @dataclass
 class Hud:
     """What the HUD shows.
@@ -248,8 +267,7 @@ class GameWindow:
             pass
         elif colour is not None:
             image = _surface(_image(colour, mode, zone, sird))
-            area = self.screen.get_rect().inflate(-20, -90).move(0, 35)
-            rect = _fit(image.get_size(), area)
+            rect = _fit(image.get_size(), picture_area(self.screen.get_size()))
             self.screen.blit(pygame.transform.scale(image, rect.size), rect)
         for k, line in enumerate(hud.text()):
             text = self.font.render(line, True, HUD_COLOUR)

@@ -80,3 +80,17 @@ def test_choose_mode_keeps_the_current_mode_for_an_unavailable_one():
         shown, notice = choose_mode(mode, "zone")
         assert shown == "zone" and "not available" in notice and mode in notice
     assert choose_mode("autostereogram") == ("autostereogram", "")
+
+
+@pytest.mark.parametrize("size", [(400, 300), (200, 80), (64, 48), (30, 20), (1, 1)])
+def test_a_window_of_any_size_draws_the_frame(pygame_headless, size):
+    # windows under ~90 px tall raised "Cannot scale to negative size"
+    colour = np.zeros((3, 36, 48, 3), np.uint8)
+    colour[1, :, :, 1] = 200  # zone 1 green
+    window = GameWindow(size)
+    window.draw(colour, "zone", 1, Hud(lines=["paused"]))
+    pixels = window.pixels()
+    assert pixels.shape == (size[1], size[0], 3)
+    cy, cx = size[1] // 2, size[0] // 2
+    assert pixels[cy, cx, 1] == 200 or size[1] < 20  # the picture is there (HUD aside)
+    window.draw(None, "zone", 1, Hud())
