@@ -34,6 +34,7 @@ from service.lod.settings import lod_from
 from service.net.curve_keys import make_keys
 from service.pipeline import RenderSettings
 from service.process import setup_frame_process
+from service.readiness import Warmup
 from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
 if TYPE_CHECKING:
@@ -230,7 +231,9 @@ def _start(args: argparse.Namespace) -> Service | None:
     from service.net.server import Service
 
     try:
-        service = Service(_config(args), log=_log)
+        # warm up before serving (service.readiness): the kernels compile in a child
+        # while every request gets "warming up"; --no-warmup: ready at once
+        service = Service(_config(args), log=_log, warmup=Warmup(_log) if args.warmup else None)
     except (HoloError, OSError) as exc:
         print(f"holo-service: {exc}", file=sys.stderr)
         return None
@@ -265,7 +268,6 @@ def _config(args: argparse.Namespace) -> ServiceConfig:
         pose_scale=args.pose_scale,
         render=RenderSettings(lod=lod_from(args.lod_error, args.budget_ms)),
         scene_dirs=tuple(args.scene_dir or ()),
-        warmup=args.warmup,
     )
 
 

@@ -24,7 +24,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zmq
 
@@ -44,7 +44,9 @@ from service.net.state import (
     service_state,
 )
 from service.net.supervisor import Supervisor
-from service.readiness import Warmup
+
+if TYPE_CHECKING:  # handed in by the command; the server never imports the warm-up
+    from service.readiness import Warmup
 
 
 class Service:
@@ -55,6 +57,10 @@ class Service:
     config : ServiceConfig
     log : callable, optional
         Called with one line of text per warm-up step (the CLI prints them).
+    warmup : service.readiness.Warmup, optional
+        The readiness to serve under: the command hands it in (``holo-service``
+        warms up unless ``--no-warmup``); None (library use, tests): ready at once,
+        kernels compile when first used.  The server never imports the warm-up.
 
     Raises
     ------
@@ -62,7 +68,8 @@ class Service:
         A bad setting (:func:`~service.net.state.check_config`), before any socket is bound.
     """
 
-    def __init__(self, config: ServiceConfig, log: Callable[[str], None] | None = None) -> None:
+    def __init__(self, config: ServiceConfig, log: Callable[[str], None] | None = None,
+                 warmup: Warmup | None = None) -> None:
         self.st = service_state(config)
         self.config = config
         self.log = log or (lambda line: None)
@@ -74,7 +81,7 @@ class Service:
         self._threads: list[threading.Thread] = []
         self._auth = None
         self._open_sockets()
-        self.st.warmup = Warmup(self.log) if config.warmup else None
+        self.st.warmup = warmup
         if self.st.warmup is None:
             self._prepare()
 

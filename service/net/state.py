@@ -80,10 +80,6 @@ class ServiceConfig:
     split: str = "frames"
     #: libzmq I/O threads; with 2 the frame PUB has one to itself.
     io_threads: int = 2
-    #: warm up before serving (:mod:`service.readiness`): compile the kernels in a child
-    #: process while answering "warming up"; False (library use, tests): ready at once,
-    #: kernels compile when first used.  ``holo-service`` warms up unless ``--no-warmup``.
-    warmup: bool = False
 
 
 #: (field, check, what it must be) for :func:`check_config`.

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import json
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
 import zmq
-from testkit import HANG_S, ServiceProcess, launch_service, raw_request, wait_until
+from testkit import HANG_S, ROOT, ServiceProcess, launch_service, raw_request, wait_until
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
@@ -243,3 +244,13 @@ def test_a_warm_start_has_no_background_compile():
         assert warmup.background_dict()["phase"] == "none"
     finally:
         warmup.stop()
+
+
+def test_the_server_is_handed_its_readiness_and_never_imports_the_warm_up():
+    # the command builds the Warmup (service.commands.holo_service); the server takes it
+    code = ("import sys, service.net.server; "
+            "print(sorted(m for m in ('service.readiness', 'service.warmup') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
