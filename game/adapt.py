@@ -269,7 +269,7 @@ def measure(
             raise NoFrameError(f"no frame came within {wait_s:g} s")
         if first is not None and now - first >= probe_s:
             return max(len(seen) - 1, 0) / (now - first)  # the first one was there at 0
-        if first is None and now >= next_say:
+        if first is None and gate.since is None and now >= next_say:  # (the gate says its own)
             next_say = now + 5.0
             on_wait(backend)
         backend.update(step(min(now - last, 0.1)))
