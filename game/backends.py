@@ -39,13 +39,14 @@ from game.scene import apply_states
 from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.display import DisplaySettings
 from service.errors import ServiceError, SettingsError
+from service.frame_settings import FrameSettings
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.local_update import render_use_by
 from service.galilean.motion_field import render_with_motion
 from service.lod.state import LodState
 from service.net.client import FrameSubscriber, ServiceClient, WarmingUpError
 from service.net.settings_wire import display_to_wire, render_to_wire
-from service.pipeline import Renderer, RenderSettings
+from service.pipeline import Renderer
 from service.scene import Scene
 
 #: Seconds between the service backend's ``stats`` requests for level-of-detail notes.
@@ -95,31 +96,9 @@ class FrameView:
     held: bool = False
 
 
-@dataclass(frozen=True)
-class BackendSettings:
-    """Display and render settings shared by both backends.
-
-    Attributes
-    ----------
-    display : DisplaySettings
-    render : RenderSettings
-        The pipeline's own render settings (light model, level of detail, ...),
-        defaults included; the service gets them through
-        :mod:`service.net.settings_wire`, the local renderer as they are.
-    refresh_hz : float
-    order : int
-        Galpixel order of the Galilean stage.
-    """
-
-    display: DisplaySettings = DisplaySettings(zones=5, angle_deg=16.0, cols=200, rows=150)
-    render: RenderSettings = RenderSettings()
-    refresh_hz: float = 60.0
-    order: int = 2
-
-    @property
-    def lod_on(self) -> bool:
-        """Level of detail is on (its notes are worth asking the service for)."""
-        return self.render.lod is not None and self.render.lod.enabled
+def _lod_on(settings: FrameSettings) -> bool:
+    """Level of detail is on (its notes are worth asking the service for)."""
+    return settings.render.lod is not None and settings.render.lod.enabled
 
 
 class LocalRenderer:
@@ -127,14 +106,15 @@ class LocalRenderer:
 
     Parameters
     ----------
-    settings : BackendSettings
+    settings : FrameSettings
     """
 
-    def __init__(self, settings: BackendSettings | None = None) -> None:
-        self.settings = s = settings or BackendSettings()
+    def __init__(self, settings: FrameSettings | None = None) -> None:
+        self.settings = s = settings or FrameSettings()
         self.render_settings = s.render
         self.stage = GalileanStage(
-            s.display, GalileanSettings(order=s.order, refresh_hz=s.refresh_hz, colour_motion=False)
+            s.display,
+            GalileanSettings(order=s.galpixel_order, refresh_hz=s.refresh_hz, colour_motion=False),
         )
         self.connected = True
         self.warming: dict | None = None
@@ -342,7 +322,7 @@ class ServiceBackend:
     devices : str or None
         A ``holo-devices`` PUB address the service should take the viewer's pose
         from.
-    settings : BackendSettings
+    settings : FrameSettings
     timeout_s : float
         Reply deadline; short, so a dead service never stalls the game for long.
     shatter : bool
@@ -355,11 +335,11 @@ class ServiceBackend:
         control: str,
         frames: str | None = None,
         devices: str | None = None,
-        settings: BackendSettings | None = None,
+        settings: FrameSettings | None = None,
         timeout_s: float = 0.5,
         shatter: bool = True,
     ) -> None:
-        self.settings = settings or BackendSettings()
+        self.settings = settings or FrameSettings()
         self.devices = devices
         self.shatter = shatter
         self.client = ServiceClient(control, timeout_s=timeout_s, retries=0)
@@ -419,7 +399,7 @@ class ServiceBackend:
         self.client.set_display(
             **display_to_wire(d),
             **render_to_wire(s.render),
-            galpixel_order=s.order,
+            galpixel_order=s.galpixel_order,
             refresh_hz=s.refresh_hz,
             encodings=["colour", "autostereogram"] if _sird_output(d) else ["colour"],
         )
@@ -527,7 +507,7 @@ class ServiceBackend:
         asks again; an error reply is left to the frame stream to notice.
         """
         s, now = self.settings, time.monotonic()
-        if not self.connected or not s.lod_on:
+        if not self.connected or not _lod_on(s):
             return []
         if self._stats is None:
             from service.net.client import PendingRequest

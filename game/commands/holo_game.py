@@ -38,6 +38,7 @@ from service.cli_args import (
 )
 from service.display import DisplaySettings
 from service.errors import HoloError
+from service.frame_settings import FrameSettings
 from service.light import MODELS as LIGHT_MODELS
 from service.light import LightSettings
 from service.lod.options import add_lod_options, lod_settings
@@ -240,17 +241,15 @@ def _backend(args: argparse.Namespace, settings: object) -> object:
     return ServiceBackend(args.service, args.frames, args.devices, settings, shatter=args.shatter)
 
 
-def _backend_settings(args: argparse.Namespace, look: Look) -> object:
+def _backend_settings(args: argparse.Namespace, look: Look) -> FrameSettings:
     """The backends' settings for ``look`` and the other arguments."""
-    from game.backends import BackendSettings
-
     lod = lod_settings(args)
     cal = args.calibration
     angle = cal.view_cone if cal is not None else DisplaySettings.angle_deg
     display = DisplaySettings(zones=args.zones, angle_deg=angle, cols=look.size[0],
                               rows=look.size[1])
     render = RenderSettings(light=LightSettings(look.light), lod=lod)
-    return BackendSettings(display, render, args.refresh)
+    return FrameSettings(display, render, refresh_hz=args.refresh)
 
 
 def _start(args: argparse.Namespace, look: Look, game: GameSettings) -> object:

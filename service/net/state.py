@@ -22,6 +22,7 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.errors import SettingsError
+from service.frame_settings import FrameSettings
 from service.galilean import GalileanSettings
 from service.net import protocol
 from service.net.settings_wire import display_to_wire, render_to_wire
@@ -114,26 +115,15 @@ def check_config(config: ServiceConfig) -> None:
 
 
 @dataclass(frozen=True)
-class Settings:
-    """What ``set_display`` changes (``generation`` counts changes).
+class Settings(FrameSettings):
+    """The service's frame settings, and how often ``set_display`` changed them.
 
-    The render options are the pipeline's own :class:`~service.pipeline.RenderSettings`
-    (defaults included); :mod:`service.net.settings_wire` is the only place that turns
-    them, and the display, into wire keys and back.
+    A :class:`~service.frame_settings.FrameSettings` with ``generation``;
+    :mod:`service.net.settings_wire` is the only place that turns the render and
+    display settings into wire keys and back.
     """
 
-    display: DisplaySettings
-    render: RenderSettings = field(default_factory=RenderSettings)
-    galpixel_order: int = 2
-    encodings: tuple[str, ...] = ("colour", "depth")
-    refresh_hz: float = 60.0
-    sird_method: str = "tiw"
-    sird_eye_sep: float = 0.0
     generation: int = 0
-    #: "auto": each render's method and specular chosen within ``max_error``
-    #: (service.quality); "fixed": as set.
-    quality: str = "fixed"
-    max_error: str = "0.5%"
 
     def as_dict(self) -> dict[str, Any]:
         """The settings as ``set_display`` replies them."""

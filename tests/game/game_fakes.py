@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from game.backends import BackendSettings, FrameView
+from game.backends import FrameView
 from service.display import DisplaySettings
+from service.frame_settings import FrameSettings
 
 
 class RecordingBackend:
     """Takes updates, hands out a grey frame per call; records everything."""
 
     def __init__(self, zones: int = 3) -> None:
-        self.settings = BackendSettings(DisplaySettings(zones=zones, cols=32, rows=24))
+        self.settings = FrameSettings(DisplaySettings(zones=zones, cols=32, rows=24))
         self.connected = True
         self.updates: list[list[dict]] = []
         self.explosions: list[int] = []

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from game.backends import BackendSettings, ServiceBackend
+from game.backends import ServiceBackend
 from game.client_loop import GameClient, LoopSettings
 from game.display import GameWindow
 from game.rules import GameSettings
 from game.scene import game_scene
 from service.display import DisplaySettings
 from service.errors import ServiceError
+from service.frame_settings import FrameSettings
 
 
 def attract_client(
@@ -19,7 +20,7 @@ def attract_client(
     The first ``start`` may fail (the service is not listening yet): the game loop
     keeps trying.  The caller closes the backend.
     """
-    settings = BackendSettings(DisplaySettings(zones=3, cols=80, rows=60))
+    settings = FrameSettings(DisplaySettings(zones=3, cols=80, rows=60))
     backend = ServiceBackend(control, frames, settings=settings, timeout_s=0.5)
     try:
         backend.start(game_scene(6))

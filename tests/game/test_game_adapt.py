@@ -151,14 +151,15 @@ def test_holo_game_adapt_local_measures_chooses_and_says_so(tmp_path, capsys, mo
 
 def _local_probe():
     """A started in-process backend on the game's scene, and a step of its rules."""
-    from game.backends import BackendSettings, LocalRenderer
+    from game.backends import LocalRenderer
     from game.bot import Bot
     from game.rules import GameSettings, new_game, tick
     from game.scene import apply_states, game_scene, object_states
     from service.display import DisplaySettings
+    from service.frame_settings import FrameSettings
 
     state, bot = new_game(GameSettings()), Bot()
-    backend = LocalRenderer(BackendSettings(display=DisplaySettings(zones=2, cols=48, rows=36)))
+    backend = LocalRenderer(FrameSettings(display=DisplaySettings(zones=2, cols=48, rows=36)))
     backend.start(apply_states(game_scene(len(state.attackers), True), object_states(state)))
 
     def step(dt: float) -> list[dict]:

@@ -10,15 +10,16 @@ from __future__ import annotations
 
 from testkit import TINY_DISPLAY, wait_until
 
-from game.backends import BackendSettings, ServiceBackend
+from game.backends import ServiceBackend
 from game.scene import game_scene
 from service.display import DisplaySettings
+from service.frame_settings import FrameSettings
 from service.net.client import ServiceClient
 
 
 def test_frames_without_colour_are_counted_not_a_crash(service_factory):
     svc = service_factory(*TINY_DISPLAY, "--refresh", "30")
-    backend = ServiceBackend(svc.control, svc.frames, settings=BackendSettings(
+    backend = ServiceBackend(svc.control, svc.frames, settings=FrameSettings(
         DisplaySettings(zones=2, cols=32, rows=24), refresh_hz=30.0), timeout_s=30)
     other = ServiceClient(svc.control, timeout_s=30)
     try:

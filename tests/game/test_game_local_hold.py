@@ -15,15 +15,16 @@ import numpy as np
 import pytest
 from testkit import HANG_S
 
-from game.backends import BackendSettings, LocalRenderer
+from game.backends import LocalRenderer
 from game.gameover import BURST_SECONDS
 from game.rules import new_game
 from game.scene import apply_states, game_scene, object_states
 from service.display import DisplaySettings
+from service.frame_settings import FrameSettings
 from service.galilean.local_update import render_use_by
 
 HZ = 30.0
-SETTINGS = BackendSettings(display=DisplaySettings(zones=3, angle_deg=16.0, cols=64, rows=48),
+SETTINGS = FrameSettings(display=DisplaySettings(zones=3, angle_deg=16.0, cols=64, rows=48),
                            refresh_hz=HZ)
 
 

@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 from testkit import TINY_DISPLAY, wait_until
 
-from game.backends import BackendSettings, ServiceBackend
+from game.backends import ServiceBackend
 from game.client_loop import GameClient, LoopSettings
 from game.display import GameWindow
 from game.gameover import GameOverSequence
 from service.display import DisplaySettings
+from service.frame_settings import FrameSettings
 from service.primitives import sphere
 from service.scene import Material, MotionState, Scene, SceneObject, Transform
 
@@ -60,7 +61,7 @@ def _next_frames(backend, n: int) -> list:
 
 def test_after_a_scene_load_every_frame_is_of_the_new_scene(service_factory):
     svc = service_factory(*TINY_DISPLAY, "--refresh", "30")
-    backend = ServiceBackend(svc.control, svc.frames, settings=BackendSettings(
+    backend = ServiceBackend(svc.control, svc.frames, settings=FrameSettings(
         DISPLAY, refresh_hz=30.0), timeout_s=30)
     try:
         backend.start(_ball((1.0, 0.1, 0.1), -0.3, 0.4))
@@ -131,7 +132,7 @@ def test_a_new_game_is_loaded_with_its_objects_in_place(service_factory):
     that race, so this checks the property rather than forcing the race.
     """
     svc = service_factory(*TINY_DISPLAY, "--refresh", "30")
-    backend = ServiceBackend(svc.control, svc.frames, settings=BackendSettings(
+    backend = ServiceBackend(svc.control, svc.frames, settings=FrameSettings(
         DISPLAY, refresh_hz=30.0), timeout_s=30, shatter=False)
     half = DISPLAY.cols // 2
     try:

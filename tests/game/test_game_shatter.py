@@ -7,10 +7,11 @@ import time
 import pytest
 from testkit import launch_service
 
-from game.backends import BackendSettings, ServiceBackend
+from game.backends import ServiceBackend
 from game.rules import GameSettings, new_game
 from game.scene import game_scene, object_states
 from service.display import DisplaySettings
+from service.frame_settings import FrameSettings
 from service.net.client import ServiceClient
 
 
@@ -30,7 +31,7 @@ def frames_after(backend: ServiceBackend, render_id: int, count: int, timeout: f
 def test_shatter_then_resume_keeps_the_service_rendering():
     svc = launch_service("--workers", "0")  # on ports of its own choosing
     control, frames, proc = svc.control, svc.frames, svc.proc
-    backend = ServiceBackend(control, frames, settings=BackendSettings(
+    backend = ServiceBackend(control, frames, settings=FrameSettings(
         DisplaySettings(zones=2, cols=48, rows=36)), timeout_s=2.0)
     state = new_game(GameSettings(difficulty="easy"))
     n_attackers = len(object_states(state)) - 1

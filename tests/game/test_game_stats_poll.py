@@ -25,12 +25,13 @@ import pytest
 import zmq
 from testkit import HANG_S, ROOT, wait_for, wait_until
 
-from game.backends import BackendSettings, ServiceBackend
+from game.backends import ServiceBackend
 from game.client_loop import GameClient, LoopSettings
 from game.display import GameWindow
 from game.scene import game_scene
 from service.display import DisplaySettings
 from service.errors import ServiceError
+from service.frame_settings import FrameSettings
 from service.lod.settings import LodSettings
 from service.net.client import PendingRequest
 from service.pipeline import RenderSettings
@@ -75,7 +76,7 @@ def slower_service():
 
 def test_slow_stats_replies_do_not_lengthen_ticks(slower_service, pygame_headless):
     control, frames = slower_service
-    settings = BackendSettings(DisplaySettings(zones=3, cols=32, rows=24),
+    settings = FrameSettings(DisplaySettings(zones=3, cols=32, rows=24),
                                RenderSettings(lod=LodSettings(error_px=0.5)))
     backend = ServiceBackend(control, frames, settings=settings)
     backend.lod_poll_s, backend.lod_reply_s = 0.2, REPLY_S

@@ -15,10 +15,10 @@ import pytest
 from real_service import attract_client
 from testkit import HANG_S, launch_service
 
-from game.backends import BackendSettings
 from game.client_loop import GameClient, LoopSettings, waiting_lines
 from game.display import GameWindow
 from service.display import DisplaySettings
+from service.frame_settings import FrameSettings
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
@@ -39,7 +39,7 @@ class WarmingThenReady:
     """A backend that warms up for ``ticks`` frame requests, then gives grey frames."""
 
     def __init__(self, ticks: int, total: int = 15) -> None:
-        self.settings = BackendSettings(DisplaySettings(zones=3, cols=32, rows=24))
+        self.settings = FrameSettings(DisplaySettings(zones=3, cols=32, rows=24))
         self.ticks, self.total, self.seq = ticks, total, 0
         self.connected = False
         self.warming: dict | None = {"phase": "compiling", "done": 0, "total": total}

@@ -129,3 +129,21 @@ def test_cull_and_the_painter_fallback_reach_the_worker(service_factory):
         assert stats["polygons"]["culled"] > 0  # the game's closed meshes face away
         with pytest.raises(Exception, match="cull must be one of"):
             c.set_display(cull="sometimes")
+
+
+def test_one_frame_settings_value_for_the_service_and_the_game():
+    from game.backends import LocalRenderer, ServiceBackend
+    from service.frame_settings import FrameSettings
+    from service.net.state import Settings
+
+    assert issubclass(Settings, FrameSettings)  # the service's adds only a generation
+    assert {f.name for f in dataclasses.fields(Settings)} - {
+        f.name for f in dataclasses.fields(FrameSettings)} == {"generation"}
+    for backend in (LocalRenderer, ServiceBackend):  # the game's local and remote modes
+        assert backend.__init__.__annotations__["settings"] == "FrameSettings | None"
+    # every field reaches the wire: set_display's reply names each one
+    reply = Settings().as_dict()
+    nested = {"display": display_to_wire(DisplaySettings()),
+              "render": render_to_wire(RenderSettings())}
+    for f in dataclasses.fields(FrameSettings):
+        assert set(nested.get(f.name, {f.name: None})) <= set(reply), f.name
