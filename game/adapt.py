@@ -24,9 +24,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from service.errors import HoloError
-from service.light import LightSettings
+from service.render.light import LightSettings
 
-#: The service's default light model (one source: :class:`service.light.LightSettings`).
+#: The service's default light model (one source: :class:`service.render.light.LightSettings`).
 DEFAULT_LIGHT = LightSettings.model
 
 

@@ -46,8 +46,8 @@ from service.galilean.motion_field import render_with_motion
 from service.lod.state import LodState
 from service.net.client import FrameSubscriber, ServiceClient, WarmingUpError
 from service.net.settings_wire import display_to_wire, render_to_wire
-from service.pipeline import Renderer
-from service.scene import Scene
+from service.render.pipeline import Renderer
+from service.render.scene import Scene
 
 #: Seconds between the service backend's ``stats`` requests for level-of-detail notes.
 LOD_POLL_S = 2.0

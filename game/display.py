@@ -36,8 +36,8 @@ import numpy as np
 import pygame
 
 from service.display import DisplaySettings
-from service.frame import view_strip
 from service.lookingglass import Interleaver
+from service.render.frame import view_strip
 
 #: Modes that can be shown, in the order the demo screenshots them.
 MODES = ("head", "strip", "zone", "autostereogram")

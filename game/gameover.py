@@ -23,8 +23,8 @@ from dataclasses import replace
 import numpy as np
 import pygame
 
-from service.mesh import Mesh
-from service.scene import MotionState, Scene, Transform
+from service.render.mesh import Mesh
+from service.render.scene import MotionState, Scene, Transform
 
 #: seconds after game over -> what happens.
 TIMETABLE: tuple[tuple[float, str], ...] = (

@@ -18,9 +18,9 @@ import numpy as np
 
 from game.rules import GameState, attacker_velocities
 from service.errors import HoloError
-from service.mesh import Mesh
 from service.primitives import attacker, player
-from service.scene import (
+from service.render.mesh import Mesh
+from service.render.scene import (
     Light,
     Material,
     MotionState,

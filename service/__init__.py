@@ -1,11 +1,11 @@
 """The render service package: three subsystems in one package, plus shared base modules.
 
-* **Render pipeline** (seed 000), stages in order: :mod:`.scene`, :mod:`.mesh`,
-  :mod:`.primitives`, :mod:`.builtin_scenes` (built-in scenes by name), :mod:`.loaders`
-  (files) -> :mod:`.projection` (1) -> :mod:`.cull` (2) -> :mod:`.depth_sort` (3) ->
-  :mod:`.occlusion` with :mod:`.raster` (4) -> :mod:`.light` (5) -> :mod:`.frame`,
-  :mod:`.png` (6); :mod:`.pipeline` wires them; :mod:`.display` is the display model
-  (zones, hololines); :mod:`.scene_motion` moves a scene in time; :mod:`.normals_kernel`.
+* **Render pipeline** (seed 000): :mod:`.render` (its stages in order, one module
+  each; :mod:`.render.pipeline` wires them), fed by :mod:`.primitives`,
+  :mod:`.builtin_scenes` (built-in scenes by name) and :mod:`.loaders` (files), with
+  :mod:`.png` for pictures; :mod:`.display` is the display model (zones, hololines);
+  :mod:`.frame_settings` everything a frame is made with; :mod:`.scene_motion` moves a
+  scene in time; :mod:`.normals_kernel`.
 * **Galilean stage** (seed 002): :mod:`.galilean`.
 * **ZeroMQ render service**: :mod:`.net` (server, state, request handlers, render
   scheduler, refresh loop, broker and workers, protocol and wire, frame stream, client

@@ -3,7 +3,7 @@
 A scene's ``billboards`` (:class:`BillboardObject`: a
 :class:`~service.simplify.billboard.BillboardCloud` with a material and a placement)
 are drawn after the occlusion stage, into the same depth buffer, for every view zone:
-each pixel's ray (the zone's sheared orthographic ray, :mod:`service.projection`) is
+each pixel's ray (the zone's sheared orthographic ray, :mod:`service.render.projection`) is
 intersected with each quad's plane inside the quad's screen box (nearest quads first,
 each row clipped to the quad's span), the depth test comes first, then the texel is
 alpha-tested (opaque from 128), and the nearer of quad and mesh wins.  Lighting is
@@ -19,7 +19,7 @@ over the method's own depth buffer, and the stats say so
 
 Light per shown pixel (its texel) uses the object's material, the texel's colour and the normal of
 the face shot into the texel, with the same Phong / Blinn model per zone as meshes
-(:func:`service.light._light_rgb`).  **What a billboard loses** (``docs/simplify.md``):
+(:func:`service.render.light._light_rgb`).  **What a billboard loses** (``docs/simplify.md``):
 
 * the point lit is on the billboard, up to EPS from the true surface, so point
   lights and specular highlights shift by that much;
@@ -42,9 +42,9 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
-from service.light import MODELS, LightSettings, _light_rgb, pack_lights
-from service.occlusion import Visibility
-from service.scene import Light, Material, Transform, quaternion_matrices
+from service.render.light import MODELS, LightSettings, _light_rgb, pack_lights
+from service.render.occlusion import Visibility
+from service.render.scene import Light, Material, Transform, quaternion_matrices
 from service.simplify.billboard import BillboardCloud
 
 ALPHA_OPAQUE = 128

@@ -27,9 +27,9 @@ from collections.abc import Callable
 import numpy as np
 
 from service.errors import SettingsError
-from service.mesh import Mesh
 from service.primitives import attacker, cube, lathe, outward_mesh, player, sphere, torus
-from service.scene import (
+from service.render.mesh import Mesh
+from service.render.scene import (
     Light,
     Material,
     MotionState,

@@ -1,12 +1,12 @@
 """Everything a frame is made with, as one value (:class:`FrameSettings`).
 
-The display, the render options (the pipeline's own :class:`~service.pipeline.RenderSettings`:
-method, cull, light, painter fallback, level of detail), the Galilean stage's order and
-refresh rate, the encodings a frame carries, the autostereogram's and the quality
-choice: their defaults live here and in the types it holds, nowhere else.  The
-service's state (:class:`service.net.state.Settings`, which adds a generation count)
-and the game's backends hold one; :mod:`service.net.settings_wire` carries it on the
-wire.
+The display, the render options (the pipeline's own
+:class:`~service.render.pipeline.RenderSettings`: method, cull, light, painter
+fallback, level of detail), the Galilean stage's order and refresh rate, the
+encodings a frame carries, the autostereogram's and the quality choice: their
+defaults live here and in the types it holds, nowhere else.  The service's state
+(:class:`service.net.state.Settings`, which adds a generation count) and the game's
+backends hold one; :mod:`service.net.settings_wire` carries it on the wire.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from service.display import DisplaySettings
-from service.pipeline import RenderSettings
+from service.render.pipeline import RenderSettings
 
 
 @dataclass(frozen=True)

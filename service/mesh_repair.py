@@ -1,6 +1,6 @@
 """Repairs made while loading a mesh file, and the count of each.
 
-Files written by other tools often break the rules a :class:`~service.mesh.Mesh`
+Files written by other tools often break the rules a :class:`~service.render.mesh.Mesh`
 keeps (polygons planar and convex, three or more distinct corners).  Unless the
 loader is ``strict``, such a file is repaired instead of refused:
 
@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from service.mesh import CONVEX, PLANAR, polygon_shape_faults
+from service.render.mesh import CONVEX, PLANAR, polygon_shape_faults
 from service.triangulate import triangulate_rows
 
 

@@ -1,4 +1,4 @@
-"""Numba kernel for crease-aware corner normals (see :func:`service.mesh.corner_normals`)."""
+"""Numba kernel for crease-aware corner normals (see :func:`service.render.mesh.corner_normals`)."""
 
 from __future__ import annotations
 

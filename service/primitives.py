@@ -15,7 +15,7 @@ from itertools import combinations
 import numpy as np
 
 from service.errors import SettingsError
-from service.mesh import MAX_POLYGONS, Mesh
+from service.render.mesh import MAX_POLYGONS, Mesh
 
 
 def _need(name: str, value: float, low: float, integer: bool = False) -> None:

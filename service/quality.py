@@ -39,15 +39,15 @@ from typing import Any
 
 import numpy as np
 
-from service.cull import CullSettings
 from service.display import DisplaySettings
 from service.errors import SettingsError
-from service.frame import Frame
-from service.light import LightSettings, shade
-from service.occlusion import Visibility
-from service.pipeline import Renderer, RenderSettings
-from service.projection import project
-from service.scene import Scene, SceneArrays
+from service.render.cull import CullSettings
+from service.render.frame import Frame
+from service.render.light import LightSettings, shade
+from service.render.occlusion import Visibility
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.projection import project
+from service.render.scene import Scene, SceneArrays
 
 #: Colour levels a channel may differ by before a pixel counts as wrong.
 WRONG_LEVELS = 32

@@ -1,6 +1,6 @@
 """Advance a scene in time by its objects' motion, and look at it from a moving viewer.
 
-Each :class:`~service.scene.SceneObject` carries a :class:`~service.scene.MotionState`
+Each :class:`~service.render.scene.SceneObject` carries a :class:`~service.render.scene.MotionState`
 (world units and radians, per second).  At a time ``dt`` after the scene's state:
 
 * position ``p + v dt + a dt^2 / 2``;
@@ -9,7 +9,7 @@ Each :class:`~service.scene.SceneObject` carries a :class:`~service.scene.Motion
   the angular velocity when ``alpha`` is parallel to ``w`` (or zero), the cases
   the Galilean stage's experiments use; otherwise a second-order approximation.
 
-A **viewer** is a :class:`~service.scene.Transform` (the head's pose in the world)
+A **viewer** is a :class:`~service.render.scene.Transform` (the head's pose in the world)
 with its own ``MotionState``; :func:`view_scene` re-expresses a scene in the
 viewer's frame, so the display model of :mod:`service.display` applies unchanged.
 
@@ -25,8 +25,8 @@ from dataclasses import replace
 import numpy as np
 
 from service.display import DisplaySettings
-from service.projection import project
-from service.scene import (
+from service.render.projection import project
+from service.render.scene import (
     Light,
     MotionState,
     Scene,
@@ -148,7 +148,7 @@ def placements(
     -------
     positions : ndarray, shape (K, O, 3)
     orientations : ndarray, shape (K, O, 4)
-        Unit quaternions; with :func:`service.scene.flatten` they give the scene's
+        Unit quaternions; with :func:`service.render.scene.flatten` they give the scene's
         arrays at each time.
     """
     objs = scene.objects

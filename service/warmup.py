@@ -166,8 +166,8 @@ def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
 
     def job(kit: _Kit) -> None:
         from service.galilean.motion_field import render_with_motion
-        from service.light import LightSettings
-        from service.pipeline import Renderer, RenderSettings
+        from service.render.light import LightSettings
+        from service.render.pipeline import Renderer, RenderSettings
 
         settings = RenderSettings(method=method, light=LightSettings(model, evaluation),
                                   painter_fallback=fallback)
@@ -182,8 +182,8 @@ def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
 def _motion(colour_motion: bool, model: str) -> Callable:
     def job(kit: _Kit) -> None:
         from service.galilean.motion_field import render_with_motion
-        from service.light import LightSettings
-        from service.pipeline import Renderer, RenderSettings
+        from service.render.light import LightSettings
+        from service.render.pipeline import Renderer, RenderSettings
 
         settings = RenderSettings(method="zbuffer", light=LightSettings(model))
         render_with_motion(Renderer(), kit.scene(), kit.display, 0.1, 60.0, settings,
@@ -207,7 +207,7 @@ def _galilean_kernels(kit: _Kit) -> None:
     """
     from service.galilean import GalileanSettings, GalileanStage
     from service.galilean.galpixmap import FIELDS, Galpixmap
-    from service.scene import MotionState
+    from service.render.scene import MotionState
 
     stage = GalileanStage(kit.display, GalileanSettings(order=2, refresh_hz=60.0))
     rng = np.random.default_rng(7)
@@ -229,8 +229,8 @@ def _galilean_game(kit: _Kit) -> None:
     """The game's in-process path (``game.backends.LocalRenderer``): update, refresh."""
     from service.galilean import GalileanSettings, GalileanStage
     from service.galilean.motion_field import render_with_motion
-    from service.light import LightSettings
-    from service.pipeline import Renderer, RenderSettings
+    from service.render.light import LightSettings
+    from service.render.pipeline import Renderer, RenderSettings
 
     settings = RenderSettings(method="zbuffer", light=LightSettings("ambient"))
     stage = GalileanStage(kit.display, GalileanSettings(order=2, colour_motion=False))
@@ -245,8 +245,8 @@ def _galilean_service(kit: _Kit) -> None:
     """The service's path: band renders (``render_job``), stitched, submitted, refreshed."""
     from service.galilean import GalileanSettings, GalileanStage
     from service.net.worker import render_job, stitch
-    from service.pipeline import Renderer
-    from service.scene import MotionState
+    from service.render.pipeline import Renderer
+    from service.render.scene import MotionState
 
     d = kit.display
     stage = GalileanStage(d, GalileanSettings(order=2, refresh_hz=60.0))
@@ -272,7 +272,7 @@ def _galilean_variants(kit: _Kit) -> None:
     """Stage settings that take other kernels: orders 0-3, cache, margin, no Poisson."""
     from service.galilean import GalileanSettings, GalileanStage
     from service.galilean.motion_field import render_with_motion
-    from service.pipeline import Renderer
+    from service.render.pipeline import Renderer
 
     renderer = Renderer()
     variants = [
@@ -299,7 +299,7 @@ def _shadows(kit: _Kit) -> None:
     calls it, so the signatures are the same.
     """
     from service.galilean.shadow import shadow_depth
-    from service.pipeline import RenderSettings
+    from service.render.pipeline import RenderSettings
 
     scene = kit.scene()
     shadow_depth(scene, range(1, len(scene.objects)), kit.display, 0.1, RenderSettings().cull)
@@ -309,7 +309,7 @@ def _galilean_local(kit: _Kit) -> None:
     """Local updates (Flinders Street buffers with depth-only shadows), grafted."""
     from service.galilean import GalileanSettings, GalileanStage
     from service.galilean.local_update import render_local
-    from service.pipeline import Renderer
+    from service.render.pipeline import Renderer
 
     stage = GalileanStage(kit.display, GalileanSettings(order=2))
     renderer = Renderer()
@@ -348,7 +348,7 @@ def _level_of_detail(kit: _Kit) -> None:
     from service.galilean.motion_field import render_with_motion
     from service.lod.settings import LodSettings
     from service.lod.state import LodState
-    from service.pipeline import Renderer, RenderSettings
+    from service.render.pipeline import Renderer, RenderSettings
 
     scene = kit.scene()
     lod = LodSettings(error_px=1e6, fractions=(0.5,), cloud_eps=(0.2,), texture_res=16)

@@ -33,9 +33,9 @@ import numpy as np
 
 from service.autostereogram.output import SirdOutput
 from service.errors import HoloError
-from service.frame import default_grid, depth_grey, quilt, view_strip
 from service.net import protocol
 from service.net.client import FrameSubscriber, ServiceClient
+from service.render.frame import default_grid, depth_grey, quilt, view_strip
 
 #: The layouts a browser can ask for.
 LAYOUTS = ("zone", "strip", "quilt", "depth", "autostereogram")

@@ -39,12 +39,12 @@ from service.cli_args import (
 from service.display import DisplaySettings
 from service.errors import HoloError
 from service.frame_settings import FrameSettings
-from service.light import MODELS as LIGHT_MODELS
-from service.light import LightSettings
 from service.lod.options import add_lod_options, lod_settings
 from service.lookingglass import DEFAULT_VIEWS, Interleaver, parse_display
-from service.pipeline import RenderSettings
 from service.process import setup_frame_process
+from service.render.light import MODELS as LIGHT_MODELS
+from service.render.light import LightSettings
+from service.render.pipeline import RenderSettings
 from service.signals import (
     EXIT_FAILED,
     EXIT_OK,

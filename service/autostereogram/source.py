@@ -17,8 +17,8 @@ from service.display import DisplaySettings
 from service.errors import SettingsError
 from service.loaders import load_scene
 from service.npy_file import read_npy_file
-from service.pipeline import Renderer, RenderSettings
-from service.scene import Scene
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene
 
 
 def centre_depth(scene: Scene, cols: int, rows: int) -> np.ndarray:

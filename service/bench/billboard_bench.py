@@ -46,11 +46,11 @@ from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject, draw_billboards
 from service.cli_args import add_size_option, comma_list, exit_rule_epilog, float_range, int_range
 from service.display import DisplaySettings
-from service.light import LightSettings
 from service.loaders import fit_transform, load_mesh
-from service.occlusion import Visibility
-from service.pipeline import Renderer, RenderSettings, warm_up
-from service.scene import Scene, SceneObject, Transform, euler_quaternion
+from service.render.light import LightSettings
+from service.render.occlusion import Visibility
+from service.render.pipeline import Renderer, RenderSettings, warm_up
+from service.render.scene import Scene, SceneObject, Transform, euler_quaternion
 from service.simplify.billboard import build_cloud
 
 SETTINGS = RenderSettings(method="zbuffer", light=LightSettings("blinn", "polygon"))
@@ -128,7 +128,7 @@ def grazing_rows(mesh, cloud, fit: Transform, display: DisplaySettings, args) ->
 
 
 def _rotation(t: Transform) -> np.ndarray:
-    from service.scene import quaternion_matrix
+    from service.render.scene import quaternion_matrix
 
     return quaternion_matrix(t.orientation)
 

@@ -19,12 +19,12 @@ import numpy as np
 from service.bench.lod_bench import LIGHTS, MATERIAL, MESHES
 from service.billboard_render import BillboardObject
 from service.display import DisplaySettings
-from service.light import LightSettings
 from service.lod.cache import build_chain
 from service.lod.select import pixels_per_unit, select_levels
 from service.lod.settings import LodSettings
-from service.pipeline import Renderer, RenderSettings
-from service.scene import Scene, SceneObject, Transform, euler_quaternion, quaternion_matrix
+from service.render.light import LightSettings
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene, SceneObject, Transform, euler_quaternion, quaternion_matrix
 
 SETTINGS = RenderSettings(method="zbuffer", light=LightSettings("blinn", "polygon"))
 #: The cloud level of the chain, EPS as a fraction of the diagonal.

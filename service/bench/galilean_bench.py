@@ -77,10 +77,10 @@ from service.galilean.local_update import obscurers, render_local
 from service.galilean.motion_field import render_with_motion
 from service.galilean.shadow import shadow_depth
 from service.galilean.stage import GalileanSettings, GalileanStage, margin_display
-from service.light import LightSettings
-from service.pipeline import Renderer, RenderSettings, warm_up
 from service.primitives import cube, sphere
-from service.scene import (
+from service.render.light import LightSettings
+from service.render.pipeline import Renderer, RenderSettings, warm_up
+from service.render.scene import (
     Light,
     Material,
     MotionState,
@@ -145,7 +145,7 @@ def _studs() -> list[SceneObject]:
 
 def bar_scene() -> Scene:
     """A thin near bar sweeping fast across the far wall (what the obscuration cache is for)."""
-    from service.mesh import Mesh
+    from service.render.mesh import Mesh
 
     c = cube(1.0)
     bar_mesh = Mesh(c.vertices * np.array([0.1, 1.6, 0.1]), c.polygons, c.counts, "bar")

@@ -25,7 +25,7 @@ from service.bench.rows import write_csv
 from service.display import DisplaySettings
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.stage import GalileanSettings, GalileanStage
-from service.scene import MotionState
+from service.render.scene import MotionState
 
 #: The ways of filling a gap between renders, as charted (name -> stage ``hold``, None:
 #: no stage, the render itself).

@@ -2,10 +2,10 @@
 
 For every scene x zone count, the visibility buffer is made once by the real
 stages 1-4 (project, modified cull, average-z sort, z-buffer: :func:`visibility`),
-then :func:`service.light.shade` is timed for
+then :func:`service.render.light.shade` is timed for
 every evaluation (polygon / vertex / point) x model (phong / blinn), plus the
 game's ``ambient`` fast mode, as the median of ``--repeats`` runs after a warm-up.
-Accuracy is the mean absolute difference of :func:`service.light.intensity` (mean
+Accuracy is the mean absolute difference of :func:`service.render.light.intensity` (mean
 of r, g, b in [0, 1]) from per-point Blinn over the covered pixels of every zone
 (``error``), and from per-point evaluation of the same model
 (``error_vs_own_point``: the evaluation's error alone, without the model's).
@@ -31,15 +31,15 @@ from service.bench.rows import write_csv, zones_label
 from service.builtin_scenes import SCENES as BUILTIN_SCENES
 from service.builtin_scenes import builtin_scene, scene_name
 from service.cli_args import add_size_option, comma_list, exit_rule_epilog, int_range, plain_help
-from service.cull import cull
-from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
-from service.light import LightSettings, intensity, intensity_error, shade
-from service.occlusion import Visibility
-from service.occlusion.zbuffer import zbuffer
 from service.primitives import sphere
-from service.projection import project
-from service.scene import Light, Material, Scene, SceneArrays, SceneObject
+from service.render.cull import cull
+from service.render.depth_sort import average_z, sort_polygons, triangle_order
+from service.render.light import LightSettings, intensity, intensity_error, shade
+from service.render.occlusion import Visibility
+from service.render.occlusion.zbuffer import zbuffer
+from service.render.projection import project
+from service.render.scene import Light, Material, Scene, SceneArrays, SceneObject
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

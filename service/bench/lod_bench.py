@@ -56,15 +56,15 @@ from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject
 from service.cli_args import add_size_option, exit_rule_epilog, float_range, int_range
 from service.display import DisplaySettings
-from service.light import LightSettings
 from service.loaders import fit_transform, load_mesh
 from service.lod.cache import build_chain
 from service.lod.select import pixels_per_unit
 from service.lod.settings import LodSettings
-from service.mesh import Mesh
-from service.pipeline import Renderer, RenderSettings, warm_up
 from service.primitives import attacker, torus
-from service.scene import Light, Material, Scene, SceneObject, Transform, euler_quaternion
+from service.render.light import LightSettings
+from service.render.mesh import Mesh
+from service.render.pipeline import Renderer, RenderSettings, warm_up
+from service.render.scene import Light, Material, Scene, SceneObject, Transform, euler_quaternion
 
 BUNNY = Path(__file__).resolve().parents[2] / ".." / "shared" / "fixtures" / "meshes" / "bunny.ply"
 #: Built-in benchmark meshes by name (a path to a .ply/.obj works too).

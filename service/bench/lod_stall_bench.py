@@ -38,10 +38,10 @@ from service.lod.builds import ChainBuilds
 from service.lod.cache import build_chain
 from service.lod.chain import mesh_key
 from service.lod.settings import BUILD_NICE, LodError, LodSettings
-from service.mesh import Mesh
-from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
-from service.scene import Scene, SceneObject, Transform
+from service.render.mesh import Mesh
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene, SceneObject, Transform
 
 BUNNY = Path(__file__).resolve().parents[2] / ".." / "shared" / "fixtures" / "meshes" / "bunny.ply"
 #: Frames of an ``idle`` round.

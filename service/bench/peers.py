@@ -38,8 +38,8 @@ import numpy as np
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.errors import HoloError
-from service.pipeline import Renderer, RenderSettings
-from service.scene import Scene, SceneArrays
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene, SceneArrays
 
 PEER_NAMES = ("llvmpipe", "embree")
 #: Depths (world units) closer than this agree; a pixel is 2/cols wide (0.00625 at 320).

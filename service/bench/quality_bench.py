@@ -28,8 +28,6 @@ from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option, exit_rule_epilog
 from service.display import DisplaySettings
-from service.light import LightSettings, shade
-from service.pipeline import Renderer, RenderSettings, StageClock, warm_up
 from service.quality import (
     OCCLUSION,
     SPECULAR,
@@ -44,6 +42,8 @@ from service.quality import (
     psnr,
     render_auto,
 )
+from service.render.light import LightSettings, shade
+from service.render.pipeline import Renderer, RenderSettings, StageClock, warm_up
 
 CAL_SCENES = ("sphere-torus", "game", "demo", "cyclic")
 CAL_ZONES = (1, 3, 5)

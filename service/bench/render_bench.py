@@ -27,8 +27,8 @@ from service.bench.rows import write_rows, zones_label
 from service.builtin_scenes import builtin_scene
 from service.cli_args import add_size_option, comma_list, exit_rule_epilog, plain_help, size
 from service.display import DisplaySettings
-from service.light import LightSettings
-from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
+from service.render.light import LightSettings
+from service.render.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -113,7 +113,7 @@ def zone_cost(
     Each round renders ``repeats`` frames at every zone count in turn (so a noisy
     machine slows all counts alike) and keeps each count's median; the rows hold
     the best round's medians.  ``ms`` is wall time around
-    :meth:`service.pipeline.Renderer.render`; ``ms_<stage>`` are its stage clocks.
+    :meth:`service.render.pipeline.Renderer.render`; ``ms_<stage>`` are its stage clocks.
 
     Returns
     -------

@@ -50,8 +50,8 @@ from service.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.display import DisplaySettings
 from service.galilean.motion_field import render_with_motion
 from service.galilean.stage import GalileanSettings, GalileanStage
-from service.light import LightSettings
-from service.pipeline import Renderer, RenderSettings, StageClock, warm_up
+from service.render.light import LightSettings
+from service.render.pipeline import Renderer, RenderSettings, StageClock, warm_up
 from service.scene_motion import advance_scene
 
 STAGES_1_4 = ("project", "cull", "sort", "occlusion", "fallback")

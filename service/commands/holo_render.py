@@ -32,16 +32,12 @@ from service.cli_args import (
     output_problem,
     plain_help,
 )
-from service.cull import CULLS, CullSettings
 from service.display import DisplaySettings
 from service.errors import HoloError, SettingsError
-from service.frame import Frame, write_quilt, write_strip, write_zones
-from service.light import EVALUATIONS, MODELS, LightSettings
 from service.loaders import MESH_LOADERS, SCENE_EXTENSIONS, load_scene
 from service.lod.options import add_lod_options, budget_frames, lod_settings, lod_state
 from service.lookingglass import DEFAULT_VIEWS, Calibration, Interleaver, parse_display
 from service.mesh_repair import MeshRepair, MeshRepairWarning
-from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.png import write_png
 from service.process import setup_frame_process
 from service.quality import (
@@ -52,7 +48,11 @@ from service.quality import (
     parse_budget,
     render_auto,
 )
-from service.scene import Scene
+from service.render.cull import CULLS, CullSettings
+from service.render.frame import Frame, write_quilt, write_strip, write_zones
+from service.render.light import EVALUATIONS, MODELS, LightSettings
+from service.render.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
+from service.render.scene import Scene
 from service.signals import EXIT_RULE, interruptible
 
 

@@ -32,9 +32,9 @@ from service.display import DisplaySettings
 from service.errors import HoloError
 from service.lod.settings import lod_from
 from service.net.curve_keys import make_keys
-from service.pipeline import RenderSettings
 from service.process import setup_frame_process
 from service.readiness import Warmup
+from service.render.pipeline import RenderSettings
 from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
 if TYPE_CHECKING:

@@ -87,7 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with raise_on_signals():
             if args.warm_up:
-                from service.pipeline import warm_up
+                from service.render.pipeline import warm_up
 
                 print(f"{PROG}: loading the render kernels", file=sys.stderr, flush=True)
                 warm_up()

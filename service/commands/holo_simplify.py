@@ -28,7 +28,7 @@ import numpy as np
 from service.cli_args import int_range, os_error_text, output_problem, plain_help
 from service.errors import HoloError
 from service.loaders import load_mesh, save_obj, save_ply
-from service.mesh import Mesh
+from service.render.mesh import Mesh
 from service.signals import EXIT_RULE, interruptible
 from service.simplify.billboard import build_cloud
 from service.simplify.cloud_file import save_cloud

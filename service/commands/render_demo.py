@@ -16,10 +16,10 @@ import numpy as np
 from service.builtin_scenes import builtin_scene, scene_name
 from service.cli_args import int_range, plain_help
 from service.display import DisplaySettings
-from service.frame import write_quilt, write_strip, write_zones
-from service.light import LightSettings
-from service.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.process import setup_frame_process
+from service.render.frame import write_quilt, write_strip, write_zones
+from service.render.light import LightSettings
+from service.render.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.signals import EXIT_RULE, interruptible
 
 STAGES = ("flatten", "project", "cull", "sort", "occlusion", "light", "total")

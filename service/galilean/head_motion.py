@@ -28,7 +28,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.galilean.fixed_point import Z_EMPTY, Z_LIMIT
 from service.galilean.galpixmap import Galpixmap
-from service.scene import MotionState
+from service.render.scene import MotionState
 
 #: Bound on every per-refresh viewer motion component (view units or radians per
 #: refresh^n): far past anything the format can hold, small enough that the

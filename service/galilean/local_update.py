@@ -39,8 +39,8 @@ from service.galilean.galpixmap import (
 )
 from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.galilean.shadow import shadow_depth, shadow_into
-from service.pipeline import Renderer, RenderSettings
-from service.scene import MotionState, Scene
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import MotionState, Scene
 from service.scene_motion import rotation_angle
 
 #: Default use-by limit: the paper's rule of thumb for parabolic extrapolation.

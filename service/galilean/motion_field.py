@@ -27,12 +27,12 @@ import numpy as np
 
 from service.billboard_render import draw_billboards, quad_points
 from service.display import DisplaySettings
-from service.frame import Frame
 from service.galilean.galpixmap import RGB_TO_ABC
-from service.light import polygon_motion_tables, shade, shade_linear
-from service.pipeline import Renderer, RenderSettings
-from service.projection import project
-from service.scene import MotionState, Scene, Transform, flatten
+from service.render.frame import Frame
+from service.render.light import polygon_motion_tables, shade, shade_linear
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.projection import project
+from service.render.scene import MotionState, Scene, Transform, flatten
 from service.scene_motion import advance_transform, placements, scene_at, view_lights
 
 #: Five-point central-difference weights of the 1st and 2nd derivative, offsets -2..2
@@ -111,7 +111,7 @@ def _weighted(weights: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 def project_motion(vertices: np.ndarray, display: DisplaySettings,
                    h: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`~service.projection.project` at the five times and :func:`vertex_derivatives`.
+    """:func:`~service.render.projection.project` at the five times and :func:`vertex_derivatives`.
 
     One pass over the vertices, the same values bit for bit.
 
@@ -143,7 +143,7 @@ def _project_motion(vertices: np.ndarray, shears: np.ndarray, grid: tuple, stenc
     """:func:`project_motion` into ``proj`` (5, Z, V, 3) and ``vd`` (3, Z, V, 3).
 
     ``grid`` is ``(pixel size, half width, half height)``, ``steps`` ``(h, h^2,
-    2 h^3)``; each value is found as :func:`service.projection.project` and
+    2 h^3)``; each value is found as :func:`service.render.projection.project` and
     :func:`vertex_derivatives` find it, operation by operation.  Zones differ only
     in the column: a vertex's row and depth, and their derivatives, are found once
     and copied.  Vertices in parallel.
@@ -320,7 +320,7 @@ def _motion_pixels(
         Vertex derivatives.
     tables : tuple
         ``(table (Z, P, 3) uint8, dtable (Z, P, 4) float32, background (3,) uint8)``
-        (:func:`service.light.polygon_motion_tables`).
+        (:func:`service.render.light.polygon_motion_tables`).
     der : ndarray, shape (9, Z*R*C), float32
         Out: the derivatives (zero where empty).
     colour : ndarray, shape (Z*R*C, 3) or (0, 3), uint8
@@ -400,10 +400,10 @@ def render_with_motion(
     One visibility pass, at ``t``; the scene is only placed (not rendered) at the
     other four times, for the vertex derivatives.  With flat (``polygon``) light,
     light at ``t - h, t, t + h`` is one pass over the polygons shown
-    (:func:`service.light.polygon_motion_tables`), and one pass over the pixels
+    (:func:`service.render.light.polygon_motion_tables`), and one pass over the pixels
     (:func:`_motion_pixels`) writes colour, colour derivatives, motion derivatives
     and the object map.  Per-vertex and per-point light shade the pixels at the
-    three times (:func:`service.light.shade_linear`).
+    three times (:func:`service.render.light.shade_linear`).
 
     Parameters
     ----------

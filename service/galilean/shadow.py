@@ -5,7 +5,7 @@ buffer; objects that may obscure them (second class) only have to take part in
 the z-test, so that a grafted object never paints over something in front of it.
 Their pixels stay debris, so their colour, lighting and motion are never needed:
 :func:`shadow_depth` projects, culls and z-buffers them (the renderer's own scan
-conversion, :func:`service.raster.zbuffer_kernel`, so they cover exactly the
+conversion, :func:`service.render.raster.zbuffer_kernel`, so they cover exactly the
 pixels a full render would) and stops there.  :func:`shadow_into` then marks every
 pixel of a first-class render that a second-class object is nearer at as debris
 with the obscurer's depth and the debris colour (black, the clear frame's).
@@ -17,12 +17,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from service.cull import CullSettings, cull, zone_mask
-from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
-from service.projection import project
-from service.raster import zbuffer_kernel
-from service.scene import MotionState, Scene, Transform
+from service.render.cull import CullSettings, cull, zone_mask
+from service.render.depth_sort import average_z, sort_polygons, triangle_order
+from service.render.projection import project
+from service.render.raster import zbuffer_kernel
+from service.render.scene import MotionState, Scene, Transform
 from service.scene_motion import scene_at
 
 #: Colour of shadow-rendered pixels (they are debris: never grafted, never shown).

@@ -50,7 +50,7 @@ from service.galilean.scatter_bands import (
     scatter_bands_plain,
 )
 from service.galilean.show import debris_words, show_bands
-from service.scene import MotionState
+from service.render.scene import MotionState
 
 #: Mean number of refreshes between changes of the map (grafts, head-motion
 #: updates), or refreshes since the last one, from which a refresh records the

@@ -28,8 +28,8 @@ from service.loaders.obj import load_obj, save_obj
 from service.loaders.ply import load_ply, save_ply
 from service.loaders.scene_file import load_scene_file
 from service.loaders.thesis_object import load_thesis_object, save_thesis_object
-from service.mesh import Mesh
-from service.scene import Light, Material, Scene, SceneObject, Transform
+from service.render.mesh import Mesh
+from service.render.scene import Light, Material, Scene, SceneObject, Transform
 from service.simplify.cloud_file import load_cloud
 
 MESH_LOADERS = {".hobj": load_thesis_object, ".ply": load_ply, ".obj": load_obj}

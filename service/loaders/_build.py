@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from service.errors import MeshError, MeshFileError
-from service.mesh import Mesh, describe_fault, polygon_shape_faults, too_large
 from service.mesh_repair import MeshRepair, MeshRepairWarning, distinct_corners, split_bad_shapes
+from service.render.mesh import Mesh, describe_fault, polygon_shape_faults, too_large
 
 
 def read_bytes(path: str | Path) -> bytes:
@@ -149,7 +149,7 @@ def check_shapes(
     Raises
     ------
     MeshFileError
-        For the first bad polygon (see :func:`service.mesh.polygon_shape_faults`).
+        For the first bad polygon (see :func:`service.render.mesh.polygon_shape_faults`).
     """
     faults = polygon_shape_faults(vertices, polygons, counts)
     if faults.polygon.size:

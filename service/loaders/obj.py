@@ -16,7 +16,7 @@ import numpy as np
 
 from service.errors import MeshFileError
 from service.loaders._build import finish_mesh, pad_flat, text_lines, to_float, to_int
-from service.mesh import Mesh
+from service.render.mesh import Mesh
 
 
 def _statements(lines: list[str]) -> list[tuple[int, list[str]]]:

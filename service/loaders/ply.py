@@ -25,8 +25,8 @@ from service.loaders._build import (
     read_bytes,
     to_int,
 )
-from service.mesh import Mesh
 from service.mesh_repair import MeshRepair
+from service.render.mesh import Mesh
 
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",

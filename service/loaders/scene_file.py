@@ -21,9 +21,9 @@ import numpy as np
 from service.billboard_render import BillboardObject
 from service.errors import MeshFileError, SettingsError
 from service.loaders._build import decode_text, read_bytes
-from service.mesh import Mesh
 from service.primitives import PRIMITIVES
-from service.scene import (
+from service.render.mesh import Mesh
+from service.render.scene import (
     Light,
     Material,
     MotionState,

@@ -20,8 +20,8 @@ import numpy as np
 from service.errors import HoloError
 from service.lod.chain import LodChain, build_uncached, mesh_key
 from service.lod.settings import CACHE_ENV, CHAIN_VERSION, LodCacheWarning, LodSettings, Progress
-from service.mesh import Mesh
 from service.npy_file import read_npz
+from service.render.mesh import Mesh
 
 
 def cache_dir() -> Path:

@@ -22,7 +22,7 @@ from service.lod.settings import (
     LodSettings,
     Progress,
 )
-from service.mesh import Mesh
+from service.render.mesh import Mesh
 
 
 @dataclass(frozen=True)

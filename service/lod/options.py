@@ -12,12 +12,12 @@ from typing import TextIO
 
 from service.cli_args import float_range
 from service.display import DisplaySettings
-from service.frame import Frame
 from service.lod.cache import cache_dir
 from service.lod.settings import LodSettings
 from service.lod.state import LodState
-from service.pipeline import Renderer, RenderSettings
-from service.scene import Scene
+from service.render.frame import Frame
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene
 
 #: Frames ``holo-render`` draws when given ``--budget-ms``: a render with nothing
 #: measured is chosen by error alone, so the first ones measure the renderer's cost
@@ -66,7 +66,7 @@ def budget_frames(renderer: Renderer, scene: Scene, display: DisplaySettings,
 
     Only with a time budget (``settings.lod.budget_ms``): the frames before the last
     measure the cost model the budget is predicted with.  ``renderer`` is the
-    :class:`service.pipeline.Renderer` that drew ``frame`` (its first).
+    :class:`service.render.pipeline.Renderer` that drew ``frame`` (its first).
     """
     lod = settings.lod
     if lod is None or not lod.enabled or lod.budget_ms is None:

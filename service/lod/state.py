@@ -17,8 +17,8 @@ from service.lod.chain import LodChain, full_only, mesh_key
 from service.lod.cost import FrameCost
 from service.lod.select import degrade_to_budget, pixels_per_unit, select_levels
 from service.lod.settings import BUDGET_BAND, CHAINS_KEPT, NOTES_KEPT, LodSettings
-from service.mesh import Mesh
-from service.scene import Scene, SceneObject
+from service.render.mesh import Mesh
+from service.render.scene import Scene, SceneObject
 
 
 @dataclass

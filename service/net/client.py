@@ -40,7 +40,7 @@ import zmq.auth
 from service.errors import MessageError, ServiceError, ServiceUnavailableError
 from service.net import protocol, wire
 from service.net.frame_stream import SOCKET_BUFFER
-from service.scene import Scene, SceneObject
+from service.render.scene import Scene, SceneObject
 
 LINGER_MS = 0
 

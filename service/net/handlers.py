@@ -30,7 +30,7 @@ from service.net.state import (
 from service.net.viewer import VIEWER_POSE_FIELDS
 from service.quality import MODES as QUALITY_MODES
 from service.quality import parse_budget
-from service.scene import Scene
+from service.render.scene import Scene
 from service.scene_motion import advance_scene
 
 
@@ -92,7 +92,7 @@ def load_scene(st: ServiceState, req: dict[str, Any]) -> tuple:
 def load_object(st: ServiceState, req: dict[str, Any]) -> tuple:
     """Add one object (``path`` or inline ``object``) to the scene."""
     if "path" in req:
-        from service.scene import SceneObject
+        from service.render.scene import SceneObject
 
         mesh_scene = _load_path(wire.string(req["path"], "path"), st.config.scene_dirs)
         if not mesh_scene.objects:  # a lone billboard cloud (.hbc) has no mesh object

@@ -27,9 +27,9 @@ from service.net.broker import BandClient, Flight, FramePipe, split_rows
 from service.net.settings_wire import display_to_wire, render_to_wire
 from service.net.state import Aim, Ready, ServiceState, Settings
 from service.net.worker import StatsRenderer, render_job, stitch
-from service.pipeline import Renderer
 from service.quality import QualityChooser, QualitySettings, choose, parse_budget
-from service.scene import MotionState, Scene
+from service.render.pipeline import Renderer
+from service.render.scene import MotionState, Scene
 
 #: Level-of-detail notes (a failed chain build, a damaged cache) remembered so each is
 #: logged once, however many renders and workers report it.

@@ -2,7 +2,7 @@
 
 ``set_display`` takes flat keys, its reply and every render job carry them, and a
 worker turns them back into the settings types of the pipeline.  Each key is read
-from and written into :class:`~service.pipeline.RenderSettings` (or
+from and written into :class:`~service.render.pipeline.RenderSettings` (or
 :class:`~service.display.DisplaySettings`) by one row of :data:`RENDER_FIELDS`
 (:data:`DISPLAY_FIELDS`); the defaults are those types' own, so a render option
 added to the pipeline reaches the service, its clients and its workers by a row
@@ -17,13 +17,13 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
-from service.cull import CULLS
 from service.display import DisplaySettings
 from service.errors import MessageError, SettingsError
-from service.light import EVALUATIONS, MODELS
 from service.lod.settings import lod_from
 from service.net import wire
-from service.pipeline import FALLBACKS, METHOD_NAMES, RenderSettings
+from service.render.cull import CULLS
+from service.render.light import EVALUATIONS, MODELS
+from service.render.pipeline import FALLBACKS, METHOD_NAMES, RenderSettings
 
 
 def _choice(allowed: tuple | list) -> Callable[[Any, str], Any]:

@@ -27,8 +27,8 @@ from service.galilean import GalileanSettings
 from service.net import protocol
 from service.net.settings_wire import display_to_wire, render_to_wire
 from service.net.viewer import ViewerTracker
-from service.pipeline import RenderSettings
-from service.scene import Scene
+from service.render.pipeline import RenderSettings
+from service.render.scene import Scene
 
 if TYPE_CHECKING:
     import zmq

@@ -15,9 +15,9 @@ import numpy as np
 from drivers.filters import AlphaBetaSettings, make_filter
 from service.display import DisplaySettings
 from service.errors import HoloError
-from service.mesh import Mesh
 from service.net import wire
-from service.scene import MotionState, SceneObject, Transform, euler_quaternion
+from service.render.mesh import Mesh
+from service.render.scene import MotionState, SceneObject, Transform, euler_quaternion
 
 #: ``set_viewer`` keys of a pose (the other form names ``devices``).
 VIEWER_POSE_FIELDS = ("position", "orientation", *wire.MOTION_FIELDS)

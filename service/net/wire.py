@@ -21,9 +21,9 @@ import numpy as np
 import zmq
 
 from service.errors import MeshError, MessageError, SettingsError
-from service.mesh import MAX_POLYGONS as MESH_MAX_POLYGONS
-from service.mesh import Mesh
-from service.scene import Light, Material, MotionState, Scene, SceneObject, Transform
+from service.render.mesh import MAX_POLYGONS as MESH_MAX_POLYGONS
+from service.render.mesh import Mesh
+from service.render.scene import Light, Material, MotionState, Scene, SceneObject, Transform
 
 #: pyzmq copies frames below this size anyway; larger ones go zero-copy.
 ZERO_COPY_BYTES = 65536

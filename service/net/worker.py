@@ -41,9 +41,9 @@ from service.galilean.motion_field import RenderedUpdate, render_with_motion
 from service.lod.state import LodState
 from service.net import protocol, wire
 from service.net.settings_wire import display_from_wire, render_from_wire
-from service.pipeline import Renderer, StageClock
 from service.process import setup_frame_process
-from service.scene import (
+from service.render.pipeline import Renderer, StageClock
+from service.render.scene import (
     Light,
     MotionState,
     Scene,
@@ -245,7 +245,7 @@ def stitch(
     Every array is joined along its row axis (-2 for the galpixmap fields, 1 for the
     frame's colour and depth).
     """
-    from service.frame import Frame
+    from service.render.frame import Frame
 
     def join(key: str, axis: int) -> np.ndarray:
         parts = [b[key] for b in bands]
@@ -392,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
 
     locked_cache_saves()  # a service's background compile may write the same cache
     if args.warm_up:
-        from service.pipeline import warm_up
+        from service.render.pipeline import warm_up
 
         warm_up()
     try:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from service.commands import holo_render as cli_render
-from service.pipeline import METHOD_NAMES
+from service.render.pipeline import METHOD_NAMES
 
 #: Counters each method adds to the common ones.
 OWN = {"runlength": {"inconsistent_pixels", "inconsistent_by_zone"},

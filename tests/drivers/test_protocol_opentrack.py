@@ -18,7 +18,7 @@ from drivers.protocols.opentrack import (
     encode_pose,
     encode_raw,
 )
-from service.scene import euler_quaternion
+from service.render.scene import euler_quaternion
 
 
 def rotate(q, v) -> np.ndarray:

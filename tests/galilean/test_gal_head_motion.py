@@ -14,7 +14,7 @@ from service.galilean.fixed_point import Z_EMPTY, Z_LIMIT
 from service.galilean.galpixmap import Galpixmap
 from service.galilean.head_motion import _per_refresh, apply_viewer_motion
 from service.galilean.stage import GalileanSettings, GalileanStage
-from service.scene import MotionState
+from service.render.scene import MotionState
 
 HZ = 60.0
 

@@ -15,7 +15,7 @@ from service.errors import SettingsError
 from service.galilean.galpixmap import GalileanError
 from service.galilean.local_update import render_use_by
 from service.galilean.stage import GalileanSettings
-from service.scene import MotionState, Scene
+from service.render.scene import MotionState, Scene
 
 HZ = 60.0
 STARVED = int(3 * HZ)  # 3 s of refreshes without a render
@@ -171,8 +171,8 @@ def test_bad_hold_settings_are_refused():
 
 
 def _spinning(rad_per_s: float) -> Scene:
-    from service.mesh import Mesh
-    from service.scene import SceneObject
+    from service.render.mesh import Mesh
+    from service.render.scene import SceneObject
 
     still = SceneObject(Mesh.from_triangles(np.eye(3), [[0, 1, 2]]))
     spin = SceneObject(still.mesh, motion=MotionState(angular_velocity=[0.0, rad_per_s, 0.0]))

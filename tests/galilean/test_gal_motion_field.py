@@ -14,8 +14,8 @@ from service.galilean.motion_field import (
     render_with_motion,
     vertex_derivatives,
 )
-from service.pipeline import Renderer, RenderSettings
-from service.scene import MotionState
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import MotionState
 from service.scene_motion import scene_at
 
 

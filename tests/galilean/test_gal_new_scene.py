@@ -7,9 +7,9 @@ import numpy as np
 from service.display import DisplaySettings
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.motion_field import render_with_motion
-from service.pipeline import Renderer
 from service.primitives import sphere
-from service.scene import Material, MotionState, Scene, SceneObject, Transform
+from service.render.pipeline import Renderer
+from service.render.scene import Material, MotionState, Scene, SceneObject, Transform
 
 
 def test_new_scene_shows_nothing_of_the_old_one_until_the_next_render():

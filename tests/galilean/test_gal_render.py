@@ -15,8 +15,8 @@ from service.galilean.local_update import (
 )
 from service.galilean.motion_field import render_with_motion
 from service.galilean.stage import GalileanSettings, GalileanStage, prediction_errors
-from service.pipeline import Renderer
-from service.scene import Scene
+from service.render.pipeline import Renderer
+from service.render.scene import Scene
 from service.scene_motion import advance_scene, control_points
 
 

@@ -7,8 +7,8 @@ from gal_scenes import DISP, FLAT, HZ, box
 from service.galilean.fixed_point import FixedPoint, bit_budget
 from service.galilean.local_update import render_local
 from service.galilean.shadow import shadow_depth
-from service.pipeline import Renderer
-from service.scene import Scene
+from service.render.pipeline import Renderer
+from service.render.scene import Scene
 from service.scene_motion import advance_scene, control_points
 
 

@@ -24,7 +24,7 @@ from service.galilean.propagate import STAT_NAMES, planes, second_sweep, sweep
 from service.galilean.scatter_bands import GATHER_RUN, map_reach, reach_of, scatter_bands
 from service.galilean.show import debris_words
 from service.galilean.stage import GalileanSettings, GalileanStage
-from service.scene import MotionState
+from service.render.scene import MotionState
 
 
 class ReferenceStage(GalileanStage):

@@ -3,13 +3,13 @@ import pytest
 
 from service.display import DisplaySettings
 from service.errors import SettingsError
-from service.frame import Frame
 from service.galilean.fixed_point import Z_EMPTY, pixel_of, points_fixed, propagate_points
 from service.galilean.galpixmap import GalileanError, build
 from service.galilean.motion_field import RenderedUpdate
 from service.galilean.poisson import poisson_map
 from service.galilean.stage import GalileanSettings, GalileanStage
-from service.scene import MotionState
+from service.render.frame import Frame
+from service.render.scene import MotionState
 
 R, C = 24, 32
 

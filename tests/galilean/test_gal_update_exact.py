@@ -23,10 +23,10 @@ from service.galilean.motion_field import (
     render_with_motion,
     vertex_derivatives,
 )
-from service.light import LightSettings, shade, shade_linear
-from service.pipeline import Renderer, RenderSettings
-from service.projection import project
-from service.scene import MotionState, Transform, euler_quaternion, flatten
+from service.render.light import LightSettings, shade, shade_linear
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.projection import project
+from service.render.scene import MotionState, Transform, euler_quaternion, flatten
 from service.scene_motion import advance_scene, placements, scene_at
 
 DISPLAY = DisplaySettings(zones=5, cols=64, rows=48)

@@ -23,7 +23,7 @@ from game.adapt import (
     predicted_hz,
 )
 from game.commands import holo_game as cli
-from service.light import LightSettings
+from service.render.light import LightSettings
 
 S = AdaptSettings(target_hz=10.0, margin=1.3)  # a look must measure 13 renders/s
 TOP, LIT200, LIT160, AMB160, AMB120 = LADDER

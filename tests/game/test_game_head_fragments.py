@@ -23,11 +23,11 @@ from game.scene import apply_states, game_scene, object_states
 from service.display import DisplaySettings
 from service.galilean import GalileanStage
 from service.galilean.motion_field import render_with_motion
-from service.light import LightSettings
 from service.net.refresh import stage_settings
 from service.net.state import Settings
-from service.pipeline import Renderer, RenderSettings
-from service.scene import MotionState, Transform, euler_quaternion
+from service.render.light import LightSettings
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import MotionState, Transform, euler_quaternion
 from sim_devices.motion import Sway
 
 HZ = 50.0

@@ -13,8 +13,8 @@ import pytest
 from game.backends import LocalRenderer
 from game.rules import new_game
 from game.scene import apply_states, object_states
-from service.pipeline import Renderer
-from service.scene import Scene
+from service.render.pipeline import Renderer
+from service.render.scene import Scene
 
 
 def _player_only(backend: LocalRenderer, game) -> Scene:

@@ -20,7 +20,7 @@ from game.gameover import GameOverSequence
 from service.display import DisplaySettings
 from service.frame_settings import FrameSettings
 from service.primitives import sphere
-from service.scene import Material, MotionState, Scene, SceneObject, Transform
+from service.render.scene import Material, MotionState, Scene, SceneObject, Transform
 
 DISPLAY = DisplaySettings(zones=2, cols=32, rows=24)
 

@@ -34,7 +34,7 @@ from service.errors import ServiceError
 from service.frame_settings import FrameSettings
 from service.lod.settings import LodSettings
 from service.net.client import PendingRequest
-from service.pipeline import RenderSettings
+from service.render.pipeline import RenderSettings
 
 TICK_HZ = 30.0
 #: The first ``stats`` reply's delay: longer than any test, so it is always dropped.

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 
 from service.display import DisplaySettings
-from service.mesh import Mesh
-from service.occlusion import Visibility
-from service.occlusion.bsp import BspCache, bsp, build_bsp, fingerprint
-from service.occlusion.raycast import raycast
 from service.primitives import torus
-from service.projection import project
-from service.raster import painter_kernel
-from service.scene import Scene, SceneObject, Transform, euler_quaternion
+from service.render.mesh import Mesh
+from service.render.occlusion import Visibility
+from service.render.occlusion.bsp import BspCache, bsp, build_bsp, fingerprint
+from service.render.occlusion.raycast import raycast
+from service.render.projection import project
+from service.render.raster import painter_kernel
+from service.render.scene import Scene, SceneObject, Transform, euler_quaternion
 
 UNIT = {"cols": 64, "rows": 48, "width": 64.0}  # one world unit per pixel
 WIDE = DisplaySettings(zones=5, angle_deg=30.0, **UNIT)

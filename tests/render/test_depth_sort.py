@@ -12,20 +12,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from service.builtin_scenes import builtin_scene
-from service.cull import CullSettings, cull
-from service.depth_sort import (
+from service.display import DisplaySettings
+from service.render.cull import CullSettings, cull
+from service.render.depth_sort import (
     average_z,
     depth_order,
     sort_polygons,
     sort_polygons_reference,
     triangle_order,
 )
-from service.display import DisplaySettings
-from service.mesh import Mesh
-from service.occlusion.zbuffer import zbuffer
-from service.pipeline import Renderer, RenderSettings
-from service.projection import project
-from service.scene import Material, Scene, SceneObject
+from service.render.mesh import Mesh
+from service.render.occlusion.zbuffer import zbuffer
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.projection import project
+from service.render.scene import Material, Scene, SceneObject
 
 SPECIAL = [0.0, -0.0, 1.0, -1.0, 0.5, np.inf, -np.inf, np.nan, 1e-300, -1e-300, 2.0**60]
 

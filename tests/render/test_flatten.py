@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from service.mesh import Mesh
 from service.primitives import cube, sphere
-from service.scene import Material, Scene, SceneObject, Transform, quaternion_matrix
+from service.render.mesh import Mesh
+from service.render.scene import Material, Scene, SceneObject, Transform, quaternion_matrix
 
 
 def _per_object(scene: Scene) -> dict:

@@ -1,4 +1,4 @@
-"""Stage 6 (service.frame) layouts and writers, and the PNG codec (service.png)."""
+"""Stage 6 (service.render.frame) layouts and writers, and the PNG codec (service.png)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from service.errors import HoloError, SettingsError
-from service.frame import (
+from service.png import PngError, decode_png, encode_png, read_png, write_png
+from service.render.frame import (
     Frame,
     default_grid,
     depth_grey,
@@ -24,7 +25,6 @@ from service.frame import (
     write_strip,
     write_zones,
 )
-from service.png import PngError, decode_png, encode_png, read_png, write_png
 
 
 def labelled_views(n: int, rows: int = 4, cols: int = 6) -> np.ndarray:

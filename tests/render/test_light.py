@@ -1,4 +1,4 @@
-"""Stage 5 (service.light): analytic intensities, view-dependent glints, modes agree."""
+"""Stage 5 (service.render.light): analytic intensities, view-dependent glints, modes agree."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import pytest
 
 from service.display import DisplaySettings
 from service.errors import RenderError, SettingsError
-from service.light import LightSettings, intensity, shade, shade_linear, to_uint8
-from service.mesh import Mesh
-from service.occlusion import Visibility
 from service.primitives import sphere
-from service.projection import project
-from service.scene import (
+from service.render.light import LightSettings, intensity, shade, shade_linear, to_uint8
+from service.render.mesh import Mesh
+from service.render.occlusion import Visibility
+from service.render.projection import project
+from service.render.scene import (
     Light,
     Material,
     Scene,

@@ -18,8 +18,8 @@ from service.loaders import (
     save_ply,
     save_thesis_object,
 )
-from service.mesh import Mesh
 from service.primitives import attacker, cube, player, sphere, torus
+from service.render.mesh import Mesh
 
 PLY_FORMATS = ["ascii", "binary_little_endian", "binary_big_endian"]
 

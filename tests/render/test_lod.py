@@ -22,9 +22,9 @@ from service.lod.cost import FrameCost
 from service.lod.select import degrade_to_budget, pixels_per_unit, select_levels
 from service.lod.settings import LodCacheWarning, LodSettings
 from service.lod.state import LodState
-from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
-from service.scene import Scene, SceneObject, Transform, euler_quaternion
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene, SceneObject, Transform, euler_quaternion
 
 
 @pytest.fixture(scope="module")
@@ -368,7 +368,7 @@ def test_an_unwritable_cache_warns_and_still_renders(ring, tmp_path, monkeypatch
 
 
 def test_a_mesh_without_faces_has_a_one_level_chain(tmp_path):
-    from service.mesh import Mesh
+    from service.render.mesh import Mesh
 
     empty = Mesh(np.zeros((3, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64))
     chain = build_chain(empty, cache=tmp_path)
@@ -473,7 +473,7 @@ def test_the_chosen_levels_stay_within_their_prediction_supersampled(tmp_path):
 def test_a_level_before_an_error_jump_goes_to_its_plateau_end():
     """Error 1 down to 20 % of the triangles, then 3: the 40 % level moves towards 20 %."""
     from service.lod.chain import _plateau_ends
-    from service.mesh import Mesh
+    from service.render.mesh import Mesh
 
     def level(frac: float):
         n = int(round(frac * 1000))

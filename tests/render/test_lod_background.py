@@ -18,9 +18,9 @@ from service.lod.cache import build_chain, read_chain
 from service.lod.chain import mesh_key
 from service.lod.settings import LodCacheWarning, LodSettings
 from service.lod.state import LodState
-from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
-from service.scene import Scene, SceneObject, Transform
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene, SceneObject, Transform
 
 DISPLAY = DisplaySettings(zones=3, cols=64, rows=48)
 LOD = RenderSettings(lod=LodSettings(error_px=0.5))

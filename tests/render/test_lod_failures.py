@@ -25,9 +25,9 @@ from service.lod.builds import ChainBuilds
 from service.lod.chain import mesh_key
 from service.lod.settings import LodSettings
 from service.lod.state import LodState
-from service.pipeline import Renderer, RenderSettings
 from service.primitives import torus
-from service.scene import Scene, SceneObject, Transform
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Scene, SceneObject, Transform
 
 DISPLAY = DisplaySettings(zones=2, cols=48, rows=32)
 LOD = RenderSettings(lod=LodSettings(error_px=0.5))

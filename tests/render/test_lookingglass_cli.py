@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from service.commands import holo_render as cli_render
-from service.frame import quilt_name
 from service.lookingglass import Interleaver, load_calibration
 from service.png import read_png
+from service.render.frame import quilt_name
 
 #: A small made-up panel (the views' 64x40 fill it exactly).
 PANEL = {"pitch": 41.0, "slope": -5.2, "center": 0.4, "viewCone": 30.0, "invView": 1,

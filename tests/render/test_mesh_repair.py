@@ -14,7 +14,7 @@ from service.display import DisplaySettings
 from service.errors import MeshFileError
 from service.loaders import load_mesh, load_scene
 from service.mesh_repair import MeshRepair, MeshRepairWarning
-from service.pipeline import Renderer
+from service.render.pipeline import Renderer
 from service.triangulate import ear_clip, triangulate_rows
 from tests.render.mesh_corpus import CASES, knot_quads, write_corpus
 

@@ -8,19 +8,19 @@ from numba.core.registry import CPUDispatcher
 
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
-from service.pipeline import Renderer
+from service.render.pipeline import Renderer
 
 RENDER_MODULES = (
-    "service.raster",
-    "service.light",
-    "service.depth_sort",
+    "service.render.raster",
+    "service.render.light",
+    "service.render.depth_sort",
     "service.normals_kernel",
-    "service.cull",
-    "service.projection",
-    "service.occlusion.zbuffer",
-    "service.occlusion.runlength",
-    "service.occlusion.bsp",
-    "service.occlusion.raycast",
+    "service.render.cull",
+    "service.render.projection",
+    "service.render.occlusion.zbuffer",
+    "service.render.occlusion.runlength",
+    "service.render.occlusion.bsp",
+    "service.render.occlusion.raycast",
 )
 
 
@@ -34,8 +34,8 @@ def kernels():
 
 def test_every_render_kernel_is_nogil_and_cached():
     found = dict(kernels())
-    assert "service.raster.zbuffer_zones_kernel" in found
-    assert "service.light._polygon_table" in found
+    assert "service.render.raster.zbuffer_zones_kernel" in found
+    assert "service.render.light._polygon_table" in found
     for name, kernel in found.items():
         assert kernel.targetoptions.get("nogil") is True, name
         assert kernel.targetoptions.get("nopython") is True, name

@@ -2,14 +2,14 @@
 
 import numpy as np
 
-from service.cull import CullSettings, cull
-from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
-from service.mesh import Mesh
-from service.occlusion.runlength import runlength
-from service.occlusion.zbuffer import zbuffer
-from service.projection import project
-from service.scene import Scene, SceneObject
+from service.render.cull import CullSettings, cull
+from service.render.depth_sort import average_z, sort_polygons, triangle_order
+from service.render.mesh import Mesh
+from service.render.occlusion.runlength import runlength
+from service.render.occlusion.zbuffer import zbuffer
+from service.render.projection import project
+from service.render.scene import Scene, SceneObject
 
 
 def square(cx: float, cy: float, z: float, half: float) -> Mesh:

@@ -14,7 +14,7 @@ import pytest
 
 from service.bench import peers
 from service.display import DisplaySettings
-from service.projection import project
+from service.render.projection import project
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

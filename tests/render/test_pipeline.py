@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 
 from service.builtin_scenes import builtin_scene
-from service.cull import CullSettings, cull
-from service.depth_sort import average_z, sort_polygons
 from service.display import DisplaySettings
 from service.errors import SettingsError
-from service.light import LightSettings
-from service.mesh import Mesh
-from service.pipeline import METHOD_NAMES, Renderer, RenderSettings
-from service.scene import Scene, SceneObject
+from service.render.cull import CullSettings, cull
+from service.render.depth_sort import average_z, sort_polygons
+from service.render.light import LightSettings
+from service.render.mesh import Mesh
+from service.render.pipeline import METHOD_NAMES, Renderer, RenderSettings
+from service.render.scene import Scene, SceneObject
 
 SMALL = DisplaySettings(zones=5, angle_deg=16.0, cols=96, rows=72)
 
@@ -96,8 +96,8 @@ def test_modified_cull_keeps_polygons_that_face_any_zone():
 
 @pytest.mark.parametrize("mode", ["modified", "plain", "none"])
 def test_both_culls_from_one_facing_table_equal_their_own(mode):
-    from service.cull import facing as facing_table
-    from service.cull import zone_mask
+    from service.render.cull import facing as facing_table
+    from service.render.cull import zone_mask
 
     a = builtin_scene("game").flatten()
     settings = CullSettings(mode)
@@ -117,7 +117,7 @@ def test_both_culls_from_one_facing_table_equal_their_own(mode):
 @pytest.mark.parametrize("name", ["game", "demo", "edge-on"])
 @pytest.mark.parametrize("zones", [1, 5])
 def test_one_pass_cull_equals_cull_and_zone_mask(mode, per_zone, name, zones):
-    from service.cull import cull_zones, zone_mask
+    from service.render.cull import cull_zones, zone_mask
 
     if name == "edge-on":  # normals on and just past each zone's edge, one zero
         edge = np.radians(6.4)
@@ -204,9 +204,9 @@ def test_pixel_repair_tie_rule_on_exact_and_near_ties():
     # Two overlapping triangles drawn in a given order: an exact depth tie keeps the
     # first (as the z-buffer and ray casting do); a later one nearer by less than the
     # inconsistency threshold is repaired (as the z-buffer would) but not counted.
-    from service.occlusion.runlength import DEPTH_EPS, runlength
-    from service.occlusion.zbuffer import zbuffer
-    from service.projection import project
+    from service.render.occlusion.runlength import DEPTH_EPS, runlength
+    from service.render.occlusion.zbuffer import zbuffer
+    from service.render.projection import project
 
     tri = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0]])
     display = DisplaySettings(zones=3, angle_deg=16.0, cols=32, rows=24)
@@ -331,7 +331,7 @@ def test_subclass_with_the_old_visibility_signature_renders():
 
 
 def test_triangle_buffers_are_kept_per_shape_up_to_the_limit():
-    from service.pipeline import SCRATCH_SHAPES
+    from service.render.pipeline import SCRATCH_SHAPES
 
     r = Renderer()
     shapes = [(z, 8, 8) for z in range(1, SCRATCH_SHAPES + 2)]
@@ -344,7 +344,7 @@ def test_triangle_buffers_are_kept_per_shape_up_to_the_limit():
 
 @pytest.mark.parametrize(("zones", "angle"), [(1, 0.0), (5, 16.0), (17, 60.0)])
 def test_project_equals_the_array_formula_bit_for_bit(zones, angle):
-    from service.projection import project
+    from service.render.projection import project
 
     d = DisplaySettings(zones=zones, angle_deg=angle)
     rng = np.random.default_rng(zones)

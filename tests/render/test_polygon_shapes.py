@@ -1,15 +1,15 @@
-"""The planar-and-convex rule for polygons of 4 or more corners (service.mesh)."""
+"""The planar-and-convex rule for polygons of 4 or more corners (service.render.mesh)."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import service.mesh as mesh_module
+import service.render.mesh as mesh_module
 from service.builtin_scenes import SCENES, c_shape
 from service.errors import MeshError
-from service.mesh import CONVEX, PLANAR, SHAPE_TOL, Mesh, polygon_shape_faults
 from service.primitives import PRIMITIVES
+from service.render.mesh import CONVEX, PLANAR, SHAPE_TOL, Mesh, polygon_shape_faults
 
 TRIANGLE = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
 BAD = {  # polygon 1 of a two-polygon mesh; polygon 0 is TRIANGLE
@@ -149,7 +149,7 @@ def test_coordinates_too_large_for_the_geometry_are_refused(scale):
 def test_large_coordinates_below_the_limit_render_as_small_ones(tmp_path):
     from service.display import DisplaySettings
     from service.loaders import load_scene, save_obj
-    from service.pipeline import Renderer, RenderSettings
+    from service.render.pipeline import Renderer, RenderSettings
 
     def frame(scale):  # a mesh file is centred and scaled to fit the display
         tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) * scale

@@ -5,7 +5,6 @@ import pytest
 
 from service.builtin_scenes import c_shape
 from service.errors import SettingsError
-from service.mesh import Mesh
 from service.primitives import (
     PRIMITIVES,
     attacker,
@@ -17,6 +16,7 @@ from service.primitives import (
     sphere,
     torus,
 )
+from service.render.mesh import Mesh
 
 
 def directed_edges(mesh: Mesh) -> Counter:

@@ -8,7 +8,6 @@ import pytest
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.errors import SettingsError
-from service.pipeline import Renderer
 from service.quality import (
     CostModel,
     ErrorBudget,
@@ -17,6 +16,7 @@ from service.quality import (
     parse_budget,
     render_auto,
 )
+from service.render.pipeline import Renderer
 from service.scene_motion import advance_scene
 
 SMALL = DisplaySettings(zones=5, angle_deg=16.0, cols=64, rows=48)

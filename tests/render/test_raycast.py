@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from service.display import DisplaySettings
-from service.mesh import Mesh
-from service.occlusion.raycast import raycast
-from service.projection import project
-from service.scene import Scene, SceneObject
+from service.render.mesh import Mesh
+from service.render.occlusion.raycast import raycast
+from service.render.projection import project
+from service.render.scene import Scene, SceneObject
 
 # one world unit per pixel: column c's centre is at X = c + 0.5 - 32, row r's at Y = 23.5 - r
 UNIT = {"cols": 64, "rows": 48, "width": 64.0}

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.occlusion.runlength import SENTINEL, occluded
+from service.render.occlusion.runlength import SENTINEL, occluded
 
 
 def linerow(*entries: int, cap: int = 20) -> list[int]:
@@ -93,7 +93,7 @@ def test_tracker_spans_agree_with_fresh_search(spans):
 
 
 def test_numba_twin_matches_reference():
-    from service.occlusion.runlength import _occluded
+    from service.render.occlusion.runlength import _occluded
 
     rng = np.random.default_rng(1)
     for _ in range(50):

@@ -6,7 +6,7 @@ import pytest
 from service.builtin_scenes import SCENES, builtin_scene
 from service.errors import MeshFileError, SettingsError
 from service.loaders import load_scene
-from service.scene import Scene
+from service.render.scene import Scene
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "file-formats.md"
 

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 from service.builtin_scenes import builtin_scene
-from service.cull import CullSettings, cull, zone_mask
-from service.depth_sort import average_z, sort_polygons, triangle_order
 from service.display import DisplaySettings
-from service.light import mark_shown
-from service.occlusion.zbuffer import rows_shared, zbuffer
-from service.projection import project, project_tables
-from service.raster import row_bands, shared_rows, triangle_setup, zbuffer_zones_kernel
+from service.render.cull import CullSettings, cull, zone_mask
+from service.render.depth_sort import average_z, sort_polygons, triangle_order
+from service.render.light import mark_shown
+from service.render.occlusion.zbuffer import rows_shared, zbuffer
+from service.render.projection import project, project_tables
+from service.render.raster import row_bands, shared_rows, triangle_setup, zbuffer_zones_kernel
 
 
 def inputs(name: str, display: DisplaySettings, per_zone: bool = True):
@@ -175,7 +175,7 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
     # the per-triangle set-up the one-pass kernel shares between zones, against
     # setup_xyz run in each zone: same corners, same depth plane, to the last bit
     # (the buffers alone would hide a last-bit difference behind the float32 store)
-    from service.raster import _setup_zones, setup_xyz, vertex_tables
+    from service.render.raster import _setup_zones, setup_xyz, vertex_tables
 
     d = DisplaySettings(zones=7, angle_deg=60.0, cols=64, rows=48)
     rng = np.random.default_rng(3)
@@ -208,7 +208,7 @@ def test_the_shared_set_up_equals_each_zones_own_bit_for_bit():
 
 @pytest.mark.parametrize("zones", [1, 5])
 def test_the_projection_by_vertex_equals_the_kernels_own_tables(zones):
-    from service.raster import vertex_tables
+    from service.render.raster import vertex_tables
 
     d = DisplaySettings(zones=zones, angle_deg=16.0, cols=96, rows=72)
     v = builtin_scene("game").flatten().vertices
@@ -254,7 +254,7 @@ def covers_each_row_once(bands, rows):
 @pytest.mark.parametrize(("rows", "n"), [(1, 1), (1, 4), (3, 3), (7, 2), (240, 2), (240, 16)])
 @pytest.mark.parametrize("layout", ["none", "one row", "last row", "spread"])
 def test_balanced_bands_cover_every_row_once(rows, n, layout):
-    from service.raster import balanced_bands
+    from service.render.raster import balanced_bands
 
     rng = np.random.default_rng(rows * n)
     if layout == "none":  # no triangle has a row: the bands split the rows evenly
@@ -271,7 +271,7 @@ def test_balanced_bands_cover_every_row_once(rows, n, layout):
 
 
 def test_balanced_bands_share_the_game_scenes_rows():
-    from service.raster import balanced_bands
+    from service.render.raster import balanced_bands
 
     d = DisplaySettings(zones=5, angle_deg=16.0, cols=320, rows=240)
     arrays, proj, order, _ = inputs("game", d)
@@ -286,7 +286,7 @@ def test_balanced_bands_share_the_game_scenes_rows():
 
 @pytest.mark.parametrize("setup", [0, 3, 40])
 def test_balanced_bands_count_each_triangles_set_up(setup):
-    from service.raster import balanced_bands
+    from service.render.raster import balanced_bands
 
     # many small triangles at the top (the far scene), a few tall ones below
     r_first = np.concatenate([np.arange(0, 60) % 30, np.full(4, 40)]).astype(np.int64)
@@ -308,7 +308,7 @@ def test_balanced_bands_count_each_triangles_set_up(setup):
 def test_the_kernels_own_bands_give_the_same_buffers(threads, zones):
     import numba as nb
 
-    from service.raster import no_bands
+    from service.render.raster import no_bands
 
     d = DisplaySettings(zones=zones, angle_deg=16.0, cols=160, rows=120)
     arrays, proj, order, draw = inputs("game", d)
@@ -356,7 +356,7 @@ def test_the_polygons_shown_drawn_far_to_near_in_many_bands(name, zones):
 def test_a_prefetch_reads_nothing_and_any_row_is_safe():
     import numba as nb
 
-    from service.raster import _prefetch_row
+    from service.render.raster import _prefetch_row
 
     @nb.njit
     def fetch_rows(a, rows):

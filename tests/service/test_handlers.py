@@ -129,7 +129,7 @@ def test_load_object_from_a_file_only_inside_the_scene_dirs(tmp_path):
     import numpy as np
 
     from service.loaders.obj import save_obj
-    from service.mesh import Mesh
+    from service.render.mesh import Mesh
 
     inside, outside = tmp_path / "in", tmp_path / "out"
     inside.mkdir(), outside.mkdir()

@@ -8,12 +8,12 @@ import pytest
 
 from service.display import DisplaySettings
 from service.errors import ServiceError
-from service.light import LightSettings
 from service.loaders import load_scene
 from service.net import wire
 from service.net.client import ServiceClient
-from service.pipeline import Renderer, RenderSettings
 from service.primitives import sphere
+from service.render.light import LightSettings
+from service.render.pipeline import Renderer, RenderSettings
 from service.simplify.billboard import build_cloud
 from service.simplify.cloud_file import save_cloud
 

@@ -8,9 +8,9 @@ from testkit import TINY_DISPLAY
 
 from service.errors import ServiceError
 from service.loaders.obj import save_obj
-from service.mesh import Mesh
 from service.net.client import ServiceClient
-from service.scene import MotionState, Scene, SceneObject, Transform
+from service.render.mesh import Mesh
+from service.render.scene import MotionState, Scene, SceneObject, Transform
 
 
 def test_library_calls(service_factory, tmp_path):

@@ -311,7 +311,7 @@ def test_object_fields_that_are_not_objects_are_bad_messages(parse):
 def test_material_and_light_fields_and_their_defaults():
     # mutants: material_from_wire's None default, `"colour" in spec` and both returns
     # replaced; light_from_wire's return replaced
-    from service.scene import Light, Material
+    from service.render.scene import Light, Material
     assert wire.material_from_wire(None, "m") == Material()
     m = wire.material_from_wire({"colour": [0.5, 0.25, 1.0], "shininess": 8}, "m")
     assert m.colour == (0.5, 0.25, 1.0) and m.shininess == 8.0
@@ -358,7 +358,7 @@ def test_material_fields_are_used_and_an_impossible_material_is_a_bad_message():
 
 def test_orientation_is_normalised_and_scale_applied():
     # mutants: `q / norm` as `q * norm`, `"scale" in spec` as `not in`
-    from service.scene import Transform
+    from service.render.scene import Transform
     t = wire.transform_from_wire({"orientation": [0, 0, 0, 1.5], "scale": 2}, "o", Transform())
     assert np.linalg.norm(t.orientation) == pytest.approx(1.0) and t.scale == 2.0
     assert wire.transform_from_wire({}, "o", Transform()).scale == Transform().scale
@@ -391,7 +391,7 @@ def test_triangles_must_have_three_columns():
                                        ([0, 0, 0, 1.99], True), ([0, 0, 0, 2.0], False)])
 def test_an_orientation_needs_a_norm_strictly_between_half_and_two(q, ok):
     # mutants: `0.5 < norm < 2.0` with either < as <=
-    from service.scene import Transform
+    from service.render.scene import Transform
     if ok:
         t = wire.transform_from_wire({"orientation": q}, "o", Transform())
         assert np.linalg.norm(t.orientation) == pytest.approx(1.0)

@@ -14,10 +14,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from service.cull import CULLS
 from service.display import DisplaySettings
 from service.errors import MessageError
-from service.light import EVALUATIONS, MODELS
 from service.net.client import ServiceClient
 from service.net.settings_wire import (
     RENDER_FIELDS,
@@ -26,7 +24,9 @@ from service.net.settings_wire import (
     render_from_wire,
     render_to_wire,
 )
-from service.pipeline import FALLBACKS, METHOD_NAMES, RenderSettings
+from service.render.cull import CULLS
+from service.render.light import EVALUATIONS, MODELS
+from service.render.pipeline import FALLBACKS, METHOD_NAMES, RenderSettings
 
 #: Fields of RenderSettings (dotted paths) that are deliberately not on the wire: the
 #: level-of-detail chain recipe (how chains are built and cached, a per-host choice)

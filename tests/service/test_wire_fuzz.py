@@ -87,7 +87,7 @@ def test_cut_or_flipped_bytes_and_lost_frames_are_message_errors(kind, data):
 
 
 def test_a_huge_quaternion_is_refused_without_a_warning(recwarn):
-    from service.scene import Transform
+    from service.render.scene import Transform
 
     with pytest.raises(MessageError, match="viewer.orientation must be a unit quaternion"):
         wire.transform_from_wire({"orientation": [1e308] * 4}, "viewer", Transform())

@@ -16,13 +16,13 @@ import pytest
 from service.bench.lod_bench import silhouette_px
 from service.billboard_render import BillboardObject, draw_billboards
 from service.display import DisplaySettings
-from service.light import LightSettings
 from service.lod.chain import cloud_error
 from service.lod.select import pixels_per_unit, select_levels
-from service.occlusion import Visibility
-from service.pipeline import Renderer
 from service.primitives import sphere
-from service.scene import (
+from service.render.light import LightSettings
+from service.render.occlusion import Visibility
+from service.render.pipeline import Renderer
+from service.render.scene import (
     Light,
     Material,
     Scene,

@@ -8,9 +8,9 @@ from service.billboard_render import BillboardObject
 from service.display import DisplaySettings
 from service.errors import MeshFileError
 from service.loaders import load_scene
-from service.pipeline import Renderer, RenderSettings
 from service.primitives import cube, sphere
-from service.scene import Material, Scene, SceneObject, Transform, euler_quaternion
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import Material, Scene, SceneObject, Transform, euler_quaternion
 from service.simplify.billboard import build_cloud
 from service.simplify.cloud_file import save_cloud
 
@@ -128,7 +128,7 @@ def test_billboard_pixels_move_like_the_mesh_they_stand_for_when_the_viewer_move
     a billboard pixel's come from its quad (rigid and planar: affine over it), so a
     cube's cloud moves on screen as the cube does under a translating, turning viewer."""
     from service.galilean.motion_field import render_with_motion
-    from service.scene import MotionState
+    from service.render.scene import MotionState
 
     mesh, cloud = box
     motion = MotionState(velocity=np.array([0.2, -0.1, 0.05]),

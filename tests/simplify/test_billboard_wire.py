@@ -12,7 +12,7 @@ from service.billboard_render import BillboardObject
 from service.errors import MessageError
 from service.net import wire
 from service.primitives import sphere
-from service.scene import Material, Scene, Transform
+from service.render.scene import Material, Scene, Transform
 from service.simplify.billboard import build_cloud
 
 

@@ -78,7 +78,7 @@ def test_help_is_plain():
 
 
 def _extent(scene, display):
-    from service.pipeline import Renderer
+    from service.render.pipeline import Renderer
 
     covered = np.isfinite(Renderer().render(scene, display).depth[display.zones // 2])
     rows, cols = np.nonzero(covered)

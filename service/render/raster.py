@@ -122,7 +122,7 @@ def zbuffer_kernel(
         Triangles to draw, in drawing order (front to back saves writes).
     draw : ndarray, shape (Z, T), bool
         Per zone, whether a triangle may be drawn at all (see
-        :func:`service.cull.zone_mask`).
+        :func:`service.render.cull.zone_mask`).
     tri_out : ndarray, shape (Z, R, C), int32, filled with -1
     depth_out : ndarray, shape (Z, R, C), float32, filled with +inf
     """
@@ -481,7 +481,7 @@ def _mark_band(
 ) -> None:
     """Mark ``shown[z, item[t]]`` for each triangle ``t`` seen in the band's rows.
 
-    :func:`service.light.mark_shown`'s result, from the columns each row had drawn
+    :func:`service.render.light.mark_shown`'s result, from the columns each row had drawn
     (``drawn`` (2, Z, rows of the band)) instead of every column: the rest of a row
     is empty.  Bands mark in parallel; they only ever write True.
     """
@@ -652,7 +652,7 @@ def zbuffer_zones_kernel(
         Triangles to draw, in drawing order.
     draw_t : ndarray, shape (T, Z), bool
         Per triangle, the zones it may be drawn in (the transpose of
-        :func:`service.cull.zone_mask`).
+        :func:`service.render.cull.zone_mask`).
     bands : ndarray, shape (B, 2), int64
         First and last row of each band; together they cover every row once.  Bands
         run in parallel in the order given (interleave them to share the work).  No
@@ -666,11 +666,11 @@ def zbuffer_zones_kernel(
         Item of each triangle (e.g. its polygon), for ``shown``.
     shown : ndarray, shape (Z, P), bool, filled with False
         Out: ``shown[z, p]`` where zone z shows an item p (what
-        :func:`service.light.mark_shown` finds in the buffers, found while each band
+        :func:`service.render.light.mark_shown` finds in the buffers, found while each band
         is fresh and only in the columns it drew).  Shape (Z, 0): not wanted.
     xz, yd : ndarray, shape (V, Z) and (V, 2)
         :func:`vertex_tables` of ``proj`` where the caller has them
-        (:func:`service.projection.project_tables`); with no rows the kernel makes
+        (:func:`service.render.projection.project_tables`); with no rows the kernel makes
         them (one zone reads ``proj`` as it is and needs none).
     threads : int
         Threads the kernel runs on (``numba.get_num_threads()``, which a kernel

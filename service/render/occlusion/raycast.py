@@ -5,7 +5,7 @@ zone's projection line through the display-plane point ``(X, Y, 0)`` with
 ``X = (c + 0.5) s - width/2`` and ``Y = height/2 - (r + 0.5) s``: the points
 ``(X + z t, Y, z)``.  Each candidate triangle is intersected with that ray in
 world space, in float64, and the nearest hit (largest ``z``, smallest depth ``-z``)
-wins.  This deliberately shares no code with :mod:`service.raster`, so comparing a
+wins.  This deliberately shares no code with :mod:`service.render.raster`, so comparing a
 raster method against it catches scan-conversion bugs.
 
 Intersection test (watertight, Pluecker form)
@@ -46,8 +46,8 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
-from service.occlusion import Visibility
-from service.scene import SceneArrays
+from service.render.occlusion import Visibility
+from service.render.scene import SceneArrays
 
 TILE = 16
 """Side of a binning tile in pixels."""

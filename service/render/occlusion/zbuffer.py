@@ -1,11 +1,11 @@
 """Occlusion by a z-buffer per view zone (numba kernels).
 
 The default path draws every zone in one pass over the triangles
-(:func:`service.raster.zbuffer_zones_kernel`, a band of rows per thread, cut where the
+(:func:`service.render.raster.zbuffer_zones_kernel`, a band of rows per thread, cut where the
 threads get equal work): a triangle's
 rows, depths and corner order are the same in every zone, so that work is shared.  A
 projection whose rows or depths differ between zones (not one
-:func:`service.projection.project` makes) takes the per-zone kernel; both give
+:func:`service.render.projection.project` makes) takes the per-zone kernel; both give
 bit-identical buffers.
 """
 
@@ -15,15 +15,15 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
-from service.occlusion import Visibility
-from service.raster import no_bands, zbuffer_kernel, zbuffer_zones_kernel
-from service.scene import SceneArrays
+from service.render.occlusion import Visibility
+from service.render.raster import no_bands, zbuffer_kernel, zbuffer_zones_kernel
+from service.render.scene import SceneArrays
 
 
 def rows_shared(proj: np.ndarray) -> bool:
     """Whether every zone of ``proj`` (Z, V, 3) puts each vertex on the same row and depth.
 
-    True for every projection :func:`service.projection.project` makes (zones differ
+    True for every projection :func:`service.render.projection.project` makes (zones differ
     only by a shear in x) of finite vertices; the one-pass kernel reads rows and
     depths from zone 0.  A NaN never equals itself, so a projection holding one is
     not shared (as ``np.array_equal`` says).
@@ -60,13 +60,13 @@ def zbuffer(
     ----------
     scene : SceneArrays
     proj : ndarray, shape (Z, V, 3)
-        From :func:`service.projection.project`.
+        From :func:`service.render.projection.project`.
     display : DisplaySettings
     order : ndarray, shape (N,), int64
         Triangles to draw (culled ones left out); nearest first saves writes.
     draw : ndarray, shape (Z, T), bool, optional
         Per zone, the triangles that may be drawn (default: all in ``order``); see
-        :func:`service.cull.zone_mask`.
+        :func:`service.render.cull.zone_mask`.
     shared : bool
         Draw all zones in one pass (default); False runs the per-zone kernel (the
         reference the one-pass kernel is tested against).
@@ -76,14 +76,14 @@ def zbuffer(
     item : ndarray, shape (T,), optional
         Item of each triangle (e.g. ``SceneArrays.triangle_polygon``), each below
         ``n_items``: the one-pass kernel then also fills ``Visibility.shown``
-        (:func:`service.light.mark_shown`, at a fraction of its cost); the per-zone
+        (:func:`service.render.light.mark_shown`, at a fraction of its cost); the per-zone
         kernel leaves it None.
     n_items : int
     draw_t : ndarray, shape (T, Z), bool, optional
-        ``draw`` by triangle (:func:`service.cull.zone_mask` with ``by_triangle``),
+        ``draw`` by triangle (:func:`service.render.cull.zone_mask` with ``by_triangle``),
         the layout the one-pass kernel reads; given, it replaces ``draw``.
     tables : tuple of ndarray, optional
-        ``(xz, yd)`` of :func:`service.projection.project_tables` for this ``proj``:
+        ``(xz, yd)`` of :func:`service.render.projection.project_tables` for this ``proj``:
         its rows and depths are shared by construction, so the one-pass kernel runs
         without :func:`rows_shared`'s check and reads these instead of laying the
         projection out by vertex itself (0.03 ms of a 5-zone game frame).

@@ -1,7 +1,7 @@
 """Stage 4: occlusion (hidden-surface removal) for every view zone, selectable by name.
 
 Every method returns a :class:`Visibility`: for each zone and pixel, the triangle
-seen there and its depth.  Shading (:mod:`service.light`) turns that into colour, so
+seen there and its depth.  Shading (:mod:`service.render.light`) turns that into colour, so
 methods differ only in which surface each pixel shows, and can be compared pixel
 for pixel against the ``raycast`` reference.
 """
@@ -27,7 +27,7 @@ class Visibility:
         Method-specific counters (e.g. ``{"inconsistent_pixels": 0}``).
     shown : ndarray, shape (Z, P), bool, optional
         Which polygons each zone shows, when the pipeline has already found them
-        (:func:`service.light.mark_shown`); the light stage then skips that pass.
+        (:func:`service.render.light.mark_shown`); the light stage then skips that pass.
         None otherwise.
     """
 

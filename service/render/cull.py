@@ -79,7 +79,7 @@ def facing(normals: np.ndarray, display: DisplaySettings) -> np.ndarray:
     -------
     ndarray, shape (P, Z), bool
         ``n_x v_x + n_y v_y + n_z v_z > 0`` summed in that order, as
-        :func:`cull_zones` and the light (:mod:`service.light`) evaluate it.
+        :func:`cull_zones` and the light (:mod:`service.render.light`) evaluate it.
     """
     out = np.empty((normals.shape[0], display.zones), np.bool_)
     _facing_kernel(np.ascontiguousarray(normals, np.float64), display.view_vectors(), out)
@@ -175,7 +175,7 @@ def zone_mask(
         :func:`facing` of these normals, if the caller has it already.
     by_triangle : bool
         Return the mask by triangle, (T, Z), the layout the one-pass z-buffer reads
-        (:func:`service.occlusion.zbuffer.zbuffer`'s ``draw_t``): transposing a
+        (:func:`service.render.occlusion.zbuffer.zbuffer`'s ``draw_t``): transposing a
         5-zone mask of the game scene cost 0.05 ms.
 
     Returns

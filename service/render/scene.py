@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from service.errors import SettingsError
-from service.mesh import Mesh
+from service.render.mesh import Mesh
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 Light model
 -----------
 For a surface point ``p`` with unit normal ``N``, material ``(r, g, b, k_a, k_d, k_s,
-n)`` (see :class:`service.scene.Material`) and the view vector ``V`` of zone ``k``
+n)`` (see :class:`service.render.scene.Material`) and the view vector ``V`` of zone ``k``
 (:meth:`service.display.DisplaySettings.view_vectors`; the projection is parallel, so
 ``V`` is the same for every point of a zone), each colour channel ``c`` is
 
@@ -42,7 +42,7 @@ Evaluation (:data:`EVALUATIONS`)
 ``point``
     Per pixel: the corner normals interpolated by the same barycentrics (and
     renormalised), at the pixel's world position from
-    :func:`service.projection.unproject` at its visible depth.  The accuracy
+    :func:`service.render.projection.unproject` at its visible depth.  The accuracy
     reference.
 
 Back-facing pixels
@@ -77,9 +77,9 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.errors import RenderError, SettingsError
-from service.occlusion import Visibility
-from service.projection import unproject
-from service.scene import Light, SceneArrays
+from service.render.occlusion import Visibility
+from service.render.projection import unproject
+from service.render.scene import Light, SceneArrays
 
 #: Light model name -> kernel code (index into the specular-base tuple in the kernel).
 MODELS: dict[str, int] = {"ambient": 0, "phong": 1, "blinn": 2}
@@ -786,7 +786,7 @@ def shade(
     scene : SceneArrays
         The flattened scene (world coordinates).
     proj : ndarray, shape (Z, V, 3)
-        :func:`service.projection.project` of ``scene.vertices``.
+        :func:`service.render.projection.project` of ``scene.vertices``.
     vis : Visibility
         Triangle and depth seen at each pixel, shapes (Z, R, C).
     display : DisplaySettings

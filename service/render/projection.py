@@ -48,10 +48,10 @@ def project_tables(
         :func:`project`'s result.
     xz : ndarray, shape (V, Z), or (0, Z) when not filled
         Each vertex's column in every zone, side by side
-        (:func:`service.raster.vertex_tables`).
+        (:func:`service.render.raster.vertex_tables`).
     yd : ndarray, shape (V, 2), or (0, 2) when not filled
         Each vertex's row and depth, shared by every zone by construction (the
-        z-buffer given them need not check :func:`service.occlusion.zbuffer.rows_shared`).
+        z-buffer given them need not check :func:`service.render.occlusion.zbuffer.rows_shared`).
     """
     zones, n = display.zones, vertices.shape[0]
     out = np.empty((zones, n, 3))

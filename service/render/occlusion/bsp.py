@@ -12,7 +12,7 @@ Building costs several frames (a numba kernel; tens to a couple of hundred
 milliseconds for ten thousand triangles, depending on how many splits the scene
 forces), so callers keep a :class:`BspCache`, which rebuilds only when the
 geometry or the candidate list changes; a frame is then one walk per zone (about
-a millisecond) plus painting the fragments with :func:`service.raster.painter_kernel`.
+a millisecond) plus painting the fragments with :func:`service.render.raster.painter_kernel`.
 
 Splitters are chosen as the seed suggests: a few random candidate planes, each
 scored on a sample of the node's fragments by ``SPLIT_WEIGHT * splits + |front -
@@ -30,10 +30,10 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
-from service.occlusion import Visibility
-from service.projection import project
-from service.raster import painter_kernel
-from service.scene import SceneArrays
+from service.render.occlusion import Visibility
+from service.render.projection import project
+from service.render.raster import painter_kernel
+from service.render.scene import SceneArrays
 
 EPS_REL = 1e-9
 """On-plane tolerance as a fraction of the geometry's extent."""

@@ -45,9 +45,9 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
-from service.occlusion import Visibility
-from service.raster import row_span, triangle_setup
-from service.scene import SceneArrays
+from service.render.occlusion import Visibility
+from service.render.raster import row_span, triangle_setup
+from service.render.scene import SceneArrays
 
 SENTINEL = 1 << 30  # the thesis used 2000: larger than any step
 DEPTH_EPS = 1e-6  # world units; nearer than this is not "inconsistent"
