@@ -3,8 +3,8 @@ one that dies right after ``READY`` again and again is restarted with a back-off
 
 The broker is real (ZeroMQ on 127.0.0.1, on its own thread); the workers are real
 processes: one that never connects (hung at start-up) and one that says ``READY`` the
-way ``service.net.worker`` does, then exits (a worker that crashes as soon as it
-works).  Every wait is on a condition with a timeout.
+way ``service.net.worker`` does and exits on the first job the broker hands it (a
+worker that crashes on every job).  Every wait is on a condition with a timeout.
 """
 
 from __future__ import annotations
@@ -20,13 +20,13 @@ from testkit import HANG_S, alive, wait_until
 from service.net.broker import Broker
 from service.net.supervisor import Supervisor
 
-#: a worker that says READY (as service/net/worker.py does), lives half a second, dies
+#: a worker that says READY (as service/net/worker.py does) and dies on its first job
 CRASHER = """
-import json, os, sys, time, zmq
+import json, os, sys, zmq
 sock = zmq.Context().socket(zmq.DEALER)
 sock.connect(sys.argv[1])
-sock.send_multipart([b"", b"READY", json.dumps({"pid": os.getpid(), "heartbeat_s": 0.2}).encode()])
-time.sleep(0.5)  # the supervisor sees it READY before it dies
+sock.send_multipart([b"", b"READY", json.dumps({"pid": os.getpid(), "heartbeat_s": 60}).encode()])
+sock.recv_multipart()  # a job
 sys.exit(3)
 """
 
@@ -50,7 +50,7 @@ def rig():
         return sup
 
     try:
-        yield make, log, broker.backend_address
+        yield make, log, broker
     finally:
         for sup in made:
             sup.close()
@@ -62,7 +62,7 @@ def rig():
 
 def test_a_worker_hung_before_ready_is_killed_and_started_again(rig):
     make, log, _ = rig
-    sup = make([sys.executable, "-c", "import time; time.sleep(600)"], startup_s=1.0)
+    sup = make([sys.executable, "-c", "import signal; signal.pause()"], startup_s=1.0)
     first = wait_until(lambda: sup.pids(), HANG_S)
     assert first, "the worker never started"
     assert wait_until(lambda: sup.deaths >= 1, HANG_S), log
@@ -71,10 +71,21 @@ def test_a_worker_hung_before_ready_is_killed_and_started_again(rig):
     assert wait_until(lambda: sup.restarts >= 1, HANG_S), "it was not started again"
 
 
-def test_a_worker_that_dies_right_after_ready_is_restarted_with_a_back_off(rig):
-    make, log, backend = rig
-    sup = make([sys.executable, "-c", CRASHER, backend])
-    assert wait_until(lambda: sup.deaths >= 4, 4 * HANG_S), log
+def test_a_worker_that_dies_on_every_job_is_restarted_with_a_back_off(rig):
+    make, log, broker = rig
+    sup = make([sys.executable, "-c", CRASHER, broker.backend_address])
+    ctx = zmq.Context()
+    requester = ctx.socket(zmq.DEALER)
+    requester.connect(broker.front.getsockopt_string(zmq.LAST_ENDPOINT))
+    try:
+        for deaths in range(4):  # each worker, once READY, gets a job and dies of it
+            assert wait_until(lambda: sup.slots[0].ready and not sup.slots[0].dead,
+                              2 * HANG_S), log
+            requester.send_multipart([b"", b"job"])
+            assert wait_until(lambda n=deaths: sup.deaths > n, HANG_S), log
+    finally:
+        requester.close(0)
+        ctx.term()
     waits = [line for line in log if "died within 10 s of starting work" in line]
     # the first quick death restarts at once; then 0.5 s, 1 s, 2 s ...
     assert waits and "restarting it in 0.5 s" in waits[0], log
