@@ -23,7 +23,7 @@ import serial
 from drivers.events import Event, StatusEvent
 from drivers.protocols import sgi_dialbox as sgi
 from drivers.reader import DeviceReader
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 ALL_LAMPS = 0xFFFFFFFF
 

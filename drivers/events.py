@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 #: Allowed values of :attr:`StatusEvent.event`.
 STATUS_EVENTS = frozenset(

@@ -41,7 +41,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from service.errors import SampleError, SettingsError
+from service.base.errors import SampleError, SettingsError
 
 #: Number of pose channels: x, y, z, yaw, pitch, roll.
 POSE_DIM = 6

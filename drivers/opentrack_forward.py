@@ -26,7 +26,7 @@ from drivers.events import Event, PoseEvent, StatusEvent
 from drivers.filters import FILTERS, make_filter, wrap_angles
 from drivers.protocols.opentrack import encode_pose
 from drivers.reader import Item, Sink
-from service.errors import HoloError, SettingsError
+from service.base.errors import HoloError, SettingsError
 
 #: The filter forwarded poses go through unless told otherwise (the service's).
 DEFAULT_FILTER = "alpha-beta"

@@ -16,7 +16,7 @@ import select
 import threading
 import time
 
-from service.errors import DeviceError
+from service.base.errors import DeviceError
 
 POLL_S = 0.005
 #: How long :meth:`PtyLink.drain` waits at most for a reader to take what was sent.

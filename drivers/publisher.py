@@ -54,8 +54,8 @@ from drivers.events import (
     StatusEvent,
 )
 from drivers.protocols.sgi_dialbox import NUM_BUTTONS, NUM_DIALS
-from service.addresses import check_endpoint
-from service.errors import DeviceError, SettingsError
+from service.base.addresses import check_endpoint
+from service.base.errors import DeviceError, SettingsError
 
 if TYPE_CHECKING:
     from drivers.reader import Item, Sink
@@ -169,7 +169,7 @@ class Publisher:
         The address cannot be bound.
     SettingsError
         ``counts_per_turn`` is not positive, or an address is malformed
-        (:func:`service.addresses.check_endpoint`: a port outside 1-65535...).
+        (:func:`service.base.addresses.check_endpoint`: a port outside 1-65535...).
     """
 
     def __init__(self, address: str, t0_ns: int = 0, *, pose_address: str | None = None,

@@ -68,7 +68,7 @@ import serial
 from drivers.events import Event, StatusEvent
 from drivers.protocols import DEVICE_OF, make_decoder
 from drivers.udp_port import UdpPort, open_port
-from service.errors import DeviceError, LogFileError, SettingsError
+from service.base.errors import DeviceError, LogFileError, SettingsError
 
 #: Protocol name in a log header for a device's control records.
 CONTROL_PROTOCOL = "control"

@@ -31,7 +31,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from service.errors import LogFileError, SettingsError
+from service.base.errors import LogFileError, SettingsError
 
 #: First bytes of every log file (the CR LF catches text-mode mangling).
 MAGIC = b"HOLOLOG\x00\r\n\x1a\n"

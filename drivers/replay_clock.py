@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 T = TypeVar("T")
 

@@ -29,7 +29,7 @@ import zmq
 
 from drivers.events import Event, PoseEvent, event_from_dict
 from drivers.protocols.sgi_dialbox import NUM_BUTTONS, NUM_DIALS
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 DEFAULT_TOPICS = (b"pose", b"dials", b"status")
 #: Topics taken from the main socket when poses come from the pose-only endpoint.

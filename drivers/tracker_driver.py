@@ -30,7 +30,7 @@ import serial
 from drivers.events import Event
 from drivers.protocols import hatire, native
 from drivers.reader import DeviceReader, canonical_protocol
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 COMMAND_NAMES = ("start", "stop", "reset")
 

@@ -24,7 +24,7 @@ from urllib.parse import urlsplit
 import serial
 
 from drivers.protocols.opentrack import DEFAULT_PORT, URL_SCHEME
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 #: Largest datagram read (anything longer is cut to this and then counted as the wrong size).
 MAX_DATAGRAM = 65536

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.render.light import LightSettings
 
 #: The service's default light model (one source: :class:`service.render.light.LightSettings`).

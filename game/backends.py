@@ -37,8 +37,8 @@ import numpy as np
 from game.gameover import BURST_SECONDS, burst_derivatives, burst_records, explosion_scene
 from game.scene import apply_states
 from service.autostereogram.output import SirdOutput, warm_up_sird
+from service.base.errors import ServiceError, SettingsError
 from service.display import DisplaySettings
-from service.errors import ServiceError, SettingsError
 from service.frame_settings import FrameSettings
 from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.local_update import render_use_by

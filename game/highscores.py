@@ -23,7 +23,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 
 KEEP = 10
 VERSION = 1

@@ -14,7 +14,7 @@ import os
 import time
 from pathlib import Path
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 
 #: The name of the pointer at the newest run in the root folder.
 LATEST = "latest"

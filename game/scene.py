@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from game.rules import GameState, attacker_velocities
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.primitives import attacker, player
 from service.render.mesh import Mesh
 from service.render.scene import (
@@ -68,7 +68,7 @@ def attacker_mesh(path: str | Path | None = None) -> Mesh:
     ------
     SceneError
         If the mesh has more than :data:`MAX_POLYGONS` polygons.
-    service.errors.MeshFileError
+    service.base.errors.MeshFileError
         For a bad file.
     """
     if path is None:

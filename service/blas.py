@@ -14,7 +14,7 @@ bound, and gain nothing from the pool.
 :func:`single_threaded_blas` sets OpenBLAS's thread count to one at run time
 (``OPENBLAS_NUM_THREADS`` only counts before numpy loads it, and the CLIs import
 numpy before their ``main`` runs).  The CLIs that render or refresh call it at
-start, beside :func:`service.heap.keep_freed_memory`.
+start, beside :func:`service.base.heap.keep_freed_memory`.
 """
 
 from __future__ import annotations

@@ -26,7 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.primitives import attacker, cube, lathe, outward_mesh, player, sphere, torus
 from service.render.mesh import Mesh
 from service.render.scene import (

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 #: Most pixels of all zones together (zones x cols x rows): 64 zones of 1024x1024, or one
 #: of 8192x8192.  Frames of this size take a few GB; 64 zones of 8192x8192 asked

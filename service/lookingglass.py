@@ -36,7 +36,7 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 #: The ``--display`` value's prefix: ``lookingglass:CALIBRATION.json``.
 DISPLAY_PREFIX = "lookingglass:"

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import PngError
+from service.base.errors import PngError
 
 _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

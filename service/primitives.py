@@ -14,7 +14,7 @@ from itertools import combinations
 
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.render.mesh import MAX_POLYGONS, Mesh
 
 

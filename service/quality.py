@@ -39,8 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from service.base.errors import SettingsError
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.render.cull import CullSettings
 from service.render.frame import Frame
 from service.render.light import LightSettings, shade

@@ -65,8 +65,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from service.base.signals import end_process
 from service.kernel_cache import is_warm, mark_warm
-from service.signals import end_process
 from service.warmup import FIRST_FRAME_JOBS, JOBS, SERVICE_JOBS, warm_up
 
 #: The phases in order; ``ready`` and ``failed`` are final.

@@ -31,10 +31,10 @@ from typing import Any
 
 import numpy as np
 
+from service.base.signals import end_process
 from service.display import DisplaySettings
 from service.kernel_cache import fingerprint, stamp_path
 from service.numba_patches import apply_all as numba_patches
-from service.signals import end_process
 
 __all__ = [
     "FIRST_FRAME_JOBS", "JOBS", "SERVICE_JOBS", "WarmupReport", "WarmupStep", "cache_counts",

@@ -32,7 +32,7 @@ from urllib.parse import parse_qs, urlparse
 import numpy as np
 
 from service.autostereogram.output import SirdOutput
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.net import protocol
 from service.net.client import FrameSubscriber, ServiceClient
 from service.render.frame import default_grid, depth_grey, quilt, view_strip

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from functools import partial
 
 from drivers.protocols import sgi_dialbox as sgi
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from typing import Protocol
 import serial
 
 from drivers.protocols.opentrack import URL_SCHEME
-from service.errors import DeviceError, SettingsError
+from service.base.errors import DeviceError, SettingsError
 from sim_devices.faults import Disconnect, FaultInjector, FaultLedger, FaultSpec, Pause, Write
 
 POLL_S = 0.005

@@ -32,7 +32,7 @@ import random
 from collections import Counter
 from dataclasses import dataclass, field, fields
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 DAMAGE = ("corrupt", "drop", "truncate", "wrong_baud")
 AFTER = ("burst", "pause", "disconnect")

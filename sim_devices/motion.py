@@ -27,7 +27,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Protocol
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 AXES = ("yaw", "pitch", "roll", "x", "y", "z")
 

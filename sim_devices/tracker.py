@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator
 from functools import partial
 
 from drivers.protocols import hatire, native, opentrack
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from sim_devices.motion import Motion, Sway
 
 PROTOCOLS = ("hatire", "native", "opentrack")

@@ -32,7 +32,7 @@ from pathlib import Path
 import pytest
 import zmq
 
-from service.signals import end_process
+from service.base.signals import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,7 +58,7 @@ TINY_DISPLAY = ("--zones", "2", "--size", "32x24", "--workers", "0")
 #: The game scene on :data:`TINY_DISPLAY` at 30 refreshes a second.
 SMALL_SERVICE = ("--scene", "game", *TINY_DISPLAY, "--refresh", "30")
 
-#: The rule of service.signals: the exit status after a clean stop on each signal.
+#: The rule of service.base.signals: the exit status after a clean stop on each signal.
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
 #: Seconds for a deadline that only guards against a hang, never a speed check: a loaded
 #: machine (a shared CI host, a first ``make test`` beside other work) can starve a test

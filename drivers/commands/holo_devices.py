@@ -26,7 +26,7 @@ Ctrl-C or SIGTERM stops cleanly: readers are joined, the queue is drained, the
 recorder closed (the log is complete) and a JSON summary of each device's statistics
 is printed on stderr.
 
-Exit status (the rule of :mod:`service.signals`): 0 when the run ended (``--seconds``)
+Exit status (the rule of :mod:`service.base.signals`): 0 when the run ended (``--seconds``)
 having opened a device; 1 when no device could ever be opened (each device's last
 error is named), or with ``--no-retry`` when any port did not open; 2 for bad
 settings (an address that cannot be bound, a log that cannot be created); 130 / 143
@@ -67,10 +67,10 @@ from drivers.reader import (
 from drivers.recording import DeviceInfo, LogHeader, LogWriter, SerialSettings
 from drivers.tracker_driver import TrackerDriver, add_command_options, commands_from_args
 from drivers.udp_port import is_udp_url, parse_udp_url
-from service.addresses import default_address, host_port
-from service.cli_args import endpoint, float_range, int_range, output_problem, plain_help
-from service.errors import HoloError, SettingsError
-from service.signals import (
+from service.base.addresses import default_address, host_port
+from service.base.cli_args import endpoint, float_range, int_range, output_problem, plain_help
+from service.base.errors import HoloError, SettingsError
+from service.base.signals import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_RULE,

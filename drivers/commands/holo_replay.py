@@ -33,7 +33,7 @@ bytes did not frame is named at the end and its events do not count for the exit
 status.  With no output option (``--dump``, ``--pub``, ``--to-port``,
 ``--to-pty``) ``--dump`` is implied, and a note on stderr says so.
 
-Exit status (the rule of :mod:`service.signals`): 0 when the replay decoded device
+Exit status (the rule of :mod:`service.base.signals`): 0 when the replay decoded device
 events; 1 when it decoded none (an empty log, or bytes in another protocol: the
 message names what was read and discarded; events of a device whose bytes do not
 frame do not count) or ``--skip`` passed them all; 2 for a bad file or settings
@@ -92,9 +92,9 @@ from drivers.recording import (
 )
 from drivers.replay_clock import ReplayScheduler, ReplaySettings
 from drivers.udp_port import UdpSender, is_udp_url
-from service.cli_args import float_range, int_range, output_problem, plain_help
-from service.errors import DeviceError, HoloError, LogFileError, SettingsError
-from service.signals import (
+from service.base.cli_args import float_range, int_range, output_problem, plain_help
+from service.base.errors import DeviceError, HoloError, LogFileError, SettingsError
+from service.base.signals import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_RULE,

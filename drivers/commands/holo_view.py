@@ -29,7 +29,7 @@ something has arrived, ``--count N`` stops after N.
 Exit status: 0 after ``--once`` / ``--count``; 1 when nothing arrived within
 ``--timeout`` seconds (default 10 with ``--once`` / ``--count``, else wait for ever);
 2 for bad options; 130 / 143 after a clean stop on Ctrl-C / SIGTERM (the rule of
-:mod:`service.signals`).
+:mod:`service.base.signals`).
 """
 
 from __future__ import annotations
@@ -45,9 +45,9 @@ from typing import Any, TextIO
 
 from drivers.events import Event
 from drivers.subscriber import DeviceSubscriber
-from service.addresses import default_address
-from service.cli_args import endpoint, float_range, int_range, plain_help
-from service.signals import (
+from service.base.addresses import default_address
+from service.base.cli_args import endpoint, float_range, int_range, plain_help
+from service.base.signals import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_RULE,

@@ -48,7 +48,7 @@ from typing import Any, Protocol
 
 from drivers.events import DecoderStats, Event
 from drivers.protocols import hatire, native, opentrack, sgi_dialbox
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 __all__ = ["DATAGRAM_PROTOCOLS", "DECODERS", "DEVICE_OF", "Decoder", "DecoderStats",
            "make_decoder"]

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 from drivers.events import DecoderStats, Event, PoseEvent, StatusEvent
 from drivers.protocols.resync import SyncScan
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 FRAME_LEN = 30
 HEADER = b"\xaa\xaa"

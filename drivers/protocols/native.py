@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from drivers.events import DecoderStats, Event, PoseEvent, StatusEvent
 from drivers.protocols.crc import crc16_ccitt
 from drivers.protocols.resync import SyncScan
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 SYNC = b"\xa5\x5a"
 VERSION = 1

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from drivers.events import ButtonEvent, DecoderStats, DialEvent, Event, StatusEvent
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 BAUD = 9600
 NUM_DIALS = 8

@@ -28,7 +28,7 @@ from game.actions import binding_help, lamp_mask
 from game.adapt import DEFAULT_LIGHT, LADDER, Choice, Look
 from game.display import MODES, UNAVAILABLE, choose_mode, has_display, headless_env
 from game.rules import DIFFICULTIES, GameSettings
-from service.cli_args import (
+from service.base.cli_args import (
     endpoint,
     float_range,
     int_range,
@@ -36,16 +36,8 @@ from service.cli_args import (
     plain_help,
     size,
 )
-from service.display import DisplaySettings
-from service.errors import HoloError
-from service.frame_settings import FrameSettings
-from service.lod.options import add_lod_options, lod_settings
-from service.lookingglass import DEFAULT_VIEWS, Interleaver, parse_display
-from service.process import setup_frame_process
-from service.render.light import MODELS as LIGHT_MODELS
-from service.render.light import LightSettings
-from service.render.pipeline import RenderSettings
-from service.signals import (
+from service.base.errors import HoloError
+from service.base.signals import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_RULE,
@@ -54,6 +46,14 @@ from service.signals import (
     interruptible,
     stop_on_signals,
 )
+from service.display import DisplaySettings
+from service.frame_settings import FrameSettings
+from service.lod.options import add_lod_options, lod_settings
+from service.lookingglass import DEFAULT_VIEWS, Interleaver, parse_display
+from service.process import setup_frame_process
+from service.render.light import MODELS as LIGHT_MODELS
+from service.render.light import LightSettings
+from service.render.pipeline import RenderSettings
 
 DEFAULT_SERVICE = "tcp://127.0.0.1:5555"
 #: Pixels per zone without ``--size`` or ``--adapt``.
@@ -256,7 +256,7 @@ def _start(args: argparse.Namespace, look: Look, game: GameSettings) -> object:
     """A backend for ``look``, started on the game's scene as its first game begins."""
     from game.rules import new_game
     from game.scene import apply_states, attacker_mesh, game_scene, object_states
-    from service.errors import ServiceError
+    from service.base.errors import ServiceError
 
     first = new_game(game)  # the scene starts as the first game does (no frame at the origin)
     scene = apply_states(game_scene(
@@ -363,7 +363,7 @@ def run(args: argparse.Namespace) -> dict:
     """Play (or let the bot play) until quit or ``--seconds``; returns the stats.
 
     The stats are also kept in ``args.stats``, written and closed down even when a
-    signal (:func:`~service.signals.interruptible`) ends the game.
+    signal (:func:`~service.base.signals.interruptible`) ends the game.
     """
     from game.capture import Capture
     from game.client_loop import GameClient, LoopSettings

@@ -46,9 +46,9 @@ from game.actions import lamp_mask
 from game.adapt import LADDER
 from game.display import has_display, headless_env
 from game.run_folders import new_run_folder, point_latest
-from service.cli_args import float_range, plain_help, size
-from service.errors import HoloError
-from service.signals import (
+from service.base.cli_args import float_range, plain_help, size
+from service.base.errors import HoloError
+from service.base.signals import (
     EXIT_FAILED,
     EXIT_RULE,
     Interrupted,
@@ -85,7 +85,7 @@ class Signals:
             yield
 
     def check(self) -> None:
-        """Raise :class:`~service.signals.Interrupted` if a signal came."""
+        """Raise :class:`~service.base.signals.Interrupted` if a signal came."""
         for sig, event in self.events.items():
             if event.is_set():
                 raise Interrupted(sig)

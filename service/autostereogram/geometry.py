@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 #: Eye separation in inches (TIW's 2.5 in).
 EYE_SEP_INCHES = 2.5

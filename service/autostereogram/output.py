@@ -52,7 +52,7 @@ class SirdOutput:
         """The stereogram of one depth map (rows, cols), as a new (rows, cols) uint8 array.
 
         NaN depths (none come from the renderer or the Galilean stage) raise
-        :class:`service.errors.SettingsError`.
+        :class:`service.base.errors.SettingsError`.
         """
         t0 = time.perf_counter()
         self.work.fresh_output()

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import PngError, SettingsError
+from service.base.errors import PngError, SettingsError
 from service.png import read_png
 
 #: Random pattern names -> channels.

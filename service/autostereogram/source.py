@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.errors import SettingsError
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.loaders import load_scene
 from service.npy_file import read_npy_file
 from service.render.pipeline import Renderer, RenderSettings

@@ -18,7 +18,7 @@ from service.autostereogram.geometry import SirdSettings
 from service.autostereogram.interpolated import interpolated_kernel
 from service.autostereogram.row import row_kernel
 from service.autostereogram.tiw import tiw_kernel
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 #: Rows per chunk of the kernels' parallel loops, asked of numba around the call (a
 #: kernel that sets it itself cannot be cached).  Where the threading layer hands

@@ -39,12 +39,18 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.cli_args import (
+    add_size_option,
+    comma_list,
+    exit_rule_epilog,
+    float_range,
+    int_range,
+)
 from service.bench import billboard_cost
 from service.bench.charts import save_chart
 from service.bench.lod_bench import BUNNY, LIGHTS, MATERIAL, image_error
 from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject, draw_billboards
-from service.cli_args import add_size_option, comma_list, exit_rule_epilog, float_range, int_range
 from service.display import DisplaySettings
 from service.loaders import fit_transform, load_mesh
 from service.render.light import LightSettings

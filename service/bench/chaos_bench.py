@@ -37,9 +37,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from service.base.cli_args import exit_rule_epilog, float_range, plain_help
 from service.bench.charts import save_chart
 from service.bench.running import Running
-from service.cli_args import exit_rule_epilog, float_range, plain_help
 from service.net.client import FrameSubscriber
 
 GAP_TARGET_S = 1.0

@@ -38,9 +38,9 @@ from pathlib import Path
 
 from numba.core.event import Listener
 
+from service.base.cli_args import exit_rule_epilog
+from service.base.errors import HoloError
 from service.bench.rows import write_csv
-from service.cli_args import exit_rule_epilog
-from service.errors import HoloError
 
 #: Budget for the whole cold ``holo-warmup``, wall seconds on 2 quiet cores.
 WHOLE_BUDGET_S = 60.0

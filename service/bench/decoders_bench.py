@@ -19,7 +19,7 @@ from pathlib import Path
 
 from drivers.protocols import make_decoder
 from drivers.protocols import sgi_dialbox as sgi
-from service.cli_args import exit_rule_epilog, float_range, int_range
+from service.base.cli_args import exit_rule_epilog, float_range, int_range
 
 TARGET_MB_S = 1.0
 

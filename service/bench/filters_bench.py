@@ -55,8 +55,8 @@ from drivers.filters import (
     run_filter,
 )
 from drivers.recording import RawCaptureReader
+from service.base.cli_args import exit_rule_epilog, float_range, plain_help
 from service.bench.charts import save_chart
-from service.cli_args import exit_rule_epilog, float_range, plain_help
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

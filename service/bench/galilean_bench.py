@@ -47,6 +47,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.base.cli_args import (
+    add_size_option,
+    exit_rule_epilog,
+    float_range,
+    int_range,
+    plain_help,
+)
 from service.bench import galilean_starvation
 from service.bench.charts import save_chart
 from service.bench.galilean_experiments import (
@@ -58,13 +65,6 @@ from service.bench.galilean_experiments import (
     run_tracker,
 )
 from service.bench.rows import write_csv
-from service.cli_args import (
-    add_size_option,
-    exit_rule_epilog,
-    float_range,
-    int_range,
-    plain_help,
-)
 from service.display import DisplaySettings
 from service.galilean.fixed_point import (
     FixedPoint,

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.galilean.fixed_point import (
     FixedPoint,
     bit_budget,

@@ -65,8 +65,8 @@ from drivers.protocols import hatire, native, opentrack
 from drivers.publisher import Publisher
 from drivers.reader import DeviceReader, EventHub, Item, ReaderSettings
 from drivers.udp_port import UdpPort
+from service.base.cli_args import exit_rule_epilog, float_range, int_range, plain_help
 from service.bench.charts import save_chart
-from service.cli_args import exit_rule_epilog, float_range, int_range, plain_help
 
 TARGET_P99_MS = 2.0
 #: protocol -> frame encoder taking the frame number.

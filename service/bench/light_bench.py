@@ -26,11 +26,17 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
+from service.base.cli_args import (
+    add_size_option,
+    comma_list,
+    exit_rule_epilog,
+    int_range,
+    plain_help,
+)
 from service.bench.charts import save_chart
 from service.bench.rows import write_csv, zones_label
 from service.builtin_scenes import SCENES as BUILTIN_SCENES
 from service.builtin_scenes import builtin_scene, scene_name
-from service.cli_args import add_size_option, comma_list, exit_rule_epilog, int_range, plain_help
 from service.display import DisplaySettings
 from service.primitives import sphere
 from service.render.cull import cull

@@ -51,10 +51,10 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.cli_args import add_size_option, exit_rule_epilog, float_range, int_range
 from service.bench.charts import save_chart
 from service.bench.rows import write_csv
 from service.billboard_render import BillboardObject
-from service.cli_args import add_size_option, exit_rule_epilog, float_range, int_range
 from service.display import DisplaySettings
 from service.loaders import fit_transform, load_mesh
 from service.lod.cache import build_chain

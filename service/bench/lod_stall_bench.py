@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.bench.charts import save_chart
 from service.bench.rows import write_csv
-from service.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.display import DisplaySettings
 from service.loaders import load_mesh
 from service.lod.builds import ChainBuilds

@@ -22,7 +22,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from service.cli_args import exit_rule_epilog, int_range
+from service.base.cli_args import exit_rule_epilog, int_range
 from service.lookingglass import Interleaver, load_calibration
 
 TARGET_MS = 2.0

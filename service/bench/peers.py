@@ -35,9 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.base.errors import HoloError
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
-from service.errors import HoloError
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.scene import Scene, SceneArrays
 

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.cli_args import add_size_option, exit_rule_epilog
 from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
-from service.cli_args import add_size_option, exit_rule_epilog
 from service.display import DisplaySettings
 from service.quality import (
     OCCLUSION,

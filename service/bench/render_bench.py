@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.base.cli_args import add_size_option, comma_list, exit_rule_epilog, plain_help, size
 from service.bench.charts import save_chart
 from service.bench.rows import write_rows, zones_label
 from service.builtin_scenes import builtin_scene
-from service.cli_args import add_size_option, comma_list, exit_rule_epilog, plain_help, size
 from service.display import DisplaySettings
 from service.render.light import LightSettings
 from service.render.pipeline import METHOD_NAMES, Renderer, RenderSettings, StageClock, warm_up

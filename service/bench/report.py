@@ -36,6 +36,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from service.base.cli_args import exit_rule_epilog, plain_help
+from service.base.cli_args import size as size_type
+from service.base.errors import HoloError
 from service.bench.picks import (
     BUDGET_PCT,
     Pick,
@@ -47,9 +50,6 @@ from service.bench.picks import (
 )
 from service.bench.rows import zones_label
 from service.bench.staging import MANIFEST, move_into_place, owned_entries, staging_folder
-from service.cli_args import exit_rule_epilog, plain_help
-from service.cli_args import size as size_type
-from service.errors import HoloError
 
 
 @dataclass(frozen=True)

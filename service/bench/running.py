@@ -9,8 +9,8 @@ import threading
 import time
 from pathlib import Path
 
+from service.base.signals import end_process
 from service.net.client import ServiceClient
-from service.signals import end_process
 
 ROOT = Path(__file__).resolve().parents[2]
 

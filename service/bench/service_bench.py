@@ -44,11 +44,11 @@ from typing import Any
 import numpy as np
 import zmq
 
+from service.base.cli_args import comma_list, exit_rule_epilog, float_range, int_range, plain_help
 from service.bench import chaos_bench
 from service.bench.charts import save_chart
 from service.bench.running import Running
 from service.bench.running import port as _port
-from service.cli_args import comma_list, exit_rule_epilog, float_range, int_range, plain_help
 from service.net import protocol
 from service.net.client import FrameSubscriber
 from service.net.frame_stream import FrameStream

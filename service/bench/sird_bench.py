@@ -49,10 +49,7 @@ from service.autostereogram.decode import (
 from service.autostereogram.depth_scenes import seed_slope, sphere, steps
 from service.autostereogram.output import SirdOutput
 from service.autostereogram.source import centre_depth
-from service.bench.charts import save_chart
-from service.bench.rows import write_csv
-from service.builtin_scenes import builtin_scene
-from service.cli_args import (
+from service.base.cli_args import (
     add_size_option,
     comma_list,
     exit_rule_epilog,
@@ -60,6 +57,9 @@ from service.cli_args import (
     plain_help,
     size,
 )
+from service.bench.charts import save_chart
+from service.bench.rows import write_csv
+from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 
 METHOD_NAMES = ("row", "interpolated", "tiw")

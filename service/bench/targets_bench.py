@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.bench.galilean_bench import (
     HZ,
     REFRESHES_PER_UPDATE,
@@ -46,7 +47,6 @@ from service.bench.galilean_bench import (
     head_turn,
 )
 from service.builtin_scenes import builtin_scene
-from service.cli_args import add_size_option, exit_rule_epilog, int_range
 from service.display import DisplaySettings
 from service.galilean.motion_field import render_with_motion
 from service.galilean.stage import GalileanSettings, GalileanStage

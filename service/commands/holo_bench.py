@@ -5,7 +5,7 @@ README's "Benchmarks" section for how to read them.  A bad option value is a one
 usage error (exit status 2) before any work; a setting the benchmark itself refuses
 is one line too (``holo-bench NAME: error: ...``, exit status 2).  Ctrl-C or SIGTERM
 stops any benchmark with one line and exit status 130 / 143, the rule of
-:mod:`service.signals`.
+:mod:`service.base.signals`.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ import importlib
 import os
 import sys
 
-from service.cli_args import output_problem
-from service.errors import HoloError
+from service.base.cli_args import output_problem
+from service.base.errors import HoloError
+from service.base.signals import EXIT_RULE, EXIT_USAGE, interruptible
 from service.kernel_cache import drop_stale
 from service.process import setup_frame_process
-from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
 
 BENCHES = {
     "render": (

@@ -8,7 +8,7 @@ holo-render builtin:game --method runlength --json
 ``--json`` prints one object: the settings, the polygon counts, per-stage
 milliseconds and the occlusion counters (:func:`occlusion_counters`).  Exit status:
 0, 2 for bad options or a bad scene file, 130 / 143 on Ctrl-C / SIGTERM (the rule of
-:mod:`service.signals`).
+:mod:`service.base.signals`).
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.builtin_scenes import SCENES, builtin_scene
-from service.cli_args import (
+from service.base.cli_args import (
     add_size_option,
     float_range,
     int_range,
@@ -32,8 +31,10 @@ from service.cli_args import (
     output_problem,
     plain_help,
 )
+from service.base.errors import HoloError, SettingsError
+from service.base.signals import EXIT_RULE, interruptible
+from service.builtin_scenes import SCENES, builtin_scene
 from service.display import DisplaySettings
-from service.errors import HoloError, SettingsError
 from service.loaders import MESH_LOADERS, SCENE_EXTENSIONS, load_scene
 from service.lod.options import add_lod_options, budget_frames, lod_settings, lod_state
 from service.lookingglass import DEFAULT_VIEWS, Calibration, Interleaver, parse_display
@@ -53,7 +54,6 @@ from service.render.frame import Frame, write_quilt, write_strip, write_zones
 from service.render.light import EVALUATIONS, MODELS, LightSettings
 from service.render.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
 from service.render.scene import Scene
-from service.signals import EXIT_RULE, interruptible
 
 
 def build_parser() -> argparse.ArgumentParser:

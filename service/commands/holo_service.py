@@ -26,16 +26,16 @@ from typing import TYPE_CHECKING
 
 import zmq
 
+from service.base.cli_args import add_size_option, endpoint, float_range, int_range, plain_help
+from service.base.errors import HoloError
+from service.base.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 from service.builtin_scenes import scene_name
-from service.cli_args import add_size_option, endpoint, float_range, int_range, plain_help
 from service.display import DisplaySettings
-from service.errors import HoloError
 from service.lod.settings import lod_from
 from service.net.curve_keys import make_keys
 from service.process import setup_frame_process
 from service.readiness import Warmup
 from service.render.pipeline import RenderSettings
-from service.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 
 if TYPE_CHECKING:
     from service.net.server import Service

@@ -19,8 +19,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from service.cli_args import endpoint, int_range
-from service.signals import (
+from service.base.cli_args import endpoint, int_range
+from service.base.signals import (
     EXIT_OK,
     EXIT_RULE,
     EXIT_USAGE,

@@ -12,7 +12,7 @@ the quadric method writes the decimated mesh as ``.ply`` or ``.obj`` with the fe
 triangles whose measured error is within EPS.  ``--json`` prints one object with what
 was built and how long it took.  Exit status: 0; 2 for bad options, a bad mesh file
 (or one with no faces), or an output that cannot be written; 130 / 143 on Ctrl-C /
-SIGTERM (the rule of :mod:`service.signals`).
+SIGTERM (the rule of :mod:`service.base.signals`).
 """
 
 from __future__ import annotations
@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cli_args import int_range, os_error_text, output_problem, plain_help
-from service.errors import HoloError
+from service.base.cli_args import int_range, os_error_text, output_problem, plain_help
+from service.base.errors import HoloError
+from service.base.signals import EXIT_RULE, interruptible
 from service.loaders import load_mesh, save_obj, save_ply
 from service.render.mesh import Mesh
-from service.signals import EXIT_RULE, interruptible
 from service.simplify.billboard import build_cloud
 from service.simplify.cloud_file import save_cloud
 from service.simplify.quadric import decimate_to_error

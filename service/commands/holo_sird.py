@@ -35,7 +35,7 @@ from service.autostereogram import (
     stereogram,
 )
 from service.autostereogram.source import load_depth
-from service.cli_args import (
+from service.base.cli_args import (
     add_size_option,
     float_range,
     int_range,
@@ -43,10 +43,10 @@ from service.cli_args import (
     output_problem,
     plain_help,
 )
+from service.base.errors import HoloError
+from service.base.signals import EXIT_RULE, EXIT_USAGE, interruptible
 from service.commands.holo_render import scene_problem
-from service.errors import HoloError
 from service.png import write_png
-from service.signals import EXIT_RULE, EXIT_USAGE, interruptible
 
 #: Runs timed for ``ms`` (after one warm-up run).
 TIMED_RUNS = 7

@@ -28,7 +28,7 @@ before anything starts; relative paths are relative to the current directory.
 Each program's output lines are copied to stderr, prefixed with its name; stdout
 has ``holo-up``'s own lines: where each program listens, then ``holo-up: running``.
 Ctrl-C or SIGTERM stops them all, the last started first, and exits 130 / 143 (the
-rule of :mod:`service.signals`; SIGHUP, the terminal closing, 129): each program runs
+rule of :mod:`service.base.signals`; SIGHUP, the terminal closing, 129): each program runs
 in a process group of its own, so a Ctrl-C at the terminal reaches ``holo-up`` alone;
 a program that fails or exits on its own stops the others too (exit status 1, naming
 it and its last lines); a bad file is exit status 2 with one line naming the file and
@@ -52,10 +52,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from service.addresses import default_address
-from service.cli_args import plain_help
-from service.errors import HoloError, SettingsError
-from service.signals import (
+from service.base.addresses import default_address
+from service.base.cli_args import plain_help
+from service.base.errors import HoloError, SettingsError
+from service.base.signals import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_RULE,

@@ -27,9 +27,9 @@ import signal
 import sys
 from typing import TYPE_CHECKING
 
-from service.cli_args import int_range, plain_help
+from service.base.cli_args import int_range, plain_help
+from service.base.signals import EXIT_RULE, end_with_parent, interruptible
 from service.kernel_cache import drop_stale, mark_warm
-from service.signals import EXIT_RULE, end_with_parent, interruptible
 from service.warmup import JOBS, cache_files, warm_up, write_record
 
 if TYPE_CHECKING:

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.cli_args import int_range, plain_help
+from service.base.signals import EXIT_RULE, interruptible
 from service.builtin_scenes import builtin_scene, scene_name
-from service.cli_args import int_range, plain_help
 from service.display import DisplaySettings
 from service.process import setup_frame_process
 from service.render.frame import write_quilt, write_strip, write_zones
 from service.render.light import LightSettings
 from service.render.pipeline import METHOD_NAMES, Renderer, RenderSettings, warm_up
-from service.signals import EXIT_RULE, interruptible
 
 STAGES = ("flatten", "project", "cull", "sort", "occlusion", "light", "total")
 

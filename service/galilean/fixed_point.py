@@ -56,7 +56,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 #: Fractional bits of depth (units of 2^-16 depth units).
 Z_FRAC_BITS = 16

@@ -29,7 +29,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.galilean.fixed_point import Z_EMPTY, FixedPoint
 
 #: Highest galpixmap order implemented.

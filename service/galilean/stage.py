@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from service.base.errors import SettingsError
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.galilean.finish import finish
 from service.galilean.fixed_point import Z_EMPTY, FixedPoint, bit_budget, propagate_points
 from service.galilean.galpixmap import FIELDS, GalileanError, Galpixmap, build

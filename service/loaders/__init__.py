@@ -11,7 +11,7 @@ extension  format                                            module
 =========  ================================================  ==========================
 
 Every format is described in ``docs/file-formats.md``.  A bad file raises
-:class:`~service.errors.MeshFileError` naming the file and the line or element.
+:class:`~service.base.errors.MeshFileError` naming the file and the line or element.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.errors import MeshFileError
 from service.billboard_render import ALPHA_OPAQUE, BillboardObject
 from service.display import DisplaySettings
-from service.errors import MeshFileError
 from service.loaders.obj import load_obj, save_obj
 from service.loaders.ply import load_ply, save_ply
 from service.loaders.scene_file import load_scene_file

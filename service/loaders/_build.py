@@ -1,6 +1,6 @@
 """Helpers shared by the mesh loaders: reading, decoding, number parsing, assembly.
 
-Every failure becomes a :class:`~service.errors.MeshFileError` naming the file and
+Every failure becomes a :class:`~service.base.errors.MeshFileError` naming the file and
 the line or element, so no loader lets a bare ``ValueError``, ``UnicodeDecodeError``
 or numpy error escape.
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import MeshError, MeshFileError
+from service.base.errors import MeshError, MeshFileError
 from service.mesh_repair import MeshRepair, MeshRepairWarning, distinct_corners, split_bad_shapes
 from service.render.mesh import Mesh, describe_fault, polygon_shape_faults, too_large
 

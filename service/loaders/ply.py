@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import MeshFileError, SettingsError
+from service.base.errors import MeshFileError, SettingsError
 from service.loaders._build import (
     bounded_int,
     decode_text,

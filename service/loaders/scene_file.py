@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.errors import MeshFileError, SettingsError
 from service.billboard_render import BillboardObject
-from service.errors import MeshFileError, SettingsError
 from service.loaders._build import decode_text, read_bytes
 from service.primitives import PRIMITIVES
 from service.render.mesh import Mesh

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import MeshFileError
+from service.base.errors import MeshFileError
 from service.loaders._build import finish_mesh, pad_flat, text_lines, to_float, to_int
 from service.render.mesh import Mesh
 

@@ -46,11 +46,11 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.signals import end_with_parent
 from service.lod.cache import build_chain, cache_dir, read_chain, write_chain
 from service.lod.chain import LodChain, full_only
 from service.lod.settings import BUILD_NICE, NOTES_KEPT, LodError, LodSettings
 from service.render.mesh import Mesh
-from service.signals import end_with_parent
 
 #: The child's exit status when the mesh cannot be simplified (not retried).
 EXIT_FAILED = 1

@@ -17,7 +17,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.lod.chain import LodChain, build_uncached, mesh_key
 from service.lod.settings import CACHE_ENV, CHAIN_VERSION, LodCacheWarning, LodSettings, Progress
 from service.npy_file import read_npz

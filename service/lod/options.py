@@ -10,7 +10,7 @@ import argparse
 import sys
 from typing import TextIO
 
-from service.cli_args import float_range
+from service.base.cli_args import float_range
 from service.display import DisplaySettings
 from service.lod.cache import cache_dir
 from service.lod.settings import LodSettings

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.errors import HoloError, SettingsError
+from service.base.errors import HoloError, SettingsError
 
 #: Triangle fractions of the decimated levels (each level's target, of the full mesh).
 DEFAULT_FRACTIONS = tuple(round(0.7 ** k, 4) for k in range(1, 15))

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service.errors import MessageError
+from service.base.errors import MessageError
 from service.net import protocol, wire
 from service.net.worker import BUSY, READY
 

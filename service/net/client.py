@@ -15,8 +15,8 @@
 
 Every call has a deadline.  A request that gets no reply within ``timeout_s`` is
 resent on a fresh socket (the ZeroMQ guide's *Lazy Pirate*), up to ``retries``
-times, then :class:`~service.errors.ServiceUnavailableError` is raised; an error
-reply raises :class:`~service.errors.ServiceError` with the protocol's code.  A
+times, then :class:`~service.base.errors.ServiceUnavailableError` is raised; an error
+reply raises :class:`~service.base.errors.ServiceError` with the protocol's code.  A
 new ``session`` in a reply to :meth:`ServiceClient.hello` (or in frame headers)
 means the service restarted: ``restarted`` is set so the caller can load its
 scene again.  A service still warming up (compiling its kernels) answers with
@@ -37,7 +37,7 @@ import numpy as np
 import zmq
 import zmq.auth
 
-from service.errors import MessageError, ServiceError, ServiceUnavailableError
+from service.base.errors import MessageError, ServiceError, ServiceUnavailableError
 from service.net import protocol, wire
 from service.net.frame_stream import SOCKET_BUFFER
 from service.render.scene import Scene, SceneObject

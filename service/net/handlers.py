@@ -3,7 +3,7 @@
 :data:`HANDLERS` maps a request ``type`` to its handler (``docs/protocol.md``).  A
 handler takes the state and the parsed request and returns the reply's
 ``(fields, arrays?, names?)``, or None when the control loop answers later
-(``render``); a bad request raises :class:`~service.errors.MessageError`.  They need
+(``render``); a bad request raises :class:`~service.base.errors.MessageError`.  They need
 no socket, so they run in process against a state from :func:`~.state.service_state`.
 """
 
@@ -15,8 +15,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from service.base.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.display import MAX_PIXELS, DisplaySettings
-from service.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.net import protocol, wire
 from service.net.settings_wire import display_from_wire, render_from_wire
 from service.net.state import (

@@ -3,7 +3,7 @@
 A request arrives at the service's ROUTER as ``[identity, b"", header, *buffers]``
 (the empty delimiter is optional).  :func:`split_envelope` separates the routing
 envelope, :func:`parse_request` checks the rest and raises
-:class:`~service.errors.MessageError` with the protocol's error code;
+:class:`~service.base.errors.MessageError` with the protocol's error code;
 :func:`reply` and :func:`error_reply` build the answer frames.  Nothing here does
 I/O, so every rule is testable without sockets.
 """
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from service.errors import MessageError
+from service.base.errors import MessageError
 from service.net import wire
 
 VERSION = 1

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.galilean import GalileanSettings
 from service.galilean.local_update import render_use_by
 from service.net import wire

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import zmq
 
-from service.errors import MessageError, SettingsError
+from service.base.errors import MessageError, SettingsError
 from service.net import protocol, wire
 from service.net.broker import Broker
 from service.net.curve_keys import curve_server, is_local, start_authenticator

@@ -8,7 +8,7 @@ from and written into :class:`~service.render.pipeline.RenderSettings` (or
 added to the pipeline reaches the service, its clients and its workers by a row
 here and nothing else.  Values are checked (type, choice, range) before any
 settings object is made; a bad one is a ``bad_settings``
-:class:`~service.errors.MessageError` naming the key.
+:class:`~service.base.errors.MessageError` naming the key.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
+from service.base.errors import MessageError, SettingsError
 from service.display import DisplaySettings
-from service.errors import MessageError, SettingsError
 from service.lod.settings import lod_from
 from service.net import wire
 from service.render.cull import CULLS

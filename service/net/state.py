@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from service.base.errors import SettingsError
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.frame_settings import FrameSettings
 from service.galilean import GalileanSettings
 from service.net import protocol

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from drivers.filters import AlphaBetaSettings, make_filter
+from service.base.errors import HoloError
 from service.display import DisplaySettings
-from service.errors import HoloError
 from service.net import wire
 from service.render.mesh import Mesh
 from service.render.scene import MotionState, SceneObject, Transform, euler_quaternion

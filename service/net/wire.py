@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service.errors import MeshError, MessageError, SettingsError
+from service.base.errors import MeshError, MessageError, SettingsError
 from service.render.mesh import MAX_POLYGONS as MESH_MAX_POLYGONS
 from service.render.mesh import Mesh
 from service.render.scene import Light, Material, MotionState, Scene, SceneObject, Transform

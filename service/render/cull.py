@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from service.base.errors import SettingsError
 from service.display import DisplaySettings
-from service.errors import SettingsError
 
 
 @dataclass(frozen=True)

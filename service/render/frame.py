@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.png import write_png
 
 

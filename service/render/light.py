@@ -75,8 +75,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from service.base.errors import RenderError, SettingsError
 from service.display import DisplaySettings
-from service.errors import RenderError, SettingsError
 from service.render.occlusion import Visibility
 from service.render.projection import unproject
 from service.render.scene import Light, SceneArrays

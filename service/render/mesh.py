@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from service.errors import MeshError
+from service.base.errors import MeshError
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from service.base.errors import SettingsError
 from service.billboard_render import draw_billboards
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.lod.settings import LodSettings
 from service.lod.state import LodState
 from service.render.cull import CullSettings, cull_zones

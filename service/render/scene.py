@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.render.mesh import Mesh
 
 

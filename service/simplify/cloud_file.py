@@ -5,7 +5,7 @@ An uncompressed zip holding ``header.json`` and one ``.npy`` file per array of
 ``allow_pickle=False``; nothing in the file is ever unpickled or executed.  A file
 that is not a zip, lacks a member, has an unknown version, or whose arrays have the
 wrong shape, type or disagree with each other raises
-:class:`~service.errors.MeshFileError` with one line saying what is wrong.
+:class:`~service.base.errors.MeshFileError` with one line saying what is wrong.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.errors import MeshFileError
+from service.base.errors import MeshFileError
 from service.npy_file import ZIP_ERRORS, read_npy
 from service.simplify.billboard import LAYERS, BillboardCloud
 

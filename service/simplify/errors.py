@@ -1,8 +1,8 @@
-"""The simplify package's own error (derives from :class:`service.errors.HoloError`)."""
+"""The simplify package's own error (derives from :class:`service.base.errors.HoloError`)."""
 
 from __future__ import annotations
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 
 
 class SimplifyError(HoloError, ValueError):

@@ -13,7 +13,7 @@ The first stdout line is the path or URL a client opens (flushed at once).  When
 run ends a JSON summary (bytes sent, faults applied; for a tracker, the host
 commands it received) is printed on stdout.  Ctrl-C (SIGINT) and SIGTERM stop it at
 once, without waiting for a client to read what is queued: exit status 130 / 143,
-the rule of :mod:`service.signals`; 0 after ``--seconds``; 1 when it served nobody
+the rule of :mod:`service.base.signals`; 0 after ``--seconds``; 1 when it served nobody
 (no client came to ``--tcp`` within 30 s); 2 for bad settings.
 """
 
@@ -28,10 +28,10 @@ from collections.abc import Sequence
 
 from drivers.pty_link import PtyLink
 from drivers.tracker_driver import add_command_options, commands_from_args
-from service.addresses import host_port
-from service.cli_args import float_range, int_range, output_problem, plain_help
-from service.errors import HoloError
-from service.signals import EXIT_FAILED, EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
+from service.base.addresses import host_port
+from service.base.cli_args import float_range, int_range, output_problem, plain_help
+from service.base.errors import HoloError
+from service.base.signals import EXIT_FAILED, EXIT_RULE, EXIT_USAGE, exit_status, stop_on_signals
 from sim_devices.dialbox import DEFAULT_SCRIPT, SCRIPTS, VIEW_DIALS, DialBoxSim
 from sim_devices.endpoints import DeviceRunner, TcpLink, UdpLink
 from sim_devices.faults import FaultSpec

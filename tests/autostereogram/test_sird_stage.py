@@ -25,7 +25,7 @@ from service.autostereogram.decode import (
 )
 from service.autostereogram.depth_scenes import seed_slope, sphere, steps
 from service.autostereogram.interpolated import fixed_separation_map
-from service.errors import HoloError, SettingsError
+from service.base.errors import HoloError, SettingsError
 
 #: One grey pattern row 10, 20, 30, 40 (width s(0) = 4 for E = 8).
 TINY_PATTERN = np.array([[[10], [20], [30], [40]]], np.uint8)

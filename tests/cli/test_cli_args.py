@@ -13,9 +13,8 @@ from drivers.commands import holo_devices as cli_devices
 from drivers.commands import holo_replay as cli_replay
 from drivers.commands import holo_view as cli_view
 from drivers.publisher import Publisher
-from service.addresses import DEFAULT_PORTS, check_endpoint, default_address
-from service.builtin_scenes import SCENES, builtin_scene, canonical_scene_name, scene_name
-from service.cli_args import (
+from service.base.addresses import DEFAULT_PORTS, check_endpoint, default_address
+from service.base.cli_args import (
     add_size_option,
     comma_list,
     endpoint,
@@ -24,8 +23,9 @@ from service.cli_args import (
     plain_help,
     size,
 )
+from service.base.errors import SettingsError
+from service.builtin_scenes import SCENES, builtin_scene, canonical_scene_name, scene_name
 from service.commands import holo_service as cli_service
-from service.errors import SettingsError
 from service.net.state import DEFAULT_WORKER_ADDRESS
 
 

@@ -21,9 +21,9 @@ from drivers.protocols import hatire
 from drivers.pty_link import DRAIN_TIMEOUT_S
 from drivers.reader import ReaderSettings
 from drivers.recording import LogHeader, LogWriter
+from service.base.signals import Received, exit_status
 from service.loaders import save_obj
 from service.primitives import sphere
-from service.signals import Received, exit_status
 
 
 def test_exit_status_is_128_plus_the_signal():
@@ -36,7 +36,7 @@ def test_exit_status_is_128_plus_the_signal():
 # A main thread waiting on an event, stopped through stop_on_signals.
 LOOP_CHILD = """
 import sys, threading
-from service.signals import stop_on_signals
+from service.base.signals import stop_on_signals
 stop = threading.Event()
 with stop_on_signals(stop) as got:
     print("ready", flush=True)
@@ -47,7 +47,7 @@ sys.exit(got.exit_status())
 # A main thread computing, stopped through interruptible.
 BUSY_CHILD = """
 import sys
-from service.signals import interruptible
+from service.base.signals import interruptible
 def work():
     try:
         print("ready", flush=True)  # inside: the signal may come as print returns

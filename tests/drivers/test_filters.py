@@ -18,7 +18,7 @@ from drivers.filters import (
     run_filter_detailed,
     wrap_angles,
 )
-from service.errors import HoloError, SettingsError
+from service.base.errors import HoloError, SettingsError
 
 DEFAULTS = {
     "raw": RawSettings(),

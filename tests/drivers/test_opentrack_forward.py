@@ -13,7 +13,7 @@ from drivers.commands import holo_devices as cli_devices
 from drivers.events import PoseEvent, StatusEvent
 from drivers.opentrack_forward import ForwardSettings, OpentrackForwarder
 from drivers.protocols.opentrack import OpentrackDecoder
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 
 @pytest.fixture

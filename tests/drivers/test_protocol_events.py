@@ -18,7 +18,7 @@ from drivers.events import (
     event_from_dict,
 )
 from drivers.protocols import DATAGRAM_PROTOCOLS, DECODERS, DEVICE_OF, make_decoder
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 EVENTS = [
     PoseEvent(1_500_000_000, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7),

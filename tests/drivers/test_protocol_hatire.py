@@ -19,7 +19,7 @@ from drivers.protocols.hatire import (
     encode_pose,
     encode_text,
 )
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 FIXTURE = hatire_capture()
 

@@ -22,7 +22,7 @@ from drivers.protocols.native import (
     euler_from_quat,
     quat_from_euler,
 )
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 
 def feed_split(dec, data: bytes, cuts: list[int]) -> list:

@@ -23,7 +23,7 @@ from drivers.protocols.sgi_dialbox import (
     encode_reset,
     init_sequence,
 )
-from service.errors import ProtocolError
+from service.base.errors import ProtocolError
 
 MS = 1_000_000
 

@@ -16,7 +16,7 @@ from testkit import HANG_S
 from drivers.events import ButtonEvent, DialEvent, PoseEvent, StatusEvent
 from drivers.publisher import Publisher, _dumps, pose_json
 from drivers.subscriber import DeviceSubscriber
-from service.errors import DeviceError, SettingsError
+from service.base.errors import DeviceError, SettingsError
 
 
 def pose(n: int, t_ns: int = 1_000) -> PoseEvent:

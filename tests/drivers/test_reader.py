@@ -23,7 +23,7 @@ from drivers.reader import (
     EventHub,
     ReaderSettings,
 )
-from service.errors import LogFileError, SettingsError
+from service.base.errors import LogFileError, SettingsError
 from sim_devices.dialbox import DialBoxSim, Press, Turn
 from sim_devices.endpoints import DeviceRunner, LoopLink
 from sim_devices.faults import FaultSpec

@@ -32,7 +32,7 @@ from drivers.recording import (
     encode_file_header,
     encode_record,
 )
-from service.errors import LogFileError, SettingsError
+from service.base.errors import LogFileError, SettingsError
 
 ROOT = Path(__file__).resolve().parents[2]
 HATIRE = hatire_capture()

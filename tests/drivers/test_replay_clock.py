@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from drivers.recording import Record
 from drivers.replay_clock import ReplayScheduler, ReplaySettings, replay
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 
 class FakeClock:

@@ -19,7 +19,7 @@ from drivers.protocols.hatire import HatireCommands
 from drivers.pty_link import PtyLink
 from drivers.reader import DeviceReader, ReaderSettings
 from drivers.tracker_driver import TrackerDriver, command_byte
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from sim_devices.endpoints import DeviceRunner
 from sim_devices.faults import FaultSpec
 from sim_devices.tracker import TrackerSim

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from service.base.errors import SettingsError
 from service.bench.galilean_experiments import (
     falling,
     galcube,
@@ -11,7 +12,6 @@ from service.bench.galilean_experiments import (
     run_tracker,
     uniform,
 )
-from service.errors import SettingsError
 from service.galilean.fixed_point import FixedPoint, bit_budget
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.galilean.fixed_point import (
     Z_EMPTY,
     Z_LIMIT,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_gal_stage import scene_update, stage
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.galilean.galpixmap import GalileanError
 from service.galilean.local_update import render_use_by
 from service.galilean.stage import GalileanSettings

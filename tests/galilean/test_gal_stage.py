@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from service.base.errors import SettingsError
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.galilean.fixed_point import Z_EMPTY, pixel_of, points_fixed, propagate_points
 from service.galilean.galpixmap import GalileanError, build
 from service.galilean.motion_field import RenderedUpdate

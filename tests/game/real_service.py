@@ -7,8 +7,8 @@ from game.client_loop import GameClient, LoopSettings
 from game.display import GameWindow
 from game.rules import GameSettings
 from game.scene import game_scene
+from service.base.errors import ServiceError
 from service.display import DisplaySettings
-from service.errors import ServiceError
 from service.frame_settings import FrameSettings
 
 

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from service.errors import MessageError
+from service.base.errors import MessageError
 from service.net import protocol, wire
 
 SESSION = "5a0c0001"

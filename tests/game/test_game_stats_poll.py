@@ -29,8 +29,8 @@ from game.backends import ServiceBackend
 from game.client_loop import GameClient, LoopSettings
 from game.display import GameWindow
 from game.scene import game_scene
+from service.base.errors import ServiceError
 from service.display import DisplaySettings
-from service.errors import ServiceError
 from service.frame_settings import FrameSettings
 from service.lod.settings import LodSettings
 from service.net.client import PendingRequest

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from service.errors import HoloError, SettingsError
+from service.base.errors import HoloError, SettingsError
 from service.png import PngError, decode_png, encode_png, read_png, write_png
 from service.render.frame import (
     Frame,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.base.errors import RenderError, SettingsError
 from service.display import DisplaySettings
-from service.errors import RenderError, SettingsError
 from service.primitives import sphere
 from service.render.light import LightSettings, intensity, shade, shade_linear, to_uint8
 from service.render.mesh import Mesh

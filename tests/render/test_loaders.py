@@ -6,7 +6,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from service.errors import MeshFileError
+from service.base.errors import MeshFileError
 from service.loaders import (
     MESH_LOADERS,
     load_mesh,

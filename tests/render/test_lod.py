@@ -15,8 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from service.base.errors import SettingsError
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.lod.cache import build_chain
 from service.lod.cost import FrameCost
 from service.lod.select import degrade_to_budget, pixels_per_unit, select_levels

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from testkit import ROOT, shared_fixture
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from service.lookingglass import (
     Calibration,
     Interleaver,

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from service.base.errors import MeshFileError
 from service.display import DisplaySettings
-from service.errors import MeshFileError
 from service.loaders import load_mesh, load_scene
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.render.pipeline import Renderer

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from service.base.errors import SettingsError
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.render.cull import CullSettings, cull
 from service.render.depth_sort import average_z, sort_polygons
 from service.render.light import LightSettings

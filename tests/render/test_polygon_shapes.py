@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import service.render.mesh as mesh_module
+from service.base.errors import MeshError
 from service.builtin_scenes import SCENES, c_shape
-from service.errors import MeshError
 from service.primitives import PRIMITIVES
 from service.render.mesh import CONVEX, PLANAR, SHAPE_TOL, Mesh, polygon_shape_faults
 

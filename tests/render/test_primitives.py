@@ -3,8 +3,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from service.base.errors import SettingsError
 from service.builtin_scenes import c_shape
-from service.errors import SettingsError
 from service.primitives import (
     PRIMITIVES,
     attacker,

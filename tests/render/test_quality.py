@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
+from service.base.errors import SettingsError
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
-from service.errors import SettingsError
 from service.quality import (
     CostModel,
     ErrorBudget,

@@ -3,8 +3,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from service.base.errors import MeshFileError, SettingsError
 from service.builtin_scenes import SCENES, builtin_scene
-from service.errors import MeshFileError, SettingsError
 from service.loaders import load_scene
 from service.render.scene import Scene
 

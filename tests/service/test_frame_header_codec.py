@@ -13,7 +13,7 @@ import pytest
 import zmq
 from testkit import wait_until
 
-from service.errors import MessageError
+from service.base.errors import MessageError
 from service.net import protocol, wire
 from service.net.client import FrameSubscriber
 

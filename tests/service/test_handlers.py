@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from service.errors import MessageError
+from service.base.errors import MessageError
 from service.net import protocol
 from service.net.handlers import HANDLERS, error_code
 from service.net.state import ServiceConfig, ServiceState, service_state
@@ -117,7 +117,7 @@ def test_shutdown_sets_the_stop_event(st):
 
 
 def test_unexpected_exceptions_map_to_error_codes():
-    from service.errors import HoloError, MeshFileError, SettingsError
+    from service.base.errors import HoloError, MeshFileError, SettingsError
 
     assert error_code(SettingsError("x")) == "bad_settings"
     assert error_code(MeshFileError("a.obj", "line 3", "bad face")) == "not_found"

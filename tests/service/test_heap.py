@@ -1,4 +1,4 @@
-"""service.heap: freed frame-sized arrays are reused without page faults."""
+"""service.base.heap: freed frame-sized arrays are reused without page faults."""
 
 import json
 import platform
@@ -18,7 +18,7 @@ pytestmark = pytest.mark.skipif(
 PROBE = """
 import json, resource, sys
 import numpy as np
-from service.heap import keep_freed_memory
+from service.base.heap import keep_freed_memory
 took = keep_freed_memory() if sys.argv[1] == "keep" else None
 def frame():
     arrays = [np.empty((3, 3, 480, 640), np.float32) for _ in range(4)]
@@ -52,7 +52,7 @@ def test_keep_freed_memory_reuses_frame_buffers_without_faults():
 
 
 def test_keep_freed_memory_clamps_to_what_glibc_accepts():
-    from service.heap import MMAP_THRESHOLD_MAX, keep_freed_memory
+    from service.base.heap import MMAP_THRESHOLD_MAX, keep_freed_memory
 
     # a threshold above glibc's ceiling would be refused; it is clamped instead
     assert keep_freed_memory(mmap_threshold=4 * MMAP_THRESHOLD_MAX, trim_threshold=1 << 40)

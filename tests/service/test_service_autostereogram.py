@@ -7,7 +7,7 @@ import pytest
 from testkit import wait_until
 
 from service.autostereogram import SirdSettings, default_eye_sep, separation_map
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.net.client import FrameSubscriber, ServiceClient
 
 

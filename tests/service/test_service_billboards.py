@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.base.errors import ServiceError
 from service.display import DisplaySettings
-from service.errors import ServiceError
 from service.loaders import load_scene
 from service.net import wire
 from service.net.client import ServiceClient

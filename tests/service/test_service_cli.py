@@ -71,7 +71,7 @@ def test_bad_settings_are_refused_before_the_service_says_it_runs():
 
 
 def test_a_bad_setting_from_python_is_refused_before_any_socket():
-    from service.errors import SettingsError
+    from service.base.errors import SettingsError
     from service.net.server import Service
     from service.net.state import ServiceConfig
 

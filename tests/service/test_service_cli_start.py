@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import zmq
 
+from service.base.signals import EXIT_USAGE
 from service.commands.holo_service import main
-from service.signals import EXIT_USAGE
 
 
 def test_a_display_too_large_is_one_line_and_exit_2(capsys):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from testkit import TINY_DISPLAY
 
-from service.errors import ServiceError
+from service.base.errors import ServiceError
 from service.loaders.obj import save_obj
 from service.net.client import ServiceClient
 from service.render.mesh import Mesh

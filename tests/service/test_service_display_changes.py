@@ -78,7 +78,7 @@ def test_refresh_rate_change_paces_the_frames(svc):
 
 
 def test_quality_auto_picks_per_render_and_reports_it(svc):
-    from service.errors import ServiceError
+    from service.base.errors import ServiceError
 
     with ServiceClient(svc.control, timeout_s=20) as c:
         _reset(c)

@@ -12,7 +12,7 @@ import os
 import pytest
 from testkit import HANG_S, shared_fixture, wait_until
 
-from service.errors import ServiceError
+from service.base.errors import ServiceError
 from service.loaders import load_scene
 from service.lod.chain import mesh_key
 from service.lod.settings import LodSettings

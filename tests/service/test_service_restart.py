@@ -36,7 +36,7 @@ def test_client_reconnects_after_restart():
 
 
 def test_client_gives_up_with_a_deadline():
-    from service.errors import ServiceUnavailableError
+    from service.base.errors import ServiceUnavailableError
 
     client = ServiceClient(f"tcp://127.0.0.1:{free_port()}", timeout_s=0.2, retries=2)
     try:

@@ -11,7 +11,7 @@ stage's buffers (measured: +12 MB at the first, +18-20 MB at the second, then fl
 within 1 MB for 20 s), and on a loaded machine the first frame comes out before
 more of that, so a first-frame baseline read 30-40 MB of start-up as growth at load
 4-6 and over the 64 MB bound at load 9-12.  The service keeps freed memory in its
-heap for reuse (service.heap), so its RSS is the high-water mark of the buffers live
+heap for reuse (service.base.heap), so its RSS is the high-water mark of the buffers live
 at once, which load still raises a little after warm-up (measured: 4 MB at load 5.5,
 17 MB at load 7.9).  What the bound is for, a queue that grows with a subscriber that
 cannot keep up, would grow by the frames published past the cap: over 300 MB here.

@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
+from service.base.errors import MessageError
 from service.builtin_scenes import builtin_scene
-from service.errors import MessageError
 from service.net import protocol, wire
 
 

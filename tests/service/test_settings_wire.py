@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from service.base.errors import MessageError
 from service.display import DisplaySettings
-from service.errors import MessageError
 from service.net.client import ServiceClient
 from service.net.settings_wire import (
     RENDER_FIELDS,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from service.signals import stop_on_signals
+from service.base.signals import stop_on_signals
 
 ROOT = Path(__file__).resolve().parents[2]
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
@@ -19,7 +19,7 @@ posix_only = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 # lands while it holds the event's lock: a handler calling stop.set() would hang here.
 CHILD = """
 import signal, sys, threading
-from service.signals import stop_on_signals
+from service.base.signals import stop_on_signals
 stop = threading.Event()
 with stop_on_signals(stop):
     print("ready", flush=True)

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.errors import MessageError
+from service.base.errors import MessageError
 from service.net import protocol, wire
 
 ARRAYS = [np.arange(12, dtype=np.float32).reshape(3, 4), np.zeros(5, np.uint8)]

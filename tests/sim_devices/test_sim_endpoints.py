@@ -17,7 +17,7 @@ from drivers.protocols import make_decoder
 from drivers.protocols import native as nat
 from drivers.protocols import sgi_dialbox as sgi
 from drivers.pty_link import PtyLink
-from service.errors import DeviceError
+from service.base.errors import DeviceError
 from sim_devices.dialbox import DialBoxSim, Press, Turn
 from sim_devices.endpoints import DeviceRunner, LoopLink, TcpLink
 from sim_devices.faults import FaultSpec

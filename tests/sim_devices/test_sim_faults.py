@@ -6,7 +6,7 @@ import pytest
 
 from drivers.events import PoseEvent
 from drivers.protocols import make_decoder
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from sim_devices.faults import (
     Disconnect,
     FaultInjector,

@@ -7,7 +7,7 @@ import pytest
 from drivers.events import ButtonEvent, DialEvent, PoseEvent
 from drivers.protocols import hatire, make_decoder
 from drivers.protocols import sgi_dialbox as sgi
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 from sim_devices.dialbox import DialBoxSim, Press, Turn, demo_script
 from sim_devices.motion import HeadTurn, Pose, Replay, Still, make_motion, parse_spec
 from sim_devices.tracker import TrackerSim

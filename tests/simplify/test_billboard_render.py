@@ -4,9 +4,9 @@ against meshes in every zone, and stats that say how they were drawn."""
 import numpy as np
 import pytest
 
+from service.base.errors import MeshFileError
 from service.billboard_render import BillboardObject
 from service.display import DisplaySettings
-from service.errors import MeshFileError
 from service.loaders import load_scene
 from service.primitives import cube, sphere
 from service.render.pipeline import Renderer, RenderSettings

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
+from service.base.errors import MessageError
 from service.billboard_render import BillboardObject
-from service.errors import MessageError
 from service.net import wire
 from service.primitives import sphere
 from service.render.scene import Material, Scene, Transform

@@ -7,7 +7,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from service.errors import MeshFileError
+from service.base.errors import MeshFileError
 from service.primitives import sphere
 from service.simplify.billboard import build_cloud
 from service.simplify.cloud_file import load_cloud, save_cloud

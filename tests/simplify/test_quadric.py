@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from service.errors import HoloError
+from service.base.errors import HoloError
 from service.primitives import sphere
 from service.simplify.distance import points_to_mesh, surface_distance
 from service.simplify.errors import SimplifyError

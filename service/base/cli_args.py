@@ -25,9 +25,9 @@ import textwrap
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
-from service.addresses import check_endpoint
-from service.errors import SettingsError
-from service.signals import EXIT_RULE
+from service.base.addresses import check_endpoint
+from service.base.errors import SettingsError
+from service.base.signals import EXIT_RULE
 
 T = TypeVar("T")
 
@@ -125,7 +125,7 @@ def comma_list(item: Callable[[str], T], *, unique: bool = True) -> Callable[[st
 
 
 def endpoint(bind: bool = True) -> Callable[[str], str]:
-    """An argparse type: a ZeroMQ address (:func:`service.addresses.check_endpoint`)."""
+    """An argparse type: a ZeroMQ address (:func:`service.base.addresses.check_endpoint`)."""
 
     def parse(text: str) -> str:
         try:
@@ -211,7 +211,7 @@ def exit_rule_epilog(failed: str | None = None) -> str:
     Returns
     -------
     str
-        ``service.signals.EXIT_RULE``, then ``" 1: FAILED"`` when given.
+        ``service.base.signals.EXIT_RULE``, then ``" 1: FAILED"`` when given.
     """
     text = EXIT_RULE if failed is None else f"{EXIT_RULE} 1: {failed}"
     return textwrap.fill(text, width=79)

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import re
 
-from service.errors import SettingsError
+from service.base.errors import SettingsError
 
 __all__ = ["DEFAULT_PORTS", "check_endpoint", "default_address", "host_port"]
 
