@@ -5,7 +5,7 @@ The display, the render options (the pipeline's own
 fallback, level of detail), the Galilean stage's order and refresh rate, the
 encodings a frame carries, the autostereogram's and the quality choice: their
 defaults live here and in the types it holds, nowhere else.  The service's state
-(:class:`service.net.state.Settings`, which adds a generation count) and the game's
+(:class:`service.engine.state.Settings`, which adds a generation count) and the game's
 backends hold one; :mod:`service.net.settings_wire` carries it on the wire.
 """
 

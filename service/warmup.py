@@ -243,8 +243,8 @@ def _galilean_game(kit: _Kit) -> None:
 
 def _galilean_service(kit: _Kit) -> None:
     """The service's path: band renders (``render_job``), stitched, submitted, refreshed."""
+    from service.engine.jobs import render_job, stitch
     from service.galilean import GalileanSettings, GalileanStage
-    from service.net.worker import render_job, stitch
     from service.render.pipeline import Renderer
     from service.render.scene import MotionState
 

@@ -17,17 +17,11 @@ from typing import Any
 
 from service.base.errors import HoloError, MeshFileError, MessageError, SettingsError
 from service.display import MAX_PIXELS, DisplaySettings
+from service.engine.state import Settings, State
+from service.engine.viewer import VIEWER_POSE_FIELDS
 from service.net import protocol, wire
 from service.net.settings_wire import display_from_wire, render_from_wire
-from service.net.state import (
-    ENCODINGS,
-    MAX_INDEX,
-    SIRD_METHODS,
-    ServiceState,
-    Settings,
-    State,
-)
-from service.net.viewer import VIEWER_POSE_FIELDS
+from service.net.state import ENCODINGS, MAX_INDEX, SIRD_METHODS, ServiceState
 from service.quality import MODES as QUALITY_MODES
 from service.quality import parse_budget
 from service.render.scene import Scene
@@ -75,11 +69,7 @@ def load_scene(st: ServiceState, req: dict[str, Any]) -> tuple:
         "scene": wire.scene_from_wire,
     }
     scene = loaders[sources[0]](req[sources[0]])
-    with st.state.lock:
-        st.state.scene, st.state.scene_t = scene, time.monotonic()
-        st.state.scene_version += 1
-        st.state.scene_load += 1
-        loaded = st.state.scene_load
+    loaded = st.state.load(scene)
     return (
         {
             "objects": [o.name for o in scene.objects],

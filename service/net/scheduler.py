@@ -1,280 +1,80 @@
-"""Render scheduling: the render thread aims renders at rendezvous and hands them on.
+"""The service's render thread: the engine's scheduler, rendering in worker processes.
 
-Renders are aimed a little in the future (a rendezvous: a refresh index of the
-Galilean stage, :meth:`Scheduler.aim`), in process, as bands of hololines through the
-broker (``split: bands``), or as whole frames to worker processes, one in flight per
-worker (``split: frames``, :meth:`Scheduler.pipeline_loop`); a job past its deadline
-is re-aimed and resent (:meth:`Scheduler.retry`).  A finished render goes to the
-refresh thread (``ServiceState.updates``) and to waiting ``render`` requests
-(``ServiceState.render_results``).
+:class:`WorkerScheduler` is :class:`service.engine.scheduler.Scheduler` (aims,
+rendezvous, hand-off to the refresh thread) with the workers as its transport:
+as bands of hololines through the broker (``split: bands``), or as whole frames,
+one in flight per worker (``split: frames``, :meth:`WorkerScheduler.pipeline_loop`);
+a job past its deadline is re-aimed and resent (:meth:`WorkerScheduler.retry`).
+With no live worker it renders in process, as the engine alone does.
 """
 
 from __future__ import annotations
 
-import math
 import time
-from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from service.base.errors import HoloError
-from service.galilean import GalileanSettings
-from service.galilean.local_update import render_use_by
+from service.engine.jobs import StatsRenderer
+from service.engine.scheduler import Scheduler, as_dict
+from service.engine.state import Aim
 from service.net import wire
 from service.net.broker import BandClient, Flight, FramePipe, split_rows
-from service.net.settings_wire import display_to_wire, render_to_wire
-from service.net.state import Aim, Ready, ServiceState, Settings
-from service.net.worker import StatsRenderer, render_job, stitch
-from service.quality import QualityChooser, QualitySettings, choose, parse_budget
+from service.net.state import ServiceState
 from service.render.pipeline import Renderer
-from service.render.scene import MotionState, Scene
-
-#: Level-of-detail notes (a failed chain build, a damaged cache) remembered so each is
-#: logged once, however many renders and workers report it.
-LOD_NOTES_LOGGED = 256
 
 
-class Scheduler:
-    """The render thread of a :class:`ServiceState` (:meth:`run`).
-
-    ``log`` (the service's one-line log) hears each new level-of-detail note once:
-    a chain whose build failed, a damaged cache file rebuilt.
-    """
+class WorkerScheduler(Scheduler):
+    """The render thread of a :class:`ServiceState`: renders go to its workers."""
 
     def __init__(self, st: ServiceState, log: Callable[[str], None] | None = None) -> None:
-        self.st = st
-        self.log = log or (lambda line: None)
-        self._lod_notes: dict[str, None] = {}  # insertion-ordered: the oldest go first
-        self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
-        self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
-        self._local: StatsRenderer | None = None  # renders in process while no worker lives
-        self.local_ms: deque[float] = deque(maxlen=50)  # their times, ms
-        self._local_renders = 0
+        super().__init__(st, log, st.config.max_update_hz)
+        self.st: ServiceState = st
 
     def run(self) -> None:
-        """Render until the service stops."""
+        """Render until the service stops: whole frames, bands, or in process."""
         if self.st.broker is not None and self.st.config.split == "frames":
             self.pipeline_loop()
             return
-        renderer = StatsRenderer()
-        bands = None
-        if self.st.broker is not None:
-            bands = BandClient(
-                self.st.ctx,
-                "inproc://holo-broker",
-                self.st.config.render_timeout_s,
-                stop=self.st.stop,
-                has_workers=self.st.to_workers,
-            )
-        render_id = 0
-        last_start = 0.0
-        try:
-            while not self.st.stop.is_set():
-                if self.st.config.max_update_hz > 0:
-                    wait = last_start + 1.0 / self.st.config.max_update_hz - time.monotonic()
-                    if wait > 0 and self.st.stop.wait(wait):
-                        break
-                last_start = time.monotonic()
-                if self.render_once(renderer, bands if self.st.to_workers() else None, render_id):
-                    render_id += 1
-                elif self.st.stop.wait(0.02):
-                    break
-        finally:
-            if bands is not None:
-                bands.close()
-
-    def aim(self, render_id: int, local: bool = False) -> Aim | None:
-        """Snapshot the scene and aim a render at a rendezvous after every earlier one.
-
-        ``local``: it renders in process now; aimed by the times of renders in process
-        (:meth:`render_ms`), not those of the workers' pipelined ones.
-        """
-        state = self.st.state
-        with state.lock:
-            scene, scene_t, settings = state.scene, state.scene_t, state.settings
-            viewer = state.viewer.render_spec()
-            version, loaded = state.scene_version, state.scene_load
-        if scene is None or not scene.objects:
-            return None
-        index, t_index, gen, fixed, order = self.st.clock
-        if gen != settings.generation:
-            return None
-        hz = settings.refresh_hz
-        lead = _lead_s(self.render_ms(local))
-        rendezvous = index + math.ceil(lead * hz) + 1
-        if gen == self._last_aim[0]:
-            rendezvous = max(rendezvous, self._last_aim[1] + 1)  # one render per rendezvous
-        self._last_aim = (gen, rendezvous)
-        t_target = t_index + (rendezvous - index) / hz
-        job = {
-            "job": render_id,
-            "t": t_target - scene_t,
-            "refresh_hz": hz,
-            "display": display_to_wire(settings.display),
-            "render": render_to_wire(settings.render),
-            "viewer": viewer,
-            "order": order,
-        }
-        if settings.quality == "auto":
-            self.auto(job, scene, settings)
-        return Aim(render_id, job, scene, settings, version, rendezvous, fixed, time.monotonic_ns(),
-                   loaded)
-
-    def auto(self, job: dict[str, Any], scene: Scene, settings: Settings) -> None:
-        """``quality: "auto"``: this render's method and specular, and the choice in the job."""
-        gen = settings.generation
-        if self._chooser is None or self._chooser[0] != gen:
-            self._chooser = (gen, QualityChooser(
-                QualitySettings("auto", parse_budget(settings.max_error))))
-        q = choose(self._chooser[1], scene, settings.display, settings.render.light.model)
-        job["render"] = {**job["render"], "method": q.method, "specular": q.specular}
-        job["quality"] = q.as_dict()
-
-    def render_ms(self, local: bool) -> deque[float]:
-        """Recent render times, ms: in process (``local``, once there are some), or all."""
-        return self.local_ms if local and self.local_ms else self.st.counters.render_ms
-
-    def ahead(self, local: bool = False) -> bool:
-        """Whether the last render is aimed past the rendezvous one started now would get.
-
-        Renders one at a time (in process, or in bands) wait for the refresh clock
-        then: aiming each at the last rendezvous + 1 while renders are quicker than
-        refreshes would queue them ever further ahead (latency and memory growing
-        without bound).
-        """
-        index, _t, gen, _fixed, _order = self.st.clock
-        if gen != self._last_aim[0]:
-            return False
-        hz = self.st.state.settings.refresh_hz
-        return self._last_aim[1] >= index + math.ceil(_lead_s(self.render_ms(local)) * hz) + 1
-
-    def render_once(self, renderer: Renderer, bands: BandClient | None, render_id: int) -> bool:
-        """Render one update in process or in bands; False when none was due or it failed."""
-        local = bands is None
-        if self.ahead(local):
-            return False
-        aim = self.aim(render_id, local)
-        if aim is None:
-            return False
-        got = self.run_job(renderer, bands, aim)
-        if local and self._local_renders > 0:  # the first one loaded the kernels
-            self.local_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
-        self._local_renders += local
-        if got is None:
-            self.st.counters.render_ms.append((time.monotonic_ns() - aim.t0) / 1e6)
-            self.st.counters.n["render_failures"] += 1
-            return False
-        return self.deliver(aim, *got)
-
-    def deliver(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict[str, Any]) -> bool:
-        """:meth:`finish`, or count a render failure when the parts do not make a render.
-
-        The parts and stats of a render in workers are what the workers sent, and a
-        worker may be a remote one of another version: a reply whose arrays do not
-        stitch, or whose stats are not what this service reads, fails that render
-        (``render_failures``, ``last_render_error``) and the render thread goes on.
-        """
-        try:
-            self.finish(aim, parts, stats)
-        except REPLY_ERRORS as exc:
-            self.st.counters.n["render_failures"] += 1
-            self.st.last_render_error = f"render {aim.render_id}: {type(exc).__name__}: {exc}"
-            return False
-        return True
-
-    def finish(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict[str, Any]) -> None:
-        """Stitch a finished render, hand it to the refresh thread and to render requests."""
-        t_stitch = time.perf_counter()
-        rendered, buf = stitch(parts, _viewer_motion(aim.job), aim.fixed, aim.job["order"])
-        d = aim.settings.display
-        if rendered.frame.colour.shape != (d.zones, d.rows, d.cols, 3):
-            raise HoloError(f"the render is {rendered.frame.colour.shape[:3]} (zones, rows, "
-                            f"columns), the display {(d.zones, d.rows, d.cols)}")
-        wall = (time.monotonic_ns() - aim.t0) / 1e6
-        self.st.counters.render_ms.append(wall)
-        stats = {
-            **stats,
-            "wall_ms": round(wall, 3),
-            "stitch_ms": round((time.perf_counter() - t_stitch) * 1e3, 3),
-            "rendezvous": aim.rendezvous,
-            "scene": aim.scene_load,
-        }
-        if "quality" in aim.job:
-            stats["quality"] = aim.job["quality"]
-            self.observe(aim, parts, stats)
-        lod = _lod_of(stats)
-        self.st.counters.n["renders"] += 1
-        self.st.last_lod = {"render_id": aim.render_id, **lod} if lod else None
-        if lod:
-            self._log_lod_notes(_as_dict(lod.get("chains")).get("notes", ()))
-        self.st.updates.append(
-            Ready(
-                aim.render_id,
-                aim.settings.generation,
-                aim.rendezvous,
-                buf,
-                rendered,
-                aim.t0,
-                aim.scene_version,
-                aim.scene_load,
-                render_use_by(aim.scene, aim.job["refresh_hz"], GalileanSettings.n_prop,
-                              rendered.viewer_motion),
-            )
-        )
-        mark = (aim.settings.generation, aim.scene_version)
-        self.st.render_results.put((aim.render_id, aim.t0, rendered.frame, mark, stats))
-
-    def _log_lod_notes(self, notes: Any) -> None:
-        """Log the level-of-detail notes not logged before (each once)."""
-        for note in map(str, notes if isinstance(notes, list | tuple) else ()):
-            if note in self._lod_notes:
-                continue
-            self._lod_notes[note] = None
-            if len(self._lod_notes) > LOD_NOTES_LOGGED:
-                del self._lod_notes[next(iter(self._lod_notes))]
-            self.log(str(note))
-
-    def observe(self, aim: Aim, parts: list[dict[str, np.ndarray]], stats: dict) -> None:
-        """Tell the quality chooser what the render showed (out-of-order points, coverage)."""
-        chooser = self._chooser
-        if chooser is None or chooser[0] != aim.settings.generation:
+        if self.st.broker is None:
+            super().run()
             return
-        bands = [b for b in stats.get("bands") or [stats] if isinstance(b, dict)]
-        bad = sum(int(b.get("inconsistent_pixels", 0)) for b in bands)
-        covered = sum(int(np.isfinite(p["depth"]).sum()) for p in parts if "depth" in p)
-        chooser[1].observe(aim.job["render"]["method"], {"inconsistent_pixels": bad}, covered)
+        bands = BandClient(self.st.ctx, "inproc://holo-broker", self.st.config.render_timeout_s,
+                           stop=self.st.stop, has_workers=self.st.to_workers)
+        try:
+            self.loop(StatsRenderer(), lambda: bands if self.st.to_workers() else None)
+        finally:
+            bands.close()
 
     def run_job(
-        self, renderer: Renderer, bands: BandClient | None, aim: Aim
+        self, renderer: Renderer, remote: BandClient | None, aim: Aim
     ) -> tuple[list[dict[str, np.ndarray]], dict[str, Any]] | None:
-        """Render in process or as bands through the broker: (parts, stats) or None."""
-        job, settings = aim.job, aim.settings
+        """Render as bands through the broker (in process without ``remote``)."""
+        if remote is None:
+            return super().run_job(renderer, None, aim)
         try:
-            if bands is None:
-                job["rows"] = [0, settings.display.rows]
-                out, stats = render_job(renderer, job, aim.scene)
-                return [out], {**stats, "mode": "in_process"}
             spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
             n = max(1, self.st.broker.live(), self.st.config.workers)
-            got = bands.run({**job, "scene": spec}, arrays, split_rows(settings.display.rows, n))
-            self.st.band_retries += bands.resent
-            bands.resent = 0
+            rows = split_rows(aim.settings.display.rows, n)
+            got = remote.run({**aim.job, "scene": spec}, arrays, rows)
+            self.st.band_retries += remote.resent
+            remote.resent = 0
             if got is None and not self.st.stop.is_set() and not self.st.to_workers():
                 self.st.band_retries += 1  # every worker died: render it here instead
-                return self.run_job(renderer, None, aim)
+                return super().run_job(renderer, None, aim)
             if got is None:  # a band unanswered after its resends (or the service stopped)
                 self.st.last_render_error = (f"render {aim.render_id}: a band got no usable "
                                              "reply from the workers")
                 return None
             per_band = [g.pop("_stats", {}) for g in got]
-            return got, {"mode": "bands", "method": settings.render.method, "bands": per_band}
+            return got, {"mode": "bands", "method": aim.settings.render.method,
+                         "bands": per_band}
         except (HoloError, ValueError) as exc:
             self.st.last_render_error = str(exc)
             return None
 
-    # ------------------------------------------------- pipelined whole frames
     def capacity(self) -> int:
         """Renders to keep in flight: one per worker the broker knows (at least one)."""
         b = self.st.broker
@@ -282,7 +82,7 @@ class Scheduler:
 
     def cap_s(self) -> float:
         """The shortest time between render starts (``--max-update-hz``; 0: no cap)."""
-        hz = self.st.config.max_update_hz
+        hz = self.max_update_hz
         return 1.0 / hz if hz > 0 else 0.0
 
     def spacing_s(self, capacity: int) -> float:
@@ -329,12 +129,6 @@ class Scheduler:
         finally:
             pipe.close()
 
-    def local(self) -> StatsRenderer:
-        """The renderer of renders in process (made on first use)."""
-        if self._local is None:
-            self._local = StatsRenderer()
-        return self._local
-
     def dispatch(self, pipe: FramePipe, aim: Aim, attempt: int) -> None:
         """Send a whole-frame job (the aim's scene and settings) to the workers."""
         spec, arrays = wire.extract(wire.scene_to_wire(aim.scene))
@@ -347,7 +141,7 @@ class Scheduler:
             self.st.counters.n["render_failures"] += 1
             self.st.last_render_error = str(head.get("error", "bad worker reply"))
             return
-        stats = {**_as_dict(head.get("stats")), "mode": "frames", "attempt": flight.attempt}
+        stats = {**as_dict(head.get("stats")), "mode": "frames", "attempt": flight.attempt}
         self.deliver(flight.meta, [head["arrays"]], stats)
 
     def retry(self, pipe: FramePipe, flight: Flight) -> None:
@@ -367,41 +161,3 @@ class Scheduler:
             self.st.last_render_error = f"render {flight.meta.render_id}: no worker answered"
             return
         self.dispatch(pipe, aim, flight.attempt + 1)
-
-
-#: What :meth:`Scheduler.finish` raises on parts and stats that a worker got wrong
-#: (arrays missing or of the wrong shapes and types, numbers that are not numbers).
-REPLY_ERRORS = (HoloError, ValueError, KeyError, TypeError)
-
-
-def _as_dict(value: Any) -> dict:
-    """``value`` when it is a dict, else an empty one (a worker's stats, read defensively)."""
-    return value if isinstance(value, dict) else {}
-
-
-def _lod_of(stats: dict[str, Any]) -> dict | None:
-    """The level-of-detail stats of a render: its own, or in bands the first band's."""
-    lod = stats.get("lod") or next(
-        (b["lod"] for b in stats.get("bands", ()) if isinstance(b, dict) and "lod" in b), None)
-    return lod if isinstance(lod, dict) and lod else None
-
-
-def _lead_s(render_ms: deque[float]) -> float:
-    """How far ahead to aim a render: its 90th percentile time plus a little.
-
-    The slowest of the last 3 renders counts too, so a machine that just got slower
-    (load, workers restarting beside the renders) moves the aim at once: with the
-    percentile alone, every render missed its rendezvous (refused, no update) until
-    five slow ones had come.
-    """
-    if not render_ms:
-        return 0.5
-    recent = list(render_ms)
-    slow = max(float(np.percentile(recent[-50:], 90)), *recent[-3:])
-    return slow / 1e3 * 1.2 + 0.01
-
-
-def _viewer_motion(job: dict[str, Any]) -> MotionState:
-    """The viewer's motion a job was rendered with (for the Galilean stage)."""
-    spec = job.get("viewer") or {}
-    return MotionState(**{k: np.asarray(v) for k, v in spec.items() if k in wire.MOTION_FIELDS})

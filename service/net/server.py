@@ -29,13 +29,14 @@ from typing import TYPE_CHECKING, Any
 import zmq
 
 from service.base.errors import MessageError, SettingsError
+from service.engine.engine import Engine
 from service.net import protocol, wire
 from service.net.broker import Broker
 from service.net.curve_keys import curve_server, is_local, start_authenticator
 from service.net.frame_stream import FrameStream
 from service.net.handlers import HANDLERS, error_code, load_builtin
-from service.net.refresh import RefreshLoop
-from service.net.scheduler import Scheduler
+from service.net.refresh import ServiceRefresh
+from service.net.scheduler import WorkerScheduler
 from service.net.state import (
     DEFAULT_WORKER_ADDRESS,
     WHILE_WARMING,
@@ -79,6 +80,8 @@ class Service:
         self._waiting: list[tuple[list[bytes], Any, float, tuple]] = []
         self.replies = ReplyCache()
         self._threads: list[threading.Thread] = []
+        #: the render and refresh threads (started once the warm-up is over)
+        self.engine: Engine | None = None
         self._auth = None
         self._open_sockets()
         self.st.warmup = warmup
@@ -207,12 +210,9 @@ class Service:
                 self._warm(end)
             if self.st.stop.is_set() or (end is not None and time.monotonic() >= end):
                 return
-            loops = (("render", Scheduler(self.st, self.log).run),
-                     ("refresh", RefreshLoop(self.st).run))
-            for name, target in loops:
-                t = threading.Thread(target=target, name=name, daemon=True)
-                t.start()
-                self._threads.append(t)
+            self.engine = Engine(self.st, WorkerScheduler(self.st, self.log),
+                                 ServiceRefresh(self.st))
+            self.engine.start()
             self.stream.extra = {"status": "ready"}
             self._serve(end)
         finally:
@@ -351,6 +351,8 @@ class Service:
             self.st.broker.stop()
         if self.st.supervisor is not None:
             self.st.supervisor.stop()
+        if self.engine is not None:
+            self.engine.stop()
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(5.0)

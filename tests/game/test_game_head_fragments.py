@@ -11,7 +11,7 @@ as the head moved from zone to zone, which is when it moves fastest).
 
 The measure: ship galpixels (object 0, not debris) that lie more than 2 px from
 the ship of every fresh render made over the gap.  The service's stage
-(:func:`service.net.refresh.stage_settings`) holds the picture past the rating.
+(:func:`service.engine.refresh.stage_settings`) holds the picture past the rating.
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ import numpy as np
 from game.rules import new_game
 from game.scene import apply_states, game_scene, object_states
 from service.display import DisplaySettings
+from service.engine.refresh import stage_settings
+from service.engine.state import Settings
 from service.galilean import GalileanStage
 from service.galilean.motion_field import render_with_motion
-from service.net.refresh import stage_settings
-from service.net.state import Settings
 from service.render.light import LightSettings
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.scene import MotionState, Transform, euler_quaternion

@@ -218,7 +218,7 @@ def test_the_frame_header_table_is_a_real_frame_header(svc):
 
 def test_every_set_display_key_is_documented():
     from service.display import DisplaySettings
-    from service.net.state import Settings
+    from service.engine.state import Settings
 
     row = next(line for line in DOC.splitlines() if line.startswith("| `set_display` |"))
     named = set(re.findall(r"`(\w+)`", row.split("|")[2]))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.builtin_scenes import builtin_scene
-from service.net.worker import StatsRenderer, render_job
+from service.engine.jobs import StatsRenderer, render_job
 
 DISPLAY = {"zones": 3, "angle_deg": 16.0, "cols": 32, "rows": 24, "width": 0.2}
 JOB = {"display": DISPLAY, "rows": [0, 24], "t": 0.1, "refresh_hz": 60.0, "order": 1,

@@ -15,9 +15,10 @@ import pytest
 import zmq
 from testkit import HANG_S, free_port, wait_until
 
+from service.engine.jobs import StatsRenderer
 from service.net import protocol, wire
 from service.net.client import ServiceClient
-from service.net.worker import READY, StatsRenderer, handle_job, split_job
+from service.net.worker import READY, handle_job, split_job
 
 #: Malformed replies, each with the job's id, band and attempt filled in.
 REPLIES = {

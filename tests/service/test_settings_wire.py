@@ -133,8 +133,8 @@ def test_cull_and_the_painter_fallback_reach_the_worker(service_factory):
 
 def test_one_frame_settings_value_for_the_service_and_the_game():
     from game.backends import LocalRenderer, ServiceBackend
+    from service.engine.state import Settings
     from service.frame_settings import FrameSettings
-    from service.net.state import Settings
 
     assert issubclass(Settings, FrameSettings)  # the service's adds only a generation
     assert {f.name for f in dataclasses.fields(Settings)} - {
