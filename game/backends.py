@@ -7,8 +7,8 @@ call                what it does
 ==================  ===================================================================
 ``start(scene)``    load the game's scene (inline) and the display settings
 ``update(records)`` per-object states (:func:`game.scene.object_states`)
-``explode(seed)``   game over: fling the player's galpixels (local) or the objects
-                    (service) and leave them to the Galilean stage
+``explode(seed)``   game over: the player's mesh in pieces that fly apart
+                    (:func:`game.gameover.explosion_scene`)
 ``resume()``        a new game: renders follow the updates again
 ``frame(timeout)``  the newest frame not yet taken (a :class:`FrameView`) or None
 ``connected``       False while the service is unreachable (the loop shows
@@ -19,14 +19,14 @@ call                what it does
 ==================  ===================================================================
 
 :class:`ServiceBackend` talks to ``holo-service`` through :mod:`service.net.client`
-(``docs/protocol.md``); :class:`LocalRenderer` runs the render pipeline and the
-Galilean stage on two threads of this process (renders as fast as they go,
-refreshes at a fixed rate), so the game also runs with no service (``--local``).
+(``docs/protocol.md``); :class:`LocalRenderer` runs the service's engine
+(:class:`service.engine.engine.Engine`: the render and refresh threads, without
+sockets) in this process, so the game also runs with no service (``--local``) and
+shows the same frames for the same inputs.
 """
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -34,19 +34,16 @@ from typing import Any
 
 import numpy as np
 
-from game.gameover import BURST_SECONDS, burst_derivatives, burst_records, explosion_scene
+from game.gameover import burst_records, explosion_scene
 from game.scene import apply_states
 from service.autostereogram.output import SirdOutput, warm_up_sird
 from service.base.errors import ServiceError, SettingsError
 from service.display import DisplaySettings
+from service.engine.engine import Engine
 from service.frame_settings import FrameSettings
-from service.galilean import GalileanSettings, GalileanStage
-from service.galilean.local_update import render_use_by
-from service.galilean.motion_field import render_with_motion
-from service.lod.state import LodState
+from service.galilean import GalileanStage
 from service.net.client import FrameSubscriber, ServiceClient, WarmingUpError
 from service.net.settings_wire import display_to_wire, render_to_wire
-from service.render.pipeline import Renderer
 from service.render.scene import Scene
 
 #: Seconds between the service backend's ``stats`` requests for level-of-detail notes.
@@ -102,91 +99,87 @@ def _lod_on(settings: FrameSettings) -> bool:
 
 
 class LocalRenderer:
-    """Render pipeline + Galilean stage in this process (two threads).
+    """The render service's engine in this process: the game with no service (``--local``).
+
+    An :class:`~service.engine.engine.Engine` renders (aimed at rendezvous, as the
+    service's render thread does) and refreshes (the Galilean stage at the refresh
+    rate, held frames, the scene-version guard) on two threads; this class gives
+    the game's calls to it, as :class:`ServiceBackend` gives them to the service.
 
     Parameters
     ----------
     settings : FrameSettings
+    max_update_hz : float
+        At most this many renders a second (0: as fast as they go), as
+        ``holo-service --max-update-hz``.
     """
 
-    def __init__(self, settings: FrameSettings | None = None) -> None:
+    def __init__(self, settings: FrameSettings | None = None, max_update_hz: float = 0.0) -> None:
         self.settings = s = settings or FrameSettings()
-        self.render_settings = s.render
-        self.stage = GalileanStage(
-            s.display,
-            GalileanSettings(order=s.galpixel_order, refresh_hz=s.refresh_hz, colour_motion=False),
-        )
         self.connected = True
         self.warming: dict | None = None
-        #: refreshes the game-over burst is carried (its use-by): until the score screen
-        self._burst_use_by = math.ceil(BURST_SECONDS * s.refresh_hz)
-        self._renderer = Renderer()
-        # a chain not cached yet is built in the background (as the service's workers
-        # do): the full mesh is drawn meanwhile, no render stalls seconds for the build
-        self._renderer.lod = LodState(background=True)
         self._cv = threading.Condition()
-        self._stage_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._scene: Scene | None = None
-        self._records: list[dict] = []
-        self._records_t = 0.0
-        self._version = 0
-        self._burst: int | None = None
-        self._frozen = False
         self._latest: FrameView | None = None
         self._taken = -1
-        self._render_id = -1
-        #: (render id, its records' time, its scene version) of the render grafted last
-        self._grafted: tuple[int, float, int] = (-1, 0.0, 0)
-        #: the scene version: +1 per new game (:meth:`resume`); older frames are not shown
-        self._scene_version = 0
-        #: refreshes not handed out because they were not of the current game
+        self._scene: Scene | None = None
+        self._records: list[dict] = []
+        self._frozen = False
+        self._reload = False
+        #: the version of the scene loaded last: frames of older versions are not shown
+        self.scene_version = 0
+        #: frames not shown because they came from an older scene
         self.stale_frames = 0
-        self._lead = 0.1
         self._sird = _sird_output(s.display)
         #: set by the game while it shows the autostereogram: only then is one made
         self.sird_wanted = False
-        self._threads: list[threading.Thread] = []
-        self._lod_seen: set[str] = set()
         self._lod_new: list[str] = []
+        # the autostereogram is made here, only while it is shown: not an encoding
+        engine_settings = replace(s, encodings=("colour",))
+        self.engine = Engine.local(engine_settings, self._on_frame, max_update_hz=max_update_hz,
+                                   log=self._on_note)
+
+    @property
+    def stage(self) -> GalileanStage | None:
+        """The engine's Galilean stage (None before its first refresh)."""
+        return self.engine.stage
 
     def start(self, scene: Scene) -> None:
-        """Take the scene and start rendering and refreshing."""
+        """Load the scene and start rendering and refreshing."""
         self._scene = scene
-        for target in (self._render_loop, self._refresh_loop):
-            t = threading.Thread(target=target, daemon=True, name=f"local-{target.__name__}")
-            t.start()
-            self._threads.append(t)
+        self.load_scene(scene)
+        if self._sird is not None:  # load the SIRD kernels now, not in the refresh thread
+            warm_up_sird(self._sird.settings.method)
+        self.engine.start()
+
+    def load_scene(self, scene: Scene) -> None:
+        """Load a scene; frames of the scenes before it are not shown from now on."""
+        self.scene_version = self.engine.load_scene(scene)
 
     def update(self, records: list[dict]) -> None:
-        """New object states; the next render uses them."""
-        with self._cv:
-            self._records = records
-            self._records_t = time.monotonic()
-            self._version += 1
-            self._cv.notify_all()
+        """New object states as of now; the renders follow them."""
+        if self._frozen:
+            return
+        self._records = records
+        scene = apply_states(self._scene, records)
+        if self._reload:  # a new game: its scene loaded with its objects in place
+            self._reload = False
+            self.load_scene(scene)
+        else:
+            self.engine.move(scene)
 
     def explode(self, seed: int = 0) -> None:
-        """The next render flings the player's galpixels; then renders stop."""
-        with self._cv:
-            self._burst = seed
-            self._version += 1
-            self._cv.notify_all()
+        """Game over: the player's mesh in pieces that fly apart (as the service shows it).
+
+        :func:`game.gameover.explosion_scene` is loaded as a new scene; the renders
+        follow its pieces until :meth:`resume`.
+        """
+        self._frozen = True
+        self.load_scene(explosion_scene(self._scene, self._records, seed))
 
     def resume(self) -> None:
-        """Renders follow the updates again (a new game): a new scene version.
-
-        The Galilean stage forgets the old game's galpixels (the burst's pieces) at
-        once, and :meth:`frame` hands out no frame until a render of the new game
-        is grafted; a render of the old game still under way is not grafted.
-        """
-        with self._cv:
-            self._frozen = False
-            self._burst = None
-            with self._stage_lock:  # the render thread checks the version under it
-                self._scene_version += 1
-                self.stage.new_scene()
-                self._grafted = (-1, 0.0, -1)
+        """A new game: its scene is loaded with its first :meth:`update` (a new version)."""
+        self._reload = self._reload or self._frozen
+        self._frozen = False
 
     def compiling(self) -> str | None:
         """Always None: in process, kernels compile inside the first render that needs them."""
@@ -211,103 +204,39 @@ class LocalRenderer:
             if got is None or got.seq == self._taken:
                 return None
             self._taken = got.seq
-            if got.scene != self._scene_version:
-                self.stale_frames += 1  # the game before's (the burst), or the cleared stage
-                return None
-            return got
+        if got.scene < self.scene_version:
+            self.stale_frames += 1  # the game before's (the explosion), or the scene before
+            return None
+        return got
 
     def close(self) -> None:
         """Stop both threads, and a level-of-detail build still running in its child."""
-        self._stop.set()
+        self.engine.stop()
+
+    def _on_note(self, note: str) -> None:
+        """A level-of-detail note, new (the engine's scheduler says each once)."""
         with self._cv:
+            self._lod_new.append(note)
+
+    def _on_frame(self, r: Any, made: dict[str, Any], settings: Any) -> None:
+        """The engine's refresh thread hands a frame: keep it as the newest."""
+        sird = None
+        if self._sird is not None and self.sird_wanted:
+            sird = self._sird.frame(r.depth[r.depth.shape[0] // 2])
+        view = FrameView(
+            colour=r.colour.copy(),
+            seq=r.index,
+            render_id=made["render_id"],
+            since_render=made["since_render"],
+            zone=self.engine.st.state.viewer.zone,
+            latency_ms=(time.monotonic_ns() - made["t_render_ns"]) / 1e6,
+            sird=sird,
+            scene=made["scene"],
+            held=bool(r.flags["held"]),
+        )
+        with self._cv:
+            self._latest = view
             self._cv.notify_all()
-        for t in self._threads:
-            t.join(5.0)
-        self._renderer.lod.close()
-
-    # ------------------------------------------------------------- threads
-    def _next_job(self, seen: int) -> tuple[int, list[dict], float, int | None] | None:
-        with self._cv:
-            self._cv.wait_for(
-                lambda: self._stop.is_set() or (self._version != seen and not self._frozen), 0.2
-            )
-            if self._stop.is_set() or self._version == seen or self._frozen:
-                return None
-            burst, self._burst = self._burst, None
-            self._frozen = burst is not None
-            return self._version, self._records, self._records_t, burst, self._scene_version
-
-    def _render_loop(self) -> None:
-        if self._sird is not None:  # load the SIRD kernels here, not in the refresh thread
-            warm_up_sird(self._sird.settings.method)
-        seen = -1
-        while not self._stop.is_set():
-            job = self._next_job(seen)
-            if job is None:
-                continue
-            seen, records, records_t, burst, version = job
-            t0 = time.monotonic()
-            scene = apply_states(self._scene, records)
-            ru = render_with_motion(
-                self._renderer,
-                scene,
-                self.settings.display,
-                self._lead,
-                self.settings.refresh_hz,
-                self.render_settings,
-                colour_motion=False,
-            )
-            if burst is not None:
-                ru = replace(
-                    ru,
-                    derivatives=burst_derivatives(ru.derivatives, ru.obj, 0, burst),
-                    points=None,
-                    point_derivs=None,
-                )
-            self._lead = 0.8 * self._lead + 0.2 * (time.monotonic() - t0)
-            new = new_notes(ru.frame.stats.get("lod"), self._lod_seen)
-            if new:
-                with self._cv:
-                    self._lod_new += new
-            with self._stage_lock:
-                if version != self._scene_version:
-                    continue  # a render of the game before: never shown
-                self._render_id += 1
-                # the burst's motion is exact and no render follows it: carried
-                # to the score screen; any other render for the stage's rating, or
-                # less when an object turns far (seed 002's use-by date)
-                use_by = self._burst_use_by if burst is not None else render_use_by(
-                    scene, self.settings.refresh_hz, self.stage.settings.n_prop)
-                self.stage.update(ru, use_by=use_by)
-                self._grafted = (self._render_id, records_t, version)
-
-    def _refresh_loop(self) -> None:
-        period = 1.0 / self.settings.refresh_hz
-        next_t = time.monotonic()
-        graft_index, missed = 0, 0
-        while not self._stop.is_set():
-            with self._stage_lock:
-                out = self.stage.refresh(1 + missed)  # missed ticks count towards use-by
-                render_id, records_t, version = self._grafted
-            if out.flags.get("updated"):
-                graft_index = out.index
-            now = time.monotonic()
-            view = FrameView(
-                colour=out.colour.copy(),
-                seq=out.index,
-                render_id=render_id,
-                since_render=out.index - graft_index,
-                latency_ms=(now - records_t) * 1e3 if records_t else None,
-                sird=self._sird.frame(out.depth[out.depth.shape[0] // 2])
-                if self._sird is not None and self.sird_wanted else None,
-                scene=version,
-                held=bool(out.flags["held"]),
-            )
-            with self._cv:
-                self._latest = view
-                self._cv.notify_all()
-            next_t, missed = _next_tick(next_t, period, time.monotonic())
-            self._stop.wait(max(0.0, next_t - time.monotonic()))
 
 
 class ServiceBackend:
@@ -566,13 +495,6 @@ class ServiceBackend:
         if self._stats is not None:
             self._stats.close()
         self.client.close()
-
-
-def _next_tick(next_t: float, period: float, now: float) -> tuple[float, int]:
-    """The next tick after ``next_t`` and the ticks missed: more than a period late skips."""
-    next_t += period
-    missed = math.floor((now - next_t) / period) if now - next_t > period else 0
-    return next_t + missed * period, missed
 
 
 def new_notes(lod: dict | None, seen: set[str]) -> list[str]:

@@ -7,13 +7,10 @@ The beep is a short sine tone made with numpy and played through
 ``pygame.sndarray``; with ``SDL_AUDIODRIVER=dummy`` (headless) or no mixer the
 :class:`Beeper` is muted and only counts.
 
-The display: the player's galpixels are flung outward (:func:`burst_derivatives`:
-radial velocities, a downward acceleration, a little jitter) and handed to the
-Galilean stage once; no further render comes, so the stage alone carries them,
-leaving streaks of debris where they were.  A backend that cannot set per-galpixel
-motion (the service) shatters the player's mesh into pieces instead and flings
-them outward with velocities, a downward acceleration and spins
-(:func:`explosion_scene`); :func:`burst_records` is the same for whole objects.
+The display: the player's mesh shatters into pieces flung outward with velocities,
+a downward acceleration and spins (:func:`explosion_scene`), loaded as a scene of its
+own; the renders follow the pieces (the service's and the local engine alike).
+:func:`burst_records` is the same for whole objects.
 """
 
 from __future__ import annotations
@@ -34,9 +31,6 @@ TIMETABLE: tuple[tuple[float, str], ...] = (
     (0.8, "explode"),
     (3.3, "score"),
 )
-#: Seconds from the explosion to the score screen: the burst's galpixels fly that long.
-BURST_SECONDS = (next(t for t, step in TIMETABLE if step == "score")
-                 - next(t for t, step in TIMETABLE if step == "explode"))
 #: Seconds the score screen stays before attract mode starts a new game.
 SCORE_SECONDS = 4.0
 BEEP_HZ = 880.0
@@ -117,52 +111,6 @@ class GameOverSequence:
     def finished(self, now: float) -> bool:
         """True once the score screen has been up for :data:`SCORE_SECONDS`."""
         return now - self.start >= TIMETABLE[-1][0] + SCORE_SECONDS
-
-
-def burst_derivatives(
-    derivatives: np.ndarray,
-    obj: np.ndarray,
-    target: int = 0,
-    seed: int = 0,
-    speed: float = 2.5,
-    gravity: float = 0.06,
-) -> np.ndarray:
-    """Per-pixel motion that flings one object's galpixels outward.
-
-    Parameters
-    ----------
-    derivatives : ndarray, shape (3, 3, Z, R, C)
-        A render's per-pixel motion (x, y in px, depth) per refresh^k; a copy is
-        changed.
-    obj : ndarray, shape (Z, R, C)
-        Object index per pixel.
-    target : int
-        The object to fling (the player is 0).
-    seed : int
-    speed : float
-        Mean outward speed, px per refresh.
-    gravity : float
-        Downward acceleration, px per refresh^2 (rows grow downward).
-
-    Returns
-    -------
-    ndarray
-        The changed copy.
-    """
-    out = np.array(derivatives, np.float32, copy=True)
-    rng = np.random.default_rng(seed)
-    for z in range(obj.shape[0]):
-        rows, cols = np.nonzero(obj[z] == target)
-        if rows.size == 0:
-            continue
-        d = np.stack([cols - cols.mean(), rows - rows.mean()]) + rng.normal(0, 0.5, (2, rows.size))
-        d /= np.maximum(np.linalg.norm(d, axis=0), 1e-6)
-        v = d * speed * rng.uniform(0.3, 1.7, rows.size)
-        out[:, :, z, rows, cols] = 0.0
-        out[0, 0, z, rows, cols] = v[0]
-        out[0, 1, z, rows, cols] = v[1]
-        out[1, 1, z, rows, cols] = gravity
-    return out
 
 
 def burst_records(records: list[dict], seed: int = 0, speed: float = 0.35) -> list[dict]:

@@ -225,22 +225,6 @@ def _galilean_kernels(kit: _Kit) -> None:
         _stage_refreshes(stage)
 
 
-def _galilean_game(kit: _Kit) -> None:
-    """The game's in-process path (``game.backends.LocalRenderer``): update, refresh."""
-    from service.galilean import GalileanSettings, GalileanStage
-    from service.galilean.motion_field import render_with_motion
-    from service.render.light import LightSettings
-    from service.render.pipeline import Renderer, RenderSettings
-
-    settings = RenderSettings(method="zbuffer", light=LightSettings("ambient"))
-    stage = GalileanStage(kit.display, GalileanSettings(order=2, colour_motion=False))
-    renderer = Renderer()
-    for t in (0.1, 0.2):
-        stage.update(render_with_motion(renderer, kit.scene(), kit.display, t, 60.0, settings,
-                                        colour_motion=False))
-        _stage_refreshes(stage)
-
-
 def _galilean_service(kit: _Kit) -> None:
     """The service's path: band renders (``render_job``), stitched, submitted, refreshed."""
     from service.engine.jobs import render_job, stitch
@@ -406,7 +390,6 @@ JOBS: dict[str, _Job] = {
     "galilean: refresh kernels, made-up map": _Job(_galilean_kernels, EARLY, first_frame=True),
     "galilean: service refresh": _Job(_galilean_service, APART, service=True,
                                       first_frame=True),
-    "galilean: game refresh": _Job(_galilean_game, APART),
     "galilean: orders, cache, margin": _Job(_galilean_variants, APART, service=True),
     "galilean: local updates": _Job(_galilean_local, APART),
     "galilean: depth-only shadows": _Job(_shadows, HERE),

@@ -75,9 +75,10 @@ class Engine:
         self.st.state.move(scene)
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """Stop both threads (each gets ``timeout_s`` to finish)."""
+        """Stop both threads (each gets ``timeout_s`` to finish) and any chain build."""
         self.st.stop.set()
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(timeout_s)
         self._threads.clear()
+        self.scheduler.close()

@@ -51,13 +51,14 @@ class Scheduler:
         self._lod_notes: dict[str, None] = {}  # insertion-ordered: the oldest go first
         self._last_aim: tuple[int, int] = (-1, -1)  # (generation, rendezvous) last aimed at
         self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
-        self._local: StatsRenderer | None = None  # renders in process while no worker lives
+        #: renders in process (in the service: while no worker lives)
+        self._local = StatsRenderer()
         self.local_ms: deque[float] = deque(maxlen=50)  # their times, ms
         self._local_renders = 0
 
     def run(self) -> None:
         """Render in this process until the engine stops (at most ``max_update_hz``)."""
-        self.loop(StatsRenderer(), lambda: None)
+        self.loop(self.local(), lambda: None)
 
     def loop(self, renderer: Renderer, remote: Callable[[], Any]) -> None:
         """Render one update after another: in process, or through ``remote()``.
@@ -256,10 +257,12 @@ class Scheduler:
             return None
 
     def local(self) -> StatsRenderer:
-        """The renderer of renders in process (made on first use)."""
-        if self._local is None:
-            self._local = StatsRenderer()
+        """The renderer of renders in process."""
         return self._local
+
+    def close(self) -> None:
+        """End a level-of-detail chain build still running in its child process."""
+        self._local.lod.close()
 
 
 #: What :meth:`Scheduler.finish` raises on parts and stats that a worker got wrong

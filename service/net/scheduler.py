@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from service.base.errors import HoloError
-from service.engine.jobs import StatsRenderer
 from service.engine.scheduler import Scheduler, as_dict
 from service.engine.state import Aim
 from service.net import wire
@@ -44,7 +43,7 @@ class WorkerScheduler(Scheduler):
         bands = BandClient(self.st.ctx, "inproc://holo-broker", self.st.config.render_timeout_s,
                            stop=self.st.stop, has_workers=self.st.to_workers)
         try:
-            self.loop(StatsRenderer(), lambda: bands if self.st.to_workers() else None)
+            self.loop(self.local(), lambda: bands if self.st.to_workers() else None)
         finally:
             bands.close()
 

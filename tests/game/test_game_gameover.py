@@ -6,7 +6,6 @@ from game.gameover import (
     TIMETABLE,
     Beeper,
     GameOverSequence,
-    burst_derivatives,
     burst_records,
     tone,
 )
@@ -30,20 +29,6 @@ def test_tone_and_a_muted_beeper_counts():
     for _ in range(3):
         beeper.beep()
     assert beeper.muted and beeper.count == 3
-
-
-def test_burst_flings_only_the_players_galpixels_outward():
-    obj = np.full((2, 20, 30), -1, np.int32)
-    obj[:, 5:15, 10:20] = 0  # the player
-    obj[:, 0:3, 0:3] = 1  # an attacker
-    der = np.zeros((3, 3, 2, 20, 30), np.float32)
-    der[0, 0, :, 0:3, 0:3] = 0.5
-    out = burst_derivatives(der, obj, target=0, seed=1, speed=2.0, gravity=0.1)
-    assert np.all(out[0, 0, :, 0:3, 0:3] == 0.5)  # attacker untouched
-    assert np.all(out[1, 1][obj == 0] == np.float32(0.1))
-    vx = out[0, 0, 0, 5:15, 10:20]
-    assert vx[:, :3].mean() < 0 < vx[:, -3:].mean()  # left half left, right half right
-    assert np.all(der[0, 0, :, 5:15, 10:20] == 0)  # input unchanged
 
 
 def test_object_burst_moves_everything_away_from_the_player():

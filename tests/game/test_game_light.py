@@ -45,10 +45,9 @@ def test_light_ambient_draws_flat_silhouettes(setup_from_args):
     game, backend = setup_from_args("--light", "ambient")
     assert isinstance(backend, LocalRenderer)
     assert backend.settings.render.light.model == "ambient"
-    assert backend.render_settings.light.model == "ambient"
 
     frame = Renderer().render(
-        _player_only(backend, game), backend.settings.display, backend.render_settings
+        _player_only(backend, game), backend.settings.display, backend.settings.render
     )
     player = np.isfinite(frame.depth)
     assert player.sum() > 100
@@ -63,10 +62,9 @@ def test_light_ambient_draws_flat_silhouettes(setup_from_args):
 def test_blinn_phong_is_the_default_and_shades(setup_from_args, argv):
     game, backend = setup_from_args(*argv)
     assert backend.settings.render.light.model == "blinn"
-    assert backend.render_settings.light.model == "blinn"
 
     frame = Renderer().render(
-        _player_only(backend, game), backend.settings.display, backend.render_settings
+        _player_only(backend, game), backend.settings.display, backend.settings.render
     )
     player = np.isfinite(frame.depth)
     assert player.sum() > 100

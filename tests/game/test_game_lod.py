@@ -14,25 +14,26 @@ from game.scene import object_states
 def test_lod_on_reaches_the_local_renderer(setup_from_args, tmp_path):
     game, backend = setup_from_args("--lod-error", "0.75")
     assert isinstance(backend, LocalRenderer)
-    assert backend.render_settings.lod is not None
-    assert backend.render_settings.lod.error_px == 0.75
+    assert backend.settings.render.lod is not None
+    assert backend.settings.render.lod.error_px == 0.75
     backend.update(object_states(new_game(game)))
     # frame() returns at each refresh (60 Hz), so wait on a deadline, not a count: the
     # first render may compile kernels (after a change) for many seconds
     if not wait_until(lambda: getattr(backend.frame(timeout_s=0.5), "render_id", -1) >= 0,
                       180):
         pytest.fail("the local renderer showed no render")
-    levels = backend._renderer.lod.previous  # the render thread chose a level per object
+    lod = backend.engine.scheduler.local().lod
+    levels = lod.previous  # the render thread chose a level per object
     assert levels is not None and levels.size == len(backend._scene.objects)
     # the attackers' chain is built off the render thread (a child process) and cached
     if not wait_until(lambda: any((tmp_path / "lod").glob("*.json")), 180):
         pytest.fail("the attackers' level-of-detail chain was never cached")
-    assert backend._renderer.lod.background
+    assert lod.background
 
 
 def test_lod_off_by_default_and_bad_budget_refused(setup_from_args, capsys):
     _, backend = setup_from_args()
-    assert backend.render_settings.lod is None
+    assert backend.settings.render.lod is None
     with pytest.raises(SystemExit) as stop:
         cli.build_parser().parse_args(["--lod-error", "0"])
     assert stop.value.code == 2
@@ -41,14 +42,14 @@ def test_lod_off_by_default_and_bad_budget_refused(setup_from_args, capsys):
 
 def test_budget_ms_reaches_the_local_renderer_and_its_cost_model(setup_from_args):
     game, backend = setup_from_args("--budget-ms", "40")
-    lod = backend.render_settings.lod
+    lod = backend.settings.render.lod
     assert lod is not None and lod.budget_ms == 40 and lod.error_px == 0.5  # alone: on
     states = object_states(new_game(game))
-    # each update is a render, measured for the cost model (its first, cold, left out)
-    if not wait_until(lambda: backend.update(states) or backend._renderer.lod.cost.samples,
-                      180, step_s=0.05):
+    chosen = backend.engine.scheduler.local().lod  # its cost model is made for the display
+    # each render is measured for the cost model (its first, cold, left out)
+    if not wait_until(lambda: backend.update(states) or chosen.cost.samples, 180, step_s=0.05):
         pytest.fail("no render was measured")
-    assert backend._renderer.lod.cost.ready
+    assert chosen.cost.ready
 
 
 def test_budget_ms_reaches_the_service(service_factory, setup_from_args, tmp_path,
@@ -164,7 +165,7 @@ def test_closing_the_local_renderer_ends_a_chain_build_at_once(setup_from_args, 
             held.enter_context(held_lock(tmp_path / "lod", key))
         game, backend = setup_from_args("--lod-error", "0.5")
         backend.update(object_states(new_game(game)))
-        lod = backend._renderer.lod
+        lod = backend.engine.scheduler.local().lod
         wait_for(lambda: lod.builds is not None and lod.builds.child_pid is not None, 180,
                  "a chain build running")
         pid = lod.builds.child_pid
