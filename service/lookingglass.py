@@ -37,6 +37,7 @@ import numba as nb
 import numpy as np
 
 from service.base.errors import SettingsError
+from service.warmup_job import HERE, Job, Kit
 
 #: The ``--display`` value's prefix: ``lookingglass:CALIBRATION.json``.
 DISPLAY_PREFIX = "lookingglass:"
@@ -302,3 +303,14 @@ class Interleaver:
         rows, cols = self._maps[key]
         _gather(np.ascontiguousarray(views), self.table, rows, cols, out)
         return out
+
+
+def _warm_interleave(kit: Kit) -> None:
+    """The interleave kernel on a 3-view quilt (holo-render, ``--display lookingglass:``)."""
+    cal = Calibration(pitch=50.0, slope=5.5, center=0.1, view_cone=40.0, inv_view=True,
+                      dpi=300.0, screen_w=16, screen_h=10, views=3)
+    Interleaver(cal)(np.zeros((3, 5, 8, 3), np.uint8))
+
+
+#: This module's warm-up jobs (:data:`service.warmup.JOBS` gathers them).
+WARMUP_JOBS: dict[str, Job] = {"looking glass interleave": Job(_warm_interleave, HERE)}

@@ -101,12 +101,13 @@ def child(jobs: list[str]) -> dict:
     from numba.core import event
 
     from service.numba_patches import apply_all
-    from service.warmup import JOBS, _Kit, cache_counts
+    from service.warmup import JOBS, cache_counts
+    from service.warmup_job import Kit
 
     apply_all()  # as holo-warmup does
     timer = _CompileTimer()
     event.register("numba:compile", timer)
-    kit, out = _Kit(), []
+    kit, out = Kit(), []
     for name in jobs:
         timer.job = name
         misses0 = cache_counts()[1]

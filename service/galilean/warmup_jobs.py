@@ -1,0 +1,92 @@
+"""The Galilean stage's warm-up jobs (:mod:`service.warmup` runs them).
+
+Renders with motion, the refresh kernels on made-up maps (no render kernel: they
+run beside the render jobs, see :data:`service.warmup_job.EARLY`), every stage
+variant and the local updates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from service.galilean import GalileanSettings, GalileanStage
+from service.galilean.galpixmap import FIELDS, Galpixmap
+from service.galilean.local_update import render_local
+from service.galilean.motion_field import render_with_motion
+from service.render.light import LightSettings
+from service.render.pipeline import Renderer, RenderSettings
+from service.render.scene import MotionState
+from service.warmup_job import APART, EARLY, FIRST, Job, Kit, stage_refreshes
+
+
+def _motion(colour_motion: bool, model: str) -> Callable:
+    def job(kit: Kit) -> None:
+        settings = RenderSettings(method="zbuffer", light=LightSettings(model))
+        render_with_motion(Renderer(), kit.scene(), kit.display, 0.1, 60.0, settings,
+                           colour_motion=colour_motion)
+
+    return job
+
+
+def _galilean_kernels(kit: Kit) -> None:
+    """The service refresh's stage kernels on made-up G(2) maps: no render kernel runs.
+
+    The maps are laid out as ``stitch`` lays out a band render's (each field a
+    C-contiguous copy), so the scatter, finish, show and head-motion kernels compile
+    for the types :func:`service.engine.warmup_jobs._galilean_service` then loads them with.  Run beside the
+    ``FIRST`` jobs in the second process (see :data:`EARLY`).
+    """
+    stage = GalileanStage(kit.display, GalileanSettings(order=2, refresh_hz=60.0))
+    rng = np.random.default_rng(7)
+    for k in range(2):
+        blank = Galpixmap.empty(2, stage.fixed, stage.shape)
+        f = {n: np.array(getattr(blank, n)) for n in FIELDS}
+        f["depth"][:] = rng.integers(2**20, 2**21, f["depth"].shape)
+        f["debris"][:], f["obj"][:] = 0, 0
+        f["colour"][:] = rng.uniform(0, 255, f["colour"].shape)
+        f["motion"][:] = rng.integers(-3000, 3000, f["motion"].shape)
+        f["frac"][:] = rng.integers(-100, 100, f["frac"].shape)
+        stage.submit(Galpixmap(order=2, fixed=stage.fixed, **f), stage.index + 1, None, True,
+                     (), None, None, MotionState())
+        stage.viewer(MotionState(velocity=[0.1 * k, 0.0, 0.0], angular_velocity=[0.0, 0.2, 0.0]))
+        stage_refreshes(stage)
+
+
+def _galilean_variants(kit: Kit) -> None:
+    """Stage settings that take other kernels: orders 0-3, cache, margin, no Poisson."""
+    renderer = Renderer()
+    variants = [
+        GalileanSettings(order=o, cache=c, margin=m, poisson=p, threads=th, expansion=e)
+        for o, c, m, p, th, e in [
+            (0, False, 0, True, 0, "average"), (1, True, 2, True, 1, "replicate"),
+            (3, True, 0, False, 0, "average"), (2, False, 2, True, 1, "average"),
+        ]
+    ]
+    up = render_with_motion(renderer, kit.scene(), kit.display, 0.1, 60.0)
+    for s in variants:
+        stage = GalileanStage(kit.display, s)
+        stage.update(up)
+        stage_refreshes(stage, 4)
+
+
+def _galilean_local(kit: Kit) -> None:
+    """Local updates (Flinders Street buffers with depth-only shadows), grafted."""
+    stage = GalileanStage(kit.display, GalileanSettings(order=2))
+    renderer = Renderer()
+    for shadow in ("depth", "full"):
+        local = render_local(renderer, kit.scene(), kit.display, [0], 0.1, 60.0, 2, stage.fixed,
+                             shadow=shadow)
+        stage.submit(local.buffer, None, (0,))
+        stage_refreshes(stage)
+
+
+#: This subsystem's jobs, in order (:data:`service.warmup.JOBS` gathers them).
+WARMUP_JOBS: dict[str, Job] = {
+    "motion field": Job(_motion(True, "blinn"), FIRST, service=True, first_frame=True),
+    "motion field, no colour motion": Job(_motion(False, "ambient"), FIRST),
+    "galilean: refresh kernels, made-up map": Job(_galilean_kernels, EARLY, first_frame=True),
+    "galilean: orders, cache, margin": Job(_galilean_variants, APART, service=True),
+    "galilean: local updates": Job(_galilean_local, APART),
+}

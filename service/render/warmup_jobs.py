@@ -1,0 +1,76 @@
+"""The render pipeline's warm-up jobs (:mod:`service.warmup` runs them).
+
+Mesh builders, each render method and light model through ``Renderer.render`` (as
+``holo-render`` and the game call it) and ``render_with_motion`` (as the workers
+do), and the depth-only shadow renders of local updates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from service.builtin_scenes import SCENES
+from service.galilean.motion_field import render_with_motion
+from service.galilean.shadow import shadow_depth
+from service.render.light import LightSettings
+from service.render.pipeline import Renderer, RenderSettings
+from service.triangulate import ear_clip
+from service.warmup_job import FIRST, HERE, Job, Kit
+
+
+def _scenes(kit: Kit) -> None:
+    """Mesh builders: corner normals and ear-clipping of polygons (all built-in scenes)."""
+    for name in SCENES:
+        kit.scene(name).flatten()
+    ear_clip(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.5, 0.4], [0.0, 1.0]]))
+
+
+def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
+            fallback: str = "frame") -> Callable:
+    """A render job: frames and renders with motion.
+
+    ``Renderer.render`` as holo-render and the game call it (light into uint8), and
+    ``render_with_motion`` as the service's workers do (light into float32 too).
+    """
+
+    def job(kit: Kit) -> None:
+        settings = RenderSettings(method=method, light=LightSettings(model, evaluation),
+                                  painter_fallback=fallback)
+        renderer = Renderer()
+        for name in ("game", "cyclic"):  # cyclic: the painter's fallback too
+            renderer.render(kit.scene(name), kit.display, settings)
+            render_with_motion(renderer, kit.scene(name), kit.display, 0.1, 60.0, settings)
+
+    return job
+
+
+def _shadows(kit: Kit) -> None:
+    """Depth-only shadow renders (:mod:`service.galilean.shadow`): cull, sort, z-buffer.
+
+    The local-update job reaches them too, but they are render kernels, not
+    Galilean ones: compiled here, in the first process while the second one is
+    still in its long service-refresh job, they leave that (longer) process
+    sooner, which then loads them from the cache.  Called as ``render_local``
+    calls it, so the signatures are the same.
+    """
+    scene = kit.scene()
+    shadow_depth(scene, range(1, len(scene.objects)), kit.display, 0.1, RenderSettings().cull)
+
+
+#: This subsystem's jobs, in order (:data:`service.warmup.JOBS` gathers them).
+WARMUP_JOBS: dict[str, Job] = {
+    "scenes: normals, triangulation": Job(_scenes, FIRST, first_frame=True),
+    "render zbuffer": Job(_render("zbuffer"), FIRST, service=True, first_frame=True),
+    "light ambient": Job(_render("zbuffer", "ambient"), FIRST),
+    "light phong": Job(_render("zbuffer", "phong"), FIRST),
+    # first of the HERE jobs: see _shadows
+    "galilean: depth-only shadows": Job(_shadows, HERE),
+    "render runlength": Job(_render("runlength"), HERE),
+    "render runlength, pixel fallback": Job(_render("runlength", fallback="pixel"), HERE),
+    "render bsp": Job(_render("bsp"), HERE),
+    "render raycast": Job(_render("raycast"), HERE),
+    "light vertex (Gouraud)": Job(_render("zbuffer", "blinn", "vertex"), HERE),
+    "light point (per pixel)": Job(_render("zbuffer", "blinn", "point"), HERE),
+}
