@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import os
 import select
+import struct
 import threading
 import time
 
@@ -43,6 +44,7 @@ class PtyLink:
         self._open()
 
     def _open(self) -> None:
+        # deferred: POSIX only: the module still imports elsewhere
         import tty
 
         self._master, self._slave = os.openpty()
@@ -98,8 +100,8 @@ class PtyLink:
         flushes the port's buffer before it answers), so the two looks together see
         every byte the client has not read yet.
         """
+        # deferred: POSIX only: the module still imports elsewhere
         import fcntl
-        import struct
         import termios
 
         if self._slave < 0:

@@ -42,7 +42,7 @@ from service.display import DisplaySettings
 from service.engine.engine import Engine
 from service.frame_settings import FrameSettings
 from service.galilean import GalileanStage
-from service.net.client import FrameSubscriber, ServiceClient, WarmingUpError
+from service.net.client import FrameSubscriber, PendingRequest, ServiceClient, WarmingUpError
 from service.net.settings_wire import display_to_wire, render_to_wire
 from service.render.scene import Scene
 
@@ -439,7 +439,6 @@ class ServiceBackend:
         if not self.connected or not _lod_on(s):
             return []
         if self._stats is None:
-            from service.net.client import PendingRequest
 
             self._stats = PendingRequest(self.client.address, self.lod_reply_s)
         try:

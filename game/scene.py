@@ -18,6 +18,7 @@ import numpy as np
 
 from game.rules import GameState, attacker_velocities
 from service.base.errors import HoloError
+from service.loaders import load_mesh
 from service.primitives import attacker, player
 from service.render.mesh import Mesh
 from service.render.scene import (
@@ -73,7 +74,6 @@ def attacker_mesh(path: str | Path | None = None) -> Mesh:
     """
     if path is None:
         return _check(attacker(6, radius=0.08, spike=0.9), "attacker")
-    from service.loaders import load_mesh
 
     mesh = _check(load_mesh(path), str(path))
     centre = (mesh.vertices.min(0) + mesh.vertices.max(0)) / 2

@@ -22,6 +22,8 @@ from __future__ import annotations
 import ctypes
 from pathlib import Path
 
+import numpy  # noqa: F401  (loads the BLAS library whose threads are set here)
+
 #: Names OpenBLAS builds export its thread-count setter under (numpy's bundled
 #: scipy-openblas adds a prefix and a suffix; a system OpenBLAS has the plain name).
 SETTERS = (
@@ -47,8 +49,6 @@ def single_threaded_blas() -> bool:
 
     A no-op (False) where numpy's BLAS is not a loaded OpenBLAS with a known setter.
     """
-    import numpy  # noqa: F401  (loads the BLAS library, if not loaded already)
-
     done = False
     for path in _loaded_openblas():
         try:

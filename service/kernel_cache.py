@@ -136,7 +136,8 @@ def cache_dir_of(source: Path) -> Path:
     root = os.environ.get("NUMBA_CACHE_DIR")
     if not root:
         return source.parent / "__pycache__"
-    from numba.core.caching import _CacheLocator  # numba's own rule for the sub-folder
+    # deferred: numba's private cache locator, needed only with NUMBA_CACHE_DIR set
+    from numba.core.caching import _CacheLocator
 
     return Path(root) / _CacheLocator.get_suitable_cache_subpath(str(source))
 

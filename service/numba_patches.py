@@ -21,8 +21,11 @@ differs (another numba version), numba is left alone.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import inspect
+import os
+import textwrap
 from collections.abc import Callable
 
 #: sha256 of the ``copy_propagate`` source the replacement reproduces (numba 0.68.1).
@@ -58,6 +61,7 @@ def copy_propagate(blocks: dict, typemap: dict) -> tuple[dict, dict]:
     tuple of dict
         ``(in_copies, out_copies)``: label -> set of ``(lhs, rhs)`` names.
     """
+    # deferred: numba's compiler internals load only when a patch is applied
     from numba.core.ir_utils import compute_cfg_from_blocks, init_copy_propagate_data
 
     cfg = compute_cfg_from_blocks(blocks)
@@ -88,6 +92,7 @@ def faster_copy_propagation() -> bool:
     is the source this module reproduces; numba's stays reachable as
     ``copy_propagate.__wrapped__``.
     """
+    # deferred: numba's compiler internals load only when a patch is applied
     from numba.core import ir_utils
     from numba.parfors import parfor
 
@@ -107,9 +112,8 @@ CACHE_LOCK = ".holo-cache.lock"
 
 def _locked(save: Callable) -> Callable:
     """``save`` run under an exclusive ``flock`` of the cache folder's :data:`CACHE_LOCK`."""
+    # deferred: POSIX only: the module still imports elsewhere
     import fcntl
-    import functools
-    import os
 
     @functools.wraps(save)
     def locked_save(self, key, data) -> None:  # noqa: ANN001 -- numba's own arguments
@@ -144,6 +148,7 @@ def locked_cache_saves() -> bool:
         import fcntl  # noqa: F401 -- POSIX only
     except ImportError:
         return False
+    # deferred: numba's compiler internals load only when a patch is applied
     from numba.core.caching import IndexDataCacheFile
 
     if getattr(IndexDataCacheFile.save, "__wrapped__", None) is None:
@@ -184,8 +189,7 @@ def faster_inlining() -> bool:
     was written against (:data:`INLINE_IR_SHA256`).  Idempotent; numba's method stays
     reachable as ``__wrapped__``.
     """
-    import textwrap
-
+    # deferred: numba's compiler internals load only when a patch is applied
     from numba.core import inline_closurecall as icc
 
     current = icc.InlineWorker.inline_ir

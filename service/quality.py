@@ -30,6 +30,7 @@ measured on the development machine, with its date and machine in ``meta``).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -408,8 +409,6 @@ def motion_kind(scene: Scene) -> str:
 
 def _geometry_key(arrays: SceneArrays) -> bytes:
     """A digest of the flattened geometry (same key: static since the last frame)."""
-    import hashlib
-
     h = hashlib.blake2b(digest_size=16)
     h.update(np.ascontiguousarray(arrays.vertices).tobytes())
     h.update(np.ascontiguousarray(arrays.triangles).tobytes())

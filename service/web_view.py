@@ -71,6 +71,7 @@ class WebSettings:
 def encode_jpeg(rgb: np.ndarray, quality: int = 80) -> bytes:
     """An (R, C, 3) or (R, C) uint8 image as JPEG bytes (pygame's encoder)."""
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    # deferred: pygame (SDL) loads only where a window, pad or picture needs it
     import pygame
 
     if rgb.ndim == 2:

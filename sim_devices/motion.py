@@ -27,6 +27,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Protocol
 
+from drivers.events import PoseEvent
+from drivers.protocols.hatire import HatireDecoder
 from service.base.errors import SettingsError
 
 AXES = ("yaw", "pitch", "roll", "x", "y", "z")
@@ -161,9 +163,6 @@ class Replay:
     def from_hatire_file(cls, path: str | Path, rate_hz: float = 60.0,
                          loop: bool = True) -> Replay:
         """Poses of a raw Hatire capture, spaced at ``rate_hz``."""
-        from drivers.events import PoseEvent
-        from drivers.protocols.hatire import HatireDecoder
-
         try:
             data = Path(path).read_bytes()
         except OSError as exc:

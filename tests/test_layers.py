@@ -226,3 +226,56 @@ def test_the_readme_layout_table_names_every_package_folder():
                       for p in (ROOT / package).rglob("__init__.py")})
     missing = [f for f in folders if f"`{f}/`" not in table]
     assert not missing, f"README's layout table does not name {missing}"
+
+
+def _catches_import_error(handler: ast.ExceptHandler) -> bool:
+    """Whether an ``except`` clause catches ImportError (alone or in a tuple)."""
+    types = handler.type.elts if isinstance(handler.type, ast.Tuple) else [handler.type]
+    return any(isinstance(t, ast.Name) and t.id in ("ImportError", "ModuleNotFoundError")
+               for t in types)
+
+
+def _unexplained_imports(source: str) -> list[int]:
+    """Lines of imports inside functions that give no reason for not being at the top.
+
+    A reason is a ``# deferred: ...`` comment on the import's line or on the line
+    just above its block of imports; an import inside ``try`` with an ``except
+    ImportError`` (an optional dependency) explains itself.
+    """
+    lines = source.splitlines()
+    tree = ast.parse(source)
+    guarded = {n.lineno for t in ast.walk(tree) if isinstance(t, ast.Try)
+               and any(_catches_import_error(h) for h in t.handlers)
+               for b in t.body for n in ast.walk(b) if isinstance(n, ast.Import | ast.ImportFrom)}
+    bad = []
+    for fn in ast.walk(tree):
+        if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        for node in ast.walk(fn):
+            if not isinstance(node, ast.Import | ast.ImportFrom) or node.lineno in guarded:
+                continue
+            above = node.lineno - 1
+            while above > 0 and lines[above - 1].lstrip().startswith(("from ", "import ")):
+                above -= 1
+            said = "# deferred:" in lines[node.lineno - 1] or (
+                above > 0 and lines[above - 1].lstrip().startswith("# deferred:"))
+            if not said:
+                bad.append(node.lineno)
+    return sorted(set(bad))
+
+
+@pytest.mark.parametrize("name", sorted(MODULES))
+def test_imports_inside_functions_say_why(name):
+    path = ROOT / (name.replace(".", "/") + ".py")
+    if not path.exists():
+        path = ROOT / name.replace(".", "/") / "__init__.py"
+    bad = _unexplained_imports(path.read_text())
+    assert not bad, (f"{path.relative_to(ROOT)}: imports inside functions at lines {bad} give no "
+                     "reason (move them to the top, or say '# deferred: why' above them)")
+
+
+def test_the_import_reason_check_catches_a_silent_import():
+    assert _unexplained_imports("def f():\n    import json\n") == [2]
+    assert _unexplained_imports("def f():\n    # deferred: heavy\n    import json\n") == []
+    assert _unexplained_imports(
+        "def f():\n    try:\n        import x\n    except ImportError:\n        x = None\n") == []

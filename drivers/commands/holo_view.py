@@ -109,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run_web(args: argparse.Namespace) -> int:
     """``holo-view --web``: serve the page until Ctrl-C / SIGTERM; the exit status."""
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from service.web_view import WebSettings, serve
 
     settings = WebSettings(control=args.service, frames=args.frames, host=args.host,

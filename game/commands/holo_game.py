@@ -234,6 +234,7 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
 
 
 def _backend(args: argparse.Namespace, settings: object) -> object:
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from game.backends import LocalRenderer, ServiceBackend
 
     if args.local:
@@ -254,6 +255,7 @@ def _backend_settings(args: argparse.Namespace, look: Look) -> FrameSettings:
 
 def _start(args: argparse.Namespace, look: Look, game: GameSettings) -> object:
     """A backend for ``look``, started on the game's scene as its first game begins."""
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from game.rules import new_game
     from game.scene import apply_states, attacker_mesh, game_scene, object_states
     from service.base.errors import ServiceError
@@ -275,6 +277,7 @@ def _start(args: argparse.Namespace, look: Look, game: GameSettings) -> object:
 
 def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
     """``--adapt``: measure looks through the game's own backend and choose one."""
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from game.adapt import AdaptSettings, adapt, measure
     from game.bot import Bot
     from game.rules import new_game, tick
@@ -314,6 +317,7 @@ def _say_busy(why: str) -> None:
 
 
 def _say_waiting(backend: object) -> None:
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from game.client_loop import waiting_lines
 
     warming = getattr(backend, "warming", None)
@@ -328,6 +332,7 @@ def _setup(args: argparse.Namespace) -> tuple:
     With ``--adapt`` the light and size are measured first (:func:`choose_look`);
     ``args.look`` keeps what was used and why (``stats.json``'s ``look``).
     """
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from game.display import GameWindow
     from game.highscores import HighScores
     from game.sound import start_pygame
@@ -343,6 +348,7 @@ def _setup(args: argparse.Namespace) -> tuple:
     backend = _start(args, Look(args.light, tuple(args.size)), game)
     devices = None
     if args.devices:
+        # deferred: --help and usage errors answer before pygame and the numba kernels load
         from drivers.subscriber import DeviceSubscriber
 
         devices = DeviceSubscriber(args.devices)
@@ -365,6 +371,7 @@ def run(args: argparse.Namespace) -> dict:
     The stats are also kept in ``args.stats``, written and closed down even when a
     signal (:func:`~service.base.signals.interruptible`) ends the game.
     """
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from game.capture import Capture
     from game.client_loop import GameClient, LoopSettings
 
@@ -406,6 +413,7 @@ def run(args: argparse.Namespace) -> dict:
 def _finish(args: argparse.Namespace, client: Any, backend: Any, devices: Any, capture: Any,
             start: float, stopped_by: Interrupted | None) -> None:
     """Close down and write the run's files; the stats go to ``args.stats``."""
+    # deferred: pygame (SDL) loads only where a window, pad or picture needs it
     import pygame
 
     stats = client.stats(client.played_s())
@@ -474,6 +482,7 @@ class Progress:
             return
         self._next = now + self.every_s
         if client.first_frame_t is None:
+            # deferred: --help and usage errors answer before pygame and the numba kernels load
             from game.client_loop import waiting_lines
 
             warming = getattr(client.backend, "warming", None)
@@ -486,6 +495,7 @@ class Progress:
 
 
 def _play(args: argparse.Namespace) -> int:
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from game.adapt import NoFrameError
 
     try:

@@ -30,9 +30,11 @@ Two ways to be stopped, both here:
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import signal
 import subprocess
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -210,8 +212,6 @@ def interruptible(prog: str, body: Callable[[], int], err: TextIO | None = None)
     int
         ``body()``'s status, or 130 / 143 (128 + the signal's number).
     """
-    import sys
-
     try:
         with raise_on_signals():
             return body()
@@ -254,8 +254,6 @@ def end_with_parent(parent: int, signum: int) -> bool:
         The signal to get: SIGKILL where nothing needs cleaning up, else SIGTERM.
     """
     try:
-        import ctypes
-
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signum)
     except (OSError, AttributeError):
         return False

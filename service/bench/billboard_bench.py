@@ -56,7 +56,7 @@ from service.loaders import fit_transform, load_mesh
 from service.render.light import LightSettings
 from service.render.occlusion import Visibility
 from service.render.pipeline import Renderer, RenderSettings, warm_up
-from service.render.scene import Scene, SceneObject, Transform, euler_quaternion
+from service.render.scene import Scene, SceneObject, Transform, euler_quaternion, quaternion_matrix
 from service.simplify.billboard import build_cloud
 
 SETTINGS = RenderSettings(method="zbuffer", light=LightSettings("blinn", "polygon"))
@@ -134,16 +134,17 @@ def grazing_rows(mesh, cloud, fit: Transform, display: DisplaySettings, args) ->
 
 
 def _rotation(t: Transform) -> np.ndarray:
-    from service.render.scene import quaternion_matrix
 
     return quaternion_matrix(t.orientation)
 
 
 def charts(build: list, zoom: list, grazing: list, cost: list, out: Path) -> None:
     """Four panels: build, error vs zoom, error vs grazing angle, cost vs size."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 4, figsize=(20, 4.2))

@@ -262,9 +262,11 @@ def _results(
 
 def plot(res: dict[str, Any], times: list[float], path: Path) -> None:
     """Updates per second and the gaps over time, chaos events marked; RSS beside."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4), gridspec_kw={"width_ratios": [3, 1]})

@@ -44,6 +44,7 @@ def _label_boxes(axis: Axis, renderer, minor: bool) -> list[tuple[float, str, Bb
 
 def _drawn(fig: Figure):
     """Draw ``fig`` on an Agg canvas (a closed pyplot figure gets a new one); its renderer."""
+    # deferred: matplotlib loads only when a chart is drawn
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
@@ -68,6 +69,7 @@ def overlapping_ticklabels(fig: Figure) -> list[tuple[str, str, str]]:
 
 def _blank(axis: Axis, minor: bool, values: set[float]) -> None:
     """Make the axis's major or minor formatter return "" at ``values``."""
+    # deferred: matplotlib loads only when a chart is drawn
     from matplotlib.ticker import Formatter
 
     inner = axis.get_minor_formatter() if minor else axis.get_major_formatter()
@@ -125,6 +127,7 @@ def save_chart(fig: Figure, path: Path, dpi: int = 110) -> Figure:
         The figure (closed; it can still be drawn, for checks such as
         :func:`overlapping_ticklabels`).
     """
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig.set_dpi(dpi)  # the labels are measured at the size they are saved at

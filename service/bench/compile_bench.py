@@ -36,11 +36,15 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from numba.core import event
 from numba.core.event import Listener
 
 from service.base.cli_args import exit_rule_epilog
 from service.base.errors import HoloError
 from service.bench.rows import write_csv
+from service.numba_patches import apply_all
+from service.warmup import JOBS, cache_counts
+from service.warmup_job import Kit
 
 #: Budget for the whole cold ``holo-warmup``, wall seconds on 2 quiet cores.
 WHOLE_BUDGET_S = 60.0
@@ -98,12 +102,6 @@ def child(jobs: list[str]) -> dict:
 
     Returns ``{"jobs": [{job, wall_s, cpu_s, kernels}], "kernels": [...]}``.
     """
-    from numba.core import event
-
-    from service.numba_patches import apply_all
-    from service.warmup import JOBS, cache_counts
-    from service.warmup_job import Kit
-
     apply_all()  # as holo-warmup does
     timer = _CompileTimer()
     event.register("numba:compile", timer)
@@ -173,9 +171,11 @@ def run(out_dir: Path, jobs: list[str], with_whole: bool) -> dict:
 
 def chart(res: dict, path: Path) -> None:
     """Per job wall and CPU seconds (budget line), and the costliest kernels' CPU seconds."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     jobs = res["jobs"]
@@ -209,8 +209,6 @@ def chart(res: dict, path: Path) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``holo-bench compile``."""
-    from service.warmup import JOBS
-
     p = argparse.ArgumentParser(
         prog="holo-bench compile",
         description="Seconds (wall and CPU) each warm-up job and each numba kernel takes "
@@ -230,8 +228,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point."""
-    from service.warmup import JOBS
-
     args = build_parser().parse_args(argv)
     jobs = [n for n in JOBS if args.job is None or n in args.job]
     if args.child:

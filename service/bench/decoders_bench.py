@@ -20,16 +20,15 @@ from pathlib import Path
 from drivers.protocols import make_decoder
 from drivers.protocols import sgi_dialbox as sgi
 from service.base.cli_args import exit_rule_epilog, float_range, int_range
+from sim_devices.faults import FaultInjector, FaultSpec, Write
+from sim_devices.motion import make_motion
+from sim_devices.tracker import TrackerSim
 
 TARGET_MB_S = 1.0
 
 
 def tracker_stream(protocol: str, seconds: float, faults: str) -> bytes:
     """Bytes a simulated tracker sends in ``seconds`` at 1 kHz through ``faults``."""
-    from sim_devices.faults import FaultInjector, FaultSpec, Write
-    from sim_devices.motion import make_motion
-    from sim_devices.tracker import TrackerSim
-
     sim = TrackerSim(protocol, make_motion("walk", seed=1, noise_deg=0.1), rate_hz=1000)
     inj = FaultInjector(FaultSpec.parse(faults))
     return b"".join(a.data for _t, make in sim.frames(seconds) for a in inj.apply(make())
@@ -38,8 +37,6 @@ def tracker_stream(protocol: str, seconds: float, faults: str) -> bytes:
 
 def dial_stream(packets: int, faults: str) -> bytes:
     """Dial-box bytes: mostly dial reports, one button event in ten."""
-    from sim_devices.faults import FaultInjector, FaultSpec, Write
-
     inj = FaultInjector(FaultSpec.parse(faults))
     out = []
     for i in range(packets):

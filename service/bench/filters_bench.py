@@ -352,9 +352,11 @@ SIM_PANELS = (
 
 def sim_chart(rows: list[dict], path: Path, lead_ms: float) -> Figure:
     """Three panels of jitter (or prediction error) against lag on simulated motion."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(18, 5.5))
@@ -371,9 +373,11 @@ def sim_chart(rows: list[dict], path: Path, lead_ms: float) -> Figure:
 
 def capture_chart(rows: list[dict], path: Path) -> Figure:
     """Velocity noise against lag on the recorded Hatire capture (no truth)."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 5.5))
@@ -398,9 +402,11 @@ def charts(rows: list[dict], out: Path, lead_ms: float, has_capture: bool) -> li
 
 def trace_chart(ds: Dataset, out: Path) -> Path:
     """Yaw and yaw rate through the first head turn for one setting of each filter."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     picks = {

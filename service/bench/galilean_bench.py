@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from drivers.filters import AlphaBetaGammaSettings, run_filter
 from service.base.cli_args import (
     add_size_option,
     exit_rule_epilog,
@@ -74,11 +75,12 @@ from service.galilean.fixed_point import (
     propagate_points,
 )
 from service.galilean.local_update import obscurers, render_local
-from service.galilean.motion_field import render_with_motion
+from service.galilean.motion_field import render_with_motion, vertex_derivatives
 from service.galilean.shadow import shadow_depth
 from service.galilean.stage import GalileanSettings, GalileanStage, margin_display
 from service.primitives import cube, sphere
 from service.render.light import LightSettings
+from service.render.mesh import Mesh
 from service.render.pipeline import Renderer, RenderSettings, warm_up
 from service.render.scene import (
     Light,
@@ -90,6 +92,7 @@ from service.render.scene import (
     axis_angle_quaternion,
 )
 from service.scene_motion import advance_scene, control_points, view_scene
+from sim_devices.motion import HeadTurn
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -145,8 +148,6 @@ def _studs() -> list[SceneObject]:
 
 def bar_scene() -> Scene:
     """A thin near bar sweeping fast across the far wall (what the obscuration cache is for)."""
-    from service.render.mesh import Mesh
-
     c = cube(1.0)
     bar_mesh = Mesh(c.vertices * np.array([0.1, 1.6, 0.1]), c.polygons, c.counts, "bar")
     wall = bench_scene("head-turn").objects[0]
@@ -158,9 +159,6 @@ def bar_scene() -> Scene:
 
 def head_track(frames: int, noise_deg: float = 0.05, seed: int = 3):
     """True yaw (rad) per refresh, and filtered (yaw, rate, accel) per refresh, per second."""
-    from drivers.filters import AlphaBetaGammaSettings, run_filter
-    from sim_devices.motion import HeadTurn
-
     head = HeadTurn(amplitude=25.0, turn_s=1.0, hold_s=0.5)
     t = 0.25 + np.arange(frames) / HZ
     yaw = np.array([head.pose(float(x)).yaw for x in t])
@@ -388,9 +386,11 @@ def shadow_timing(size: tuple[int, int], settings: RenderSettings, repeats: int 
 
 def chart_timing(tm: dict, path: Path) -> Figure:
     """Bar chart: ms per refresh per order against the render of the same frame."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     keys = list(tm["orders"])
@@ -575,9 +575,11 @@ def chart_complexity(cx: dict, path: Path) -> Figure:
     path : Path
         PNG to write.
     """
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     tri = [s["triangles"] for s in cx["steps"]]
@@ -630,9 +632,11 @@ def thought_experiments() -> dict:
 # ------------------------------------------------------------------ charts
 def chart_sweep(rows: list[dict], path: Path) -> None:
     """PSNR vs interval (one panel per motion, a line per order) and PSNR vs ms."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     motions = [m for m in MOTIONS if any(r["motion"] == m for r in rows)]
@@ -659,9 +663,11 @@ def chart_sweep(rows: list[dict], path: Path) -> None:
 
 def chart_thought(te: dict, path: Path) -> None:
     """Falling-object errors, rotating-square size, tracker errors."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
@@ -701,8 +707,6 @@ def _vertex_motion(scene: Scene, t: float, display: DisplaySettings, obj: int, h
 
     Positions are in pixel-index units (pixel ``c`` is centred on ``c``), as galpixels are.
     """
-    from service.galilean.motion_field import vertex_derivatives
-
     projs = [control_points(scene, t + k * h / HZ, display) for k in (-2, -1, 0, 1, 2)]
     owner = projs[0][1] == obj
     p = np.stack([pr[0][0, owner, :2] for pr in projs]) - 0.5

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.filters import AlphaBetaGammaSettings, run_filter
 from service.base.errors import SettingsError
 from service.galilean.fixed_point import (
     FixedPoint,
@@ -36,6 +37,7 @@ from service.galilean.fixed_point import (
     points_fixed,
     propagate_points,
 )
+from sim_devices.motion import HeadTurn
 
 #: A case: t (refreshes) -> (positions (N, K), derivatives (3, N, K)).
 Case = Callable[[float], tuple[np.ndarray, np.ndarray]]
@@ -205,9 +207,6 @@ def tracker_head_turn(
         t -> (position (1, 1), derivatives (3, 1, 1)): what an update carries
         (the render uses the tracked pose and its estimated derivatives).
     """
-    from drivers.filters import AlphaBetaGammaSettings, run_filter
-    from sim_devices.motion import HeadTurn
-
     head = HeadTurn(amplitude=60.0, turn_s=1.0, hold_s=0.5)
     t = np.arange(frames + 4) / hz
     yaw = np.radians([head.pose(float(x)).yaw for x in t])

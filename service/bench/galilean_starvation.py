@@ -15,6 +15,7 @@ gap, side by side on the same render:
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -90,9 +91,11 @@ def starve(update: RenderedUpdate, truth: Callable[[int], np.ndarray], motion: s
 
 def chart(rows: list[dict], n_prop: int, hz: float, path: Path) -> None:
     """% of pixels wrong and PSNR against seconds without a render, a column per motion."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     motions = list(dict.fromkeys(r["motion"] for r in rows))
@@ -133,8 +136,6 @@ def summary(rows: list[dict]) -> list[dict]:
 
 def write(rows: list[dict], n_prop: int, hz: float, out: Path) -> dict:
     """``galilean_starvation.json`` / ``.csv`` / ``.png`` in ``out``; returns the JSON."""
-    import json
-
     doc = {"refresh_hz": hz, "n_prop": n_prop, "summary": summary(rows), "rows": rows}
     (out / "galilean_starvation.json").write_text(json.dumps(doc, indent=1))
     write_csv(rows, out / "galilean_starvation.csv")

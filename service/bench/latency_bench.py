@@ -426,9 +426,11 @@ def plot(curves: dict[str, np.ndarray], path: Path, title: str) -> None:
 
     On the right the p99 of a curve is where it crosses the 1 % line.
     """
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
     import matplotlib.ticker
 

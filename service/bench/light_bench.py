@@ -158,9 +158,11 @@ def chart(rows: list[dict], path: Path) -> Figure:
     so each point is told apart without reading its label); hollow markers are 1
     zone, filled ones more, and each point is labelled with its zone count (``5z``).
     """
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     scenes = sorted({r["scene"] for r in rows})
@@ -189,6 +191,7 @@ def chart(rows: list[dict], path: Path) -> Figure:
 
 def _legend_handles() -> list:
     """Proxy artists: one per light model (colour) and one per evaluation (marker)."""
+    # deferred: matplotlib loads only when a chart is drawn
     from matplotlib.lines import Line2D
 
     models = [Line2D([], [], ls="", marker="o", color=c, label=f"{m} light")
@@ -200,6 +203,7 @@ def _legend_handles() -> list:
 
 def _log_ticks(ax, values: list[float]) -> None:
     """Plain-number ticks on a log x axis, denser when the data span less than a decade."""
+    # deferred: matplotlib loads only when a chart is drawn
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     positive = [v for v in values if v > 0]

@@ -271,6 +271,7 @@ def _lod_columns(frame) -> dict:
 
 def charts(levels: list[dict], crowd: list[dict], out: Path) -> None:
     """``lod_levels.png`` and ``lod_build.png`` (with level rows), ``lod_crowd.png``."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
@@ -282,6 +283,7 @@ def charts(levels: list[dict], crowd: list[dict], out: Path) -> None:
 
 def level_charts(levels: list[dict], out: Path) -> None:
     """``lod_levels.png`` and ``lod_build.png``."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     names = list(dict.fromkeys(r["mesh"] for r in levels))
@@ -330,6 +332,7 @@ def level_charts(levels: list[dict], out: Path) -> None:
 
 def crowd_chart(crowd: list[dict], out: Path) -> None:
     """``lod_crowd.png``: CPU ms and % pixels differing, LOD off, on, on with a budget."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))

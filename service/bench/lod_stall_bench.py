@@ -111,9 +111,11 @@ def one_round(mode: str, mesh: Mesh, draw) -> dict:
 
 def chart(rows: list[dict], out: Path) -> None:
     """``lod_stall.png``: share of frames slower than x ms, per mode (all rounds)."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.2))

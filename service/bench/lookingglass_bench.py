@@ -23,6 +23,7 @@ import numba
 import numpy as np
 
 from service.base.cli_args import exit_rule_epilog, int_range
+from service.bench.charts import save_chart
 from service.lookingglass import Interleaver, load_calibration
 
 TARGET_MS = 2.0
@@ -77,9 +78,9 @@ def run(out_dir: Path, repeat: int, calibration: Path = EXAMPLE) -> dict:
 
 
 def _chart(report: dict, path: Path) -> None:
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
-    from service.bench.charts import save_chart
 
     threads = [int(t) for t in report["threads"]]
     fig, ax = plt.subplots(figsize=(6, 4))

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.base.errors import HoloError
+from service.bench.galilean_bench import complexity_scene
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.render.pipeline import Renderer, RenderSettings
@@ -75,7 +76,6 @@ class PeerUnavailable(HoloError):
 def peer_scene(name: str) -> Scene:
     """A built-in scene, or one of :data:`BIG_SCENES` (the Galilean complexity scene)."""
     if name in BIG_SCENES:
-        from service.bench.galilean_bench import complexity_scene
 
         return complexity_scene(BIG_SCENES[name], DisplaySettings())
     return builtin_scene(name)

@@ -25,9 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from service.base.cli_args import add_size_option, exit_rule_epilog
+from service.bench.galilean_bench import sweep
 from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
+from service.galilean.motion_field import render_with_motion
 from service.quality import (
     OCCLUSION,
     SPECULAR,
@@ -126,8 +128,6 @@ def calibrate(repeats: int = 5, galilean_frames: int = 17,
 
 def update_factor(repeats: int, size: tuple[int, int] = (160, 120)) -> float:
     """How many renders' time an update for the Galilean stage costs (render_with_motion)."""
-    from service.galilean.motion_field import render_with_motion
-
     scene, d, r = builtin_scene("game"), DisplaySettings(zones=1, cols=size[0], rows=size[1]), \
         Renderer()
     plain, full = [], []
@@ -139,8 +139,6 @@ def update_factor(repeats: int, size: tuple[int, int] = (160, 120)) -> float:
 
 def galilean_table(frames: int, size: tuple[int, int] = (64, 48)) -> list[dict]:
     """The Galilean benchmark's order x interval sweep at a small size, one zone."""
-    from service.bench.galilean_bench import sweep
-
     d = DisplaySettings(zones=1, cols=size[0], rows=size[1])
     rows = sweep(d, frames, RenderSettings(light=LightSettings("blinn")))
     return [{**r, "pixels": size[0] * size[1]} for r in rows]

@@ -23,7 +23,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from service.base.cli_args import add_size_option, comma_list, exit_rule_epilog, plain_help, size
+from service.bench import peers as pr
 from service.bench.charts import save_chart
+from service.bench.peers import plot_peers
 from service.bench.rows import write_rows, zones_label
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
@@ -150,9 +152,11 @@ def zone_cost(
 
 def chart_zone_cost(rows: list[dict], path: Path) -> Figure:
     """Stacked bars: milliseconds per stage against the zone count."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.5, 4))
@@ -214,9 +218,11 @@ def chart_methods(rows: list[dict], path: Path, peer_rows: list[dict] = ()) -> F
     ``peer_rows`` (from :func:`service.bench.peers.compare`) add each peer as a dashed
     grey reference line.
     """
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     scenes = sorted({r["scene"] for r in rows})
@@ -243,7 +249,6 @@ def chart_methods(rows: list[dict], path: Path, peer_rows: list[dict] = ()) -> F
                     xytext=(3, 3),
                 )
         if peer_rows:
-            from service.bench.peers import plot_peers
 
             plot_peers(ax, list(peer_rows), scene)
         ax.set_xscale("log")
@@ -262,9 +267,11 @@ def chart_sweep(rows: list[dict], key: str, path: Path, title: str) -> Figure:
     Two errors on a log scale: at the zone centres (the sort's mistakes) and for a
     viewer anywhere in the angle (plus the zones' coarseness).
     """
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.5, 4))
@@ -387,8 +394,6 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
     chart's reference lines), then the big peer scenes at 1 and 5 zones and the peer
     sizes.  A peer that cannot start is named with its reason, and the rest go on.
     """
-    from service.bench import peers as pr
-
     started, reasons = pr.start_peers()
     for name, why in reasons.items():
         print(f"peer {name} not measured: {why}", file=sys.stderr)
@@ -418,9 +423,11 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
 
 def chart_peers(rows: list[dict], path: Path) -> Figure:
     """Bars: our ms / the peer's ms per configuration (below 1: we are faster)."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     labels = sorted({(r["scene"], r["zones"], r["size"]) for r in rows},

@@ -22,6 +22,7 @@ numba cache on two quiet cores); without it, the benchmarks' own defaults at
 from __future__ import annotations
 
 import argparse
+import ast
 import base64
 import contextlib
 import csv
@@ -39,6 +40,7 @@ from pathlib import Path
 from service.base.cli_args import exit_rule_epilog, plain_help
 from service.base.cli_args import size as size_type
 from service.base.errors import HoloError
+from service.bench.filters_bench import COLUMNS, wide
 from service.bench.picks import (
     BUDGET_PCT,
     Pick,
@@ -50,6 +52,8 @@ from service.bench.picks import (
 )
 from service.bench.rows import zones_label
 from service.bench.staging import MANIFEST, move_into_place, owned_entries, staging_folder
+from service.commands.holo_bench import BENCHES
+from service.warmup import warm_up
 
 
 @dataclass(frozen=True)
@@ -434,8 +438,6 @@ LATENCY_STATS = ("p50_ms", "p95_ms", "p99_ms", "max_ms")
 
 def filters_table(out: Path) -> Table:
     """Pose filters: one row per filter setting, the columns ``holo-bench filters`` prints."""
-    from service.bench.filters_bench import COLUMNS, wide
-
     rows = (_load(out / "results.json") or {}).get("rows", [])
     body = [[_cell_as(r.get(key), fmt) for key, _, fmt in COLUMNS] for r in wide(rows)]
     return Table([head for _, head, _ in COLUMNS], body,
@@ -578,8 +580,6 @@ FAILURES = (
 
 def test_exists(node_id: str, root: Path) -> bool:
     """Whether ``path::test_name`` names a test function defined at the top of its file."""
-    import ast
-
     path, _, name = node_id.partition("::")
     file = root / path
     if not name or not file.is_file():
@@ -760,8 +760,6 @@ def compile_ahead() -> str:
     On an empty cache the kernels compile about twice as fast on two cores as one
     benchmark after another would (:func:`service.warmup.warm_up`); cached, seconds.
     """
-    from service.warmup import warm_up
-
     print("[report] numba kernels: compiling or loading ahead", file=sys.stderr, flush=True)
     rep = warm_up(processes=2)
     return (f"Numba kernels compiled ahead in two processes: {rep.compiled} of {rep.total} "
@@ -787,8 +785,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run_all(args: argparse.Namespace, work: Path) -> tuple[list[Outcome], dict]:
     """Every planned benchmark into ``work/NAME/``; the outcomes and the page's meta."""
-    from service.commands.holo_bench import BENCHES
-
     plans = [pl for pl in PLANS if args.only is None or pl.bench in args.only.split(",")]
     planned = {n for pl in PLANS for n in (pl.bench, *ALIASES.get(pl.bench, ()))}
     planned |= set(RUN_INSIDE)

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from drivers.protocols import native
 from service.base.cli_args import comma_list, exit_rule_epilog, float_range, int_range, plain_help
 from service.bench import chaos_bench
 from service.bench.charts import save_chart
@@ -290,6 +291,7 @@ class FrameStamps(threading.Thread):
 
 def _devices(pub: str) -> tuple[subprocess.Popen, int]:
     """``holo-devices`` reading the slave side of a fresh pty; returns (proc, master fd)."""
+    # deferred: POSIX only: the module still imports elsewhere
     import tty
 
     master, slave = os.openpty()
@@ -365,8 +367,6 @@ def bench_motion_to_photon(n: int, rate_hz: float = 20.0, io_threads: int = 2) -
 
 def _warm_up_poses(master: int, frames: FrameStamps, timeout_s: float = 30.0) -> int:
     """Write poses until frames carry one (device and service connected); next seq."""
-    from drivers.protocols import native
-
     k, start = 1, time.monotonic()
     while time.monotonic() - start < timeout_s and not any(s for _, s in frames.stamps):
         os.write(master, native.encode_pose(k, k * 1000, (0.0, 0.0, 600.0), (1.0, 0, 0, 0)))
@@ -442,8 +442,6 @@ def _send_poses(master: int, k0: int, n: int, rate_hz: float, sent: list[tuple[i
     every phase of the service's refresh ticks (a rate commensurate with the
     refresh rate would sample one phase only).
     """
-    from drivers.protocols import native
-
     period, start, late = 1.0 / rate_hz, time.monotonic(), []
     tick = threading.Event()
     rng = np.random.default_rng(5)
@@ -463,9 +461,11 @@ def _send_poses(master: int, k0: int, n: int, rate_hz: float, sent: list[tuple[i
 # --------------------------------------------------------------- reporting
 def plot(res: dict[str, Any], path: Path) -> None:
     """Four panels: transport, round trip, workers, motion-to-photon CDF."""
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(2, 2, figsize=(11, 8))

@@ -199,9 +199,11 @@ def chart(rows: list[dict], service: list[dict], path: Path) -> None:
     The last column shows the service's SIRD cost per refresh and every method's
     streak pixels relative to ``row``'s.
     """
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
     import matplotlib.pyplot as plt
 
     colours = {"row": "tab:red", "interpolated": "tab:blue", "tiw": "tab:green"}

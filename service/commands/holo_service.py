@@ -228,6 +228,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _start(args: argparse.Namespace) -> Service | None:
     """The service, its sockets bound; None when it cannot start (said on stderr)."""
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from service.net.server import Service
 
     try:
@@ -249,6 +250,7 @@ def _start(args: argparse.Namespace) -> Service | None:
 
 def _config(args: argparse.Namespace) -> ServiceConfig:
     """The service's settings from the command line."""
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from service.net.state import ServiceConfig
 
     return ServiceConfig(

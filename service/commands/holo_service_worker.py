@@ -77,6 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: {problem}", file=sys.stderr)
         return EXIT_USAGE
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see service.commands.holo_service.main
+    # deferred: --help and usage errors answer before pygame and the numba kernels load
     from service.net.worker import Worker
     from service.process import setup_frame_process
 
@@ -87,6 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with raise_on_signals():
             if args.warm_up:
+                # deferred: --help answers before the numba kernels load
                 from service.render.pipeline import warm_up
 
                 print(f"{PROG}: loading the render kernels", file=sys.stderr, flush=True)

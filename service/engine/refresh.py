@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
+from service.autostereogram.output import SirdOutput
 from service.engine.state import EngineState, Settings
 from service.galilean import GalileanSettings, GalileanStage
 
@@ -24,7 +25,6 @@ def _sird_output(settings: Settings) -> Any:
     """The ``autostereogram`` encoding's state for these settings, or None when it is off."""
     if "autostereogram" not in settings.encodings:
         return None
-    from service.autostereogram.output import SirdOutput
 
     d = settings.display
     return SirdOutput(d.cols, d.rows, d.width, settings.sird_method, settings.sird_eye_sep)

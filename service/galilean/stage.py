@@ -34,7 +34,13 @@ import numpy as np
 from service.base.errors import SettingsError
 from service.display import DisplaySettings
 from service.galilean.finish import finish
-from service.galilean.fixed_point import Z_EMPTY, FixedPoint, bit_budget, propagate_points
+from service.galilean.fixed_point import (
+    Z_EMPTY,
+    FixedPoint,
+    bit_budget,
+    points_fixed,
+    propagate_points,
+)
 from service.galilean.galpixmap import FIELDS, GalileanError, Galpixmap, build
 from service.galilean.head_motion import apply_viewer_motion
 from service.galilean.local_update import check_points, graft
@@ -817,8 +823,6 @@ def prediction_errors(
     ndarray, shape (order + 1,)
         Maximum distance in px per order.
     """
-    from service.galilean.fixed_point import points_fixed
-
     out = np.zeros(order + 1)
     for n in range(order + 1):
         x, v, a, j = points_fixed(points, derivs, fixed, n)

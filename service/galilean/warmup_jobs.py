@@ -35,7 +35,8 @@ def _galilean_kernels(kit: Kit) -> None:
 
     The maps are laid out as ``stitch`` lays out a band render's (each field a
     C-contiguous copy), so the scatter, finish, show and head-motion kernels compile
-    for the types :func:`service.engine.warmup_jobs._galilean_service` then loads them with.  Run beside the
+    for the types the engine's service-refresh job
+    (:mod:`service.engine.warmup_jobs`) then loads them with.  Run beside the
     ``FIRST`` jobs in the second process (see :data:`EARLY`).
     """
     stage = GalileanStage(kit.display, GalileanSettings(order=2, refresh_hz=60.0))

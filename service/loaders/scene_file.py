@@ -22,6 +22,7 @@ from service.base.errors import MeshFileError, SettingsError
 from service.billboard_render import BillboardObject
 from service.loaders._build import decode_text, read_bytes
 from service.primitives import PRIMITIVES
+from service.quality import MODES, parse_budget
 from service.render.mesh import Mesh
 from service.render.scene import (
     Light,
@@ -244,8 +245,6 @@ def load_scene_file(path: str | Path, load_mesh: Callable[[Path], Mesh]) -> Scen
 
 def _quality(path: Path, table: object) -> dict:
     """The ``[quality]`` table: ``mode`` ("fixed", "auto"), ``max_error`` (0.5, "0.5%", "40dB")."""
-    from service.quality import MODES, parse_budget
-
     if not isinstance(table, dict):
         raise MeshFileError(str(path), "quality", "quality must be a table")
     unknown = sorted(set(table) - set(QUALITY_KEYS))

@@ -22,6 +22,10 @@ from service.lod.chain import LodChain, build_uncached, mesh_key
 from service.lod.settings import CACHE_ENV, CHAIN_VERSION, LodCacheWarning, LodSettings, Progress
 from service.npy_file import read_npz
 from service.render.mesh import Mesh
+from service.simplify.cloud_file import (
+    load_cloud,
+    save_cloud,  # deferred: as load's
+)
 
 
 def cache_dir() -> Path:
@@ -141,6 +145,7 @@ def _lock_path(path: Path, blocking: bool) -> BinaryIO | None:
     another process holds it.  Raises ImportError without ``fcntl``, OSError when the
     file cannot be opened.
     """
+    # deferred: POSIX only: the module still imports elsewhere
     import fcntl
 
     while True:
@@ -191,7 +196,6 @@ def write_chain(folder: Path, chain: LodChain) -> None:
     arrays = {}
     for k, m in enumerate(chain.levels[1:], start=1):
         if chain.kinds[k] == "billboard":
-            from service.simplify.cloud_file import save_cloud  # deferred: as load's
             tmp_cloud = folder / f".{chain.key}.b{k}.{os.getpid()}.tmp.hbc"
             save_cloud(m, tmp_cloud)
             os.replace(tmp_cloud, folder / f"{chain.key}.b{k}.hbc")
@@ -248,7 +252,6 @@ def _parse_cache(folder: Path, key: str, mesh: Mesh, head: dict) -> LodChain:
         if kinds[k] == "billboard":
             # deferred: clouds import the compiled simplifier, which a build child
             # that cannot load it must report as a LodError (chain._decimated)
-            from service.simplify.cloud_file import load_cloud
 
             levels.append(load_cloud(folder / f"{key}.b{k}.hbc"))
             continue

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.billboard_render import BillboardObject
 from service.display import DisplaySettings
 from service.lod.builds import ChainBuilds
 from service.lod.cache import build_chain, cache_dir, read_chain
@@ -285,7 +286,6 @@ class LodState:
             if lv == 0:
                 out.append(o)
             elif chain.kinds[lv] == "billboard":
-                from service.billboard_render import BillboardObject
 
                 boards.append(BillboardObject(chain.levels[lv], o.material, o.transform, o.name))
             else:

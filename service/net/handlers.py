@@ -15,16 +15,19 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from service.autostereogram import SirdSettings, default_eye_sep
 from service.base.errors import HoloError, MeshFileError, MessageError, SettingsError
+from service.builtin_scenes import builtin_scene
 from service.display import MAX_PIXELS, DisplaySettings
 from service.engine.state import Settings, State
 from service.engine.viewer import VIEWER_POSE_FIELDS
+from service.loaders import load_scene as load_mesh_file
 from service.net import protocol, wire
 from service.net.settings_wire import display_from_wire, render_from_wire
 from service.net.state import ENCODINGS, MAX_INDEX, SIRD_METHODS, ServiceState
 from service.quality import MODES as QUALITY_MODES
 from service.quality import parse_budget
-from service.render.scene import Scene
+from service.render.scene import Scene, SceneObject
 from service.scene_motion import advance_scene
 
 
@@ -82,7 +85,6 @@ def load_scene(st: ServiceState, req: dict[str, Any]) -> tuple:
 def load_object(st: ServiceState, req: dict[str, Any]) -> tuple:
     """Add one object (``path`` or inline ``object``) to the scene."""
     if "path" in req:
-        from service.render.scene import SceneObject
 
         mesh_scene = _load_path(wire.string(req["path"], "path"), st.config.scene_dirs)
         if not mesh_scene.objects:  # a lone billboard cloud (.hbc) has no mesh object
@@ -240,8 +242,6 @@ HANDLERS: dict[str, Callable[[ServiceState, dict[str, Any]], tuple | None]] = {
 
 def load_builtin(name: str) -> Scene:
     """A builtin scene by name; an unknown name is ``not_found``."""
-    from service.builtin_scenes import builtin_scene
-
     try:
         return builtin_scene(name)
     except SettingsError as exc:
@@ -250,8 +250,6 @@ def load_builtin(name: str) -> Scene:
 
 def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
     """Load a scene or mesh file; with ``roots``, only from inside those directories."""
-    from service.loaders import load_scene
-
     if roots:
         real = Path(path).resolve()
         if not any(real.is_relative_to(Path(r).resolve()) for r in roots):
@@ -259,7 +257,7 @@ def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
     if not Path(path).is_file():
         raise MessageError("not_found", f"no such file: {path}")
     try:
-        scene = load_scene(path)
+        scene = load_mesh_file(path)
     except MeshFileError as exc:
         raise MessageError("not_found", str(exc)) from exc
     return scene
@@ -301,8 +299,6 @@ def _encodings(v: Any) -> tuple[str, ...]:
 
 def _check_sird(cols: int, eye_sep: float) -> None:
     """Refuse an autostereogram the eyes cannot fuse (``bad_settings``)."""
-    from service.autostereogram import SirdSettings, default_eye_sep
-
     try:
         SirdSettings(eye_sep=eye_sep or default_eye_sep(cols)).check_width(cols)
     except SettingsError as exc:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from drivers.subscriber import DeviceSubscriber
 from service.engine.refresh import RefreshLoop
 from service.engine.state import Settings
 from service.net.state import ServiceState
@@ -48,7 +49,6 @@ class ServiceRefresh(RefreshLoop):
             state.viewer.pick_zone(settings.display)
 
     def _connect(self, address: str | None) -> None:
-        from drivers.subscriber import DeviceSubscriber
 
         if self.sub is not None:
             self.sub.close()

@@ -371,7 +371,6 @@ class Service:
 
 # ------------------------------------------------------------------ helpers
 def _pid() -> int:
-    import os
 
     return os.getpid()
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from service.base.errors import SettingsError
+from service.builtin_scenes import canonical_scene_name
 from service.display import DisplaySettings
 from service.engine.state import EngineState, Settings, State
 from service.galilean import GalileanSettings
@@ -101,7 +102,6 @@ def check_config(config: ServiceConfig) -> None:
         if not ok(value):
             raise SettingsError(f"{name} must be {want}, got {value!r}")
     if config.scene is not None:
-        from service.builtin_scenes import canonical_scene_name
 
         canonical_scene_name(config.scene)
     GalileanSettings(order=2, refresh_hz=config.refresh_hz)

@@ -21,9 +21,12 @@ import numpy as np
 import zmq
 
 from service.base.errors import MeshError, MessageError, SettingsError
+from service.billboard_render import BillboardObject
 from service.render.mesh import MAX_POLYGONS as MESH_MAX_POLYGONS
 from service.render.mesh import Mesh
 from service.render.scene import Light, Material, MotionState, Scene, SceneObject, Transform
+from service.simplify.billboard import BillboardCloud
+from service.simplify.cloud_file import array_problem, arrays_problem
 
 #: pyzmq copies frames below this size anyway; larger ones go zero-copy.
 ZERO_COPY_BYTES = 65536
@@ -419,9 +422,6 @@ def cloud_from_wire(spec: Any, name: str) -> Any:
     MessageError
         ``bad_message`` / ``bad_array`` / ``too_large`` naming the field.
     """
-    from service.simplify.billboard import BillboardCloud
-    from service.simplify.cloud_file import array_problem, arrays_problem
-
     if not isinstance(spec, dict):
         raise MessageError("bad_message", f"{name} must be an object")
     planes = spec.get("planes")
@@ -454,8 +454,6 @@ def billboard_from_wire(spec: Any, name: str, clouds: dict[int, Any]) -> Any:
     ``cloud_ref`` names an earlier entry of ``billboards`` whose cloud it shares.
     Billboard clouds carry no motion.
     """
-    from service.billboard_render import BillboardObject
-
     if not isinstance(spec, dict):
         raise MessageError("bad_message", f"{name} must be an object")
     if "cloud_ref" in spec:

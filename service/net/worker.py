@@ -34,8 +34,10 @@ import zmq
 
 from service.engine.jobs import StatsRenderer, render_job
 from service.net import protocol, wire
+from service.net.client import _curve_client
+from service.numba_patches import locked_cache_saves
 from service.process import setup_frame_process
-from service.render.pipeline import Renderer
+from service.render.pipeline import Renderer, warm_up
 
 #: an idle worker's message to the broker (with ``{"pid", "jobs", "heartbeat_s"}``).
 READY = b"READY"
@@ -85,7 +87,6 @@ class Worker:
     """
 
     def __init__(self, address: str, curve_keys: str | None = None) -> None:
-        from service.net.client import _curve_client
 
         self.ctx = zmq.Context()
         self.sock = self.ctx.socket(zmq.DEALER)
@@ -171,11 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.nice > 0:
         os.nice(args.nice)
     worker = Worker(args.connect, args.curve_keys)
-    from service.numba_patches import locked_cache_saves
 
     locked_cache_saves()  # a service's background compile may write the same cache
     if args.warm_up:
-        from service.render.pipeline import warm_up
 
         warm_up()
     try:

@@ -20,6 +20,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from service.base.errors import MeshError
+from service.normals_kernel import corner_normals_kernel, edges_closed_kernel, newell_normals_kernel
 
 
 @dataclass(frozen=True)
@@ -442,7 +443,6 @@ def edges_closed(polygons: np.ndarray, counts: np.ndarray, n_vertices: int) -> b
     """
     if polygons.shape[0] == 0:
         return False
-    from service.normals_kernel import edges_closed_kernel
 
     return bool(
         edges_closed_kernel(
@@ -490,8 +490,6 @@ def polygon_normals(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarr
     ndarray, shape (P, 3), float64
         Unit normals; zero vectors for degenerate polygons.
     """
-    from service.normals_kernel import newell_normals_kernel
-
     return newell_normals_kernel(
         np.ascontiguousarray(vertices, np.float64),
         np.ascontiguousarray(polygons, np.int64),
@@ -546,8 +544,6 @@ def corner_normals(
     ndarray, shape (T, 3, 3), float64
         Unit normal at each corner of each triangle.
     """
-    from service.normals_kernel import corner_normals_kernel
-
     # weld coincident vertex positions so loaders that repeat vertices still share normals
     _, weld = np.unique(np.round(vertices, 9), axis=0, return_inverse=True)
     weld = weld.reshape(-1).astype(np.int64)

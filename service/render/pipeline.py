@@ -27,13 +27,14 @@ from service.render.cull import CullSettings, cull_zones
 from service.render.depth_sort import depth_order
 from service.render.frame import Frame
 from service.render.light import LightSettings, mark_shown, shade
+from service.render.mesh import Mesh
 from service.render.occlusion import Visibility
 from service.render.occlusion.bsp import BspCache, bsp
 from service.render.occlusion.raycast import raycast
 from service.render.occlusion.runlength import runlength
 from service.render.occlusion.zbuffer import zbuffer
 from service.render.projection import project_tables
-from service.render.scene import Scene, SceneArrays
+from service.render.scene import Scene, SceneArrays, SceneObject
 
 OcclusionFn = Callable[[SceneArrays, np.ndarray, DisplaySettings, np.ndarray], Visibility]
 
@@ -250,8 +251,5 @@ def warm_up(settings: RenderSettings | None = None) -> None:
     Renders a one-triangle scene with the same settings, so timings of the next real
     render measure the work and not the compiler.
     """
-    from service.render.mesh import Mesh
-    from service.render.scene import SceneObject
-
     tri = Mesh.from_triangles([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.1]], [[0, 1, 2]])
     Renderer().render(Scene([SceneObject(tri)]), DisplaySettings(zones=2, cols=8, rows=8), settings)
