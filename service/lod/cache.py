@@ -22,10 +22,6 @@ from service.lod.chain import LodChain, build_uncached, mesh_key
 from service.lod.settings import CACHE_ENV, CHAIN_VERSION, LodCacheWarning, LodSettings, Progress
 from service.npy_file import read_npz
 from service.render.mesh import Mesh
-from service.simplify.cloud_file import (
-    load_cloud,
-    save_cloud,  # deferred: as load's
-)
 
 
 def cache_dir() -> Path:
@@ -196,6 +192,7 @@ def write_chain(folder: Path, chain: LodChain) -> None:
     arrays = {}
     for k, m in enumerate(chain.levels[1:], start=1):
         if chain.kinds[k] == "billboard":
+            from service.simplify.cloud_file import save_cloud  # deferred: as load's
             tmp_cloud = folder / f".{chain.key}.b{k}.{os.getpid()}.tmp.hbc"
             save_cloud(m, tmp_cloud)
             os.replace(tmp_cloud, folder / f"{chain.key}.b{k}.hbc")
@@ -250,8 +247,8 @@ def _parse_cache(folder: Path, key: str, mesh: Mesh, head: dict) -> LodChain:
     data = read_npz(folder / f"{key}.npz")
     for k in range(1, n):
         if kinds[k] == "billboard":
-            # deferred: clouds import the compiled simplifier, which a build child
-            # that cannot load it must report as a LodError (chain._decimated)
+            # deferred: clouds load the compiled simplifier (chain._decimated's reason)
+            from service.simplify.cloud_file import load_cloud
 
             levels.append(load_cloud(folder / f"{key}.b{k}.hbc"))
             continue

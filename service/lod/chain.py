@@ -23,7 +23,6 @@ from service.lod.settings import (
     Progress,
 )
 from service.render.mesh import Mesh
-from service.simplify.billboard import build_cloud  # deferred: as _decimated's
 
 
 @dataclass(frozen=True)
@@ -192,6 +191,7 @@ def _clouds(mesh: Mesh, settings: LodSettings) -> list[tuple[object, float]]:
     """Billboard-cloud levels of ``mesh`` (most billboards first) with their error bounds."""
     if not settings.cloud_eps:
         return []
+    from service.simplify.billboard import build_cloud  # deferred: as _decimated's
     diagonal = float(np.linalg.norm(mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)))
     out = []
     for frac in sorted(settings.cloud_eps):

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-from service.billboard_render import BillboardObject
 from service.display import DisplaySettings
 from service.lod.builds import ChainBuilds
 from service.lod.cache import build_chain, cache_dir, read_chain
@@ -286,6 +285,8 @@ class LodState:
             if lv == 0:
                 out.append(o)
             elif chain.kinds[lv] == "billboard":
+                # deferred: clouds load the compiled simplifier (chain._decimated's reason)
+                from service.billboard_render import BillboardObject
 
                 boards.append(BillboardObject(chain.levels[lv], o.material, o.transform, o.name))
             else:
