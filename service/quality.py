@@ -24,24 +24,25 @@ would cost, and picks the cheapest whose predicted error fits the budget:
 Errors are in the units of the Galilean benchmark: % of pixels whose largest colour
 channel differs by more than :data:`WRONG_LEVELS` from the reference, or PSNR in dB.
 The cost model is a least-squares fit of measured milliseconds (``holo-bench quality
---calibrate`` measures and writes it; ``service/quality_model.json`` is the one
-measured on the development machine, with its date and machine in ``meta``).
+--calibrate`` measures and writes it; ``service/lod/cost_model.json`` is the one
+measured on the development machine, with its date and machine in ``meta``).  It is
+:class:`service.lod.cost.CostModel`, the one cost model: level of detail's time
+budget starts from it too.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import re
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from service.base.errors import SettingsError
 from service.display import DisplaySettings
+from service.lod.cost import OCCLUSION, SPECULAR, CostModel
 from service.render.cull import CullSettings
 from service.render.frame import Frame
 from service.render.light import LightSettings, shade
@@ -52,12 +53,6 @@ from service.render.scene import Scene, SceneArrays
 
 #: Colour levels a channel may differ by before a pixel counts as wrong.
 WRONG_LEVELS = 32
-#: The model measured on the development machine (see ``meta`` inside).
-DEFAULT_MODEL = Path(__file__).with_name("quality_model.json")
-#: Occlusion candidates; "bsp" only for a static scene.
-OCCLUSION = ("runlength", "zbuffer", "bsp")
-#: Light evaluations, cheapest first by design; "point" is the reference.
-SPECULAR = ("polygon", "vertex", "point")
 MODES = ("fixed", "auto")
 
 
@@ -122,99 +117,6 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR in dB of two uint8 images (99 when identical)."""
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
     return 99.0 if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
-
-
-# ------------------------------------------------------------------ cost model
-def occlusion_features(triangles: int, zones: int, pixels: int, bad: int) -> np.ndarray:
-    """Regressors of an occlusion cost: 1, k triangle-zones, M pixel-zones, k bad points."""
-    return np.array([1.0, triangles * zones / 1e3, pixels * zones / 1e6, bad / 1e3])
-
-
-def light_features(triangles: int, covered: int) -> np.ndarray:
-    """Regressors of a light cost: 1, k triangles, M covered pixels (all zones)."""
-    return np.array([1.0, triangles / 1e3, covered / 1e6])
-
-
-@dataclass(frozen=True)
-class CostModel:
-    """Measured cost coefficients (ms) and the Galilean error table.
-
-    Attributes
-    ----------
-    occlusion : dict
-        Method -> coefficients of :func:`occlusion_features` (stages 1-4, ms).
-    bsp_build : list of float
-        BSP tree build ms: ``[a, b]``, ``a + b * k triangles``.
-    light : dict
-        Evaluation -> coefficients of :func:`light_features` (light stage, ms).
-    galilean : list of dict
-        Rows ``{motion, order, interval, pct_wrong, psnr, ms_per_refresh, pixels}``.
-    update_factor : float
-        An update for the Galilean stage (``render_with_motion``: the render, its
-        difference renders and the galpixmap) in renders' time.
-    meta : dict
-        Where and when it was measured.
-    """
-
-    occlusion: dict[str, list[float]]
-    bsp_build: list[float]
-    light: dict[str, list[float]]
-    galilean: list[dict[str, Any]] = field(default_factory=list)
-    meta: dict[str, Any] = field(default_factory=dict)
-    update_factor: float = 1.0
-
-    def occlusion_ms(self, method: str, triangles: int, zones: int, pixels: int,
-                     bad: int = 0) -> float:
-        """Predicted stages 1-4 ms of ``method`` (at least 0)."""
-        c = np.asarray(self.occlusion[method], float)
-        return max(0.0, float(c @ occlusion_features(triangles, zones, pixels, bad)))
-
-    def light_ms(self, evaluation: str, triangles: int, covered: int) -> float:
-        """Predicted light-stage ms of ``evaluation`` (at least 0)."""
-        c = np.asarray(self.light[evaluation], float)
-        return max(0.0, float(c @ light_features(triangles, covered)))
-
-    def build_ms(self, triangles: int) -> float:
-        """Predicted BSP build ms."""
-        return max(0.0, self.bsp_build[0] + self.bsp_build[1] * triangles / 1e3)
-
-    def to_json(self) -> str:
-        """The model as the JSON :meth:`load` reads."""
-        return json.dumps({"occlusion": self.occlusion, "bsp_build": self.bsp_build,
-                           "light": self.light, "galilean": self.galilean,
-                           "update_factor": self.update_factor, "meta": self.meta}, indent=1)
-
-    @classmethod
-    def load(cls, path: str | Path | None = None) -> CostModel:
-        """Read a model written by :meth:`to_json` (default :data:`DEFAULT_MODEL`)."""
-        path = Path(path) if path is not None else DEFAULT_MODEL
-        try:
-            d = json.loads(path.read_text())
-            model = cls(d["occlusion"], d["bsp_build"], d["light"], d.get("galilean", []),
-                        d.get("meta", {}), float(d.get("update_factor", 1.0)))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise SettingsError(f"cost model {path}: {exc}") from exc
-        missing = [m for m in OCCLUSION if m not in model.occlusion]
-        missing += [e for e in SPECULAR if e not in model.light]
-        if missing:
-            raise SettingsError(f"cost model {path}: no coefficients for {missing}")
-        return model
-
-
-def fit(rows: list[tuple[np.ndarray, float]]) -> list[float]:
-    """Least-squares coefficients of ``ms ~ features`` (non-negative slopes)."""
-    x = np.array([f for f, _ in rows])
-    y = np.array([ms for _, ms in rows])
-    coef = np.zeros(x.shape[1])
-    free = np.ones(x.shape[1], bool)
-    while free.any():  # more work never costs less, nothing costs less than nothing:
-        c, *_ = np.linalg.lstsq(x[:, free], y, rcond=None)  # drop negative terms, refit
-        coef[:] = 0.0
-        coef[free] = c
-        if (c >= 0).all():
-            break
-        free[np.flatnonzero(free)[np.argmin(c)]] = False
-    return [round(float(c), 6) for c in coef]
 
 
 # --------------------------------------------------------------------- chooser

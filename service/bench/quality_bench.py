@@ -3,9 +3,9 @@
 ``--calibrate`` measures (a short run, about a minute on two cores): stages 1-4 of
 each occlusion method and the light stage of each evaluation on the built-in scenes
 at a few zone counts and sizes, BSP build times, and the Galilean order x interval
-sweep at a small size; fits :class:`service.quality.CostModel` and writes it
+sweep at a small size; fits :class:`service.lod.cost.CostModel` and writes it
 (``--model PATH``, default ``OUT/quality_model.json``).  Copy it over
-``service/quality_model.json`` to make it the default.
+``service/lod/cost_model.json`` to make it the default.
 
 Without ``--calibrate`` it renders each scene with ``--quality auto`` for a few
 frames at each budget and writes what was picked, the predicted error and the error
@@ -30,15 +30,17 @@ from service.bench.rows import write_rows
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.galilean.motion_field import render_with_motion
-from service.quality import (
+from service.lod.cost import (
     OCCLUSION,
     SPECULAR,
     CostModel,
-    QualityChooser,
-    QualitySettings,
     fit,
     light_features,
     occlusion_features,
+)
+from service.quality import (
+    QualityChooser,
+    QualitySettings,
     parse_budget,
     pct_wrong,
     psnr,

@@ -36,6 +36,7 @@ from service.base.signals import EXIT_RULE, interruptible
 from service.builtin_scenes import SCENES, builtin_scene
 from service.display import DisplaySettings
 from service.loaders import MESH_LOADERS, SCENE_EXTENSIONS, load_scene
+from service.lod.cost import CostModel
 from service.lod.options import add_lod_options, budget_frames, lod_settings, lod_state
 from service.lookingglass import DEFAULT_VIEWS, Calibration, Interleaver, parse_display
 from service.mesh_repair import MeshRepair, MeshRepairWarning
@@ -43,7 +44,6 @@ from service.png import write_png
 from service.process import setup_frame_process
 from service.quality import (
     MODES,
-    CostModel,
     QualityChooser,
     QualitySettings,
     parse_budget,
@@ -321,7 +321,8 @@ def _render_auto(light: str, renderer: Renderer, chooser: QualityChooser, scene:
     """One frame with ``--quality auto``, and the settings the chooser picked."""
     lod_report, shown = None, scene
     if settings.lod is not None:  # levels first, then the methods for that scene
-        shown, lod_report = renderer.lod.apply(scene, display, settings.lod)
+        shown, lod_report = renderer.lod.apply(scene, display, settings.lod, True,
+                                               settings.method, settings.light.evaluation)
     frame = render_auto(renderer, chooser, shown, display, light, settings.cull)
     if lod_report is not None:
         frame.stats["lod"] = lod_report

@@ -431,7 +431,8 @@ def render_with_motion(
     stats: dict = {"t": t}
     lod = settings.lod is not None and settings.lod.enabled
     if lod:  # each object at its level of detail
-        scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod, clouds=False)
+        scene, stats["lod"] = renderer.lod.apply(scene, display, settings.lod, False,
+                                                  settings.method, settings.light.evaluation)
     t0 = time.perf_counter()
     period = 1.0 / refresh_hz
     dts = [t + k * h * period for k in (-2, -1, 0, 1, 2)]

@@ -1,17 +1,155 @@
-"""The measured cost model of a renderer's frames: ``fixed + per triangle`` (:class:`FrameCost`)."""
+"""The one cost model of frames: calibrated per method (:class:`CostModel`), corrected online.
+
+:class:`CostModel` holds coefficients measured on a development machine (``holo-bench
+quality --calibrate``; :data:`DEFAULT_MODEL`): stages 1-4 per occlusion method and
+the light stage per evaluation, from triangles, zones and pixels.  ``--quality
+auto`` (:mod:`service.quality`) chooses methods by it.  :class:`FrameCost`, level of
+detail's time budget, starts from the same model's prediction for the frame's
+method and display (:func:`frame_prior`) and replaces it with a line fitted to the
+frames this machine measured.
+"""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+
+from service.base.errors import SettingsError
+from service.display import DisplaySettings
+
+#: The model measured on the development machine (see ``meta`` inside).
+DEFAULT_MODEL = Path(__file__).with_name("cost_model.json")
+#: Occlusion methods the model has coefficients for (``--quality auto``'s candidates;
+#: "bsp" only for a static scene).
+OCCLUSION = ("runlength", "zbuffer", "bsp")
+#: Light evaluations it has coefficients for, cheapest first; "point" is the reference.
+SPECULAR = ("polygon", "vertex", "point")
+
+
+def occlusion_features(triangles: int, zones: int, pixels: int, bad: int) -> np.ndarray:
+    """Regressors of an occlusion cost: 1, k triangle-zones, M pixel-zones, k bad points."""
+    return np.array([1.0, triangles * zones / 1e3, pixels * zones / 1e6, bad / 1e3])
+
+
+def light_features(triangles: int, covered: int) -> np.ndarray:
+    """Regressors of a light cost: 1, k triangles, M covered pixels (all zones)."""
+    return np.array([1.0, triangles / 1e3, covered / 1e6])
+
+
+@dataclass(frozen=True)
+class CostModel:
+    """Measured cost coefficients (ms) and the Galilean error table.
+
+    Attributes
+    ----------
+    occlusion : dict
+        Method -> coefficients of :func:`occlusion_features` (stages 1-4, ms).
+    bsp_build : list of float
+        BSP tree build ms: ``[a, b]``, ``a + b * k triangles``.
+    light : dict
+        Evaluation -> coefficients of :func:`light_features` (light stage, ms).
+    galilean : list of dict
+        Rows ``{motion, order, interval, pct_wrong, psnr, ms_per_refresh, pixels}``.
+    update_factor : float
+        An update for the Galilean stage (``render_with_motion``: the render, its
+        difference renders and the galpixmap) in renders' time.
+    meta : dict
+        Where and when it was measured.
+    """
+
+    occlusion: dict[str, list[float]]
+    bsp_build: list[float]
+    light: dict[str, list[float]]
+    galilean: list[dict[str, Any]] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)
+    update_factor: float = 1.0
+
+    def occlusion_ms(self, method: str, triangles: int, zones: int, pixels: int,
+                     bad: int = 0) -> float:
+        """Predicted stages 1-4 ms of ``method`` (at least 0)."""
+        c = np.asarray(self.occlusion[method], float)
+        return max(0.0, float(c @ occlusion_features(triangles, zones, pixels, bad)))
+
+    def light_ms(self, evaluation: str, triangles: int, covered: int) -> float:
+        """Predicted light-stage ms of ``evaluation`` (at least 0)."""
+        c = np.asarray(self.light[evaluation], float)
+        return max(0.0, float(c @ light_features(triangles, covered)))
+
+    def build_ms(self, triangles: int) -> float:
+        """Predicted BSP build ms."""
+        return max(0.0, self.bsp_build[0] + self.bsp_build[1] * triangles / 1e3)
+
+    def to_json(self) -> str:
+        """The model as the JSON :meth:`load` reads."""
+        return json.dumps({"occlusion": self.occlusion, "bsp_build": self.bsp_build,
+                           "light": self.light, "galilean": self.galilean,
+                           "update_factor": self.update_factor, "meta": self.meta}, indent=1)
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> CostModel:
+        """Read a model written by :meth:`to_json` (default :data:`DEFAULT_MODEL`)."""
+        path = Path(path) if path is not None else DEFAULT_MODEL
+        try:
+            d = json.loads(path.read_text())
+            model = cls(d["occlusion"], d["bsp_build"], d["light"], d.get("galilean", []),
+                        d.get("meta", {}), float(d.get("update_factor", 1.0)))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise SettingsError(f"cost model {path}: {exc}") from exc
+        missing = [m for m in OCCLUSION if m not in model.occlusion]
+        missing += [e for e in SPECULAR if e not in model.light]
+        if missing:
+            raise SettingsError(f"cost model {path}: no coefficients for {missing}")
+        return model
+
+
+def fit(rows: list[tuple[np.ndarray, float]]) -> list[float]:
+    """Least-squares coefficients of ``ms ~ features`` (non-negative slopes)."""
+    x = np.array([f for f, _ in rows])
+    y = np.array([ms for _, ms in rows])
+    coef = np.zeros(x.shape[1])
+    free = np.ones(x.shape[1], bool)
+    while free.any():  # more work never costs less, nothing costs less than nothing:
+        c, *_ = np.linalg.lstsq(x[:, free], y, rcond=None)  # drop negative terms, refit
+        coef[:] = 0.0
+        coef[free] = c
+        if (c >= 0).all():
+            break
+        free[np.flatnonzero(free)[np.argmin(c)]] = False
+    return [round(float(c), 6) for c in coef]
+
+
+def frame_prior(model: CostModel, method: str, evaluation: str, display: DisplaySettings,
+                motion: bool = False) -> tuple[float, float]:
+    """``(fixed_ms, ms per triangle)`` of a frame as the calibrated model predicts it.
+
+    Stages 1-4 of ``method`` (the z-buffer's for a method the model does not cover)
+    and the light stage of ``evaluation``, with a quarter of the pixels covered;
+    ``motion``: an update for the Galilean stage, ``model.update_factor`` renders.
+    """
+    pixels = display.rows * display.cols
+    covered = display.zones * pixels // 4
+    occ = method if method in model.occlusion else "zbuffer"
+    light = evaluation if evaluation in model.light else "polygon"
+
+    def ms(triangles: int) -> float:
+        return (model.occlusion_ms(occ, triangles, display.zones, pixels)
+                + model.light_ms(light, triangles, covered))
+
+    k = model.update_factor if motion else 1.0
+    return k * ms(0), k * max((ms(100_000) - ms(0)) / 100_000, 1e-9)
 
 
 @dataclass
 class FrameCost:
     """Measured cost model of one renderer's frames: ``ms = fixed_ms + per_triangle x T``.
 
-    Fitted by least squares to the last ``window`` frames' (triangles, milliseconds)
+    Until a frame is measured it predicts ``prior``, the calibrated model's line for
+    the frame's method and display (:func:`frame_prior`).  Then it is fitted by
+    least squares to the last ``window`` frames' (triangles, milliseconds)
     as the renderer measured them (:meth:`observe`; :func:`fit_cost`): far outliers
     dropped (a frame slowed by another process), the fixed part at most the cheapest
     frame's cost.  Until the frames span triangle counts at least 25 % apart
@@ -26,7 +164,10 @@ class FrameCost:
     samples : list of (int, float)
         (triangles, ms) of the frames kept, oldest first.
     fixed_ms, per_triangle : float
-        The fitted line (0 until a frame is observed).
+        The line predicted from: ``prior`` until a frame is observed, then fitted
+        (0 with neither).
+    prior : tuple of float or None
+        ``(fixed_ms, per_triangle)`` from the calibrated model, None without one.
     skip_first : bool
         Leave out the first frame observed: it pays one-off costs (first calls into
         the kernels, first touch of the buffers); in the service a first render of
@@ -39,11 +180,21 @@ class FrameCost:
     fixed_ms: float = 0.0
     per_triangle: float = 0.0
     skip_first: bool = True
+    prior: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.prior is not None and not self.samples:
+            self.fixed_ms, self.per_triangle = self.prior
 
     @property
     def ready(self) -> bool:
-        """Whether a frame has been measured."""
+        """Whether it predicts: a frame measured, or the calibrated model's line."""
         return self.per_triangle > 0
+
+    @property
+    def measured(self) -> bool:
+        """Whether the line is fitted to frames measured here (not the prior)."""
+        return bool(self.samples)
 
     def observe(self, triangles: int, ms: float) -> None:
         """Add a frame's triangles and milliseconds and refit."""
@@ -68,7 +219,8 @@ class FrameCost:
         """The model as the LOD report carries it."""
         return {"fixed_ms": round(self.fixed_ms, 3),
                 "us_per_triangle": round(self.per_triangle * 1e3, 5),
-                "frames": len(self.samples)}
+                "frames": len(self.samples),
+                "from": "measured" if self.measured else "calibrated"}
 
 
 def fit_cost(samples: np.ndarray) -> tuple[float, float]:

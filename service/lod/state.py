@@ -10,11 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
+from service.base.errors import SettingsError
 from service.display import DisplaySettings
 from service.lod.builds import ChainBuilds
 from service.lod.cache import build_chain, cache_dir, read_chain
 from service.lod.chain import LodChain, full_only, mesh_key
-from service.lod.cost import FrameCost
+from service.lod.cost import CostModel, FrameCost, frame_prior
 from service.lod.select import degrade_to_budget, pixels_per_unit, select_levels
 from service.lod.settings import BUDGET_BAND, CHAINS_KEPT, NOTES_KEPT, LodSettings
 from service.render.mesh import Mesh
@@ -27,8 +28,9 @@ class LodState:
 
     Chains by mesh identity (and by mesh hash, for the same mesh arriving as a new
     object, as each service job's scene does), last levels per object (hysteresis),
-    the measured cost model of the frames (:class:`FrameCost`, for ``budget_ms``;
-    reset when the display changes), and one scene whose objects are replaced each
+    the cost model of the frames (:class:`FrameCost`, for ``budget_ms``: the
+    calibrated :class:`CostModel`'s line for the frame until frames are measured;
+    reset when the display or the method changes), and one scene whose objects are replaced each
     frame, so the flattened scene's static parts stay cached while no level changes.
 
     With ``background`` a chain that is not in the cache is built by a
@@ -52,6 +54,8 @@ class LodState:
     notes: deque = field(default_factory=lambda: deque(maxlen=NOTES_KEPT))
     _by_key: OrderedDict = field(default_factory=OrderedDict)
     _last: tuple | None = None
+    #: the calibrated cost model (loaded on the first frame; None if it cannot be read)
+    _model: CostModel | None | bool = False
 
     def chain(self, mesh: Mesh, settings: LodSettings) -> LodChain:
         """The chain of ``mesh``: read or built once per renderer, or its stand-in.
@@ -99,6 +103,20 @@ class LodState:
             return cached
         self.builds.submit(key, mesh, settings)  # no-op once built, failed or queued
         return full_only(mesh, key)
+
+    def _prior(self, display: DisplaySettings, method: str, evaluation: str,
+               motion: bool) -> tuple[float, float] | None:
+        """The calibrated model's line for these frames; None (and a note) without one."""
+        if self._model is False:
+            try:
+                self._model = CostModel.load()
+            except SettingsError as exc:
+                self._model = None
+                self.notes.append(f"level of detail: no calibrated cost model ({exc}); "
+                                  "the time budget waits for measured frames")
+        if self._model is None:
+            return None
+        return frame_prior(self._model, method, evaluation, display, motion)
 
     def close(self, timeout_s: float = 10.0) -> None:
         """End the background builds: a running build child is stopped (SIGTERM).
@@ -159,12 +177,15 @@ class LodState:
         return self._tab
 
     def apply(self, scene: Scene, display: DisplaySettings, settings: LodSettings,
-              clouds: bool = True) -> tuple[Scene, dict]:
+              clouds: bool = True, method: str = "zbuffer",
+              evaluation: str = "polygon") -> tuple[Scene, dict]:
         """The scene with each object's chosen level, and the frame's LOD report.
 
         ``clouds``: whether billboard-cloud levels may be chosen (the renderer draws
         ``Scene.billboards``); the Galilean path (:mod:`service.galilean.motion_field`)
-        draws meshes only and passes False.
+        draws meshes only and passes False.  ``method`` and ``evaluation`` (the
+        frame's occlusion method and light evaluation) pick the calibrated cost
+        model's line the time budget starts from.
 
         Returns
         -------
@@ -183,9 +204,11 @@ class LodState:
         old = getattr(self, "_tab", None)
         tab = self._tables(scene, settings)
         self._reset_history(objs, old, tab)
-        key = (display.zones, display.rows, display.cols, display.pixel_size)
-        if key != self.display_key:  # another display: the frames cost something else
-            self.cost, self.display_key = FrameCost(), key
+        key = (display.zones, display.rows, display.cols, display.pixel_size, method,
+               evaluation, clouds)
+        if key != self.display_key:  # another display or method: frames cost otherwise
+            self.cost, self.display_key = FrameCost(prior=self._prior(
+                display, method, evaluation, not clouds)), key
         t0 = time.perf_counter_ns()
         ppu = pixels_per_unit(display)
         level, predicted = self._select(objs, tab, ppu, settings, clouds)

@@ -141,7 +141,8 @@ class Renderer:
         lod = settings.lod if settings.lod is not None and settings.lod.enabled else None
         if lod is not None:
             with clock("lod"):
-                scene, lod_report = self.lod.apply(scene, display, lod)
+                scene, lod_report = self.lod.apply(scene, display, lod, True, settings.method,
+                                                   settings.light.evaluation)
         with clock("flatten"):
             arrays = scene.flatten()
         # visibility() keeps its signature (subclasses override it): the buffer goes

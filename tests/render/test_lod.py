@@ -277,20 +277,52 @@ def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch,
     r = Renderer()
     tight = RenderSettings(lod=LodSettings(budget_ms=1e-6))
     first, cold = (r.render(scene, display, tight) for _ in range(2))
-    for frame in (first, cold):  # no cost measured yet (the first frame is cold): error rules
-        assert frame.stats["lod"]["over_error"] == 0
-    report = r.render(scene, display, tight).stats["lod"]
     coarsest = len(chain.levels) - 1
+    for frame in (first, cold):  # nothing measured yet: the calibrated model predicts
+        lod = frame.stats["lod"]
+        assert lod["levels"] == [coarsest, coarsest] and lod["over_error"] >= 1
+        assert lod["cost_model"]["from"] == "calibrated" and lod["predicted_ms"] > 0
+    report = r.render(scene, display, tight).stats["lod"]
     assert report["levels"] == [coarsest, coarsest]
     assert report["over_error"] >= 1 and max(report["predicted_px"]) > 0.5
     # the report carries the measured cost model and its prediction for these levels
     assert report["budget_ms"] == 1e-6 and report["cost_model"]["frames"] == 1
+    assert report["cost_model"]["from"] == "measured"  # the first frame, cold, left out
     assert report["predicted_ms"] > 0 and len(r.lod.cost.samples) == 2  # now frame 3 too
-    assert first.stats["lod"]["predicted_ms"] is None  # nothing measured before frame 1
     # another display costs something else: the model starts again
     for _ in range(2):
         r.render(scene, DisplaySettings(zones=1, cols=32, rows=24), tight)
     assert len(r.lod.cost.samples) == 1
+
+
+def test_the_budget_starts_from_the_calibrated_model_of_the_frames_method(ring, tmp_path,
+                                                                          monkeypatch):
+    """The one cost model: --quality auto's calibrated coefficients predict the first
+    frames (per method and display); without a readable model the budget waits for
+    measured frames and a note says why."""
+    from service.lod import cost as cost_module
+    from service.lod.cost import CostModel, frame_prior
+
+    display = DisplaySettings(zones=2, cols=64, rows=48)
+    scene = Scene([SceneObject(ring, name="ring")])
+    state = LodState(cache=tmp_path)
+    _, report = state.apply(scene, display, LodSettings(budget_ms=50.0), True, "runlength",
+                            "vertex")
+    want = frame_prior(CostModel.load(), "runlength", "vertex", display)
+    assert (state.cost.fixed_ms, state.cost.per_triangle) == want
+    assert report["cost_model"]["from"] == "calibrated"
+    assert report["predicted_ms"] == pytest.approx(want[0] + want[1] * report["triangles"],
+                                                   abs=1e-3)
+    motion = frame_prior(CostModel.load(), "runlength", "vertex", display, motion=True)
+    assert motion[1] == pytest.approx(want[1] * CostModel.load().update_factor)
+    state.apply(scene, display, LodSettings(budget_ms=50.0), True, "zbuffer", "polygon")
+    assert state.cost.per_triangle == frame_prior(CostModel.load(), "zbuffer", "polygon",
+                                                  display)[1]  # another method: its line
+    monkeypatch.setattr(cost_module, "DEFAULT_MODEL", tmp_path / "missing.json")
+    blind = LodState(cache=tmp_path)
+    _, report = blind.apply(scene, display, LodSettings(budget_ms=1e-6))
+    assert not blind.cost.ready and report["over_error"] == 0 and report["predicted_ms"] is None
+    assert any("no calibrated cost model" in n for n in blind.notes)
 
 
 def test_the_cost_model_is_the_line_the_frames_measured():
@@ -351,7 +383,8 @@ def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path, monk
     _, got = state.apply(scene, display, tight)
     assert got["levels"] == levels[:3] + [levels[3] + 1]  # only the small far one went
     assert got["predicted_ms"] <= tight.budget_ms
-    assert got["cost_model"] == {"fixed_ms": 2.0, "us_per_triangle": 1.0, "frames": 3}
+    assert got["cost_model"] == {"fixed_ms": 2.0, "us_per_triangle": 1.0, "frames": 3,
+                                 "from": "measured"}
     _, none = state.apply(scene, display, LodSettings(error_px=0.5, budget_ms=1.0))
     assert none["levels"] == [len(state.chain(ring, free).levels) - 1] * 4
     assert none["over_error"] == 4

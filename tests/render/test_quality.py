@@ -8,8 +8,8 @@ import pytest
 from service.base.errors import SettingsError
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
+from service.lod.cost import CostModel
 from service.quality import (
-    CostModel,
     ErrorBudget,
     QualityChooser,
     QualitySettings,
@@ -182,7 +182,7 @@ def test_scene_file_quality_table(tmp_path, capsys):
 
 
 def test_fit_recovers_costs_and_never_predicts_negative_work():
-    from service.quality import fit
+    from service.lod.cost import fit
 
     rng = np.random.default_rng(1)
     x = [np.array([1.0, *rng.uniform(0, 10, 3)]) for _ in range(40)]
