@@ -297,7 +297,8 @@ def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
         backend = _start(args, look, game)
         try:
             hz = measure(backend, step, settings.probe_s, args.wait, on_wait=_say_waiting,
-                         busy=backend.compiling, on_busy=_say_busy)
+                         busy=backend.compiling, on_busy=_say_busy,
+                         windows=settings.windows, settle_s=settings.settle_s)
         finally:
             backend.close()
         print(f"holo-game: measured {look} per zone: {hz:.1f} renders/s", file=sys.stderr,

@@ -19,6 +19,7 @@ from game.adapt import (
     adapt,
     choose,
     measure,
+    median_rate,
     next_probe,
     predicted_hz,
 )
@@ -202,3 +203,71 @@ def test_a_compile_that_does_not_end_is_waited_for_only_so_long():
     finally:
         backend.close()
     assert said == ["compiling"] and hz > 0
+
+
+def test_a_look_that_met_rechecks_a_better_one_it_predicts_to_meet():
+    # a cold demo: 240x180 counted 10.7/s, then 200x150 25.8/s, which predicts 17.9 at
+    # 240x180: the first count was short by chance (a burst of other work), so it is
+    # measured again, once
+    measure, asked = rates(top=17.5, lit200=25.8)
+    first = {TOP: 10.7, LIT200: 25.8}
+    assert next_probe(LADDER, first, S) == TOP
+    assert next_probe(LADDER, {TOP: 11.0, LIT200: 25.8}, S, frozenset({TOP})) is None
+    calls = iter([10.7, 25.8, 17.5])
+    choice = adapt(lambda look: (asked.append(look), next(calls))[1], settings=S)
+    assert asked == [TOP, LIT200, TOP] and choice.look == TOP and choice.met
+    assert choice.reason.endswith("measured again: blinn 240x180 10.7 then 17.5")
+
+
+def test_a_recheck_short_again_keeps_the_look_that_met():
+    calls = iter([10.7, 25.8, 11.0])
+    asked: list[Look] = []
+    choice = adapt(lambda look: (asked.append(look), next(calls))[1], settings=S)
+    assert asked == [TOP, LIT200, TOP] and choice.look == LIT200 and choice.met
+    assert "measured again: blinn 240x180 10.7 then 11.0" in choice.reason
+
+
+def test_a_jump_down_that_overshoots_measures_the_look_between():
+    # 240x180 counted 5.3, ambient 160x120 then 30.5: that predicts 15.6 at blinn
+    # 200x150 (never measured), so it is measured before the run settles on ambient
+    calls = iter([5.3, 30.5, 16.0])
+    asked: list[Look] = []
+    choice = adapt(lambda look: (asked.append(look), next(calls))[1], settings=S)
+    assert asked == [TOP, AMB160, LIT200] and choice.look == LIT200
+
+
+def test_a_look_is_measured_at_most_twice_and_rechecks_count_against_max_probes():
+    many = AdaptSettings(max_probes=6)
+    measured = {TOP: 5.3, AMB160: 30.5, LIT200: 9.0}  # 30.5 predicts 15.6 at 200x150
+    assert next_probe(LADDER, measured, many) == LIT200
+    assert next_probe(LADDER, measured, many, frozenset({LIT200})) == LIT160  # 24.4
+    measured = {TOP: 5.3, AMB160: 30.5, LIT200: 9.0, LIT160: 25.0}  # LIT200: 16.0 predicted
+    assert next_probe(LADDER, measured, many) == LIT200
+    assert next_probe(LADDER, measured, many, frozenset({LIT200})) is None  # TOP: 11.1
+    assert next_probe(LADDER, measured, AdaptSettings(max_probes=4)) is None
+
+
+def test_no_recheck_when_the_look_that_met_predicts_no_better_one():
+    measure, asked = rates(top=6.5, lit160=14.2)  # 200x150 predicted 9.1
+    adapt(measure, settings=AdaptSettings(max_probes=5))
+    assert asked == [TOP, LIT160]
+
+
+def test_the_rate_is_the_median_of_windows_so_one_stall_does_not_decide():
+    # 10 renders/s for 3 s, but nothing in the second second (another program's burst)
+    shown = [0.05 + 0.1 * i for i in range(30) if not 10 <= i < 20]
+    assert median_rate(shown, 0.0, 3.0, 3) == pytest.approx(10.0)
+    assert median_rate(shown, 0.0, 3.0, 1) == pytest.approx(20 / 3)  # the plain rate
+    # the render already there when counting starts, and any after the span, are not counted
+    assert median_rate([0.0, 0.5, 1.0, 1.5], 0.0, 1.0) == pytest.approx(2.0)
+
+
+def test_a_probe_leaves_out_its_settling_time_and_counts_in_windows():
+    backend, step = _local_probe()
+    try:
+        t0 = time.monotonic()
+        hz = measure(backend, step, 0.6, 120.0, windows=3, settle_s=0.4)
+        took = time.monotonic() - t0
+    finally:
+        backend.close()
+    assert took >= 1.0 - 0.05 and hz > 0
