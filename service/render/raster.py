@@ -693,9 +693,10 @@ def zbuffer_zones_kernel(
     marks = _band_marks(use.shape[0] if tri_out.shape[0] > 1 else 0, shown.shape)
     for b in nb.prange(use.shape[0]):
         lo, hi = use[b, 0], use[b, 1]
-        _zbuffer_band(
+        _zbuffer_band(  # the index cast: numba types a prange index int64, then uint64 in
+            # the parallel loop's body, and _zbuffer_band_zones would compile for both
             proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown, tables,
-            marks, b,
+            marks, np.int64(b),
         )
     for b in range(marks.shape[0]):
         for z in range(shown.shape[0]):
