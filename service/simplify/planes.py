@@ -60,6 +60,11 @@ class PlaneSettings:
         Nearby planes tried for each plane dropped.
     absorb_step : float
         First angular step (radians) of the tilt that makes a plane take more faces.
+    max_tilt : float
+        Greatest angle (radians) between a face's normal and a plane that may take it
+        or cut it: a face standing near upright on a plane would show there as a
+        sliver, leaving a gap where it was seen edge-on (the bunny's feet on the
+        horizontal billboard).
     """
 
     eps: float
@@ -72,12 +77,15 @@ class PlaneSettings:
     cut: bool = True
     merge_tries: int = 8
     absorb_step: float = 0.13
+    max_tilt: float = float(np.radians(60.0))
 
     def __post_init__(self) -> None:
         if not self.eps > 0 or not np.isfinite(self.eps):
             raise SimplifyError(f"error EPS must be a positive number, not {self.eps}")
         if self.n_theta < 1 or self.n_phi < 1:
             raise SimplifyError("Hough bins must be at least 1 per angle")
+        if not 0 < self.max_tilt <= np.pi / 2:
+            raise SimplifyError(f"max_tilt must be in (0, pi/2] radians, not {self.max_tilt}")
 
 
 @dataclass
@@ -88,6 +96,21 @@ class _Mesh:
     f: np.ndarray       # (F, 3) int64
     area: np.ndarray    # (F, 3) area vectors
     radius: float
+
+
+def _aligned(m: _Mesh, ids: np.ndarray, d: np.ndarray, s: PlaneSettings) -> np.ndarray:
+    """Which faces ``ids`` (K,) lean at most ``s.max_tilt`` from normal ``d`` (3,): (K,).
+
+    A zero-area face has no normal and goes anywhere.
+    """
+    a = m.area[ids]
+    return np.abs(a @ d) >= np.cos(s.max_tilt) * np.linalg.norm(a, axis=1) - 1e-300
+
+
+def _holds(m: _Mesh, ids: np.ndarray, d: np.ndarray, rho: float,
+           s: PlaneSettings) -> np.ndarray:
+    """Which faces ``ids`` (K,) plane ``d . x = rho`` may take: within EPS and aligned."""
+    return (face_distance(m.v, m.f, ids, d, rho) <= s.eps) & _aligned(m, ids, d, s)
 
 
 def _direction(theta: float, phi: float) -> np.ndarray:
@@ -143,7 +166,7 @@ def _refit(m: _Mesh, ids: np.ndarray, best: float, d: np.ndarray, rho: float,
            s: PlaneSettings) -> tuple[float, np.ndarray, float]:
     """Least-squares refits of the plane to the faces it collapses, while they help."""
     for _ in range(s.refits):
-        held = ids[face_distance(m.v, m.f, ids, d, rho) <= s.eps]
+        held = ids[_holds(m, ids, d, rho, s)]
         if held.shape[0] < 2:
             break
         pts = m.v[m.f[held]].reshape(-1, 3)
@@ -235,7 +258,7 @@ class _Greedy:
         dist = m.v[m.f[rest]] @ d - rho
         partial = (np.abs(dist) <= s.eps).any(1) | ((dist.min(1) < -s.eps)
                                                      & (dist.max(1) > s.eps))
-        rim = rest[partial & touched[m.f[rest]].any(1)]
+        rim = rest[partial & touched[m.f[rest]].any(1) & _aligned(m, rest, d, s)]
         if rim.shape[0] == 0:
             return rest
         corners, inside, parent, cut = cut_faces(m.v, m.f, rim, d, rho, s.eps,
@@ -292,7 +315,7 @@ def choose_planes(vertices: np.ndarray, faces: np.ndarray, s: PlaneSettings) -> 
     while g.remaining.shape[0]:
         m, rem = g.m, g.remaining
         d, rho = _choose(m, g.acc, g.angles, rem, g.drho, g.rho0, s)
-        held = face_distance(m.v, m.f, rem, d, rho) <= s.eps
+        held = _holds(m, rem, d, rho, s)
         if not held.any():
             big = rem[np.argmax(np.linalg.norm(m.area[rem], axis=1))]
             d, rho = _own_plane(m, big)
@@ -328,23 +351,24 @@ def _absorb(m: _Mesh, plane: np.ndarray, mine: np.ndarray, orphans: np.ndarray,
     dens, d, rho = _refine(m, ids, *_angles(plane[:3]), s.absorb_step, s, fixed, 0.0)
     if dens < need + 0.5:
         return None
-    held = face_distance(m.v, m.f, orphans, d, rho) <= s.eps
+    held = _holds(m, orphans, d, rho, s)
     if mine.shape[0] and not face_distance(m.v, m.f, mine, d, rho).max() <= s.eps:
         return None
     return np.array([*d, rho]), orphans[held]
 
 
-def _valid(m: _Mesh, plane: np.ndarray, eps: float) -> np.ndarray:
+def _valid(m: _Mesh, plane: np.ndarray, s: PlaneSettings) -> np.ndarray:
     """Which faces (F,) plane (4,) holds."""
-    return face_distance(m.v, m.f, np.arange(m.f.shape[0]), plane[:3].copy(), plane[3]) <= eps
+    return _holds(m, np.arange(m.f.shape[0]), plane[:3].copy(), float(plane[3]), s)
 
 
 class _Cover:
     """Planes, which faces each holds, and which plane each face is drawn on."""
 
-    def __init__(self, m: _Mesh, planes: np.ndarray, owner: np.ndarray, eps: float) -> None:
+    def __init__(self, m: _Mesh, planes: np.ndarray, owner: np.ndarray,
+                 s: PlaneSettings) -> None:
         self.planes, self.owner = planes.copy(), owner.copy()
-        self.valid = np.stack([_valid(m, p, eps) for p in planes])
+        self.valid = np.stack([_valid(m, p, s) for p in planes])
         self.keep = np.ones(planes.shape[0], bool)
 
     def copy(self) -> _Cover:
@@ -362,10 +386,10 @@ class _Cover:
         return mine[~shared], mine[shared]
 
     def move(self, m: _Mesh, q: int, plane: np.ndarray, held: np.ndarray,
-             loose: np.ndarray, eps: float) -> None:
+             loose: np.ndarray, s: PlaneSettings) -> None:
         """Replace plane ``q``; it takes ``held``; ``loose`` faces it lost go elsewhere."""
         self.planes[q] = plane
-        self.valid[q] = _valid(m, plane, eps)
+        self.valid[q] = _valid(m, plane, s)
         self.owner[held] = q
         lost = loose[~self.valid[q, loose]]
         if lost.shape[0] == 0:
@@ -383,7 +407,7 @@ def merge_planes(m: _Mesh, planes: np.ndarray, face_plane: np.ndarray,
     only it holds (a face another plane also holds is handed to that plane if the
     tilt loses it).
     """
-    cover = _Cover(m, planes, face_plane, s.eps)
+    cover = _Cover(m, planes, face_plane, s)
     for p in np.argsort(np.bincount(face_plane, minlength=planes.shape[0])):
         orphans = np.flatnonzero(cover.owner == p)
         elsewhere = cover.valid[cover.keep & (np.arange(cover.keep.size) != p)][:, orphans]
@@ -402,7 +426,7 @@ def merge_planes(m: _Mesh, planes: np.ndarray, face_plane: np.ndarray,
             got = _absorb(m, trial.planes[q], mine, orphans, s)
             if got is None:
                 continue
-            trial.move(m, q, got[0], got[1], loose, s.eps)
+            trial.move(m, q, got[0], got[1], loose, s)
             orphans = np.setdiff1d(orphans, got[1])
             if orphans.shape[0] == 0:
                 break
