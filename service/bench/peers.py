@@ -1,6 +1,6 @@
 """Peers: the depth a user could get from another engine, timed beside ours.
 
-Two engines a user might pick instead of this renderer, driven through the optional
+Engines a user might pick instead of this renderer, driven through the optional
 extra ``.[peers]`` (``pip install -e '.[peers]'``):
 
 - **llvmpipe**: OpenGL's software rasteriser (Mesa) through moderngl's headless EGL
@@ -11,7 +11,14 @@ extra ``.[peers]`` (``pip install -e '.[peers]'``):
   writes the interpolated depth ``-z`` to a float colour target (exact for a parallel
   projection), while a depth buffer decides which surface wins.  On Debian it needs
   the packages ``libegl1``, ``libegl-mesa0``, ``libgbm1`` and ``libgl1-mesa-dri``.
-- **embree**: an Embree ray cast (embreex).  The scene's BVH is built once; a frame
+- **llvmpipe-cull**: the same with back-face culling on (``GL_CULL_FACE``), as a GL
+  application drawing closed meshes would run it.
+- **open3d**: Open3D's ``RaycastingScene`` (package ``open3d-cpu``): Embree 4 behind
+  one call that casts every ray of every zone on all cores.  The rays are prebuilt
+  as one tensor; the BVH is built at :meth:`Open3dPeer.load` and reported apart
+  (``build_ms``), since a static scene keeps it for many frames.
+- **embree**: an Embree ray cast (embreex), kept for reference: it is the weakest way to
+  call Embree (one ray per ``rtcIntersect1``).  The scene's BVH is built once; a frame
   casts one ray per pixel centre and zone, all parallel to that zone's direction
   ``(-tan(theta_k), 0, -1)`` (an orthographic, sheared ray bundle), and reads the hit
   distance as depth.  The rays depend only on the display, so they are made once.
@@ -22,8 +29,8 @@ and goes on with the peers that did start.
 
 ``OMP_NUM_THREADS`` / ``NUMBA_NUM_THREADS`` limit our kernels' threads; llvmpipe's
 are ``LP_NUM_THREADS``, which :func:`start_peers` sets to numba's thread count unless
-it is set already, so both sides use the same cores.  Embree casts single rays from
-one thread.
+it is set already, so both sides use the same cores; Open3D casts on that many
+threads too.  embreex casts single rays from one thread.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from service.base.errors import HoloError
@@ -42,11 +50,13 @@ from service.display import DisplaySettings
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.scene import Scene, SceneArrays
 
-PEER_NAMES = ("llvmpipe", "embree")
+PEER_NAMES = ("open3d", "llvmpipe", "llvmpipe-cull", "embree")
 #: Depths (world units) closer than this agree; a pixel is 2/cols wide (0.00625 at 320).
 TOLERANCE = 1e-3
-#: Extra scenes for the peers: the Galilean complexity scene at about 8k and 100k triangles.
-BIG_SCENES = {"spheres-8k": 8000, "spheres-100k": 100000}
+#: Extra scenes for the peers: the Galilean complexity scene at about 1k to 1M triangles.
+BIG_SCENES = {"spheres-1k": 1000, "spheres-8k": 8000, "spheres-100k": 100000, "spheres-1m": 1000000}
+#: Frames a static scene keeps a peer's BVH for: its build is amortised over them.
+AMORTISE_FRAMES = 60
 
 _VERTEX_SHADER = """
 #version 330
@@ -92,6 +102,8 @@ class LlvmpipePeer:
     """Mesa's llvmpipe through a headless moderngl (EGL) context."""
 
     name = "llvmpipe"
+    #: Back-face culling (``GL_CULL_FACE``) off; :class:`LlvmpipeCullPeer` turns it on.
+    cull = False
 
     def __init__(self) -> None:
         try:
@@ -109,7 +121,7 @@ class LlvmpipePeer:
         self.renderer = self.ctx.info.get("GL_RENDERER", "?")
         self.prog = self.ctx.program(vertex_shader=_VERTEX_SHADER,
                                      fragment_shader=_FRAGMENT_SHADER)
-        self._depth_test = moderngl.DEPTH_TEST
+        self._flags = moderngl.DEPTH_TEST | (moderngl.CULL_FACE if self.cull else 0)
         self._objects: list = []
         self.build_ms = 0.0
 
@@ -138,7 +150,7 @@ class LlvmpipePeer:
         self.fbo.use()
         self.fbo.viewport = (0, 0, w, h * z)
         self.fbo.clear(red=np.inf, depth=1.0)
-        self.ctx.enable(self._depth_test)
+        self.ctx.enable_only(self._flags)
         for k, shear in enumerate(self.shears):
             self.fbo.viewport = (0, k * h, w, h)
             self.prog["shear"].value = shear
@@ -156,6 +168,64 @@ class LlvmpipePeer:
         """Free the GL objects and the context."""
         self._release()
         self.ctx.release()
+
+
+class LlvmpipeCullPeer(LlvmpipePeer):
+    """llvmpipe with back-face culling on.
+
+    A triangle whose projection winds clockwise (its normal ``(b - a) x (c - a)``
+    turned away from the zone) is not drawn.
+    """
+
+    name = "llvmpipe-cull"
+    cull = True
+
+
+class Open3dPeer:
+    """Open3D's ``RaycastingScene``: Embree 4, every zone's rays in one threaded call."""
+
+    name = "open3d"
+
+    def __init__(self) -> None:
+        try:
+            import open3d
+        except ImportError as exc:
+            raise PeerUnavailable(
+                f"open3d not installed ({exc}); pip install -e '.[peers]'") from None
+        self._o3d = open3d
+        self.renderer = f"Open3D {open3d.__version__} RaycastingScene (Embree 4)"
+        self.threads = _thread_count()
+        self.build_ms = 0.0
+
+    def load(self, arrays: SceneArrays, display: DisplaySettings) -> None:
+        """Build the BVH (timed as ``build_ms``) and one tensor of every zone's rays."""
+        o3d = self._o3d
+        t0 = time.perf_counter()
+        self.scene = o3d.t.geometry.RaycastingScene(nthreads=self.threads)
+        self.empty = arrays.triangles.shape[0] == 0
+        if not self.empty:
+            self.scene.add_triangles(
+                o3d.core.Tensor(np.ascontiguousarray(arrays.vertices, np.float32)),
+                o3d.core.Tensor(np.ascontiguousarray(arrays.triangles, np.uint32)))
+            # the BVH is committed on the first query: cast one ray so build_ms holds it
+            self.scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, -1]], np.float32)))
+        self.build_ms = (time.perf_counter() - t0) * 1e3
+        self.front = float(arrays.vertices[:, 2].max()) + 1.0 if not self.empty else 1.0
+        rays = sheared_rays(display, self.front)
+        self.rays = o3d.core.Tensor(np.concatenate(
+            [np.concatenate(pair, axis=1) for pair in rays]))
+        self.shape = (display.zones, display.rows, display.cols)
+
+    def depth(self) -> np.ndarray:
+        """Cast every zone's rays: (Z, R, C) float32, +inf where nothing is hit."""
+        if self.empty:
+            return np.full(self.shape, np.inf, np.float32)
+        t = self.scene.cast_rays(self.rays, nthreads=self.threads)["t_hit"].numpy()
+        return (t - np.float32(self.front)).reshape(self.shape)
+
+    def close(self) -> None:
+        """Drop the scene."""
+        self.scene = None
 
 
 class EmbreePeer:
@@ -228,17 +298,18 @@ def sheared_rays(display: DisplaySettings, front: float) -> list[tuple[np.ndarra
     return rays
 
 
-PEER_TYPES = {"llvmpipe": LlvmpipePeer, "embree": EmbreePeer}
+PEER_TYPES = {"open3d": Open3dPeer, "llvmpipe": LlvmpipePeer,
+              "llvmpipe-cull": LlvmpipeCullPeer, "embree": EmbreePeer}
+
+
+def _thread_count() -> int:
+    """Return numba's thread count: the cores our kernels use, given to the threaded peers too."""
+    return int(numba.config.NUMBA_NUM_THREADS)
 
 
 def start_peers(names=PEER_NAMES) -> tuple[list, dict[str, str]]:
     """Start the named peers; return (the peers that started, {name: why not} for the rest)."""
-    try:
-        import numba
-
-        os.environ.setdefault("LP_NUM_THREADS", str(numba.config.NUMBA_NUM_THREADS))
-    except ImportError:  # pragma: no cover - numba is a dependency
-        pass
+    os.environ.setdefault("LP_NUM_THREADS", str(_thread_count()))
     started, reasons = [], {}
     for name in names:
         try:
@@ -338,7 +409,9 @@ def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,
     list of dict
         One row per peer: ``scene, zones, size, triangles, peer, peer_ms, ours_ms,
         ratio`` (ours / peer), ``build_ms`` (the peer's upload or BVH, not timed per
-        frame), ``pct_agree`` (depth within the tolerance of ours) and, with
+        frame), ``static_ms`` (``peer_ms`` + ``build_ms`` / :data:`AMORTISE_FRAMES`),
+        ``moving_ms`` (``peer_ms`` + ``build_ms``: a scene that moves rebuilds it),
+        ``pct_agree`` (depth within the tolerance of ours) and, with
         ``run.reference``, ``pct_differ`` (% pixels unlike our ray cast) and
         ``ours_pct_differ``.
     """
@@ -361,6 +434,10 @@ def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,
                "peer_ms": round(ms[peer.name], 3), "ours_ms": round(ms["ours"], 3),
                "ratio": round(ms["ours"] / ms[peer.name], 3),
                "build_ms": round(peer.build_ms, 3),
+               # a static scene keeps the BVH/upload AMORTISE_FRAMES frames; a moving one
+               # pays it every frame
+               "static_ms": round(ms[peer.name] + peer.build_ms / AMORTISE_FRAMES, 3),
+               "moving_ms": round(ms[peer.name] + peer.build_ms, 3),
                "pct_agree": round(depth_agreement(depth["ours"], depth[peer.name],
                                                   run.tolerance), 4)}
         if ref is not None:
@@ -372,13 +449,33 @@ def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,
     return rows
 
 
+def fastest_peers(rows: list[dict]) -> list[dict]:
+    """Per configuration (scene, zones, size), the peer with the least ``static_ms``.
+
+    Returns
+    -------
+    list of dict
+        ``scene, zones, size, triangles, ours_ms, peer, static_ms, moving_ms`` and
+        ``ratio`` (ours / the peer's static ms), in the rows' order.
+    """
+    best: dict[tuple, dict] = {}
+    for r in rows:
+        key = (r["scene"], r["zones"], r["size"])
+        if key not in best or r["static_ms"] < best[key]["static_ms"]:
+            best[key] = r
+    return [{k: r[k] for k in ("scene", "zones", "size", "triangles", "ours_ms", "peer",
+                               "static_ms", "moving_ms")}
+            | {"ratio": round(r["ours_ms"] / r["static_ms"], 3)} for r in best.values()]
+
+
 def plot_peers(ax, rows: list[dict], scene: str) -> None:
     """Draw each peer as a dashed grey reference line (ms, % differ) on a chart panel.
 
     Points are labelled with the zone count, as the methods' are; rows without
     ``pct_differ`` (no ray-cast reference) are left out.
     """
-    styles = {"llvmpipe": ("0.35", "P"), "embree": ("0.6", "*")}
+    styles = {"open3d": ("0.15", "X"), "llvmpipe": ("0.35", "P"),
+              "llvmpipe-cull": ("0.45", "p"), "embree": ("0.6", "*")}
     for name in PEER_NAMES:
         pts = sorted((r for r in rows if r["scene"] == scene and r["peer"] == name
                       and "pct_differ" in r), key=lambda r: r["zones"])

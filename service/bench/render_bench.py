@@ -305,11 +305,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--zone-cost", action="store_true", help="only the cost of extra zones (a few seconds)"
     )
     p.add_argument("--peers", action="store_true",
-                   help="also time llvmpipe and Embree beside our z-buffer (extra .[peers])")
+                   help="also time Open3D, llvmpipe (culling off and on) and embreex beside "
+                        "our z-buffer (extra .[peers])")
     p.add_argument("--peers-only", action="store_true", help="only the peers (implies --peers)")
     p.add_argument("--peer-scenes", metavar="NAME,...", type=comma_list(str), default=None,
-                   help="extra scenes for the peers only (default: spheres-8k,spheres-100k; "
-                        "--quick: spheres-8k)")
+                   help="extra scenes for the peers only, from "
+                        f"{','.join(pr.BIG_SCENES)} or the built-in scenes (default: all of "
+                        "those sphere scenes; --quick: spheres-8k)")
     p.add_argument("--peer-sizes", metavar="WxH,...", type=comma_list(size), default=None,
                    help="sizes of the extra peer scenes (default: 320x240,640x480; "
                         "--quick: --size)")
@@ -416,9 +418,49 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
     for p in started:
         p.close()
     write_rows(peer_rows, out / "peers")
+    write_rows(pr.fastest_peers(peer_rows), out / "peers_fastest")
     chart_peers(peer_rows, out / "peers.png")
+    chart_peer_scaling(peer_rows, out / "peers_scaling.png")
     print_peers(peer_rows)
     return peer_rows
+
+
+def chart_peer_scaling(rows: list[dict], path: Path) -> Figure:
+    """Chart ms against triangles (log-log), one panel per zones x size: ours and every peer.
+
+    The ray casters' BVH build is drawn twice: amortised over
+    :data:`~service.bench.peers.AMORTISE_FRAMES` frames (static scene, solid) and paid
+    every frame (moving scene, dotted).
+    """
+    # deferred: matplotlib loads only when a chart is drawn
+    import matplotlib
+
+    matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
+    import matplotlib.pyplot as plt
+
+    panels = sorted({(r["zones"], r["size"]) for r in rows})
+    fig, axes = plt.subplots(1, max(1, len(panels)), figsize=(4.2 * max(1, len(panels)), 4),
+                             squeeze=False)
+    for ax, (z, wh) in zip(axes[0], panels, strict=True):
+        sub = sorted((r for r in rows if r["zones"] == z and r["size"] == wh),
+                     key=lambda r: r["triangles"])
+        ours = {r["triangles"]: r["ours_ms"] for r in sub}
+        ax.plot(list(ours), list(ours.values()), "k-o", lw=2, label="ours (z-buffer)")
+        for name in sorted({r["peer"] for r in sub}):
+            pts = [r for r in sub if r["peer"] == name]
+            tri = [r["triangles"] for r in pts]
+            (line,) = ax.plot(tri, [r["static_ms"] for r in pts], "-", marker=".", label=name)
+            ax.plot(tri, [r["moving_ms"] for r in pts], ":", color=line.get_color())
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(f"{zones_label(z)}, {wh}", fontsize=9)
+        ax.set_xlabel("triangles")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("ms per frame (dotted: peer's build paid every frame)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    return save_chart(fig, path, dpi=110)
 
 
 def chart_peers(rows: list[dict], path: Path) -> Figure:
@@ -458,7 +500,14 @@ def print_peers(rows: list[dict]) -> None:
     for r in rows:
         print(f"  {r['scene']:13s} {r['zones']:3d} zones {r['size']:>8s} {r['peer']:9s}"
               f" ours {r['ours_ms']:8.2f} ms  peer {r['peer_ms']:8.2f} ms"
-              f"  ours/peer {r['ratio']:6.3f}  depth agrees {r['pct_agree']:8.4f} %")
+              f"  ours/peer {r['ratio']:6.3f}  depth agrees {r['pct_agree']:8.4f} %"
+              f"  build {r['build_ms']:8.2f} ms")
+    print(f"\nfastest peer per scene (its build amortised over {pr.AMORTISE_FRAMES} frames;"
+          " moving: paid every frame)")
+    for r in pr.fastest_peers(rows):
+        print(f"  {r['scene']:13s} {r['zones']:3d} zones {r['size']:>8s} {r['peer']:13s}"
+              f" static {r['static_ms']:8.2f} ms  moving {r['moving_ms']:8.2f} ms"
+              f"  ours {r['ours_ms']:8.2f} ms  ours/peer {r['ratio']:6.3f}")
 
 
 def print_zone_cost(rows: list[dict]) -> None:

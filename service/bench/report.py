@@ -41,6 +41,7 @@ from service.base.cli_args import exit_rule_epilog, plain_help
 from service.base.cli_args import size as size_type
 from service.base.errors import HoloError
 from service.bench.filters_bench import COLUMNS, wide
+from service.bench.peers import AMORTISE_FRAMES
 from service.bench.picks import (
     BUDGET_PCT,
     Pick,
@@ -336,14 +337,18 @@ def peers_table(out: Path) -> Table:
         return Table([], [], f"No peer ran, so there is no peer table: {peers_not_run(status)}.")
     body = [[r["peer"], f"{r['scene']} ({r['triangles']} triangles), {zones_label(r['zones'])}, "
              f"{r['size']}", _fmt(r["ours_ms"]), _fmt(r["peer_ms"]), f"{r['ratio']:.3f}",
-             f"{r['pct_agree']:.4f}"] for r in rows]
+             _fmt(r.get("build_ms")), f"{r['pct_agree']:.4f}"] for r in rows]
     engines = "; ".join(f"{k}: {v}" for k, v in status.get("started", {}).items())
     why = "; ".join(f"{k}: {v}" for k, v in status.get("not_started", {}).items())
     note = ("Side by side: each round times our z-buffer (stages 1-4, depth out) and every "
             "peer in turn; best round's median. ours / peer below 1: ours is faster. Depth "
             f"agrees: % of pixels within {status.get('tolerance', 0.001)} world units of ours "
-            f"(or empty in both). Engines: {engines or 'none started'}.")
-    return Table(["peer", "scene", "ours ms", "peer ms", "ours / peer", "depth agrees %"],
+            f"(or empty in both). Build ms: the peer's BVH build or upload, once per "
+            f"scene, not in peer ms (peers_fastest.csv adds it amortised over "
+            f"{AMORTISE_FRAMES} frames, or paid every frame for a moving scene). "
+            f"Engines: {engines or 'none started'}.")
+    return Table(["peer", "scene", "ours ms", "peer ms", "ours / peer", "build ms",
+                  "depth agrees %"],
                  body, note + (f" Not started: {why}." if why else ""))
 
 

@@ -12,6 +12,11 @@
   every galpixel moves, beside a refresh of the same update without one (target
   <= 4 ms); both re-updated every 15 refreshes, as ``holo-bench galilean`` times
   them.
+* ``floor``: the same two refreshes against the floor of memory traffic, a plain
+  ``np.copyto`` of every array of the galpixmap they read into a map of the same
+  shape, the copy and the refreshes interleaved; each refresh stated as a ratio to
+  the copy (goal <= 2 after a head turn, <= 1.2 for a still scene; see
+  :func:`floor_target`).
 * ``premise``: the Galilean premise on the complexity scenes (the rotating cube plus
   a grid of spinning spheres): G(2) refresh ms at about 1k and 1M triangles (target
   ratio <= 1.2) and ``render_with_motion`` over a refresh at 100k triangles and more
@@ -33,6 +38,7 @@ import csv
 import json
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +61,8 @@ from service.render.pipeline import Renderer, RenderSettings, StageClock, warm_u
 from service.scene_motion import advance_scene
 
 STAGES_1_4 = ("project", "cull", "sort", "occlusion", "fallback")
+#: The targets ``--only`` picks from, in the order they run.
+TARGETS = ("zones", "update", "refresh", "floor", "premise")
 
 
 def zones_target(size: tuple[int, int], repeats: int, scene_name: str = "game",
@@ -192,6 +200,79 @@ def refresh_target(size: tuple[int, int], repeats: int) -> dict:
             "goal": 4.0, "met": moving <= 4.0}
 
 
+def _map_arrays(gp) -> list[np.ndarray]:
+    """The arrays of a galpixmap (every field that is one)."""
+    return [a for a in (getattr(gp, f.name) for f in fields(gp)) if isinstance(a, np.ndarray)]
+
+
+def _copy_and_refreshes(stages: dict, up, src: list[np.ndarray], repeats: int) -> tuple:
+    """Median wall and CPU ms of a copy of ``src`` and of each stage's refresh, in turn.
+
+    Returns
+    -------
+    ms, cpu_ms : dict
+        Keyed ``"copy"`` and each key of ``stages`` (head turn or not).
+    """
+    dst = [np.empty_like(a) for a in src]
+
+    def copy() -> None:
+        for d, a in zip(dst, src, strict=True):
+            np.copyto(d, a)
+
+    ms: dict = {k: [] for k in ("copy", *stages)}
+    cpu: dict = {k: [] for k in ms}
+    for i in range(repeats):
+        for head, st in stages.items():
+            if i and i % REFRESHES_PER_UPDATE == 0:
+                _regraft(st, up, head)
+            for key, call in (("copy", copy), (head, st.refresh)):
+                c0, t0 = time.process_time(), time.perf_counter()
+                call()
+                ms[key].append((time.perf_counter() - t0) * 1e3)
+                cpu[key].append((time.process_time() - c0) * 1e3)
+    return ({k: float(np.median(v)) for k, v in ms.items()},
+            {k: float(np.median(v)) for k, v in cpu.items()})
+
+
+def floor_target(size: tuple[int, int], repeats: int) -> list[dict]:
+    """Each G(2) refresh of :func:`refresh_target` over a plain copy of its galpixmap.
+
+    A refresh reads the old map and writes the new one, so a copy of the map (every
+    array, ``np.copyto`` into a map of the same shape, one thread) is about the least
+    it can cost.  The copy, the still refresh, the copy again and the head-turn
+    refresh are timed in turn, ``repeats`` times; each refresh's ratio is its median
+    ms over the copy's median ms (CPU time beside it).
+
+    Returns
+    -------
+    list of dict
+        ``floor-head-turn`` (goal <= 2) and ``floor-still`` (goal <= 1.2).
+    """
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    up = render_with_motion(Renderer(), bench_scene("rotating-cube"), display, 0.0, HZ,
+                            RenderSettings(light=LightSettings("blinn")))
+    stages = {}
+    for head in (False, True):
+        st = GalileanStage(display, GalileanSettings(order=2, refresh_hz=HZ, threads=0,
+                                                     order_guard=False))
+        _regraft(st, up, head)
+        stages[head] = st
+    src = _map_arrays(stages[True].map)
+    med, cmed = _copy_and_refreshes(stages, up, src, repeats)
+    mb = sum(a.nbytes for a in src) / 1e6
+    rows = []
+    for head, name, goal, case in ((True, "floor-head-turn", 2.0, "after a head turn"),
+                                   (False, "floor-still", 1.2, "of a still scene")):
+        ratio = med[head] / med["copy"]
+        rows.append({"target": name, "what": f"G(2) refresh {case} / np.copyto of its "
+                     f"{mb:.1f} MB galpixmap, {size[0]}x{size[1]}, medians",
+                     "ms_refresh": round(med[head], 3), "ms_copy": round(med["copy"], 3),
+                     "cpu_ms_refresh": round(cmed[head], 3), "cpu_ms_copy": round(cmed["copy"], 3),
+                     "ratio_cpu": round(cmed[head] / cmed["copy"], 3), "map_mb": round(mb, 2),
+                     "figure": round(ratio, 3), "goal": goal, "met": ratio <= goal})
+    return rows
+
+
 def premise_target(size: tuple[int, int], repeats: int,
                    counts: tuple[int, ...] = (1_000, 100_000, 1_000_000)) -> list[dict]:
     """Refresh ms flat in triangles, and render_with_motion / refresh at >= 100k."""
@@ -280,7 +361,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--out", metavar="DIR", default="bench-out",
                    help="output folder (default bench-out)")
-    p.add_argument("--only", choices=("zones", "update", "refresh", "premise"), action="append",
+    p.add_argument("--only", choices=TARGETS, action="append",
                    help="run just these targets (repeatable; default all)")
     add_size_option(p, (640, 480), "display of the refresh and premise targets")
     add_size_option(p, (320, 240), "display of the zones target", flag="--zone-size")
@@ -303,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     warm_up(RenderSettings())
     reps = 7 if args.quick else args.repeats
-    only = set(args.only or ("zones", "update", "refresh", "premise"))
+    only = set(args.only or TARGETS)
     rows: list[dict] = []
     if "zones" in only:
         rows.append(zones_target(args.zone_size, reps))
@@ -312,6 +393,8 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(update_target(args.update_size, reps, rounds=rounds))
     if "refresh" in only:
         rows += median_round([[refresh_target(args.size, reps * 3)] for _ in range(rounds)])
+    if "floor" in only:
+        rows += median_round([floor_target(args.size, reps * 3) for _ in range(rounds)])
     if "premise" in only:
         counts = (1_000, 100_000) if args.quick else (1_000, 100_000, 1_000_000)
         rows += median_round([premise_target(args.size, reps, counts) for _ in range(rounds)])
@@ -329,6 +412,9 @@ def summary(r: dict) -> str:
         if "ratio_moving" in r:
             extra += f"; scene moving {r['ratio_moving']}, CPU time {r['ratio_moving_cpu']}"
         extra += ")"
+    if "ms_copy" in r:
+        extra += (f" (refresh {r['ms_refresh']} ms, copy {r['ms_copy']} ms; CPU time "
+                  f"{r['ratio_cpu']})")
     if "ms_moving_min" in r:
         extra += f" (best {r['ms_moving_min']} ms, CPU {r['cpu_ms_moving']} ms)"
     if len(r.get("rounds", ())) > 1:

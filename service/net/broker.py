@@ -122,6 +122,11 @@ class Broker:
         """Live workers (idle or busy)."""
         return len(self.books)
 
+    def idle(self) -> int:
+        """Live workers holding no job (one could take a job at once); any thread."""
+        with self._books:
+            return sum(b.busy_since is None for b in self.books.values())
+
     def forget(self, pid: int) -> None:
         """Drop the worker of process ``pid`` (it exited); any thread.  Not a death report."""
         self._forget.put(pid)

@@ -147,11 +147,13 @@ class WorkerScheduler(Scheduler):
         """A job lost with its worker or past its deadline: re-aim it and resend it.
 
         The resend is aimed at a new rendezvous from the present, so the render is
-        never grafted late.  With no live worker left it renders in process now;
-        after 3 resends it counts as failed.  Each counts in ``jobs_resent``.
+        never grafted late.  With no live worker left, or none idle to take it now
+        (the others busy, or stopped and not yet found dead: queued behind them it
+        would come too late for its rendezvous), it renders in process now; after 3
+        resends it counts as failed.  Each counts in ``jobs_resent``.
         """
         self.st.band_retries += 1
-        if not self.st.to_workers():  # every worker dead or stuck: render it here
+        if not self.st.to_workers() or self.st.broker.idle() == 0:  # render it here, now
             self.render_once(self.local(), None, flight.meta.render_id)
             return
         aim = self.aim(flight.meta.render_id) if flight.attempt < 3 else None

@@ -1,4 +1,6 @@
-"""Peers (llvmpipe, Embree): same depth as ours; a peer that cannot start is named, not fatal.
+"""Peers (Open3D, llvmpipe, culling off and on, embreex): same depth as ours.
+
+A peer that cannot start is named, not fatal.
 
 The peer tests skip, with the reason, where the optional extra ``.[peers]`` is not
 installed or no headless EGL context can be made.
@@ -39,6 +41,17 @@ def test_depth_agreement_counts_empty_and_close_pixels():
     assert peers.depth_agreement(ours, ours) == 100.0
 
 
+def test_fastest_peer_is_the_least_static_ms_per_configuration():
+    def row(peer, scene, zones, static, moving):
+        return {"scene": scene, "zones": zones, "size": "320x240", "triangles": 10,
+                "ours_ms": 8.0, "peer": peer, "static_ms": static, "moving_ms": moving}
+
+    rows = [row("a", "s", 1, 4.0, 40.0), row("b", "s", 1, 2.0, 90.0),
+            row("a", "s", 5, 1.0, 3.0), row("b", "s", 5, 5.0, 5.0)]
+    best = peers.fastest_peers(rows)
+    assert [(r["zones"], r["peer"], r["ratio"]) for r in best] == [(1, "b", 4.0), (5, "a", 8.0)]
+
+
 def _started(name):
     try:
         return peers.PEER_TYPES[name]()
@@ -48,7 +61,7 @@ def _started(name):
 
 @pytest.mark.parametrize("name", peers.PEER_NAMES)
 def test_peer_depth_agrees_with_ours_on_a_small_scene(name, tmp_path):
-    from service.bench.render_bench import chart_methods, chart_peers
+    from service.bench.render_bench import chart_methods, chart_peer_scaling, chart_peers
 
     peer = _started(name)
     try:
@@ -64,7 +77,12 @@ def test_peer_depth_agrees_with_ours_on_a_small_scene(name, tmp_path):
     # the row's ratio is rounded to 3 decimals: a small one (ours much faster) is off
     # by up to 5e-4 however exact, more than rel=0.01 of it (0.031 against 0.0313)
     assert row["ratio"] == pytest.approx(row["ours_ms"] / row["peer_ms"], rel=0.01, abs=6e-4)
+    assert row["static_ms"] == pytest.approx(
+        row["peer_ms"] + row["build_ms"] / peers.AMORTISE_FRAMES, abs=2e-3)
+    assert row["moving_ms"] == pytest.approx(row["peer_ms"] + row["build_ms"], abs=2e-3)
     chart_peers(rows, tmp_path / "p.png")
+    chart_peer_scaling(rows, tmp_path / "s.png")
+    assert (tmp_path / "s.png").read_bytes()[:8] == PNG
     method_row = {"scene": "sphere-torus", "zones": 3, "method": "zbuffer", "ms": 1.0,
                   "pct_differ": 0.0}
     chart_methods([method_row], tmp_path / "m.png", rows)
@@ -74,7 +92,7 @@ def test_peer_depth_agrees_with_ours_on_a_small_scene(name, tmp_path):
 
 def test_peers_that_cannot_start_are_named_and_the_bench_goes_on(tmp_path):
     # packages named like the extras' that fail to import, ahead on the path
-    for mod in ("moderngl", "embreex"):
+    for mod in ("moderngl", "embreex", "open3d"):
         (tmp_path / "shadow" / mod).mkdir(parents=True)
         (tmp_path / "shadow" / mod / "__init__.py").write_text(
             f"raise ImportError('no {mod} here')\n")
@@ -86,7 +104,9 @@ def test_peers_that_cannot_start_are_named_and_the_bench_goes_on(tmp_path):
         env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "peer llvmpipe not measured: moderngl not installed" in proc.stderr
+    assert "peer llvmpipe-cull not measured: moderngl not installed" in proc.stderr
     assert "peer embree not measured: embreex not installed" in proc.stderr
+    assert "peer open3d not measured: open3d not installed" in proc.stderr
     status = json.loads((out / "peers_status.json").read_text())
     assert status["started"] == {}
-    assert set(status["not_started"]) == {"llvmpipe", "embree"}
+    assert set(status["not_started"]) == set(peers.PEER_NAMES)

@@ -24,6 +24,23 @@ def test_targets_rows_and_files(tmp_path):
     assert [r["target"] for r in got] == [r["target"] for r in rows]
 
 
+def test_floor_states_each_refresh_as_a_ratio_to_a_copy_of_its_map(tmp_path):
+    rows = tb.floor_target((48, 36), 3)
+    assert [r["target"] for r in rows] == ["floor-head-turn", "floor-still"]
+    for r in rows:
+        assert r["ms_copy"] > 0 and r["ms_refresh"] > 0 and r["map_mb"] > 0
+        # ms are rounded to 1 us: a copy of this tiny map takes a few, so allow that
+        slack = r["figure"] * (0.0005 / r["ms_copy"] + 0.0005 / r["ms_refresh"] + 0.01)
+        assert abs(r["figure"] - r["ms_refresh"] / r["ms_copy"]) <= slack + 2e-3
+        assert r["met"] == (r["figure"] <= r["goal"]) and r["ratio_cpu"] > 0
+    assert rows[0]["ms_copy"] == rows[1]["ms_copy"]  # one copy, timed beside both
+    assert "copy" in tb.summary(rows[0])
+    assert tb.main(["--only", "floor", "--size", "48x36", "--repeats", "1", "--rounds", "1",
+                    "--out", str(tmp_path)]) == 0
+    got = json.loads((tmp_path / "targets.json").read_text())
+    assert [r["target"] for r in got] == ["floor-head-turn", "floor-still"]
+
+
 def test_median_round_keeps_the_median_rounds_row():
     """Each target's row is its median round's, whole; every round's figure is listed."""
     def row(target, figure, tag):
