@@ -509,15 +509,11 @@ def _point_pixels(
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _lit_at(
-    i: int, p: int, z: int, vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
-    normals: np.ndarray, materials: np.ndarray, views: np.ndarray, lights: tuple,
-    ambient: float, code: int,
-) -> tuple:
-    """:func:`_polygon_table`'s colour of polygon ``p`` in zone ``z`` at time ``i``.
+def _centroid(i: int, p: int, vertices: np.ndarray, polygons: np.ndarray,
+              counts: np.ndarray) -> tuple:
+    """Mean of polygon ``p``'s vertices at time ``i``, summed in :func:`_polygon_table`'s order.
 
-    ``vertices`` (K, V, 3), ``normals`` (K, P, 3) and the light vectors ``lights[0]``
-    (K, J, 3) hold the K times; the arithmetic is :func:`_polygon_table`'s, in its order.
+    ``vertices`` (K, V, 3) holds the K times; returns ``(x, y, z)``.
     """
     cx = cy = cz = 0.0
     for k in range(counts[p]):
@@ -525,9 +521,23 @@ def _lit_at(
         cx += vertices[i, q, 0]
         cy += vertices[i, q, 1]
         cz += vertices[i, q, 2]
+    return cx / counts[p], cy / counts[p], cz / counts[p]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _lit_at(
+    i: int, p: int, z: int, centre: tuple, normals: np.ndarray, materials: np.ndarray,
+    views: np.ndarray, lights: tuple, ambient: float, code: int,
+) -> tuple:
+    """:func:`_polygon_table`'s colour of polygon ``p`` in zone ``z`` at time ``i``.
+
+    ``centre`` is the polygon's :func:`_centroid` at time ``i`` (zones share it);
+    ``normals`` (K, P, 3) and the light vectors ``lights[0]`` (K, J, 3) hold the K
+    times; the arithmetic is :func:`_polygon_table`'s, in its order.
+    """
     s = _facing(normals[i], p, views[z])
     return _light_rgb(
-        cx / counts[p], cy / counts[p], cz / counts[p],
+        centre[0], centre[1], centre[2],
         s * normals[i, p, 0], s * normals[i, p, 1], s * normals[i, p, 2],
         materials[p], views[z], (lights[0][i], lights[1], lights[2]), ambient, code,
     )
@@ -555,18 +565,24 @@ def _polygon_motion_table(
     mid = kt // 2
     w = weights
     for p in nb.prange(normals.shape[1]):
+        shown = False
+        for z in range(zones):
+            shown |= needed[z, p]
+        if not shown:
+            continue
+        # centroids once per time, for all zones (as _polygon_table finds them once)
+        cm = _centroid(mid, p, vertices, polygons, counts)
+        c0 = _centroid(0, p, vertices, polygons, counts)
+        c2 = _centroid(kt - 1, p, vertices, polygons, counts)
         for z in range(zones):
             if not needed[z, p]:
                 continue
-            c = _lit_at(mid, p, z, vertices, polygons, counts, normals, materials, views,
-                        lights, ambient, code)
+            c = _lit_at(mid, p, z, cm, normals, materials, views, lights, ambient, code)
             _store(table, 0, z, p, c, 255.0, 0.5)
             if kt != 3:
                 continue
-            m = _lit_at(0, p, z, vertices, polygons, counts, normals, materials, views,
-                        lights, ambient, code)
-            q = _lit_at(2, p, z, vertices, polygons, counts, normals, materials, views,
-                        lights, ambient, code)
+            m = _lit_at(0, p, z, c0, normals, materials, views, lights, ambient, code)
+            q = _lit_at(2, p, z, c2, normals, materials, views, lights, ambient, code)
             for j in range(3):
                 acc = 0.0
                 for k in range(3):

@@ -29,7 +29,9 @@ def test_floor_states_each_refresh_as_a_ratio_to_a_copy_of_its_map(tmp_path):
     assert [r["target"] for r in rows] == ["floor-head-turn", "floor-still"]
     for r in rows:
         assert r["ms_copy"] > 0 and r["ms_refresh"] > 0 and r["map_mb"] > 0
-        assert abs(r["figure"] - r["ms_refresh"] / r["ms_copy"]) < 0.01 * r["figure"] + 2e-3
+        # ms are rounded to 1 us: a copy of this tiny map takes a few, so allow that
+        slack = r["figure"] * (0.0005 / r["ms_copy"] + 0.0005 / r["ms_refresh"] + 0.01)
+        assert abs(r["figure"] - r["ms_refresh"] / r["ms_copy"]) <= slack + 2e-3
         assert r["met"] == (r["figure"] <= r["goal"]) and r["ratio_cpu"] > 0
     assert rows[0]["ms_copy"] == rows[1]["ms_copy"]  # one copy, timed beside both
     assert "copy" in tb.summary(rows[0])
