@@ -68,7 +68,8 @@ def load_scene(st: ServiceState, req: dict[str, Any]) -> tuple:
         raise MessageError("bad_message", "give exactly one of builtin, path, scene")
     loaders = {
         "builtin": lambda v: load_builtin(wire.string(v, "builtin", 64)),
-        "path": lambda v: _load_path(wire.string(v, "path"), st.config.scene_dirs),
+        "path": lambda v: _load_path(wire.string(v, "path"), st.config.scene_dirs,
+                                     st.state.settings.display),
         "scene": wire.scene_from_wire,
     }
     scene = loaders[sources[0]](req[sources[0]])
@@ -86,7 +87,8 @@ def load_object(st: ServiceState, req: dict[str, Any]) -> tuple:
     """Add one object (``path`` or inline ``object``) to the scene."""
     if "path" in req:
 
-        mesh_scene = _load_path(wire.string(req["path"], "path"), st.config.scene_dirs)
+        mesh_scene = _load_path(wire.string(req["path"], "path"), st.config.scene_dirs,
+                                st.state.settings.display)
         if not mesh_scene.objects:  # a lone billboard cloud (.hbc) has no mesh object
             raise MessageError("bad_message", f"{req['path']}: no mesh to add as an object "
                                "(a billboard cloud loads with load_scene)")
@@ -248,8 +250,12 @@ def load_builtin(name: str) -> Scene:
         raise MessageError("not_found", str(exc)) from exc
 
 
-def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
-    """Load a scene or mesh file; with ``roots``, only from inside those directories."""
+def _load_path(path: str, roots: tuple[str, ...] = (),
+               display: DisplaySettings | None = None) -> Scene:
+    """Load a scene or mesh file; with ``roots``, only from inside those directories.
+
+    A lone mesh is fitted to ``display`` (the service's own, not the default one).
+    """
     if roots:
         real = Path(path).resolve()
         if not any(real.is_relative_to(Path(r).resolve()) for r in roots):
@@ -257,7 +263,7 @@ def _load_path(path: str, roots: tuple[str, ...] = ()) -> Scene:
     if not Path(path).is_file():
         raise MessageError("not_found", f"no such file: {path}")
     try:
-        scene = load_mesh_file(path)
+        scene = load_mesh_file(path, display=display)
     except MeshFileError as exc:
         raise MessageError("not_found", str(exc)) from exc
     return scene

@@ -142,3 +142,22 @@ def test_load_object_from_a_file_only_inside_the_scene_dirs(tmp_path):
     assert code_of(st, "load_object", path=str(outside / "tri.obj")) == "not_found"
     assert code_of(st, "load_object", path=str(inside / "none.obj")) == "not_found"
     assert len(st.state.scene.objects) == 1
+
+
+def test_a_lone_mesh_file_is_fitted_to_the_services_display(st, tmp_path):
+    # fitted to the default display, a tall mesh overran a wider, shorter --size
+    import numpy as np
+
+    from service.loaders import fit_view
+    from service.loaders.obj import save_obj
+    from service.render.mesh import Mesh
+
+    mesh = Mesh.from_triangles(np.array([[0.0, -3, 0], [0, 3, 0], [1, 0, 0.5]]), [[0, 1, 2]])
+    save_obj(tmp_path / "tall.obj", mesh)
+    call(st, "set_display", zones=5, cols=200, rows=60)
+    display = st.state.settings.display
+    call(st, "load_scene", path=str(tmp_path / "tall.obj"))
+    got, want = st.state.scene.objects[0].transform, fit_view(mesh.vertices, display)
+    assert got.scale == pytest.approx(want.scale)
+    assert np.allclose(got.position, want.position)
+    assert want.scale != pytest.approx(fit_view(mesh.vertices, ServiceConfig().display).scale)
