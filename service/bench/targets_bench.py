@@ -158,6 +158,25 @@ def _regraft(st: GalileanStage, up, head: bool) -> None:
         st.refresh()
 
 
+def _refresh_stages(size: tuple[int, int]) -> tuple:
+    """The rotating cube's update and two G(2) stages that grafted it: still and head turn.
+
+    Returns ``(update, {False: still stage, True: head-turn stage})``.
+    """
+    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
+    up = render_with_motion(Renderer(), bench_scene("rotating-cube"), display, 0.0, HZ,
+                            RenderSettings(light=LightSettings("blinn")))
+    stages = {}
+    for head in (False, True):
+        # no order guard: the same update grafted again would look to it like a
+        # scene that stood still, and it would fall back to G(0)
+        st = GalileanStage(display, GalileanSettings(order=2, refresh_hz=HZ, threads=0,
+                                                     order_guard=False))
+        _regraft(st, up, head)
+        stages[head] = st
+    return up, stages
+
+
 def refresh_target(size: tuple[int, int], repeats: int) -> dict:
     """G(2) refresh ms with every galpixel moving (head turn) and without, interleaved.
 
@@ -168,18 +187,7 @@ def refresh_target(size: tuple[int, int], repeats: int) -> dict:
     once timed) costs more each refresh, 6.5 -> 10 ms CPU from age 2 to 48 after
     a head turn: the holes it leaves grow into debris and expansions.
     """
-    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
-    settings = RenderSettings(light=LightSettings("blinn"))
-    scene, r = bench_scene("rotating-cube"), Renderer()
-    up = render_with_motion(r, scene, display, 0.0, HZ, settings)
-    stages = {}
-    for head in (False, True):
-        # no order guard: the same update grafted again would look to it like a
-        # scene that stood still, and it would fall back to G(0)
-        st = GalileanStage(display, GalileanSettings(order=2, refresh_hz=HZ, threads=0,
-                                                     order_guard=False))
-        _regraft(st, up, head)
-        stages[head] = st
+    up, stages = _refresh_stages(size)
     ms: dict[bool, list[float]] = {False: [], True: []}
     cpu: dict[bool, list[float]] = {False: [], True: []}
     for i in range(repeats):
@@ -248,15 +256,7 @@ def floor_target(size: tuple[int, int], repeats: int) -> list[dict]:
     list of dict
         ``floor-head-turn`` (goal <= 2) and ``floor-still`` (goal <= 1.2).
     """
-    display = DisplaySettings(zones=1, cols=size[0], rows=size[1])
-    up = render_with_motion(Renderer(), bench_scene("rotating-cube"), display, 0.0, HZ,
-                            RenderSettings(light=LightSettings("blinn")))
-    stages = {}
-    for head in (False, True):
-        st = GalileanStage(display, GalileanSettings(order=2, refresh_hz=HZ, threads=0,
-                                                     order_guard=False))
-        _regraft(st, up, head)
-        stages[head] = st
+    up, stages = _refresh_stages(size)
     src = _map_arrays(stages[True].map)
     med, cmed = _copy_and_refreshes(stages, up, src, repeats)
     mb = sum(a.nbytes for a in src) / 1e6
