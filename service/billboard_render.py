@@ -5,9 +5,10 @@ A scene's ``billboards`` (:class:`BillboardObject`: a
 are drawn after the occlusion stage, into the same depth buffer, for every view zone:
 each pixel's ray (the zone's sheared orthographic ray, :mod:`service.render.projection`) is
 intersected with each quad's plane inside the quad's screen box (nearest quads first,
-each row clipped to the quad's span), the depth test comes first, then the texel is
-alpha-tested (opaque from 128), and the nearer of quad and mesh wins.  Lighting is
-deferred: the draw leaves the winning quad and texel per pixel, and
+each row clipped to the quad's span; close up, only over the texture tiles that show
+something: :attr:`~service.simplify.billboard.BillboardCloud.tiles`), the depth test
+comes first, then the texel is alpha-tested (opaque from 128), and the nearer of quad
+and mesh wins.  Lighting is deferred: the draw leaves the winning quad and texel per pixel, and
 :meth:`BillboardPass.paint` lights each shown pixel once, inside the box the quads
 touched (not once per quad drawn over it, nor over the whole frame).  That is a
 z-buffer of quads with ray casting per pixel, so the ``zbuffer`` and ``raycast``
