@@ -374,16 +374,31 @@ def _motion_pixels(
                 s1, u1 = fy / det, (-ax * fy - fx * py) / det
                 s2, u2 = -ey / det, (ex * py + ax * ey) / det
             x0 = np.float64(i0 - base) + 0.5
+            p = tri_poly[t]
+            single = i1 == i0 + one  # most runs: loops of one cost more than the writes
             for j in range(planes):
                 v0 = vd[z, ta, j]
                 d1, d2 = vd[z, tb, j] - v0, vd[z, tc, j] - v0
                 ca, cb = v0 + u1 * d1 + u2 * d2, s1 * d1 + s2 * d2
                 off, x = np.uint64(j) * n, x0
+                if single:
+                    derf[off + i0] = ca + cb * x
+                    continue
                 for i in range(i0, i1):
                     derf[off + i] = ca + cb * x
                     x += 1.0
-            p = tri_poly[t]
             o = poly_obj[p]
+            if single:
+                obj[i0] = o
+                if paint:
+                    colf[three * i0] = table[z, p, 0]
+                    colf[three * i0 + one] = table[z, p, 1]
+                    colf[three * i0 + np.uint64(2)] = table[z, p, 2]
+                if dpaint:
+                    for j in range(4):
+                        dcolf[np.uint64(j) * n + i0] = dtable[z, p, j]
+                i0 = i1
+                continue
             for i in range(i0, i1):
                 obj[i] = o
             if paint:
