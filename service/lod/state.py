@@ -321,24 +321,37 @@ class LodState:
             predicted = errors[np.arange(len(objs)), level] * scale * ppu
         return level, predicted
 
-    @staticmethod
-    def _colour(objs: list, tab: dict, level: np.ndarray, scale2: np.ndarray,
+    def _colour(self, objs: list, tab: dict, level: np.ndarray, scale2: np.ndarray,
                 ppu: float, colour_pct: float, frame: tuple) -> np.ndarray:
         """Levels stepped finer until the predicted colour change is ``colour_pct`` or less.
 
         ``frame`` is ``(evaluation, display, lights)``; ``scale2`` (n,) the objects'
         squared scales.  Each object's angle comes from its material and the lights
-        (:func:`colour_angle`); its pixels from its surface area.
+        (:func:`colour_angle`); its pixels from its surface area.  The shares are kept
+        while the objects' materials, the lights and the chains stay the same, and the
+        answer while the error's levels and the sizes do too (0.39 ms of a 200-object
+        selection was spent recomputing them, against 0.09 ms without colour).
         """
         evaluation, display, lights = frame
         light = sum((np.asarray(li.colour, np.float64) * li.intensity for li in lights),
                     np.zeros(3))
-        angle = colour_angle(np.array([o.material.colour for o in objs], np.float64),
-                             np.array([o.material.diffuse for o in objs], np.float64), light)
-        share = share_at(tab["turned"][..., 0 if evaluation == "polygon" else 1], angle)
-        px = colour_pixels(share, tab["area"] * scale2, ppu)
-        return limit_colour(level, px, tab["triangles"],
-                            colour_pct / 100.0 * display.rows * display.cols)
+        # the materials themselves (frozen, compared by identity first): kept alive here,
+        # so a new one never takes an old one's id
+        key = (evaluation, tuple(o.material for o in objs), light.tobytes(), ppu)
+        memo = getattr(self, "_colour_memo", None)
+        if memo is None or memo[0] is not tab or memo[1] != key:
+            angle = colour_angle(np.array([o.material.colour for o in objs], np.float64),
+                                 np.array([o.material.diffuse for o in objs], np.float64),
+                                 light)
+            share = share_at(tab["turned"][..., 0 if evaluation == "polygon" else 1], angle)
+            memo = (tab, key, colour_pixels(share, tab["area"], ppu), None)
+        budget = colour_pct / 100.0 * display.rows * display.cols
+        asked = (level.tobytes(), scale2.tobytes(), budget)
+        if memo[3] is not None and memo[3][0] == asked:
+            return memo[3][1].copy()
+        chosen = limit_colour(level, memo[2] * scale2[:, None], tab["triangles"], budget)
+        self._colour_memo = (*memo[:3], (asked, chosen))
+        return chosen.copy()
 
     def _fill_scene(self, scene: Scene, out: list, boards: list) -> None:
         """Put this frame's objects, billboards, lights and ambient in the kept scene."""

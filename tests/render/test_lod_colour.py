@@ -174,3 +174,63 @@ def test_a_bad_colour_budget_is_a_clear_error():
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(SettingsError, match="colour budget"):
             LodSettings(colour_pct=bad)
+
+
+def test_holo_bench_lod_charts_speed_against_colour_error(tmp_path, monkeypatch):
+    from service.bench import lod_bench
+
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path / "lod"))
+    out = tmp_path / "bench"
+    assert lod_bench.main(["--meshes", "", "--crowd", "6", "--crowd-mesh", "torus",
+                           "--size", "64x48", "--zones", "1", "--repeats", "1",
+                           "--crowds", "uniform,random", "--colour-sweep", "geometric,0",
+                           "--out", str(out)]) == 0
+    data = json.loads((out / "lod_bench.json").read_text())
+    modes = {(r["crowd"], r["lod"]) for r in data["crowd"]}
+    assert modes == {(c, m) for c in ("uniform", "random")
+                     for m in ("off", "on", "geometric", "colour 0 %", "budget")}
+    for r in data["crowd"]:
+        assert 0 <= r["colour_diff_pct_all"] <= r["colour_diff_pct"] <= 100
+        if r["lod"] == "off":
+            assert r["colour_diff_pct_all"] == 0 and r["coverage_diff_pct_all"] == 0
+    assert (out / "lod_colour.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--colour-sweep", "1,lots"], "'lots' is not a % or 'geometric'"),
+    (["--colour-sweep", "-2"], "must be a % >= 0"),
+    (["--crowds", "by-depth,huge"], "crowds must be some of"),
+])
+def test_holo_bench_lod_refuses_bad_sweeps(args, message, capsys):
+    from service.bench import lod_bench
+
+    with pytest.raises(SystemExit) as exc:
+        lod_bench.main(args)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_the_colour_budget_follows_each_objects_material(ball):
+    """A material no normal can change (no diffuse) needs no finer level; the same
+    renderer then given a lit one draws finer (what it kept from the last frame is
+    not reused for other materials)."""
+    from dataclasses import replace
+
+    from service.lod.state import LodState
+
+    mesh, _ = ball
+    display = DisplaySettings(zones=1, cols=160, rows=120)
+
+    def crowd(material):
+        return Scene([SceneObject(mesh, material, Transform(np.array([x, 0.0, -0.5]), scale=0.3),
+                                  name=f"o{i}") for i, x in enumerate(np.linspace(-0.8, 0.8, 8))],
+                     LIGHTS, 1.0)
+
+    state = LodState(cache=False)
+    settings = LodSettings(colour_pct=0.1, hysteresis=0.0)
+    geometric = state.apply(crowd(MATERIAL), display, LodSettings(colour_pct=None,
+                                                                 hysteresis=0.0))[1]
+    matte = state.apply(crowd(replace(MATERIAL, diffuse=0.0)), display, settings)[1]
+    lit = state.apply(crowd(MATERIAL), display, settings)[1]
+    assert matte["levels"] == geometric["levels"]
+    assert lit["triangles"] > matte["triangles"]
