@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from service.net.broker import Broker
+from service.net.forkserver import ForkedProc, ForkServer
 
 #: seconds between looks at the processes and the broker's reports
 TICK_S = 0.05
@@ -62,7 +63,7 @@ class Slot:
     """One local worker: its process now, and its history."""
 
     index: int
-    proc: subprocess.Popen | None = None
+    proc: subprocess.Popen | ForkedProc | None = None
     #: processes started
     starts: int = 0
     #: deaths before ``READY`` in a row
@@ -116,6 +117,8 @@ class Supervisor:
     log: Callable[[str], None] = lambda line: None
     #: seconds a worker has to say ``READY`` (:data:`STARTUP_S`)
     startup_s: float = STARTUP_S
+    #: the fork server workers are forked from (None, or once it is gone: fresh processes)
+    forks: ForkServer | None = None
     slots: list[Slot] = field(default_factory=list)
     deaths: int = 0
     restarts: int = 0
@@ -204,9 +207,17 @@ class Supervisor:
         self.log(f"worker {slot.pid} died at start-up ({why}); restarting it in {wait:g} s")
 
     def _spawn(self, slot: Slot) -> None:
-        """Start a slot's process (the leader of a process group of its own)."""
-        slot.proc = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, env=self.env,
-                                     process_group=0)
+        """Start a slot's process (the leader of a process group of its own).
+
+        Forked from the fork server while it works; not yet while it is starting
+        (the next tick tries again); a fresh process without one or once it is gone.
+        """
+        slot.proc = None if self.forks is None else self.forks.spawn(self.command)
+        if slot.proc is None and self.forks is not None and self.forks.state == "starting":
+            return
+        if slot.proc is None:
+            slot.proc = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, env=self.env,
+                                         process_group=0)
         self.started.add(slot.proc.pid)
         slot.dead, slot.ready, slot.start_at = False, False, None
         slot.started_at = time.monotonic()
@@ -264,9 +275,11 @@ class Supervisor:
                 _kill_group(p, signal.SIGKILL)  # stragglers, and the group's children
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     p.wait(1.0)
+            if self.forks is not None:
+                self.forks.close()
 
 
-def _kill_group(proc: subprocess.Popen, signum: int) -> None:
+def _kill_group(proc: subprocess.Popen | ForkedProc, signum: int) -> None:
     """Send ``signum`` to the process group ``proc`` leads (nothing if it is gone)."""
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.killpg(proc.pid, signum)
