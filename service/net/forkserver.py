@@ -243,6 +243,7 @@ def _child(args: list[str], closing: list[int]) -> None:
         null = os.open(os.devnull, os.O_RDONLY)
         os.dup2(null, 0)
         os.close(null)
+        # deferred: the template imported it already; the service's end never needs it
         from service.net import worker
 
         code = worker.main([*args, "--parent", str(os.getppid())])
@@ -284,6 +285,7 @@ def _reap(out: int) -> None:
 def serve(out: int) -> None:
     """The template's loop: fork on ``spawn``, report ends, return at EOF on stdin."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as service.net.worker.main
+    # deferred: after the OpenMP setting, and only in the template (not the service)
     import service.net.worker  # noqa: F401 - the imports each child no longer pays
 
     wake_r, wake_w = os.pipe()
