@@ -147,6 +147,13 @@ class ForkServer:
             for line in lines:
                 self._heard(line.decode().split())
 
+    def wait_ready(self) -> str:
+        """Wait until the template is ready or gone (at most :attr:`ready_s`); its state."""
+        end = self._started_at + self.ready_s
+        while self.state == "starting" and time.monotonic() < end:
+            self.pump(min(0.05, max(0.0, end - time.monotonic())))
+        return self.state
+
     def _heard(self, words: list[str]) -> None:
         if words == ["ready"] and self.state == "starting":
             self.state = "ready"

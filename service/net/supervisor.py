@@ -22,6 +22,10 @@ given up (renders go on in process meanwhile).  One that dies before it ever sai
 after it started (hung: it is killed with its process group): it is restarted after
 a back-off (0.5, 1, 2, 4 s), and after :data:`MAX_FAILED_STARTS` failures in a row
 the slot is given up with one line in ``stats`` (``worker_error``) and on stderr.
+A worker killed before ``READY`` by a signal from outside (:data:`OUTSIDE_SIGNALS`:
+an operator, the OOM killer, the chaos benchmark) did not fail to start: it is
+restarted as one that died soon after ``READY`` (back-off only if it keeps happening,
+never given up).
 Every death counts in ``worker_deaths``, every start after the first in
 ``worker_restarts``.
 """
@@ -56,6 +60,9 @@ QUICK_S = 10.0
 MAX_BACKOFF_S = 30.0
 #: seconds a worker gets to end after SIGTERM when the service closes
 CLOSE_S = 3.0
+#: signals a worker does not send itself (a crash raises SIGSEGV, SIGABRT, SIGBUS ...):
+#: a death by one of them before ``READY`` is not a failed start
+OUTSIDE_SIGNALS = frozenset({signal.SIGKILL, signal.SIGTERM, signal.SIGINT, signal.SIGHUP})
 
 
 @dataclass
@@ -128,7 +135,12 @@ class Supervisor:
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def start(self, n: int) -> None:
-        """Add ``n`` slots; their processes start on the next tick."""
+        """Add ``n`` slots and start their processes.
+
+        With a fork server, once it is ready (or gone): ``pids()`` lists them on return.
+        """
+        if self.forks is not None:
+            self.forks.wait_ready()
         with self._lock:
             self.slots += [Slot(len(self.slots) + i) for i in range(n)]
         self.tick()
@@ -176,18 +188,25 @@ class Supervisor:
             _kill_group(slot.proc, signal.SIGKILL)  # hung at start-up: the group goes
         if slot.proc is not None and slot.proc.poll() is not None:
             if not slot.dead:
-                self._died(slot, _exit_text(slot.proc.returncode), now)
+                code = slot.proc.returncode
+                self._died(slot, _exit_text(code), now, outside=-code in OUTSIDE_SIGNALS)
                 self.broker.forget(slot.proc.pid)
             slot.proc = None
         if slot.proc is None and slot.start_at is not None and now >= slot.start_at:
             self._spawn(slot)
 
-    def _died(self, slot: Slot, why: str, now: float) -> None:
-        """Count a death; plan the restart (at once, after a back-off, or never)."""
+    def _died(self, slot: Slot, why: str, now: float, outside: bool = False) -> None:
+        """Count a death; plan the restart (at once, after a back-off, or never).
+
+        ``outside``: killed by a signal from outside (:data:`OUTSIDE_SIGNALS`); before
+        ``READY`` that is no failed start (it says nothing of whether the worker can
+        start): it is restarted as one that died quickly after ``READY``.
+        """
         self.deaths += 1
         slot.dead, slot.last_death = True, why
-        if slot.ready:
-            slot.quick_deaths = slot.quick_deaths + 1 if now - slot.ready_at < QUICK_S else 0
+        if slot.ready or outside:
+            since = slot.ready_at if slot.ready else slot.started_at
+            slot.quick_deaths = slot.quick_deaths + 1 if now - since < QUICK_S else 0
             wait = (min(MAX_BACKOFF_S, BACKOFF_S * 2 ** (slot.quick_deaths - 2))
                     if slot.quick_deaths >= 2 else 0.0)
             slot.start_at = now + wait
