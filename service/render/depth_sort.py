@@ -7,8 +7,11 @@ their list order, which is object order, so the earlier object takes precedence
 projections depth along every view ray is -z.
 
 Every occlusion method reads the order (run-length and BSP paint by it; the z-buffer
-and ray casting give a tie in depth to the triangle earlier in it), so it cannot be
-skipped without changing pixels at exact ties.  It is made cheap instead, giving
+and ray casting give a tie in depth to the triangle earlier in it).  The z-buffer
+needs no sort for that: :func:`depth_keys` gives each triangle the sort's key, and its
+depth test breaks ties by the key (:mod:`service.render.raster`), drawing the kept
+triangles in index order with the sorted order's pixels.  For the others the sort is
+made cheap, giving
 exactly the permutation of ``np.argsort(-avg_z, kind="stable")`` (the reference,
 :func:`sort_polygons_reference`): the float64 keys become uint64 ones that sort the
 same way, LSD radix passes (11-bit digits, digits every key shares skipped) order
