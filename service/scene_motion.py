@@ -211,3 +211,97 @@ def control_points(
     if not verts:
         return np.zeros((display.zones, 0, 3)), np.zeros(0, np.int64)
     return project(np.concatenate(verts), display), np.concatenate(owner)
+
+
+#: Binomial coefficients C(n, k), n, k = 0..3 (Leibniz's rule for the derivatives).
+_BINOMIAL = ((1, 0, 0, 0), (1, 1, 0, 0), (1, 2, 1, 0), (1, 3, 3, 1))
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """Cross-product matrices ``[w]x`` of vectors (N, 3), shape (N, 3, 3)."""
+    out = np.zeros((w.shape[0], 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return out
+
+
+def _turn_rates(w: np.ndarray, alpha: np.ndarray, dt: float) -> np.ndarray:
+    """``R^(n) R^T`` (n = 0..3) of rotations turning at ``w + alpha dt``, shape (4, N, 3, 3).
+
+    With ``R' = [omega]x R`` and ``omega' = alpha``: ``I``, ``[omega]``, ``[alpha] +
+    [omega]^2``, ``2 [alpha][omega] + [omega][alpha] + [omega]^3``.
+    """
+    om, al = _skew(w + alpha * dt), _skew(alpha)
+    om2 = om @ om
+    eye = np.broadcast_to(np.eye(3), om.shape)
+    return np.stack([eye, om, al + om2, 2 * al @ om + om @ al + om2 @ om])
+
+
+def _path_rates(p0: np.ndarray, v: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
+    """Position and its derivatives 1..3 at ``dt`` under uniform acceleration, (4, N, 3)."""
+    return np.stack([p0 + v * dt + 0.5 * a * dt * dt, v + a * dt, a, np.zeros_like(a)])
+
+
+def motion_derivatives(
+    scene: Scene, dt: float, period: float, viewer: Transform | None = None,
+    viewer_motion: MotionState | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Time derivatives 1..3 of every object's points as the (moving) viewer sees them.
+
+    A point of object ``o`` at ``X`` (viewer frame, at ``dt``: where
+    :func:`scene_at` puts it) has n-th derivative ``K[n-1, o] @ X + e[n-1, o]`` per
+    ``period^n``, and a direction carried by the object (a normal) ``K[n-1, o] @ N``.
+    Exact for the motion :func:`advance_transform` integrates: uniform linear
+    acceleration, and angular velocity ``w + alpha dt`` (the placement's own
+    rotation when ``alpha`` is parallel to ``w`` or zero; otherwise the placement is
+    a second-order approximation of that motion and these are the motion's derivatives).
+
+    With the object ``R(t) s m + p(t)`` and the viewer ``B = R_v^T``, ``c``:
+    ``X^(n) = sum_k C(n, k) B^(k) (R^(n-k) s m + (p - c)^(n-k))`` with ``R^(j) =
+    W_j R`` and ``B^(k) = B V_k^T`` (``W``, ``V`` from :func:`_turn_rates`).
+
+    Parameters
+    ----------
+    scene : Scene
+    dt : float
+        Seconds after the scene's state.
+    period : float
+        Seconds per unit of time of the derivatives (a refresh period).
+    viewer, viewer_motion : optional
+        As :func:`scene_at`.
+
+    Returns
+    -------
+    K : ndarray, shape (3, O + 1, 3, 3)
+    e : ndarray, shape (3, O + 1, 3)
+        Row ``O`` is the world's own (a still point: the lights).
+    """
+    objs = scene.objects
+    rows = [(o.transform.position, o.motion) for o in objs] + [(np.zeros(3), MotionState())]
+    p0 = np.array([r[0] for r in rows], np.float64)
+    w, al, v, a = (np.array([getattr(r[1], f) for r in rows]) for f in
+                   ("angular_velocity", "angular_acceleration", "velocity", "acceleration"))
+    turn, path = _turn_rates(w, al, dt), _path_rates(p0, v, a, dt)
+    vm = viewer_motion or MotionState()
+    if viewer is None:
+        back, vturn, vpath = np.eye(3), np.zeros((4, 3, 3)), np.zeros((4, 3))
+        vturn[0] = np.eye(3)
+    else:
+        back = quaternion_matrix(advance_transform(viewer, vm, dt).orientation).T
+        vturn = _turn_rates(vm.angular_velocity[None], vm.angular_acceleration[None], dt)[:, 0]
+        vpath = _path_rates(viewer.position[None], vm.velocity[None], vm.acceleration[None],
+                            dt)[:, 0]
+    mk = back @ vturn.transpose(0, 2, 1)  # B^(k) = B V_k^T, (4, 3, 3)
+    q = path[0] - vpath[0]
+    big_k = np.zeros((3, len(rows), 3, 3))
+    e = np.zeros((3, len(rows), 3))
+    for n in range(1, 4):
+        for k in range(n + 1):
+            c = _BINOMIAL[n][k]
+            big_k[n - 1] += c * (mk[k] @ turn[n - k] @ back.T)
+            if k < n:
+                rel = path[n - k] - vpath[n - k] - np.einsum("oij,oj->oi", turn[n - k], q)
+                e[n - 1] += c * rel @ mk[k].T
+        big_k[n - 1] *= period**n
+        e[n - 1] *= period**n
+    return big_k, e

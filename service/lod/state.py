@@ -33,11 +33,15 @@ class LodState:
     reset when the display or the method changes), and one scene whose objects are replaced each
     frame, so the flattened scene's static parts stay cached while no level changes.
 
-    With ``background`` a chain that is not in the cache is built by a
-    :class:`ChainBuilds` thread while frames draw that object's full mesh (exact,
-    slower); the first frame after it is done uses it.  Without (the default), the
-    frame that first needs a chain builds it (``progress(mesh name, done, planned)``
-    hears how far it got) and its cache problems go to ``notes``.
+    With ``background`` (the service, its workers, the game and ``holo-render``) a
+    chain that is not in the cache is built by a :class:`ChainBuilds` thread, in a
+    child process, while frames draw that object's full mesh (exact, slower); the
+    first frame after it is done uses it.  :meth:`prepare` queues a scene's chains
+    when it is loaded, before any frame needs them.  Without (the default of a bare
+    :class:`~service.render.pipeline.Renderer`, for scripts and tests that want every
+    frame's levels decided by its own inputs), the frame that first needs a chain
+    builds it (``progress(mesh name, done, planned)`` hears how far it got) and its
+    cache problems go to ``notes``.
     """
 
     chains: dict = field(default_factory=dict)
@@ -81,6 +85,19 @@ class LodState:
             chain = replace(chain, levels=(mesh, *chain.levels[1:]))
         self.chains[id(mesh)] = (mesh, chain, settings.recipe)
         return chain
+
+    def prepare(self, scene: Scene, settings: LodSettings) -> int:
+        """Queue the builds of the chains ``scene``'s meshes lack (``background`` only).
+
+        For scene loading: the chains build while the first frames draw full meshes.
+        Returns how many were queued (:meth:`ChainBuilds.submit_scene`); wait for
+        them with ``builds.wait_idle``.
+        """
+        if not self.background:
+            raise SettingsError("LodState.prepare needs background builds (background=True)")
+        if self.builds is None:
+            self.builds = ChainBuilds(self.cache)
+        return self.builds.submit_scene(scene, settings)
 
     def _fetch(self, mesh: Mesh, settings: LodSettings, key: str) -> LodChain:
         """A chain not in memory: built here, or (background) from the cache or a stand-in."""

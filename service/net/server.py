@@ -353,6 +353,7 @@ class Service:
             self.st.supervisor.stop()
         if self.engine is not None:
             self.engine.stop()
+        self.st.chains.close()  # a build the load started (the engine's stop ends it too)
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(5.0)

@@ -237,3 +237,33 @@ def dilate_texture(tex: np.ndarray, normal: np.ndarray, steps: int) -> None:
                         for k in range(3):
                             normal[i, j, k] = normal[a, b, k]
                         break
+
+
+@nb.njit(cache=True, nogil=True)
+def tile_grid(alpha: np.ndarray, tex_shape: np.ndarray, tex_offset: np.ndarray, tile: int,
+              layers: int) -> tuple[np.ndarray, np.ndarray]:
+    """Which ``tile`` x ``tile`` texel tiles of each billboard hold a texel with alpha > 0.
+
+    ``alpha`` (N,) uint8 is every texel's alpha (billboard after billboard, ``layers``
+    layers of rows x cols each, as ``BillboardCloud.rgba``).  Returns the grids (G,)
+    uint8, 1 where a tile of either layer holds a visible texel, each billboard's
+    ceil(rows / tile) x ceil(cols / tile) tiles row-major, and where each billboard's
+    grid starts, (P + 1,) int64.
+    """
+    p_count = tex_shape.shape[0]
+    start = np.zeros(p_count + 1, np.int64)
+    for p in range(p_count):
+        start[p + 1] = start[p] + ((tex_shape[p, 0] + tile - 1) // tile) * (
+            (tex_shape[p, 1] + tile - 1) // tile)
+    grid = np.zeros(start[p_count], np.uint8)
+    for p in range(p_count):
+        rows, cols = tex_shape[p, 0], tex_shape[p, 1]
+        tcols = (cols + tile - 1) // tile
+        for layer in range(layers):
+            base = tex_offset[p] + layer * rows * cols
+            for i in range(rows):
+                g = start[p] + (i // tile) * tcols
+                for j in range(cols):
+                    if alpha[base + i * cols + j] > 0:
+                        grid[g + j // tile] = 1
+    return grid, start

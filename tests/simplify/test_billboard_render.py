@@ -1,6 +1,8 @@
 """Billboard clouds in the pipeline: same depth as the mesh they stand for, z-tested
 against meshes in every zone, and stats that say how they were drawn."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -170,3 +172,53 @@ def test_a_local_update_behind_a_cloud_stays_behind_it(box):
     assert (local.debris[hidden] == 1).all()  # no ball pixel grafted over the cloud
     shown = (local.debris == 0)
     assert shown.sum() > 0 and not (shown & hidden).any()
+
+
+@pytest.fixture(scope="module")
+def two_boxes():
+    """Two small cubes 1.2 apart: their shared face planes make long, mostly empty
+    billboards (126 x 18 texels with a gap of 90 columns between the cubes)."""
+    c = cube(0.2)
+    v = np.concatenate([c.vertices + [-0.6, 0.0, 0.0], c.vertices + [0.6, 0.0, 0.0]])
+    f = np.concatenate([c.triangles, c.triangles + len(c.vertices)])
+    return build_cloud(v, f, 0.004, texture_res=128)
+
+
+@pytest.mark.parametrize("scale", [0.2, 1.0, 1.6])
+@pytest.mark.parametrize("yaw", [0.3, 1.0, 2.0])
+def test_empty_tiles_are_skipped_without_changing_a_pixel(two_boxes, scale, yaw):
+    """A quad drawn close up visits only its texture's tiles that show something.  The
+    reference is the same cloud with alpha 1 (below the alpha test, so drawn
+    transparent) in every empty texel: no tile of it is empty, so every quad is drawn
+    whole.  The pictures must be equal; close up, the culled one visits far fewer pixels."""
+    rgba = two_boxes.rgba.copy()
+    rgba[rgba[:, 3] == 0, 3] = 1
+    whole = dataclasses.replace(two_boxes, rgba=rgba)
+    t = Transform(orientation=euler_quaternion(yaw, 0.4, 0.1), scale=scale)
+    culled, full = (Renderer().render(Scene([], billboards=[BillboardObject(c, Material(), t)]),
+                                      DISPLAY) for c in (two_boxes, whole))
+    assert np.array_equal(culled.depth, full.depth)
+    assert np.array_equal(culled.colour, full.colour)
+    sc, sf = culled.stats["billboards"], full.stats["billboards"]
+    assert sc["pixels"] == sf["pixels"] > 0
+    assert sc["covered_pixels"] == sf["covered_pixels"]
+    if scale >= 1.0:  # close up: the cost follows what is shown, not the rectangles
+        assert sc["span_pixels"] <= 0.7 * sf["span_pixels"]
+        assert sc["span_pixels"] <= 3.5 * sc["pixels"]
+
+
+def test_a_clouds_tiles_mark_exactly_the_tiles_holding_a_texel(two_boxes):
+    """BillboardCloud.tiles: per billboard, TILE x TILE texel tiles with any alpha > 0."""
+    from service.simplify.billboard import LAYERS, TILE
+
+    grid, start = two_boxes.tiles
+    assert start[-1] == grid.size
+    for p in range(two_boxes.n_billboards):
+        rows, cols = (int(x) for x in two_boxes.tex_shape[p])
+        tr, tc = -(-rows // TILE), -(-cols // TILE)
+        alpha = two_boxes.texture(p)[0][..., 3].reshape(LAYERS, rows, cols).max(axis=0)
+        padded = np.zeros((tr * TILE, tc * TILE), alpha.dtype)
+        padded[:rows, :cols] = alpha
+        want = padded.reshape(tr, TILE, tc, TILE).max(axis=(1, 3)) > 0
+        assert np.array_equal(grid[start[p]:start[p + 1]].reshape(tr, tc) > 0, want)
+    assert (grid == 0).any() and (grid == 1).any()
