@@ -277,31 +277,39 @@ def motion_derivatives(
         Row ``O`` is the world's own (a still point: the lights).
     """
     objs = scene.objects
-    rows = [(o.transform.position, o.motion) for o in objs] + [(np.zeros(3), MotionState())]
-    p0 = np.array([r[0] for r in rows], np.float64)
-    w, al, v, a = (np.array([getattr(r[1], f) for r in rows]) for f in
-                   ("angular_velocity", "angular_acceleration", "velocity", "acceleration"))
+    fields = ("angular_velocity", "angular_acceleration", "velocity", "acceleration")
+    still = np.zeros((1, 3))  # the world's own row
+    p0, w, al, v, a = (np.concatenate([np.array(x, np.float64).reshape(-1, 3), still]) for x in (
+        [o.transform.position for o in objs], *([getattr(o.motion, f) for o in objs]
+                                                for f in fields)))
     turn, path = _turn_rates(w, al, dt), _path_rates(p0, v, a, dt)
-    vm = viewer_motion or MotionState()
     if viewer is None:
-        back, vturn, vpath = np.eye(3), np.zeros((4, 3, 3)), np.zeros((4, 3))
+        back, vturn, vpath = np.eye(3), np.zeros((4, 3, 3)), np.zeros((4, 1, 3))
         vturn[0] = np.eye(3)
     else:
+        vm = viewer_motion or MotionState()
         back = quaternion_matrix(advance_transform(viewer, vm, dt).orientation).T
         vturn = _turn_rates(vm.angular_velocity[None], vm.angular_acceleration[None], dt)[:, 0]
-        vpath = _path_rates(viewer.position[None], vm.velocity[None], vm.acceleration[None],
-                            dt)[:, 0]
+        vpath = _path_rates(viewer.position[None], vm.velocity[None], vm.acceleration[None], dt)
     mk = back @ vturn.transpose(0, 2, 1)  # B^(k) = B V_k^T, (4, 3, 3)
-    q = path[0] - vpath[0]
-    big_k = np.zeros((3, len(rows), 3, 3))
-    e = np.zeros((3, len(rows), 3))
+    # (p - c)^(j) - W_j (p - c): zero for j = 0
+    rel = path - vpath - np.einsum("joab,ob->joa", turn, path[0] - vpath[0])
+    rel[0] = 0.0
+    scale = (period ** np.arange(1, 4))[:, None, None]
+    lead = np.einsum("nkj,kab->njab", _LEIBNIZ, mk)[:, :, None]  # sum_k C(n, k) B^(k), j = n - k
+    big_k = (lead @ (turn @ back.T)[None]).sum(axis=1) * scale[..., None]
+    e = (lead @ rel[None, ..., None]).sum(axis=1)[..., 0] * scale
+    return big_k, e
+
+
+def _leibniz() -> np.ndarray:
+    """``L[n - 1, k, j] = C(n, k)`` where ``j = n - k`` (n = 1..3), else 0: shape (3, 4, 4)."""
+    out = np.zeros((3, 4, 4))
     for n in range(1, 4):
         for k in range(n + 1):
-            c = _BINOMIAL[n][k]
-            big_k[n - 1] += c * (mk[k] @ turn[n - k] @ back.T)
-            if k < n:
-                rel = path[n - k] - vpath[n - k] - np.einsum("oij,oj->oi", turn[n - k], q)
-                e[n - 1] += c * rel @ mk[k].T
-        big_k[n - 1] *= period**n
-        e[n - 1] *= period**n
-    return big_k, e
+            out[n - 1, k, n - k] = _BINOMIAL[n][k]
+    return out
+
+
+#: Leibniz's rule for the n-th derivative of a product as a table (:func:`_leibniz`).
+_LEIBNIZ = _leibniz()

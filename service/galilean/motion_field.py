@@ -156,7 +156,7 @@ def interpolate(
     geometry = (np.ascontiguousarray(triangles, np.int64),
                 np.zeros(triangles.shape[0], np.int64), np.zeros(1, np.int64),
                 np.ascontiguousarray(proj, np.float64))
-    _motion_pixels(tri_map, geometry, np.ascontiguousarray(vd, np.float64), none,
+    _motion_pixels(tri_map, geometry, by_vertex(vd), none,
                    out.reshape(9, n), np.empty((0, 3), np.uint8), np.empty((4, 0), np.float32),
                    np.empty(n, np.int32))
     return out
@@ -237,16 +237,36 @@ def vertex_motion(vertices: np.ndarray, owner: np.ndarray, rates: tuple[np.ndarr
         are :func:`service.render.projection.project` of the world derivatives
         without its offsets.
     """
-    vd = np.empty((3, display.zones, vertices.shape[0], 3))
+    return by_order(_vertex_rates(vertices, owner, rates, display))
+
+
+def _vertex_rates(vertices: np.ndarray, owner: np.ndarray, rates: tuple[np.ndarray, np.ndarray],
+                  display: DisplaySettings) -> np.ndarray:
+    """:func:`vertex_motion` as :func:`_motion_pixels` reads it, (Z, V, 9) (:func:`by_vertex`)."""
+    zv9 = np.empty((display.zones, vertices.shape[0], 9))
     _vertex_motion(np.ascontiguousarray(vertices, np.float64), owner, rates[0], rates[1],
-                   display.shears(), display.pixel_size, vd)
-    return vd
+                   display.shears(), display.pixel_size, zv9)
+    return zv9
+
+
+def by_order(zv9: np.ndarray) -> np.ndarray:
+    """Vertex derivatives (Z, V, 9) as :func:`_motion_pixels` reads them, as (3, Z, V, 3)."""
+    return zv9.reshape(*zv9.shape[:2], 3, 3).transpose(2, 0, 1, 3)
+
+
+def by_vertex(vd: np.ndarray) -> np.ndarray:
+    """Vertex derivatives (3, Z, V, 3) -> (Z, V, 9): a vertex's nine side by side."""
+    return np.ascontiguousarray(np.transpose(vd, (1, 2, 0, 3)), np.float64).reshape(
+        vd.shape[1], vd.shape[2], 9)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _vertex_motion(vertices: np.ndarray, owner: np.ndarray, big_k: np.ndarray, e: np.ndarray,
                    shears: np.ndarray, s: float, vd: np.ndarray) -> None:
-    """:func:`vertex_motion` into ``vd`` (3, Z, V, 3): ``K[n, o] @ x + e[n, o]``, projected."""
+    """:func:`vertex_motion` into ``vd`` (Z, V, 9): ``K[n, o] @ x + e[n, o]``, projected.
+
+    Derivative n of component c of vertex v in zone k is ``vd[k, v, 3 n + c]``.
+    """
     zones = shears.shape[0]
     for v in nb.prange(vertices.shape[0]):
         o = owner[v]
@@ -256,9 +276,9 @@ def _vertex_motion(vertices: np.ndarray, owner: np.ndarray, big_k: np.ndarray, e
             dy = big_k[n, o, 1, 0] * x + big_k[n, o, 1, 1] * y + big_k[n, o, 1, 2] * z + e[n, o, 1]
             dz = big_k[n, o, 2, 0] * x + big_k[n, o, 2, 1] * y + big_k[n, o, 2, 2] * z + e[n, o, 2]
             for k in range(zones):
-                vd[n, k, v, 0] = (dx - dz * shears[k]) / s
-                vd[n, k, v, 1] = -dy / s
-                vd[n, k, v, 2] = -dz
+                vd[k, v, 3 * n] = (dx - dz * shears[k]) / s
+                vd[k, v, 3 * n + 1] = -dy / s
+                vd[k, v, 3 * n + 2] = -dz
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -283,8 +303,8 @@ def _motion_pixels(
     geometry : tuple
         ``(triangles (T, 3), triangle_polygon (T,), polygon_object (P,), proj (Z, V,
         3))`` at the render time.
-    vd : ndarray, shape (3, Z, V, 3)
-        Vertex derivatives.
+    vd : ndarray, shape (Z, V, 9)
+        Vertex derivatives (:func:`by_vertex`).
     tables : tuple
         ``(table (Z, P, 3) uint8, dtable (Z, P, 4) float32, background (3,) uint8)``
         (:func:`service.render.light.polygon_motion_tables`).
@@ -345,9 +365,8 @@ def _motion_pixels(
                 s2, u2 = -ey / det, (ex * py + ax * ey) / det
             x0 = np.float64(i0 - base) + 0.5
             for j in range(planes):
-                k, d = j // 3, j % 3
-                v0 = vd[k, z, ta, d]
-                d1, d2 = vd[k, z, tb, d] - v0, vd[k, z, tc, d] - v0
+                v0 = vd[z, ta, j]
+                d1, d2 = vd[z, tb, j] - v0, vd[z, tc, j] - v0
                 ca, cb = v0 + u1 * d1 + u2 * d2, s1 * d1 + s2 * d2
                 off, x = np.uint64(j) * n, x0
                 for i in range(i0, i1):
@@ -436,7 +455,7 @@ def render_with_motion(
     now = flatten(scene, quat[0], pos[0])
     rates = motion_derivatives(scene, t, period, viewer, viewer_motion)
     vis, _, proj = renderer.visibility(now, display, settings)
-    vd = vertex_motion(now.vertices, vertex_object(scene), rates, display)
+    zv9 = _vertex_rates(now.vertices, vertex_object(scene), rates, display)
     pose = None if viewer is None else advance_transform(viewer, viewer_motion or MotionState(), t)
     lights = scene.lights if pose is None else view_lights(scene.lights, pose)
     boards = None
@@ -467,7 +486,7 @@ def render_with_motion(
     n = tri_map.size
     _motion_pixels(
         tri_map, (now.triangles, now.triangle_polygon, now.polygon_object, proj),
-        vd, tables, der.reshape(3 * kd, n),
+        zv9, tables, der.reshape(3 * kd, n),
         colour.reshape(n, 3) if flat else np.empty((0, 3), np.uint8),
         dcol.reshape(4, n) if flat and dcol is not None else np.empty((4, 0), np.float32),
         obj.reshape(n))
@@ -479,7 +498,7 @@ def render_with_motion(
         renderer.lod.observe(now.triangles.shape[0], (time.perf_counter() - t0) * 1e3)
     frame = Frame(colour=colour, depth=vis.depth, stats=stats)
     points = proj[..., :2].reshape(-1, 2)
-    pder = vd[..., :2].reshape(3, -1, 2)
+    pder = by_order(zv9)[..., :2].reshape(3, -1, 2)
     return RenderedUpdate(frame, der, dcol, obj, viewer_motion or MotionState(), points, pder)
 
 

@@ -589,56 +589,80 @@ def _tunit(a: tuple) -> tuple:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _light_rates(
-    pos: tuple, nrm: tuple, mat: np.ndarray, v: np.ndarray, lights: tuple, lrate: np.ndarray,
-    ambient: float, code: int,
-) -> tuple:
-    """First and second time derivatives of :func:`_light_rgb`'s (r, g, b).
+def _light_paths(pos: tuple, nrm: tuple, lights: tuple, lrate: np.ndarray,
+                 out: np.ndarray) -> float:
+    """What :func:`_light_rates` needs of a polygon in every zone: its light vectors.
 
-    ``pos`` and ``nrm`` (already flipped toward the viewer) are 3-tuples of Taylor
-    scalars ``(f, f', f'')``; ``lrate`` (2, J, 3) holds the light vectors' first and
-    second derivatives.  The branches (light behind, no highlight, clamping) are
-    taken as :func:`_light_rgb` takes them at the value; a clamped channel does not
-    change.  Returns ``((r', g', b'), (r'', g'', b''))``.
+    ``pos`` and ``nrm`` (as the polygon faces, unflipped) are 3-tuples of Taylor
+    scalars ``(f, f', f'')``; ``lrate`` (2, J, 3) holds the light vectors' first
+    and second derivatives.  Writes ``out`` (J, 4, 3): the unit vector toward each
+    light (rows 0-2, each a Taylor scalar) and ``N.L`` with the unit normal (row 3;
+    ``out[j, 3, 0]`` is -1 for a point light at the point).  Returns ``|N|``.
     """
-    lvec, lpoint, lrgb = lights
+    lvec, lpoint, _ = lights
+    unit, nn = _tunit(nrm)
+    for j in range(lvec.shape[0]):
+        lt = ((lvec[j, 0], lrate[0, j, 0], lrate[1, j, 0]),
+              (lvec[j, 1], lrate[0, j, 1], lrate[1, j, 1]),
+              (lvec[j, 2], lrate[0, j, 2], lrate[1, j, 2]))
+        if lpoint[j] == 1:
+            lt, d = _tunit((_tadd(lt[0], pos[0], -1.0), _tadd(lt[1], pos[1], -1.0),
+                            _tadd(lt[2], pos[2], -1.0)))
+            if d <= 1e-12:
+                out[j, 3, 0] = -1.0
+                continue
+        ndl = _tdot(unit, lt)
+        for d in range(3):
+            for m in range(3):
+                out[j, d, m] = lt[d][m]
+            out[j, 3, d] = ndl[d]
+    return nn
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _light_rates(
+    sign: float, nrm: tuple, paths: np.ndarray, mat: np.ndarray, v: np.ndarray,
+    lrgb: np.ndarray, ambient: float, code: int,
+) -> tuple:
+    """First and second time derivatives of :func:`_light_rgb`'s (r, g, b) in one zone.
+
+    ``nrm`` is the polygon's unit normal (Taylor scalars, unflipped), ``sign`` its
+    flip toward the zone's view vector ``v``; ``paths`` is :func:`_light_paths`'.
+    The branches (light behind, no highlight, clamping) are taken as
+    :func:`_light_rgb` takes them at the value; a clamped channel does not change.
+    Returns ``((r', g', b'), (r'', g'', b''))``.
+    """
     ka = mat[3] * ambient
     cr, cg, cb = (mat[0] * ka, 0.0, 0.0), (mat[1] * ka, 0.0, 0.0), (mat[2] * ka, 0.0, 0.0)
-    nrm, nn = _tunit(nrm)
-    if code != 0 and nn > 0.0:
-        for j in range(lvec.shape[0]):
-            lt = ((lvec[j, 0], lrate[0, j, 0], lrate[1, j, 0]),
-                  (lvec[j, 1], lrate[0, j, 1], lrate[1, j, 1]),
-                  (lvec[j, 2], lrate[0, j, 2], lrate[1, j, 2]))
-            if lpoint[j] == 1:
-                lt, d = _tunit((_tadd(lt[0], pos[0], -1.0), _tadd(lt[1], pos[1], -1.0),
-                                _tadd(lt[2], pos[2], -1.0)))
-                if d <= 1e-12:
-                    continue
-            ndl = _tdot(nrm, lt)
-            if ndl[0] <= 0.0:
-                continue
-            base = (0.0, 0.0, 0.0)
-            if code == 1:  # R.V, R = 2 (N.L) N - L; V is still
-                for d in range(3):
-                    r = _tadd(_tmul(ndl, nrm[d]), lt[d], -0.5)
-                    base = _tadd(base, r, 2.0 * v[d])
-            else:  # N.H, H = normalise(L + V)
-                hv = ((lt[0][0] + v[0], lt[0][1], lt[0][2]), (lt[1][0] + v[1], lt[1][1], lt[1][2]),
-                      (lt[2][0] + v[2], lt[2][1], lt[2][2]))
-                hn = _tsqrt(_tdot(hv, hv))
-                if hn[0] > 0.0:
-                    base = _tdiv(_tdot(nrm, hv), hn)
-            spec = (0.0, 0.0, 0.0)
-            if base[0] > 0.0:
-                p0 = _power(base[0], mat[6])
-                g = mat[6] * p0 / base[0]  # n b^(n-1)
-                g2 = (mat[6] - 1.0) * g / base[0]  # n (n-1) b^(n-2)
-                spec = (mat[5] * p0, mat[5] * g * base[1],
-                        mat[5] * (g * base[2] + g2 * base[1] * base[1]))
-            cr = _tadd(cr, _tadd(spec, ndl, mat[0] * mat[4]), lrgb[j, 0])
-            cg = _tadd(cg, _tadd(spec, ndl, mat[1] * mat[4]), lrgb[j, 1])
-            cb = _tadd(cb, _tadd(spec, ndl, mat[2] * mat[4]), lrgb[j, 2])
+    for j in range(paths.shape[0] if code != 0 else 0):
+        ndl = (sign * paths[j, 3, 0], sign * paths[j, 3, 1], sign * paths[j, 3, 2])
+        if ndl[0] <= 0.0:  # behind, or a point light at the point (-1 either way)
+            continue
+        base = (0.0, 0.0, 0.0)
+        if code == 1:  # R.V, R = 2 (N.L) N - L; V is still
+            for d in range(3):
+                nd = (sign * nrm[d][0], sign * nrm[d][1], sign * nrm[d][2])
+                r = _tadd(_tmul(ndl, nd), (paths[j, d, 0], paths[j, d, 1], paths[j, d, 2]),
+                          -0.5)
+                base = _tadd(base, r, 2.0 * v[d])
+        else:  # N.H, H = normalise(L + V)
+            hv = ((paths[j, 0, 0] + v[0], paths[j, 0, 1], paths[j, 0, 2]),
+                  (paths[j, 1, 0] + v[1], paths[j, 1, 1], paths[j, 1, 2]),
+                  (paths[j, 2, 0] + v[2], paths[j, 2, 1], paths[j, 2, 2]))
+            hn = _tsqrt(_tdot(hv, hv))
+            if hn[0] > 0.0:
+                base = _tdiv(_tdot(nrm, hv), hn)
+                base = (sign * base[0], sign * base[1], sign * base[2])
+        spec = (0.0, 0.0, 0.0)
+        if base[0] > 0.0:
+            p0 = _power(base[0], mat[6])
+            g = mat[6] * p0 / base[0]  # n b^(n-1)
+            g2 = (mat[6] - 1.0) * g / base[0]  # n (n-1) b^(n-2)
+            spec = (mat[5] * p0, mat[5] * g * base[1],
+                    mat[5] * (g * base[2] + g2 * base[1] * base[1]))
+        cr = _tadd(cr, _tadd(spec, ndl, mat[0] * mat[4]), lrgb[j, 0])
+        cg = _tadd(cg, _tadd(spec, ndl, mat[1] * mat[4]), lrgb[j, 1])
+        cb = _tadd(cb, _tadd(spec, ndl, mat[2] * mat[4]), lrgb[j, 2])
     # a clamped channel stays where it is
     kr = 1.0 if 0.0 < cr[0] < 1.0 else 0.0
     kg = 1.0 if 0.0 < cg[0] < 1.0 else 0.0
@@ -694,6 +718,7 @@ def _table_chunk(
     big_k, e, lrate, scale = rates
     zones = views.shape[0]
     w = weights
+    paths = np.empty((lights[0].shape[1], 4, 3))
     for p in range(lo, hi):
         shown = False
         for z in range(zones):
@@ -701,23 +726,29 @@ def _table_chunk(
         if not shown:
             continue
         cm = _centroid(0, p, vertices, polygons, counts)
-        o = poly_obj[p]
-        n0 = (normals[0, p, 0], normals[0, p, 1], normals[0, p, 2])
-        c1, c2 = _moved(big_k, e, 0, o, cm, 1.0), _moved(big_k, e, 1, o, cm, 1.0)
-        n1, n2 = _moved(big_k, e, 0, o, n0, 0.0), _moved(big_k, e, 1, o, n0, 0.0)
-        pos = ((cm[0], c1[0], c2[0]), (cm[1], c1[1], c2[1]), (cm[2], c1[2], c2[2]))
+        rated, nn = dtable.shape[0] > 0, 0.0
+        nrm = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        if rated:  # the polygon's light paths, shared by the zones
+            o = poly_obj[p]
+            n0 = (normals[0, p, 0], normals[0, p, 1], normals[0, p, 2])
+            c1, c2 = _moved(big_k, e, 0, o, cm, 1.0), _moved(big_k, e, 1, o, cm, 1.0)
+            n1, n2 = _moved(big_k, e, 0, o, n0, 0.0), _moved(big_k, e, 1, o, n0, 0.0)
+            nrm = ((n0[0], n1[0], n2[0]), (n0[1], n1[1], n2[1]), (n0[2], n1[2], n2[2]))
+            nn = _light_paths(((cm[0], c1[0], c2[0]), (cm[1], c1[1], c2[1]),
+                               (cm[2], c1[2], c2[2])), nrm, (lights[0][0], lights[1], lights[2]),
+                              lrate, paths)
+            nrm = _tunit(nrm)[0]
         for z in range(zones):
             if not needed[z, p]:
                 continue
             c = _lit_at(0, p, z, cm, normals, materials, views, lights, ambient, code)
             _store(table, 0, z, p, c, 255.0, 0.5)
-            if dtable.shape[0] == 0:
+            if not rated:
                 continue
-            s = _facing(normals[0], p, views[z])
-            nrm = ((s * n0[0], s * n1[0], s * n2[0]), (s * n0[1], s * n1[1], s * n2[1]),
-                   (s * n0[2], s * n1[2], s * n2[2]))
-            d1, d2 = _light_rates(pos, nrm, materials[p], views[z],
-                                  (lights[0][0], lights[1], lights[2]), lrate, ambient, code)
+            d1, d2 = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+            if nn > 0.0:
+                d1, d2 = _light_rates(_facing(normals[0], p, views[z]), nrm, paths,
+                                      materials[p], views[z], lights[2], ambient, code)
             for j in range(3):
                 dtable[z, p, j] = scale * (w[j, 0] * d1[0] + w[j, 1] * d1[1] + w[j, 2] * d1[2])
             dtable[z, p, 3] = scale * (w[0, 0] * d2[0] + w[0, 1] * d2[1] + w[0, 2] * d2[2])
