@@ -293,6 +293,7 @@ def _polygon_table(
     polygons: np.ndarray,
     counts: np.ndarray,
     normals: np.ndarray,
+    shading: np.ndarray,
     materials: np.ndarray,
     views: np.ndarray,
     needed: np.ndarray,
@@ -305,10 +306,11 @@ def _polygon_table(
     """Flat colour of every needed polygon in every zone into ``out`` (Z, P, 3).
 
     Light is evaluated at the polygon's centroid (mean of its vertices, found once
-    for all zones) with its face normal.  ``polygons`` (P, K) padded, ``counts``
-    (P,), ``normals`` (P, 3), ``materials`` (P, 7), ``views`` (Z, 3), ``needed``
-    (Z, P) bool.  ``out`` holds the output values (uint8 or float32), already
-    through :func:`_store` with ``quant = (scale, offset)``.
+    for all zones) with its ``shading`` normal (P, 3), flipped where the face normal
+    ``normals`` (P, 3) looks away from the zone.  ``polygons`` (P, K) padded, ``counts``
+    (P,), ``materials`` (P, 7), ``views`` (Z, 3), ``needed`` (Z, P) bool.  ``out``
+    holds the output values (uint8 or float32), already through :func:`_store` with
+    ``quant = (scale, offset)``.
     """
     n = normals.shape[0]
     zones = views.shape[0]
@@ -330,7 +332,7 @@ def _polygon_table(
             s = _facing(normals, p, views[z])
             rgb = _light_rgb(
                 cx / counts[p], cy / counts[p], cz / counts[p],
-                s * normals[p, 0], s * normals[p, 1], s * normals[p, 2],
+                s * shading[p, 0], s * shading[p, 1], s * shading[p, 2],
                 mat, views[z], lights, ambient, code,
             )
             _store(out, 0, z, p, rgb, quant[0], quant[1])
@@ -887,8 +889,9 @@ def _eval_polygon(
         needed = mark_shown(vis.triangle, scene.triangle_polygon, scene.n_polygons)
     table = np.zeros((1, k.views.shape[0], scene.n_polygons, 3), out.dtype)
     _polygon_table(
-        scene.vertices, scene.polygons, scene.counts, scene.normals, scene.materials,
-        k.views, needed, k.lights, k.ambient, k.code, (k.scale, k.offset), table,
+        scene.vertices, scene.polygons, scene.counts, scene.normals, scene.shading_normals,
+        scene.materials, k.views, needed, k.lights, k.ambient, k.code, (k.scale, k.offset),
+        table,
     )
     bg = np.empty((1, 1, 1, 3), out.dtype)
     _store_background(k.background, k.scale, k.offset, bg)
