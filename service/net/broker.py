@@ -112,6 +112,11 @@ class Broker:
         self.lost = 0  # jobs held by a worker found dead, handed back
         self.refused = 0  # jobs handed back at once: no live worker
         self.dropped = 0  # messages whose requester was gone
+        #: silences forgiven: a local worker past its silence limit still using the CPU
+        self.starved = 0
+        #: ``mark(pid)`` / ``working(pid)`` (:class:`service.net.supervisor.CpuWatch`), or
+        #: None: every silence past the limit is a death
+        self.watch: Any = None
         self._stop = threading.Event()
 
     def stop(self) -> None:
@@ -157,6 +162,7 @@ class Broker:
             "lost": self.lost,
             "refused": self.refused,
             "dropped": self.dropped,
+            "starved": self.starved,
             "workers": workers,
         }
 
@@ -185,6 +191,8 @@ class Broker:
             book = self.books.get(worker)
             if book is not None:
                 book.seen = now
+                if self.watch is not None and book.pid is not None:
+                    self.watch.mark(book.pid)
             if kind == BUSY or (book is None and kind != READY):
                 return  # a heartbeat; or a late reply of a worker already dropped
             if kind == READY and book is not None and book.busy_since is not None:
@@ -217,6 +225,8 @@ class Broker:
             float(beat) if isinstance(beat, int | float) and 0 < beat <= 60 else None,
         )
         self.books[worker] = book
+        if self.watch is not None and book.pid is not None:
+            self.watch.mark(book.pid)
         return book
 
     def _to_worker(self, frames: list[zmq.Frame]) -> None:
@@ -250,17 +260,36 @@ class Broker:
                 break
         now = time.monotonic()
         dead: list[tuple[bytes, str, bool]] = []
+        silent: list[tuple[bytes, Book]] = []
         with self._books:
             for w, b in self.books.items():
                 limit = b.silent_limit_s()
                 if b.pid in gone:
                     dead.append((w, "its process ended", False))
-                elif limit is not None and now - b.seen > limit:
-                    dead.append((w, f"silent for {now - b.seen:.1f} s", True))
                 elif b.busy_since is not None and now - b.busy_since > self.job_timeout_s:
                     dead.append((w, f"a job past its {self.job_timeout_s:g} s timeout", True))
+                elif limit is not None and now - b.seen > limit:
+                    silent.append((w, b))
+        for w, b in silent:  # the watch asks the supervisor: never under self._books
+            if self._starved(b):
+                b.seen = now  # at work, only starved of the CPU: another window
+            else:
+                dead.append((w, f"silent for {now - b.seen:.1f} s", True))
         for w, why, report in dead:
             self._dead(w, why, report)
+
+    def _starved(self, book: Book) -> bool:
+        """Whether a silent worker is a local process still at work (not stopped or hung).
+
+        On a machine busy with other programs a worker's heartbeat waits behind its
+        render (a compiled kernel holds the GIL) and behind the CPU; its process still
+        uses the CPU, where a stopped or hung one does not.  A worker found working is
+        given another silence window; one past the job timeout is dead all the same.
+        """
+        if self.watch is None or book.pid is None or not self.watch.working(book.pid):
+            return False
+        self.starved += 1
+        return True
 
     def _dead(self, worker: bytes, why: str, report: bool = True) -> None:
         """Drop a worker; its job back to its requester as ``lost``; report it (pid, why)."""

@@ -45,7 +45,7 @@ from service.net.state import (
     ServiceConfig,
     service_state,
 )
-from service.net.supervisor import Supervisor
+from service.net.supervisor import CpuWatch, Supervisor
 
 if TYPE_CHECKING:  # handed in by the command; the server never imports the warm-up
     from service.readiness import Warmup
@@ -155,6 +155,8 @@ class Service:
         self.st.supervisor = Supervisor(
             self.st.broker, self._worker_command(), env, self.log, forks=forks
         )
+        # a local worker silent beside busy programs but still at work is not dead
+        self.st.broker.watch = CpuWatch(self.st.supervisor.pids)
         for name, target in (("broker", self.st.broker.run), ("supervisor",
                                                                 self.st.supervisor.run)):
             t = threading.Thread(target=target, name=name, daemon=True)

@@ -103,6 +103,56 @@ class Slot:
 
 
 @dataclass
+class CpuWatch:
+    """Whether local worker processes are at work though silent (Linux ``/proc``).
+
+    :meth:`mark` records a process's CPU time when its worker is heard from;
+    :meth:`working` says whether it has used CPU since (and marks again) and is
+    neither stopped (``SIGSTOP``) nor a zombie.  Only the pids ``local()`` lists count:
+    a remote worker's pid means nothing here.  Without ``/proc`` nothing is working,
+    so every silence past the limit is a death, as before.
+
+    Parameters
+    ----------
+    local : callable
+        The pids of this service's live local workers.
+    """
+
+    def __init__(self, local: Callable[[], list[int]]) -> None:
+        self.local = local
+        self._marks: dict[int, int] = {}
+
+    def mark(self, pid: int) -> None:
+        """Its CPU time now (the worker was just heard from)."""
+        got = _cpu_ticks(pid)
+        if got is not None:
+            self._marks[pid] = got[1]
+        if len(self._marks) > 64:  # pids of workers long gone (never ask local() here:
+            self._marks = {pid: got[1]} if got is not None else {}  # the broker's lock)
+
+    def working(self, pid: int) -> bool:
+        """Whether ``pid`` is a local worker that used CPU since it was last marked."""
+        if pid not in self.local():
+            return False
+        got = _cpu_ticks(pid)
+        if got is None or got[0] in "TtZX":
+            return False
+        before = self._marks.get(pid)
+        self._marks[pid] = got[1]
+        return before is not None and got[1] > before
+
+
+def _cpu_ticks(pid: int) -> tuple[str, int] | None:
+    """(state letter, user + system clock ticks) of ``pid`` from ``/proc``; None if unknown."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            text = fh.read().decode(errors="replace")
+        fields = text[text.rindex(")") + 2:].split()
+        return fields[0], int(fields[11]) + int(fields[12])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 class Supervisor:
     """Starts, watches and replaces the service's local workers (see the module notes).
 
