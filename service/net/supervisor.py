@@ -102,7 +102,6 @@ class Slot:
         return max(0, self.starts - 1)
 
 
-@dataclass
 class CpuWatch:
     """Whether local worker processes are at work though silent (Linux ``/proc``).
 
@@ -153,6 +152,7 @@ def _cpu_ticks(pid: int) -> tuple[str, int] | None:
         return None
 
 
+@dataclass
 class Supervisor:
     """Starts, watches and replaces the service's local workers (see the module notes).
 
