@@ -372,7 +372,9 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
             for m in range(n_runs):
                 i0t, i1t, j0t, j1t = runs[m, 0], runs[m, 1], runs[m, 2], runs[m, 3]
                 ab = (j0t / tcols, j1t / tcols, i0t / trows, i1t / trows)
-                rr0, rr1, cc0, cc1 = _screen_box(o, uq, vq, ab, sh, s, hw, hh, cols, rows)
+                rr0, rr1, cc0, cc1 = r0, r1, c0, c1  # the whole quad's
+                if n_runs > 1 or i1t - i0t < trows or j1t - j0t < tcols:
+                    rr0, rr1, cc0, cc1 = _screen_box(o, uq, vq, ab, sh, s, hw, hh, cols, rows)
                 for i in range(max(rr0, r0), min(rr1, r1)):
                     y = hh - (i + 0.5) * s
                     z0 = (rho - n[1] * y) / den  # at x = 0
