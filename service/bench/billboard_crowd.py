@@ -11,12 +11,14 @@ grid, turned at random, is rendered in every zone (z-buffer, Blinn per polygon) 
   ``--crowd-texture`` (texels across the diagonal).
 
 Per render: CPU ms (median of ``--repeats``, all representations interleaved, one
-renderer each), ``colour_pct``: % of all pixels whose colour differs from the
-reference's by more than ``COLOUR_LEVELS`` in any channel, ``coverage_pct``: % of
-all pixels covered by one render only, and ``differs_pct``: either.  Each cloud is
+renderer each; ``empty_ms``: the same for a frame without objects), ``colour_pct``:
+% of all pixels whose colour differs from the reference's by more than
+``COLOUR_LEVELS`` in any channel, ``coverage_pct``: % of all pixels covered by one
+render only, and ``differs_pct``: either.  Each cloud is
 then matched with the quadric level of the same error: the cheapest level whose
 ``differs_pct`` is no more than the cloud's (the full mesh if none); ``cloud_vs_mesh``
-is the cloud's CPU ms over that level's (above 1: the cloud costs more).
+is the cloud's CPU ms over that level's (above 1: the cloud costs more), and
+``above_empty_vs_mesh`` the same above the empty frame's (what the objects cost).
 """
 
 from __future__ import annotations
@@ -116,10 +118,11 @@ def crowd_rows(mesh: Mesh, name: str, display: DisplaySettings, n: int, sizes: l
     for px in sizes:
         places = crowd_places(mesh, n, px, display)
         scenes = [_scene(c["_level"], c["kind"], places) for c in cands]
-        frames, ms = _median_ms(scenes, display, repeats)
+        frames, ms = _median_ms([Scene([], LIGHTS, 1.0)] + scenes, display, repeats)
         here = [{"mesh": name, "objects": n, "size_px": px,
                  **{k: v for k, v in c.items() if not k.startswith("_")}, "cpu_ms": t,
-                 **pixel_errors(frames[0], f)} for c, f, t in zip(cands, frames, ms, strict=True)]
+                 "empty_ms": ms[0], **pixel_errors(frames[1], f)}
+                for c, f, t in zip(cands, frames[1:], ms[1:], strict=True)]
         rows += match_clouds(here)
     return rows
 
@@ -129,12 +132,15 @@ def match_clouds(rows: list[dict]) -> list[dict]:
     meshes = [r for r in rows if r["kind"] != "cloud"]
     for r in rows:
         if r["kind"] != "cloud":
-            r.update(matched_level=r["level"], matched_ms=r["cpu_ms"], cloud_vs_mesh=np.nan)
+            r.update(matched_level=r["level"], matched_ms=r["cpu_ms"], cloud_vs_mesh=np.nan,
+                     above_empty_vs_mesh=np.nan)
             continue
         ok = [m for m in meshes if m["differs_pct"] <= r["differs_pct"]] or meshes[:1]
         best = min(ok, key=lambda m: m["cpu_ms"])
         r.update(matched_level=best["level"], matched_ms=best["cpu_ms"],
-                 cloud_vs_mesh=r["cpu_ms"] / max(best["cpu_ms"], 1e-9))
+                 cloud_vs_mesh=r["cpu_ms"] / max(best["cpu_ms"], 1e-9),
+                 above_empty_vs_mesh=(r["cpu_ms"] - r["empty_ms"])
+                 / max(best["cpu_ms"] - best["empty_ms"], 1e-9))
     return rows
 
 

@@ -38,8 +38,11 @@ def test_a_cloud_is_matched_with_the_cheapest_mesh_level_of_no_more_error():
             {"kind": "quadric", "level": 2, "cpu_ms": 2.0, "differs_pct": 1.5},
             {"kind": "cloud", "level": -1, "cpu_ms": 4.0, "differs_pct": 1.0},
             {"kind": "cloud", "level": -1, "cpu_ms": 3.0, "differs_pct": 0.1}]
+    for r in rows:
+        r["empty_ms"] = 1.0
     out = match_clouds(rows)
     assert (out[3]["matched_level"], out[3]["cloud_vs_mesh"]) == (1, 0.8)
+    assert out[3]["above_empty_vs_mesh"] == 0.75
     assert (out[4]["matched_level"], out[4]["cloud_vs_mesh"]) == (0, 3.0 / 9.0)
     assert np.isnan(out[1]["cloud_vs_mesh"])
 
