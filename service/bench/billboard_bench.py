@@ -316,7 +316,7 @@ def crowd_part(mesh, display: DisplaySettings,  # noqa: ANN001 (a Mesh or None)
     if mesh is None:
         return []
     _step(f"crowd of {args.crowd} x {args.crowd_mesh}: clouds against quadric levels")
-    return billboard_crowd.crowd_rows(mesh, args.crowd_mesh, display, args.crowd,
+    return billboard_crowd.crowd_rows(mesh, Path(args.crowd_mesh).stem, display, args.crowd,
                                       args.crowd_sizes, args.crowd_eps, args.crowd_texture,
                                       args.repeats)
 
