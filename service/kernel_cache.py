@@ -28,11 +28,12 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numba
 
-__all__ = ["StaleKernel", "cache_dir_of", "drop_stale", "fingerprint", "is_warm", "mark_warm",
-           "module_imports", "stale_kernels", "stamp_path"]
+__all__ = ["StaleKernel", "cache_dir_of", "drop_stale", "fingerprint", "is_warm",
+           "kernel_ready", "mark_warm", "module_imports", "stale_kernels", "stamp_path"]
 
 #: The package whose kernels are checked (all of the project's numba code is in it).
 PACKAGE = "service"
@@ -240,3 +241,37 @@ def mark_warm() -> None:
         os.replace(tmp, path)
     except OSError:
         pass  # a read-only cache: the next start goes through the child again
+
+
+def kernel_ready(dispatcher: Any, args: tuple) -> bool:
+    """Whether calling ``dispatcher(*args)`` would compile nothing.
+
+    True when this process holds the kernel for these argument types, or numba's
+    cache has it (its index names the signature, for the kernel's current source):
+    the call then loads it instead of compiling.  A caller with a slower kernel
+    that needs no compile can run that one until this is True (the Galilean
+    stage's plain scatter, compiled in the background phase: docs/compile-time.md).
+
+    Parameters
+    ----------
+    dispatcher : numba Dispatcher
+        An ``@njit(cache=True)`` kernel.
+    args : tuple
+        The arguments it would be called with (only their numba types count).
+
+    Returns
+    -------
+    bool
+        False too when the kernel has no file cache, or its index cannot be read.
+    """
+    sig = tuple(dispatcher.typeof_pyval(a) for a in args)
+    if sig in dispatcher.overloads:
+        return True
+    cache = getattr(dispatcher, "_cache", None)
+    if not getattr(cache, "_enabled", False):
+        return False
+    try:  # numba's own key and index (numba.core.caching.Cache._load_overload)
+        key = cache._index_key(sig, dispatcher.targetctx.codegen())
+        return key in cache._cache_file._load_index()
+    except Exception:  # noqa: BLE001 -- a torn or foreign index, numba internals moved
+        return False

@@ -32,6 +32,12 @@ encoding) and step 3 loads those, so the first frame waits for them alone.  Once
 at low priority while the service runs; ``stats`` says how far it is
 (``compile``, :meth:`Warmup.background_dict`) and the log says when it ends.  It
 writes the warm stamp when it is done, so the next start skips both children.
+Kernels that only make a refresh faster wait for it too: until the background
+has cached :func:`service.galilean.scatter_bands.scatter_bands_plain`, the
+Galilean stage runs :func:`~service.galilean.scatter_bands.scatter_bands` with its
+still-galpixel bookkeeping off (the same map, bit for bit; it looks at numba's
+cache index once a second, :func:`service.kernel_cache.kernel_ready`), so the
+first frame does not wait for the plain kernel's 27 s of CPU.
 numba's cache saves are locked between processes
 (:func:`service.numba_patches.locked_cache_saves`): a render that needs a kernel
 the background has not reached yet compiles it in its own process meanwhile.

@@ -211,3 +211,105 @@ def control_points(
     if not verts:
         return np.zeros((display.zones, 0, 3)), np.zeros(0, np.int64)
     return project(np.concatenate(verts), display), np.concatenate(owner)
+
+
+#: Binomial coefficients C(n, k), n, k = 0..3 (Leibniz's rule for the derivatives).
+_BINOMIAL = ((1, 0, 0, 0), (1, 1, 0, 0), (1, 2, 1, 0), (1, 3, 3, 1))
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """Cross-product matrices ``[w]x`` of vectors (N, 3), shape (N, 3, 3)."""
+    out = np.zeros((w.shape[0], 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return out
+
+
+def _turn_rates(w: np.ndarray, alpha: np.ndarray, dt: float) -> np.ndarray:
+    """``R^(n) R^T`` (n = 0..3) of rotations turning at ``w + alpha dt``, shape (4, N, 3, 3).
+
+    With ``R' = [omega]x R`` and ``omega' = alpha``: ``I``, ``[omega]``, ``[alpha] +
+    [omega]^2``, ``2 [alpha][omega] + [omega][alpha] + [omega]^3``.
+    """
+    om, al = _skew(w + alpha * dt), _skew(alpha)
+    om2 = om @ om
+    eye = np.broadcast_to(np.eye(3), om.shape)
+    return np.stack([eye, om, al + om2, 2 * al @ om + om @ al + om2 @ om])
+
+
+def _path_rates(p0: np.ndarray, v: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
+    """Position and its derivatives 1..3 at ``dt`` under uniform acceleration, (4, N, 3)."""
+    return np.stack([p0 + v * dt + 0.5 * a * dt * dt, v + a * dt, a, np.zeros_like(a)])
+
+
+def motion_derivatives(
+    scene: Scene, dt: float, period: float, viewer: Transform | None = None,
+    viewer_motion: MotionState | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Time derivatives 1..3 of every object's points as the (moving) viewer sees them.
+
+    A point of object ``o`` at ``X`` (viewer frame, at ``dt``: where
+    :func:`scene_at` puts it) has n-th derivative ``K[n-1, o] @ X + e[n-1, o]`` per
+    ``period^n``, and a direction carried by the object (a normal) ``K[n-1, o] @ N``.
+    Exact for the motion :func:`advance_transform` integrates: uniform linear
+    acceleration, and angular velocity ``w + alpha dt`` (the placement's own
+    rotation when ``alpha`` is parallel to ``w`` or zero; otherwise the placement is
+    a second-order approximation of that motion and these are the motion's derivatives).
+
+    With the object ``R(t) s m + p(t)`` and the viewer ``B = R_v^T``, ``c``:
+    ``X^(n) = sum_k C(n, k) B^(k) (R^(n-k) s m + (p - c)^(n-k))`` with ``R^(j) =
+    W_j R`` and ``B^(k) = B V_k^T`` (``W``, ``V`` from :func:`_turn_rates`).
+
+    Parameters
+    ----------
+    scene : Scene
+    dt : float
+        Seconds after the scene's state.
+    period : float
+        Seconds per unit of time of the derivatives (a refresh period).
+    viewer, viewer_motion : optional
+        As :func:`scene_at`.
+
+    Returns
+    -------
+    K : ndarray, shape (3, O + 1, 3, 3)
+    e : ndarray, shape (3, O + 1, 3)
+        Row ``O`` is the world's own (a still point: the lights).
+    """
+    objs = scene.objects
+    fields = ("angular_velocity", "angular_acceleration", "velocity", "acceleration")
+    still = np.zeros((1, 3))  # the world's own row
+    p0, w, al, v, a = (np.concatenate([np.array(x, np.float64).reshape(-1, 3), still]) for x in (
+        [o.transform.position for o in objs], *([getattr(o.motion, f) for o in objs]
+                                                for f in fields)))
+    turn, path = _turn_rates(w, al, dt), _path_rates(p0, v, a, dt)
+    if viewer is None:
+        back, vturn, vpath = np.eye(3), np.zeros((4, 3, 3)), np.zeros((4, 1, 3))
+        vturn[0] = np.eye(3)
+    else:
+        vm = viewer_motion or MotionState()
+        back = quaternion_matrix(advance_transform(viewer, vm, dt).orientation).T
+        vturn = _turn_rates(vm.angular_velocity[None], vm.angular_acceleration[None], dt)[:, 0]
+        vpath = _path_rates(viewer.position[None], vm.velocity[None], vm.acceleration[None], dt)
+    mk = back @ vturn.transpose(0, 2, 1)  # B^(k) = B V_k^T, (4, 3, 3)
+    # (p - c)^(j) - W_j (p - c): zero for j = 0
+    rel = path - vpath - np.einsum("joab,ob->joa", turn, path[0] - vpath[0])
+    rel[0] = 0.0
+    scale = (period ** np.arange(1, 4))[:, None, None]
+    lead = np.einsum("nkj,kab->njab", _LEIBNIZ, mk)[:, :, None]  # sum_k C(n, k) B^(k), j = n - k
+    big_k = (lead @ (turn @ back.T)[None]).sum(axis=1) * scale[..., None]
+    e = (lead @ rel[None, ..., None]).sum(axis=1)[..., 0] * scale
+    return big_k, e
+
+
+def _leibniz() -> np.ndarray:
+    """``L[n - 1, k, j] = C(n, k)`` where ``j = n - k`` (n = 1..3), else 0: shape (3, 4, 4)."""
+    out = np.zeros((3, 4, 4))
+    for n in range(1, 4):
+        for k in range(n + 1):
+            out[n - 1, k, n - k] = _BINOMIAL[n][k]
+    return out
+
+
+#: Leibniz's rule for the n-th derivative of a product as a table (:func:`_leibniz`).
+_LEIBNIZ = _leibniz()

@@ -149,7 +149,9 @@ SERVICE_JOBS: tuple[str, ...] = tuple(name for name, job in JOBS.items() if job.
 #: second process beside the render path) and the autostereogram encoding a client
 #: may ask for.  Every other job,
 #: the refresh's other orders and settings too, compiles in the background once the
-#: service is ready.
+#: service is ready; so does the plain scatter, which a stage runs only once it is
+#: cached (``GalileanStage._plain_ready``), and ``Renderer.render``'s uint8 frames,
+#: which a service does not draw.
 FIRST_FRAME_JOBS: tuple[str, ...] = tuple(n for n, job in JOBS.items() if job.first_frame)
 
 

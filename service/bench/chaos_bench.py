@@ -8,7 +8,10 @@ A real ``holo-service`` (``--scene game --workers 2 --size 240x180``, the settin
 issue 35) with a client subscribed to its frame stream.  Every ``--every`` seconds
 a random live worker gets ``kill -9`` and another ``SIGSTOP``, continued after a
 random 0.2-2 s (a stop past three worker heartbeats gets it killed and replaced;
-a shorter one is survived).  Measured:
+a shorter one is survived).  Workers still starting (not yet ``READY``) are spared,
+as real crashes spare them: a worker dies of its work (a job, its memory), and one
+loading its kernels has none yet; with no live worker the next kill waits for one.
+Measured:
 
 * the **longest gap between updates** (frames whose ``render_id`` changed, as the
   subscriber received them).  Target: <= 1 s;
@@ -134,18 +137,26 @@ class Chaos:
         self.pids: set[int] = set()
         self._continue: list[tuple[float, int]] = []
 
-    def step(self, t0: float) -> None:
-        """Kill a random live worker and stop another (continued 0.2-2 s later)."""
-        live = list(self.client.stats()["worker_pids"])
-        self.pids |= set(live)
+    def step(self, t0: float) -> bool:
+        """Kill a random live worker and stop another (continued 0.2-2 s later).
+
+        Workers still starting are spared (see the module notes); False, and nothing
+        done, while no worker is live.
+        """
+        st = self.client.stats()
+        self.pids |= set(st["worker_pids"])
+        live = [w["pid"] for w in st["workers"]["workers"] if w["alive"] and w["local"]]
+        if not live:
+            return False
         self.rng.shuffle(live)
         now = time.monotonic()
-        if live and _signal(live[0], signal.SIGKILL):
+        if _signal(live[0], signal.SIGKILL):
             self.events.append({"t": now - t0, "event": "kill", "pid": live[0]})
         if len(live) > 1 and _signal(live[1], signal.SIGSTOP):
             hold = self.rng.uniform(0.2, 2.0)
             self.events.append({"t": now - t0, "event": "stop", "pid": live[1], "hold_s": hold})
             self._continue.append((now + hold, live[1]))
+        return True
 
     def continue_due(self, t0: float, everything: bool = False) -> None:
         """SIGCONT the stopped workers whose hold is over (or all of them)."""
@@ -180,9 +191,8 @@ def run_chaos(
         next_chaos, next_trace = t0 + 1.0, t0
         try:
             while (now := time.monotonic()) < t0 + seconds:
-                if now >= next_chaos:
-                    chaos.step(t0)
-                    next_chaos += every_s
+                if now >= next_chaos and chaos.step(t0):
+                    next_chaos += every_s  # not yet while no worker is live
                 chaos.continue_due(t0)
                 if now >= next_trace:
                     trace.append(_trace_row(c.stats(), now - t0))

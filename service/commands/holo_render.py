@@ -37,7 +37,13 @@ from service.builtin_scenes import SCENES, builtin_scene
 from service.display import DisplaySettings
 from service.loaders import MESH_LOADERS, SCENE_EXTENSIONS, load_scene
 from service.lod.cost import CostModel
-from service.lod.options import add_lod_options, budget_frames, lod_settings, lod_state
+from service.lod.options import (
+    add_lod_options,
+    budget_frames,
+    build_chains,
+    lod_settings,
+    lod_state,
+)
 from service.lookingglass import DEFAULT_VIEWS, Calibration, Interleaver, parse_display
 from service.mesh_repair import MeshRepair, MeshRepairWarning
 from service.png import write_png
@@ -294,6 +300,8 @@ def run(args: argparse.Namespace) -> dict:
                if quality.mode == "auto" else None)
     warm_up(settings)  # compile or load the numba kernels outside the timings
     renderer = _renderer()
+    if settings.lod is not None:  # chains before the first frame, never inside it
+        build_chains(renderer.lod, scene, settings.lod)
     if chooser is not None:
         frame, settings = _render_auto(args.light, renderer, chooser, scene, display, settings)
         flatten_ms = frame.stats["ms"]["flatten"]
@@ -301,7 +309,8 @@ def run(args: argparse.Namespace) -> dict:
         frame = renderer.render(scene, display, settings)
         flatten_ms = frame.stats["ms"]["flatten"]  # the one-off build, not a warm frame's
         frame = budget_frames(renderer, scene, display, settings, frame)
-    renderer.lod.progress.end()
+    renderer.lod.builds.on_progress.end()
+    renderer.lod.close()
     for note in frame.stats.get("lod", {}).get("chains", {}).get("notes", []):
         print(f"holo-render: warning: {note}", file=sys.stderr)
     out = Path(args.out)

@@ -67,8 +67,13 @@ class Engine:
             self._threads.append(t)
 
     def load_scene(self, scene: Scene) -> int:
-        """Replace the scene; its version (frames of the scenes before are not shown)."""
-        return self.st.state.load(scene)
+        """Replace the scene; its version (frames of the scenes before are not shown).
+
+        Level-of-detail chains the scene lacks start building at once.
+        """
+        version = self.st.state.load(scene)
+        self.st.queue_chains()
+        return version
 
     def move(self, scene: Scene) -> None:
         """The same scene's objects in new states as of now (``update_objects``)."""

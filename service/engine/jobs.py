@@ -123,7 +123,7 @@ def render_job(
     The galpixmap uses order ``job["order"]``.  The stats are those of the render
     reply (``docs/protocol.md`` 1.5): ``ms`` per stage (``project``, ``cull``,
     ``sort``, ``occlusion`` of the visibility pass; ``motion``: the whole render
-    with its four difference renders; ``galpixmap``; ``total``), ``polygons``
+    with per-pixel motion; ``galpixmap``; ``total``), ``polygons``
     (``in``, ``culled``, ``kept``, ``drawn``), ``method`` and ``rows``; with billboard
     clouds in the scene ``billboards`` (how they were drawn: ``drawn_with``, ``note``).
 
@@ -151,6 +151,7 @@ def render_job(
         render_from_wire(job["render"]),
         viewer,
         motion,
+        order=int(job.get("order", 2)),  # no jerk maps below G(3)
     )
     t1 = time.perf_counter()
     out = _job_arrays(up, display, int(job.get("order", 2)), rows)

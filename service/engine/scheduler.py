@@ -53,6 +53,7 @@ class Scheduler:
         self._chooser: tuple[int, QualityChooser] | None = None  # (generation, chooser)
         #: renders in process (in the service: while no worker lives)
         self._local = StatsRenderer()
+        self._local.lod.builds = st.chains  # chains queued at load are this renderer's
         self.local_ms: deque[float] = deque(maxlen=50)  # their times, ms
         self._local_renders = 0
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from service.engine.viewer import ViewerTracker
 from service.frame_settings import FrameSettings
+from service.lod.builds import ChainBuilds
 from service.net.settings_wire import display_to_wire, render_to_wire
 from service.render.scene import Scene
 
@@ -201,6 +202,22 @@ class EngineState:
     last_refresh_error: str = ""
     #: the last finished render's level-of-detail report (None: LOD off), for ``stats``
     last_lod: dict | None = None
+    #: level-of-detail chains built off the render path, queued when a scene loads
+    #: (the in-process renderer's; workers read them from the cache)
+    chains: ChainBuilds = field(default_factory=ChainBuilds)
+
+    def queue_chains(self) -> int:
+        """Start building the chains the scene's meshes lack, when level of detail is on.
+
+        Called when a scene or an object is loaded and when the settings change, so
+        chains are built before frames need them (the first frames draw full meshes).
+        Returns how many were queued.
+        """
+        with self.state.lock:
+            scene, lod = self.state.scene, self.state.settings.render.lod
+        if scene is None or lod is None or not lod.enabled:
+            return 0
+        return self.chains.submit_scene(scene, lod)
 
     def to_workers(self) -> bool:
         """Whether renders go to worker processes: never, in the engine alone."""

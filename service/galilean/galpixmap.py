@@ -273,9 +273,10 @@ def build(
     order : int
         0..3; derivatives above the order are dropped.
     fixed : FixedPoint
-    derivatives : ndarray, shape (3, 3, Z, R, C), optional
+    derivatives : ndarray, shape (D, 3, Z, R, C), optional
         ``[k, c]``: the (k+1)-th time derivative of component c (x, y in px, z in
-        depth units) per refresh^(k+1).  None: no motion.
+        depth units) per refresh^(k+1), D >= ``order`` of them (up to 3).  None: no
+        motion.
     dcolour : ndarray, shape (4, Z, R, C), optional
         dA, dB, dC, d2A per refresh.  None: colour motion switched off.
     obj : ndarray, shape (Z, R, C), optional
@@ -299,7 +300,11 @@ def build(
     if dep.ndim != 3:
         raise GalileanError(f"depth must be (Z, R, C), got {dep.shape}")
     col = _check("colour", colour, (*dep.shape, 3))
-    der = _check("derivatives", derivatives, (3, 3, *dep.shape))
+    der = None if derivatives is None else np.asarray(derivatives)
+    if der is not None and (der.shape[1:] != (3, *dep.shape) or not
+                            min(order, 3) <= der.shape[0] <= 3):
+        raise GalileanError(f"derivatives must have shape ({max(order, 1)}..3, 3, "
+                            f"{', '.join(map(str, dep.shape))}), got {der.shape}")
     dcol = _check("dcolour", dcolour, (4, *dep.shape))
     ob = _check("obj", obj, dep.shape)
     gp = Galpixmap.empty(order, fixed, tuple(dep.shape), dcol is not None, BUFFER_SLOT)

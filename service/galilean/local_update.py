@@ -188,7 +188,8 @@ def render_local(
         second = obscurers(scene, [i], *control) if control is not None else \
             [k for k in range(len(scene.objects)) if k != i]
         keep = sorted({int(i), *second}) if shadow == "full" else [int(i)]
-        sub = render_with_motion(renderer, _subscene(scene, keep), display, t, refresh_hz, settings)
+        sub = render_with_motion(renderer, _subscene(scene, keep), display, t, refresh_hz, settings,
+                                 order=order)
         sub.obj = np.where(sub.obj >= 0, np.asarray(keep, np.int32)[np.maximum(sub.obj, 0)], -1)
         if shadow == "depth" and second:
             cs = (settings or RenderSettings()).cull

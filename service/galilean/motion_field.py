@@ -1,9 +1,12 @@
 """Apparent motion from the renderer (seed 002, section 3.2).
 
-Every vertex's apparent (display) position is differentiated in time with central
-differences of the projected positions at ``t + k h`` (k = -2..2, h a fraction of
-a refresh), which includes the objects' and the viewer's motion alike.  Units are
-pixels (x, y) and depth units (z) per refresh^n.
+Every vertex's apparent (display) velocity, acceleration and jerk come from its
+object's motion state and the viewer's
+(:func:`service.scene_motion.motion_derivatives`: exact derivatives of the placed
+scene, objects' and viewer's motion alike), projected (:func:`vertex_motion`).
+Units are pixels (x, y) and depth units (z) per refresh^n.
+:func:`vertex_derivatives` (five-point central differences of projections at ``t +
+k h``) is the numerical way, kept for billboard clouds and as the tests' reference.
 
 The display's projection is affine (a sheared parallel projection, see
 :mod:`service.display`), and a rigid motion keeps a surface point at fixed
@@ -12,9 +15,11 @@ barycentric coordinates in its triangle, so a pixel's apparent derivatives are
 (section 3.2's "linear interpolation across the polygon").  The barycentrics are
 those of the pixel centre in the projected triangle the visibility buffer names.
 
-Colour derivatives come from shading the same visibility with the scene at
-``t -+ h``: ``dRGB/dt`` and ``d2RGB/dt2`` per refresh, encoded as dA, dB, dC and
-d2A (equations 17-18) in 0..255 units.
+Colour derivatives (``dRGB/dt`` and ``d2RGB/dt2`` per refresh, encoded as dA, dB,
+dC and d2A, equations 17-18, in 0..255 units) come for flat light from the chain
+rule through the light model (:func:`service.render.light.polygon_motion_tables`),
+for per-vertex and per-point light from shading the same visibility with the scene
+at ``t -+ h`` (:func:`colour_derivatives`).
 """
 
 from __future__ import annotations
@@ -30,10 +35,17 @@ from service.display import DisplaySettings
 from service.galilean.galpixmap import RGB_TO_ABC
 from service.render.frame import Frame
 from service.render.light import polygon_motion_tables, shade, shade_linear
+from service.render.occlusion import Visibility
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.projection import project
-from service.render.scene import MotionState, Scene, Transform, flatten
-from service.scene_motion import advance_transform, placements, scene_at, view_lights
+from service.render.scene import MotionState, Scene, SceneArrays, Transform, flatten
+from service.scene_motion import (
+    advance_transform,
+    motion_derivatives,
+    placements,
+    scene_at,
+    view_lights,
+)
 
 #: Five-point central-difference weights of the 1st and 2nd derivative, offsets -2..2
 #: (the 3rd uses ``(p2 - 2 p1 + 2 m1 - m2) / 2``).
@@ -48,10 +60,11 @@ class RenderedUpdate:
     ----------
     frame : Frame
         Colour (Z, R, C, 3) uint8 and depth (Z, R, C).
-    derivatives : ndarray, shape (3, 3, Z, R, C), float32
-        Velocity, acceleration, jerk of x, y (px) and depth per refresh^n.
+    derivatives : ndarray, shape (D, 3, Z, R, C), float32
+        Velocity, acceleration (and, D = 3, jerk) of x, y (px) and depth per
+        refresh^n; zero where nothing is seen.
     dcolour : ndarray, shape (4, Z, R, C), float32 or None
-        dA, dB, dC, d2A per refresh.
+        dA, dB, dC, d2A per refresh; zero where no triangle is seen.
     obj : ndarray, shape (Z, R, C), int32
         Object index per pixel (-1 empty).
     viewer_motion : MotionState
@@ -109,84 +122,6 @@ def _weighted(weights: np.ndarray, p: np.ndarray) -> np.ndarray:
     return out
 
 
-def project_motion(vertices: np.ndarray, display: DisplaySettings,
-                   h: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`~service.render.projection.project` at the five times and :func:`vertex_derivatives`.
-
-    One pass over the vertices, the same values bit for bit.
-
-    Parameters
-    ----------
-    vertices : ndarray, shape (5, V, 3)
-        World vertices at ``t - 2h .. t + 2h``.
-    display : DisplaySettings
-    h : float
-        Step in refreshes.
-
-    Returns
-    -------
-    projections : ndarray, shape (5, Z, V, 3)
-    derivatives : ndarray, shape (3, Z, V, 3)
-    """
-    n = vertices.shape[1]
-    proj = np.empty((5, display.zones, n, 3))
-    vd = np.empty((3, display.zones, n, 3))
-    _project_motion(np.ascontiguousarray(vertices, np.float64), display.shears(),
-                    (display.pixel_size, display.width / 2, display.height / 2),
-                    STENCIL, (h, h**2, 2 * h**3), proj, vd)
-    return proj, vd
-
-
-@nb.njit(cache=True, nogil=True, parallel=True)
-def _project_motion(vertices: np.ndarray, shears: np.ndarray, grid: tuple, stencil: np.ndarray,
-                    steps: tuple, proj: np.ndarray, vd: np.ndarray) -> None:
-    """:func:`project_motion` into ``proj`` (5, Z, V, 3) and ``vd`` (3, Z, V, 3).
-
-    ``grid`` is ``(pixel size, half width, half height)``, ``steps`` ``(h, h^2,
-    2 h^3)``; each value is found as :func:`service.render.projection.project` and
-    :func:`vertex_derivatives` find it, operation by operation.  Zones differ only
-    in the column: a vertex's row and depth, and their derivatives, are found once
-    and copied.  Vertices in parallel.
-    """
-    s, half_width, half_height = grid
-    zones = shears.shape[0]
-    for v in nb.prange(vertices.shape[1]):
-        for i in range(5):
-            x, y, z = vertices[i, v, 0], vertices[i, v, 1], vertices[i, v, 2]
-            row = (half_height - y) / s
-            for k in range(zones):
-                proj[i, k, v, 0] = (x - z * shears[k] + half_width) / s
-                proj[i, k, v, 1] = row
-                proj[i, k, v, 2] = -z
-        for k in range(zones):
-            _stencil(proj, k, v, 0, stencil, steps, vd, k + 1)
-        _stencil(proj, 0, v, 1, stencil, steps, vd, zones)
-        _stencil(proj, 0, v, 2, stencil, steps, vd, zones)
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _stencil(proj: np.ndarray, k: int, v: int, d: int, stencil: np.ndarray, steps: tuple,
-             vd: np.ndarray, k_end: int) -> None:
-    """:func:`vertex_derivatives` of ``proj[:, k, v, d]`` into ``vd[:, k:k_end, v, d]``."""
-    w1, w2 = stencil[0], stencil[1]
-    p0, p1, p2 = proj[0, k, v, d], proj[1, k, v, d], proj[2, k, v, d]
-    p3, p4 = proj[3, k, v, d], proj[4, k, v, d]
-    a = w1[0] * p0
-    a += w1[1] * p1
-    a += w1[3] * p3  # w1[2] is 0: vertex_derivatives skips it too
-    a += w1[4] * p4
-    b = w2[0] * p0
-    b += w2[1] * p1
-    b += w2[2] * p2
-    b += w2[3] * p3
-    b += w2[4] * p4
-    c = (p4 - 2 * p3 + 2 * p1 - p0) / steps[2]
-    for kk in range(k, k_end):
-        vd[0, kk, v, d] = a / steps[0]
-        vd[1, kk, v, d] = b / steps[1]
-        vd[2, kk, v, d] = c
-
-
 def interpolate(
     tri_map: np.ndarray, triangles: np.ndarray, proj: np.ndarray, vd: np.ndarray
 ) -> np.ndarray:
@@ -194,7 +129,7 @@ def interpolate(
 
     Along a row a triangle's barycentrics, and so each interpolated derivative,
     are affine in the column: ``A + B x`` (``x`` the pixel centre).  A row sets up
-    ``A`` and ``B`` for its nine derivatives where the triangle changes, and a pixel
+    ``A`` and ``B`` for its nine derivatives once per run of a triangle, and a pixel
     then costs nine multiply-adds.  Rows run in parallel.  This is
     :func:`_motion_pixels` (which :func:`render_with_motion` runs) without the maps
     other than the derivatives.
@@ -215,40 +150,16 @@ def interpolate(
         Zero where empty; a degenerate (zero-area) triangle gets its vertices' mean.
     """
     tri_map = np.ascontiguousarray(tri_map, np.int32)
-    out = np.empty((3, 3, *tri_map.shape), np.float32)
+    out = np.zeros((3, 3, *tri_map.shape), np.float32)  # empty pixels stay 0
     n = tri_map.size
     none = (np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0, 4), np.float32), np.zeros(3, np.uint8))
     geometry = (np.ascontiguousarray(triangles, np.int64),
                 np.zeros(triangles.shape[0], np.int64), np.zeros(1, np.int64),
                 np.ascontiguousarray(proj, np.float64))
-    _motion_pixels(tri_map, geometry, np.ascontiguousarray(vd, np.float64), none,
+    _motion_pixels(tri_map, geometry, by_vertex(vd), none,
                    out.reshape(9, n), np.empty((0, 3), np.uint8), np.empty((4, 0), np.float32),
                    np.empty(n, np.int32))
     return out
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _row_setup(tri: np.ndarray, proj: np.ndarray, vd: np.ndarray, y: float,
-               coef: np.ndarray) -> None:
-    """``coef`` (2, 9): A and B of ``A + B x`` for each derivative, along row ``y``."""
-    i0, i1, i2 = tri[0], tri[1], tri[2]
-    ax, ay = proj[i0, 0], proj[i0, 1]
-    ex, ey = proj[i1, 0] - ax, proj[i1, 1] - ay  # b - a
-    fx, fy = proj[i2, 0] - ax, proj[i2, 1] - ay  # c - a
-    det = ex * fy - fx * ey
-    # w1 = u1 + s1 x, w2 = u2 + s2 x on this row
-    u1 = u2 = 1.0 / 3.0
-    s1 = s2 = 0.0
-    if det != 0.0:
-        py = y - ay
-        s1, u1 = fy / det, (-ax * fy - fx * py) / det
-        s2, u2 = -ey / det, (ex * py + ax * ey) / det
-    for k in range(3):
-        for d in range(3):
-            v0 = vd[k, i0, d]
-            d1, d2 = vd[k, i1, d] - v0, vd[k, i2, d] - v0
-            coef[0, 3 * k + d] = v0 + u1 * d1 + u2 * d2
-            coef[1, 3 * k + d] = s1 * d1 + s2 * d2
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -299,6 +210,77 @@ def colour_derivatives(
     return out
 
 
+def vertex_object(scene: Scene) -> np.ndarray:
+    """Object index of every vertex of the flattened scene, shape (V,), int64."""
+    return np.repeat(np.arange(len(scene.objects), dtype=np.int64),
+                     [o.mesh.n_vertices for o in scene.objects])
+
+
+def vertex_motion(vertices: np.ndarray, owner: np.ndarray, rates: tuple[np.ndarray, np.ndarray],
+                  display: DisplaySettings) -> np.ndarray:
+    """Apparent derivatives 1..3 of every vertex in every zone, from the objects' motion.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        The flattened scene's vertices at the render time (the viewer's frame).
+    owner : ndarray, shape (V,), int64
+        Object of each vertex (:func:`vertex_object`).
+    rates : (K (3, O + 1, 3, 3), e (3, O + 1, 3))
+        :func:`service.scene_motion.motion_derivatives`, per refresh^n.
+    display : DisplaySettings
+
+    Returns
+    -------
+    ndarray, shape (3, Z, V, 3)
+        Column, row (px) and depth per refresh^n: the projection is affine, so these
+        are :func:`service.render.projection.project` of the world derivatives
+        without its offsets.
+    """
+    return by_order(_vertex_rates(vertices, owner, rates, display))
+
+
+def _vertex_rates(vertices: np.ndarray, owner: np.ndarray, rates: tuple[np.ndarray, np.ndarray],
+                  display: DisplaySettings) -> np.ndarray:
+    """:func:`vertex_motion` as :func:`_motion_pixels` reads it, (Z, V, 9) (:func:`by_vertex`)."""
+    zv9 = np.empty((display.zones, vertices.shape[0], 9))
+    _vertex_motion(np.ascontiguousarray(vertices, np.float64), owner, rates[0], rates[1],
+                   display.shears(), display.pixel_size, zv9)
+    return zv9
+
+
+def by_order(zv9: np.ndarray) -> np.ndarray:
+    """Vertex derivatives (Z, V, 9) as :func:`_motion_pixels` reads them, as (3, Z, V, 3)."""
+    return zv9.reshape(*zv9.shape[:2], 3, 3).transpose(2, 0, 1, 3)
+
+
+def by_vertex(vd: np.ndarray) -> np.ndarray:
+    """Vertex derivatives (3, Z, V, 3) -> (Z, V, 9): a vertex's nine side by side."""
+    return np.ascontiguousarray(np.transpose(vd, (1, 2, 0, 3)), np.float64).reshape(
+        vd.shape[1], vd.shape[2], 9)
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _vertex_motion(vertices: np.ndarray, owner: np.ndarray, big_k: np.ndarray, e: np.ndarray,
+                   shears: np.ndarray, s: float, vd: np.ndarray) -> None:
+    """:func:`vertex_motion` into ``vd`` (Z, V, 9): ``K[n, o] @ x + e[n, o]``, projected.
+
+    Derivative n of component c of vertex v in zone k is ``vd[k, v, 3 n + c]``.
+    """
+    zones = shears.shape[0]
+    for v in nb.prange(vertices.shape[0]):
+        o = owner[v]
+        x, y, z = vertices[v, 0], vertices[v, 1], vertices[v, 2]
+        for n in range(3):
+            dx = big_k[n, o, 0, 0] * x + big_k[n, o, 0, 1] * y + big_k[n, o, 0, 2] * z + e[n, o, 0]
+            dy = big_k[n, o, 1, 0] * x + big_k[n, o, 1, 1] * y + big_k[n, o, 1, 2] * z + e[n, o, 1]
+            dz = big_k[n, o, 2, 0] * x + big_k[n, o, 2, 1] * y + big_k[n, o, 2, 2] * z + e[n, o, 2]
+            for k in range(zones):
+                vd[k, v, 3 * n] = (dx - dz * shears[k]) / s
+                vd[k, v, 3 * n + 1] = -dy / s
+                vd[k, v, 3 * n + 2] = -dz
+
+
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _motion_pixels(
     tri_map: np.ndarray, geometry: tuple, vd: np.ndarray, tables: tuple,
@@ -306,9 +288,14 @@ def _motion_pixels(
 ) -> None:
     """Every per-pixel map of an update in one pass over the visibility buffer.
 
-    Motion derivatives as :func:`interpolate` finds them (the same arithmetic), the
-    object each pixel shows, and, from per-polygon tables, the colour and its
-    derivatives (a copy per pixel: flat light is the same over a polygon).
+    A row is taken run by run (a run: pixels showing one triangle, or none).  In a
+    triangle's run the barycentrics, and so each interpolated derivative, are
+    affine in the column: ``A + B x`` (``x`` the pixel centre), set up once per run
+    and written plane by plane.  Also the object each pixel shows and, from
+    per-polygon tables, the colour and its derivatives (a copy per pixel: flat light
+    is the same over a polygon).  Empty pixels get only the object -1 and the
+    background colour: the derivative maps are written where a triangle is seen
+    and nowhere else.
 
     Parameters
     ----------
@@ -316,71 +303,91 @@ def _motion_pixels(
     geometry : tuple
         ``(triangles (T, 3), triangle_polygon (T,), polygon_object (P,), proj (Z, V,
         3))`` at the render time.
-    vd : ndarray, shape (3, Z, V, 3)
-        Vertex derivatives.
+    vd : ndarray, shape (Z, V, 9)
+        Vertex derivatives (:func:`by_vertex`).
     tables : tuple
         ``(table (Z, P, 3) uint8, dtable (Z, P, 4) float32, background (3,) uint8)``
         (:func:`service.render.light.polygon_motion_tables`).
-    der : ndarray, shape (9, Z*R*C), float32
-        Out: the derivatives (zero where empty).
+    der : ndarray, shape (3 D, Z*R*C), float32
+        Out: the first D derivatives (D = 1..3), plane ``3 k + c`` the (k+1)-th of
+        component c (x, y, depth), where a triangle is seen.
     colour : ndarray, shape (Z*R*C, 3) or (0, 3), uint8
         Out, unless it has no rows: colour (the background where empty).
     dcol : ndarray, shape (4, Z*R*C) or (4, 0), float32
-        Out, unless it has no columns: colour derivatives (zero where empty).
+        Out, unless it has no columns: colour derivatives, where a triangle is seen.
     obj : ndarray, shape (Z*R*C,), int32
         Out: object index (-1 where empty).
     """
     triangles, tri_poly, poly_obj, proj = geometry
     table, dtable, bg = tables
     paint, dpaint = colour.shape[0] > 0, dcol.shape[1] > 0
+    planes = der.shape[0]
     nz, nr, nc = tri_map.shape
-    for zr in nb.prange(nz * nr):
-        z, r = zr // nr, zr % nr
-        y, base = r + 0.5, zr * nc
-        coef = np.empty((2, 9))  # A, B per derivative (k, d)
-        last, c = -1, 0
-        while c < nc:
-            t = tri_map[z, r, c]
-            if t < 0:  # a run of empty pixels, written map by map
-                end = c + 1
-                while end < nc and tri_map[z, r, end] < 0:
-                    end += 1
-                _write_empty(base + c, base + end, bg, der, colour, dcol, obj)
-                c = end
+    n = np.uint64(obj.shape[0])
+    tri, derf, colf, dcolf = tri_map.reshape(-1), der.reshape(-1), colour.reshape(-1), \
+        dcol.reshape(-1)
+    one, three = np.uint64(1), np.uint64(3)
+    b0, b1, b2 = bg[0], bg[1], bg[2]
+    grey = b0 == b1 and b1 == b2
+    for zr in nb.prange(nz * nr):  # flat indices are unsigned: no wraparound checks
+        z = zr // nr
+        y, base = zr % nr + 0.5, np.uint64(zr * nc)
+        i0, row_end = base, base + np.uint64(nc)
+        while i0 < row_end:
+            t = tri[i0]
+            i1 = i0 + one
+            while i1 < row_end and tri[i1] == t:
+                i1 += one
+            if t < 0:
+                for i in range(i0, i1):
+                    obj[i] = -1
+                if paint and grey:  # one byte value: a fill
+                    for i in range(three * i0, three * i1):
+                        colf[i] = b0
+                elif paint:
+                    for i in range(i0, i1):
+                        colf[three * i] = b0
+                        colf[three * i + one] = b1
+                        colf[three * i + np.uint64(2)] = b2
+                i0 = i1
                 continue
-            if t != last:
-                last = t
-                _row_setup(triangles[t], proj[z], vd[:, z], y, coef)
-            i, x = base + c, c + 0.5
-            for j in range(9):
-                der[j, i] = coef[0, j] + coef[1, j] * x
+            ta, tb, tc = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+            ax, ay = proj[z, ta, 0], proj[z, ta, 1]
+            ex, ey = proj[z, tb, 0] - ax, proj[z, tb, 1] - ay  # b - a
+            fx, fy = proj[z, tc, 0] - ax, proj[z, tc, 1] - ay  # c - a
+            det = ex * fy - fx * ey
+            # w1 = u1 + s1 x, w2 = u2 + s2 x on this row
+            u1 = u2 = 1.0 / 3.0
+            s1 = s2 = 0.0
+            if det != 0.0:
+                py = y - ay
+                s1, u1 = fy / det, (-ax * fy - fx * py) / det
+                s2, u2 = -ey / det, (ex * py + ax * ey) / det
+            x0 = np.float64(i0 - base) + 0.5
+            for j in range(planes):
+                v0 = vd[z, ta, j]
+                d1, d2 = vd[z, tb, j] - v0, vd[z, tc, j] - v0
+                ca, cb = v0 + u1 * d1 + u2 * d2, s1 * d1 + s2 * d2
+                off, x = np.uint64(j) * n, x0
+                for i in range(i0, i1):
+                    derf[off + i] = ca + cb * x
+                    x += 1.0
             p = tri_poly[t]
-            obj[i] = poly_obj[p]
+            o = poly_obj[p]
+            for i in range(i0, i1):
+                obj[i] = o
             if paint:
-                colour[i, 0], colour[i, 1], colour[i, 2] = table[z, p, 0], table[z, p, 1], \
-                    table[z, p, 2]
+                c0, c1, c2 = table[z, p, 0], table[z, p, 1], table[z, p, 2]
+                for i in range(i0, i1):
+                    colf[three * i] = c0
+                    colf[three * i + one] = c1
+                    colf[three * i + np.uint64(2)] = c2
             if dpaint:
                 for j in range(4):
-                    dcol[j, i] = dtable[z, p, j]
-            c += 1
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _write_empty(
-    i0: int, i1: int, bg: np.ndarray, der: np.ndarray, colour: np.ndarray, dcol: np.ndarray,
-    obj: np.ndarray,
-) -> None:
-    """:func:`_motion_pixels`' empty pixels ``i0..i1-1``: map by map, each loop in order."""
-    for j in range(9):
-        der[j, i0:i1] = 0.0
-    obj[i0:i1] = -1
-    if colour.shape[0] > 0 and bg[0] == bg[1] == bg[2]:  # one byte value: a fill
-        colour.reshape(-1)[3 * i0 : 3 * i1] = bg[0]
-    else:
-        for i in range(i0, min(i1, colour.shape[0])):
-            colour[i, 0], colour[i, 1], colour[i, 2] = bg[0], bg[1], bg[2]
-    for j in range(dcol.shape[0] if dcol.shape[1] > 0 else 0):
-        dcol[j, i0:i1] = 0.0
+                    dv, off = dtable[z, p, j], np.uint64(j) * n
+                    for i in range(i0, i1):
+                        dcolf[off + i] = dv
+            i0 = i1
 
 
 def render_with_motion(
@@ -394,16 +401,22 @@ def render_with_motion(
     viewer_motion: MotionState | None = None,
     colour_motion: bool = True,
     h: float = 0.25,
+    order: int = 3,
 ) -> RenderedUpdate:
     """Render the scene at time ``t`` (seconds after its state) with per-pixel motion.
 
-    One visibility pass, at ``t``; the scene is only placed (not rendered) at the
-    other four times, for the vertex derivatives.  With flat (``polygon``) light,
-    light at ``t - h, t, t + h`` is one pass over the polygons shown
-    (:func:`service.render.light.polygon_motion_tables`), and one pass over the pixels
-    (:func:`_motion_pixels`) writes colour, colour derivatives, motion derivatives
-    and the object map.  Per-vertex and per-point light shade the pixels at the
-    three times (:func:`service.render.light.shade_linear`).
+    One flatten and one visibility pass, at ``t``.  Every vertex's apparent
+    velocity, acceleration and jerk come from its object's motion state and the
+    viewer's (:func:`service.scene_motion.motion_derivatives`, :func:`vertex_motion`).
+    With flat (``polygon``) light one pass over the polygons shown gives their
+    colour and its first and second time derivatives by the chain rule
+    (:func:`service.render.light.polygon_motion_tables`), and one pass over the
+    pixels (:func:`_motion_pixels`) writes colour, colour derivatives, motion
+    derivatives and the object map.  Per-vertex and per-point light shade the
+    pixels at ``t - h, t, t + h`` (the scene placed at each) and take central
+    differences (:func:`colour_derivatives`); billboard clouds (no motion of their
+    own, only the viewer's) are differentiated from their corners at ``t - 2h ..
+    t + 2h``.
 
     Parameters
     ----------
@@ -421,7 +434,10 @@ def render_with_motion(
     colour_motion : bool
         Also compute colour derivatives.
     h : float
-        Difference step in refreshes.
+        Difference step in refreshes (per-vertex and per-point light, billboards).
+    order : int
+        The Galilean order the update is for: the jerk maps are made only for 3
+        (or with billboard clouds in the scene).
 
     Returns
     -------
@@ -435,48 +451,42 @@ def render_with_motion(
                                                   settings.method, settings.light.evaluation)
     t0 = time.perf_counter()
     period = 1.0 / refresh_hz
-    dts = [t + k * h * period for k in (-2, -1, 0, 1, 2)]
-    pos, quat = placements(scene, dts, viewer, viewer_motion)
-    arrays = [flatten(scene, quat[i], pos[i]) for i in range(5)]
-    projs, vd = project_motion(np.stack([a.vertices for a in arrays]), display, h)
-    now = arrays[2]
-    lights = [scene.lights] * 5 if viewer is None else [
-        view_lights(scene.lights, advance_transform(viewer, viewer_motion or MotionState(), dt))
-        for dt in dts]
-    vis, _, _ = renderer.visibility(now, display, settings)
+    pos, quat = placements(scene, [t], viewer, viewer_motion)
+    now = flatten(scene, quat[0], pos[0])
+    rates = motion_derivatives(scene, t, period, viewer, viewer_motion)
+    vis, _, proj = renderer.visibility(now, display, settings)
+    zv9 = _vertex_rates(now.vertices, vertex_object(scene), rates, display)
+    pose = None if viewer is None else advance_transform(viewer, viewer_motion or MotionState(), t)
+    lights = scene.lights if pose is None else view_lights(scene.lights, pose)
     boards = None
     if scene.billboards:  # into the same depth buffer, as Renderer.render draws them
+        dts = [t + k * h * period for k in (-2, -1, 0, 1, 2)]
         clouds = [scene_at(scene, dt, viewer, viewer_motion).billboards for dt in dts]
-        boards = draw_billboards(clouds[2], display, vis, settings.method, lights[2],
+        boards = draw_billboards(clouds[2], display, vis, settings.method, lights,
                                  scene.ambient, settings.light)
         stats["billboards"] = boards.stats
     tri_map = np.ascontiguousarray(vis.triangle, np.int32)
     zrc = tri_map.shape
-    der = np.empty((3, 3, *zrc), np.float32)
+    kd = 3 if order >= 3 or boards is not None else 2
+    # zeroed by the allocator (calloc): the pixel pass writes only covered pixels
+    der = np.zeros((kd, 3, *zrc), np.float32)
     obj = np.empty(zrc, np.int32)
     flat = settings.light.evaluation == "polygon"
-    times = (1, 2, 3) if colour_motion else (2,)
     if flat:
         colour = np.empty((*zrc, 3), np.uint8)
-        dcol = np.empty((4, *zrc), np.float32) if colour_motion else None
-        tables = polygon_motion_tables(
-            [arrays[i] for i in times], vis, display, [lights[i] for i in times],
-            scene.ambient, settings.light, (255.0 / (2.0 * h), 255.0 / (h * h)),
-            RGB_TO_ABC)
+        dcol = np.zeros((4, *zrc), np.float32) if colour_motion else None
+        tables = polygon_motion_tables(now, vis, display, lights, scene.ambient, settings.light,
+                                       rates if colour_motion else None, 255.0, RGB_TO_ABC)
     else:
-        colour = shade(now, projs[2], vis, display, lights[2], scene.ambient,
-                       settings.light)  # quantised exactly as Renderer.render does
-        dcol = colour_derivatives(
-            [shade_linear(arrays[i], projs[i], vis, display, lights[i], scene.ambient,
-                          settings.light) for i in (1, 2, 3)],
-            h) if colour_motion else None
+        colour = shade(now, proj, vis, display, lights, scene.ambient, settings.light)
+        dcol = _shaded_colour_motion(scene, now, proj, vis, display, (t, h, period),
+                                     (viewer, viewer_motion), settings) if colour_motion else None
         tables = (np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0, 4), np.float32),
                   np.zeros(3, np.uint8))
     n = tri_map.size
     _motion_pixels(
-        tri_map, (now.triangles, now.triangle_polygon, now.polygon_object,
-                  np.ascontiguousarray(projs[2])),
-        np.ascontiguousarray(vd), tables, der.reshape(9, n),
+        tri_map, (now.triangles, now.triangle_polygon, now.polygon_object, proj),
+        zv9, tables, der.reshape(3 * kd, n),
         colour.reshape(n, 3) if flat else np.empty((0, 3), np.uint8),
         dcol.reshape(4, n) if flat and dcol is not None else np.empty((4, 0), np.float32),
         obj.reshape(n))
@@ -487,6 +497,30 @@ def render_with_motion(
     if lod:  # the LOD time budget's cost model learns from this render's cost
         renderer.lod.observe(now.triangles.shape[0], (time.perf_counter() - t0) * 1e3)
     frame = Frame(colour=colour, depth=vis.depth, stats=stats)
-    points = projs[2][..., :2].reshape(-1, 2)
-    pder = vd[..., :2].reshape(3, -1, 2)
+    points = proj[..., :2].reshape(-1, 2)
+    pder = by_order(zv9)[..., :2].reshape(3, -1, 2)
     return RenderedUpdate(frame, der, dcol, obj, viewer_motion or MotionState(), points, pder)
+
+
+def _shaded_colour_motion(
+    scene: Scene, now: SceneArrays, proj: np.ndarray, vis: Visibility, display: DisplaySettings,
+    times: tuple[float, float, float], view: tuple, settings: RenderSettings,
+) -> np.ndarray:
+    """Colour derivatives of per-vertex or per-point light: the scene shaded at ``t -+ h``.
+
+    ``times`` is ``(t, h, period)``: the render time (s), the step in refreshes and
+    the refresh period (s); ``view`` is ``(viewer, viewer_motion)``; ``now`` and
+    ``proj`` are the scene at ``t`` and its projection.  Returns (4, Z, R, C) float32.
+    """
+    t, h, period = times
+    viewer, motion = view
+    dts = (t - h * period, t, t + h * period)
+    pos, quat = placements(scene, [dts[0], dts[2]], viewer, motion)
+    lin = []
+    for i, dt in enumerate(dts):
+        arrays = now if i == 1 else flatten(scene, quat[i // 2], pos[i // 2])
+        lights = scene.lights if viewer is None else view_lights(
+            scene.lights, advance_transform(viewer, motion or MotionState(), dt))
+        lin.append(shade_linear(arrays, proj if i == 1 else project(arrays.vertices, display),
+                                vis, display, lights, scene.ambient, settings.light))
+    return colour_derivatives(lin, h)

@@ -56,6 +56,7 @@ from service.galilean.scatter_bands import (
     scatter_bands_plain,
 )
 from service.galilean.show import debris_words, show_bands
+from service.kernel_cache import kernel_ready
 from service.render.scene import MotionState
 
 #: Mean number of refreshes between changes of the map (grafts, head-motion
@@ -74,6 +75,10 @@ STEADY_MIN = 3.0
 #: galpixels stay still and moving ones keep moving until the map changes, so
 #: one count per change decides.
 STILL_MIN = 0.25
+
+#: Seconds between checks whether :func:`scatter_bands_plain` is in numba's cache
+#: yet (a look at its index file, about 0.1 ms), while it is not.
+PLAIN_CHECK_S = 1.0
 
 
 
@@ -274,6 +279,9 @@ class GalileanStage:
         self._snap = np.zeros(self._src.size, np.uint8)
         #: id of a map -> (its field arrays, their :func:`planes`), see :meth:`_planes`
         self._plane_views: dict[int, tuple] = {}
+        #: whether :func:`scatter_bands_plain` is compiled or cached (see
+        #: :meth:`_plain_ready`), and when that was last checked (monotonic s)
+        self._plain, self._plain_checked = False, float("-inf")
 
     def _planes(self, gp: Galpixmap) -> tuple:
         """:func:`planes` of one of the stage's maps, built once per map and field set.
@@ -287,6 +295,21 @@ class GalileanStage:
         if kept is None or any(a is not b for a, b in zip(kept[0], arrays, strict=True)):
             kept = self._plane_views[id(gp)] = (arrays, planes(arrays))
         return kept[1]
+
+    def _plain_ready(self, args: tuple) -> bool:
+        """Whether :func:`scatter_bands_plain` can run on ``args`` without compiling.
+
+        Until it can, a refresh that neither uses nor records the still galpixels
+        runs :func:`scatter_bands` with both off: the same map, bit for bit, with
+        the bookkeeping's tests at run time.  On a cold cache the plain kernel (27 s
+        of CPU) thus compiles in the background phase, off the first frame's path
+        (docs/compile-time.md).  Checked at most every :data:`PLAIN_CHECK_S`.
+        """
+        now = time.monotonic()
+        if not self._plain and now - self._plain_checked >= PLAIN_CHECK_S:
+            self._plain_checked = now
+            self._plain = kernel_ready(scatter_bands_plain, args)
+        return self._plain
 
     def _map_changed(self) -> None:
         """Forget what is known of ``map`` (a graft or a motion update wrote it)."""
@@ -597,9 +620,7 @@ class GalileanStage:
             bands = max(1, min(threads, self.shape[1] // 8))
             band_stats = np.zeros((bands, 3), np.int64)
             reach = np.zeros((bands, 3), np.int64)
-            # the bookkeeping compiled out when it is neither used nor recorded
-            kernel = scatter_bands if record or self._same_valid else scatter_bands_plain
-            kernel(
+            args = (
                 old_p,
                 new_p,
                 src,
@@ -621,6 +642,9 @@ class GalileanStage:
                 table,
                 GATHER_RUN,
             )
+            # the bookkeeping compiled out when it is neither used nor recorded
+            plain = not (record or self._same_valid) and self._plain_ready(args)
+            (scatter_bands_plain if plain else scatter_bands)(*args)
             counters[:3] += band_stats.sum(axis=0)
             top = reach.max(axis=0)
             next_reach = reach_of(top[0], top[1], top[2], self.fixed.fm)

@@ -1,8 +1,8 @@
 """The Galilean stage's warm-up jobs (:mod:`service.warmup` runs them).
 
 Renders with motion, the refresh kernels on made-up maps (no render kernel: they
-run beside the render jobs, see :data:`service.warmup_job.EARLY`), every stage
-variant and the local updates.
+run beside the render jobs, see :data:`service.warmup_job.EARLY`), the plain
+scatter (not on the first frame's path), every stage variant and the local updates.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from service.galilean import GalileanSettings, GalileanStage
 from service.galilean.galpixmap import FIELDS, Galpixmap
 from service.galilean.local_update import render_local
 from service.galilean.motion_field import render_with_motion
+from service.galilean.scatter_bands import scatter_bands, scatter_bands_plain
 from service.render.light import LightSettings
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.scene import MotionState
@@ -55,6 +56,22 @@ def _galilean_kernels(kit: Kit) -> None:
         stage_refreshes(stage)
 
 
+def _plain_scatter(kit: Kit) -> None:
+    """:func:`scatter_bands_plain` for every signature :func:`scatter_bands` has here.
+
+    A stage runs the plain kernel only once it is compiled or cached (see
+    ``GalileanStage._plain_ready``); until then it runs :func:`scatter_bands` with the
+    bookkeeping off, so the made-up-map job (first frame) compiles only that one and
+    this job (the background phase) the plain one: the two kernels take the same
+    arguments.  The made-up-map refreshes first load :func:`scatter_bands` (or
+    compile it, run alone), then a new stage's refreshes run the plain kernel.
+    """
+    _galilean_kernels(kit)
+    for sig in scatter_bands.signatures:
+        scatter_bands_plain.compile(sig)
+    _galilean_kernels(kit)
+
+
 def _galilean_variants(kit: Kit) -> None:
     """Stage settings that take other kernels: orders 0-3, cache, margin, no Poisson."""
     renderer = Renderer()
@@ -88,6 +105,7 @@ WARMUP_JOBS: dict[str, Job] = {
     "motion field": Job(_motion(True, "blinn"), FIRST, service=True, first_frame=True),
     "motion field, no colour motion": Job(_motion(False, "ambient"), FIRST),
     "galilean: refresh kernels, made-up map": Job(_galilean_kernels, EARLY, first_frame=True),
+    "galilean: plain scatter": Job(_plain_scatter, APART),
     "galilean: orders, cache, margin": Job(_galilean_variants, APART, service=True),
     "galilean: local updates": Job(_galilean_local, APART),
 }

@@ -15,8 +15,9 @@ folder (``-`` for none): the chain is built there (:func:`service.lod.cache.buil
 which takes its lock file).  Where it is not in the cache afterwards (no cache, or
 the folder could not be written) the child writes it to ``OUT``, a temporary folder
 of the parent's, in the cache's own format (:func:`service.lod.cache.write_chain`: numpy
-files and JSON, no pickle).  On stdout, one line each: ``note: TEXT`` for what went
-wrong with the cache, then ``levels: N`` and ``folder: PATH`` (where to read it).
+files and JSON, no pickle).  On stdout, one line each: ``progress: DONE PLANNED``
+after each decimation (as it happens), ``note: TEXT`` for what went wrong with the
+cache, then ``levels: N`` and ``folder: PATH`` (where to read it).
 A build that fails says why in one line on stderr and exits :data:`EXIT_FAILED` (the
 mesh cannot be simplified: building it again would fail again) or
 :data:`EXIT_TEMPFAIL` (an OSError or MemoryError: a full disk or a busy machine, which
@@ -41,6 +42,7 @@ import tempfile
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -48,9 +50,10 @@ import numpy as np
 
 from service.base.signals import end_with_parent
 from service.lod.cache import build_chain, cache_dir, read_chain, write_chain
-from service.lod.chain import LodChain, full_only
+from service.lod.chain import LodChain, full_only, mesh_key
 from service.lod.settings import BUILD_NICE, NOTES_KEPT, LodError, LodSettings
 from service.render.mesh import Mesh
+from service.render.scene import Scene
 
 #: The child's exit status when the mesh cannot be simplified (not retried).
 EXIT_FAILED = 1
@@ -115,6 +118,13 @@ class ChainBuilds:
         self.generation = 0
         #: pid of the build child running now, or None
         self.child_pid: int | None = None
+        #: chains built so far (handed over or not)
+        self.built = 0
+        self._current: tuple[str, int, int] | None = None  # (mesh name, done, planned)
+        self._queued_scene: set[str] = set()  # keys submit_scene has handed in
+        self._keys: dict[int, tuple[Mesh, str, str]] = {}  # the last scene's meshes' hashes
+        #: ``on_progress(mesh name, done, planned)``, from the build thread (a CLI's bar)
+        self.on_progress: Callable[[str, int, int], None] | None = None
         self._child: subprocess.Popen | None = None
         self._thread: threading.Thread | None = None
         self._closed = False
@@ -132,6 +142,51 @@ class ChainBuilds:
                 self._thread = threading.Thread(target=self._run, name="lod-chains",
                                                 daemon=True)
                 self._thread.start()
+
+    def submit_scene(self, scene: Scene, settings: LodSettings) -> int:
+        """Queue the chains of a scene's meshes that are neither cached nor known here.
+
+        What ``load_scene`` and the game's scene loading call, so that chains build
+        while the first frames draw full meshes, not from the frame that needs them.
+        A mesh shared by several objects is queued once; a mesh already handed in (by
+        this or an earlier scene) is not hashed for the cache again.
+
+        Returns
+        -------
+        int
+            How many chains were queued.
+        """
+        folder = cache_dir() if self.cache is True else (Path(self.cache) if self.cache else None)
+        queued, keys = 0, {}
+        for obj in scene.objects:
+            if id(obj.mesh) in keys:
+                continue
+            known = self._keys.get(id(obj.mesh))
+            key = (known[1] if known is not None and known[0] is obj.mesh
+                   and known[2] == settings.recipe else mesh_key(obj.mesh, settings.recipe))
+            keys[id(obj.mesh)] = (obj.mesh, key, settings.recipe)
+            if key in self._queued_scene or (
+                    folder is not None and (folder / f"{key}.json").is_file()):
+                continue
+            self._queued_scene.add(key)
+            self.submit(key, obj.mesh, settings)
+            queued += 1
+        self._keys = keys
+        return queued
+
+    def status(self) -> dict:
+        """What ``stats`` reports of the builds (``docs/protocol.md``, ``chains``).
+
+        ``queued`` (waiting, retries included), ``building`` (the mesh's name, or
+        None), ``progress`` (``[done, planned]`` decimations of that build, or None),
+        ``built``, ``failed`` and ``notes`` (the last cache problems and failures).
+        """
+        with self._lock:
+            current = self._current
+            return {"queued": len(self._todo), "building": current and current[0],
+                    "progress": list(current[1:]) if current else None,
+                    "built": self.built, "failed": len(self.failed),
+                    "notes": list(self.notes)}
 
     def take(self, key: str) -> LodChain | None:
         """The chain built for ``key`` (handed over once), or None."""
@@ -190,8 +245,10 @@ class ChainBuilds:
                     retry = self.retry_s[job.tries - 1]
                 notes.append(_failure_note(job, why, retry, len(self.retry_s) + 1))
             with self._lock:
+                self._current = None
                 if chain is not None:
                     self._done[job.key] = chain
+                    self.built += 1
                 elif retry is not None and not self._closed:
                     job.not_before = time.monotonic() + retry
                     self._todo.append(job)
@@ -214,7 +271,7 @@ class ChainBuilds:
             return self._run_child(job, folder, Path(out), notes)
 
     def _run_child(self, job: _Job, folder: Path | None, out: Path, notes: list) -> LodChain:
-        """Start the child, wait for it, and read the chain it built."""
+        """Start the child, follow its progress, wait for it, and read the chain it built."""
         mesh, src = job.mesh, out / "mesh.npz"
         try:
             with open(src, "wb") as fh:
@@ -225,21 +282,42 @@ class ChainBuilds:
             args = [sys.executable, "-m", "service.lod.builds", str(src),
                     str(folder) if folder is not None else NO_CACHE, str(out / "chain"),
                     json.dumps(recipe), str(os.getpid())]
-            with self._lock:
+            with self._lock, open(out / "stderr.txt", "w+") as err:
                 if self._closed:
                     raise BuildFailed("the renderer closed", False)
+                # stderr to a file: a pipe read only at the end could fill and stall it
                 self._child = subprocess.Popen(args, stdin=subprocess.DEVNULL,
-                                               stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                               text=True)
+                                               stdout=subprocess.PIPE, stderr=err, text=True)
                 self.child_pid = self._child.pid
-            stdout, stderr = self._child.communicate()
+                self._current = (mesh.name or "a mesh", 0, 0)
+            if self.on_progress is not None:
+                self.on_progress(mesh.name or "a mesh", 0, 0)
+            lines = self._follow(self._child, mesh.name or "a mesh")
+            self._child.wait()
+            stderr = (out / "stderr.txt").read_text(errors="replace")
         except OSError as exc:
             raise BuildFailed(f"the build could not run: {exc}", True) from None
         finally:
             with self._lock:
                 code = self._child.returncode if self._child is not None else None
                 self._child, self.child_pid = None, None
-        return _result(job, code, stdout, stderr, notes)
+        return _result(job, code, "\n".join(lines), stderr, notes)
+
+    def _follow(self, child: subprocess.Popen, name: str) -> list[str]:
+        """The child's stdout lines but its ``progress:`` ones, which update :meth:`status`."""
+        lines = []
+        for line in child.stdout:
+            parts = line.split()
+            if len(parts) == 3 and parts[0] == "progress:" and parts[1].isdigit() \
+                    and parts[2].isdigit():
+                with self._lock:
+                    self._current = (name, int(parts[1]), int(parts[2]))
+                if self.on_progress is not None:
+                    self.on_progress(name, int(parts[1]), int(parts[2]))
+            else:
+                lines.append(line.rstrip("\n"))
+        child.stdout.close()
+        return lines
 
 
 def _result(job: _Job, code: int | None, stdout: str, stderr: str, notes: list) -> LodChain:
@@ -292,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
                                texture_res=int(recipe["texture_res"]))
         notes: list[str] = []
         chain = build_chain(mesh, settings, folder if folder is not None else False,
-                            notes=notes)
+                            notes=notes, progress=_print_progress)
         if folder is None or not (folder / f"{chain.key}.json").is_file():
             folder = out  # not cached: hand it over through the parent's temporary folder
             if len(chain.levels) > 1:
@@ -306,6 +384,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"levels: {len(chain.levels)}")
     print(f"folder: {folder}")
     return 0
+
+
+def _print_progress(done: int, planned: int) -> None:
+    """The child's ``progress: DONE PLANNED`` line after each decimation."""
+    print(f"progress: {done} {planned}", flush=True)
 
 
 def _fail(exc: BaseException, status: int) -> int:

@@ -19,9 +19,16 @@ import numpy as np
 
 from service.base.errors import HoloError
 from service.lod.chain import LodChain, build_uncached, mesh_key
-from service.lod.settings import CACHE_ENV, CHAIN_VERSION, LodCacheWarning, LodSettings, Progress
+from service.lod.settings import (
+    CACHE_ENV,
+    CHAIN_VERSION,
+    COLOUR_ANGLES,
+    LodCacheWarning,
+    LodSettings,
+    Progress,
+)
 from service.npy_file import read_npz
-from service.render.mesh import Mesh
+from service.render.mesh import Mesh, Shading
 
 
 def cache_dir() -> Path:
@@ -184,7 +191,8 @@ def _drop_stale_lock(folder: Path, key: str) -> None:
 def write_chain(folder: Path, chain: LodChain) -> None:
     """Write a chain's cache files.
 
-    ``<key>.npz`` holds mesh levels 1.. as ``vertices_k``, ``faces_k``; each billboard
+    ``<key>.npz`` holds mesh levels 1.. as ``vertices_k``, ``faces_k`` and the normals
+    per-polygon light uses, ``shading_k``; each billboard
     level k is ``<key>.b<k>.hbc``; the header ``<key>.json`` comes last.  Written to
     temporary names and renamed, so a reader never sees half a file.
     """
@@ -199,11 +207,16 @@ def write_chain(folder: Path, chain: LodChain) -> None:
             continue
         arrays[f"vertices_{k}"] = m.vertices
         arrays[f"faces_{k}"] = m.triangles
+        if m.shading is not None:
+            arrays[f"shading_{k}"] = m.shading.polygons
     header = {
         "format": "holo-lod-chain", "version": CHAIN_VERSION, "key": chain.key,
         "levels": len(chain.levels), "kinds": list(chain.kinds),
         "errors": chain.errors.tolist(), "triangles": chain.triangles.tolist(),
         "radius": chain.radius, "build_ms": round(chain.build_ms, 3),
+        "turned": (chain.turned if chain.turned is not None
+                   else np.zeros((len(chain.levels), len(COLOUR_ANGLES), 2))).tolist(),
+        "area": chain.area,
     }
     npz, js = folder / f"{chain.key}.npz", folder / f"{chain.key}.json"
     tmp = folder / f".{chain.key}.{os.getpid()}.tmp.npz"
@@ -238,6 +251,17 @@ def _read_cache(folder: Path, key: str, mesh: Mesh) -> tuple[LodChain | None, st
         return None, f"{type(exc).__name__}: {exc}"[:200]
 
 
+def _mesh_level(data: dict, k: int, name: str) -> Mesh:
+    """Mesh level ``k`` of a chain's arrays, with the normals it is lit with.
+
+    A level without them is an error (KeyError): every quadric level carries them
+    since :data:`CHAIN_VERSION` 9, so a file without them is damaged.
+    """
+    level = Mesh.from_triangles(data[f"vertices_{k}"], data[f"faces_{k}"], name)
+    shading = Shading(np.asarray(data[f"shading_{k}"], np.float64))
+    return Mesh(level.vertices, level.polygons, level.counts, name, shading=shading)
+
+
 def _parse_cache(folder: Path, key: str, mesh: Mesh, head: dict) -> LodChain:
     """The chain from its header and arrays; ValueError (or another) when they disagree."""
     if not isinstance(head, dict) or head.get("version") != CHAIN_VERSION or head.get("key") != key:
@@ -252,12 +276,15 @@ def _parse_cache(folder: Path, key: str, mesh: Mesh, head: dict) -> LodChain:
 
             levels.append(load_cloud(folder / f"{key}.b{k}.hbc"))
             continue
-        levels.append(Mesh.from_triangles(data[f"vertices_{k}"], data[f"faces_{k}"],
-                                          f"{mesh.name}@{k}"))
+        levels.append(_mesh_level(data, k, f"{mesh.name}@{k}"))
     errors = np.asarray(head["errors"], np.float64)
     tris = np.asarray(head["triangles"], np.int64)
+    turned = np.asarray(head["turned"], np.float64)
     meshes = np.array([kind != "billboard" for kind in kinds])
     if (errors.shape != (n,) or tris.shape != (n,) or len(kinds) != n
+            or turned.shape != (n, len(COLOUR_ANGLES), 2)
+            or not np.all((turned >= 0) & (turned <= 1))
             or not np.all(np.diff(errors[meshes]) >= 0)):
-        raise ValueError("the header's levels, errors and triangles disagree")
-    return LodChain(tuple(levels), errors, tris, kinds, float(head["radius"]), 0.0, key)
+        raise ValueError("the header's levels, errors, triangles and turned shares disagree")
+    return LodChain(tuple(levels), errors, tris, kinds, float(head["radius"]), 0.0, key,
+                    turned=turned, area=float(head["area"]))

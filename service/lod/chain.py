@@ -13,6 +13,7 @@ import numpy as np
 
 from service.lod.settings import (
     CHAIN_VERSION,
+    COLOUR_ANGLES,
     MIN_TRIANGLES,
     PLATEAU_JUMP,
     PLATEAU_STEPS,
@@ -33,8 +34,9 @@ class LodChain:
     ----------
     levels : tuple of Mesh or BillboardCloud
         Dearest first (by ``triangles``): ``levels[0]`` is the full mesh, then quadric
-        meshes and billboard clouds (:class:`service.simplify.billboard.BillboardCloud`)
-        in order of cost.
+        meshes (lit with the full mesh's normals: :attr:`Mesh.shading`, carried by
+        :mod:`service.simplify.carry`) and billboard clouds
+        (:class:`service.simplify.billboard.BillboardCloud`) in order of cost.
     errors : ndarray, shape (L,), float64
         Geometric error of each level in mesh units, ``errors[0] == 0``,
         non-decreasing over the mesh levels (a cloud's is :func:`cloud_error`).
@@ -52,6 +54,13 @@ class LodChain:
     ready : bool
         False for the stand-in of a chain still being built (or whose build failed):
         the full mesh alone (:func:`full_only`).
+    turned : ndarray, shape (L, A, 2), float64 or None
+        Per level, the share of the full mesh's area whose light normal turns by more
+        than each of :data:`COLOUR_ANGLES` (A of them), for per-polygon light and for
+        smooth light: what the selector predicts colour error from.  0 for the full
+        mesh and for billboard clouds (not counted); None: all 0.
+    area : float
+        The full mesh's surface area, mesh units squared.
     """
 
     levels: tuple[Mesh, ...]
@@ -62,12 +71,21 @@ class LodChain:
     build_ms: float = 0.0
     key: str = ""
     ready: bool = True
+    turned: np.ndarray | None = None
+    area: float = 0.0
 
 
 def full_only(mesh: Mesh, key: str = "") -> LodChain:
     """The stand-in chain of ``mesh`` while its chain is built: the full mesh alone."""
     return LodChain((mesh,), np.zeros(1), np.array([mesh.triangles.shape[0]], np.int64),
                     ("full",), _radius(mesh), 0.0, key, ready=False)
+
+
+def surface_area(mesh: Mesh) -> float:
+    """Total area of the mesh's triangles, mesh units squared."""
+    c = mesh.vertices[mesh.triangles]
+    return float(0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]),
+                                      axis=1).sum())
 
 
 def mesh_key(mesh: Mesh, recipe: str) -> str:
@@ -122,6 +140,14 @@ def _decimated(mesh: Mesh, fractions: tuple[float, ...],
         last = got[0].n_polygons
     front = _pareto(out)
     return [(m, e) for m, e, _ in _plateau_ends(front, level)]
+
+
+def _carried(full: Mesh, level: Mesh) -> tuple[Mesh, np.ndarray]:
+    """``level`` lit with ``full``'s normals, and its turned shares (:attr:`LodChain.turned`)."""
+    from service.simplify.carry import carried_level  # deferred: as _decimated's
+
+    return carried_level(full, level.vertices, level.triangles, level.name,
+                         np.radians(COLOUR_ANGLES))
 
 
 def _pareto(levels: list) -> list:
@@ -206,12 +232,14 @@ def build_uncached(mesh: Mesh, settings: LodSettings, key: str,
     t0 = time.perf_counter()
     n = mesh.triangles.shape[0]
     levels = _decimated(mesh, settings.fractions, progress) if n else []
+    carried = [_carried(mesh, m) for m, _ in levels]
     clouds = _clouds(mesh, settings) if n >= MIN_TRIANGLES else []
     errors = np.maximum.accumulate(np.array([0.0] + [e for _, e in levels]))
-    parts = ([(mesh, 0.0, n, "full")]
-             + [(m, e, m.n_polygons, "quadric") for (m, _), e in zip(levels, errors[1:],
-                                                                      strict=True)]
-             + [(c, e, QUAD_TRIANGLES * c.n_billboards, "billboard") for c, e in clouds])
+    none = np.zeros((len(COLOUR_ANGLES), 2))
+    parts = ([(mesh, 0.0, n, "full", none)]
+             + [(m, e, m.n_polygons, "quadric", t) for (m, t), e in zip(carried, errors[1:],
+                                                                         strict=True)]
+             + [(c, e, QUAD_TRIANGLES * c.n_billboards, "billboard", none) for c, e in clouds])
     parts = parts[:1] + sorted(parts[1:], key=lambda p: -p[2])  # dearest first (stable)
     return LodChain(
         levels=tuple(p[0] for p in parts),
@@ -221,4 +249,6 @@ def build_uncached(mesh: Mesh, settings: LodSettings, key: str,
         radius=_radius(mesh),
         build_ms=(time.perf_counter() - t0) * 1e3,
         key=key,
+        turned=np.array([p[4] for p in parts], np.float64),
+        area=surface_area(mesh),
     )

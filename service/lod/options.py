@@ -12,6 +12,7 @@ from typing import TextIO
 
 from service.base.cli_args import float_range
 from service.display import DisplaySettings
+from service.lod.builds import ChainBuilds
 from service.lod.cache import cache_dir
 from service.lod.settings import LodSettings
 from service.lod.state import LodState
@@ -81,7 +82,7 @@ class ChainProgress:
     """Tells stderr that a level-of-detail chain is being built, and how far it got.
 
     A build (the bunny: 2 s quiet, 5-9 s on a loaded machine) happens once per mesh,
-    in the frame that first needs it; then it is read from the cache.  One line when
+    when its scene is loaded (:func:`build_chains`); then it is read from the cache.  One line when
     a build starts; on a terminal it is updated in place (decimations done of those
     planned) and ended when the next line is printed (:meth:`end`).
     """
@@ -95,7 +96,7 @@ class ChainProgress:
     def __call__(self, name: str, done: int, planned: int) -> None:
         """``progress`` of :class:`~service.lod.state.LodState`: ``done`` of ``planned``."""
         tty = self.stream.isatty()
-        if name != self._name or done == 1:
+        if name != self._name or done <= 1:
             self.end()
             self._name = name
             line = (f"{self.prog}: building the level-of-detail chain of {name or 'a mesh'} "
@@ -104,7 +105,7 @@ class ChainProgress:
                 print(line, file=self.stream, flush=True)
                 return
             self._line = line
-        if tty:
+        if tty and planned:
             print(f"\r{self._line}: {done}/{planned}", end="", file=self.stream, flush=True)
             self._open = True
 
@@ -118,8 +119,26 @@ class ChainProgress:
 def lod_state(prog: str) -> tuple[LodState, ChainProgress]:
     """A renderer's LOD state for a command that renders a few frames, with its progress.
 
-    Chains are built in the frame (its one frame must not be drawn without them), and
-    the build is shown on stderr; call ``progress.end()`` after the render.
+    Chains are built in the background (a child process each), never inside a
+    frame; :func:`build_chains` builds a scene's before its first frame and shows
+    the builds on stderr.  Call ``progress.end()`` after the render and
+    ``state.close()`` at the end.
     """
     progress = ChainProgress(prog)
-    return LodState(progress=progress), progress
+    state = LodState(background=True)
+    state.builds = ChainBuilds(state.cache)
+    state.builds.on_progress = progress
+    return state, progress
+
+
+def build_chains(state: LodState, scene: Scene, settings: LodSettings,
+                 poll_s: float = 0.5) -> int:
+    """Build the chains ``scene``'s meshes lack before its first frame; how many were built.
+
+    Waits in steps of ``poll_s`` so that Ctrl-C stops it.  A chain that cannot be
+    built is drawn in full; its reason is in the next frame's ``lod.chains.notes``.
+    """
+    queued = state.prepare(scene, settings)
+    while queued and not state.builds.wait_idle(poll_s):
+        pass
+    return queued

@@ -74,6 +74,7 @@ def load_scene(st: ServiceState, req: dict[str, Any]) -> tuple:
     }
     scene = loaders[sources[0]](req[sources[0]])
     loaded = st.state.load(scene)
+    st.queue_chains()
     return (
         {
             "objects": [o.name for o in scene.objects],
@@ -114,7 +115,9 @@ def load_object(st: ServiceState, req: dict[str, Any]) -> tuple:
         st.state.scene = Scene([*scene.objects, obj], scene.lights, scene.ambient,
                                billboards=scene.billboards)
         st.state.scene_version += 1
-        return ({"index": len(st.state.scene.objects) - 1},)
+        index = len(st.state.scene.objects) - 1
+    st.queue_chains()
+    return ({"index": index},)
 
 
 def advance_locked(state: State, now: float) -> None:
@@ -170,6 +173,7 @@ def set_display(st: ServiceState, req: dict[str, Any]) -> tuple:
     with st.state.lock:
         new = _apply_display(st.state.settings, req)
         st.state.settings = new
+    st.queue_chains()  # level of detail may have been turned on
     return ({"display": new.as_dict()},)
 
 
@@ -200,6 +204,7 @@ def stats(st: ServiceState, req: dict[str, Any]) -> tuple:
         last_render_error=st.last_render_error,
         last_refresh_error=st.last_refresh_error,
         lod=st.last_lod,
+        chains=st.chains.status(),
         session=st.session,
         compile=st.warmup.background_dict() if st.warmup is not None else None,
         **st.status(),

@@ -33,6 +33,7 @@ from service.engine.engine import Engine
 from service.net import protocol, wire
 from service.net.broker import Broker
 from service.net.curve_keys import curve_server, is_local, start_authenticator
+from service.net.forkserver import ForkServer
 from service.net.frame_stream import FrameStream
 from service.net.handlers import HANDLERS, error_code, load_builtin
 from service.net.refresh import ServiceRefresh
@@ -147,8 +148,12 @@ class Service:
             self._secure(address),
             job_timeout_s=c.render_timeout_s,
         )
+        env = _worker_env(c.workers)
+        forks = ForkServer(env, self.log) if c.workers > 0 else None
+        if forks is not None:
+            forks.start()  # imports the worker's modules during the warm-up
         self.st.supervisor = Supervisor(
-            self.st.broker, self._worker_command(), _worker_env(c.workers), self.log
+            self.st.broker, self._worker_command(), env, self.log, forks=forks
         )
         for name, target in (("broker", self.st.broker.run), ("supervisor",
                                                                 self.st.supervisor.run)):
@@ -353,6 +358,7 @@ class Service:
             self.st.supervisor.stop()
         if self.engine is not None:
             self.engine.stop()
+        self.st.chains.close()  # a build the load started (the engine's stop ends it too)
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(5.0)

@@ -22,6 +22,10 @@ given up (renders go on in process meanwhile).  One that dies before it ever sai
 after it started (hung: it is killed with its process group): it is restarted after
 a back-off (0.5, 1, 2, 4 s), and after :data:`MAX_FAILED_STARTS` failures in a row
 the slot is given up with one line in ``stats`` (``worker_error``) and on stderr.
+A worker killed before ``READY`` by a signal from outside (:data:`OUTSIDE_SIGNALS`:
+an operator, the OOM killer, the chaos benchmark) did not fail to start: it is
+restarted as one that died soon after ``READY`` (back-off only if it keeps happening,
+never given up).
 Every death counts in ``worker_deaths``, every start after the first in
 ``worker_restarts``.
 """
@@ -39,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from service.net.broker import Broker
+from service.net.forkserver import ForkedProc, ForkServer
 
 #: seconds between looks at the processes and the broker's reports
 TICK_S = 0.05
@@ -55,6 +60,9 @@ QUICK_S = 10.0
 MAX_BACKOFF_S = 30.0
 #: seconds a worker gets to end after SIGTERM when the service closes
 CLOSE_S = 3.0
+#: signals a worker does not send itself (a crash raises SIGSEGV, SIGABRT, SIGBUS ...):
+#: a death by one of them before ``READY`` is not a failed start
+OUTSIDE_SIGNALS = frozenset({signal.SIGKILL, signal.SIGTERM, signal.SIGINT, signal.SIGHUP})
 
 
 @dataclass
@@ -62,7 +70,7 @@ class Slot:
     """One local worker: its process now, and its history."""
 
     index: int
-    proc: subprocess.Popen | None = None
+    proc: subprocess.Popen | ForkedProc | None = None
     #: processes started
     starts: int = 0
     #: deaths before ``READY`` in a row
@@ -116,6 +124,8 @@ class Supervisor:
     log: Callable[[str], None] = lambda line: None
     #: seconds a worker has to say ``READY`` (:data:`STARTUP_S`)
     startup_s: float = STARTUP_S
+    #: the fork server workers are forked from (None, or once it is gone: fresh processes)
+    forks: ForkServer | None = None
     slots: list[Slot] = field(default_factory=list)
     deaths: int = 0
     restarts: int = 0
@@ -125,7 +135,12 @@ class Supervisor:
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def start(self, n: int) -> None:
-        """Add ``n`` slots; their processes start on the next tick."""
+        """Add ``n`` slots and start their processes.
+
+        With a fork server, once it is ready (or gone): ``pids()`` lists them on return.
+        """
+        if self.forks is not None:
+            self.forks.wait_ready()
         with self._lock:
             self.slots += [Slot(len(self.slots) + i) for i in range(n)]
         self.tick()
@@ -173,18 +188,25 @@ class Supervisor:
             _kill_group(slot.proc, signal.SIGKILL)  # hung at start-up: the group goes
         if slot.proc is not None and slot.proc.poll() is not None:
             if not slot.dead:
-                self._died(slot, _exit_text(slot.proc.returncode), now)
+                code = slot.proc.returncode
+                self._died(slot, _exit_text(code), now, outside=-code in OUTSIDE_SIGNALS)
                 self.broker.forget(slot.proc.pid)
             slot.proc = None
         if slot.proc is None and slot.start_at is not None and now >= slot.start_at:
             self._spawn(slot)
 
-    def _died(self, slot: Slot, why: str, now: float) -> None:
-        """Count a death; plan the restart (at once, after a back-off, or never)."""
+    def _died(self, slot: Slot, why: str, now: float, outside: bool = False) -> None:
+        """Count a death; plan the restart (at once, after a back-off, or never).
+
+        ``outside``: killed by a signal from outside (:data:`OUTSIDE_SIGNALS`); before
+        ``READY`` that is no failed start (it says nothing of whether the worker can
+        start): it is restarted as one that died quickly after ``READY``.
+        """
         self.deaths += 1
         slot.dead, slot.last_death = True, why
-        if slot.ready:
-            slot.quick_deaths = slot.quick_deaths + 1 if now - slot.ready_at < QUICK_S else 0
+        if slot.ready or outside:
+            since = slot.ready_at if slot.ready else slot.started_at
+            slot.quick_deaths = slot.quick_deaths + 1 if now - since < QUICK_S else 0
             wait = (min(MAX_BACKOFF_S, BACKOFF_S * 2 ** (slot.quick_deaths - 2))
                     if slot.quick_deaths >= 2 else 0.0)
             slot.start_at = now + wait
@@ -204,9 +226,17 @@ class Supervisor:
         self.log(f"worker {slot.pid} died at start-up ({why}); restarting it in {wait:g} s")
 
     def _spawn(self, slot: Slot) -> None:
-        """Start a slot's process (the leader of a process group of its own)."""
-        slot.proc = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, env=self.env,
-                                     process_group=0)
+        """Start a slot's process (the leader of a process group of its own).
+
+        Forked from the fork server while it works; not yet while it is starting
+        (the next tick tries again); a fresh process without one or once it is gone.
+        """
+        slot.proc = None if self.forks is None else self.forks.spawn(self.command)
+        if slot.proc is None and self.forks is not None and self.forks.state == "starting":
+            return
+        if slot.proc is None:
+            slot.proc = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, env=self.env,
+                                         process_group=0)
         self.started.add(slot.proc.pid)
         slot.dead, slot.ready, slot.start_at = False, False, None
         slot.started_at = time.monotonic()
@@ -264,9 +294,11 @@ class Supervisor:
                 _kill_group(p, signal.SIGKILL)  # stragglers, and the group's children
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     p.wait(1.0)
+            if self.forks is not None:
+                self.forks.close()
 
 
-def _kill_group(proc: subprocess.Popen, signum: int) -> None:
+def _kill_group(proc: subprocess.Popen | ForkedProc, signum: int) -> None:
     """Send ``signum`` to the process group ``proc`` leads (nothing if it is gone)."""
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.killpg(proc.pid, signum)

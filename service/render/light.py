@@ -293,6 +293,7 @@ def _polygon_table(
     polygons: np.ndarray,
     counts: np.ndarray,
     normals: np.ndarray,
+    shading: np.ndarray,
     materials: np.ndarray,
     views: np.ndarray,
     needed: np.ndarray,
@@ -305,10 +306,11 @@ def _polygon_table(
     """Flat colour of every needed polygon in every zone into ``out`` (Z, P, 3).
 
     Light is evaluated at the polygon's centroid (mean of its vertices, found once
-    for all zones) with its face normal.  ``polygons`` (P, K) padded, ``counts``
-    (P,), ``normals`` (P, 3), ``materials`` (P, 7), ``views`` (Z, 3), ``needed``
-    (Z, P) bool.  ``out`` holds the output values (uint8 or float32), already
-    through :func:`_store` with ``quant = (scale, offset)``.
+    for all zones) with its ``shading`` normal (P, 3), flipped where the face normal
+    ``normals`` (P, 3) looks away from the zone.  ``polygons`` (P, K) padded, ``counts``
+    (P,), ``materials`` (P, 7), ``views`` (Z, 3), ``needed`` (Z, P) bool.  ``out``
+    holds the output values (uint8 or float32), already through :func:`_store` with
+    ``quant = (scale, offset)``.
     """
     n = normals.shape[0]
     zones = views.shape[0]
@@ -330,7 +332,7 @@ def _polygon_table(
             s = _facing(normals, p, views[z])
             rgb = _light_rgb(
                 cx / counts[p], cy / counts[p], cz / counts[p],
-                s * normals[p, 0], s * normals[p, 1], s * normals[p, 2],
+                s * shading[p, 0], s * shading[p, 1], s * shading[p, 2],
                 mat, views[z], lights, ambient, code,
             )
             _store(out, 0, z, p, rgb, quant[0], quant[1])
@@ -543,118 +545,303 @@ def _lit_at(
     )
 
 
+# Truncated Taylor arithmetic: a quantity and its first two time derivatives, (f, f', f'').
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tmul(a: tuple, b: tuple) -> tuple:
+    """Leibniz: ``(ab, a'b + ab', a''b + 2a'b' + ab'')``."""
+    return a[0] * b[0], a[1] * b[0] + a[0] * b[1], a[2] * b[0] + 2.0 * a[1] * b[1] + a[0] * b[2]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tdiv(a: tuple, b: tuple) -> tuple:
+    """``a / b`` (``b[0]`` nonzero)."""
+    q0 = a[0] / b[0]
+    q1 = (a[1] - q0 * b[1]) / b[0]
+    return q0, q1, (a[2] - 2.0 * q1 * b[1] - q0 * b[2]) / b[0]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tsqrt(a: tuple) -> tuple:
+    """``sqrt(a)`` (``a[0]`` > 0)."""
+    s0 = np.sqrt(a[0])
+    s1 = a[1] / (2.0 * s0)
+    return s0, s1, (a[2] - 2.0 * s1 * s1) / (2.0 * s0)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tadd(a: tuple, b: tuple, k: float) -> tuple:
+    """``a + k b``."""
+    return a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tdot(a: tuple, b: tuple) -> tuple:
+    """Dot product of two vectors of three Taylor scalars."""
+    return _tadd(_tadd(_tmul(a[0], b[0]), _tmul(a[1], b[1]), 1.0), _tmul(a[2], b[2]), 1.0)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tunit(a: tuple) -> tuple:
+    """``a / |a|`` for a vector of Taylor scalars, and ``|a|``'s value."""
+    n = _tsqrt(_tdot(a, a))
+    if n[0] <= 0.0:
+        return a, n[0]
+    return (_tdiv(a[0], n), _tdiv(a[1], n), _tdiv(a[2], n)), n[0]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _light_paths(pos: tuple, nrm: tuple, lights: tuple, lrate: np.ndarray,
+                 out: np.ndarray) -> float:
+    """What :func:`_light_rates` needs of a polygon in every zone: its light vectors.
+
+    ``pos`` and ``nrm`` (as the polygon faces, unflipped) are 3-tuples of Taylor
+    scalars ``(f, f', f'')``; ``lrate`` (2, J, 3) holds the light vectors' first
+    and second derivatives.  Writes ``out`` (J, 4, 3): the unit vector toward each
+    light (rows 0-2, each a Taylor scalar) and ``N.L`` with the unit normal (row 3;
+    ``out[j, 3, 0]`` is -1 for a point light at the point).  Returns ``|N|``.
+    """
+    lvec, lpoint, _ = lights
+    unit, nn = _tunit(nrm)
+    for j in range(lvec.shape[0]):
+        lt = ((lvec[j, 0], lrate[0, j, 0], lrate[1, j, 0]),
+              (lvec[j, 1], lrate[0, j, 1], lrate[1, j, 1]),
+              (lvec[j, 2], lrate[0, j, 2], lrate[1, j, 2]))
+        if lpoint[j] == 1:
+            lt, d = _tunit((_tadd(lt[0], pos[0], -1.0), _tadd(lt[1], pos[1], -1.0),
+                            _tadd(lt[2], pos[2], -1.0)))
+            if d <= 1e-12:
+                out[j, 3, 0] = -1.0
+                continue
+        ndl = _tdot(unit, lt)
+        for d in range(3):
+            for m in range(3):
+                out[j, d, m] = lt[d][m]
+            out[j, 3, d] = ndl[d]
+    return nn
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _light_rates(
+    sign: float, nrm: tuple, paths: np.ndarray, mat: np.ndarray, v: np.ndarray,
+    lrgb: np.ndarray, ambient: float, code: int,
+) -> tuple:
+    """First and second time derivatives of :func:`_light_rgb`'s (r, g, b) in one zone.
+
+    ``nrm`` is the polygon's unit normal (Taylor scalars, unflipped), ``sign`` its
+    flip toward the zone's view vector ``v``; ``paths`` is :func:`_light_paths`'.
+    The branches (light behind, no highlight, clamping) are taken as
+    :func:`_light_rgb` takes them at the value; a clamped channel does not change.
+    Returns ``((r', g', b'), (r'', g'', b''))``.
+    """
+    ka = mat[3] * ambient
+    cr, cg, cb = (mat[0] * ka, 0.0, 0.0), (mat[1] * ka, 0.0, 0.0), (mat[2] * ka, 0.0, 0.0)
+    for j in range(paths.shape[0] if code != 0 else 0):
+        ndl = (sign * paths[j, 3, 0], sign * paths[j, 3, 1], sign * paths[j, 3, 2])
+        if ndl[0] <= 0.0:  # behind, or a point light at the point (-1 either way)
+            continue
+        base = (0.0, 0.0, 0.0)
+        if code == 1:  # R.V, R = 2 (N.L) N - L; V is still
+            for d in range(3):
+                nd = (sign * nrm[d][0], sign * nrm[d][1], sign * nrm[d][2])
+                r = _tadd(_tmul(ndl, nd), (paths[j, d, 0], paths[j, d, 1], paths[j, d, 2]),
+                          -0.5)
+                base = _tadd(base, r, 2.0 * v[d])
+        else:  # N.H, H = normalise(L + V)
+            hv = ((paths[j, 0, 0] + v[0], paths[j, 0, 1], paths[j, 0, 2]),
+                  (paths[j, 1, 0] + v[1], paths[j, 1, 1], paths[j, 1, 2]),
+                  (paths[j, 2, 0] + v[2], paths[j, 2, 1], paths[j, 2, 2]))
+            hn = _tsqrt(_tdot(hv, hv))
+            if hn[0] > 0.0:
+                base = _tdiv(_tdot(nrm, hv), hn)
+                base = (sign * base[0], sign * base[1], sign * base[2])
+        spec = (0.0, 0.0, 0.0)
+        if base[0] > 0.0:
+            p0 = _power(base[0], mat[6])
+            g = mat[6] * p0 / base[0]  # n b^(n-1)
+            g2 = (mat[6] - 1.0) * g / base[0]  # n (n-1) b^(n-2)
+            spec = (mat[5] * p0, mat[5] * g * base[1],
+                    mat[5] * (g * base[2] + g2 * base[1] * base[1]))
+        cr = _tadd(cr, _tadd(spec, ndl, mat[0] * mat[4]), lrgb[j, 0])
+        cg = _tadd(cg, _tadd(spec, ndl, mat[1] * mat[4]), lrgb[j, 1])
+        cb = _tadd(cb, _tadd(spec, ndl, mat[2] * mat[4]), lrgb[j, 2])
+    # a clamped channel stays where it is
+    kr = 1.0 if 0.0 < cr[0] < 1.0 else 0.0
+    kg = 1.0 if 0.0 < cg[0] < 1.0 else 0.0
+    kb = 1.0 if 0.0 < cb[0] < 1.0 else 0.0
+    return (kr * cr[1], kg * cg[1], kb * cb[1]), (kr * cr[2], kg * cg[2], kb * cb[2])
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _moved(k: np.ndarray, e: np.ndarray, n: int, o: int, x: tuple, shift: float) -> tuple:
+    """``K[n, o] @ x + shift e[n, o]``: the n+1-th derivative of a point (shift 1) or direction."""
+    return (k[n, o, 0, 0] * x[0] + k[n, o, 0, 1] * x[1] + k[n, o, 0, 2] * x[2] + shift * e[n, o, 0],
+            k[n, o, 1, 0] * x[0] + k[n, o, 1, 1] * x[1] + k[n, o, 1, 2] * x[2] + shift * e[n, o, 1],
+            k[n, o, 2, 0] * x[0] + k[n, o, 2, 1] * x[1] + k[n, o, 2, 2] * x[2] + shift * e[n, o, 2])
+
+
+#: Polygons per task of :func:`_polygon_motion_table`.
+_CHUNK = 256
+
+
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _polygon_motion_table(
     geometry: tuple, materials: np.ndarray, views: np.ndarray, needed: np.ndarray,
-    lights: tuple, ambient: float, code: int, steps: tuple, weights: np.ndarray,
+    lights: tuple, ambient: float, code: int, rates: tuple, weights: np.ndarray,
     table: np.ndarray, dtable: np.ndarray,
 ) -> None:
-    """Flat colour at the middle time, and its time derivatives, per needed polygon and zone.
+    """Flat colour per needed polygon and zone, and its time derivatives by the chain rule.
 
-    ``geometry`` is ``(vertices (K, V, 3), polygons (P, M), counts (P,), normals (K, P,
-    3))`` at K = 1 or 3 times (``t - h, t, t + h``); ``lights`` is :func:`pack_lights`'
-    ``(lvec (K, J, 3), lpoint, lrgb)``.  ``table`` (1, Z, P, 3) uint8 gets the middle
-    time's colour as :func:`shade` stores it; with three times, ``dtable`` (Z, P, 4)
-    gets the central differences of the float32 colour (:func:`shade_linear`'s
-    values) through ``weights`` (3, 3) (colour to channels), in float64: channels 0-2
-    ``steps[0] * weights @ (c(t + h) - c(t - h))``, channel 3 ``steps[1] * weights[0] @
-    (c(t + h) - 2 c(t) + c(t - h))``.
+    ``geometry`` is ``(vertices (1, V, 3), polygons (P, M), counts (P,), normals (1, P,
+    3), polygon_object (P,))``; ``lights`` is :func:`pack_lights`' ``(lvec (1, J, 3),
+    lpoint, lrgb)``.  ``table`` (1, Z, P, 3) uint8 gets the colour as :func:`shade`
+    stores it.  ``rates`` is ``(K (3, O, 3, 3), e (3, O, 3), lrate (2, J, 3), scale)``
+    (:func:`service.scene_motion.motion_derivatives` and the lights' derivatives);
+    when ``dtable`` (Z, P, 4) has rows it gets ``scale * weights @ c'`` (channels 0-2)
+    and ``scale * weights[0] @ c''`` (channel 3), ``c`` the unclamped colour, in
+    float64 (:func:`_light_rates`).  Runs of :data:`_CHUNK` polygons in parallel,
+    each through :func:`_table_chunk` (a call, not inlined: numba's parfor array
+    analysis takes the Taylor arithmetic's nested tuples for shapes and fails).
     """
-    vertices, polygons, counts, normals = geometry
-    kt, zones = vertices.shape[0], views.shape[0]
-    mid = kt // 2
+    n = geometry[3].shape[1]
+    for b in nb.prange((n + _CHUNK - 1) // _CHUNK):
+        _table_chunk(b * _CHUNK, min(n, (b + 1) * _CHUNK), geometry, materials, views, needed,
+                     lights, ambient, code, rates, weights, table, dtable)
+
+
+@nb.njit(cache=True, nogil=True)
+def _table_chunk(
+    lo: int, hi: int, geometry: tuple, materials: np.ndarray, views: np.ndarray,
+    needed: np.ndarray, lights: tuple, ambient: float, code: int, rates: tuple,
+    weights: np.ndarray, table: np.ndarray, dtable: np.ndarray,
+) -> None:
+    """:func:`_polygon_motion_table` for polygons ``lo .. hi - 1``."""
+    vertices, polygons, counts, normals, poly_obj = geometry
+    big_k, e, lrate, scale = rates
+    zones = views.shape[0]
     w = weights
-    for p in nb.prange(normals.shape[1]):
+    paths = np.empty((lights[0].shape[1], 4, 3))
+    for p in range(lo, hi):
         shown = False
         for z in range(zones):
             shown |= needed[z, p]
         if not shown:
             continue
-        # centroids once per time, for all zones (as _polygon_table finds them once)
-        cm = _centroid(mid, p, vertices, polygons, counts)
-        c0 = _centroid(0, p, vertices, polygons, counts)
-        c2 = _centroid(kt - 1, p, vertices, polygons, counts)
+        cm = _centroid(0, p, vertices, polygons, counts)
+        rated, nn = dtable.shape[0] > 0, 0.0
+        nrm = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        if rated:  # the polygon's light paths, shared by the zones
+            o = poly_obj[p]
+            n0 = (normals[0, p, 0], normals[0, p, 1], normals[0, p, 2])
+            c1, c2 = _moved(big_k, e, 0, o, cm, 1.0), _moved(big_k, e, 1, o, cm, 1.0)
+            n1, n2 = _moved(big_k, e, 0, o, n0, 0.0), _moved(big_k, e, 1, o, n0, 0.0)
+            nrm = ((n0[0], n1[0], n2[0]), (n0[1], n1[1], n2[1]), (n0[2], n1[2], n2[2]))
+            nn = _light_paths(((cm[0], c1[0], c2[0]), (cm[1], c1[1], c2[1]),
+                               (cm[2], c1[2], c2[2])), nrm, (lights[0][0], lights[1], lights[2]),
+                              lrate, paths)
+            nrm = _tunit(nrm)[0]
         for z in range(zones):
             if not needed[z, p]:
                 continue
-            c = _lit_at(mid, p, z, cm, normals, materials, views, lights, ambient, code)
+            c = _lit_at(0, p, z, cm, normals, materials, views, lights, ambient, code)
             _store(table, 0, z, p, c, 255.0, 0.5)
-            if kt != 3:
+            if not rated:
                 continue
-            m = _lit_at(0, p, z, c0, normals, materials, views, lights, ambient, code)
-            q = _lit_at(2, p, z, c2, normals, materials, views, lights, ambient, code)
+            d1, d2 = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+            if nn > 0.0:
+                d1, d2 = _light_rates(_facing(normals[0], p, views[z]), nrm, paths,
+                                      materials[p], views[z], lights[2], ambient, code)
             for j in range(3):
-                acc = 0.0
-                for k in range(3):
-                    acc += w[j, k] * (np.float64(np.float32(q[k])) - np.float64(np.float32(m[k])))
-                dtable[z, p, j] = acc * steps[0]
-            acc = 0.0
-            for k in range(3):
-                acc += w[0, k] * (np.float64(np.float32(q[k])) - 2.0 * np.float64(np.float32(c[k]))
-                                  + np.float64(np.float32(m[k])))
-            dtable[z, p, 3] = acc * steps[1]
+                dtable[z, p, j] = scale * (w[j, 0] * d1[0] + w[j, 1] * d1[1] + w[j, 2] * d1[2])
+            dtable[z, p, 3] = scale * (w[0, 0] * d2[0] + w[0, 1] * d2[1] + w[0, 2] * d2[2])
 
 
-def polygon_motion_tables(
-    scenes: list[SceneArrays], vis: Visibility, display: DisplaySettings,
-    lights: list[list[Light]], ambient_level: float, settings: LightSettings,
-    steps: tuple[float, float], weights: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Flat (``polygon``) light at ``t`` and its time derivatives, as tables per polygon.
-
-    One pass over the polygons each zone shows gives what :func:`shade` and
-    :func:`shade_linear` at ``t - h, t, t + h`` would give their pixels: light per
-    polygon is the same at every pixel of it, so its differences are too.
+def light_rates(lights: list[Light], rates: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """First and second time derivatives of :func:`pack_lights`' light vectors.
 
     Parameters
     ----------
-    scenes : list of 1 or 3 SceneArrays
-        The flattened scene at ``t`` (one) or at ``t - h, t, t + h`` (three), of one
-        layout (the same objects moved).
+    lights : list of Light
+        As seen at the time (the viewer's frame).
+    rates : (K (3, O, 3, 3), e (3, O, 3))
+        :func:`service.scene_motion.motion_derivatives`; its last row, the world's, moves
+        the lights (a direction by ``K``, a point light's position by ``K`` and ``e``).
+
+    Returns
+    -------
+    ndarray, shape (2, J, 3)
+    """
+    lvec, lpoint, _ = pack_lights(lights)
+    big_k, e = rates[0][:2, -1], rates[1][:2, -1]
+    out = np.einsum("nij,lj->nli", big_k, lvec)
+    out += lpoint[None, :, None] * e[:, None, :]
+    return out.reshape(2, len(lights), 3)
+
+
+def polygon_motion_tables(
+    scene: SceneArrays, vis: Visibility, display: DisplaySettings, lights: list[Light],
+    ambient_level: float, settings: LightSettings,
+    rates: tuple[np.ndarray, np.ndarray] | None, scale: float, weights: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat (``polygon``) light at ``t`` and its time derivatives, as tables per polygon.
+
+    One pass over the polygons each zone shows gives what :func:`shade` gives their
+    pixels, and the colour's first and second time derivatives by the chain rule
+    from the motion of each polygon's centroid and normal and of the lights
+    (:func:`_light_rates`): light per polygon is the same at every pixel of it, so
+    its derivatives are too.
+
+    Parameters
+    ----------
+    scene : SceneArrays
+        The flattened scene at ``t``.
     vis : Visibility
         Triangle seen at each pixel at ``t``, shape (Z, R, C).
     display : DisplaySettings
-    lights : list of 1 or 3 lists of Light
-        The scene's lights at each time (they move with a moving viewer).
+    lights : list of Light
+        The scene's lights at ``t`` (as the viewer sees them).
     ambient_level : float
     settings : LightSettings
         Its ``evaluation`` must be ``"polygon"``.
-    steps : (float, float)
-        Factors of the first and the second difference (``1 / (2h)`` and ``1 / h^2``
-        in the units wanted).
+    rates : (K (3, O + 1, 3, 3), e (3, O + 1, 3)) or None
+        :func:`service.scene_motion.motion_derivatives` (None: no derivatives).
+    scale : float
+        Factor of the derivatives (255: colour units 0..255).
     weights : ndarray, shape (3, 3)
-        RGB to the derivative's three channels (the second difference takes row 0).
+        RGB to the derivative's three channels (the second derivative takes row 0).
 
     Returns
     -------
     table : ndarray, shape (Z, P, 3), uint8
         Colour at ``t`` of each polygon shown (others undefined).
     dtable : ndarray, shape (Z, P, 4), float32
-        The three first-difference channels and the second difference's first (three
-        times only; shape (0, 0, 4) with one).
+        The first derivative's three channels and the second's first (shape (0, 0,
+        4) without ``rates``).
     background : ndarray, shape (3,), uint8
     """
-    centre = scenes[len(scenes) // 2]
-    if settings.evaluation != "polygon" or len(scenes) not in (1, 3):
-        raise RenderError("polygon_motion_tables needs polygon light and 1 or 3 times")
+    if settings.evaluation != "polygon":
+        raise RenderError("polygon_motion_tables needs polygon light")
     zrc = (display.zones, display.rows, display.cols)
     if vis.triangle.shape != zrc:
         raise RenderError(f"visibility buffers are {vis.triangle.shape}, display needs {zrc}")
     needed = vis.shown
-    if needed is None or needed.shape != (display.zones, centre.n_polygons):
+    if needed is None or needed.shape != (display.zones, scene.n_polygons):
         needed = mark_shown(np.ascontiguousarray(vis.triangle, np.int32),
-                            centre.triangle_polygon, centre.n_polygons)
-    packs = [pack_lights(li) for li in lights]
-    lvec = np.stack([pk[0] for pk in packs]) if packs[0][0].size else np.zeros(
-        (len(packs), 0, 3))
-    geometry = (np.stack([s.vertices for s in scenes]), centre.polygons, centre.counts,
-                np.stack([s.normals for s in scenes]))
-    zp = (display.zones, centre.n_polygons)
+                            scene.triangle_polygon, scene.n_polygons)
+    lvec, lpoint, lrgb = pack_lights(lights)
+    zp = (display.zones, scene.n_polygons)
     table = np.empty((1, *zp, 3), np.uint8)
-    dtable = np.empty((*zp, 4) if len(scenes) == 3 else (0, 0, 4), np.float32)
-    _polygon_motion_table(geometry, centre.materials, display.view_vectors(), needed,
-                          (lvec, packs[0][1], packs[0][2]), float(ambient_level),
-                          MODELS[settings.model], (float(steps[0]), float(steps[1])),
+    if rates is None:
+        dtable = np.empty((0, 0, 4), np.float32)
+        rates = (np.zeros((3, 1, 3, 3)), np.zeros((3, 1, 3)))
+    else:
+        dtable = np.empty((*zp, 4), np.float32)
+    geometry = (scene.vertices[None], scene.polygons, scene.counts, scene.normals[None],
+                scene.polygon_object)
+    _polygon_motion_table(geometry, scene.materials, display.view_vectors(), needed,
+                          (lvec.reshape(1, -1, 3), lpoint, lrgb), float(ambient_level),
+                          MODELS[settings.model],
+                          (rates[0], rates[1], light_rates(lights, rates), float(scale)),
                           np.ascontiguousarray(weights, np.float64), table, dtable)
     bg = np.empty((1, 1, 1, 3), np.uint8)
     _store_background(np.asarray(settings.background, np.float64) / 255.0, 255.0, 0.5, bg)
@@ -702,8 +889,9 @@ def _eval_polygon(
         needed = mark_shown(vis.triangle, scene.triangle_polygon, scene.n_polygons)
     table = np.zeros((1, k.views.shape[0], scene.n_polygons, 3), out.dtype)
     _polygon_table(
-        scene.vertices, scene.polygons, scene.counts, scene.normals, scene.materials,
-        k.views, needed, k.lights, k.ambient, k.code, (k.scale, k.offset), table,
+        scene.vertices, scene.polygons, scene.counts, scene.normals, scene.shading_normals,
+        scene.materials, k.views, needed, k.lights, k.ambient, k.code, (k.scale, k.offset),
+        table,
     )
     bg = np.empty((1, 1, 1, 3), out.dtype)
     _store_background(k.background, k.scale, k.offset, bg)

@@ -23,6 +23,23 @@ from service.base.errors import MeshError
 from service.normals_kernel import corner_normals_kernel, edges_closed_kernel, newell_normals_kernel
 
 
+class Shading(NamedTuple):
+    """Normals per-polygon light uses instead of a mesh's own face normals.
+
+    A simplified level carries its full mesh's (:mod:`service.simplify.carry`).
+    Smooth light (per vertex, per point) keeps the mesh's own :attr:`Mesh.corner_normals`:
+    on the bunny they matched the full mesh's smooth light better than carried ones
+    (``docs/simplify.md``, "Carried normals").
+
+    Attributes
+    ----------
+    polygons : ndarray, shape (P, 3), float64
+        Unit normal per polygon.
+    """
+
+    polygons: np.ndarray
+
+
 @dataclass(frozen=True)
 class Mesh:
     """An indexed polygon mesh.
@@ -40,6 +57,10 @@ class Mesh:
     repair : MeshRepair or None
         What loading the mesh's file repaired (:mod:`service.mesh_repair`); None for
         a mesh not read from a file.
+    shading : Shading or None
+        Polygon normals per-polygon light uses (a level of detail carries its full
+        mesh's); None: its own.  Its geometry (culling, which side a zone sees)
+        always uses :attr:`normals`.
     """
 
     vertices: np.ndarray
@@ -47,10 +68,13 @@ class Mesh:
     counts: np.ndarray
     name: str = "mesh"
     repair: Any = field(default=None, repr=False, compare=False)
+    shading: Shading | None = field(default=None, repr=False, compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         validate(self.vertices, self.polygons, self.counts, self.name)
+        if self.shading is not None:
+            _check_shading(self.shading, self.n_polygons, self.name)
 
     @property
     def n_polygons(self) -> int:
@@ -84,6 +108,11 @@ class Mesh:
         if "normals" not in self._cache:
             self._cache["normals"] = polygon_normals(self.vertices, self.polygons, self.counts)
         return self._cache["normals"]
+
+    @property
+    def shading_normals(self) -> np.ndarray:
+        """Unit polygon normals light uses, shape (P, 3): :attr:`shading`'s or :attr:`normals`."""
+        return self.normals if self.shading is None else self.shading.polygons
 
     @property
     def corner_normals(self) -> np.ndarray:
@@ -554,3 +583,14 @@ def corner_normals(
         poly_normals[triangle_polygon].astype(np.float64),
         float(np.cos(np.radians(crease_deg))),
     )
+
+
+def _check_shading(shading: Shading, n_polygons: int, name: str) -> None:
+    """Raise :class:`MeshError` unless ``shading`` has one finite normal per polygon."""
+    arr = shading.polygons
+    if not isinstance(arr, np.ndarray) or arr.shape != (n_polygons, 3):
+        got = getattr(arr, "shape", type(arr).__name__)
+        raise MeshError(f"{name}: shading needs one normal per polygon, shape "
+                        f"{(n_polygons, 3)}, got {got}")
+    if not np.all(np.isfinite(arr)):
+        raise MeshError(f"{name}: a shading normal is not finite")

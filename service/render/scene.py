@@ -206,6 +206,9 @@ class SceneArrays:
     corner_normals : ndarray, shape (T, 3, 3), float64
         Smooth normals at triangle corners (for per-vertex and per-point light),
         computed on first use.
+    shading_normals : ndarray, shape (P, 3), float64
+        Polygon normals per-polygon light uses: ``normals`` except where a mesh carries
+        others (:attr:`service.render.mesh.Mesh.shading`, a level of detail's).
     """
 
     vertices: np.ndarray
@@ -219,6 +222,12 @@ class SceneArrays:
     polygon_closed: np.ndarray
     _corners: list = field(default_factory=list, repr=False, compare=False)
     _lazy: dict = field(default_factory=dict, repr=False, compare=False)
+    _shading: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def shading_normals(self) -> np.ndarray:
+        """Polygon normals for light in world coordinates, shape (P, 3)."""
+        return self.normals if self._shading is None else self._shading
 
     @property
     def n_polygons(self) -> int:
@@ -418,8 +427,11 @@ def _materials(objs: list) -> np.ndarray:
 def _placed(
     scene: Scene, static: dict, orientations: np.ndarray | None = None,
     positions: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, list]:
-    """World vertices (V, 3), world polygon normals (P, 3) and (mesh, rotation) per object.
+) -> tuple[np.ndarray, np.ndarray, list, np.ndarray | None]:
+    """World vertices, polygon normals, (mesh, rotation) per object, and light's normals.
+
+    Vertices (V, 3), normals (P, 3); light's normals (P, 3) are None when no mesh
+    carries its own (:attr:`Mesh.shading`).
 
     One batched matrix product per run of objects sharing a mesh.  ``orientations``
     (O, 4) and ``positions`` (O, 3), when given, replace the objects' transforms.
@@ -428,8 +440,10 @@ def _placed(
     v0, p0 = static["vertex_start"], static["polygon_start"]
     verts = np.empty((v0[-1], 3))
     normals = np.empty((p0[-1], 3))
+    carried = any(mesh.shading is not None for mesh, _, _ in static["runs"])
+    shading = np.empty((p0[-1], 3)) if carried else None
     if not objs:
-        return verts, normals, []
+        return verts, normals, [], shading
     if orientations is None:
         orientations = np.array([o.transform.orientation for o in objs])
     rot = quaternion_matrices(orientations)
@@ -443,7 +457,10 @@ def _placed(
         out += pos[a:b, None, :]
         np.matmul(mesh.normals[None], rot[a:b].transpose(0, 2, 1),
                   out=normals[p0[a] : p0[b]].reshape(n, -1, 3))
-    return verts, normals, [(o.mesh, rot[i]) for i, o in enumerate(objs)]
+        if shading is not None:
+            np.matmul(mesh.shading_normals[None], rot[a:b].transpose(0, 2, 1),
+                      out=shading[p0[a] : p0[b]].reshape(n, -1, 3))
+    return verts, normals, [(o.mesh, rot[i]) for i, o in enumerate(objs)], shading
 
 
 def _cat(parts: list, empty_shape: tuple, dtype: type) -> np.ndarray:
@@ -471,7 +488,7 @@ def flatten(
     SceneArrays
     """
     static = _static_parts(scene)
-    verts, normals, corners = _placed(scene, static, orientations, positions)
+    verts, normals, corners, shading = _placed(scene, static, orientations, positions)
     return SceneArrays(
         vertices=verts,
         polygons=static["polygons"],
@@ -483,4 +500,5 @@ def flatten(
         materials=static["materials"],
         polygon_closed=static["polygon_closed"],
         _corners=corners,
+        _shading=shading,
     )

@@ -28,11 +28,12 @@ def _scenes(kit: Kit) -> None:
 
 
 def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
-            fallback: str = "frame") -> Callable:
+            fallback: str = "frame", frames: bool = True, motion: bool = True) -> Callable:
     """A render job: frames and renders with motion.
 
-    ``Renderer.render`` as holo-render and the game call it (light into uint8), and
-    ``render_with_motion`` as the service's workers do (light into float32 too).
+    ``Renderer.render`` as holo-render and the game call it (light into uint8;
+    ``frames``), and ``render_with_motion`` as the service's workers do (light into
+    float32 too; ``motion``).
     """
 
     def job(kit: Kit) -> None:
@@ -40,8 +41,10 @@ def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
                                   painter_fallback=fallback)
         renderer = Renderer()
         for name in ("game", "cyclic"):  # cyclic: the painter's fallback too
-            renderer.render(kit.scene(name), kit.display, settings)
-            render_with_motion(renderer, kit.scene(name), kit.display, 0.1, 60.0, settings)
+            if frames:
+                renderer.render(kit.scene(name), kit.display, settings)
+            if motion:
+                render_with_motion(renderer, kit.scene(name), kit.display, 0.1, 60.0, settings)
 
     return job
 
@@ -62,7 +65,11 @@ def _shadows(kit: Kit) -> None:
 #: This subsystem's jobs, in order (:data:`service.warmup.JOBS` gathers them).
 WARMUP_JOBS: dict[str, Job] = {
     "scenes: normals, triangulation": Job(_scenes, FIRST, first_frame=True),
-    "render zbuffer": Job(_render("zbuffer"), FIRST, service=True, first_frame=True),
+    # the service's render first (its workers' path); the uint8 frames of holo-render
+    # and --local after, off a cold service's first frame (3.5 s of CPU, 2026-11-29)
+    "render zbuffer": Job(_render("zbuffer", frames=False), FIRST, service=True,
+                          first_frame=True),
+    "render zbuffer, frames": Job(_render("zbuffer", motion=False), FIRST),
     "light ambient": Job(_render("zbuffer", "ambient"), FIRST),
     "light phong": Job(_render("zbuffer", "phong"), FIRST),
     # first of the HERE jobs: see _shadows

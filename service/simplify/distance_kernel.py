@@ -3,6 +3,8 @@
 Triangles are bucketed by bounding box into a uniform grid of about T cells; each
 point searches shells of cells around its own until no unvisited cell can be nearer
 than the best triangle found (a triangle is tested only when its box is nearer).
+:func:`nearest_facing` also says which triangle, among those facing a given way
+(:mod:`.carry` carries a full mesh's normals to its simplified levels with it).
 """
 
 from __future__ import annotations
@@ -104,15 +106,21 @@ def _build_grid(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, h: np.ndarra
 
 
 @nb.njit(cache=True, nogil=True)
-def _nearest(p: np.ndarray, corners: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-             origin: np.ndarray, h: np.ndarray, res: np.ndarray, start: np.ndarray,
-             items: np.ndarray, best: float) -> float:
-    """Squared distance from ``p`` to the nearest triangle, searching shells of cells."""
+def _nearest(p: np.ndarray, facing: np.ndarray, corners: np.ndarray, normals: np.ndarray,
+             grid: tuple, best: float) -> tuple[float, int]:
+    """Squared distance from ``p`` to the nearest triangle, and which, searching shells.
+
+    A triangle whose ``normals[j]`` points against ``facing`` (3,) (a negative dot
+    product) is skipped; a zero ``facing`` skips none.  ``grid`` is :func:`_grid`'s.
+    Returns ``(inf, -1)`` when no triangle qualifies.
+    """
+    lo, hi, origin, h, res, start, items = grid
     c = np.empty(3, dtype=np.int64)
     for k in range(3):
         c[k] = min(max(int(np.floor((p[k] - origin[k]) / h[k])), 0), res[k] - 1)
     hmin = min(h[0], h[1], h[2])
     rmax = max(res[0], res[1], res[2])
+    found = -1
     for r in range(rmax + 1):
         if r > 0 and best <= ((r - 1) * hmin) ** 2:
             break
@@ -128,27 +136,23 @@ def _nearest(p: np.ndarray, corners: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                             j = items[q]
                             if _box_sq(p, lo[j], hi[j]) >= best:
                                 continue
+                            if (facing[0] * normals[j, 0] + facing[1] * normals[j, 1]
+                                    + facing[2] * normals[j, 2]) < 0.0:
+                                continue
                             d = _point_triangle_sq(p, corners[j, 0], corners[j, 1],
                                                    corners[j, 2])
                             if d < best:
                                 best = d
+                                found = j
                     z += max(step, 1)
-    return best
+    return best, found
 
 
 @nb.njit(cache=True, nogil=True)
-def points_to_triangles(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """Distance from each point to the nearest triangle.
+def _grid(corners: np.ndarray) -> tuple:
+    """Triangle boxes and the grid of about T cells they are bucketed in.
 
-    Parameters
-    ----------
-    points : ndarray, shape (N, 3), float64
-    corners : ndarray, shape (T, 3, 3), float64
-        Triangle corners; T >= 1.
-
-    Returns
-    -------
-    ndarray, shape (N,), float64
+    Returns ``(lo, hi, origin, h, res, start, items)`` for :func:`_nearest`.
     """
     t = corners.shape[0]
     lo = np.empty((t, 3))
@@ -170,8 +174,59 @@ def points_to_triangles(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
         res[k] = max(int(np.ceil(ext[k] / cell)), 1)
         h[k] = max(ext[k] / res[k], cell)
     start, items = _build_grid(lo, hi, origin, h, res)
+    return lo, hi, origin, h, res, start, items
+
+
+@nb.njit(cache=True, nogil=True)
+def points_to_triangles(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Distance from each point to the nearest triangle.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3), float64
+    corners : ndarray, shape (T, 3, 3), float64
+        Triangle corners; T >= 1.
+
+    Returns
+    -------
+    ndarray, shape (N,), float64
+    """
+    grid = _grid(corners)
+    anywhere = np.zeros(3)
+    normals = np.zeros((corners.shape[0], 3))  # with ``anywhere``: no triangle skipped
     out = np.empty(points.shape[0])
     for i in range(points.shape[0]):
-        out[i] = np.sqrt(_nearest(points[i], corners, lo, hi, origin, h, res, start, items,
-                                  np.inf))
+        out[i] = np.sqrt(_nearest(points[i], anywhere, corners, normals, grid, np.inf)[0])
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def nearest_facing(points: np.ndarray, facing: np.ndarray, corners: np.ndarray,
+                   normals: np.ndarray) -> np.ndarray:
+    """The nearest triangle to each point among those that face its way.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3), float64
+    facing : ndarray, shape (N, 3), float64
+        A direction per point: only triangles whose normal has a non-negative dot
+        product with it are candidates (all are when none is).
+    corners : ndarray, shape (T, 3, 3), float64
+        Triangle corners; T >= 1.
+    normals : ndarray, shape (T, 3), float64
+        Each triangle's normal.
+
+    Returns
+    -------
+    ndarray, shape (N,), int64
+        Index of the nearest qualifying triangle.
+    """
+    grid = _grid(corners)
+    anywhere = np.zeros(3)
+    out = np.empty(points.shape[0], np.int64)
+    for i in range(points.shape[0]):
+        j = _nearest(points[i], facing[i], corners, normals, grid, np.inf)[1]
+        if j < 0:
+            j = _nearest(points[i], anywhere, corners, normals, grid, np.inf)[1]
+        out[i] = j
     return out

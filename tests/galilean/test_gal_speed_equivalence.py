@@ -21,7 +21,13 @@ from service.galilean.galpixmap import Galpixmap, build
 from service.galilean.poisson import EXPANSION_MODES, poisson_map
 from service.galilean.poisson_table import poisson_interiors
 from service.galilean.propagate import STAT_NAMES, planes, second_sweep, sweep
-from service.galilean.scatter_bands import GATHER_RUN, map_reach, reach_of, scatter_bands
+from service.galilean.scatter_bands import (
+    GATHER_RUN,
+    map_reach,
+    reach_of,
+    scatter_bands,
+    scatter_bands_plain,
+)
 from service.galilean.show import debris_words
 from service.galilean.stage import GalileanSettings, GalileanStage
 from service.render.scene import MotionState
@@ -481,6 +487,63 @@ def test_recording_stops_while_almost_every_galpixel_moves() -> None:
     assert still[8] < stage_module.STILL_MIN  # measured once after the head turn
     assert not any(recorded[9:18])  # then not recorded while everything moves
     assert all(recorded[19:]) and still[19] > stage_module.STILL_MIN  # grafted: again
+
+
+@pytest.mark.parametrize("table", [True, False])
+def test_plain_scatter_is_the_banded_one_with_its_bookkeeping_off(table: bool) -> None:
+    """scatter_bands with ``use_same`` and ``record`` False gives scatter_bands_plain's result.
+
+    Bit for bit: the new map (pixels nothing lands on kept as they were), origins,
+    counters, motion bounds and Poisson table, ``same_in`` not read and ``same_out``
+    not written.  A stage runs it so until the plain kernel is cached (that one
+    compiles in the background phase, off the first frame's path).  The stage's own
+    maps, so both kernels see the types a refresh passes.
+    """
+    st = GalileanStage(DisplaySettings(zones=2, cols=40, rows=30), GalileanSettings(order=2))
+    rng = np.random.default_rng(11)
+    for dst, src in zip(st.map.arrays(), random_map(st, rng).arrays(), strict=True):
+        dst[...] = src
+    before = random_map(st, rng).arrays()
+    reach, thr = map_reach(st.map.motion, st.fixed.fm), 0.02 * 2.0**st.fixed.fz
+    n = st.map.depth.size
+    same_in = rng.integers(0, 2, n).astype(np.uint8)  # not to be read
+    results = []
+    for kernel in (scatter_bands, scatter_bands_plain):
+        for dst, src in zip(st._spare.arrays(), before, strict=True):
+            dst[...] = src
+        st._spare.debris.fill(1)
+        origin, same_out = np.full(n, -7, np.int32), np.full(n, 7, np.uint8)
+        stats, top, interior = np.zeros((3, 3), np.int64), np.zeros((3, 3), np.int64), np.full(
+            n, 9, np.uint8)
+        kernel(st._planes(st.map), st._planes(st._spare), origin, st.shape, 2, st.fixed.fp,
+               st.fixed.fm, st.map.colour_planes, True, reach, 3, stats, top, same_in, same_out,
+               False, False, interior, thr, table, GATHER_RUN)
+        results.append([*(a.copy() for a in st._spare.arrays()), origin, same_out, stats, top,
+                        interior])
+    assert results[0][-3][:, 0].sum() > 0 and (results[0][-4] == 7).all()
+    for u, v in zip(*results, strict=True):
+        assert same(u, v)
+
+
+def test_stage_without_the_plain_kernel_refreshes_alike(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Until scatter_bands_plain is cached the stage runs scatter_bands: the same refreshes.
+
+    A head turn (every galpixel moves: the stage then neither uses nor records the
+    still galpixels, where it would run the plain kernel), byte for byte those of
+    the reference stage.
+    """
+    monkeypatch.setattr(stage_module, "kernel_ready", lambda kernel, args: False)
+    fast, ref, _ = _static_pair(DisplaySettings(zones=1, cols=48, rows=32),
+                                GalileanSettings(order=2, refresh_hz=50.0), 9)
+    vm = MotionState(velocity=[0.05, 0.0, 0.0], angular_velocity=[0.0, 0.2, 0.0])
+    plainless = []
+    for k in range(16):
+        if k == 4:
+            fast.viewer(vm)
+            ref.viewer(vm)
+        assert_identical(fast, ref, k)
+        plainless.append(not fast._same_valid)
+    assert sum(plainless[6:]) >= 5 and not fast._plain  # where plain would have run
 
 
 def _finish_input(order: int, rng: np.random.Generator) -> tuple:

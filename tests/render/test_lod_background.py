@@ -14,6 +14,9 @@ import pytest
 from testkit import held_lock
 
 from service.display import DisplaySettings
+from service.engine.engine import Engine
+from service.frame_settings import FrameSettings
+from service.lod.builds import ChainBuilds
 from service.lod.cache import build_chain, read_chain
 from service.lod.chain import mesh_key
 from service.lod.settings import LodCacheWarning, LodSettings
@@ -107,3 +110,44 @@ def test_another_recipe_gets_its_own_chain(ring, tmp_path):
     half = state.chain(ring, LodSettings(fractions=(0.5,)))
     assert full.key != half.key and len(half.levels) == 2 < len(full.levels)
     assert state.chain(ring, LodSettings()).key == full.key
+
+
+def test_a_loaded_scene_queues_its_chains_before_any_frame(ring, tmp_path, monkeypatch):
+    """The engine's ``load_scene`` (the game's, and the service's handlers) starts builds.
+
+    No frame is rendered until the chain is built: the build is the load's, not a
+    frame's.  ``chains`` status says which mesh is building; a mesh two objects share
+    is queued once, and loading the same scene again queues nothing.
+    """
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    engine = Engine.local(FrameSettings(DISPLAY, LOD))  # threads not started: no frames
+    scene, key = _scene(ring), mesh_key(ring, LodSettings().recipe)
+    try:
+        with held_lock(tmp_path, key):
+            engine.load_scene(scene)
+            status = engine.st.chains.status()
+            assert status["queued"] + (status["building"] is not None) == 1
+            assert engine.st.queue_chains() == 0  # known: not queued twice
+        assert engine.st.chains.wait_idle(WAIT_S)
+        status = engine.st.chains.status()
+        assert status["built"] == 1 and status["building"] is None and status["failed"] == 0
+        assert (tmp_path / f"{key}.json").is_file()
+        assert engine.st.queue_chains() == 0  # cached: nothing to build
+        lod = engine.scheduler.local().render(scene, DISPLAY, LOD).stats["lod"]
+        assert lod["chains"] == {"ready": 1, "building": 0, "failed": 0}
+        assert max(lod["levels"]) > 0  # the first frame already uses the chain
+    finally:
+        engine.stop()
+
+
+def test_build_progress_is_followed_from_the_build_process(ring, tmp_path):
+    """Each decimation the child reports reaches ``on_progress`` and ``status``."""
+    builds, heard = ChainBuilds(tmp_path), []
+    builds.on_progress = lambda name, done, planned: heard.append((name, done, planned))
+    assert builds.submit_scene(_scene(ring), LodSettings()) == 1
+    assert builds.wait_idle(WAIT_S)
+    builds.close()
+    assert heard[0] == (ring.name or "a mesh", 0, 0)  # started
+    done = [d for _, d, n in heard[1:]]
+    assert done == sorted(done) and done[-1] == heard[-1][2] >= 1  # every decimation
+    assert builds.status()["built"] == 1 and builds.status()["progress"] is None

@@ -134,11 +134,13 @@ def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
         service_factory, tmp_path, monkeypatch):
     """A worker renders the bunny at once in full while its chain cannot be built.
 
-    The test holds the chain's build lock (as another process building it would), so
-    the chain cannot be ready: every render must still come back within the render
-    timeout, in full (level 0), without a resend.  Released, the worker builds the
-    chain in the background and a later render draws coarser levels.  The cache
-    starts torn (arrays without their header): that is said and rebuilt.
+    ``load_scene`` queues the chain's build in the service at once (``stats.chains``
+    says which mesh is building).  The test holds the chain's build lock (as another
+    process building it would), so the chain cannot be ready: every render must still
+    come back within the render timeout, in full (level 0), without a resend.
+    Released, the chain is built in the background and a later render draws coarser
+    levels.  The cache starts torn (arrays without their header): that is said and
+    rebuilt.
     """
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
     key = mesh_key(load_scene(str(BUNNY)).objects[0].mesh, LodSettings().recipe)
@@ -153,7 +155,10 @@ def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
         # renders run in process until the worker is up (docs/service.md, "Supervised
         # workers"): the bunny is for the worker's renderer, so it comes after
         assert wait_until(lambda: c.stats()["split"] == "frames", HANG_S), "no worker came up"
+        assert c.stats()["chains"]["built"] == 0
         c.load_scene(path=str(BUNNY))
+        building = wait_until(lambda: c.stats()["chains"]["building"], HANG_S)
+        assert building == "bunny", c.stats()["chains"]  # queued by the load, not a frame
         c.update_objects([{"index": 0, "scale": 0.2}])  # small: coarse levels will do
         for _ in range(2):
             # within the render timeout: a render past it is resent (render_retries below);
@@ -167,9 +172,10 @@ def test_a_new_mesh_renders_within_the_timeout_and_uses_its_chain_once_built(
         assert lod and lod["chains"]["ready"] == 1
         assert lod["levels"][0] > 0 and lod["triangles"] < lod["triangles_full"]
         assert c.stats()["lod"]["chains"]["ready"] == 1
-        # the chain may be read from the cache a render before its builder reports
-        notes = wait_until(lambda: c.render_once()[0]["stats"]["lod"]["chains"].get("notes"),
-                           CHAIN_S)
-        assert notes and len(notes) == 1
+        assert c.stats()["render_retries"] == 0
+        chains = wait_until(lambda: (s := c.stats()["chains"])["built"] == 1 and s, CHAIN_S)
+        assert chains and chains["building"] is None and chains["queued"] == 0
+        notes = chains["notes"]
+        assert len(notes) == 1
         assert key in notes[0] and "json is missing" in notes[0] and "rebuilding" in notes[0]
     assert (tmp_path / f"{key}.json").is_file()  # cached whole for the next service

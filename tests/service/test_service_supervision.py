@@ -112,11 +112,16 @@ def test_with_every_worker_stopped_renders_run_in_process(service_factory):
         assert c.stats()["worker_pids"] != pids
 
 
+#: workers crash at start-up: forked from the fork server, or started as fresh processes
 CRASH = """\
 import os, sys
-if "service.net.worker" in getattr(sys, "orig_argv", ()):
+def crash():
     sys.stderr.write("test worker: crashing at start-up\\n")
     os._exit(3)
+if "service.net.worker" in getattr(sys, "orig_argv", ()):
+    crash()
+if "service.net.forkserver" in getattr(sys, "orig_argv", ()):
+    os.register_at_fork(after_in_child=crash)
 """
 
 

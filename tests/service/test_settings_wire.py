@@ -30,9 +30,10 @@ from service.render.pipeline import FALLBACKS, METHOD_NAMES, RenderSettings
 
 #: Fields of RenderSettings (dotted paths) that are deliberately not on the wire: the
 #: level-of-detail chain recipe (how chains are built and cached, a per-host choice)
-#: and the hysteresis (kept per renderer).  Any other field must have a row.
+#: and the hysteresis (kept per renderer), and the colour budget (for now every
+#: service render keeps LodSettings' default, 1 %).  Any other field must have a row.
 NOT_ON_WIRE = {"lod.enabled", "lod.hysteresis", "lod.fractions", "lod.cloud_eps",
-               "lod.texture_res"}
+               "lod.texture_res", "lod.colour_pct"}
 #: dotted field path -> the wire key that carries it.
 CARRIED = {"method": "method", "light.model": "light_model", "light.evaluation": "specular",
            "light.background": "background", "cull.mode": "cull",

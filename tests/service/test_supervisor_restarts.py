@@ -1,5 +1,6 @@
-"""The supervisor against real processes: a worker hung before ``READY`` is killed, and
-one that dies right after ``READY`` again and again is restarted with a back-off.
+"""The supervisor against real processes: a worker hung before ``READY`` is killed, one
+that dies right after ``READY`` again and again is restarted with a back-off, and one
+killed from outside before ``READY`` is no failed start.
 
 The broker is real (ZeroMQ on 127.0.0.1, on its own thread); the workers are real
 processes: one that never connects (hung at start-up) and one that says ``READY`` the
@@ -10,6 +11,7 @@ worker that crashes on every job).  Every wait is on a condition with a timeout.
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 
@@ -18,7 +20,7 @@ import zmq
 from testkit import HANG_S, alive, wait_until
 
 from service.net.broker import Broker
-from service.net.supervisor import Supervisor
+from service.net.supervisor import MAX_FAILED_STARTS, Supervisor
 
 #: a worker that says READY (as service/net/worker.py does) and dies on its first job
 CRASHER = """
@@ -91,3 +93,18 @@ def test_a_worker_that_dies_on_every_job_is_restarted_with_a_back_off(rig):
     assert waits and "restarting it in 0.5 s" in waits[0], log
     assert any("restarting it in 1 s" in line for line in waits), log
     assert sup.errors() == []  # never given up: renders go on in process meanwhile
+
+
+def test_a_worker_killed_from_outside_before_ready_is_no_failed_start(rig):
+    make, log, _ = rig
+    sup = make([sys.executable, "-c", "import signal; signal.pause()"])  # never READY
+    for kills in range(MAX_FAILED_STARTS + 1):
+        pid = wait_until(lambda: (sup.pids() or [None])[0], HANG_S)
+        assert pid, log
+        os.kill(pid, signal.SIGKILL)  # an operator, the OOM killer, the chaos benchmark
+        assert wait_until(lambda n=kills: sup.deaths > n, HANG_S), log
+    assert sup.errors() == [] and sup.slots[0].failed_starts == 0, log
+    assert not any("died at start-up" in line for line in log), log
+    # killed again and again, soon after it started: restarted after a back-off
+    assert any("restarting it in 0.5 s" in line for line in log), log
+    assert wait_until(lambda: sup.restarts >= MAX_FAILED_STARTS + 1, HANG_S), log

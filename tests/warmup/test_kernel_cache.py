@@ -123,3 +123,38 @@ def test_service_package_graph_sees_the_kernels_helpers() -> None:
     assert "service.galilean.propagate" in graph["service.galilean.scatter_bands"]
     assert "service.galilean.fixed_point" in graph["service.galilean.propagate"]
     assert "service.galilean.show" in graph["service.galilean.finish"]
+
+
+READY = """
+import sys
+from pkgk.other import alone
+from service.kernel_cache import kernel_ready
+before = kernel_ready(alone, (1,)), kernel_ready(alone, (1.0,))
+if sys.argv[1] == "call":
+    alone(1)
+print(*before, kernel_ready(alone, (1,)))
+"""
+
+
+def test_kernel_ready_sees_the_process_and_the_cache(tmp_path: Path) -> None:
+    """kernel_ready: True once compiled here or cached for those types and that source.
+
+    Fresh processes on one cache: nothing cached; compiled and saved by one call;
+    the next process finds the int64 signature but not a float64 one; an edit of
+    the kernel's source makes the cached one stale.
+    """
+    _package(tmp_path)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "nbcache"),
+               PYTHONPATH=os.pathsep.join([str(Path.cwd()), str(tmp_path)]))
+
+    def ready(step: str) -> list[str]:
+        return subprocess.run([sys.executable, "-c", READY, step], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=120,
+                              check=True).stdout.split()
+
+    assert ready("call") == ["False", "False", "True"]  # cold; compiled in process
+    assert ready("look") == ["True", "False", "True"]  # cached for int64 only
+    other = tmp_path / "pkgk" / "other.py"
+    other.write_text(other.read_text().replace("x * 2", "x * 3"))
+    os.utime(other, ns=(other.stat().st_mtime_ns + 10**9,) * 2)
+    assert ready("look") == ["False", "False", "False"]  # the source changed: stale
