@@ -85,7 +85,8 @@ def shadow_depth(
         sort_polygons(average_z(arrays.vertices, arrays.polygons, arrays.counts), keep),
         arrays.triangle_polygon,
     )
-    zbuffer_kernel(proj, arrays.triangles, np.ascontiguousarray(order), draw, tri, depth)
+    zbuffer_kernel(proj, arrays.triangles, np.ascontiguousarray(order), draw, tri, depth,
+                   np.zeros(0, np.uint64))  # drawn in the depth order: no key
     owner = np.asarray(keep_obj, np.int32)[arrays.polygon_object[arrays.triangle_polygon]]
     # one gather: triangle -1 (empty) reads the appended -1
     return depth, np.append(owner, np.int32(-1))[tri]

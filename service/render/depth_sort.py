@@ -7,8 +7,11 @@ their list order, which is object order, so the earlier object takes precedence
 projections depth along every view ray is -z.
 
 Every occlusion method reads the order (run-length and BSP paint by it; the z-buffer
-and ray casting give a tie in depth to the triangle earlier in it), so it cannot be
-skipped without changing pixels at exact ties.  It is made cheap instead, giving
+and ray casting give a tie in depth to the triangle earlier in it).  The z-buffer
+needs no sort for that: :func:`depth_keys` gives each triangle the sort's key, and its
+depth test breaks ties by the key (:mod:`service.render.raster`), drawing the kept
+triangles in index order with the sorted order's pixels.  For the others the sort is
+made cheap, giving
 exactly the permutation of ``np.argsort(-avg_z, kind="stable")`` (the reference,
 :func:`sort_polygons_reference`): the float64 keys become uint64 ones that sort the
 same way, LSD radix passes (11-bit digits, digits every key shares skipped) order
@@ -108,6 +111,66 @@ def depth_order(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
     if triangle_polygon.shape[0] == polygons.shape[0]:  # one triangle each: polygon t is
         return order  # triangle t (a polygon's triangles are contiguous, in order)
     return triangle_order(order, triangle_polygon)
+
+
+def depth_keys(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+               triangle_polygon: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The kept triangles in index order, and every triangle's depth-order key: no sort.
+
+    Triangle ``t`` comes before ``u`` in :func:`depth_order` exactly when
+    ``(key[t], t) < (key[u], u)``: ``key`` is the radix key of its polygon's
+    ``-average z`` (the sort's own key, -0.0 equal to 0.0, NaN last), and a polygon's
+    triangles are contiguous and in polygon order, so the triangle index breaks ties
+    as the polygon index does.  A depth test that breaks exact ties by this key
+    (:func:`service.render.raster.zbuffer_zones_kernel`) draws the triangles in any
+    order and gives the pixels the sorted order gives.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+    polygons : ndarray, shape (P, K), padded with -1
+    counts : ndarray, shape (P,)
+    triangle_polygon : ndarray, shape (T,)
+        Polygon of each triangle (contiguous, in polygon order).
+    keep : ndarray, shape (P,), bool
+
+    Returns
+    -------
+    order : ndarray, shape (M,), int64
+        The triangles of the kept polygons, ascending.
+    key : ndarray, shape (T,), uint64
+    """
+    return _depth_keys_all(vertices, polygons, counts,
+                           np.ascontiguousarray(triangle_polygon, np.int64),
+                           np.ascontiguousarray(keep, np.bool_))
+
+
+@nb.njit(cache=True, nogil=True)
+def _depth_keys_all(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+                    triangle_polygon: np.ndarray, keep: np.ndarray) -> tuple:
+    """Numba body of :func:`depth_keys` (the arithmetic of :func:`_depth_keys`)."""
+    n_poly = polygons.shape[0]
+    pkey = np.empty(n_poly, np.uint64)
+    values = pkey.view(np.float64)
+    for p in range(n_poly):
+        s = 0.0
+        for k in range(counts[p]):
+            s += vertices[polygons[p, k], 2]
+        values[p] = -(s / counts[p])
+    _to_keys(pkey)
+    n_tri = triangle_polygon.shape[0]
+    if n_tri == n_poly:  # one triangle each: polygon t is triangle t
+        key = pkey
+    else:
+        key = np.empty(n_tri, np.uint64)
+        for t in range(n_tri):
+            key[t] = pkey[triangle_polygon[t]]
+    order = np.empty(n_tri + 1, np.int64)
+    m = 0
+    for t in range(n_tri):  # no branch on keep (a cull leaves it in no pattern)
+        order[m] = t
+        m += np.int64(keep[triangle_polygon[t]])
+    return order[:m], key
 
 
 def sort_polygons_reference(avg_z: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
@@ -241,10 +304,10 @@ def _radix_order(keys: np.ndarray, idx: np.ndarray, bits: int) -> np.ndarray:
     low 32 bits are run as well, which sorts whatever order the keys were left in.
     Both steps are stable, so equal keys keep their order in ``idx``.
     """
-    keys, idx = _radix_passes(keys, idx, bits, HIGH_BIT)
+    keys, idx = _radix_passes(keys, idx, bits, np.int64(HIGH_BIT))
     if _sort_runs(keys, idx, INSERTION_WORK * keys.shape[0] + 64):
         return idx
-    return _radix_passes(keys, idx, bits, 0)[1]
+    return _radix_passes(keys, idx, bits, np.int64(0))[1]
 
 
 @nb.njit(cache=True, nogil=True)

@@ -24,7 +24,7 @@ from service.display import DisplaySettings
 from service.lod.settings import LodSettings
 from service.lod.state import LodState
 from service.render.cull import CullSettings, cull_zones
-from service.render.depth_sort import depth_order
+from service.render.depth_sort import depth_keys, depth_order
 from service.render.frame import Frame
 from service.render.light import LightSettings, mark_shown, shade
 from service.render.mesh import Mesh
@@ -199,13 +199,17 @@ class Renderer:
                                             arrays.polygon_closed, display, settings.cull)
             if not by_triangle:
                 draw = np.ascontiguousarray(draw.T)  # (Z, T)
-        with clock("sort"):  # every method reads it: ties in depth go to the earlier
-            order = depth_order(arrays.vertices, arrays.polygons, arrays.counts,
-                                arrays.triangle_polygon, keep)
+        with clock("sort"):  # ties in depth go to the triangle earlier in the depth order
+            if name == "zbuffer":  # which its depth test finds from the key: no sort
+                order, key = depth_keys(arrays.vertices, arrays.polygons, arrays.counts,
+                                        arrays.triangle_polygon, keep)
+            else:  # the other methods draw (or paint, or break ties) in the order
+                order = depth_order(arrays.vertices, arrays.polygons, arrays.counts,
+                                    arrays.triangle_polygon, keep)
         extra = {"draw": draw} if name in MASKED_METHODS else {}
         if name == "zbuffer":  # it also finds the polygons shown (Visibility.shown)
             extra = {"draw_t": draw, "tri_out": scratch, "item": arrays.triangle_polygon,
-                     "n_items": arrays.n_polygons, "tables": (xz, yd)}
+                     "n_items": arrays.n_polygons, "tables": (xz, yd), "key": key}
         with clock("occlusion"):
             vis = self._methods[name](arrays, proj, display, order, **extra)
         bad = vis.stats.get("inconsistent_pixels", 0)

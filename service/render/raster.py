@@ -6,6 +6,17 @@ wins a pixel.  Sampling is at pixel centres ``(c + 0.5, r + 0.5)``; spans are
 half-open in both directions (a pixel centre on a shared edge belongs to exactly
 one of the two triangles), and a triangle's depth is the plane through its three
 projected vertices, exact for the parallel projection used by every zone.
+
+The z-buffers take a ``key`` (:func:`service.render.depth_sort.depth_keys`) and then
+draw the triangles in any order with the pixels the depth order gives: a pixel
+stores the float32 of the depth that took it, and drawn in the depth order a
+triangle takes it when its float64 depth is below the stored one, so an exact tie
+goes to the triangle earlier in that order, and so does a near one (two depths that
+round to one float32).  That outcome needs no order (:func:`_tie_takes`): a lower
+float32 always takes the pixel; at the same float32 ``s``, a triangle whose depth is
+below ``s`` beats one whose depth is not, the later of two below ``s`` wins (each
+took it from the one before) and the earlier of two not below ``s`` (neither could
+take it).  Without a key (an empty one) ties go to the triangle drawn first.
 """
 
 from __future__ import annotations
@@ -103,6 +114,47 @@ def row_span(
     return c_first, c_last
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tie_takes(below: bool, held_below: bool, t: int, w: int, key: np.ndarray) -> bool:
+    """Whether triangle ``t`` takes a pixel from ``w`` at the same stored float32 depth.
+
+    ``below`` and ``held_below``: whether each one's float64 depth is below the
+    stored one.  Decided as drawing in the depth order (``(key[t], t)`` ascending)
+    would (module docstring): the one below wins; of two below, the later; of two
+    not below, the earlier.
+    """
+    if below != held_below:
+        return below
+    earlier = key[t] < key[w] or (key[t] == key[w] and t < w)
+    return earlier != below
+
+
+@nb.njit(cache=True, nogil=True)
+def _depth_at(proj: np.ndarray, z: int, tris: np.ndarray, w: int, rows: int,
+              x: float, y: float) -> float:
+    """Depth of triangle ``w`` at ``(x, y)`` in zone ``z``, as its drawing computed it."""
+    i0, i1, i2 = tris[w, 0], tris[w, 1], tris[w, 2]
+    st = setup_xyz(
+        proj[z, i0, 0], proj[z, i0, 1], proj[z, i0, 2],
+        proj[z, i1, 0], proj[z, i1, 1], proj[z, i1, 2],
+        proj[z, i2, 0], proj[z, i2, 1], proj[z, i2, 2],
+        rows,
+    )
+    return st[9] + st[10] * x + st[11] * y
+
+
+@nb.njit(cache=True, nogil=True)
+def _takes_tie_proj(d: float, s: float, t: int, w: int, key: np.ndarray, proj: np.ndarray,
+                    z: int, tris: np.ndarray, rows: int, x: float, y: float) -> bool:
+    """Whether ``t`` (depth ``d``) takes a pixel whose stored depth ``s`` is float32(d).
+
+    The holder ``w``'s depth is set up again from ``proj`` (rare: only at ties).
+    """
+    if w < 0 or key.shape[0] == 0:  # empty, or no key: the order drawn decides
+        return d < s
+    return _tie_takes(d < s, _depth_at(proj, z, tris, w, rows, x, y) < s, t, w, key)
+
+
 @nb.njit(cache=True, nogil=True, parallel=True)
 def zbuffer_kernel(
     proj: np.ndarray,
@@ -111,6 +163,7 @@ def zbuffer_kernel(
     draw: np.ndarray,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
+    key: np.ndarray,
 ) -> None:
     """Z-buffer every zone (zones in parallel).
 
@@ -125,6 +178,9 @@ def zbuffer_kernel(
         :func:`service.render.cull.zone_mask`).
     tri_out : ndarray, shape (Z, R, C), int32, filled with -1
     depth_out : ndarray, shape (Z, R, C), float32, filled with +inf
+    key : ndarray, shape (T,) or (0,), uint64
+        :func:`service.render.depth_sort.depth_keys`: ties decided as the depth order
+        decides them (module docstring), in any ``order``; empty: to the first drawn.
     """
     zones, rows, cols = tri_out.shape
     for z in nb.prange(zones):
@@ -140,7 +196,9 @@ def zbuffer_kernel(
                 y = r + 0.5
                 for c in range(c0, c1 + 1):
                     d = st[9] + st[10] * (c + 0.5) + st[11] * y
-                    if d < depth_out[z, r, c]:
+                    d32, s = np.float32(d), depth_out[z, r, c]
+                    if d32 < s or (d32 == s and _takes_tie_proj(
+                            d, s, t, tri_out[z, r, c], key, proj, z, tris, rows, c + 0.5, y)):
                         depth_out[z, r, c] = d
                         tri_out[z, r, c] = t
 
@@ -236,6 +294,7 @@ def _zbuffer_band(
     tables: tuple,
     marks: np.ndarray,
     b: int,
+    key: np.ndarray,
 ) -> None:
     """Clear rows ``lo..hi`` of every zone, z-buffer them, mark the items in sight.
 
@@ -253,14 +312,14 @@ def _zbuffer_band(
     zones, rows, cols = tri_out.shape
     if zones > 1:  # clears the band between set-up and drawing, marks from pixel counts
         _zbuffer_band_zones(
-            tables, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, marks, b
+            tables, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, marks, b, key
         )
         return
     drawn = np.empty((2, zones, hi - lo + 1), np.int64)  # columns written, per zone and row
     drawn[0] = cols
     drawn[1] = -1
     _clear_band(tri_out, depth_out, lo, hi)  # one zone: nothing to share, the plain loop
-    _zbuffer_band_one(proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, drawn)
+    _zbuffer_band_one(proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, drawn, key)
     _mark_band(tri_out, drawn, lo, item, shown)
 
 
@@ -312,6 +371,7 @@ def _zbuffer_band_zones(
     item: np.ndarray,
     marks: np.ndarray,
     b: int,
+    key: np.ndarray,
 ) -> None:
     """:func:`_zbuffer_band` for several zones; marks the items in sight in ``marks[b]``.
 
@@ -339,7 +399,11 @@ def _zbuffer_band_zones(
     m = _setup_band(tables, tris, order, draw_t, extent, lo, hi, xs, plane, ys, trs, row)
     _clear_band(tri_out, depth_out, lo, hi)  # after the set-up: its reads stay in cache
     held = np.zeros((m, zones), np.int64)  # per triangle and zone: pixels it holds
-    _draw_band(xs, plane, ys, trs, row, m, tri_out, depth_out, held)
+    if _draw_band(xs, plane, ys, trs, row, m, tri_out, depth_out, held) and key.shape[0]:
+        # a tie met in the order drawn: the band again, ties decided by the key
+        _clear_band(tri_out, depth_out, lo, hi)
+        _draw_band_keyed(xs, plane, ys, trs, row, m, tri_out, depth_out, key)
+        _count_held(tri_out, row, lo, hi, held)
     if marks.shape[2] == 0:
         return
     for j in range(m):
@@ -389,7 +453,7 @@ def _setup_band(
 def _draw_band(
     xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray, row: np.ndarray,
     m: int, tri_out: np.ndarray, depth_out: np.ndarray, held: np.ndarray,
-) -> None:
+) -> bool:
     """Draw the ``m`` triangles :func:`_setup_band` set up, in every zone.
 
     Row by row, with every zone's span of that row in turn (:func:`_zone_spans`, one
@@ -399,9 +463,16 @@ def _draw_band(
     drawing and takes one from the triangle it held before (rare: drawn nearest
     first, 44 of the game scene's 47,669 pixels written at 5 zones), found by
     ``row``.
+
+    Ties go to the triangle drawn first; returns whether any was met (a depth whose
+    float32 equals the one stored), where the key's rule could differ
+    (:func:`_draw_band_keyed` then draws the band again).  Deciding them here by the
+    key cost the 5-zone pass a fifth more on the game scene (best of 400, one
+    thread): the rare path's array reads slowed the loop that never takes it.
     """
     zones, cols = tri_out.shape[0], tri_out.shape[2]
     spans = np.empty((2, zones), np.int64)  # per zone: first and last column of a row
+    ties = 0
     for j in range(m):
         t = trs[j, 0]
         ay, by, cy = ys[j, 0], ys[j, 1], ys[j, 2]
@@ -420,14 +491,67 @@ def _draw_band(
                 # instructions in the 5-zone pass); 0 <= c0 <= c1 here, so no wrap
                 for c in range(np.uint64(c0), np.uint64(c1 + 1)):
                     d = p0 + p1 * (c + 0.5) + p2 * y
-                    if d < dz[c]:
+                    d32, s = np.float32(d), dz[c]
+                    if d32 < s or (d32 == s and d < s):  # as d < s: first drawn wins
                         before = tz[c]
                         if before >= 0:  # taken from the triangle that held it
                             held[row[before], z] -= 1
                         dz[c] = d
                         tz[c] = t
                         taken += 1
+                    ties += d32 == s
                 held[j, z] += taken
+    return ties > 0
+
+
+@nb.njit(cache=True, nogil=True)
+def _draw_band_keyed(
+    xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray, row: np.ndarray,
+    m: int, tri_out: np.ndarray, depth_out: np.ndarray, key: np.ndarray,
+) -> None:
+    """:func:`_draw_band` with ties decided by ``key`` (:func:`_takes_tie_band`), no counts."""
+    zones, cols = tri_out.shape[0], tri_out.shape[2]
+    spans = np.empty((2, zones), np.int64)
+    for j in range(m):
+        t = trs[j, 0]
+        ay, by, cy = ys[j, 0], ys[j, 1], ys[j, 2]
+        for r in range(trs[j, 1], trs[j, 2] + 1):
+            y = r + 0.5
+            _zone_spans(xs, j, ay, by, cy, y, cols, spans)
+            for z in range(zones):
+                p0, p1, p2 = plane[j, 0, z], plane[j, 1, z], plane[j, 2, z]
+                dz, tz = depth_out[z, r], tri_out[z, r]
+                for c in range(np.uint64(max(spans[0, z], 0)), np.uint64(spans[1, z] + 1)):
+                    d = p0 + p1 * (c + 0.5) + p2 * y
+                    d32, s = np.float32(d), dz[c]
+                    if d32 < s or (d32 == s and _takes_tie_band(
+                            d, s, t, tz[c], key, plane, row, z, c + 0.5, y)):
+                        dz[c] = d
+                        tz[c] = t
+
+
+@nb.njit(cache=True, nogil=True)
+def _count_held(tri_out: np.ndarray, row: np.ndarray, lo: int, hi: int,
+                held: np.ndarray) -> None:
+    """``held`` (m, Z): how many pixels of rows ``lo..hi`` each triangle holds, counted."""
+    held[:] = 0
+    for z in range(tri_out.shape[0]):
+        for r in range(lo, hi + 1):
+            for c in range(tri_out.shape[2]):
+                t = tri_out[z, r, c]
+                if t >= 0:
+                    held[row[t], z] += 1
+
+
+@nb.njit(cache=True, nogil=True)
+def _takes_tie_band(d: float, s: float, t: int, w: int, key: np.ndarray, plane: np.ndarray,
+                    row: np.ndarray, z: int, x: float, y: float) -> bool:
+    """:func:`_takes_tie_proj` in :func:`_draw_band`: ``w``'s depth from its set-up table row."""
+    if w < 0 or key.shape[0] == 0:
+        return d < s
+    j = row[w]
+    held = plane[j, 0, z] + plane[j, 1, z] * x + plane[j, 2, z] * y
+    return _tie_takes(d < s, held < s, t, w, key)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -442,6 +566,7 @@ def _zbuffer_band_one(
     tri_out: np.ndarray,
     depth_out: np.ndarray,
     drawn: np.ndarray,
+    key: np.ndarray,
 ) -> None:
     """:func:`_zbuffer_band`'s drawing for one zone (buffers already cleared)."""
     rows, cols = tri_out.shape[1], tri_out.shape[2]
@@ -470,7 +595,9 @@ def _zbuffer_band_one(
             y = r + 0.5
             for c in range(c0, c1 + 1):
                 d = st[9] + st[10] * (c + 0.5) + st[11] * y
-                if d < depth_out[0, r, c]:
+                d32, s = np.float32(d), depth_out[0, r, c]
+                if d32 < s or (d32 == s and _takes_tie_proj(
+                        d, s, t, tri_out[0, r, c], key, proj, 0, tris, rows, c + 0.5, y)):
                     depth_out[0, r, c] = d
                     tri_out[0, r, c] = t
 
@@ -634,6 +761,7 @@ def zbuffer_zones_kernel(
     xz: np.ndarray,
     yd: np.ndarray,
     threads: int,
+    key: np.ndarray,
 ) -> None:
     """Z-buffer every zone in one pass over the triangles, bands of rows in parallel.
 
@@ -675,6 +803,10 @@ def zbuffer_zones_kernel(
     threads : int
         Threads the kernel runs on (``numba.get_num_threads()``, which a kernel
         cached on disk cannot call itself), for ``bands`` with no rows.
+    key : ndarray, shape (T,) or (0,), uint64
+        :func:`service.render.depth_sort.depth_keys`: ties decided as the depth order
+        decides them (module docstring), so ``order`` may be any order (index order
+        needs no sort); empty: ties to the triangle drawn first.
     """
     extent = shared_rows(proj, tris, order, tri_out.shape[1])
     if tri_out.shape[0] > 1 and xz.shape[0] == 0:  # several zones read proj by vertex
@@ -696,7 +828,7 @@ def zbuffer_zones_kernel(
         _zbuffer_band(  # the index cast: numba types a prange index int64, then uint64 in
             # the parallel loop's body, and _zbuffer_band_zones would compile for both
             proj, tris, order, draw_t, extent, lo, hi, tri_out, depth_out, item, shown, tables,
-            marks, np.int64(b),
+            marks, np.int64(b), key,
         )
     for b in range(marks.shape[0]):
         for z in range(shown.shape[0]):

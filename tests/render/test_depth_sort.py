@@ -104,3 +104,30 @@ def test_exact_depth_ties_give_the_reference_pixels(method):
     # ties exist and went to the earlier object (thesis 3.2): objects 0 and 2 are the same
     # quad, so object 2 shows nowhere; objects 0 and 1 and the tilted 3 all show
     assert 2 not in obj and {0, 1, 3} <= set(np.unique(obj).tolist())
+
+
+@pytest.mark.parametrize("name", ["game", "demo", "threaded"])
+def test_depth_keys_order_the_triangles_as_the_sort_does(name):
+    from service.render.depth_sort import depth_keys
+
+    arrays = builtin_scene(name).flatten()
+    display = DisplaySettings(zones=5, cols=64, rows=48)
+    keep, _ = cull(arrays.normals, display, CullSettings())
+    order, key = depth_keys(arrays.vertices, arrays.polygons, arrays.counts,
+                            arrays.triangle_polygon, keep)
+    np.testing.assert_array_equal(order, np.flatnonzero(keep[arrays.triangle_polygon]))
+    by_key = order[np.lexsort((order, key[order]))]  # (key, triangle index) ascending
+    np.testing.assert_array_equal(by_key, depth_order(
+        arrays.vertices, arrays.polygons, arrays.counts, arrays.triangle_polygon, keep))
+
+
+def test_depth_keys_rank_signed_zeros_and_ties_as_the_sort():
+    from service.render.depth_sort import depth_keys
+
+    z = np.array([0.0, -0.0, 1.0, 1.0, -2.0, 0.0])
+    vertices = np.column_stack([np.zeros(6), np.zeros(6), z])
+    polygons = np.arange(6, dtype=np.int64).reshape(6, 1)
+    counts = np.ones(6, np.int64)
+    keep = np.ones(6, bool)
+    order, key = depth_keys(vertices, polygons, counts, np.arange(6), keep)
+    np.testing.assert_array_equal(order[np.lexsort((order, key))], sort_polygons_reference(z))

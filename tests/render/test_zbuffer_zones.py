@@ -121,6 +121,7 @@ def test_any_banding_gives_the_same_buffers(threads, per_thread):
     zbuffer_zones_kernel(
         proj, arrays.triangles, order, np.ascontiguousarray(draw.T), bands, tri, depth,
         arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)), threads,
+        np.zeros(0, np.uint64),
     )
     assert np.array_equal(tri, want.triangle)
     assert np.array_equal(depth, want.depth)
@@ -322,7 +323,7 @@ def test_the_kernels_own_bands_give_the_same_buffers(threads, zones):
         zbuffer_zones_kernel(
             proj, arrays.triangles, order, np.ascontiguousarray(draw.T), no_bands(), tri,
             depth, arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)),
-            nb.get_num_threads(),
+            nb.get_num_threads(), np.zeros(0, np.uint64),
         )
     finally:
         nb.set_num_threads(before)
@@ -346,7 +347,7 @@ def test_the_polygons_shown_drawn_far_to_near_in_many_bands(name, zones):
         zbuffer_zones_kernel(
             proj, arrays.triangles, order, np.ascontiguousarray(draw.T),
             row_bands(d.rows, threads, per_thread), tri, depth, arrays.triangle_polygon,
-            shown, np.empty((0, d.zones)), np.empty((0, 2)), threads,
+            shown, np.empty((0, d.zones)), np.empty((0, 2)), threads, np.zeros(0, np.uint64),
         )
         assert np.array_equal(tri, want.triangle) and np.array_equal(depth, want.depth)
         want_shown = mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons)
@@ -366,3 +367,58 @@ def test_a_prefetch_reads_nothing_and_any_row_is_safe():
 
     a = np.arange(12.0).reshape(4, 3)
     assert fetch_rows(a, np.array([0, 3, 4, 1000, -7], np.int64)) == 66.0  # past the ends too
+
+
+def _tied_triangles(seed: int, n: int = 300):
+    """Triangles on a few planes of constant depth, some nudged by less than a float32
+    step there: exact ties and near ones (two depths rounding to one float32)."""
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(-0.4, 0.4, (n, 1, 2))
+    xy = centre + rng.uniform(-0.25, 0.25, (n, 3, 2))
+    z = rng.choice([-0.25, 0.0, 0.5], (n, 1)) + rng.choice([0.0, 1e-9, -1e-9, 3e-8], (n, 3))
+    v = np.concatenate([xy, z[..., None]], axis=2).reshape(-1, 3)
+    tris = np.arange(3 * n, dtype=np.int64).reshape(n, 3)
+    return v, tris
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("zones", [1, 5])
+def test_the_depth_key_gives_the_depth_orders_pixels_drawn_in_any_order(seed, zones):
+    from types import SimpleNamespace
+
+    from service.render.depth_sort import depth_keys, depth_order
+
+    d = DisplaySettings(zones=zones, angle_deg=32.0, cols=80, rows=60)
+    v, tris = _tied_triangles(seed)
+    counts = np.full(tris.shape[0], 3, np.int64)
+    poly = np.arange(tris.shape[0], dtype=np.int64)
+    keep = np.random.default_rng(seed).random(tris.shape[0]) < 0.9
+    order, key = depth_keys(v, tris, counts, poly, keep)
+    sorted_ = depth_order(v, tris, counts, poly, keep)
+    proj = project(v, d)
+    scene = SimpleNamespace(triangles=tris)
+    draw = np.ones((d.zones, tris.shape[0]), bool)
+    want = zbuffer(scene, proj, d, sorted_, draw, shared=False)  # the sorted order, no key
+    rng = np.random.default_rng(seed + 10)
+    for drawn in (order, order[::-1], rng.permutation(order), sorted_):
+        drawn = np.ascontiguousarray(drawn)
+        for shared in (True, False):
+            assert_same(zbuffer(scene, proj, d, drawn, draw, shared=shared, key=key), want)
+    # without the key the order drawn decides: reversed, the pixels differ
+    assert not np.array_equal(zbuffer(scene, proj, d, np.ascontiguousarray(sorted_[::-1]),
+                                      draw).triangle, want.triangle)
+
+
+@pytest.mark.parametrize("name", ["game", "cyclic", "threaded", "demo"])
+@pytest.mark.parametrize("zones", [1, 5])
+def test_the_key_in_index_order_equals_the_sorted_draw_on_the_scenes(name, zones):
+    from service.render.depth_sort import depth_keys
+
+    d = DisplaySettings(zones=zones, angle_deg=16.0, cols=160, rows=120)
+    arrays, proj, order, draw = inputs(name, d)
+    keep, _ = cull(arrays.normals, d, CullSettings())
+    index_order, key = depth_keys(arrays.vertices, arrays.polygons, arrays.counts,
+                                  arrays.triangle_polygon, keep)
+    want = zbuffer(arrays, proj, d, order, draw)
+    assert_same(zbuffer(arrays, proj, d, index_order, draw, key=key), want)
+    assert_same(zbuffer(arrays, proj, d, index_order, draw, shared=False, key=key), want)

@@ -7,6 +7,11 @@ rows, depths and corner order are the same in every zone, so that work is shared
 projection whose rows or depths differ between zones (not one
 :func:`service.render.projection.project` makes) takes the per-zone kernel; both give
 bit-identical buffers.
+
+Given the depth-order key (:func:`service.render.depth_sort.depth_keys`), both break
+ties in depth inside the depth test as the depth order would, so the triangles need
+no sort: the pipeline draws them in index order (a full sort of a million triangles
+cost more than a third of the frame).
 """
 
 from __future__ import annotations
@@ -53,6 +58,7 @@ def zbuffer(
     n_items: int = 0,
     draw_t: np.ndarray | None = None,
     tables: tuple[np.ndarray, np.ndarray] | None = None,
+    key: np.ndarray | None = None,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -63,7 +69,8 @@ def zbuffer(
         From :func:`service.render.projection.project`.
     display : DisplaySettings
     order : ndarray, shape (N,), int64
-        Triangles to draw (culled ones left out); nearest first saves writes.
+        Triangles to draw (culled ones left out), in any order with ``key``; without
+        it, in the depth order (ties go to the triangle drawn first).
     draw : ndarray, shape (Z, T), bool, optional
         Per zone, the triangles that may be drawn (default: all in ``order``); see
         :func:`service.render.cull.zone_mask`.
@@ -87,14 +94,19 @@ def zbuffer(
         its rows and depths are shared by construction, so the one-pass kernel runs
         without :func:`rows_shared`'s check and reads these instead of laying the
         projection out by vertex itself (0.03 ms of a 5-zone game frame).
+    key : ndarray, shape (T,), uint64, optional
+        The depth-order key of every triangle
+        (:func:`service.render.depth_sort.depth_keys`).
 
     Returns
     -------
     Visibility
-        Ties in depth go to the triangle drawn first.
+        Ties in depth go to the triangle earlier in the depth order (with ``key``),
+        else to the triangle drawn first: the same pixels when ``order`` is that order.
     """
     zrc = (display.zones, display.rows, display.cols)
     order = np.ascontiguousarray(order)
+    key = np.zeros(0, np.uint64) if key is None else np.ascontiguousarray(key, np.uint64)
     if draw_t is not None:
         draw = draw_t.T
     elif draw is None:
@@ -105,7 +117,7 @@ def zbuffer(
         vis = Visibility(tri, np.full(zrc, np.inf, np.float32))
         vis.triangle.fill(-1)
         draw = np.ascontiguousarray(draw)
-        zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth)
+        zbuffer_kernel(proj, scene.triangles, order, draw, vis.triangle, vis.depth, key)
         return vis
     vis = Visibility(tri, np.empty(zrc, np.float32))
     if item is None:
@@ -114,7 +126,7 @@ def zbuffer(
     xz, yd = tables if tables is not None else (np.empty((0, display.zones)), np.empty((0, 2)))
     zbuffer_zones_kernel(
         proj, scene.triangles, order, np.ascontiguousarray(draw.T), no_bands(), vis.triangle,
-        vis.depth, item, vis.shown, xz, yd, nb.get_num_threads(),
+        vis.depth, item, vis.shown, xz, yd, nb.get_num_threads(), key,
     )
     if n_items == 0:
         vis.shown = None
