@@ -35,6 +35,7 @@ threads too.  embreex casts single rays from one thread.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from collections.abc import Callable
@@ -57,6 +58,9 @@ TOLERANCE = 1e-3
 BIG_SCENES = {"spheres-1k": 1000, "spheres-8k": 8000, "spheres-100k": 100000, "spheres-1m": 1000000}
 #: Frames a static scene keeps a peer's BVH for: its build is amortised over them.
 AMORTISE_FRAMES = 60
+#: Our occlusion methods timed beside the peers (the z-buffer is ``ours_ms``; the others
+#: are ``<method>_ms``), each up to this many triangles.
+OUR_METHODS = {"zbuffer": 10**9, "runlength": 10**9, "bsp": 10**5, "raycast": 10**5}
 
 _VERTEX_SHADER = """
 #version 330
@@ -355,6 +359,9 @@ class PeerRun:
         whose depth differs from it (slow on big scenes).
     tolerance : float
         Depth agreement tolerance, world units.
+    methods : tuple of str
+        Our occlusion methods timed in turn with the peers (the z-buffer always;
+        the others up to their :data:`OUR_METHODS` size).
     """
 
     repeats: int = 3
@@ -362,12 +369,18 @@ class PeerRun:
     warmup: int = 1
     reference: bool = True
     tolerance: float = TOLERANCE
+    methods: tuple[str, ...] = ("zbuffer",)
 
 
-def _ours(arrays: SceneArrays, display: DisplaySettings) -> np.ndarray:
-    """Our stages 1-4 with the z-buffer: the depth (Z, R, C)."""
-    vis, _, _ = Renderer().visibility(arrays, display, RenderSettings(method="zbuffer"))
+def _ours(arrays: SceneArrays, display: DisplaySettings, method: str = "zbuffer") -> np.ndarray:
+    """Our stages 1-4 with an occlusion method (default the z-buffer): the depth (Z, R, C)."""
+    vis, _, _ = Renderer().visibility(arrays, display, RenderSettings(method=method))
     return vis.depth
+
+
+def our_methods(triangles: int, methods: tuple[str, ...]) -> list[str]:
+    """Which of ``methods`` besides the z-buffer to time on a scene (:data:`OUR_METHODS`)."""
+    return [m for m in methods if m != "zbuffer" and triangles <= OUR_METHODS[m]]
 
 
 def interleaved_ms(engines: dict, run: PeerRun,
@@ -408,7 +421,8 @@ def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,
     -------
     list of dict
         One row per peer: ``scene, zones, size, triangles, peer, peer_ms, ours_ms,
-        ratio`` (ours / peer), ``build_ms`` (the peer's upload or BVH, not timed per
+        ratio`` (ours / peer), ``<method>_ms`` for each other method of ours timed
+        (``run.methods``), ``build_ms`` (the peer's upload or BVH, not timed per
         frame), ``static_ms`` (``peer_ms`` + ``build_ms`` / :data:`AMORTISE_FRAMES`),
         ``moving_ms`` (``peer_ms`` + ``build_ms``: a scene that moves rebuilds it),
         ``pct_agree`` (depth within the tolerance of ours) and, with
@@ -421,6 +435,8 @@ def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,
     for peer in peers:
         peer.load(arrays, display)
     engines = {"ours": lambda: _ours(arrays, display)}
+    mine = our_methods(int(arrays.triangles.shape[0]), run.methods)
+    engines |= {f"ours:{m}": functools.partial(_ours, arrays, display, m) for m in mine}
     engines |= {p.name: p.depth for p in peers}
     ms, depth = interleaved_ms(engines, run)
     ref = None
@@ -433,6 +449,7 @@ def compare(scene_name: str, zones: int, size: tuple[int, int], peers: list,
                "triangles": int(arrays.triangles.shape[0]), "peer": peer.name,
                "peer_ms": round(ms[peer.name], 3), "ours_ms": round(ms["ours"], 3),
                "ratio": round(ms["ours"] / ms[peer.name], 3),
+               **{f"{m}_ms": round(ms[f"ours:{m}"], 3) for m in mine},
                "build_ms": round(peer.build_ms, 3),
                # a static scene keeps the BVH/upload AMORTISE_FRAMES frames; a moving one
                # pays it every frame

@@ -414,7 +414,8 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
     for i, (scene, z, wh, ref) in enumerate(configs, 1):
         print(f"[peers {i}/{len(configs)}] {scene}, {zones_label(z)}, {wh[0]}x{wh[1]}",
               file=sys.stderr, flush=True)
-        peer_rows += pr.compare(scene, z, wh, started, pr.PeerRun(reference=ref))
+        peer_rows += pr.compare(scene, z, wh, started,
+                                pr.PeerRun(reference=ref, methods=tuple(pr.OUR_METHODS)))
     for p in started:
         p.close()
     write_rows(peer_rows, out / "peers")
@@ -428,7 +429,9 @@ def run_peers(args, out: Path, rows: list[dict]) -> list[dict]:
 def chart_peer_scaling(rows: list[dict], path: Path) -> Figure:
     """Chart ms against triangles (log-log), one panel per zones x size: ours and every peer.
 
-    The ray casters' BVH build is drawn twice: amortised over
+    Each of our methods timed (black, the z-buffer thick;
+    :data:`~service.bench.peers.OUR_METHODS` caps the slow ones' scene size).  The ray
+    casters' BVH build is drawn twice: amortised over
     :data:`~service.bench.peers.AMORTISE_FRAMES` frames (static scene, solid) and paid
     every frame (moving scene, dotted).
     """
@@ -446,7 +449,13 @@ def chart_peer_scaling(rows: list[dict], path: Path) -> Figure:
         sub = sorted((r for r in rows if r["zones"] == z and r["size"] == wh),
                      key=lambda r: r["triangles"])
         ours = {r["triangles"]: r["ours_ms"] for r in sub}
-        ax.plot(list(ours), list(ours.values()), "k-o", lw=2, label="ours (z-buffer)")
+        ax.plot(list(ours), list(ours.values()), "k-o", lw=2, label="ours: zbuffer")
+        for m, style in zip([m for m in pr.OUR_METHODS if m != "zbuffer"], ("--", "-.", ":"),
+                            strict=True):
+            mine = {r["triangles"]: r[f"{m}_ms"] for r in sub if f"{m}_ms" in r}
+            if mine:
+                ax.plot(list(mine), list(mine.values()), style, color="k", marker="o", ms=3,
+                        lw=1, label=f"ours: {m}")
         for name in sorted({r["peer"] for r in sub}):
             pts = [r for r in sub if r["peer"] == name]
             tri = [r["triangles"] for r in pts]

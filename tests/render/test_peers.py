@@ -110,3 +110,20 @@ def test_peers_that_cannot_start_are_named_and_the_bench_goes_on(tmp_path):
     status = json.loads((out / "peers_status.json").read_text())
     assert status["started"] == {}
     assert set(status["not_started"]) == set(peers.PEER_NAMES)
+
+
+def test_our_other_methods_are_timed_up_to_their_size_and_charted(tmp_path):
+    from service.bench.render_bench import chart_peer_scaling
+
+    everything = tuple(peers.OUR_METHODS)
+    assert peers.our_methods(8000, everything) == ["runlength", "bsp", "raycast"]
+    assert peers.our_methods(1_000_000, everything) == ["runlength"]
+    assert peers.our_methods(8000, ("zbuffer",)) == []
+    rows = [{"scene": s, "zones": 1, "size": "64x48", "triangles": n, "peer": "llvmpipe",
+             "ours_ms": n / 1e4, "static_ms": 1.0, "moving_ms": 2.0,
+             **{f"{m}_ms": n / 1e3 for m in peers.our_methods(n, everything)}}
+            for s, n in (("spheres-8k", 8000), ("spheres-1m", 1_000_000))]
+    fig = chart_peer_scaling(rows, tmp_path / "s.png")
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert {"ours: zbuffer", "ours: runlength", "ours: bsp", "ours: raycast"} <= set(labels)
+    assert (tmp_path / "s.png").read_bytes()[:8] == PNG

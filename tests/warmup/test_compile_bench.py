@@ -35,6 +35,7 @@ def test_compile_times_a_job_and_its_kernels_from_an_empty_cache(tmp_path):
     with (out / "compile_jobs.csv").open() as fh:
         (job,) = list(csv.DictReader(fh))
     assert job["job"] == JOB and int(job["kernels"]) >= 3 and float(job["cpu_s"]) > 0
+    assert job["first_frame"] == "False"  # compiled in a cold service's background phase
     with (out / "compile_kernels.csv").open() as fh:
         kernels = list(csv.DictReader(fh))
     names = {k["kernel"] for k in kernels}
@@ -47,6 +48,7 @@ def test_compile_times_a_job_and_its_kernels_from_an_empty_cache(tmp_path):
     assert sum(cpu) <= float(job["cpu_s"]) + 0.5
     data = json.loads((out / "compile.json").read_text())
     assert data["whole"] is None and data["budget"] == {"whole_wall_s": 60.0, "job_wall_s": 15.0}
+    assert data["first_frame_cpu_s"] == 0
     assert (out / "compile.png").stat().st_size > 1000
     assert cache_files() == before  # the user's cache untouched
 
