@@ -150,7 +150,7 @@ def interpolate(
         Zero where empty; a degenerate (zero-area) triangle gets its vertices' mean.
     """
     tri_map = np.ascontiguousarray(tri_map, np.int32)
-    out = np.zeros((3, 3, *tri_map.shape), np.float32)  # empty pixels stay 0
+    out = np.empty((3, 3, *tri_map.shape), np.float32)
     n = tri_map.size
     none = (np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0, 4), np.float32), np.zeros(3, np.uint8))
     geometry = (np.ascontiguousarray(triangles, np.int64),
@@ -293,9 +293,10 @@ def _motion_pixels(
     affine in the column: ``A + B x`` (``x`` the pixel centre), set up once per run
     and written plane by plane.  Also the object each pixel shows and, from
     per-polygon tables, the colour and its derivatives (a copy per pixel: flat light
-    is the same over a polygon).  Empty pixels get only the object -1 and the
-    background colour: the derivative maps are written where a triangle is seen
-    and nowhere else.
+    is the same over a polygon).  Empty pixels get the object -1, the background
+    colour and zero derivatives (written run by run, plane by plane: 0.29 ms less
+    than zeroed maps on the game scene, 0.28 ms more than leaving them unwritten,
+    which readers of the whole maps do not allow).
 
     Parameters
     ----------
@@ -310,11 +311,11 @@ def _motion_pixels(
         (:func:`service.render.light.polygon_motion_tables`).
     der : ndarray, shape (3 D, Z*R*C), float32
         Out: the first D derivatives (D = 1..3), plane ``3 k + c`` the (k+1)-th of
-        component c (x, y, depth), where a triangle is seen.
+        component c (x, y, depth), zero where empty.
     colour : ndarray, shape (Z*R*C, 3) or (0, 3), uint8
         Out, unless it has no rows: colour (the background where empty).
     dcol : ndarray, shape (4, Z*R*C) or (4, 0), float32
-        Out, unless it has no columns: colour derivatives, where a triangle is seen.
+        Out, unless it has no columns: colour derivatives (zero where empty).
     obj : ndarray, shape (Z*R*C,), int32
         Out: object index (-1 where empty).
     """
@@ -338,9 +339,18 @@ def _motion_pixels(
             i1 = i0 + one
             while i1 < row_end and tri[i1] == t:
                 i1 += one
-            if t < 0:
+            if t < 0:  # zeros plane by plane: cheaper here than a zeroed allocation
                 for i in range(i0, i1):
                     obj[i] = -1
+                for j in range(planes):
+                    off = np.uint64(j) * n
+                    for i in range(off + i0, off + i1):
+                        derf[i] = 0.0
+                if dpaint:
+                    for j in range(4):
+                        off = np.uint64(j) * n
+                        for i in range(off + i0, off + i1):
+                            dcolf[i] = 0.0
                 if paint and grey:  # one byte value: a fill
                     for i in range(three * i0, three * i1):
                         colf[i] = b0
@@ -364,16 +374,31 @@ def _motion_pixels(
                 s1, u1 = fy / det, (-ax * fy - fx * py) / det
                 s2, u2 = -ey / det, (ex * py + ax * ey) / det
             x0 = np.float64(i0 - base) + 0.5
+            p = tri_poly[t]
+            single = i1 == i0 + one  # most runs: loops of one cost more than the writes
             for j in range(planes):
                 v0 = vd[z, ta, j]
                 d1, d2 = vd[z, tb, j] - v0, vd[z, tc, j] - v0
                 ca, cb = v0 + u1 * d1 + u2 * d2, s1 * d1 + s2 * d2
                 off, x = np.uint64(j) * n, x0
+                if single:
+                    derf[off + i0] = ca + cb * x
+                    continue
                 for i in range(i0, i1):
                     derf[off + i] = ca + cb * x
                     x += 1.0
-            p = tri_poly[t]
             o = poly_obj[p]
+            if single:
+                obj[i0] = o
+                if paint:
+                    colf[three * i0] = table[z, p, 0]
+                    colf[three * i0 + one] = table[z, p, 1]
+                    colf[three * i0 + np.uint64(2)] = table[z, p, 2]
+                if dpaint:
+                    for j in range(4):
+                        dcolf[np.uint64(j) * n + i0] = dtable[z, p, j]
+                i0 = i1
+                continue
             for i in range(i0, i1):
                 obj[i] = o
             if paint:
@@ -468,13 +493,12 @@ def render_with_motion(
     tri_map = np.ascontiguousarray(vis.triangle, np.int32)
     zrc = tri_map.shape
     kd = 3 if order >= 3 or boards is not None else 2
-    # zeroed by the allocator (calloc): the pixel pass writes only covered pixels
-    der = np.zeros((kd, 3, *zrc), np.float32)
+    der = np.empty((kd, 3, *zrc), np.float32)
     obj = np.empty(zrc, np.int32)
     flat = settings.light.evaluation == "polygon"
     if flat:
         colour = np.empty((*zrc, 3), np.uint8)
-        dcol = np.zeros((4, *zrc), np.float32) if colour_motion else None
+        dcol = np.empty((4, *zrc), np.float32) if colour_motion else None
         tables = polygon_motion_tables(now, vis, display, lights, scene.ambient, settings.light,
                                        rates if colour_motion else None, 255.0, RGB_TO_ABC)
     else:

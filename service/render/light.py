@@ -528,19 +528,21 @@ def _centroid(i: int, p: int, vertices: np.ndarray, polygons: np.ndarray,
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _lit_at(
-    i: int, p: int, z: int, centre: tuple, normals: np.ndarray, materials: np.ndarray,
+    i: int, p: int, z: int, centre: tuple, normals: tuple, materials: np.ndarray,
     views: np.ndarray, lights: tuple, ambient: float, code: int,
 ) -> tuple:
     """:func:`_polygon_table`'s colour of polygon ``p`` in zone ``z`` at time ``i``.
 
     ``centre`` is the polygon's :func:`_centroid` at time ``i`` (zones share it);
-    ``normals`` (K, P, 3) and the light vectors ``lights[0]`` (K, J, 3) hold the K
-    times; the arithmetic is :func:`_polygon_table`'s, in its order.
+    ``normals`` is ``(face (K, P, 3), shading (K, P, 3))``: which side the zone sees,
+    and the normal light uses; they and the light vectors ``lights[0]`` (K, J, 3)
+    hold the K times; the arithmetic is :func:`_polygon_table`'s, in its order.
     """
-    s = _facing(normals[i], p, views[z])
+    face, shading = normals
+    s = _facing(face[i], p, views[z])
     return _light_rgb(
         centre[0], centre[1], centre[2],
-        s * normals[i, p, 0], s * normals[i, p, 1], s * normals[i, p, 2],
+        s * shading[i, p, 0], s * shading[i, p, 1], s * shading[i, p, 2],
         materials[p], views[z], (lights[0][i], lights[1], lights[2]), ambient, code,
     )
 
@@ -693,7 +695,9 @@ def _polygon_motion_table(
     """Flat colour per needed polygon and zone, and its time derivatives by the chain rule.
 
     ``geometry`` is ``(vertices (1, V, 3), polygons (P, M), counts (P,), normals (1, P,
-    3), polygon_object (P,))``; ``lights`` is :func:`pack_lights`' ``(lvec (1, J, 3),
+    3), shading normals (1, P, 3), polygon_object (P,))`` (the face normals decide
+    which side a zone sees, light uses the shading normals, as :func:`_polygon_table`
+    does); ``lights`` is :func:`pack_lights`' ``(lvec (1, J, 3),
     lpoint, lrgb)``.  ``table`` (1, Z, P, 3) uint8 gets the colour as :func:`shade`
     stores it.  ``rates`` is ``(K (3, O, 3, 3), e (3, O, 3), lrate (2, J, 3), scale)``
     (:func:`service.scene_motion.motion_derivatives` and the lights' derivatives);
@@ -716,7 +720,7 @@ def _table_chunk(
     weights: np.ndarray, table: np.ndarray, dtable: np.ndarray,
 ) -> None:
     """:func:`_polygon_motion_table` for polygons ``lo .. hi - 1``."""
-    vertices, polygons, counts, normals, poly_obj = geometry
+    vertices, polygons, counts, normals, shading, poly_obj = geometry
     big_k, e, lrate, scale = rates
     zones = views.shape[0]
     w = weights
@@ -732,7 +736,7 @@ def _table_chunk(
         nrm = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
         if rated:  # the polygon's light paths, shared by the zones
             o = poly_obj[p]
-            n0 = (normals[0, p, 0], normals[0, p, 1], normals[0, p, 2])
+            n0 = (shading[0, p, 0], shading[0, p, 1], shading[0, p, 2])
             c1, c2 = _moved(big_k, e, 0, o, cm, 1.0), _moved(big_k, e, 1, o, cm, 1.0)
             n1, n2 = _moved(big_k, e, 0, o, n0, 0.0), _moved(big_k, e, 1, o, n0, 0.0)
             nrm = ((n0[0], n1[0], n2[0]), (n0[1], n1[1], n2[1]), (n0[2], n1[2], n2[2]))
@@ -743,7 +747,8 @@ def _table_chunk(
         for z in range(zones):
             if not needed[z, p]:
                 continue
-            c = _lit_at(0, p, z, cm, normals, materials, views, lights, ambient, code)
+            c = _lit_at(0, p, z, cm, (normals, shading), materials, views, lights, ambient,
+                        code)
             _store(table, 0, z, p, c, 255.0, 0.5)
             if not rated:
                 continue
@@ -837,6 +842,7 @@ def polygon_motion_tables(
     else:
         dtable = np.empty((*zp, 4), np.float32)
     geometry = (scene.vertices[None], scene.polygons, scene.counts, scene.normals[None],
+                np.ascontiguousarray(scene.shading_normals, np.float64)[None],
                 scene.polygon_object)
     _polygon_motion_table(geometry, scene.materials, display.view_vectors(), needed,
                           (lvec.reshape(1, -1, 3), lpoint, lrgb), float(ambient_level),

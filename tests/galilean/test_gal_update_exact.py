@@ -153,3 +153,27 @@ def test_moved_scenes_share_the_flatten_cache_and_a_change_stays_their_own():
     again = replace(scene.objects[0], name="renamed")  # same mesh and material: same cache
     scene.objects[0] = again
     assert scene.flatten().vertices.shape == advance_scene(scene, 0.0).flatten().vertices.shape
+
+
+def test_flat_light_uses_the_normals_a_level_of_detail_carries():
+    """A mesh carrying shading normals (a level's, its full mesh's) is lit with them, as
+    Renderer.render lights it; its colour derivatives come from them too."""
+    from service.primitives import sphere
+    from service.render.mesh import Mesh, Shading
+    from service.render.scene import Light, Material, Scene, SceneObject
+
+    ball = sphere(0.5, 8, 12)
+    turn = np.array([[0.96, -0.28, 0.0], [0.28, 0.96, 0.0], [0.0, 0.0, 1.0]])
+    carried = Mesh(ball.vertices, ball.polygons, ball.counts, "carried",
+                   shading=Shading(ball.normals @ turn.T))
+    lights = [Light("directional", np.array([0.4, 0.6, 1.0]), (1.0, 1.0, 1.0), 0.9)]
+    spin = MotionState(angular_velocity=np.array([0.0, 2.0, 0.5]))
+    for mesh in (ball, carried):
+        scene = Scene([SceneObject(mesh, Material((0.8, 0.7, 0.55), 0.2, 0.7, 0.4, 5.0),
+                                   Transform(np.array([0.0, 0.0, -1.0])), spin)], lights, 1.0)
+        up = render_with_motion(Renderer(), scene, DISPLAY, 0.1, 60.0, order=2)
+        frame = Renderer().render(scene_at(scene, 0.1), DISPLAY)
+        assert np.array_equal(up.frame.colour, frame.colour)
+        fine = [reference_update(scene, DISPLAY, 0.1, 60.0, RenderSettings(), h=h)[3]
+                for h in (2 * FINE_H, 4 * FINE_H)]  # no kinks here: less float32 noise
+        assert_colour_motion_converged(up.dcolour, *fine, up.obj >= 0)
