@@ -140,17 +140,22 @@ def pack_quads(objects: list[BillboardObject]) -> _Quads:
         scale = np.array([objects[k].transform.scale for k in ks], np.float64)
         pos = np.array([objects[k].transform.position for k in ks], np.float64).reshape(-1, 3)
         r = rots[ids]
-        w = np.einsum("ord,pcd->opcr", r * scale[:, None, None], c.corners) + pos[:, None, None]
-        n = np.einsum("ord,pd->opr", r, c.planes[:, :3])
+        # matmul, not einsum: einsum's loops took 9 ms for a crowd of 200 bunny clouds
+        rs = (r * scale[:, None, None]).transpose(0, 2, 1)
+        w = (c.corners.reshape(-1, 3) @ rs).reshape(len(ks), -1, 4, 3) + pos[:, None, None]
+        n = c.planes[:, :3] @ r.transpose(0, 2, 1)
         n /= np.linalg.norm(n, axis=2, keepdims=True)
         t0, g0 = first[id(c)]
         t = np.stack([c.tex_offset[:-1] + t0, c.tex_shape[:, 0], c.tex_shape[:, 1]], 1)
         g = c.tiles[1][:-1] + g0
-        for m, k in enumerate(ks):
-            sl = slice(start[k], start[k + 1])
-            corners[sl], normal[sl], rot[sl], tex[sl], gofs[sl] = w[m], n[m], r[m], t, g
-            mt = objects[k].material
-            material[sl] = (*mt.colour, mt.ambient, mt.diffuse, mt.specular, mt.shininess)
+        at = (start[ids][:, None] + np.arange(c.n_billboards)).ravel()  # their quads
+        corners[at], normal[at] = w.reshape(-1, 4, 3), n.reshape(-1, 3)
+        rot[at] = np.repeat(r, c.n_billboards, axis=0)
+        tex[at], gofs[at] = np.tile(t, (len(ks), 1)), np.tile(g, len(ks))
+        mats = np.array([(*objects[k].material.colour, objects[k].material.ambient,
+                          objects[k].material.diffuse, objects[k].material.specular,
+                          objects[k].material.shininess) for k in ks], np.float64)
+        material[at] = np.repeat(mats, c.n_billboards, axis=0)
     return _Quads(origin=np.ascontiguousarray(corners[:, 0]),
                   u=corners[:, 1] - corners[:, 0], v=corners[:, 3] - corners[:, 0],
                   normal=normal, rot=rot, material=material, tex=tex, rgba=rgba, tnormal=tnormal,
@@ -364,15 +369,19 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
             db = ((1.0 + dzx * sh) * vq[0] + dzx * vq[2]) / vv
             trows, tcols, t0 = tex[q, 1], tex[q, 2], tex[q, 0]
             tiles = ((trows + tile - 1) // tile) * ((tcols + tile - 1) // tile)
-            if (r1 - r0) * (c1 - c0) >= TILE_MIN_PIXELS * tiles:
-                n_runs = _tile_runs(q, tex, grid, gofs, tile, runs)
-            else:
+            whole = (r1 - r0) * (c1 - c0) < TILE_MIN_PIXELS * tiles
+            if whole:
                 n_runs = 1
                 runs[0, 0], runs[0, 1], runs[0, 2], runs[0, 3] = 0, trows, 0, tcols
+            else:
+                n_runs = _tile_runs(q, tex, grid, gofs, tile, runs)
+            g0, gcols = gofs[q], (tcols + tile - 1) // tile
             for m in range(n_runs):
                 i0t, i1t, j0t, j1t = runs[m, 0], runs[m, 1], runs[m, 2], runs[m, 3]
                 ab = (j0t / tcols, j1t / tcols, i0t / trows, i1t / trows)
-                rr0, rr1, cc0, cc1 = _screen_box(o, uq, vq, ab, sh, s, hw, hh, cols, rows)
+                rr0, rr1, cc0, cc1 = r0, r1, c0, c1  # the whole quad's
+                if n_runs > 1 or i1t - i0t < trows or j1t - j0t < tcols:
+                    rr0, rr1, cc0, cc1 = _screen_box(o, uq, vq, ab, sh, s, hw, hh, cols, rows)
                 for i in range(max(rr0, r0), min(rr1, r1)):
                     y = hh - (i + 0.5) * s
                     z0 = (rho - n[1] * y) / den  # at x = 0
@@ -394,6 +403,8 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                         tj = min(int(a * tcols), tcols - 1)
                         if not (i0t <= ti < i1t and j0t <= tj < j1t):
                             continue  # another rectangle's texel
+                        if whole and grid[g0 + (ti // tile) * gcols + tj // tile] == 0:
+                            continue  # an empty tile: no texel read (a small, far quad)
                         # the texel choice stays written out here: as a helper function
                         # (even inline="always") the kernel measured 1.4-1.5x slower
                         t = -1

@@ -24,9 +24,17 @@ Part 4, cost (:mod:`service.bench.billboard_cost`): CPU ms per frame of the full
 its cloud and the quadric level LOD picks, at several on-screen sizes, for the
 ``holo-bench lod`` meshes (``--cost-meshes``; ``none`` skips it).
 
+Part 5, crowd (:mod:`service.bench.billboard_crowd`): where seed 004 uses clouds,
+many small objects far away: ``--crowd`` copies of ``--crowd-mesh`` at each
+``--crowd-sizes``, as full meshes, as each quadric level of their chain and as clouds
+(``--crowd-eps`` x ``--crowd-texture``): CPU ms and the % of all pixels differing from
+the full meshes in colour (any channel > 32 levels) or coverage, each cloud against
+the quadric level of the same error (``--crowd 0`` skips it).
+
 Writes ``billboard_build.csv``, ``billboard_zoom.csv``, ``billboard_grazing.csv``,
-``billboard_cost.csv``, ``billboard_bench.json`` and ``billboard_bench.png`` (four
-panels).
+``billboard_cost.csv``, ``billboard_crowd.csv``, ``billboard_bench.json``,
+``billboard_bench.png`` (four panels) and ``billboard_crowd.png`` (one panel per
+crowd size).
 """
 
 from __future__ import annotations
@@ -46,7 +54,8 @@ from service.base.cli_args import (
     float_range,
     int_range,
 )
-from service.bench import billboard_cost
+from service.base.errors import HoloError
+from service.bench import billboard_cost, billboard_crowd
 from service.bench.charts import save_chart
 from service.bench.lod_bench import BUNNY, LIGHTS, MATERIAL, image_error
 from service.bench.rows import write_csv
@@ -208,7 +217,19 @@ def build_parser() -> argparse.ArgumentParser:
                    default=0.5,
                    help="part 4's LOD budget, px (0.5)")
     p.add_argument("--repeats", metavar="N", type=int_range(1, 100), default=7,
-                   help="part 4: renders per case, best taken (7)")
+                   help="parts 4 and 5: renders per case (7; part 4 takes the best, "
+                   "part 5 the median)")
+    p.add_argument("--crowd", metavar="N", type=int_range(0, 10000), default=200,
+                   help="part 5: objects in the crowd (200; 0 skips part 5)")
+    p.add_argument("--crowd-mesh", metavar="MESH", default="bunny",
+                   help="part 5's mesh: a holo-bench lod name or a mesh file (bunny)")
+    p.add_argument("--crowd-sizes", metavar="PX,...", type=comma_list(float_range(1, 8192)),
+                   default="5,10,20,40", help="part 5's on-screen sizes, px (5,10,20,40)")
+    p.add_argument("--crowd-eps", metavar="EPS,...",
+                   type=comma_list(float_range(0, 100, lo_open=True)), default="1,2",
+                   help="part 5's cloud EPS list, %% of the diagonal (1,2)")
+    p.add_argument("--crowd-texture", metavar="N,...", type=comma_list(int_range(1, 16384)),
+                   default="256,64", help="part 5's cloud texture resolutions (256,64)")
     p.add_argument("--out", metavar="DIR", default="bench-out/billboard", help="output folder")
     return p
 
@@ -223,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     names = [] if args.cost_meshes == "none" else args.cost_meshes.split(",")
     unknown = [n for n in names if n not in billboard_cost.MESHES]
+    crowd_mesh = _crowd_mesh(args) if args.crowd else None
     if unknown:
         build_parser().error(f"--cost-meshes: unknown {unknown}; one of "
                              f"{sorted(billboard_cost.MESHES)} or none")
@@ -244,12 +266,16 @@ def main(argv: list[str] | None = None) -> int:
     grazing = grazing_rows(mesh, cloud, fit, display, args)
     _step(f"frame cost, meshes {names or 'none'}")
     cost = billboard_cost.cost_rows(display, names, args.cost_sizes, args.lod_error, args.repeats)
-    for name, data in (("build", build), ("zoom", zoom), ("grazing", grazing), ("cost", cost)):
+    crowd = crowd_part(crowd_mesh, display, args)
+    for name, data in (("build", build), ("zoom", zoom), ("grazing", grazing), ("cost", cost),
+                       ("crowd", crowd)):
         write_csv(data, out / f"billboard_{name}.csv")
     (out / "billboard_bench.json").write_text(json.dumps(
         {"mesh": args.mesh, "display": [args.zones, cols, rows], "view_eps_pct": args.view_eps,
-         "build": build, "zoom": zoom, "grazing": grazing, "cost": cost}, indent=1))
+         "build": build, "zoom": zoom, "grazing": grazing, "cost": cost, "crowd": crowd},
+        indent=1))
     charts(build, zoom, grazing, cost, out)
+    crowd_charts(crowd, out)
     for r in zoom:
         print(f"zoom {r['zoom']:4g}: EPS {r['eps_px']:.1f} px, silhouette "
               f"{r['measured_px']:.0f} px, {r['depth_diff_pct']:.1f} % pixels beyond 2 EPS, "
@@ -263,7 +289,54 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['lod_mesh_triangles']}-triangle level {r['lod_mesh_ms']:.2f} ms "
               f"({r['lod_mesh_predicted_px']:.2f} px); LOD with clouds picks the "
               f"{'cloud' if r['lod_picks_cloud'] else 'mesh'}")
+    for r in crowd:
+        if r["kind"] == "cloud":
+            print(f"crowd of {r['objects']} at {r['size_px']:g} px: cloud EPS {r['eps_pct']:g} %, "
+                  f"texture {r['texture_res']}: {r['cpu_ms']:.1f} ms, {r['differs_pct']:.2f} % "
+                  f"pixels differ ({r['colour_pct']:.2f} % colour); quadric level "
+                  f"{r['matched_level']} of no more error {r['matched_ms']:.1f} ms: the cloud "
+                  f"costs {r['cloud_vs_mesh']:.2f}x ({r['above_empty_vs_mesh']:.2f}x above an "
+                  f"empty frame's {r['empty_ms']:.1f} ms)")
     return 0
+
+
+def _crowd_mesh(args: argparse.Namespace):  # noqa: ANN202 (a Mesh)
+    """Part 5's mesh: a ``holo-bench lod`` name or a mesh file (a clear error otherwise)."""
+    name = args.crowd_mesh
+    try:
+        return billboard_cost.MESHES[name]() if name in billboard_cost.MESHES else load_mesh(name)
+    except HoloError as exc:
+        build_parser().error(f"--crowd-mesh: not one of {sorted(billboard_cost.MESHES)} "
+                             f"nor a mesh file it can read: {exc}")
+
+
+def crowd_part(mesh, display: DisplaySettings,  # noqa: ANN001 (a Mesh or None)
+               args: argparse.Namespace) -> list[dict]:
+    """Part 5 (:mod:`service.bench.billboard_crowd`), or nothing with ``--crowd 0``."""
+    if mesh is None:
+        return []
+    _step(f"crowd of {args.crowd} x {args.crowd_mesh}: clouds against quadric levels")
+    return billboard_crowd.crowd_rows(mesh, Path(args.crowd_mesh).stem, display, args.crowd,
+                                      args.crowd_sizes, args.crowd_eps, args.crowd_texture,
+                                      args.repeats)
+
+
+def crowd_charts(crowd: list[dict], out: Path) -> None:
+    """``billboard_crowd.png``: part 5, one panel per size (nothing without rows)."""
+    if not crowd:
+        return
+    # deferred: matplotlib loads only when a chart is drawn
+    import matplotlib
+
+    matplotlib.use("Agg")
+    # deferred: matplotlib loads only when a chart is drawn
+    import matplotlib.pyplot as plt
+
+    n = len({r["size_px"] for r in crowd})
+    fig = plt.figure(figsize=(5.5 * n, 4.5))
+    billboard_crowd.chart(fig, crowd)
+    fig.tight_layout()
+    save_chart(fig, out / "billboard_crowd.png", dpi=110)
 
 
 if __name__ == "__main__":
