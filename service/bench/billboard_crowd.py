@@ -13,7 +13,8 @@ grid, turned at random, is rendered in every zone (z-buffer, Blinn per polygon) 
 Per render: CPU ms (median of ``--repeats``, all representations interleaved, one
 renderer each; ``empty_ms``: the same for a frame without objects), ``colour_pct``:
 % of all pixels whose colour differs from the reference's by more than
-``COLOUR_LEVELS`` in any channel, ``coverage_pct``: % of all pixels covered by one
+``service.lod.settings.COLOUR_LEVELS`` in any channel, ``coverage_pct``: % of all
+pixels covered by one
 render only, and ``differs_pct``: either.  Each cloud is
 then matched with the quadric level of the same error: the cheapest level whose
 ``differs_pct`` is no more than the cloud's (the full mesh if none); ``cloud_vs_mesh``
@@ -31,7 +32,7 @@ from service.bench.lod_bench import LIGHTS, MATERIAL
 from service.billboard_render import BillboardObject
 from service.display import DisplaySettings
 from service.lod.cache import build_chain
-from service.lod.settings import LodSettings
+from service.lod.settings import COLOUR_LEVELS, LodSettings
 from service.render.light import LightSettings
 from service.render.mesh import Mesh
 from service.render.pipeline import Renderer, RenderSettings
@@ -39,8 +40,6 @@ from service.render.scene import Scene, SceneObject, Transform, euler_quaternion
 from service.simplify.billboard import build_cloud
 
 SETTINGS = RenderSettings(method="zbuffer", light=LightSettings("blinn", "polygon"))
-#: A pixel's colour differs when a channel is off by more than this many levels (of 255).
-COLOUR_LEVELS = 32
 
 
 def crowd_places(mesh: Mesh, n: int, size_px: float, display: DisplaySettings,
