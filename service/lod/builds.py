@@ -223,6 +223,8 @@ class ChainBuilds:
                 wait = job.not_before - time.monotonic()
                 if wait <= 0:
                     self._todo.remove(job)
+                    # building from now on for status(), not only once the child runs
+                    self._current = (job.mesh.name or "a mesh", 0, 0)
                     return job
                 self._idle.wait(wait)  # a retry's back-off (or a submit, or close)
             self._thread = None
