@@ -11,6 +11,7 @@ they never pay for a whole cold compile.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -200,13 +201,14 @@ def test_a_cold_warmup_compiles_the_services_jobs_first_and_the_rest_in_the_back
 
     calls = tmp_path / "calls.jsonl"
     gate = tmp_path / "go"  # the background child waits for it: its progress is seen first
+    os.mkfifo(gate)  # opening it to read blocks until the test opens it to write
     script = (
-        "import json, os, sys, time\n"
+        "import json, sys\n"
         f"open({str(calls)!r}, 'a').write(json.dumps(sys.argv[1:]) + '\\n')\n"
         "if not any(a.startswith('--job=') for a in sys.argv[1:]):\n"
         f"    print(json.dumps({{'event': 'kernel', 'done': 1, 'total': 2, 'name': 'x',"
         " 'cached': False, 'seconds': 0.1}), flush=True)\n"
-        f"    while not os.path.exists({str(gate)!r}): time.sleep(0.01)\n"
+        f"    open({str(gate)!r}).read()\n"
     )
     job = "scenes: normals, triangulation"  # loads from the session's warm cache
     lines: list[str] = []
