@@ -300,6 +300,7 @@ class LodState:
         rows = np.arange(len(scene.objects))
         report = {
             "error_px": settings.error_px,
+            "colour_pct": settings.colour_pct,
             "levels": level.tolist(),
             "predicted_px": np.round(predicted, 4).tolist(),
             "triangles": int(tab["triangles"][rows, level].sum()),

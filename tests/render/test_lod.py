@@ -163,7 +163,9 @@ def test_bad_settings_are_a_clear_error(kwargs):
 
 @pytest.mark.parametrize("args", [["--lod-error", "0"], ["--lod-error", "-0.5"],
                                   ["--lod-error", "nan"], ["--budget-ms", "0"],
-                                  ["--lod", "maybe"]])
+                                  ["--lod", "maybe"], ["--lod-colour", "-1"],
+                                  ["--lod-colour", "nan"], ["--lod-colour", "101"],
+                                  ["--lod-colour", "some"]])
 def test_holo_render_refuses_bad_lod_options(args, tmp_path):
     run = subprocess.run(
         [sys.executable, "-m", "service.commands.holo_render", "builtin:game", "--out",
@@ -475,6 +477,23 @@ def test_holo_render_lod_json_report_and_quality_auto(tmp_path):
         # the build says so on stderr (the first run); the second run reads the cache
         told = "building the level-of-detail chain" in run.stderr
         assert told == (not extra), run.stderr
+        assert lod["colour_pct"] == 1.0  # LodSettings' default
+
+
+@pytest.mark.parametrize(("given", "colour_pct"), [("2.5", 2.5), ("off", None), ("0", 0.0)])
+def test_holo_render_lod_colour_sets_the_colour_budget_and_turns_lod_on(lod_cache, tmp_path,
+                                                                        given, colour_pct):
+    import os
+
+    env = {**os.environ, "HOLO_LOD_CACHE": str(lod_cache)}  # the demo's chains: built once
+    run = subprocess.run(
+        [sys.executable, "-m", "service.commands.holo_render", "builtin:demo",
+         "--lod-colour", given, "--size", "48x36", "--json", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=300, env=env,
+    )
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert report["settings"]["lod"] == "on" and report["lod"]["colour_pct"] == colour_pct
 
 
 def test_unchanged_objects_and_levels_reuse_the_frame_and_a_move_does_not(ring, tmp_path):
