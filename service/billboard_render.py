@@ -8,7 +8,10 @@ intersected with each quad's plane inside the quad's screen box (nearest quads f
 each row clipped to the quad's span; close up, only over the texture tiles that show
 something: :attr:`~service.simplify.billboard.BillboardCloud.tiles`), the depth test
 comes first, then the texel is alpha-tested (opaque from 128), and the nearer of quad
-and mesh wins.  Lighting is deferred: the draw leaves the winning quad and texel per pixel, and
+and mesh wins.  Cracks along the seams between billboards are closed after the
+quads: a back-facing texel, or a neighbour's texel, stands in where front-facing
+texels show on both sides (:func:`_fill_back`).  Lighting is deferred: the draw
+leaves the winning quad and texel per pixel, and
 :meth:`BillboardPass.paint` lights each shown pixel once, inside the box the quads
 touched (not once per quad drawn over it, nor over the whole frame).  That is a
 z-buffer of quads with ray casting per pixel, so the ``zbuffer`` and ``raycast``
@@ -55,6 +58,11 @@ ALPHA_OPAQUE = 128
 #: screen box holds at least this many pixels per tile; below that a rectangle's set-up
 #: costs more than the empty pixels it skips, and the quad is drawn whole.
 TILE_MIN_PIXELS = 2
+#: A back-facing texel stands in for a hole (:func:`_fill_back`) only where front-facing
+#: texels show within this many pixels on both sides of it, across a row or a column: a
+#: crack along a seam (up to 2 x FILL_REACH - 1 px wide) inside the cloud's picture, not
+#: its silhouette.
+FILL_REACH = 8
 DRAWN_WITH = {"zbuffer": "zbuffer", "raycast": "raycast", "runlength": "zbuffer",
               "bsp": "zbuffer"}
 
@@ -320,8 +328,9 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                       grid: np.ndarray, gofs: np.ndarray, tile: int,
                       shears: np.ndarray, s: float, hw: float, hh: float,
                       views: np.ndarray, cull_back: bool, depth: np.ndarray, tri: np.ndarray,
-                      quad: np.ndarray, texel: np.ndarray,
-                      boxes: np.ndarray) -> tuple[int, int, int]:
+                      quad: np.ndarray, texel: np.ndarray, boxes: np.ndarray,
+                      bquad: np.ndarray, btexel: np.ndarray,
+                      bdepth: np.ndarray) -> tuple[int, int, int]:
     """Draw every quad into every zone (z-test against ``depth``, alpha test); see module.
 
     Nearest quads first, so farther ones mostly fail the depth test before any texel
@@ -336,8 +345,12 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
     triangle); ``quad`` (Z, R, C) int32 receives the quad's index + 1 and ``texel``
     the texel's flat index there (both only where a quad won; zero elsewhere on
     entry).  ``boxes`` (Z, 4) int64 receives each zone's rows and columns
-    ``[r0, r1) x [c0, c1)`` holding every write.  Returns the number of pixel writes,
-    of pixels a quad won (each counted once) and of pixels visited (span pixels).
+    ``[r0, r1) x [c0, c1)`` holding every write.  ``bquad``, ``btexel`` (Z, R, C)
+    int32 (zero on entry) and ``bdepth`` (Z, R, C) float32 keep the nearest
+    back-facing texel per pixel, drawn only where no front-facing one won
+    (:func:`_fill_back`; with ``cull_back`` False every texel counts as facing).
+    Returns the number of pixel writes, of pixels a quad won (each counted once) and
+    of pixels visited (span pixels).
     """
     zones, rows, cols = depth.shape
     writes, covered, visited = 0, 0, 0
@@ -407,15 +420,25 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                             continue  # an empty tile: no texel read (a small, far quad)
                         # the texel choice stays written out here: as a helper function
                         # (even inline="always") the kernel measured 1.4-1.5x slower
-                        t = -1
+                        t, back = -1, -1
                         for layer in (near, 1 - near):  # the layer facing the viewer first
                             c = t0 + layer * trows * tcols + ti * tcols + tj
-                            if rgba[c, 3] >= ALPHA_OPAQUE and not (cull_back and (
-                                    tnormal[c, 0] * vx + tnormal[c, 1] * vy
-                                    + tnormal[c, 2] * vz < 0.0)):
+                            if rgba[c, 3] < ALPHA_OPAQUE:
+                                continue
+                            if not cull_back or (tnormal[c, 0] * vx + tnormal[c, 1] * vy
+                                                 + tnormal[c, 2] * vz) >= 0.0:
                                 t = c
                                 break
+                            if back < 0:
+                                back = c
                         if t < 0:
+                            if back >= 0 and (bquad[k, i, j] == 0 or -z < bdepth[k, i, j]):
+                                bquad[k, i, j], btexel[k, i, j] = q + 1, back
+                                bdepth[k, i, j] = -z  # a stand-in, if no front texel comes
+                                boxes[k, 0] = min(boxes[k, 0], i)
+                                boxes[k, 1] = max(boxes[k, 1], i + 1)
+                                boxes[k, 2] = min(boxes[k, 2], j)
+                                boxes[k, 3] = max(boxes[k, 3], j + 1)
                             continue
                         depth[k, i, j] = -z
                         tri[k, i, j] = -1
@@ -425,7 +448,86 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
                         writes += 1
                         boxes[k, 0], boxes[k, 1] = min(boxes[k, 0], i), max(boxes[k, 1], i + 1)
                         boxes[k, 2], boxes[k, 3] = min(boxes[k, 2], j), max(boxes[k, 3], j + 1)
+        w, c = _fill_back(k, boxes, bquad, btexel, bdepth, depth, tri, quad, texel)
+        writes, covered = writes + w, covered + c
     return writes, covered, visited
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _front_near(quad: np.ndarray, bquad: np.ndarray, k: int, i: int, j: int, di: int,
+                dj: int, reach: int) -> bool:
+    """Whether front-facing texels show on both sides of ``(i, j)`` along ``(di, dj)``.
+
+    Within ``reach`` pixels: a crack across that line, not the silhouette.
+    """
+    rows, cols = quad.shape[1], quad.shape[2]
+    for side in (-1, 1):
+        seen = False
+        for d in range(1, reach + 1):
+            a, b = i + side * d * di, j + side * d * dj
+            if 0 <= a < rows and 0 <= b < cols and quad[k, a, b] > 0 and bquad[k, a, b] >= 0:
+                seen = True
+                break
+        if not seen:
+            return False
+    return True
+
+
+@nb.njit(cache=True, nogil=True)
+def _fill_back(k: int, boxes: np.ndarray, bquad: np.ndarray, btexel: np.ndarray,
+               bdepth: np.ndarray, depth: np.ndarray, tri: np.ndarray, quad: np.ndarray,
+               texel: np.ndarray) -> tuple[int, int]:
+    """Close zone ``k``'s cracks: pixels no texel won with front-facing texels around.
+
+    Where both layers' texels at a ray's point face away from the view, the ray is near
+    a seam between billboards seen off their normals (the texel holds the face nearest
+    the plane along its normal, not the one the ray meets): a hole there showed what
+    lies behind (speckle along the seams).  The nearest back-facing texel stands in
+    where front-facing ones show on both sides within :data:`FILL_REACH` pixels (its
+    light uses its normal turned to the viewer).  A pixel between two front-facing
+    ones, across a row or a column, that no texel covers at all takes the nearer
+    neighbour's texel at the pair's mean depth.  Neither is drawn behind the mesh's
+    depth.  Returns pixel writes and pixels covered.
+    """
+    writes = 0
+    for _ in range(2):  # again: a pixel whose neighbour was filled after it was looked at
+        for i in range(boxes[k, 0], boxes[k, 1]):
+            for j in range(boxes[k, 2], boxes[k, 3]):
+                if quad[k, i, j] != 0:
+                    continue
+                q, t, d = 0, 0, np.inf
+                if bquad[k, i, j] > 0 and bdepth[k, i, j] < depth[k, i, j] and (
+                        _front_near(quad, bquad, k, i, j, 0, 1, FILL_REACH)
+                        or _front_near(quad, bquad, k, i, j, 1, 0, FILL_REACH)):
+                    d, q, t = np.float64(bdepth[k, i, j]), bquad[k, i, j], btexel[k, i, j]
+                if q == 0:
+                    d, q, t = _between(quad, depth, texel, k, i, j)
+                if q == 0 or d >= depth[k, i, j]:
+                    continue
+                depth[k, i, j] = d
+                tri[k, i, j] = -1
+                quad[k, i, j], texel[k, i, j] = q, t
+                bquad[k, i, j] = -1  # filled: not a front texel for its neighbours
+                writes += 1
+    return writes, writes
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _between(quad: np.ndarray, depth: np.ndarray, texel: np.ndarray, k: int, i: int,
+             j: int) -> tuple[float, int, int]:
+    """The nearer of two drawn neighbours across ``(i, j)``: mean depth, quad, texel.
+
+    ``(inf, 0, 0)`` when no row or column pair around it shows texels.
+    """
+    rows, cols = quad.shape[1], quad.shape[2]
+    for di, dj in ((0, 1), (1, 0)):
+        a0, b0, a1, b1 = i - di, j - dj, i + di, j + dj
+        if a0 >= 0 and b0 >= 0 and a1 < rows and b1 < cols and quad[k, a0, b0] > 0 \
+                and quad[k, a1, b1] > 0:
+            near = (a0, b0) if depth[k, a0, b0] <= depth[k, a1, b1] else (a1, b1)
+            mean = (np.float64(depth[k, a0, b0]) + np.float64(depth[k, a1, b1])) / 2
+            return mean, quad[k, near[0], near[1]], texel[k, near[0], near[1]]
+    return np.inf, 0, 0
 
 
 @nb.njit(cache=True, nogil=True)
@@ -540,11 +642,12 @@ def draw_billboards(objects: list[BillboardObject], display: DisplaySettings,
     quad = np.zeros(zrc, np.int32)  # calloc: pages outside the quads are never touched
     texel = np.zeros(zrc, np.int32)
     boxes = np.zeros((zrc[0], 4), np.int64)
+    back = (np.zeros(zrc, np.int32), np.zeros(zrc, np.int32), np.zeros(zrc, np.float32))
     writes, covered, visited = draw_quads_kernel(
         quads.origin, quads.u, quads.v, quads.normal, quads.rot, quads.tex, quads.rgba,
         quads.tnormal, quads.grid, quads.gofs, TILE, display.shears(), display.pixel_size,
         display.width / 2, display.height / 2, display.view_vectors(), cull_back, vis.depth,
-        vis.triangle, quad, texel, boxes)
+        vis.triangle, quad, texel, boxes, *back)
     stats = {"objects": len(objects), "quads": int(quads.origin.shape[0]), "pixels": int(writes),
              "covered_pixels": int(covered), "span_pixels": int(visited),
              "drawn_with": DRAWN_WITH.get(method, "zbuffer")}

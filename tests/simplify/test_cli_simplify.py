@@ -138,3 +138,13 @@ def test_a_bunny_cloud_covers_its_mesh_within_its_error(tmp_path):
     base = np.zeros_like(mesh)
     base[rows[-1] - (rows[-1] - rows[0]) // 8:] = True  # the feet: the lowest eighth
     assert (mesh & ~cloud & base & ~band).sum() <= 0.01 * (mesh & base).sum()
+    # no speckle: seams between billboards seen off their normals cracked where both
+    # layers' texels faced away from the view and were culled (here 204 holes of 11,709
+    # inner pixels, 1.7 %, 63 of them 1 px wide; 55 and 0 once the nearest such texel
+    # stands in where front-facing ones show on both sides)
+    inner = ~_grow(~mesh, 2)  # 2 px inside the silhouette
+    holes = inner & ~cloud
+    assert holes.sum() <= 0.008 * inner.sum(), (holes.sum(), inner.sum())
+    pad = np.pad(cloud, 1)
+    thin = holes & ((pad[1:-1, :-2] & pad[1:-1, 2:]) | (pad[:-2, 1:-1] & pad[2:, 1:-1]))
+    assert thin.sum() == 0, np.argwhere(thin)  # no isolated hole: cloud on both sides
