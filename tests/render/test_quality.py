@@ -13,6 +13,7 @@ from service.quality import (
     ErrorBudget,
     QualityChooser,
     QualitySettings,
+    cheapest_occlusion,
     parse_budget,
     render_auto,
 )
@@ -95,6 +96,43 @@ def test_a_static_scene_picks_bsp_when_it_is_cheapest_and_a_moving_one_never():
     assert "bsp" not in moving
     measured = [f.stats["quality"]["method"] for f in _frames("cyclic", CostModel.load(), 2)]
     assert measured[0] != "bsp"  # the shipped model never builds a tree for one frame
+
+
+#: Run-length cheaper per frame, the z-buffer per triangle: they cross at 10k
+#: triangle-zones; BSP's traversal cheapest of all, its tree 1 ms per k triangles.
+BY_SIZE = ([0.0, 0.05, 0.0, 0.0], [0.3, 0.02, 0.0, 0.0], [0.0, 0.01, 0.0, 0.0], (0.0, 1.0))
+
+
+def test_the_cheapest_method_by_scene_size_on_given_costs():
+    model, px = _model(*BY_SIZE), 320 * 240
+    pick = {t: cheapest_occlusion(model, t, 1, px)[0] for t in (1000, 8000, 10**5, 10**6)}
+    assert pick == {1000: "runlength", 8000: "runlength", 10**5: "zbuffer", 10**6: "zbuffer"}
+    assert cheapest_occlusion(model, 1000, 5, px)[0] == "runlength"  # 5k triangle-zones
+    assert cheapest_occlusion(model, 4000, 5, px)[0] == "zbuffer"  # 20k
+    method, ms = cheapest_occlusion(model, 10**6, 1, px)
+    assert set(ms) == {"runlength", "zbuffer"}  # moving: no tree rebuilt every frame
+    assert ms["zbuffer"] == pytest.approx(0.3 + 0.02 * 1000)
+    # static: the tree's build is shared by the frames the geometry stayed put
+    assert cheapest_occlusion(model, 10**5, 1, px, static_frames=60)[0] == "zbuffer"
+    assert cheapest_occlusion(model, 10**5, 1, px, static_frames=60, tree_built=True)[0] == "bsp"
+    assert cheapest_occlusion(model, 10**6, 1, px, static_frames=60)[0] == "zbuffer"
+    assert cheapest_occlusion(model, 10**6, 1, px, static_frames=600)[0] == "bsp"
+    # every point the sort got wrong costs the run-length method its repair
+    assert cheapest_occlusion(_model([0.0, 0.05, 0.0, 100.0], *BY_SIZE[1:]), 1000, 1, px,
+                              bad=10)[0] == "zbuffer"
+
+
+def test_auto_picks_by_the_size_of_real_scenes():
+    from service.bench.galilean_bench import complexity_scene
+
+    model, d = _model(*BY_SIZE), DisplaySettings(zones=1, cols=64, rows=48)
+    for extra, expected in ((0, "runlength"), (20_000, "zbuffer")):
+        scene = complexity_scene(extra, d)
+        chooser = QualityChooser(QualitySettings("auto"), model)
+        frame = render_auto(Renderer(), chooser, scene, d)
+        assert frame.stats["quality"]["method"] == expected, extra
+        exact = Renderer().render(scene, d)  # the z-buffer's
+        np.testing.assert_array_equal(frame.depth, exact.depth)
 
 
 def test_choices_and_predictions_are_reported_per_frame():
