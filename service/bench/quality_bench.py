@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
+import os
 import platform
 import sys
 import time
@@ -25,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from service.base.cli_args import add_size_option, exit_rule_epilog
+from service.base.errors import SettingsError
 from service.bench import peers
 from service.bench.charts import save_chart
 from service.bench.galilean_bench import sweep
@@ -136,9 +139,11 @@ def calibrate(repeats: int = 5, galilean_frames: int = 17,
         galilean=galilean if galilean is not None else galilean_table(galilean_frames),
         meta={"measured": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "machine": platform.platform(), "processor": platform.machine(),
-              "scenes": list(CAL_SCENES), "zones": list(CAL_ZONES),
+              "load_average": [round(v, 2) for v in os.getloadavg()],
+              "scenes": list(CAL_SCENES) + list(SCALING_SCENES), "zones": list(CAL_ZONES),
               "sizes": [list(s) for s in CAL_SIZES], "repeats": repeats,
-              "units": "ms; occlusion: 1, k triangle-zones, M pixel-zones, k bad points; "
+              "units": "ms; occlusion: 1, k triangles, k triangle-zones, M pixel-zones, "
+                       "k bad points; "
                        "light: 1, k triangles, M covered pixels; bsp_build: 1, k triangles"},
     )
 
@@ -295,6 +300,17 @@ def check(model: CostModel, size: tuple[int, int], zones: int = 5, frames: int =
     return out
 
 
+def galilean_from(path: str) -> list[dict]:
+    """The Galilean sweep table of a cost model file (of any occlusion layout)."""
+    try:
+        table = json.loads(Path(path).read_text())["galilean"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise SettingsError(f"--galilean-from {path}: no Galilean table ({exc})") from exc
+    if not isinstance(table, list):
+        raise SettingsError(f"--galilean-from {path}: the Galilean table is not a list")
+    return table
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The options of ``holo-bench quality``."""
     p = argparse.ArgumentParser(
@@ -334,7 +350,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"fastest {r['static_fastest']}", file=sys.stderr)
         return 0
     if args.calibrate:
-        kept = CostModel.load(args.galilean_from).galilean if args.galilean_from else None
+        kept = galilean_from(args.galilean_from) if args.galilean_from else None
         model = calibrate(repeats=3 if args.quick else 5,
                           galilean_frames=9 if args.quick else 17, galilean=kept)
         path = Path(args.model) if args.model else out / "quality_model.json"

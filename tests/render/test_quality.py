@@ -54,10 +54,14 @@ def test_measured_error_stays_within_the_budget_over_scenes():
 
 
 def _model(runlength, zbuffer, bsp, build=(0.0, 0.0)):
-    """A cost model with given occlusion coefficients (1, k tri-zones, M px-zones, k bad)."""
+    """A cost model with given occlusion coefficients (1, k tri-zones, M px-zones, k bad).
+
+    The per-triangle term (:func:`service.lod.cost.occlusion_features`) is left at 0.
+    """
     base = CostModel.load()
-    return CostModel({"runlength": runlength, "zbuffer": zbuffer, "bsp": bsp}, list(build),
-                     base.light, base.galilean, {}, base.update_factor)
+    occ = {m: [c[0], 0.0, *c[1:]] for m, c in
+           (("runlength", runlength), ("zbuffer", zbuffer), ("bsp", bsp))}
+    return CostModel(occ, list(build), base.light, base.galilean, {}, base.update_factor)
 
 
 def _frames(scene_name, model, frames, moving=False, budget="2%"):
@@ -174,6 +178,12 @@ def test_cost_model_files_are_checked(tmp_path):
     good.write_text(CostModel.load().to_json())
     assert CostModel.load(good).occlusion == CostModel.load().occlusion
     assert np.isfinite(CostModel.load().occlusion_ms("zbuffer", 1000, 5, 76800))
+    # a model calibrated before the per-triangle term: told to recalibrate, not misread
+    old = json.loads(CostModel.load().to_json())
+    old["occlusion"] = {m: c[:1] + c[2:] for m, c in old["occlusion"].items()}
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    with pytest.raises(SettingsError, match="recalibrate"):
+        CostModel.load(tmp_path / "old.json")
 
 
 def _render_json(capsys, *argv):
@@ -230,3 +240,22 @@ def test_fit_recovers_costs_and_never_predicts_negative_work():
     # a cost that falls with the work (noise) gets no negative slope
     coef = fit([(f, 5.0 - 0.3 * f[1]) for f in x])
     assert min(coef) >= 0.0
+
+
+def test_the_scaling_check_says_whether_auto_picks_the_fastest():
+    from service.bench.quality_bench import scaling_check
+
+    model = _model(*BY_SIZE)
+    rows = [{"scene": "a", "triangles": 1000, "zones": 1, "size": "320x240", "pixels": 76800,
+             "bad": 0, "runlength_ms": 0.04, "zbuffer_ms": 0.3, "bsp_ms": 0.02,
+             "bsp_build_ms": 60.0},
+            {"scene": "b", "triangles": 10**6, "zones": 1, "size": "320x240", "pixels": 76800,
+             "bad": 0, "runlength_ms": 10.0, "zbuffer_ms": 30.0}]
+    small, big = scaling_check(model, rows)
+    assert (small["moving_pick"], small["moving_fastest"]) == ("runlength", "runlength")
+    # static: BSP's traversal measured fastest, but not with its 60 ms build shared by
+    # 60 frames; the model predicts a 1 ms build: the check shows the miss
+    assert (small["static_pick"], small["static_fastest"]) == ("bsp", "runlength")
+    assert small["zbuffer_predicted_ms"] == pytest.approx(0.3 + 0.02)
+    assert (big["moving_pick"], big["moving_fastest"]) == ("zbuffer", "runlength")  # a miss
+    assert "bsp_predicted_ms" not in big  # not timed past 100k triangles
