@@ -22,7 +22,8 @@ would cost, and picks the cheapest whose predicted error fits the budget:
   the refresh cost of the order) within the budget.
 
 Errors are in the units of the Galilean benchmark: % of pixels whose largest colour
-channel differs by more than :data:`WRONG_LEVELS` from the reference, or PSNR in dB.
+channel differs by more than :data:`service.lod.settings.COLOUR_LEVELS`
+from the reference, or PSNR in dB.
 The cost model is a least-squares fit of measured milliseconds (``holo-bench quality
 --calibrate`` measures and writes it; ``service/lod/cost_model.json`` is the one
 measured on the development machine, with its date and machine in ``meta``).  It is
@@ -43,6 +44,7 @@ import numpy as np
 from service.base.errors import SettingsError
 from service.display import DisplaySettings
 from service.lod.cost import OCCLUSION, SPECULAR, CostModel
+from service.lod.settings import COLOUR_LEVELS
 from service.render.cull import CullSettings
 from service.render.frame import Frame
 from service.render.light import LightSettings, shade
@@ -51,8 +53,6 @@ from service.render.pipeline import Renderer, RenderSettings
 from service.render.projection import project
 from service.render.scene import Scene, SceneArrays
 
-#: Colour levels a channel may differ by before a pixel counts as wrong.
-WRONG_LEVELS = 32
 MODES = ("fixed", "auto")
 
 
@@ -108,9 +108,9 @@ class QualitySettings:
 
 
 def pct_wrong(a: np.ndarray, b: np.ndarray) -> float:
-    """% of pixels of two (..., 3) uint8 images whose largest channel difference > WRONG_LEVELS."""
+    """% of pixels of two (..., 3) uint8 images whose largest channel difference > COLOUR_LEVELS."""
     d = np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1)
-    return 100.0 * float((d > WRONG_LEVELS).mean())
+    return 100.0 * float((d > COLOUR_LEVELS).mean())
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
