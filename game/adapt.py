@@ -134,16 +134,23 @@ class Choice:
         The look measured at least :attr:`AdaptSettings.need_hz`.
     reason : str
         One line: what was measured and why this look.
+    background : dict, optional
+        The service's background compile as the last measurement ended (``stats``'
+        ``compile``: ``phase``, ``done``, ``total``, ``priority``), when it had one.
     """
 
     look: Look
     measured: tuple[tuple[Look, float], ...]
     met: bool
     reason: str
+    background: dict | None = None
 
     def as_dict(self) -> dict:
-        """For ``stats.json``: light, size, adapted, met, measured (renders/s), reason."""
-        return {
+        """For ``stats.json``: light, size, adapted, met, measured (renders/s), reason.
+
+        With ``background_compile`` too when the service had a background compile.
+        """
+        out = {
             "light": self.look.light,
             "size": list(self.look.size),
             "adapted": True,
@@ -151,6 +158,39 @@ class Choice:
             "measured": {str(look): round(hz, 2) for look, hz in self.measured},
             "reason": self.reason,
         }
+        if self.background is not None:
+            out["background_compile"] = dict(self.background)
+        return out
+
+
+def with_background(choice: Choice, background: dict | None) -> Choice:
+    """``choice`` with the service's background compile during the measurement, and why.
+
+    Parameters
+    ----------
+    choice : Choice
+    background : dict or None
+        ``stats``' ``compile`` as the last measurement ended (:mod:`service.readiness`).
+
+    Returns
+    -------
+    Choice
+        With :attr:`Choice.background` set and the reason saying what ran beside the
+        measurement, when a background compile ran at all.
+    """
+    if not background or background.get("phase") in (None, "none"):
+        return choice
+    done, total = background.get("done", "?"), background.get("total", "?")
+    priority = background.get("priority", "low priority")
+    if background.get("phase") != "compiling":
+        note = f"the service's background compile had ended ({background.get('phase')})"
+    elif priority == "idle":
+        note = (f"measured beside the service's background compile ({done} of {total} jobs) "
+                "at idle priority: it takes only CPU time nothing else wants")
+    else:
+        note = (f"measured beside the service's background compile ({done} of {total} jobs) "
+                f"at {priority}")
+    return replace(choice, reason=f"{choice.reason}; {note}", background=dict(background))
 
 
 def predicted_hz(measured: dict[Look, float], look: Look, base: Look | None = None) -> float:

@@ -15,6 +15,9 @@ call                what it does
                     "reconnecting" and keeps trying)
 ``warming``         None, or the service's warm-up progress while it compiles
                     its kernels (the loop shows "waiting for the render service")
+``background()``    the service's background compile once ready (``stats``'
+                    ``compile``), or None
+``compiling()``     why a measurement of renders/s should wait for it, or None
 ``close()``         stop threads / close sockets
 ==================  ===================================================================
 
@@ -183,6 +186,10 @@ class LocalRenderer:
 
     def compiling(self) -> str | None:
         """Always None: in process, kernels compile inside the first render that needs them."""
+        return None
+
+    def background(self) -> dict | None:
+        """Always None: no background compile in process."""
         return None
 
     def lod_notes(self) -> list[str]:
@@ -409,20 +416,30 @@ class ServiceBackend:
         self._reload = self._reload or self._frozen
         self._frozen = False
 
-    def compiling(self) -> str | None:
-        """The service's background compile while it runs (one line), else None.
+    def background(self) -> dict | None:
+        """The service's background compile (``stats``' ``compile``), or None.
 
-        From ``stats``' ``compile`` (:mod:`service.readiness`): the kernels the first
-        frame did not need compile in a child at low priority, but on the same cores.
+        ``phase``, ``done`` and ``total`` jobs and ``priority`` (:mod:`service.readiness`).
         """
         try:
-            bg = self.client.stats().get("compile") or {}
+            bg = self.client.stats().get("compile")
         except (ServiceError, OSError):
             return None
-        if bg.get("phase") != "compiling":
+        return bg if isinstance(bg, dict) else None
+
+    def compiling(self) -> str | None:
+        """Why a measurement of renders a second should wait (one line), else None.
+
+        The service's background compile (:meth:`background`) while it competes for
+        the CPU: at ``nice 10`` it still takes about a tenth of a busy core.  At
+        ``idle`` priority (``SCHED_IDLE``) it runs only on CPU time nothing else
+        wants, so it holds nothing back.
+        """
+        bg = self.background() or {}
+        if bg.get("phase") != "compiling" or bg.get("priority") == "idle":
             return None
         return (f"the service compiles kernels in the background ({bg.get('done', 0)} of "
-                f"{bg.get('total', '?')} jobs)")
+                f"{bg.get('total', '?')} jobs, {bg.get('priority', 'low priority')})")
 
     def lod_notes(self) -> list[str]:
         """Level-of-detail notes the service reported, new since the last call (each once).

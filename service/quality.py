@@ -22,7 +22,8 @@ would cost, and picks the cheapest whose predicted error fits the budget:
   the refresh cost of the order) within the budget.
 
 Errors are in the units of the Galilean benchmark: % of pixels whose largest colour
-channel differs by more than :data:`WRONG_LEVELS` from the reference, or PSNR in dB.
+channel differs by more than :data:`service.lod.settings.COLOUR_LEVELS`
+from the reference, or PSNR in dB.
 The cost model is a least-squares fit of measured milliseconds (``holo-bench quality
 --calibrate`` measures and writes it; ``service/lod/cost_model.json`` is the one
 measured on the development machine, with its date and machine in ``meta``).  It is
@@ -43,6 +44,7 @@ import numpy as np
 from service.base.errors import SettingsError
 from service.display import DisplaySettings
 from service.lod.cost import OCCLUSION, SPECULAR, CostModel
+from service.lod.settings import COLOUR_LEVELS
 from service.render.cull import CullSettings
 from service.render.frame import Frame
 from service.render.light import LightSettings, shade
@@ -51,8 +53,6 @@ from service.render.pipeline import Renderer, RenderSettings
 from service.render.projection import project
 from service.render.scene import Scene, SceneArrays
 
-#: Colour levels a channel may differ by before a pixel counts as wrong.
-WRONG_LEVELS = 32
 MODES = ("fixed", "auto")
 
 
@@ -108,9 +108,9 @@ class QualitySettings:
 
 
 def pct_wrong(a: np.ndarray, b: np.ndarray) -> float:
-    """% of pixels of two (..., 3) uint8 images whose largest channel difference > WRONG_LEVELS."""
+    """% of pixels of two (..., 3) uint8 images whose largest channel difference > COLOUR_LEVELS."""
     d = np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1)
-    return 100.0 * float((d > WRONG_LEVELS).mean())
+    return 100.0 * float((d > COLOUR_LEVELS).mean())
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -169,13 +169,8 @@ class QualityChooser:
             self._tree_built = False
         self._last_geometry = key
         t, z, px = arrays.triangles.shape[0], display.zones, display.rows * display.cols
-        ms = {m: self.model.occlusion_ms(m, t, z, px, self._bad if m == "runlength" else 0)
-              for m in OCCLUSION}
-        if not self._static:
-            del ms["bsp"]  # the tree would be rebuilt every frame
-        elif not self._tree_built:  # shared by the frames the geometry has stayed put
-            ms["bsp"] += self.model.build_ms(t) / self._static_frames
-        method = min(ms, key=ms.__getitem__)
+        method, ms = cheapest_occlusion(self.model, t, z, px, self._bad,
+                                        self._static_frames, self._tree_built)
         reason = (f"cheapest exact method ({'static' if self._static else 'moving'} geometry, "
                   f"{self._bad} points out of sort order last frame)")
         return method, ms, reason
@@ -248,6 +243,41 @@ class QualityChooser:
                 "predicted_pct_wrong": round(best["pct_wrong"], 4),
                 "predicted_psnr": round(best["psnr"], 2),
                 "predicted_ms_per_refresh": round(per_refresh(best), 3)}
+
+
+def cheapest_occlusion(model: CostModel, triangles: int, zones: int, pixels: int,
+                       bad: int = 0, static_frames: int = 0,
+                       tree_built: bool = False) -> tuple[str, dict[str, float]]:
+    """The exact occlusion method the cost model predicts cheapest for one frame.
+
+    Parameters
+    ----------
+    model : CostModel
+    triangles, zones, pixels : int
+        The scene's triangles, the display's zones and pixels per zone.
+    bad : int
+        Points the run-length method's sort got wrong last frame (its repair's cost).
+    static_frames : int
+        Frames the geometry has stayed put so far (0: it moves, and BSP, whose tree
+        would be rebuilt every frame, is no candidate).
+    tree_built : bool
+        The BSP tree of this geometry exists; else its build is shared by the
+        ``static_frames`` frames.
+
+    Returns
+    -------
+    method : str
+        One of :data:`service.lod.cost.OCCLUSION`; ties go to the earlier one.
+    ms : dict of str to float
+        Predicted stages 1-4 ms of every candidate.
+    """
+    ms = {m: model.occlusion_ms(m, triangles, zones, pixels, bad if m == "runlength" else 0)
+          for m in OCCLUSION}
+    if static_frames <= 0:
+        del ms["bsp"]
+    elif not tree_built:
+        ms["bsp"] += model.build_ms(triangles) / static_frames
+    return min(ms, key=ms.__getitem__), ms
 
 
 def render_auto(renderer: Renderer, chooser: QualityChooser, scene: Scene,

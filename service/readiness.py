@@ -28,9 +28,12 @@ and even its heartbeats, so clients took it for dead.  Instead:
 of :data:`service.warmup.FIRST_FRAME_JOBS` (``--job`` for each: the render at the
 starting settings, the Galilean refresh at its starting order, the autostereogram
 encoding) and step 3 loads those, so the first frame waits for them alone.  Once ready, a second,
-*background* child (``holo-warmup --jsonl --nice 10``) compiles every other job
-at low priority while the service runs; ``stats`` says how far it is
-(``compile``, :meth:`Warmup.background_dict`) and the log says when it ends.  It
+*background* child (``holo-warmup --jsonl --nice 10``, put on ``SCHED_IDLE``:
+:func:`idle_priority`) compiles every other job on idle CPU time only while the
+service runs, so a client's measurement of renders a second (``holo-game
+--adapt``) need not wait for it; ``stats`` says how far it is and at what
+priority (``compile``, :meth:`Warmup.background_dict`) and the log says when it
+ends.  It
 writes the warm stamp when it is done, so the next start skips both children.
 Kernels that only make a refresh faster wait for it too: until the background
 has cached :func:`service.galilean.scatter_bands.scatter_bands_plain`, the
@@ -79,8 +82,15 @@ from service.warmup import FIRST_FRAME_JOBS, JOBS, SERVICE_JOBS, warm_up
 PHASES = ("starting", "compiling", "loading", "ready", "failed")
 #: The child's command (``holo-warmup --jsonl``).
 CHILD = (sys.executable, "-m", "service.commands.holo_warmup", "--jsonl")
-#: Niceness of the background compile (every job the service did not need first).
+#: Niceness of the background compile (every job the service did not need first),
+#: where :data:`IDLE_POLICY` is not to be had.
 BACKGROUND_NICE = 10
+#: The background compile's scheduling policy: ``SCHED_IDLE`` (Linux) runs it only
+#: on CPU time that no other program wants, so a client measuring the service's
+#: renders a second (``holo-game --adapt``) measures the machine, not the compile.
+#: Niceness 10 alone still left it about a tenth of a busy core (weight 110 against
+#: 1024).  None where the OS has no such policy.
+IDLE_POLICY: int | None = getattr(os, "SCHED_IDLE", None)
 
 
 class _Abort(Exception):  # noqa: N818 -- control flow, never leaves this module
@@ -183,7 +193,9 @@ class Warmup:
         """The background compile (``stats``' ``compile``): phase, jobs done and total.
 
         ``phase``: ``none`` (nothing to compile: the cache was warm, or first frame
-        first is off), ``compiling``, ``done`` or ``failed``; ``seconds`` once it ended.
+        first is off), ``compiling``, ``done`` or ``failed``; ``seconds`` once it ended;
+        ``priority`` once it started: ``idle`` (:data:`IDLE_POLICY`: it gets only CPU
+        time no other program wants) or ``nice 10``.
         """
         with self._lock:
             return dict(self.bg)
@@ -230,22 +242,30 @@ class Warmup:
         """Compile every other job in a low-priority child while the service runs."""
         t0 = time.monotonic()
         left = len([n for n in JOBS if n not in self.first])
-        self._set(bg={"phase": "compiling", "done": 0, "total": len(JOBS), "seconds": None})
+        self._set(bg={"phase": "compiling", "done": 0, "total": len(JOBS), "seconds": None,
+                      "priority": f"nice {BACKGROUND_NICE}"})
+        how = "idle CPU only" if IDLE_POLICY is not None else f"nice {BACKGROUND_NICE}"
         self.log(f"ready first; compiling the other {left} warm-up jobs in the background "
-                 f"(nice {BACKGROUND_NICE}); stats: compile")
+                 f"({how}); stats: compile")
         try:
+            # a process group of its own (ended as one), but not a session of its own: with
+            # the kernel's autogroups (sched_autogroup_enabled) a new session is a new
+            # scheduling group, weighed as much as the whole service, so neither its
+            # niceness nor SCHED_IDLE would yield to the service or its clients
             proc = subprocess.Popen(
                 (*self.child_cmd, f"--nice={BACKGROUND_NICE}"), stdin=subprocess.DEVNULL,
                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=self.env,
-                start_new_session=True,
+                process_group=0,
             )
         except OSError as exc:
             self._set(bg={**self.bg, "phase": "failed"})
             self.log(f"background compile did not start ({exc}); kernels compile when first "
                      "used")
             return
+        priority = "idle" if idle_priority(proc.pid) else f"nice {BACKGROUND_NICE}"
         with self._lock:
             self.bg_child = proc
+            self.bg = {**self.bg, "priority": priority}
         if self._stop.is_set():
             _end_group(proc, 3.0)
         with proc.stdout:
@@ -337,6 +357,27 @@ class Warmup:
             compiled += warm_up(progress, only=rest).compiled
         self.load_s = time.monotonic() - t0
         return compiled
+
+
+def idle_priority(pid: int) -> bool:
+    """Put every thread of process ``pid`` on :data:`IDLE_POLICY`; True if it took.
+
+    The main thread first, then every thread already started (``/proc/PID/task``):
+    a thread started later inherits its starter's policy, and so does a process
+    the child forks (``holo-warmup``'s second process).  False where the OS has no
+    such policy or refuses it (the niceness the child sets itself still holds).
+    """
+    if IDLE_POLICY is None:
+        return False
+    try:
+        os.sched_setscheduler(pid, IDLE_POLICY, os.sched_param(0))
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return False
+    for tid in tasks:
+        with contextlib.suppress(OSError, ValueError):  # a thread that just ended
+            os.sched_setscheduler(int(tid), IDLE_POLICY, os.sched_param(0))
+    return True
 
 
 def _end_group(proc: subprocess.Popen, timeout_s: float) -> None:

@@ -278,12 +278,13 @@ def _start(args: argparse.Namespace, look: Look, game: GameSettings) -> object:
 def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
     """``--adapt``: measure looks through the game's own backend and choose one."""
     # deferred: --help and usage errors answer before pygame and the numba kernels load
-    from game.adapt import AdaptSettings, adapt, measure
+    from game.adapt import AdaptSettings, adapt, measure, with_background
     from game.bot import Bot
     from game.rules import new_game, tick
     from game.scene import object_states
 
     settings = AdaptSettings()
+    background: list[dict | None] = [None]  # the service's background compile, last seen
 
     def measure_look(look: Look) -> float:
         state, bot = new_game(game), Bot()
@@ -299,6 +300,7 @@ def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
             hz = measure(backend, step, settings.probe_s, args.wait, on_wait=_say_waiting,
                          busy=backend.compiling, on_busy=_say_busy,
                          windows=settings.windows, settle_s=settings.settle_s)
+            background[0] = backend.background()
         finally:
             backend.close()
         print(f"holo-game: measured {look} per zone: {hz:.1f} renders/s", file=sys.stderr,
@@ -308,7 +310,7 @@ def choose_look(args: argparse.Namespace, game: GameSettings) -> Choice:
     print("holo-game: measuring this machine's renders/s to choose light and size "
           f"(needs {settings.need_hz:g}: {settings.target_hz:g} with a {settings.margin:g}x "
           "margin)", file=sys.stderr, flush=True)
-    choice = adapt(measure_look, settings=settings)
+    choice = with_background(adapt(measure_look, settings=settings), background[0])
     print(f"holo-game: chose {choice.reason}", file=sys.stderr, flush=True)
     return choice
 

@@ -78,6 +78,7 @@ from service.galilean.local_update import obscurers, render_local
 from service.galilean.motion_field import render_with_motion, vertex_derivatives
 from service.galilean.shadow import shadow_depth
 from service.galilean.stage import GalileanSettings, GalileanStage, margin_display
+from service.lod.settings import COLOUR_LEVELS
 from service.primitives import cube, sphere
 from service.render.light import LightSettings
 from service.render.mesh import Mesh
@@ -101,8 +102,9 @@ ORDERS = (0, 1, 2, 3)
 INTERVALS = (1, 2, 4, 8, 16)
 MOTIONS = ("linear", "falling", "rotating-cube", "head-turn")
 HZ = 60.0
-#: A pixel is "wrong" when some channel differs from the true render by more than this.
-WRONG_LEVELS = 32
+#: A pixel is "wrong" when some channel differs from the true render by more than this
+#: (the one threshold of every colour error: :data:`service.lod.settings.COLOUR_LEVELS`).
+WRONG_LEVELS = COLOUR_LEVELS
 #: Out-of-view margin of the variants, px on every side.
 MARGIN = 16
 #: Extra triangles (beyond the rotating cube scene's 252) of the complexity steps.

@@ -31,6 +31,7 @@ from service.base.errors import HoloError
 from service.base.signals import EXIT_OK, EXIT_RULE, EXIT_USAGE, stop_on_signals
 from service.builtin_scenes import scene_name
 from service.display import DisplaySettings
+from service.lod.options import add_colour_option, colour_budget, colour_given
 from service.lod.settings import lod_from
 from service.net.curve_keys import make_keys
 from service.process import setup_frame_process
@@ -203,6 +204,7 @@ def _add_display(ap: argparse.ArgumentParser) -> None:
         "predicts more, the smallest and farthest objects go coarser than --lod-error "
         "(0.5 px unless given) allows (default: none)",
     )
+    add_colour_option(ap)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -268,7 +270,8 @@ def _config(args: argparse.Namespace) -> ServiceConfig:
         scene=args.scene,
         display=DisplaySettings(args.zones, args.angle, *args.size),
         pose_scale=args.pose_scale,
-        render=RenderSettings(lod=lod_from(args.lod_error, args.budget_ms)),
+        render=RenderSettings(lod=lod_from(args.lod_error, args.budget_ms, colour_budget(args),
+                                           colour_given(args))),
         scene_dirs=tuple(args.scene_dir or ()),
     )
 

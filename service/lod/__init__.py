@@ -38,13 +38,17 @@ fitted to the renderer's own last frames (their triangles and render millisecond
 not a constant; the first frame, with nothing measured, is chosen by error alone.
 
 **Building off the render path.**  A chain takes seconds to build (the bunny: 2 s
-quiet, 5-9 s on a loaded machine), longer than the service's render timeout.  A
-renderer whose :class:`LodState` has ``background`` (the service's and its workers')
+quiet, 5-9 s on a loaded machine), longer than the service's render timeout, so
+no frame builds one.  A renderer (:class:`LodState`, ``background`` by default: a bare
+``Renderer()``, the service's, its workers', the game's and the commands')
 hands a chain that is not cached to a :class:`service.lod.builds.ChainBuilds` thread
 (which builds it in a child process, with a cache folder or without) and draws that
 mesh in full meanwhile (exact, slower); the report's ``chains`` says how many are
 ready, building or failed.  A build that failed for a reason that may pass (the
 child killed, a full disk) is tried again a bounded number of times; one that fails
 deterministically is not.  Processes sharing a cache folder build each chain once
-(a lock file).  A damaged or torn cache file is reported and rebuilt.
+(a lock file).  A damaged or torn cache file is reported and rebuilt.  Scene loading
+queues a scene's builds (:meth:`LodState.prepare`); a script or test that wants its
+first frame to use the chains waits for them first
+(:meth:`service.render.pipeline.Renderer.prepare`).
 """

@@ -1,7 +1,8 @@
 """The level-of-detail options shared by ``holo-render``, ``holo-service`` and ``holo-game``.
 
-``--lod on|off`` (off unless ``--lod-error`` or ``--budget-ms`` is given),
-``--lod-error PX`` (default 0.5) and ``--budget-ms MS``; see :mod:`service.lod`.
+``--lod on|off`` (off unless ``--lod-error``, ``--lod-colour`` or ``--budget-ms`` is
+given), ``--lod-error PX`` (default 0.5), ``--lod-colour PCT|off`` (default 1) and
+``--budget-ms MS``; see :mod:`service.lod`.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from service.base.cli_args import float_range
 from service.display import DisplaySettings
 from service.lod.builds import ChainBuilds
 from service.lod.cache import cache_dir
-from service.lod.settings import LodSettings
+from service.lod.settings import COLOUR_LEVELS, COLOUR_PCT_MAX, DEFAULT_COLOUR_PCT, LodSettings
 from service.lod.state import LodState
 from service.render.frame import Frame
 from service.render.pipeline import Renderer, RenderSettings
@@ -26,19 +27,58 @@ from service.render.scene import Scene
 BUDGET_FRAMES = 3
 
 
+#: ``--lod-colour``'s word for "colour not counted" (``LodSettings.colour_pct`` None).
+COLOUR_OFF = "off"
+
+
+def colour_pct(text: str) -> float | str:
+    """An argparse type: a colour budget, % from 0 to 100, or :data:`COLOUR_OFF`."""
+    if text.strip().lower() == COLOUR_OFF:
+        return COLOUR_OFF
+    return float_range(0, COLOUR_PCT_MAX)(text)
+
+
+colour_pct.__name__ = "colour budget"
+
+
+def add_colour_option(p: argparse.ArgumentParser) -> None:
+    """Add ``--lod-colour PCT|off`` (:attr:`LodSettings.colour_pct`) to a parser."""
+    p.add_argument(
+        "--lod-colour", type=colour_pct, default=None, metavar="PCT|off",
+        help="level of detail's colour budget: objects are drawn finer until at most PCT "
+        f"%% of the display's pixels are predicted to change colour by more than "
+        f"{COLOUR_LEVELS} levels, 0 to {COLOUR_PCT_MAX:g} (default {DEFAULT_COLOUR_PCT:g}); "
+        "off: levels by the screen error alone (faster, colours change more)",
+    )
+
+
+def colour_given(args: argparse.Namespace) -> bool:
+    """Whether ``--lod-colour`` was given (which turns level of detail on)."""
+    return args.lod_colour is not None
+
+
+def colour_budget(args: argparse.Namespace) -> float | None:
+    """``LodSettings.colour_pct`` from ``--lod-colour``: its default when not given."""
+    if args.lod_colour is None:
+        return DEFAULT_COLOUR_PCT
+    return None if args.lod_colour == COLOUR_OFF else float(args.lod_colour)
+
+
 def add_lod_options(p: argparse.ArgumentParser, budget: bool = True) -> None:
-    """Add ``--lod``, ``--lod-error`` and (with ``budget``) ``--budget-ms`` to a parser."""
+    """Add ``--lod``, ``--lod-error``, ``--lod-colour`` and (``budget``) ``--budget-ms``."""
     p.add_argument(
         "--lod", choices=("on", "off"), default=None,
         help="level of detail per object: each frame every object is drawn with the "
         "cheapest of its simplified meshes whose predicted screen error stays under "
         "--lod-error (chains cached in $HOLO_LOD_CACHE or ~/.cache/holo-realizer/lod); "
-        "off unless --lod-error" + (" or --budget-ms" if budget else "") + " is given",
+        "off unless --lod-error, --lod-colour" + (" or --budget-ms" if budget else "")
+        + " is given",
     )
     p.add_argument(
         "--lod-error", type=float_range(0, None, lo_open=True), default=None, metavar="PX",
         help="largest predicted screen error of a level of detail, pixels > 0 (default 0.5)",
     )
+    add_colour_option(p)
     if not budget:
         p.set_defaults(budget_ms=None)
         return
@@ -51,13 +91,13 @@ def add_lod_options(p: argparse.ArgumentParser, budget: bool = True) -> None:
 
 def lod_settings(args: argparse.Namespace) -> LodSettings | None:
     """The LOD settings the parsed options ask for, or None when LOD is off."""
-    wanted = args.lod == "on" or (
-        args.lod is None and (args.lod_error is not None or args.budget_ms is not None)
-    )
+    wanted = args.lod == "on" or (args.lod is None and (
+        args.lod_error is not None or args.budget_ms is not None or colour_given(args)))
     if not wanted:
         return None
     return LodSettings(
-        error_px=0.5 if args.lod_error is None else args.lod_error, budget_ms=args.budget_ms
+        error_px=LodSettings.error_px if args.lod_error is None else args.lod_error,
+        budget_ms=args.budget_ms, colour_pct=colour_budget(args),
     )
 
 

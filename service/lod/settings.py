@@ -38,6 +38,8 @@ COLOUR_ANGLES = (4.0, 6.0, 8.0, 11.0, 16.0, 22.0, 32.0, 45.0, 64.0, 90.0)
 #: 31's target: <= 1 % of all pixels).  Measured on holo-bench lod's crowds with Blinn
 #: per polygon: 0.86-1.48 % changed, against 3.6-4.0 % with colour not counted.
 DEFAULT_COLOUR_PCT = 1.0
+#: Largest colour budget a command line or the wire takes (all of the pixels).
+COLOUR_PCT_MAX = 100.0
 #: Environment variable naming the cache folder.
 CACHE_ENV = "HOLO_LOD_CACHE"
 #: An error this many times the finer level's is a jump whose plateau end is sought.
@@ -137,14 +139,18 @@ class LodSettings:
         return f"q[{fr}]b[{ce}]t{self.texture_res}"
 
 
-def lod_from(error_px: float | None, budget_ms: float | None) -> LodSettings | None:
-    """Settings from an error budget (px) and a time budget (ms), as the service sends them.
+def lod_from(error_px: float | None, budget_ms: float | None,
+             colour_pct: float | None = DEFAULT_COLOUR_PCT,
+             colour_given: bool = False) -> LodSettings | None:
+    """Settings from an error budget (px), a time budget (ms) and a colour budget (%).
 
-    0 or None means not set; neither set: None (level of detail off); a time budget
-    alone turns it on at the default 0.5 px.
+    As the service's command line gives them: 0 or None means not set; no budget
+    set: None (level of detail off); a time budget alone turns it on at the default
+    0.5 px, as does a colour budget that was given (``colour_given``).
+    ``colour_pct`` None: colour not counted.
     """
     error_px, budget_ms = float(error_px or 0.0), float(budget_ms or 0.0)
-    if error_px <= 0 and budget_ms <= 0:
+    if error_px <= 0 and budget_ms <= 0 and not colour_given:
         return None
-    return LodSettings(error_px=error_px if error_px > 0 else 0.5,
-                       budget_ms=budget_ms if budget_ms > 0 else None)
+    return LodSettings(error_px=error_px if error_px > 0 else LodSettings.error_px,
+                       budget_ms=budget_ms if budget_ms > 0 else None, colour_pct=colour_pct)

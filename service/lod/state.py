@@ -47,15 +47,16 @@ class LodState:
     reset when the display or the method changes), and one scene whose objects are replaced each
     frame, so the flattened scene's static parts stay cached while no level changes.
 
-    With ``background`` (the service, its workers, the game and ``holo-render``) a
-    chain that is not in the cache is built by a :class:`ChainBuilds` thread, in a
+    No frame builds a chain.  With ``background`` (the default) a chain that is
+    neither in memory nor in the cache is built by a :class:`ChainBuilds` thread, in a
     child process, while frames draw that object's full mesh (exact, slower); the
     first frame after it is done uses it.  :meth:`prepare` queues a scene's chains
-    when it is loaded, before any frame needs them.  Without (the default of a bare
-    :class:`~service.render.pipeline.Renderer`, for scripts and tests that want every
-    frame's levels decided by its own inputs), the frame that first needs a chain
-    builds it (``progress(mesh name, done, planned)`` hears how far it got) and its
-    cache problems go to ``notes``.
+    when it is loaded, before any frame needs them; a script or test that wants
+    every frame's levels decided by its own inputs waits for them first
+    (:meth:`service.render.pipeline.Renderer.prepare`).  Without ``background`` (the
+    warm-up job, which compiles the simplifier's kernels in its own process)
+    :meth:`prepare` builds the chains here, ``progress(mesh name, done, planned)``
+    hearing how far it got, and a frame draws a mesh not prepared in full.
     """
 
     chains: dict = field(default_factory=dict)
@@ -65,12 +66,14 @@ class LodState:
     scene: Scene | None = None
     cache: Path | None | bool = True
     display_key: tuple = ()
-    background: bool = False
+    background: bool = True
     progress: Callable[[str, int, int], None] | None = None
     builds: ChainBuilds | None = None
     #: cache problems met by chains built in the frame (the background's: ``builds``)
     notes: deque = field(default_factory=lambda: deque(maxlen=NOTES_KEPT))
     _by_key: OrderedDict = field(default_factory=OrderedDict)
+    #: chains :meth:`prepare` built in this process (a frame that sees it change looks again)
+    _prepared: int = 0
     _last: tuple | None = None
     #: the calibrated cost model (loaded on the first frame; None if it cannot be read)
     _model: CostModel | None | bool = False
@@ -78,8 +81,8 @@ class LodState:
     def chain(self, mesh: Mesh, settings: LodSettings) -> LodChain:
         """The chain of ``mesh``: read or built once per renderer, or its stand-in.
 
-        With ``background`` the stand-in (:func:`full_only`, ``ready`` False) is
-        returned while the chain is built; without, the chain is built here.
+        The stand-in (:func:`full_only`, ``ready`` False) while the chain is built in
+        the background (or, without ``background``, when :meth:`prepare` did not build it).
         """
         got = self.chains.get(id(mesh))
         mine = got is not None and got[0] is mesh and got[2] == settings.recipe
@@ -90,9 +93,7 @@ class LodState:
         if chain is None:
             chain = self._fetch(mesh, settings, key)
             if chain.ready:
-                self._by_key[key] = chain
-                while len(self._by_key) > CHAINS_KEPT:
-                    self._by_key.popitem(last=False)
+                self._keep(key, chain)
         else:
             self._by_key.move_to_end(key)
         if chain.levels[0] is not mesh:  # the same mesh as another object: draw its own
@@ -101,37 +102,72 @@ class LodState:
         return chain
 
     def prepare(self, scene: Scene, settings: LodSettings) -> int:
-        """Queue the builds of the chains ``scene``'s meshes lack (``background`` only).
+        """Start (``background``) or do (not) the builds of the chains ``scene`` lacks.
 
-        For scene loading: the chains build while the first frames draw full meshes.
-        Returns how many were queued (:meth:`ChainBuilds.submit_scene`); wait for
-        them with ``builds.wait_idle``.
+        For scene loading, before any frame needs them.  With ``background`` the
+        builds are queued (:meth:`ChainBuilds.submit_scene`) and the first frames
+        draw full meshes until they are done (:meth:`wait`); without, they are built
+        here, now.  Returns how many were queued or built.
         """
-        if not self.background:
-            raise SettingsError("LodState.prepare needs background builds (background=True)")
-        if self.builds is None:
-            self.builds = ChainBuilds(self.cache)
-        return self.builds.submit_scene(scene, settings)
+        if self.background:
+            if self.builds is None:
+                self.builds = ChainBuilds(self.cache)
+            return self.builds.submit_scene(scene, settings)
+        built, seen = 0, set()
+        for obj in scene.objects:
+            if id(obj.mesh) in seen:
+                continue
+            seen.add(id(obj.mesh))
+            key = mesh_key(obj.mesh, settings.recipe)
+            if key not in self._by_key:
+                self._keep(key, self._build_here(obj.mesh, settings))
+                built += 1
+        self._prepared += built
+        return built
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Wait for the background builds :meth:`prepare` queued; False if still busy.
+
+        ``timeout_s`` None waits as long as they take.
+        """
+        return self.builds is None or self.builds.wait_idle(timeout_s)
+
+    def _build_here(self, mesh: Mesh, settings: LodSettings) -> LodChain:
+        """Build ``mesh``'s chain in this process (:meth:`prepare` without background)."""
+        report = self.progress
+        tell = None if report is None else (lambda d, n: report(mesh.name, d, n))
+        notes: list[str] = []
+        try:
+            return build_chain(mesh, settings, self.cache, notes, tell)
+        finally:
+            self.notes.extend(notes)
+
+    def _keep(self, key: str, chain: LodChain) -> None:
+        """Keep a ready chain in memory by its hash (the least recently used go first)."""
+        self._by_key[key] = chain
+        self._by_key.move_to_end(key)
+        while len(self._by_key) > CHAINS_KEPT:
+            self._by_key.popitem(last=False)
 
     def _fetch(self, mesh: Mesh, settings: LodSettings, key: str) -> LodChain:
-        """A chain not in memory: built here, or (background) from the cache or a stand-in."""
-        if not self.background:
-            report = self.progress
-            tell = None if report is None else (lambda d, n: report(mesh.name, d, n))
-            notes: list[str] = []
-            try:
-                return build_chain(mesh, settings, self.cache, notes, tell)
-            finally:
-                self.notes.extend(notes)
-        if self.builds is None:
-            self.builds = ChainBuilds(self.cache)
-        done = self.builds.take(key)
+        """A chain not in memory: from the background builds or the cache, or a stand-in.
+
+        Never built here: with ``background`` it is queued, without it was not
+        prepared and the mesh is drawn in full.
+        """
+        done = self.builds.take(key) if self.builds is not None else None
         if done is not None:
             return done
         folder = cache_dir() if self.cache is True else (Path(self.cache) if self.cache else None)
         cached = read_chain(folder, key, mesh) if folder is not None else None
         if cached is not None:
             return cached
+        if not self.background:
+            self.notes.append(f"level-of-detail chain of {mesh.name or 'a mesh'} not "
+                              "prepared (LodState.prepare); drawn with its full mesh")
+            return full_only(mesh, key)
+        if self.builds is None:
+            self.builds = ChainBuilds(self.cache)
         self.builds.submit(key, mesh, settings)  # no-op once built, failed or queued
         return full_only(mesh, key)
 
@@ -174,7 +210,7 @@ class LodState:
 
     def _tables(self, scene: Scene, settings: LodSettings) -> dict:
         """Per-object chain tables, rebuilt only when the scene's meshes change."""
-        generation = self.builds.generation if self.builds is not None else 0
+        generation = (self.builds.generation if self.builds is not None else 0, self._prepared)
         key = (tuple(id(o.mesh) for o in scene.objects), settings.recipe, generation)
         if getattr(self, "_tab_key", None) == key:
             return self._tab
@@ -264,6 +300,7 @@ class LodState:
         rows = np.arange(len(scene.objects))
         report = {
             "error_px": settings.error_px,
+            "colour_pct": settings.colour_pct,
             "levels": level.tolist(),
             "predicted_px": np.round(predicted, 4).tolist(),
             "triangles": int(tab["triangles"][rows, level].sum()),

@@ -20,9 +20,11 @@ def _level_of_detail(kit: Kit) -> None:
     scene = kit.scene()
     lod = LodSettings(error_px=1e6, fractions=(0.5,), cloud_eps=(0.2,), texture_res=16)
     renderer = Renderer()
-    renderer.lod = LodState(cache=False)  # no chain written to the user's LOD cache
+    # built in this process (its kernels are what is warmed), not written to the cache
+    renderer.lod = LodState(cache=False, background=False)
+    renderer.lod.prepare(scene, lod)
     renderer.render(scene, kit.display, RenderSettings(lod=lod))
-    # the chain that render built (a second build cost every service start 0.1-0.2 s)
+    # the chain prepare built (a second build cost every service start 0.1-0.2 s)
     chain = renderer.lod.chain(scene.objects[-1].mesh, lod)
     boards = [BillboardObject(level) for level, kind in zip(chain.levels, chain.kinds,
                                                             strict=True) if kind == "billboard"]

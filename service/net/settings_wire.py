@@ -19,7 +19,7 @@ from typing import Any
 
 from service.base.errors import MessageError, SettingsError
 from service.display import DisplaySettings
-from service.lod.settings import lod_from
+from service.lod.settings import COLOUR_PCT_MAX, DEFAULT_COLOUR_PCT, LodSettings, lod_from
 from service.net import wire
 from service.render.cull import CULLS
 from service.render.light import EVALUATIONS, MODELS
@@ -57,11 +57,43 @@ def _lod_budget(r: RenderSettings) -> float:
 
 
 def _with_lod(r: RenderSettings, error_px: float, budget_ms: float) -> RenderSettings:
-    """``r`` with level of detail at these budgets (:func:`lod_from`), its other fields kept."""
+    """``r`` with level of detail at these budgets (:func:`lod_from`), its other fields kept.
+
+    Turned off, ``r.lod`` keeps only what the wire cannot turn off (the colour budget)
+    and is None where that is the default, so that settings go to the wire and back
+    unchanged.
+    """
     new = lod_from(error_px, budget_ms)
-    if new is not None and r.lod is not None:
-        new = replace(r.lod, error_px=new.error_px, budget_ms=new.budget_ms, enabled=True)
-    return replace(r, lod=new)
+    if r.lod is None:
+        return replace(r, lod=new)
+    if new is None:
+        return replace(r, lod=_off(replace(r.lod, error_px=LodSettings.error_px,
+                                           budget_ms=None)))
+    return replace(r, lod=replace(r.lod, error_px=new.error_px, budget_ms=new.budget_ms,
+                                  enabled=True))
+
+
+def _off(lod: LodSettings) -> LodSettings | None:
+    """Level of detail off: None, or (a colour budget not the default) kept, disabled."""
+    lod = replace(lod, enabled=False)
+    return None if lod == LodSettings(enabled=False) else lod
+
+
+def _lod_colour(r: RenderSettings) -> float | None:
+    return r.lod.colour_pct if r.lod is not None else DEFAULT_COLOUR_PCT
+
+
+def _with_colour(r: RenderSettings, pct: float | None) -> RenderSettings:
+    """``r`` with this colour budget; kept while level of detail is off (it does not turn it on)."""
+    if r.lod is None:
+        return replace(r, lod=_off(LodSettings(colour_pct=pct)))
+    lod = replace(r.lod, colour_pct=pct)
+    return replace(r, lod=lod if lod.enabled else _off(lod))
+
+
+def _colour_pct(v: Any, key: str) -> float | None:
+    """A colour budget on the wire: a % from 0 to 100, or null (colour not counted)."""
+    return None if v is None else wire.number(v, key, 0.0, COLOUR_PCT_MAX)
 
 
 def _rgb(v: Any, key: str) -> tuple[int, int, int]:
@@ -95,6 +127,8 @@ RENDER_FIELDS: dict[str, Row] = {
     "lod_error": (_lod_error, lambda r, v: _with_lod(r, v, _lod_budget(r)), _number(0.0, 1e6)),
     "lod_budget_ms": (_lod_budget, lambda r, v: _with_lod(r, _lod_error(r), v),
                       _number(0.0, 1e6)),
+    # null: colour not counted; kept while level of detail is off, and does not turn it on
+    "lod_colour_pct": (_lod_colour, _with_colour, _colour_pct),
 }
 
 #: wire key -> (read it from DisplaySettings, check a wire value's type).  The ranges

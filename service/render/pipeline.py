@@ -106,6 +106,20 @@ class Renderer:
         self._scratch = threading.local()
         self.lod = LodState()
 
+    def prepare(self, scene: Scene, lod: LodSettings | None = None,
+                timeout_s: float | None = None) -> bool:
+        """Build the level-of-detail chains ``scene``'s meshes lack, before its frames.
+
+        No frame builds a chain: one not built yet is drawn with its full mesh while
+        it builds in the background (:class:`~service.lod.state.LodState`).  A script
+        or test that wants its first frame's levels to be the chains' calls this
+        first; it waits for the builds (``timeout_s`` None: as long as they take).
+        ``lod`` is the frames' :class:`LodSettings` (its recipe picks the chain;
+        default ``LodSettings()``).  Returns whether every chain is ready.
+        """
+        self.lod.prepare(scene, lod if lod is not None else LodSettings())
+        return self.lod.wait(timeout_s)
+
     def _triangle_buffer(self, shape: tuple[int, int, int]) -> np.ndarray:
         """Reusable (Z, R, C) int32 triangle map of the calling thread for :meth:`render`.
 

@@ -26,6 +26,9 @@ from service.primitives import torus
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.scene import Scene, SceneObject, Transform, euler_quaternion
 
+#: Longest wait for a chain built in the background (the torus: well under a second quiet)
+WAIT_S = 120
+
 
 @pytest.fixture(scope="module")
 def ring():
@@ -34,8 +37,21 @@ def ring():
 
 
 @pytest.fixture(scope="module")
-def chain(ring, tmp_path_factory):
-    return build_chain(ring, cache=tmp_path_factory.mktemp("lod"))
+def lod_cache(tmp_path_factory):
+    """The module's chain cache: the ring's chain is built into it once."""
+    return tmp_path_factory.mktemp("lod")
+
+
+@pytest.fixture(scope="module")
+def chain(ring, lod_cache):
+    return build_chain(ring, cache=lod_cache)
+
+
+def _prepared(state: LodState, scene: Scene, lod: LodSettings) -> LodState:
+    """``state`` once the chains of ``scene`` are built (no frame builds one)."""
+    state.prepare(scene, lod)
+    assert state.wait(WAIT_S)
+    return state
 
 
 def _errors(draw_rows: int, draw_levels: int, rng: np.random.Generator) -> np.ndarray:
@@ -147,7 +163,9 @@ def test_bad_settings_are_a_clear_error(kwargs):
 
 @pytest.mark.parametrize("args", [["--lod-error", "0"], ["--lod-error", "-0.5"],
                                   ["--lod-error", "nan"], ["--budget-ms", "0"],
-                                  ["--lod", "maybe"]])
+                                  ["--lod", "maybe"], ["--lod-colour", "-1"],
+                                  ["--lod-colour", "nan"], ["--lod-colour", "101"],
+                                  ["--lod-colour", "some"]])
 def test_holo_render_refuses_bad_lod_options(args, tmp_path):
     run = subprocess.run(
         [sys.executable, "-m", "service.commands.holo_render", "builtin:game", "--out",
@@ -207,6 +225,7 @@ def test_the_pipeline_draws_the_chosen_levels(ring, chain, monkeypatch, tmp_path
                                name=f"o{i}")
                    for i, (x, s) in enumerate(zip([-0.5, 0.5], scales, strict=True))])
     r = Renderer()
+    assert r.prepare(scene, LodSettings(error_px=0.5), WAIT_S)  # builds, then the frame
     frame = r.render(scene, display, RenderSettings(lod=LodSettings(error_px=0.5)))
     report = frame.stats["lod"]
     assert report["levels"][1] >= 3 and report["levels"][1] > report["levels"][0]
@@ -219,12 +238,12 @@ def test_the_pipeline_draws_the_chosen_levels(ring, chain, monkeypatch, tmp_path
     assert "lod" not in off.stats
 
 
-def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp_path):
+def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, lod_cache):
     """render_with_motion (the service's workers and the game's local renderer) applies it."""
     from service.galilean.motion_field import render_with_motion
     from service.net.settings_wire import render_from_wire
 
-    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(lod_cache))  # the ring's chain is there
     settings = render_from_wire({"method": "zbuffer", "light_model": "ambient",
                                      "specular": "polygon", "lod_error": 0.5})
     assert settings.lod is not None and settings.lod.error_px == 0.5
@@ -247,9 +266,9 @@ def test_the_service_and_game_render_path_uses_lod(ring, chain, monkeypatch, tmp
 
 
 @pytest.mark.parametrize("hysteresis", [0.0, 0.25])
-def test_no_flicker_through_the_pipeline(ring, chain, monkeypatch, tmp_path, hysteresis):
+def test_no_flicker_through_the_pipeline(ring, chain, monkeypatch, lod_cache, hysteresis):
     """An object whose size wobbles 3 % around a level's threshold, frame after frame."""
-    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(lod_cache))  # the ring's chain is there
     display = DisplaySettings(zones=1, cols=48, rows=36)
     k = 2
     threshold = 0.5 / (chain.errors[k] * pixels_per_unit(display))  # level k at exactly 0.5 px
@@ -268,8 +287,8 @@ def test_no_flicker_through_the_pipeline(ring, chain, monkeypatch, tmp_path, hys
         assert changes >= 10, seen  # the test can see flicker when there is some
 
 
-def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch, tmp_path):
-    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+def test_budget_ms_degrades_past_the_error_and_says_so(ring, chain, monkeypatch, lod_cache):
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(lod_cache))  # the ring's chain is there
     display = DisplaySettings(zones=1, cols=64, rows=48)
     scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, -0.3]), scale=s),
                                name=f"o{i}")
@@ -362,7 +381,8 @@ def test_the_cost_model_is_the_line_the_frames_measured():
     assert busy.predict(4_600) == pytest.approx(20.0, rel=0.3)
 
 
-def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path, monkeypatch):
+def test_the_budget_degrades_the_smallest_then_the_farthest(ring, chain, lod_cache,
+                                                           monkeypatch):
     """Four rings: big near, big far, small near, small far; a budget one triangle short.
 
     (Without the budget's dead band, which aims 10 % under the budget: see below.)
@@ -372,8 +392,8 @@ def test_the_budget_degrades_the_smallest_then_the_farthest(ring, tmp_path, monk
     places = [(-0.6, -0.2, 1.0), (-0.2, -2.0, 1.0), (0.2, -0.2, 0.3), (0.6, -2.0, 0.3)]
     scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, z]), scale=s),
                                name=f"o{i}") for i, (x, z, s) in enumerate(places)])
-    state = LodState(cache=tmp_path)
     free = LodSettings(error_px=0.5)
+    state = _prepared(LodState(cache=lod_cache), scene, free)
     _, report = state.apply(scene, display, free)
     levels = list(report["levels"])
     state.observe(1_000, 50.0)  # a cold first frame, left out
@@ -457,6 +477,23 @@ def test_holo_render_lod_json_report_and_quality_auto(tmp_path):
         # the build says so on stderr (the first run); the second run reads the cache
         told = "building the level-of-detail chain" in run.stderr
         assert told == (not extra), run.stderr
+        assert lod["colour_pct"] == 1.0  # LodSettings' default
+
+
+@pytest.mark.parametrize(("given", "colour_pct"), [("2.5", 2.5), ("off", None), ("0", 0.0)])
+def test_holo_render_lod_colour_sets_the_colour_budget_and_turns_lod_on(lod_cache, tmp_path,
+                                                                        given, colour_pct):
+    import os
+
+    env = {**os.environ, "HOLO_LOD_CACHE": str(lod_cache)}  # the demo's chains: built once
+    run = subprocess.run(
+        [sys.executable, "-m", "service.commands.holo_render", "builtin:demo",
+         "--lod-colour", given, "--size", "48x36", "--json", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=300, env=env,
+    )
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert report["settings"]["lod"] == "on" and report["lod"]["colour_pct"] == colour_pct
 
 
 def test_unchanged_objects_and_levels_reuse_the_frame_and_a_move_does_not(ring, tmp_path):
@@ -490,6 +527,7 @@ def test_the_chosen_levels_stay_within_their_prediction_supersampled(tmp_path):
     centre = (spiky.vertices.min(axis=0) + spiky.vertices.max(axis=0)) / 2
     rng = np.random.default_rng(11)
     state, lod, renderer = LodState(cache=tmp_path), LodSettings(error_px=0.5), Renderer()
+    _prepared(state, Scene([SceneObject(spiky)]), lod)
     chosen = set()
     for i in range(8):
         s = float(np.exp(rng.uniform(np.log(0.05), np.log(1.5))))
@@ -542,12 +580,12 @@ def test_holo_render_budget_measures_before_the_frame_it_writes(tmp_path):
     assert lod["over_error"] >= 1 and lod["triangles"] < lod["triangles_full"]
 
 
-def test_a_wobbling_frame_cost_moves_no_object_under_the_budget(ring, tmp_path):
+def test_a_wobbling_frame_cost_moves_no_object_under_the_budget(ring, chain, lod_cache):
     """The measured cost wobbles +-4 % frame to frame around a binding budget."""
     display = DisplaySettings(zones=3, cols=160, rows=120)
     scene = Scene([SceneObject(ring, transform=Transform(np.array([x, 0, -0.5]), scale=0.4),
                                name=f"o{i}") for i, x in enumerate(np.linspace(-0.8, 0.8, 12))])
-    state = LodState(cache=tmp_path)
+    state = _prepared(LodState(cache=lod_cache), scene, LodSettings())
     # colour not counted: its finer levels would absorb the budget before the error does
     _, free = state.apply(scene, display, LodSettings(error_px=0.5, colour_pct=None))
     budget = LodSettings(error_px=0.5, budget_ms=0.6 * (2.0 + 1e-3 * free["triangles"]),

@@ -106,6 +106,9 @@ def test_a_torn_cache_warns_where_the_chain_is_built_in_the_frame(ring, tmp_path
 
 def test_another_recipe_gets_its_own_chain(ring, tmp_path):
     state = LodState(cache=tmp_path)
+    for recipe in (LodSettings(), LodSettings(fractions=(0.5,))):
+        state.prepare(_scene(ring), recipe)
+    assert state.wait(WAIT_S)
     full = state.chain(ring, LodSettings())
     half = state.chain(ring, LodSettings(fractions=(0.5,)))
     assert full.key != half.key and len(half.levels) == 2 < len(full.levels)
@@ -151,3 +154,50 @@ def test_build_progress_is_followed_from_the_build_process(ring, tmp_path):
     done = [d for _, d, n in heard[1:]]
     assert done == sorted(done) and done[-1] == heard[-1][2] >= 1  # every decimation
     assert builds.status()["built"] == 1 and builds.status()["progress"] is None
+
+
+def test_a_bare_renderer_never_builds_a_chain_in_its_frame(ring, tmp_path, monkeypatch):
+    """``Renderer()`` with nothing set: frames draw the full mesh while the chain builds
+    in a child process; nothing in this process builds one; ``prepare`` waits for it.
+
+    The build is held back by its lock file, so the frames provably did not wait for it.
+    """
+    import service.lod.cache
+    import service.lod.state
+
+    def no_build_here(*args, **kwargs):
+        raise AssertionError("a chain was built in the rendering process")
+
+    monkeypatch.setattr(service.lod.state, "build_chain", no_build_here)
+    monkeypatch.setattr(service.lod.cache, "build_chain", no_build_here)
+    monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
+    scene, renderer, key = _scene(ring), Renderer(), mesh_key(ring, LodSettings().recipe)
+    exact = Renderer().render(scene, DISPLAY, RenderSettings())  # level of detail off
+    with held_lock(tmp_path, key):
+        for _ in range(2):
+            frame = renderer.render(scene, DISPLAY, LOD)
+            assert renderer.lod.builds.building(key)  # the frame returned mid-build
+            lod = frame.stats["lod"]
+            assert lod["chains"] == {"ready": 0, "building": 1, "failed": 0}
+            assert lod["levels"] == [0, 0]
+            np.testing.assert_array_equal(frame.colour, exact.colour)
+        assert not renderer.prepare(scene, LOD.lod, timeout_s=0.0)  # still building
+    assert renderer.prepare(scene, LOD.lod, timeout_s=WAIT_S)
+    lod = renderer.render(scene, DISPLAY, LOD).stats["lod"]
+    assert lod["chains"]["ready"] == 1 and min(lod["levels"]) > 0
+
+
+def test_without_background_prepare_builds_here_and_a_frame_never(ring, tmp_path):
+    """``LodState(background=False)`` (the warm-up job): ``prepare`` builds in this process;
+    a mesh it did not prepare is drawn in full, with a note, and not built by the frame."""
+    renderer = Renderer()
+    renderer.lod = LodState(cache=tmp_path, background=False)
+    scene = _scene(ring)
+    lod = renderer.render(scene, DISPLAY, LOD).stats["lod"]
+    assert lod["levels"] == [0, 0] and lod["triangles"] == lod["triangles_full"]
+    assert "not prepared" in lod["chains"]["notes"][-1]
+    assert not list(tmp_path.iterdir()) and renderer.lod.builds is None  # nothing built
+    assert renderer.lod.prepare(scene, LOD.lod) == 1
+    assert renderer.lod.prepare(scene, LOD.lod) == 0  # in memory now
+    lod = renderer.render(scene, DISPLAY, LOD).stats["lod"]
+    assert lod["chains"]["ready"] == 1 and min(lod["levels"]) > 0

@@ -228,6 +228,8 @@ def test_the_colour_budget_follows_each_objects_material(ball):
 
     state = LodState(cache=False)
     settings = LodSettings(colour_pct=0.1, hysteresis=0.0)
+    state.prepare(crowd(MATERIAL), settings)
+    assert state.wait(120)
     geometric = state.apply(crowd(MATERIAL), display, LodSettings(colour_pct=None,
                                                                  hysteresis=0.0))[1]
     matte = state.apply(crowd(replace(MATERIAL, diffuse=0.0)), display, settings)[1]

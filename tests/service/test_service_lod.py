@@ -33,12 +33,18 @@ def test_lod_error_turns_level_of_detail_on_and_off(service_factory, tmp_path, m
     monkeypatch.setenv("HOLO_LOD_CACHE", str(tmp_path))
     svc = service_factory(
         "--scene", "game", "--zones", "3", "--size", "32x24",
-        "--workers", "0", "--refresh", "30", "--lod-error", "0.5",
+        "--workers", "0", "--refresh", "30", "--lod-error", "0.5", "--lod-colour", "2",
     )  # fmt: skip
     with ServiceClient(svc.control, timeout_s=30) as c:
         header, _ = c.render_once()
         lod = header["stats"]["lod"]
         assert lod["error_px"] == 0.5 and len(lod["levels"]) == len(lod["predicted_px"]) == 7
+        assert lod["colour_pct"] == 2.0  # --lod-colour
+        assert c.set_display(lod_colour_pct=None)["lod_colour_pct"] is None  # not counted
+        assert c.render_once()[0]["stats"]["lod"]["colour_pct"] is None
+        with pytest.raises(ServiceError, match="lod_colour_pct"):
+            c.set_display(lod_colour_pct=-1)
+        assert c.set_display(lod_colour_pct=0.5)["lod_colour_pct"] == 0.5
         assert all(p <= 0.5 for p in lod["predicted_px"])
         polled = c.stats()["lod"]  # the last finished render's levels, without a render
         assert polled["render_id"] >= header["render_id"] and len(polled["levels"]) == 7

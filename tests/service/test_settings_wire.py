@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from service.base.errors import MessageError
@@ -30,16 +30,15 @@ from service.render.pipeline import FALLBACKS, METHOD_NAMES, RenderSettings
 
 #: Fields of RenderSettings (dotted paths) that are deliberately not on the wire: the
 #: level-of-detail chain recipe (how chains are built and cached, a per-host choice)
-#: and the hysteresis (kept per renderer), and the colour budget (for now every
-#: service render keeps LodSettings' default, 1 %).  Any other field must have a row.
+#: and the hysteresis (kept per renderer).  Any other field must have a row.
 NOT_ON_WIRE = {"lod.enabled", "lod.hysteresis", "lod.fractions", "lod.cloud_eps",
-               "lod.texture_res", "lod.colour_pct"}
+               "lod.texture_res"}
 #: dotted field path -> the wire key that carries it.
 CARRIED = {"method": "method", "light.model": "light_model", "light.evaluation": "specular",
            "light.background": "background", "cull.mode": "cull",
            "cull.per_zone": "per_zone_cull", "painter_fallback": "painter_fallback",
            "painter_tolerance": "painter_tolerance", "lod.error_px": "lod_error",
-           "lod.budget_ms": "lod_budget_ms"}
+           "lod.budget_ms": "lod_budget_ms", "lod.colour_pct": "lod_colour_pct"}
 
 
 def _leaves(cls: type, prefix: str = "") -> set[str]:
@@ -69,17 +68,18 @@ def test_every_render_option_has_one_row_or_is_named_as_not_on_the_wire():
 
 
 renders = st.builds(
-    lambda m, lm, ev, bg, cull, pz, fb, tol, err, budget: render_from_wire({
+    lambda m, lm, ev, bg, cull, pz, fb, tol, err, budget, colour: render_from_wire({
         "method": m, "light_model": lm, "specular": ev, "background": bg, "cull": cull,
         "per_zone_cull": pz, "painter_fallback": fb, "painter_tolerance": tol,
-        "lod_error": err, "lod_budget_ms": budget}),
+        "lod_error": err, "lod_budget_ms": budget, "lod_colour_pct": colour}),
     st.sampled_from(METHOD_NAMES), st.sampled_from(sorted(MODELS)),
     st.sampled_from(sorted(EVALUATIONS)), st.lists(st.integers(0, 255), min_size=3, max_size=3),
     st.sampled_from(sorted(CULLS)), st.booleans(), st.sampled_from(FALLBACKS),
     st.integers(0, 1000), st.sampled_from([0.0, 0.25, 0.5, 2.0]),
-    st.sampled_from([0.0, 1.0, 40.0]))
+    st.sampled_from([0.0, 1.0, 40.0]), st.sampled_from([None, 0.0, 1.0, 2.5, 100.0]))
 
 
+@settings(deadline=None)  # a first call on a loaded machine took 0.48 s
 @given(renders)
 def test_render_settings_go_to_the_wire_and_back_unchanged(r):
     back = render_from_wire(render_to_wire(r))
@@ -108,6 +108,31 @@ def test_a_bad_value_is_bad_settings_naming_the_key(req, words):
     with pytest.raises(MessageError, match=words) as err:
         render_from_wire(req)
     assert err.value.code == "bad_settings"
+
+
+@pytest.mark.parametrize(("value", "words"), [
+    (-0.5, r"lod_colour_pct must be in \[0.0, 100.0\], got -0.5"),
+    (100.5, r"lod_colour_pct must be in \[0.0, 100.0\]"),
+    ("1%", "lod_colour_pct must be a number"),
+    (True, "lod_colour_pct must be a number"),
+    (float("nan"), "lod_colour_pct must be finite"),
+])
+def test_a_bad_colour_budget_is_refused_naming_the_key(value, words):
+    with pytest.raises(MessageError, match=words):
+        render_from_wire({"lod_error": 0.5, "lod_colour_pct": value})
+
+
+def test_the_colour_budget_is_kept_while_lod_is_off_and_does_not_turn_it_on():
+    """``lod_colour_pct``: LodSettings.colour_pct; null counts no colour."""
+    r = render_from_wire({"lod_colour_pct": 2.5})
+    assert r.lod is not None and not r.lod.enabled and r.lod.colour_pct == 2.5
+    r = render_from_wire({"lod_error": 0.5}, r)  # turned on: the budget set before holds
+    assert r.lod.enabled and (r.lod.error_px, r.lod.colour_pct) == (0.5, 2.5)
+    r = render_from_wire({"lod_error": 0.0}, r)  # off, and on again: still kept
+    assert not r.lod.enabled and render_from_wire({"lod_budget_ms": 5}, r).lod.colour_pct == 2.5
+    assert render_from_wire({"lod_error": 1.0, "lod_colour_pct": None}).lod.colour_pct is None
+    assert render_from_wire({"lod_colour_pct": 1.0}).lod is None  # the default: nothing kept
+    assert render_to_wire(RenderSettings())["lod_colour_pct"] == 1.0
 
 
 def _render_stats(c: ServiceClient) -> dict:
