@@ -169,13 +169,8 @@ class QualityChooser:
             self._tree_built = False
         self._last_geometry = key
         t, z, px = arrays.triangles.shape[0], display.zones, display.rows * display.cols
-        ms = {m: self.model.occlusion_ms(m, t, z, px, self._bad if m == "runlength" else 0)
-              for m in OCCLUSION}
-        if not self._static:
-            del ms["bsp"]  # the tree would be rebuilt every frame
-        elif not self._tree_built:  # shared by the frames the geometry has stayed put
-            ms["bsp"] += self.model.build_ms(t) / self._static_frames
-        method = min(ms, key=ms.__getitem__)
+        method, ms = cheapest_occlusion(self.model, t, z, px, self._bad,
+                                        self._static_frames, self._tree_built)
         reason = (f"cheapest exact method ({'static' if self._static else 'moving'} geometry, "
                   f"{self._bad} points out of sort order last frame)")
         return method, ms, reason
@@ -248,6 +243,41 @@ class QualityChooser:
                 "predicted_pct_wrong": round(best["pct_wrong"], 4),
                 "predicted_psnr": round(best["psnr"], 2),
                 "predicted_ms_per_refresh": round(per_refresh(best), 3)}
+
+
+def cheapest_occlusion(model: CostModel, triangles: int, zones: int, pixels: int,
+                       bad: int = 0, static_frames: int = 0,
+                       tree_built: bool = False) -> tuple[str, dict[str, float]]:
+    """The exact occlusion method the cost model predicts cheapest for one frame.
+
+    Parameters
+    ----------
+    model : CostModel
+    triangles, zones, pixels : int
+        The scene's triangles, the display's zones and pixels per zone.
+    bad : int
+        Points the run-length method's sort got wrong last frame (its repair's cost).
+    static_frames : int
+        Frames the geometry has stayed put so far (0: it moves, and BSP, whose tree
+        would be rebuilt every frame, is no candidate).
+    tree_built : bool
+        The BSP tree of this geometry exists; else its build is shared by the
+        ``static_frames`` frames.
+
+    Returns
+    -------
+    method : str
+        One of :data:`service.lod.cost.OCCLUSION`; ties go to the earlier one.
+    ms : dict of str to float
+        Predicted stages 1-4 ms of every candidate.
+    """
+    ms = {m: model.occlusion_ms(m, triangles, zones, pixels, bad if m == "runlength" else 0)
+          for m in OCCLUSION}
+    if static_frames <= 0:
+        del ms["bsp"]
+    elif not tree_built:
+        ms["bsp"] += model.build_ms(triangles) / static_frames
+    return min(ms, key=ms.__getitem__), ms
 
 
 def render_auto(renderer: Renderer, chooser: QualityChooser, scene: Scene,

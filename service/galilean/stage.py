@@ -23,10 +23,12 @@ numerically differentiated motion falls back to G(2)) and flags it.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -80,6 +82,13 @@ STILL_MIN = 0.25
 #: yet (a look at its index file, about 0.1 ms), while it is not.
 PLAIN_CHECK_S = 1.0
 
+#: Name of the thread that loads :func:`scatter_bands_plain` from numba's cache.
+PLAIN_LOADER = "galilean-plain-loader"
+
+
+def _signature(dispatcher: Any, args: tuple) -> tuple:
+    """The numba types ``dispatcher(*args)`` is compiled for (its overloads' key)."""
+    return tuple(dispatcher.typeof_pyval(a) for a in args)
 
 
 @dataclass(frozen=True)
@@ -279,9 +288,11 @@ class GalileanStage:
         self._snap = np.zeros(self._src.size, np.uint8)
         #: id of a map -> (its field arrays, their :func:`planes`), see :meth:`_planes`
         self._plane_views: dict[int, tuple] = {}
-        #: whether :func:`scatter_bands_plain` is compiled or cached (see
-        #: :meth:`_plain_ready`), and when that was last checked (monotonic s)
+        #: whether :func:`scatter_bands_plain` is loaded for the refresh's types (see
+        #: :meth:`_plain_ready`), and when its cache was last checked (monotonic s)
         self._plain, self._plain_checked = False, float("-inf")
+        #: the thread loading it from numba's cache, while it does
+        self._plain_loader: threading.Thread | None = None
 
     def _planes(self, gp: Galpixmap) -> tuple:
         """:func:`planes` of one of the stage's maps, built once per map and field set.
@@ -297,18 +308,40 @@ class GalileanStage:
         return kept[1]
 
     def _plain_ready(self, args: tuple) -> bool:
-        """Whether :func:`scatter_bands_plain` can run on ``args`` without compiling.
+        """Whether :func:`scatter_bands_plain` is loaded for ``args``' types.
 
-        Until it can, a refresh that neither uses nor records the still galpixels
+        Until it is, a refresh that neither uses nor records the still galpixels
         runs :func:`scatter_bands` with both off: the same map, bit for bit, with
         the bookkeeping's tests at run time.  On a cold cache the plain kernel (27 s
         of CPU) thus compiles in the background phase, off the first frame's path
-        (docs/compile-time.md).  Checked at most every :data:`PLAIN_CHECK_S`.
+        (docs/compile-time.md).  Its cache is checked at most every
+        :data:`PLAIN_CHECK_S`; once it holds the kernel, a thread of its own
+        (:data:`PLAIN_LOADER`) loads it (25-30 ms of CPU, which inside a refresh
+        was a hitch of 70-100 ms at load 5-8), and the stage switches to it at
+        the first refresh after that thread ends.
         """
+        if self._plain:
+            return True
+        loader = self._plain_loader
+        if loader is not None:
+            if not loader.is_alive():
+                self._plain_loader = None
+                self._plain = _signature(scatter_bands_plain, args) in scatter_bands_plain.overloads
+                if not self._plain:  # it raised (on stderr): keep the banded kernel
+                    self._plain_checked = float("inf")
+            return self._plain
         now = time.monotonic()
-        if not self._plain and now - self._plain_checked >= PLAIN_CHECK_S:
+        if now - self._plain_checked >= PLAIN_CHECK_S:
             self._plain_checked = now
-            self._plain = kernel_ready(scatter_bands_plain, args)
+            if kernel_ready(scatter_bands_plain, args):
+                sig = _signature(scatter_bands_plain, args)
+                if sig in scatter_bands_plain.overloads:  # this process has it already
+                    self._plain = True
+                else:  # load it from the cache (compile it if the cache went meanwhile)
+                    self._plain_loader = threading.Thread(
+                        target=scatter_bands_plain.compile, args=(sig,), name=PLAIN_LOADER,
+                        daemon=True)
+                    self._plain_loader.start()
         return self._plain
 
     def _map_changed(self) -> None:

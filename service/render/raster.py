@@ -596,8 +596,10 @@ def _zbuffer_band_one(
             for c in range(c0, c1 + 1):
                 d = st[9] + st[10] * (c + 0.5) + st[11] * y
                 d32, s = np.float32(d), depth_out[0, r, c]
-                if d32 < s or (d32 == s and _takes_tie_proj(
-                        d, s, t, tri_out[0, r, c], key, proj, 0, tris, rows, c + 0.5, y)):
+                if d32 < s or (d32 == s and _takes_tie_proj(  # a typed 0: the signature
+                        # zbuffer_kernel's zone index compiles (a literal would be another)
+                        d, s, t, tri_out[0, r, c], key, proj, np.int64(0), tris, rows, c + 0.5,
+                        y)):
                     depth_out[0, r, c] = d
                     tri_out[0, r, c] = t
 

@@ -14,8 +14,11 @@ import numpy as np
 from service.builtin_scenes import SCENES
 from service.galilean.motion_field import render_with_motion
 from service.galilean.shadow import shadow_depth
+from service.render.cull import cull_zones
+from service.render.depth_sort import depth_keys
 from service.render.light import LightSettings
 from service.render.pipeline import Renderer, RenderSettings
+from service.render.projection import project_tables
 from service.triangulate import ear_clip
 from service.warmup_job import FIRST, HERE, Job, Kit
 
@@ -49,6 +52,35 @@ def _render(method: str, model: str = "blinn", evaluation: str = "polygon",
     return job
 
 
+def _cull_sort(kit: Kit) -> None:
+    """Stages 1-3 of the service's render: project (by vertex too), cull, depth keys.
+
+    The first third of its first frame's path (see :func:`_visibility`).
+    """
+    cull = RenderSettings().cull
+    for name in ("game", "cyclic"):
+        arrays = kit.scene(name).flatten()
+        project_tables(arrays.vertices, kit.display, True)
+        keep, _, _ = cull_zones(arrays.normals, arrays.triangle_polygon,
+                                arrays.polygon_closed, kit.display, cull)
+        depth_keys(arrays.vertices, arrays.polygons, arrays.counts, arrays.triangle_polygon,
+                   keep)
+
+
+def _visibility(kit: Kit) -> None:
+    """Stages 1-4 of the service's render, without light: the z-buffer of its first frame.
+
+    After :func:`_cull_sort` (whose kernels it loads), the one-pass z-buffer (the
+    painter's fallback on the cyclic scene); ``render zbuffer`` (light and motion)
+    then loads these.  Split in three so that no job compiles for more than the
+    15 s budget (docs/compile-time.md).
+    """
+    renderer = Renderer()
+    settings = RenderSettings(method="zbuffer", painter_fallback="frame")  # as _render's
+    for name in ("game", "cyclic"):
+        renderer.visibility(kit.scene(name).flatten(), kit.display, settings)
+
+
 def _shadows(kit: Kit) -> None:
     """Depth-only shadow renders (:mod:`service.galilean.shadow`): cull, sort, z-buffer.
 
@@ -65,8 +97,11 @@ def _shadows(kit: Kit) -> None:
 #: This subsystem's jobs, in order (:data:`service.warmup.JOBS` gathers them).
 WARMUP_JOBS: dict[str, Job] = {
     "scenes: normals, triangulation": Job(_scenes, FIRST, first_frame=True),
-    # the service's render first (its workers' path); the uint8 frames of holo-render
-    # and --local after, off a cold service's first frame (3.5 s of CPU, 2026-11-29)
+    # the service's render first (its workers' path) in three jobs, each under 15 s:
+    # cull and sort, the z-buffer, light and motion (2026-11-29); the uint8 frames of
+    # holo-render and --local after, off a cold service's first frame
+    "render: project, cull, sort": Job(_cull_sort, FIRST, service=True, first_frame=True),
+    "render zbuffer: visibility": Job(_visibility, FIRST, service=True, first_frame=True),
     "render zbuffer": Job(_render("zbuffer", frames=False), FIRST, service=True,
                           first_frame=True),
     "render zbuffer, frames": Job(_render("zbuffer", motion=False), FIRST),

@@ -13,6 +13,7 @@ from service.quality import (
     ErrorBudget,
     QualityChooser,
     QualitySettings,
+    cheapest_occlusion,
     parse_budget,
     render_auto,
 )
@@ -53,10 +54,14 @@ def test_measured_error_stays_within_the_budget_over_scenes():
 
 
 def _model(runlength, zbuffer, bsp, build=(0.0, 0.0)):
-    """A cost model with given occlusion coefficients (1, k tri-zones, M px-zones, k bad)."""
+    """A cost model with given occlusion coefficients (1, k tri-zones, M px-zones, k bad).
+
+    The per-triangle term (:func:`service.lod.cost.occlusion_features`) is left at 0.
+    """
     base = CostModel.load()
-    return CostModel({"runlength": runlength, "zbuffer": zbuffer, "bsp": bsp}, list(build),
-                     base.light, base.galilean, {}, base.update_factor)
+    occ = {m: [c[0], 0.0, *c[1:]] for m, c in
+           (("runlength", runlength), ("zbuffer", zbuffer), ("bsp", bsp))}
+    return CostModel(occ, list(build), base.light, base.galilean, {}, base.update_factor)
 
 
 def _frames(scene_name, model, frames, moving=False, budget="2%"):
@@ -95,6 +100,43 @@ def test_a_static_scene_picks_bsp_when_it_is_cheapest_and_a_moving_one_never():
     assert "bsp" not in moving
     measured = [f.stats["quality"]["method"] for f in _frames("cyclic", CostModel.load(), 2)]
     assert measured[0] != "bsp"  # the shipped model never builds a tree for one frame
+
+
+#: Run-length cheaper per frame, the z-buffer per triangle: they cross at 10k
+#: triangle-zones; BSP's traversal cheapest of all, its tree 1 ms per k triangles.
+BY_SIZE = ([0.0, 0.05, 0.0, 0.0], [0.3, 0.02, 0.0, 0.0], [0.0, 0.01, 0.0, 0.0], (0.0, 1.0))
+
+
+def test_the_cheapest_method_by_scene_size_on_given_costs():
+    model, px = _model(*BY_SIZE), 320 * 240
+    pick = {t: cheapest_occlusion(model, t, 1, px)[0] for t in (1000, 8000, 10**5, 10**6)}
+    assert pick == {1000: "runlength", 8000: "runlength", 10**5: "zbuffer", 10**6: "zbuffer"}
+    assert cheapest_occlusion(model, 1000, 5, px)[0] == "runlength"  # 5k triangle-zones
+    assert cheapest_occlusion(model, 4000, 5, px)[0] == "zbuffer"  # 20k
+    method, ms = cheapest_occlusion(model, 10**6, 1, px)
+    assert set(ms) == {"runlength", "zbuffer"}  # moving: no tree rebuilt every frame
+    assert ms["zbuffer"] == pytest.approx(0.3 + 0.02 * 1000)
+    # static: the tree's build is shared by the frames the geometry stayed put
+    assert cheapest_occlusion(model, 10**5, 1, px, static_frames=60)[0] == "zbuffer"
+    assert cheapest_occlusion(model, 10**5, 1, px, static_frames=60, tree_built=True)[0] == "bsp"
+    assert cheapest_occlusion(model, 10**6, 1, px, static_frames=60)[0] == "zbuffer"
+    assert cheapest_occlusion(model, 10**6, 1, px, static_frames=600)[0] == "bsp"
+    # every point the sort got wrong costs the run-length method its repair
+    assert cheapest_occlusion(_model([0.0, 0.05, 0.0, 100.0], *BY_SIZE[1:]), 1000, 1, px,
+                              bad=10)[0] == "zbuffer"
+
+
+def test_auto_picks_by_the_size_of_real_scenes():
+    from service.bench.galilean_bench import complexity_scene
+
+    model, d = _model(*BY_SIZE), DisplaySettings(zones=1, cols=64, rows=48)
+    for extra, expected in ((0, "runlength"), (20_000, "zbuffer")):
+        scene = complexity_scene(extra, d)
+        chooser = QualityChooser(QualitySettings("auto"), model)
+        frame = render_auto(Renderer(), chooser, scene, d)
+        assert frame.stats["quality"]["method"] == expected, extra
+        exact = Renderer().render(scene, d)  # the z-buffer's
+        np.testing.assert_array_equal(frame.depth, exact.depth)
 
 
 def test_choices_and_predictions_are_reported_per_frame():
@@ -136,6 +178,12 @@ def test_cost_model_files_are_checked(tmp_path):
     good.write_text(CostModel.load().to_json())
     assert CostModel.load(good).occlusion == CostModel.load().occlusion
     assert np.isfinite(CostModel.load().occlusion_ms("zbuffer", 1000, 5, 76800))
+    # a model calibrated before the per-triangle term: told to recalibrate, not misread
+    old = json.loads(CostModel.load().to_json())
+    old["occlusion"] = {m: c[:1] + c[2:] for m, c in old["occlusion"].items()}
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    with pytest.raises(SettingsError, match="recalibrate"):
+        CostModel.load(tmp_path / "old.json")
 
 
 def _render_json(capsys, *argv):
@@ -192,3 +240,22 @@ def test_fit_recovers_costs_and_never_predicts_negative_work():
     # a cost that falls with the work (noise) gets no negative slope
     coef = fit([(f, 5.0 - 0.3 * f[1]) for f in x])
     assert min(coef) >= 0.0
+
+
+def test_the_scaling_check_says_whether_auto_picks_the_fastest():
+    from service.bench.quality_bench import scaling_check
+
+    model = _model(*BY_SIZE)
+    rows = [{"scene": "a", "triangles": 1000, "zones": 1, "size": "320x240", "pixels": 76800,
+             "bad": 0, "runlength_ms": 0.04, "zbuffer_ms": 0.3, "bsp_ms": 0.02,
+             "bsp_build_ms": 60.0},
+            {"scene": "b", "triangles": 10**6, "zones": 1, "size": "320x240", "pixels": 76800,
+             "bad": 0, "runlength_ms": 10.0, "zbuffer_ms": 30.0}]
+    small, big = scaling_check(model, rows)
+    assert (small["moving_pick"], small["moving_fastest"]) == ("runlength", "runlength")
+    # static: BSP's traversal measured fastest, but not with its 60 ms build shared by
+    # 60 frames; the model predicts a 1 ms build: the check shows the miss
+    assert (small["static_pick"], small["static_fastest"]) == ("bsp", "runlength")
+    assert small["zbuffer_predicted_ms"] == pytest.approx(0.3 + 0.02)
+    assert (big["moving_pick"], big["moving_fastest"]) == ("zbuffer", "runlength")  # a miss
+    assert "bsp_predicted_ms" not in big  # not timed past 100k triangles
