@@ -820,7 +820,10 @@ def zbuffer_zones_kernel(
         use = np.empty((1, 2), np.int64)
         use[0, 0], use[0, 1] = 0, rows - 1
     elif bands.shape[0] == 0:
-        use = balanced_bands(extent[0], extent[1], rows, threads, cols // 64 + 1, BAND_SETUP)
+        # a typed BAND_SETUP: a global constant would type as a literal, a signature
+        # the warm-up could not compile ahead of this kernel (render/warmup_jobs.py)
+        use = balanced_bands(extent[0], extent[1], rows, threads, cols // 64 + 1,
+                             np.int64(BAND_SETUP))
     else:
         use = bands.copy()  # writable, as balanced_bands' (one type for both)
     # several zones: each band marks its own copy without a branch, merged after
