@@ -19,7 +19,7 @@ import numpy as np
 
 from service.display import DisplaySettings
 from service.render.cull import CullSettings, cull, zone_mask
-from service.render.depth_sort import average_z, sort_polygons, triangle_order
+from service.render.depth_sort import NO_TIE_SOURCE, average_z, sort_polygons, triangle_order
 from service.render.projection import project
 from service.render.raster import zbuffer_kernel
 from service.render.scene import MotionState, Scene, Transform
@@ -86,7 +86,7 @@ def shadow_depth(
         arrays.triangle_polygon,
     )
     zbuffer_kernel(proj, arrays.triangles, np.ascontiguousarray(order), draw, tri, depth,
-                   np.zeros(0, np.uint64))  # drawn in the depth order: no key
+                   NO_TIE_SOURCE)  # drawn in the depth order: no key
     owner = np.asarray(keep_obj, np.int32)[arrays.polygon_object[arrays.triangle_polygon]]
     # one gather: triangle -1 (empty) reads the appended -1
     return depth, np.append(owner, np.int32(-1))[tri]

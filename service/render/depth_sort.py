@@ -173,6 +173,91 @@ def _depth_keys_all(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarr
     return order[:m], key
 
 
+def kept_triangles(triangle_polygon: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The triangles of the kept polygons, ascending: the z-buffer's drawing order.
+
+    :func:`depth_keys`' ``order`` without the keys: the z-buffer finds a tie's order
+    from :func:`tie_source` only where it meets one.
+
+    Parameters
+    ----------
+    triangle_polygon : ndarray, shape (T,)
+    keep : ndarray, shape (P,), bool
+
+    Returns
+    -------
+    ndarray, shape (M,), int64
+    """
+    return _kept_triangles(np.ascontiguousarray(triangle_polygon, np.int64),
+                           np.ascontiguousarray(keep, np.bool_))
+
+
+@nb.njit(cache=True, nogil=True)
+def _kept_triangles(triangle_polygon: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Numba body of :func:`kept_triangles` (no branch on ``keep``)."""
+    order = np.empty(triangle_polygon.shape[0] + 1, np.int64)
+    m = 0
+    for t in range(triangle_polygon.shape[0]):
+        order[m] = t
+        m += np.int64(keep[triangle_polygon[t]])
+    return order[:m]
+
+
+def tie_source(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+               triangle_polygon: np.ndarray) -> tuple:
+    """What the z-buffer's depth test reads to order two tied triangles.
+
+    (:func:`earlier_in_order` reads it.)
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+    polygons : ndarray, shape (P, K), padded with -1
+    counts : ndarray, shape (P,)
+    triangle_polygon : ndarray, shape (T,)
+        Polygon of each triangle (contiguous, in polygon order).
+
+    Returns
+    -------
+    tuple of ndarray
+        The four, contiguous float64 / int64; :data:`NO_TIE_SOURCE` when there is no
+        depth order to follow (ties then go to the triangle drawn first).
+    """
+    return (np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(polygons, np.int64),
+            np.ascontiguousarray(counts, np.int64),
+            np.ascontiguousarray(triangle_polygon, np.int64))
+
+
+#: :func:`tie_source` of nothing: no depth order, ties go to the triangle drawn first.
+NO_TIE_SOURCE = (np.empty((0, 3)), np.empty((0, 1), np.int64), np.empty(0, np.int64),
+                 np.empty(0, np.int64))
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _depth_value(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
+                 p: int) -> float:
+    """``-average z`` of polygon ``p``: :func:`_depth_keys`' arithmetic, term for term."""
+    s = 0.0
+    for k in range(counts[p]):
+        s += vertices[polygons[p, k], 2]
+    return -(s / counts[p])
+
+
+@nb.njit(cache=True, nogil=True)
+def earlier_in_order(source: tuple, t: int, u: int) -> bool:
+    """Whether triangle ``t`` comes before ``u`` in :func:`depth_order`.
+
+    ``(key[t], t) < (key[u], u)`` of :func:`depth_keys`, found from the two polygons
+    alone (``source``: :func:`tie_source`): -0.0 equal to 0.0, NaN last.
+    """
+    vertices, polygons, counts, triangle_polygon = source
+    a = _depth_value(vertices, polygons, counts, triangle_polygon[t])
+    b = _depth_value(vertices, polygons, counts, triangle_polygon[u])
+    if a != a or b != b:  # a NaN sorts after every number; two NaNs by index
+        return (b != b and a == a) or (a != a and b != b and t < u)
+    return a < b or (a == b and t < u)
+
+
 def sort_polygons_reference(avg_z: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
     """Polygon indices from nearest (highest average z) to farthest, by ``np.argsort``.
 

@@ -24,7 +24,7 @@ from service.display import DisplaySettings
 from service.lod.settings import LodSettings
 from service.lod.state import LodState
 from service.render.cull import CullSettings, cull_zones
-from service.render.depth_sort import depth_keys, depth_order
+from service.render.depth_sort import depth_order, kept_triangles, tie_source
 from service.render.frame import Frame
 from service.render.light import LightSettings, mark_shown, shade
 from service.render.mesh import Mesh
@@ -214,9 +214,10 @@ class Renderer:
             if not by_triangle:
                 draw = np.ascontiguousarray(draw.T)  # (Z, T)
         with clock("sort"):  # ties in depth go to the triangle earlier in the depth order
-            if name == "zbuffer":  # which its depth test finds from the key: no sort
-                order, key = depth_keys(arrays.vertices, arrays.polygons, arrays.counts,
-                                        arrays.triangle_polygon, keep)
+            if name == "zbuffer":  # which its depth test finds where a tie is: no sort
+                order = kept_triangles(arrays.triangle_polygon, keep)
+                key = tie_source(arrays.vertices, arrays.polygons, arrays.counts,
+                                 arrays.triangle_polygon)
             else:  # the other methods draw (or paint, or break ties) in the order
                 order = depth_order(arrays.vertices, arrays.polygons, arrays.counts,
                                     arrays.triangle_polygon, keep)

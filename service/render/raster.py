@@ -7,7 +7,7 @@ half-open in both directions (a pixel centre on a shared edge belongs to exactly
 one of the two triangles), and a triangle's depth is the plane through its three
 projected vertices, exact for the parallel projection used by every zone.
 
-The z-buffers take a ``key`` (:func:`service.render.depth_sort.depth_keys`) and then
+The z-buffers take a ``key`` (:func:`service.render.depth_sort.tie_source`) and then
 draw the triangles in any order with the pixels the depth order gives: a pixel
 stores the float32 of the depth that took it, and drawn in the depth order a
 triangle takes it when its float64 depth is below the stored one, so an exact tie
@@ -16,7 +16,10 @@ round to one float32).  That outcome needs no order (:func:`_tie_takes`): a lowe
 float32 always takes the pixel; at the same float32 ``s``, a triangle whose depth is
 below ``s`` beats one whose depth is not, the later of two below ``s`` wins (each
 took it from the one before) and the earlier of two not below ``s`` (neither could
-take it).  Without a key (an empty one) ties go to the triangle drawn first.
+take it).  The order of two tied triangles is found from their polygons only where a
+tie happens (:func:`service.render.depth_sort.earlier_in_order`): no key per triangle
+is computed for a frame.  Without one (``NO_TIE_SOURCE``) ties go to the triangle
+drawn first.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from llvmlite import ir
 from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
+
+from service.render.depth_sort import earlier_in_order
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -115,18 +120,18 @@ def row_span(
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _tie_takes(below: bool, held_below: bool, t: int, w: int, key: np.ndarray) -> bool:
+def _tie_takes(below: bool, held_below: bool, t: int, w: int, key: tuple) -> bool:
     """Whether triangle ``t`` takes a pixel from ``w`` at the same stored float32 depth.
 
     ``below`` and ``held_below``: whether each one's float64 depth is below the
-    stored one.  Decided as drawing in the depth order (``(key[t], t)`` ascending)
-    would (module docstring): the one below wins; of two below, the later; of two
-    not below, the earlier.
+    stored one.  Decided as drawing in the depth order
+    (:func:`service.render.depth_sort.earlier_in_order`, from ``key``, a
+    :func:`~service.render.depth_sort.tie_source`) would (module docstring): the one
+    below wins; of two below, the later; of two not below, the earlier.
     """
     if below != held_below:
         return below
-    earlier = key[t] < key[w] or (key[t] == key[w] and t < w)
-    return earlier != below
+    return earlier_in_order(key, t, w) != below
 
 
 @nb.njit(cache=True, nogil=True)
@@ -144,13 +149,13 @@ def _depth_at(proj: np.ndarray, z: int, tris: np.ndarray, w: int, rows: int,
 
 
 @nb.njit(cache=True, nogil=True)
-def _takes_tie_proj(d: float, s: float, t: int, w: int, key: np.ndarray, proj: np.ndarray,
+def _takes_tie_proj(d: float, s: float, t: int, w: int, key: tuple, proj: np.ndarray,
                     z: int, tris: np.ndarray, rows: int, x: float, y: float) -> bool:
     """Whether ``t`` (depth ``d``) takes a pixel whose stored depth ``s`` is float32(d).
 
     The holder ``w``'s depth is set up again from ``proj`` (rare: only at ties).
     """
-    if w < 0 or key.shape[0] == 0:  # empty, or no key: the order drawn decides
+    if w < 0 or key[3].shape[0] == 0:  # empty, or no key: the order drawn decides
         return d < s
     return _tie_takes(d < s, _depth_at(proj, z, tris, w, rows, x, y) < s, t, w, key)
 
@@ -163,7 +168,7 @@ def zbuffer_kernel(
     draw: np.ndarray,
     tri_out: np.ndarray,
     depth_out: np.ndarray,
-    key: np.ndarray,
+    key: tuple,
 ) -> None:
     """Z-buffer every zone (zones in parallel).
 
@@ -178,9 +183,10 @@ def zbuffer_kernel(
         :func:`service.render.cull.zone_mask`).
     tri_out : ndarray, shape (Z, R, C), int32, filled with -1
     depth_out : ndarray, shape (Z, R, C), float32, filled with +inf
-    key : ndarray, shape (T,) or (0,), uint64
-        :func:`service.render.depth_sort.depth_keys`: ties decided as the depth order
-        decides them (module docstring), in any ``order``; empty: to the first drawn.
+    key : tuple of ndarray
+        :func:`service.render.depth_sort.tie_source`: ties decided as the depth order
+        decides them (module docstring), in any ``order``;
+        :data:`~service.render.depth_sort.NO_TIE_SOURCE`: to the first drawn.
     """
     zones, rows, cols = tri_out.shape
     for z in nb.prange(zones):
@@ -294,7 +300,7 @@ def _zbuffer_band(
     tables: tuple,
     marks: np.ndarray,
     b: int,
-    key: np.ndarray,
+    key: tuple,
 ) -> None:
     """Clear rows ``lo..hi`` of every zone, z-buffer them, mark the items in sight.
 
@@ -371,7 +377,7 @@ def _zbuffer_band_zones(
     item: np.ndarray,
     marks: np.ndarray,
     b: int,
-    key: np.ndarray,
+    key: tuple,
 ) -> None:
     """:func:`_zbuffer_band` for several zones; marks the items in sight in ``marks[b]``.
 
@@ -399,7 +405,7 @@ def _zbuffer_band_zones(
     m = _setup_band(tables, tris, order, draw_t, extent, lo, hi, xs, plane, ys, trs, row)
     _clear_band(tri_out, depth_out, lo, hi)  # after the set-up: its reads stay in cache
     held = np.zeros((m, zones), np.int64)  # per triangle and zone: pixels it holds
-    if _draw_band(xs, plane, ys, trs, row, m, tri_out, depth_out, held) and key.shape[0]:
+    if _draw_band(xs, plane, ys, trs, row, m, tri_out, depth_out, held) and key[3].shape[0]:
         # a tie met in the order drawn: the band again, ties decided by the key
         _clear_band(tri_out, depth_out, lo, hi)
         _draw_band_keyed(xs, plane, ys, trs, row, m, tri_out, depth_out, key)
@@ -507,7 +513,7 @@ def _draw_band(
 @nb.njit(cache=True, nogil=True)
 def _draw_band_keyed(
     xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray, row: np.ndarray,
-    m: int, tri_out: np.ndarray, depth_out: np.ndarray, key: np.ndarray,
+    m: int, tri_out: np.ndarray, depth_out: np.ndarray, key: tuple,
 ) -> None:
     """:func:`_draw_band` with ties decided by ``key`` (:func:`_takes_tie_band`), no counts."""
     zones, cols = tri_out.shape[0], tri_out.shape[2]
@@ -544,10 +550,10 @@ def _count_held(tri_out: np.ndarray, row: np.ndarray, lo: int, hi: int,
 
 
 @nb.njit(cache=True, nogil=True)
-def _takes_tie_band(d: float, s: float, t: int, w: int, key: np.ndarray, plane: np.ndarray,
+def _takes_tie_band(d: float, s: float, t: int, w: int, key: tuple, plane: np.ndarray,
                     row: np.ndarray, z: int, x: float, y: float) -> bool:
     """:func:`_takes_tie_proj` in :func:`_draw_band`: ``w``'s depth from its set-up table row."""
-    if w < 0 or key.shape[0] == 0:
+    if w < 0 or key[3].shape[0] == 0:
         return d < s
     j = row[w]
     held = plane[j, 0, z] + plane[j, 1, z] * x + plane[j, 2, z] * y
@@ -566,7 +572,7 @@ def _zbuffer_band_one(
     tri_out: np.ndarray,
     depth_out: np.ndarray,
     drawn: np.ndarray,
-    key: np.ndarray,
+    key: tuple,
 ) -> None:
     """:func:`_zbuffer_band`'s drawing for one zone (buffers already cleared)."""
     rows, cols = tri_out.shape[1], tri_out.shape[2]
@@ -763,7 +769,7 @@ def zbuffer_zones_kernel(
     xz: np.ndarray,
     yd: np.ndarray,
     threads: int,
-    key: np.ndarray,
+    key: tuple,
 ) -> None:
     """Z-buffer every zone in one pass over the triangles, bands of rows in parallel.
 
@@ -805,10 +811,11 @@ def zbuffer_zones_kernel(
     threads : int
         Threads the kernel runs on (``numba.get_num_threads()``, which a kernel
         cached on disk cannot call itself), for ``bands`` with no rows.
-    key : ndarray, shape (T,) or (0,), uint64
-        :func:`service.render.depth_sort.depth_keys`: ties decided as the depth order
+    key : tuple of ndarray
+        :func:`service.render.depth_sort.tie_source`: ties decided as the depth order
         decides them (module docstring), so ``order`` may be any order (index order
-        needs no sort); empty: ties to the triangle drawn first.
+        needs no sort); :data:`~service.render.depth_sort.NO_TIE_SOURCE`: ties to the
+        triangle drawn first.
     """
     extent = shared_rows(proj, tris, order, tri_out.shape[1])
     if tri_out.shape[0] > 1 and xz.shape[0] == 0:  # several zones read proj by vertex

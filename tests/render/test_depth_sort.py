@@ -131,3 +131,19 @@ def test_depth_keys_rank_signed_zeros_and_ties_as_the_sort():
     keep = np.ones(6, bool)
     order, key = depth_keys(vertices, polygons, counts, np.arange(6), keep)
     np.testing.assert_array_equal(order[np.lexsort((order, key))], sort_polygons_reference(z))
+
+
+def test_a_ties_order_from_the_polygons_is_the_keys_order():
+    from service.render.depth_sort import depth_keys, earlier_in_order, tie_source
+
+    z = np.array([0.0, -0.0, 1.0, 1.0, -2.0, np.nan, 0.0, np.nan])
+    vertices = np.column_stack([np.zeros(8), np.zeros(8), z])
+    polygons = np.arange(8, dtype=np.int64).reshape(8, 1)
+    counts = np.ones(8, np.int64)
+    tri_poly = np.arange(8, dtype=np.int64)
+    _, key = depth_keys(vertices, polygons, counts, tri_poly, np.ones(8, bool))
+    source = tie_source(vertices, polygons, counts, tri_poly)
+    for t in range(8):
+        for u in range(8):
+            want = key[t] < key[u] or (key[t] == key[u] and t < u)
+            assert earlier_in_order(source, t, u) == want, (t, u)

@@ -6,7 +6,7 @@ import pytest
 from service.builtin_scenes import builtin_scene
 from service.display import DisplaySettings
 from service.render.cull import CullSettings, cull, zone_mask
-from service.render.depth_sort import average_z, sort_polygons, triangle_order
+from service.render.depth_sort import NO_TIE_SOURCE, average_z, sort_polygons, triangle_order
 from service.render.light import mark_shown
 from service.render.occlusion.zbuffer import rows_shared, zbuffer
 from service.render.projection import project, project_tables
@@ -121,7 +121,7 @@ def test_any_banding_gives_the_same_buffers(threads, per_thread):
     zbuffer_zones_kernel(
         proj, arrays.triangles, order, np.ascontiguousarray(draw.T), bands, tri, depth,
         arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)), threads,
-        np.zeros(0, np.uint64),
+        NO_TIE_SOURCE,
     )
     assert np.array_equal(tri, want.triangle)
     assert np.array_equal(depth, want.depth)
@@ -323,7 +323,7 @@ def test_the_kernels_own_bands_give_the_same_buffers(threads, zones):
         zbuffer_zones_kernel(
             proj, arrays.triangles, order, np.ascontiguousarray(draw.T), no_bands(), tri,
             depth, arrays.triangle_polygon, shown, np.empty((0, d.zones)), np.empty((0, 2)),
-            nb.get_num_threads(), np.zeros(0, np.uint64),
+            nb.get_num_threads(), NO_TIE_SOURCE,
         )
     finally:
         nb.set_num_threads(before)
@@ -347,7 +347,7 @@ def test_the_polygons_shown_drawn_far_to_near_in_many_bands(name, zones):
         zbuffer_zones_kernel(
             proj, arrays.triangles, order, np.ascontiguousarray(draw.T),
             row_bands(d.rows, threads, per_thread), tri, depth, arrays.triangle_polygon,
-            shown, np.empty((0, d.zones)), np.empty((0, 2)), threads, np.zeros(0, np.uint64),
+            shown, np.empty((0, d.zones)), np.empty((0, 2)), threads, NO_TIE_SOURCE,
         )
         assert np.array_equal(tri, want.triangle) and np.array_equal(depth, want.depth)
         want_shown = mark_shown(tri, arrays.triangle_polygon, arrays.n_polygons)
@@ -386,14 +386,15 @@ def _tied_triangles(seed: int, n: int = 300):
 def test_the_depth_key_gives_the_depth_orders_pixels_drawn_in_any_order(seed, zones):
     from types import SimpleNamespace
 
-    from service.render.depth_sort import depth_keys, depth_order
+    from service.render.depth_sort import depth_keys, depth_order, tie_source
 
     d = DisplaySettings(zones=zones, angle_deg=32.0, cols=80, rows=60)
     v, tris = _tied_triangles(seed)
     counts = np.full(tris.shape[0], 3, np.int64)
     poly = np.arange(tris.shape[0], dtype=np.int64)
     keep = np.random.default_rng(seed).random(tris.shape[0]) < 0.9
-    order, key = depth_keys(v, tris, counts, poly, keep)
+    order, _ = depth_keys(v, tris, counts, poly, keep)
+    key = tie_source(v, tris, counts, poly)
     sorted_ = depth_order(v, tris, counts, poly, keep)
     proj = project(v, d)
     scene = SimpleNamespace(triangles=tris)
@@ -412,13 +413,13 @@ def test_the_depth_key_gives_the_depth_orders_pixels_drawn_in_any_order(seed, zo
 @pytest.mark.parametrize("name", ["game", "cyclic", "threaded", "demo"])
 @pytest.mark.parametrize("zones", [1, 5])
 def test_the_key_in_index_order_equals_the_sorted_draw_on_the_scenes(name, zones):
-    from service.render.depth_sort import depth_keys
+    from service.render.depth_sort import kept_triangles, tie_source
 
     d = DisplaySettings(zones=zones, angle_deg=16.0, cols=160, rows=120)
     arrays, proj, order, draw = inputs(name, d)
     keep, _ = cull(arrays.normals, d, CullSettings())
-    index_order, key = depth_keys(arrays.vertices, arrays.polygons, arrays.counts,
-                                  arrays.triangle_polygon, keep)
+    index_order = kept_triangles(arrays.triangle_polygon, keep)
+    key = tie_source(arrays.vertices, arrays.polygons, arrays.counts, arrays.triangle_polygon)
     want = zbuffer(arrays, proj, d, order, draw)
     assert_same(zbuffer(arrays, proj, d, index_order, draw, key=key), want)
     assert_same(zbuffer(arrays, proj, d, index_order, draw, shared=False, key=key), want)

@@ -8,7 +8,7 @@ projection whose rows or depths differ between zones (not one
 :func:`service.render.projection.project` makes) takes the per-zone kernel; both give
 bit-identical buffers.
 
-Given the depth-order key (:func:`service.render.depth_sort.depth_keys`), both break
+Given the depth order's source (:func:`service.render.depth_sort.tie_source`), both break
 ties in depth inside the depth test as the depth order would, so the triangles need
 no sort: the pipeline draws them in index order (a full sort of a million triangles
 cost more than a third of the frame).
@@ -20,6 +20,7 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
+from service.render.depth_sort import NO_TIE_SOURCE
 from service.render.occlusion import Visibility
 from service.render.raster import no_bands, zbuffer_kernel, zbuffer_zones_kernel
 from service.render.scene import SceneArrays
@@ -58,7 +59,7 @@ def zbuffer(
     n_items: int = 0,
     draw_t: np.ndarray | None = None,
     tables: tuple[np.ndarray, np.ndarray] | None = None,
-    key: np.ndarray | None = None,
+    key: tuple | None = None,
 ) -> Visibility:
     """Z-buffer every zone.
 
@@ -94,9 +95,9 @@ def zbuffer(
         its rows and depths are shared by construction, so the one-pass kernel runs
         without :func:`rows_shared`'s check and reads these instead of laying the
         projection out by vertex itself (0.03 ms of a 5-zone game frame).
-    key : ndarray, shape (T,), uint64, optional
-        The depth-order key of every triangle
-        (:func:`service.render.depth_sort.depth_keys`).
+    key : tuple of ndarray, optional
+        :func:`service.render.depth_sort.tie_source` of the scene: ties in depth go
+        as the depth order has them, the order found only where a tie happens.
 
     Returns
     -------
@@ -106,7 +107,7 @@ def zbuffer(
     """
     zrc = (display.zones, display.rows, display.cols)
     order = np.ascontiguousarray(order)
-    key = np.zeros(0, np.uint64) if key is None else np.ascontiguousarray(key, np.uint64)
+    key = NO_TIE_SOURCE if key is None else key
     if draw_t is not None:
         draw = draw_t.T
     elif draw is None:
