@@ -23,8 +23,6 @@ from pathlib import Path
 import pytest
 import zmq
 
-from service.base.bands import THREAD_PREFIX as BANDS_THREAD_PREFIX
-
 sys.path.insert(0, str(Path(__file__).parent))  # ``import testkit`` from any folder
 
 from testkit import (  # noqa: E402
@@ -142,15 +140,13 @@ def cold_warmup(request: pytest.FixtureRequest) -> ColdWarmup:
     return cold
 
 
-#: Threads libraries keep for the life of the process (pyzmq's zero-copy garbage collector);
-#: the band runner's pool (service.base.bands) is kept the same way, by name.
+#: Threads libraries keep for the life of the process (pyzmq's zero-copy garbage collector).
 LIFELONG_THREAD_MODULES = ("zmq.",)
 
 
 def _threads() -> set[threading.Thread]:
     return {t for t in threading.enumerate()
-            if t.is_alive() and not type(t).__module__.startswith(LIFELONG_THREAD_MODULES)
-            and not t.name.startswith(BANDS_THREAD_PREFIX)}
+            if t.is_alive() and not type(t).__module__.startswith(LIFELONG_THREAD_MODULES)}
 
 
 def _sockets() -> set[zmq.Socket]:
