@@ -47,7 +47,7 @@ def add_colour_option(p: argparse.ArgumentParser) -> None:
         "--lod-colour", type=colour_pct, default=None, metavar="PCT|off",
         help="level of detail's colour budget: objects are drawn finer until at most PCT "
         f"%% of the display's pixels are predicted to change colour by more than "
-        f"{COLOUR_LEVELS} levels, 0 to {COLOUR_PCT_MAX:g} (default {DEFAULT_COLOUR_PCT:g}); "
+        f"{COLOUR_LEVELS} levels, 0 to {COLOUR_PCT_MAX:g} (default: {DEFAULT_COLOUR_PCT:g}); "
         "off: levels by the screen error alone (faster, colours change more)",
     )
 
