@@ -8,9 +8,10 @@ projections depth along every view ray is -z.
 
 Every occlusion method reads the order (run-length and BSP paint by it; the z-buffer
 and ray casting give a tie in depth to the triangle earlier in it).  The z-buffer
-needs no sort for that: :func:`depth_keys` gives each triangle the sort's key, and its
-depth test breaks ties by the key (:mod:`service.render.raster`), drawing the kept
-triangles in index order with the sorted order's pixels.  For the others the sort is
+needs no sort for that: it draws the kept triangles (:func:`kept_triangles`) in index
+order, and where two tie its depth test asks :func:`earlier_in_order`, which finds the
+sort's order of the two from their polygons alone (:mod:`service.render.raster`), so
+the pixels are the sorted order's.  For the others the sort is
 made cheap, giving
 exactly the permutation of ``np.argsort(-avg_z, kind="stable")`` (the reference,
 :func:`sort_polygons_reference`): the float64 keys become uint64 ones that sort the
@@ -113,71 +114,11 @@ def depth_order(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
     return triangle_order(order, triangle_polygon)
 
 
-def depth_keys(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
-               triangle_polygon: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The kept triangles in index order, and every triangle's depth-order key: no sort.
-
-    Triangle ``t`` comes before ``u`` in :func:`depth_order` exactly when
-    ``(key[t], t) < (key[u], u)``: ``key`` is the radix key of its polygon's
-    ``-average z`` (the sort's own key, -0.0 equal to 0.0, NaN last), and a polygon's
-    triangles are contiguous and in polygon order, so the triangle index breaks ties
-    as the polygon index does.  A depth test that breaks exact ties by this key
-    (:func:`service.render.raster.zbuffer_zones_kernel`) draws the triangles in any
-    order and gives the pixels the sorted order gives.
-
-    Parameters
-    ----------
-    vertices : ndarray, shape (V, 3)
-    polygons : ndarray, shape (P, K), padded with -1
-    counts : ndarray, shape (P,)
-    triangle_polygon : ndarray, shape (T,)
-        Polygon of each triangle (contiguous, in polygon order).
-    keep : ndarray, shape (P,), bool
-
-    Returns
-    -------
-    order : ndarray, shape (M,), int64
-        The triangles of the kept polygons, ascending.
-    key : ndarray, shape (T,), uint64
-    """
-    return _depth_keys_all(vertices, polygons, counts,
-                           np.ascontiguousarray(triangle_polygon, np.int64),
-                           np.ascontiguousarray(keep, np.bool_))
-
-
-@nb.njit(cache=True, nogil=True)
-def _depth_keys_all(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
-                    triangle_polygon: np.ndarray, keep: np.ndarray) -> tuple:
-    """Numba body of :func:`depth_keys` (the arithmetic of :func:`_depth_keys`)."""
-    n_poly = polygons.shape[0]
-    pkey = np.empty(n_poly, np.uint64)
-    values = pkey.view(np.float64)
-    for p in range(n_poly):
-        s = 0.0
-        for k in range(counts[p]):
-            s += vertices[polygons[p, k], 2]
-        values[p] = -(s / counts[p])
-    _to_keys(pkey)
-    n_tri = triangle_polygon.shape[0]
-    if n_tri == n_poly:  # one triangle each: polygon t is triangle t
-        key = pkey
-    else:
-        key = np.empty(n_tri, np.uint64)
-        for t in range(n_tri):
-            key[t] = pkey[triangle_polygon[t]]
-    order = np.empty(n_tri + 1, np.int64)
-    m = 0
-    for t in range(n_tri):  # no branch on keep (a cull leaves it in no pattern)
-        order[m] = t
-        m += np.int64(keep[triangle_polygon[t]])
-    return order[:m], key
-
-
 def kept_triangles(triangle_polygon: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """The triangles of the kept polygons, ascending: the z-buffer's drawing order.
 
-    :func:`depth_keys`' ``order`` without the keys: the z-buffer finds a tie's order
-    from :func:`tie_source` only where it meets one.
+    The z-buffer draws these in index order and finds a tie's order from
+    :func:`tie_source` only where it meets one (:func:`earlier_in_order`).
 
     Parameters
     ----------
@@ -236,7 +177,11 @@ NO_TIE_SOURCE = (np.empty((0, 3)), np.empty((0, 1), np.int64), np.empty(0, np.in
 @nb.njit(cache=True, nogil=True, inline="always")
 def _depth_value(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
                  p: int) -> float:
-    """``-average z`` of polygon ``p``: :func:`_depth_keys`' arithmetic, term for term."""
+    """``-average z`` of polygon ``p`` (:func:`average_z`'s arithmetic, term for term).
+
+    The one source of a polygon's depth for the sort (:func:`_depth_keys`) and for a
+    tie's order (:func:`earlier_in_order`), so the two agree bit for bit.
+    """
     s = 0.0
     for k in range(counts[p]):
         s += vertices[polygons[p, k], 2]
@@ -247,8 +192,9 @@ def _depth_value(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
 def earlier_in_order(source: tuple, t: int, u: int) -> bool:
     """Whether triangle ``t`` comes before ``u`` in :func:`depth_order`.
 
-    ``(key[t], t) < (key[u], u)`` of :func:`depth_keys`, found from the two polygons
-    alone (``source``: :func:`tie_source`): -0.0 equal to 0.0, NaN last.
+    The sort's order of two triangles (their polygons' ``-average z``, as
+    :func:`depth_order`'s radix keys order it, then the triangle index), found from the
+    two polygons alone (``source``: :func:`tie_source`): -0.0 equal to 0.0, NaN last.
     """
     vertices, polygons, counts, triangle_polygon = source
     a = _depth_value(vertices, polygons, counts, triangle_polygon[t])
@@ -368,10 +314,7 @@ def _depth_keys(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray,
     values = keys.view(np.float64)  # keys stays C-contiguous (a view is typed 'A')
     i = 0
     for p in range(polygons.shape[0]):
-        s = 0.0  # the arithmetic of average_z, term for term
-        for k in range(counts[p]):
-            s += vertices[polygons[p, k], 2]
-        values[i], idx[i] = -(s / counts[p]), p
+        values[i], idx[i] = _depth_value(vertices, polygons, counts, p), p
         i += np.int64(keep[p])
     keys, idx = keys[:n], idx[:n]
     _to_keys(keys)

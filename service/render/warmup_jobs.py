@@ -15,7 +15,7 @@ from service.builtin_scenes import SCENES
 from service.galilean.motion_field import render_with_motion
 from service.galilean.shadow import shadow_depth
 from service.render.cull import cull_zones
-from service.render.depth_sort import depth_keys
+from service.render.depth_sort import kept_triangles
 from service.render.light import LightSettings
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.projection import project_tables
@@ -67,8 +67,7 @@ def _cull_sort(kit: Kit) -> None:
         proj, _, _ = project_tables(arrays.vertices, kit.display, True)
         keep, _, _ = cull_zones(arrays.normals, arrays.triangle_polygon,
                                 arrays.polygon_closed, kit.display, cull)
-        order, _ = depth_keys(arrays.vertices, arrays.polygons, arrays.counts,
-                              arrays.triangle_polygon, keep)
+        order = kept_triangles(arrays.triangle_polygon, keep)
         rows, cols = kit.display.rows, kit.display.cols
         first, last = shared_rows(proj, arrays.triangles, np.ascontiguousarray(order), rows)
         vertex_tables(proj)

@@ -6,6 +6,8 @@ permutation, not a close one.  Where it could differ: equal keys (stability), -0
 against 0.0, infinities, NaN, nothing kept, one key shared by all (skipped digits).
 """
 
+import functools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -17,8 +19,11 @@ from service.render.cull import CullSettings, cull
 from service.render.depth_sort import (
     average_z,
     depth_order,
+    earlier_in_order,
+    kept_triangles,
     sort_polygons,
     sort_polygons_reference,
+    tie_source,
     triangle_order,
 )
 from service.render.mesh import Mesh
@@ -106,44 +111,39 @@ def test_exact_depth_ties_give_the_reference_pixels(method):
     assert 2 not in obj and {0, 1, 3} <= set(np.unique(obj).tolist())
 
 
-@pytest.mark.parametrize("name", ["game", "demo", "threaded"])
-def test_depth_keys_order_the_triangles_as_the_sort_does(name):
-    from service.render.depth_sort import depth_keys
+def _sorted_by_ties(order, source):
+    """``order`` sorted by :func:`earlier_in_order` alone (a total order: index breaks ties)."""
+    def cmp(t, u):
+        return 0 if t == u else (-1 if earlier_in_order(source, t, u) else 1)
+    return np.array(sorted(order.tolist(), key=functools.cmp_to_key(cmp)), np.int64)
 
+
+@pytest.mark.parametrize("name", ["game", "demo", "threaded"])
+def test_the_kept_triangles_ordered_by_ties_are_the_sort(name):
+    """What the z-buffer draws, ordered pairwise as its depth test orders a tie."""
     arrays = builtin_scene(name).flatten()
     display = DisplaySettings(zones=5, cols=64, rows=48)
     keep, _ = cull(arrays.normals, display, CullSettings())
-    order, key = depth_keys(arrays.vertices, arrays.polygons, arrays.counts,
-                            arrays.triangle_polygon, keep)
+    order = kept_triangles(arrays.triangle_polygon, keep)
     np.testing.assert_array_equal(order, np.flatnonzero(keep[arrays.triangle_polygon]))
-    by_key = order[np.lexsort((order, key[order]))]  # (key, triangle index) ascending
-    np.testing.assert_array_equal(by_key, depth_order(
+    source = tie_source(arrays.vertices, arrays.polygons, arrays.counts,
+                        arrays.triangle_polygon)
+    np.testing.assert_array_equal(_sorted_by_ties(order, source), depth_order(
         arrays.vertices, arrays.polygons, arrays.counts, arrays.triangle_polygon, keep))
 
 
-def test_depth_keys_rank_signed_zeros_and_ties_as_the_sort():
-    from service.render.depth_sort import depth_keys
-
-    z = np.array([0.0, -0.0, 1.0, 1.0, -2.0, 0.0])
-    vertices = np.column_stack([np.zeros(6), np.zeros(6), z])
-    polygons = np.arange(6, dtype=np.int64).reshape(6, 1)
-    counts = np.ones(6, np.int64)
-    keep = np.ones(6, bool)
-    order, key = depth_keys(vertices, polygons, counts, np.arange(6), keep)
-    np.testing.assert_array_equal(order[np.lexsort((order, key))], sort_polygons_reference(z))
-
-
-def test_a_ties_order_from_the_polygons_is_the_keys_order():
-    from service.render.depth_sort import depth_keys, earlier_in_order, tie_source
-
+def test_a_ties_order_ranks_signed_zeros_ties_and_nans_as_the_sort():
     z = np.array([0.0, -0.0, 1.0, 1.0, -2.0, np.nan, 0.0, np.nan])
     vertices = np.column_stack([np.zeros(8), np.zeros(8), z])
     polygons = np.arange(8, dtype=np.int64).reshape(8, 1)
     counts = np.ones(8, np.int64)
     tri_poly = np.arange(8, dtype=np.int64)
-    _, key = depth_keys(vertices, polygons, counts, tri_poly, np.ones(8, bool))
     source = tie_source(vertices, polygons, counts, tri_poly)
+    rank = np.empty(8, np.int64)
+    rank[depth_order(vertices, polygons, counts, tri_poly, np.ones(8, bool))] = np.arange(8)
     for t in range(8):
         for u in range(8):
-            want = key[t] < key[u] or (key[t] == key[u] and t < u)
-            assert earlier_in_order(source, t, u) == want, (t, u)
+            assert earlier_in_order(source, t, u) == (rank[t] < rank[u]), (t, u)
+    finite = np.flatnonzero(~np.isnan(z))  # the reference sort has no NaN rule of its own
+    np.testing.assert_array_equal(_sorted_by_ties(finite, source),
+                                  finite[sort_polygons_reference(z[finite])])

@@ -386,14 +386,14 @@ def _tied_triangles(seed: int, n: int = 300):
 def test_the_depth_key_gives_the_depth_orders_pixels_drawn_in_any_order(seed, zones):
     from types import SimpleNamespace
 
-    from service.render.depth_sort import depth_keys, depth_order, tie_source
+    from service.render.depth_sort import depth_order, kept_triangles, tie_source
 
     d = DisplaySettings(zones=zones, angle_deg=32.0, cols=80, rows=60)
     v, tris = _tied_triangles(seed)
     counts = np.full(tris.shape[0], 3, np.int64)
     poly = np.arange(tris.shape[0], dtype=np.int64)
     keep = np.random.default_rng(seed).random(tris.shape[0]) < 0.9
-    order, _ = depth_keys(v, tris, counts, poly, keep)
+    order = kept_triangles(poly, keep)
     key = tie_source(v, tris, counts, poly)
     sorted_ = depth_order(v, tris, counts, poly, keep)
     proj = project(v, d)
