@@ -43,17 +43,26 @@ def _galilean_kernels(kit: Kit) -> None:
     stage = GalileanStage(kit.display, GalileanSettings(order=2, refresh_hz=60.0))
     rng = np.random.default_rng(7)
     for k in range(2):
-        blank = Galpixmap.empty(2, stage.fixed, stage.shape)
-        f = {n: np.array(getattr(blank, n)) for n in FIELDS}
-        f["depth"][:] = rng.integers(2**20, 2**21, f["depth"].shape)
-        f["debris"][:], f["obj"][:] = 0, 0
-        f["colour"][:] = rng.uniform(0, 255, f["colour"].shape)
-        f["motion"][:] = rng.integers(-3000, 3000, f["motion"].shape)
-        f["frac"][:] = rng.integers(-100, 100, f["frac"].shape)
-        stage.submit(Galpixmap(order=2, fixed=stage.fixed, **f), stage.index + 1, None, True,
+        stage.submit(made_up_map(stage, rng), stage.index + 1, None, True,
                      (), None, None, MotionState())
         stage.viewer(MotionState(velocity=[0.1 * k, 0.0, 0.0], angular_velocity=[0.0, 0.2, 0.0]))
         stage_refreshes(stage)
+
+
+def made_up_map(stage: GalileanStage, rng: np.random.Generator) -> Galpixmap:
+    """A random G(2) map for ``stage``, each field a C-contiguous copy (as ``stitch`` lays out).
+
+    Every pixel covered (no debris, object 0), at random depths, colours, motions and
+    fractions: every galpixel moves, so a refresh runs every branch of the scatter.
+    """
+    blank = Galpixmap.empty(2, stage.fixed, stage.shape)
+    f = {n: np.array(getattr(blank, n)) for n in FIELDS}
+    f["depth"][:] = rng.integers(2**20, 2**21, f["depth"].shape)
+    f["debris"][:], f["obj"][:] = 0, 0
+    f["colour"][:] = rng.uniform(0, 255, f["colour"].shape)
+    f["motion"][:] = rng.integers(-3000, 3000, f["motion"].shape)
+    f["frac"][:] = rng.integers(-100, 100, f["frac"].shape)
+    return Galpixmap(order=2, fixed=stage.fixed, **f)
 
 
 def _plain_scatter(kit: Kit) -> None:

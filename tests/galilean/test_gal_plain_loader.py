@@ -17,25 +17,19 @@ import json, threading, time
 import numpy as np
 from service.display import DisplaySettings
 from service.galilean import GalileanSettings, GalileanStage
-from service.galilean.galpixmap import FIELDS, Galpixmap
 from service.galilean.scatter_bands import scatter_bands_plain
 from service.galilean.stage import PLAIN_LOADER
+from service.galilean.warmup_jobs import made_up_map
 from service.render.scene import MotionState
 
 stage = GalileanStage(DisplaySettings(zones=1, cols=64, rows=48),
                       GalileanSettings(order=2, refresh_hz=60.0))
 rng = np.random.default_rng(7)
-blank = Galpixmap.empty(2, stage.fixed, stage.shape)
-f = {n: np.array(getattr(blank, n)) for n in FIELDS}
-f["depth"][:] = rng.integers(2**20, 2**21, f["depth"].shape)
-f["debris"][:], f["obj"][:] = 0, 0
-f["colour"][:] = rng.uniform(0, 255, f["colour"].shape)
-f["motion"][:] = rng.integers(-3000, 3000, f["motion"].shape)
 steps, loaders = [], set()
 deadline = time.monotonic() + DEADLINE
 while time.monotonic() < deadline and not (steps and steps[-1][1]):
     if len(steps) % 8 == 0:  # a graft, then a head turn: well within the map's use-by
-        stage.submit(Galpixmap(order=2, fixed=stage.fixed, **f), stage.index + 1, None, True,
+        stage.submit(made_up_map(stage, rng), stage.index + 1, None, True,
                      (), None, None, MotionState())
         stage.refresh()
         stage.viewer(MotionState(velocity=[0.1, 0.0, 0.0], angular_velocity=[0.0, 0.2, 0.0]))
