@@ -220,3 +220,80 @@ def test_a_cache_save_waits_while_another_process_holds_the_cache_lock(tmp_path)
     finally:
         child.kill()
         child.wait()
+
+
+@pytest.fixture
+def values_original(monkeypatch):
+    """numba's own ``TargetConfig.values`` in place for the test (restored after)."""
+    from numba.core.targetconfig import TargetConfig
+
+    original = TargetConfig.values
+    original = getattr(original, "__wrapped__", original)
+    monkeypatch.setattr(TargetConfig, "values", original)
+    if numba_patches._source_digest(original) != numba_patches.FLAG_VALUES_SHA256:
+        pytest.skip(f"numba {nb.__version__}'s TargetConfig.values is not the one replaced")
+    return original
+
+
+def _flag_sets():
+    """Compiler flags as numba makes them: default, some options set, a copy, one unset again."""
+    from numba.core.compiler import Flags
+
+    plain = Flags()
+    some = Flags()
+    some.nrt = True
+    some.error_model = "numpy"
+    some.fastmath = True
+    some.auto_parallel = True
+    some.release_gil = False  # set to its default: still "set"
+    copy = some.copy()
+    copy.boundscheck = True
+    unset = copy.copy()
+    unset.discard("error_model")
+    return [plain, some, copy, unset]
+
+
+def test_flag_values_are_numbas_dict_key_for_key(values_original):
+    for flags in _flag_sets():
+        theirs = values_original(flags)
+        ours = numba_patches.flag_values(flags)
+        assert list(ours.items()) == list(theirs.items())  # same keys, order and values
+        assert all(ours[k] is theirs[k] for k in theirs)  # the very objects
+    a, b = _flag_sets()[1:3]
+    assert (numba_patches.flag_values(a) == numba_patches.flag_values(b)) is False
+
+
+def test_flag_values_patch_compiles_the_same(values_original):
+    from numba.core.targetconfig import TargetConfig
+
+    a = np.linspace(-2.0, 5.0, 11)
+    theirs = _inlining_source()
+    want = theirs(a, np.empty_like(a), 5)
+    assert numba_patches.faster_flag_values() is True
+    assert TargetConfig.values is numba_patches.flag_values
+    assert numba_patches.flag_values.__wrapped__ is values_original
+    assert numba_patches.faster_flag_values() is True  # idempotent
+    ours = _inlining_source()
+    np.testing.assert_array_equal(ours(a, np.empty_like(a), 5), want)
+    asm = [k.inspect_asm(k.signatures[0]) for k in (theirs, ours)]
+    assert _same_names(asm[0]) == _same_names(asm[1])
+
+
+def test_flag_values_leave_another_numba_alone(values_original, monkeypatch):
+    from numba.core.targetconfig import TargetConfig
+
+    monkeypatch.setattr(numba_patches, "FLAG_VALUES_SHA256", "0" * 64)
+    assert numba_patches.faster_flag_values() is False
+    assert TargetConfig.values is values_original
+
+
+def test_flag_values_ask_each_option_of_a_class_that_overrides_one(values_original):
+    from numba.core.compiler import Flags
+
+    class Odd(Flags):
+        pass
+
+    Odd.nrt = property(lambda self: "always")  # after the metaclass made its own
+    flags = Odd()
+    assert numba_patches.flag_values(flags) == values_original(flags)
+    assert numba_patches.flag_values(flags)["nrt"] == "always"
