@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numba as nb
 import numpy as np
 import pytest
@@ -220,3 +222,126 @@ def test_a_cache_save_waits_while_another_process_holds_the_cache_lock(tmp_path)
     finally:
         child.kill()
         child.wait()
+
+
+@pytest.fixture
+def values_original(monkeypatch):
+    """numba's own ``TargetConfig.values`` in place for the test (restored after)."""
+    from numba.core.targetconfig import TargetConfig
+
+    original = TargetConfig.values
+    original = getattr(original, "__wrapped__", original)
+    monkeypatch.setattr(TargetConfig, "values", original)
+    if numba_patches._source_digest(original) != numba_patches.FLAG_VALUES_SHA256:
+        pytest.skip(f"numba {nb.__version__}'s TargetConfig.values is not the one replaced")
+    return original
+
+
+def _flag_sets():
+    """Compiler flags as numba makes them: default, some options set, a copy, one unset again."""
+    from numba.core.compiler import Flags
+
+    plain = Flags()
+    some = Flags()
+    some.nrt = True
+    some.error_model = "numpy"
+    some.fastmath = True
+    some.auto_parallel = True
+    some.release_gil = False  # set to its default: still "set"
+    copy = some.copy()
+    copy.boundscheck = True
+    unset = copy.copy()
+    unset.discard("error_model")
+    return [plain, some, copy, unset]
+
+
+def test_flag_values_are_numbas_dict_key_for_key(values_original):
+    for flags in _flag_sets():
+        theirs = values_original(flags)
+        ours = numba_patches.flag_values(flags)
+        assert list(ours.items()) == list(theirs.items())  # same keys, order and values
+        assert all(ours[k] is theirs[k] for k in theirs)  # the very objects
+    a, b = _flag_sets()[1:3]
+    assert (numba_patches.flag_values(a) == numba_patches.flag_values(b)) is False
+
+
+def test_flag_values_patch_compiles_the_same(values_original):
+    from numba.core.targetconfig import TargetConfig
+
+    a = np.linspace(-2.0, 5.0, 11)
+    theirs = _inlining_source()
+    want = theirs(a, np.empty_like(a), 5)
+    assert numba_patches.faster_flag_values() is True
+    assert TargetConfig.values is numba_patches.flag_values
+    assert numba_patches.flag_values.__wrapped__ is values_original
+    assert numba_patches.faster_flag_values() is True  # idempotent
+    ours = _inlining_source()
+    np.testing.assert_array_equal(ours(a, np.empty_like(a), 5), want)
+    asm = [k.inspect_asm(k.signatures[0]) for k in (theirs, ours)]
+    assert _same_names(asm[0]) == _same_names(asm[1])
+
+
+def test_flag_values_leave_another_numba_alone(values_original, monkeypatch):
+    from numba.core.targetconfig import TargetConfig
+
+    monkeypatch.setattr(numba_patches, "FLAG_VALUES_SHA256", "0" * 64)
+    assert numba_patches.faster_flag_values() is False
+    assert TargetConfig.values is values_original
+
+
+def test_flag_values_ask_each_option_of_a_class_that_overrides_one(values_original):
+    from numba.core.compiler import Flags
+
+    class Odd(Flags):
+        pass
+
+    Odd.nrt = property(lambda self: "always")  # after the metaclass made its own
+    flags = Odd()
+    assert numba_patches.flag_values(flags) == values_original(flags)
+    assert numba_patches.flag_values(flags)["nrt"] == "always"
+
+
+@pytest.fixture
+def finalize_original(monkeypatch):
+    """numba's own ``CPUTargetOptions.finalize`` in place for the test (restored after)."""
+    from numba.core.cpu import CPUTargetOptions
+
+    original = CPUTargetOptions.finalize
+    original = getattr(original, "__wrapped__", original)
+    monkeypatch.setattr(CPUTargetOptions, "finalize", original)
+    return original
+
+
+def _cfunc_wrapped(kernel) -> bool:
+    """Whether ``kernel``'s one signature was compiled with its C-callable wrapper."""
+    cres = kernel.overloads[kernel.signatures[0]]
+    return cres.fndesc.llvm_cfunc_wrapper_name in cres.library.get_llvm_str()
+
+
+def test_kernels_compile_without_the_cfunc_wrapper_and_run_the_same(finalize_original):
+    from numba.core.cpu import CPUTargetOptions
+
+    a = np.linspace(-2.0, 5.0, 11)
+    theirs = _inlining_source()
+    want = theirs(a, np.empty_like(a), 5)
+    assert numba_patches.no_cfunc_wrappers() is True
+    assert CPUTargetOptions.finalize.__wrapped__ is finalize_original
+    assert numba_patches.no_cfunc_wrappers() is True  # idempotent
+    ours = _inlining_source()
+    np.testing.assert_array_equal(ours(a, np.empty_like(a), 5), want)  # called from Python
+    assert _cfunc_wrapped(theirs) and not _cfunc_wrapped(ours)
+    # the same instructions, fewer of them (local labels renumber: a function fewer)
+    mine, full = (re.sub(r"\.L(BB|func_end|tmp|CPI)\d+(_\d+)?", ".L",
+                         _same_names(k.inspect_asm(k.signatures[0]))).splitlines()
+                  for k in (ours, theirs))
+    assert len(mine) < len(full) and set(mine) <= set(full)
+
+
+def test_a_kernel_that_asks_for_its_cfunc_wrapper_and_numba_cfunc_keep_it(finalize_original):
+    import ctypes
+
+    assert numba_patches.no_cfunc_wrappers() is True
+    asked = nb.njit(no_cfunc_wrapper=False)(lambda x: x + 1.0)
+    assert asked(1.0) == 2.0 and _cfunc_wrapped(asked)
+    callback = nb.cfunc("float64(float64)")(lambda x: x * 2.0)
+    assert callback.ctypes(ctypes.c_double(1.5)) == 3.0
