@@ -12,11 +12,12 @@ from collections.abc import Callable
 import numpy as np
 
 from service.builtin_scenes import SCENES
+from service.galilean.galpixmap import RGB_TO_ABC
 from service.galilean.motion_field import render_with_motion
 from service.galilean.shadow import shadow_depth
 from service.render.cull import cull_zones
 from service.render.depth_sort import kept_triangles, tie_source
-from service.render.light import LightSettings
+from service.render.light import LightSettings, polygon_motion_tables
 from service.render.pipeline import Renderer, RenderSettings
 from service.render.projection import project_tables
 from service.render.raster import (
@@ -27,6 +28,7 @@ from service.render.raster import (
     vertex_tables,
 )
 from service.render.scene import SceneArrays
+from service.scene_motion import motion_derivatives
 from service.triangulate import ear_clip
 from service.warmup_job import FIRST, HERE, Job, Kit
 
@@ -114,6 +116,22 @@ def _visibility(kit: Kit) -> None:
         renderer.visibility(kit.scene(name).flatten(), kit.display, settings)
 
 
+def _flat_light(kit: Kit) -> None:
+    """Flat light and its time derivatives, as :func:`render_with_motion` computes them.
+
+    :func:`service.render.light.polygon_motion_tables` of the game scene (its parallel
+    kernel and the per-chunk body, about 10 s of CPU cold), after :func:`_visibility`
+    (whose kernels it loads): in the next job, ``render zbuffer``, they made it 15 s.
+    """
+    scene = kit.scene("game")
+    arrays = scene.flatten()
+    settings = RenderSettings(method="zbuffer", painter_fallback="frame")  # as _render's
+    vis, _, _ = Renderer().visibility(arrays, kit.display, settings)
+    rates = motion_derivatives(scene, 0.1, 1.0 / 60.0)
+    polygon_motion_tables(arrays, vis, kit.display, scene.lights, scene.ambient, settings.light,
+                          rates, 255.0, RGB_TO_ABC)
+
+
 def _shadows(kit: Kit) -> None:
     """Depth-only shadow renders (:mod:`service.galilean.shadow`): cull, sort, z-buffer.
 
@@ -130,11 +148,12 @@ def _shadows(kit: Kit) -> None:
 #: This subsystem's jobs, in order (:data:`service.warmup.JOBS` gathers them).
 WARMUP_JOBS: dict[str, Job] = {
     "scenes: normals, triangulation": Job(_scenes, FIRST, first_frame=True),
-    # the service's render first (its workers' path) in three jobs, each under 15 s:
-    # cull and sort, the z-buffer, light and motion (2026-11-29); the uint8 frames of
-    # holo-render and --local after, off a cold service's first frame
+    # the service's render first (its workers' path) in four jobs, each under 15 s:
+    # cull and sort, the z-buffer, flat light tables, light and motion (2026-11-29); the
+    # uint8 frames of holo-render and --local after, off a cold service's first frame
     "render: project, cull, sort": Job(_cull_sort, FIRST, service=True, first_frame=True),
     "render zbuffer: visibility": Job(_visibility, FIRST, service=True, first_frame=True),
+    "render: flat light tables": Job(_flat_light, FIRST, service=True, first_frame=True),
     "render zbuffer": Job(_render("zbuffer", frames=False), FIRST, service=True,
                           first_frame=True),
     "render zbuffer, frames": Job(_render("zbuffer", motion=False), FIRST),
