@@ -272,7 +272,9 @@ def _tile_runs(q: int, tex: np.ndarray, grid: np.ndarray, gofs: np.ndarray, tile
     """
     rows, cols = tex[q, 1], tex[q, 2]
     tcols = (cols + tile - 1) // tile
-    n, above = 0, 0  # runs so far; the first run of the tile row above
+    # runs so far; the first run of the tile row above (typed: a literal 0 passed to
+    # _runs_reaching compiled a second signature of it)
+    n, above = np.int64(0), np.int64(0)
     for ti in range(0, (rows + tile - 1) // tile):
         here = n
         i0, i1 = ti * tile, min(ti * tile + tile, rows)

@@ -162,7 +162,8 @@ WARMUP_JOBS: dict[str, Job] = {
     # first of the HERE jobs: see _shadows
     "galilean: depth-only shadows": Job(_shadows, HERE),
     "render runlength": Job(_render("runlength"), HERE),
-    "render runlength, pixel fallback": Job(_render("runlength", fallback="pixel"), HERE),
+    "render runlength, pixel fallback": Job(_render("runlength", fallback="pixel"), HERE,
+                                            after="render runlength"),
     "render bsp": Job(_render("bsp"), HERE),
     "render raycast": Job(_render("raycast"), HERE),
     "light vertex (Gouraud)": Job(_render("zbuffer", "blinn", "vertex"), HERE),
