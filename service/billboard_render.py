@@ -272,7 +272,9 @@ def _tile_runs(q: int, tex: np.ndarray, grid: np.ndarray, gofs: np.ndarray, tile
     """
     rows, cols = tex[q, 1], tex[q, 2]
     tcols = (cols + tile - 1) // tile
-    n, above = 0, 0  # runs so far; the first run of the tile row above
+    # runs so far; the first run of the tile row above (typed: a literal 0 passed to
+    # _runs_reaching compiled a second signature of it)
+    n, above = np.int64(0), np.int64(0)
     for ti in range(0, (rows + tile - 1) // tile):
         here = n
         i0, i1 = ti * tile, min(ti * tile + tile, rows)
@@ -453,7 +455,7 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
     return writes, covered, visited
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _front_near(quad: np.ndarray, bquad: np.ndarray, k: int, i: int, j: int, di: int,
                 dj: int, reach: int) -> bool:
     """Whether front-facing texels show on both sides of ``(i, j)`` along ``(di, dj)``.
@@ -490,6 +492,7 @@ def _fill_back(k: int, boxes: np.ndarray, bquad: np.ndarray, btexel: np.ndarray,
     depth.  Returns pixel writes and pixels covered.
     """
     writes = 0
+    zero, one = np.int64(0), np.int64(1)  # typed: literals would compile a twin of _front_near
     for _ in range(2):  # again: a pixel whose neighbour was filled after it was looked at
         for i in range(boxes[k, 0], boxes[k, 1]):
             for j in range(boxes[k, 2], boxes[k, 3]):
@@ -497,8 +500,8 @@ def _fill_back(k: int, boxes: np.ndarray, bquad: np.ndarray, btexel: np.ndarray,
                     continue
                 q, t, d = 0, 0, np.inf
                 if bquad[k, i, j] > 0 and bdepth[k, i, j] < depth[k, i, j] and (
-                        _front_near(quad, bquad, k, i, j, 0, 1, FILL_REACH)
-                        or _front_near(quad, bquad, k, i, j, 1, 0, FILL_REACH)):
+                        _front_near(quad, bquad, k, i, j, zero, one, FILL_REACH)
+                        or _front_near(quad, bquad, k, i, j, one, zero, FILL_REACH)):
                     d, q, t = np.float64(bdepth[k, i, j]), bquad[k, i, j], btexel[k, i, j]
                 if q == 0:
                     d, q, t = _between(quad, depth, texel, k, i, j)
@@ -512,7 +515,7 @@ def _fill_back(k: int, boxes: np.ndarray, bquad: np.ndarray, btexel: np.ndarray,
     return writes, writes
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _between(quad: np.ndarray, depth: np.ndarray, texel: np.ndarray, k: int, i: int,
              j: int) -> tuple[float, int, int]:
     """The nearer of two drawn neighbours across ``(i, j)``: mean depth, quad, texel.

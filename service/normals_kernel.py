@@ -20,15 +20,20 @@ def corner_normals_kernel(
     ``face_normals`` (T, 3) unit normal of each triangle's polygon.
     """
     t_count = triangles.shape[0]
-    n_weld = weld.max() + 1 if weld.size else 0
+    # scalars and loops, no array expressions (``weld.max()``, ``b - a``, ``acc / ln``,
+    # ``.copy()``): numba compiles each as code of its own, most of this kernel's compile
+    n_weld = 0
+    for i in range(weld.shape[0]):
+        n_weld = max(n_weld, weld[i] + 1)
     # CSR list of triangle corners per welded vertex
     deg = np.zeros(n_weld + 1, np.int64)
     for t in range(t_count):
         for c in range(3):
             deg[weld[triangles[t, c]] + 1] += 1
+    fill = np.empty(n_weld, np.int64)
     for i in range(n_weld):
+        fill[i] = deg[i]
         deg[i + 1] += deg[i]
-    fill = deg[:-1].copy()
     adj = np.empty(t_count * 3, np.int64)
     for t in range(t_count):
         for c in range(3):
@@ -37,22 +42,23 @@ def corner_normals_kernel(
             fill[w] += 1
     area_n = np.empty((t_count, 3))
     for t in range(t_count):
-        a = vertices[triangles[t, 0]]
-        b = vertices[triangles[t, 1]]
-        c = vertices[triangles[t, 2]]
-        e1 = b - a
-        e2 = c - a
+        a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        e10, e11, e12 = (vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1],
+                         vertices[b, 2] - vertices[a, 2])
+        e20, e21, e22 = (vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1],
+                         vertices[c, 2] - vertices[a, 2])
         area = 0.5 * np.sqrt(
-            (e1[1] * e2[2] - e1[2] * e2[1]) ** 2
-            + (e1[2] * e2[0] - e1[0] * e2[2]) ** 2
-            + (e1[0] * e2[1] - e1[1] * e2[0]) ** 2
+            (e11 * e22 - e12 * e21) ** 2
+            + (e12 * e20 - e10 * e22) ** 2
+            + (e10 * e21 - e11 * e20) ** 2
         )
-        area_n[t] = face_normals[t] * (area + 1e-30)
+        for k in range(3):
+            area_n[t, k] = face_normals[t, k] * (area + 1e-30)
     out = np.empty((t_count, 3, 3))
     for t in range(t_count):
         for c in range(3):
             w = weld[triangles[t, c]]
-            acc = np.zeros(3)
+            acc0, acc1, acc2 = 0.0, 0.0, 0.0
             for j in range(deg[w], deg[w + 1]):
                 u = adj[j]
                 d = (
@@ -61,12 +67,16 @@ def corner_normals_kernel(
                     + face_normals[u, 2] * face_normals[t, 2]
                 )
                 if d >= cos_crease:
-                    acc += area_n[u]
-            ln = np.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2)
+                    acc0 += area_n[u, 0]
+                    acc1 += area_n[u, 1]
+                    acc2 += area_n[u, 2]
+            ln = np.sqrt(acc0 ** 2 + acc1 ** 2 + acc2 ** 2)
             if ln > 0:
-                out[t, c] = acc / ln
+                out[t, c, 0], out[t, c, 1], out[t, c, 2] = acc0 / ln, acc1 / ln, acc2 / ln
             else:
-                out[t, c] = face_normals[t]
+                out[t, c, 0], out[t, c, 1], out[t, c, 2] = (face_normals[t, 0],
+                                                            face_normals[t, 1],
+                                                            face_normals[t, 2])
     return out
 
 

@@ -74,63 +74,68 @@ def ear_clip_2d(x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
 
 
 @nb.njit(cache=True, nogil=True)
-def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """Dot product of two 3-vectors (no BLAS)."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+def _plane_normal(pts: np.ndarray) -> tuple[float, float, float]:
+    """Best-fit plane normal of corners ``pts`` (n, 3): Newell's, or a fallback if tiny.
 
-
-@nb.njit(cache=True, nogil=True)
-def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of two 3-vectors."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
-
-
-@nb.njit(cache=True, nogil=True)
-def _plane_normal(pts: np.ndarray) -> np.ndarray:
-    """Best-fit plane normal of corners ``pts`` (n, 3): Newell's, or a fallback if tiny."""
+    Scalars only, no array expressions: numba compiles each of those (array
+    subtraction, division, ``sum(axis=0)``) as code of its own, which cost most of
+    this file's compile time and nothing here needs.
+    """
     n = pts.shape[0]
-    normal = np.zeros(3)
+    nx, ny, nz = 0.0, 0.0, 0.0
     for i in range(n):
-        p, q = pts[i], pts[(i + 1) % n]
-        normal[0] += (p[1] - q[1]) * (p[2] + q[2])
-        normal[1] += (p[2] - q[2]) * (p[0] + q[0])
-        normal[2] += (p[0] - q[0]) * (p[1] + q[1])
+        j = (i + 1) % n
+        nx += (pts[i, 1] - pts[j, 1]) * (pts[i, 2] + pts[j, 2])
+        ny += (pts[i, 2] - pts[j, 2]) * (pts[i, 0] + pts[j, 0])
+        nz += (pts[i, 0] - pts[j, 0]) * (pts[i, 1] + pts[j, 1])
     # the diameter, and the corner farthest from its line
     bi, bj, diam2 = 0, 0, 0.0
     for i in range(n):
         for j in range(i + 1, n):
-            d = pts[j] - pts[i]
-            dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+            d0, d1, d2 = pts[j, 0] - pts[i, 0], pts[j, 1] - pts[i, 1], pts[j, 2] - pts[i, 2]
+            dd = d0 * d0 + d1 * d1 + d2 * d2
             if dd > diam2:
                 bi, bj, diam2 = i, j, dd
-    length = np.sqrt(_dot(normal, normal))
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
     if length > 1e-9 * diam2:
-        return normal / length
-    axis = pts[bj] - pts[bi]
-    best = np.zeros(3)
+        return nx / length, ny / length, nz / length
+    a0, a1, a2 = pts[bj, 0] - pts[bi, 0], pts[bj, 1] - pts[bi, 1], pts[bj, 2] - pts[bi, 2]
+    b0, b1, b2 = 0.0, 0.0, 0.0
     best_len = 0.0
     for k in range(n):
-        c = _cross3(axis, pts[k] - pts[bi])
-        cl = np.sqrt(_dot(c, c))
+        p0, p1, p2 = pts[k, 0] - pts[bi, 0], pts[k, 1] - pts[bi, 1], pts[k, 2] - pts[bi, 2]
+        c0, c1, c2 = a1 * p2 - a2 * p1, a2 * p0 - a0 * p2, a0 * p1 - a1 * p0
+        cl = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         if cl > best_len:
-            best, best_len = c, cl
+            b0, b1, b2, best_len = c0, c1, c2, cl
     if best_len == 0.0:
-        return np.array([0.0, 0.0, 1.0])  # all on one line: any plane through it
-    return best / best_len
+        return 0.0, 0.0, 1.0  # all on one line: any plane through it
+    return b0 / best_len, b1 / best_len, b2 / best_len
 
 
 @nb.njit(cache=True, nogil=True)
-def _project(pts: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """2-D coordinates of ``pts`` (n, 3) in a right-handed basis (u, v) of the plane."""
-    ax = np.zeros(3)
-    ax[np.argmin(np.abs(normal))] = 1.0
-    u = _cross3(normal, ax)
-    u /= np.sqrt(_dot(u, u))
-    v = _cross3(normal, u)
-    x = pts[:, 0] * u[0] + pts[:, 1] * u[1] + pts[:, 2] * u[2]
-    y = pts[:, 0] * v[0] + pts[:, 1] * v[1] + pts[:, 2] * v[2]
-    return x, y
+def _project(pts: np.ndarray, n0: float, n1: float, n2: float, x: np.ndarray,
+             y: np.ndarray) -> None:
+    """2-D coordinates of ``pts`` (n, 3) in a right-handed basis (u, v) of the plane.
+
+    The normal is ``(n0, n1, n2)``; ``u`` is it crossed with the axis it is least along
+    (the first such, NaN first, as ``np.argmin``); written into ``x``, ``y`` (n,).
+    """
+    m, k = abs(n0), 0
+    a = abs(n1)
+    if not np.isnan(m) and (a < m or np.isnan(a)):
+        m, k = a, 1
+    a = abs(n2)
+    if not np.isnan(m) and (a < m or np.isnan(a)):
+        k = 2
+    x0, x1, x2 = 1.0 if k == 0 else 0.0, 1.0 if k == 1 else 0.0, 1.0 if k == 2 else 0.0
+    u0, u1, u2 = n1 * x2 - n2 * x1, n2 * x0 - n0 * x2, n0 * x1 - n1 * x0
+    ul = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    u0, u1, u2 = u0 / ul, u1 / ul, u2 / ul
+    v0, v1, v2 = n1 * u2 - n2 * u1, n2 * u0 - n0 * u2, n0 * u1 - n1 * u0
+    for i in range(pts.shape[0]):
+        x[i] = pts[i, 0] * u0 + pts[i, 1] * u1 + pts[i, 2] * u2
+        y[i] = pts[i, 0] * v0 + pts[i, 1] * v1 + pts[i, 2] * v2
 
 
 @nb.njit(cache=True, nogil=True)
@@ -149,16 +154,24 @@ def ear_clip_polygons(
         r = rows[s]
         k = counts[r]
         pts = np.empty((k, 3))
-        for i in range(k):
-            pts[i] = vertices[polygons[r, i]]
-        centre = pts.sum(axis=0) / k
-        pts -= centre
-        x, y = _project(pts, _plane_normal(pts))
+        for c in range(3):
+            total = 0.0  # the corners' mean, summed in order (as ``sum(axis=0)``)
+            for i in range(k):
+                pts[i, c] = vertices[polygons[r, i], c]
+                total += pts[i, c]
+            centre = total / k
+            for i in range(k):
+                pts[i, c] -= centre
+        n0, n1, n2 = _plane_normal(pts)
+        x = np.empty(k)
+        y = np.empty(k)
+        _project(pts, n0, n1, n2, x, y)
         area = 0.0
         for i in range(k):
             area += x[i] * y[(i + 1) % k] - x[(i + 1) % k] * y[i]
         if area < 0.0:  # a fallback normal may face the other way
-            y = -y
+            for i in range(k):
+                y[i] = -y[i]
         local = np.empty((k - 2, 3), np.int64)
         ear_clip_2d(x, y, local)
         for t in range(k - 2):

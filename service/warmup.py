@@ -20,8 +20,10 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -41,7 +43,7 @@ from service.loaders import warmup_jobs as loaders_jobs
 from service.lod import warmup_jobs as lod_jobs
 from service.numba_patches import apply_all as numba_patches
 from service.render import warmup_jobs as render_jobs
-from service.warmup_job import APART, EARLY, FIRST, PARTS, Job, Kit
+from service.warmup_job import APART, EARLY, FIRST, HERE, PARTS, Job, Kit
 
 __all__ = [
     "FIRST_FRAME_JOBS", "JOBS", "SERVICE_JOBS", "WarmupReport", "WarmupStep", "cache_counts",
@@ -272,18 +274,39 @@ def _run(name: str, kit: Kit) -> tuple[float, int]:
     return time.perf_counter() - t0, cache_counts()[1] - misses0
 
 
+def claim(share: Path, name: str) -> bool:
+    """Claim job ``name`` in the folder ``share`` two processes take ``HERE`` jobs from.
+
+    True for the first process to ask (the claim is a file created exclusively,
+    holding its pid), False for any later one: each shared job runs in one process,
+    whichever is free first, so the two end close together whatever each job costs.
+    """
+    path = share / f"{list(JOBS).index(name)}.claim"
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        return False
+    with os.fdopen(fd, "w") as f:
+        f.write(str(os.getpid()))
+    return True
+
+
 def _second_process(
-    names: list[str], report: _Progress, hold_before: str | None = None
+    names: list[str], report: _Progress, hold_before: str | None = None,
+    share: Path | None = None,
 ) -> tuple[Any, threading.Thread]:
     """``holo-warmup --jsonl`` for ``names`` in a child; a thread reports its jobs.
 
     With ``hold_before`` the child waits for a line on its stdin (:func:`_release`)
-    before it runs that job.
+    before it runs that job; with ``share`` it runs a ``HERE`` job of ``names`` only
+    if it claims it there first (:func:`claim`).
     """
     cmd = [sys.executable, "-m", "service.commands.holo_warmup", "--jsonl", "--processes", "1",
            f"--parent-pid={os.getpid()}", *(f"--job={n}" for n in names)]
     if hold_before is not None:
         cmd.append(f"--hold-before={hold_before}")
+    if share is not None:
+        cmd.append(f"--share={share}")
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stdin=subprocess.PIPE, text=True)
 
     def read() -> None:
@@ -312,6 +335,7 @@ def warm_up(
     processes: int = 1,
     only: list[str] | None = None,
     before_job: Callable[[str], None] | None = None,
+    share: Path | None = None,
 ) -> WarmupReport:
     """Compile, or load from numba's cache, every kernel of :data:`JOBS`.
 
@@ -323,14 +347,19 @@ def warm_up(
     processes : int
         2: once a ``FIRST`` job had to compile (an empty cache), a second process
         runs the ``EARLY`` jobs beside the other ``FIRST`` jobs, then the ``APART``
-        jobs beside the ``HERE`` jobs; this process then runs both groups again
-        (loaded from the cache: a check that another process finds them).
+        jobs beside the ``HERE`` jobs, and then takes ``HERE`` jobs too: each
+        process claims the next unclaimed one (:func:`claim`), so both end close
+        together; this process then runs the second one's jobs again (loaded from
+        the cache: a check that another process finds them).
         1: everything here, in order.
     only : list of str, optional
         Run just these jobs of :data:`JOBS`.
     before_job : callable, optional
         Called with each job's name before it runs here (``holo-warmup
         --hold-before``: the second process waits there for its parent).
+    share : Path, optional
+        The second process's side of the ``HERE`` jobs' claims: run one only if it
+        claims it in this folder (``holo-warmup --share``; its parent made it).
 
     Returns
     -------
@@ -344,17 +373,21 @@ def warm_up(
     report = _Progress(len(names), progress)
     t_all = time.perf_counter()
     split = processes > 1 and any(JOBS[n].part in (EARLY, APART) for n in names)
+    pool = Path(tempfile.mkdtemp(prefix="holo-warmup-")) if split else None
     child = None
     try:
-        child, reader = _run_first(names, kit, report, split)
-        _run_here(names, kit, report, child is not None, before_job)
+        child, reader = _run_first(names, kit, report, pool)
+        ran = _run_here(names, kit, report, child is not None, before_job,
+                        pool if child is not None else share)
         if child is not None:
             child.wait()
             reader.join()
-            _check_child(names, kit, report)
+            _check_child(names, kit, report, ran)
     finally:
         if child is not None:
             end_process(child)
+        if pool is not None:
+            shutil.rmtree(pool, ignore_errors=True)
     steps = tuple(report.steps)
     n_cached = sum(s.cached for s in steps)
     return WarmupReport(len(steps), len(steps) - n_cached, n_cached,
@@ -362,44 +395,70 @@ def warm_up(
 
 
 def _run_here(names: list[str], kit: Kit, report: _Progress, child: bool,
-              before_job: Callable[[str], None] | None) -> None:
-    """Run the jobs after the ``FIRST`` ones here, but those a ``child`` process runs."""
+              before_job: Callable[[str], None] | None, share: Path | None) -> list[str]:
+    """Run the jobs after the ``FIRST`` ones here, but those a ``child`` process runs.
+
+    With ``share``, a ``HERE`` job runs only if claimed there (the other process
+    may have it).  Returns the jobs run here.
+    """
     run_here = [n for n in names if JOBS[n].part != FIRST
                 and (not child or JOBS[n].part not in (EARLY, APART))]
+    ran = []
+    mine: dict[str, bool] = {}  # claims asked: a job and those ``after`` it go together
     for name in run_here:
+        if share is not None and JOBS[name].part == HERE:
+            root = _claim_root(name, names)
+            if root not in mine:
+                mine[root] = claim(share, root)
+            if not mine[root]:
+                continue
         if before_job is not None:
             before_job(name)
         report.step(name, *_run(name, kit))
+        ran.append(name)
+    return ran
 
 
-def _check_child(names: list[str], kit: Kit, report: _Progress) -> None:
+def _claim_root(name: str, names: list[str]) -> str:
+    """The first job of ``name``'s chain of ``after`` jobs (within ``names``): its claim."""
+    while JOBS[name].after in names:
+        name = JOBS[name].after
+    return name
+
+
+def _check_child(names: list[str], kit: Kit, report: _Progress, ran: list[str]) -> None:
     """Run the child's (finished) jobs here again: they load what it compiled.
 
-    A job the child did not report (it failed or was stopped) is reported from here.
+    The child's jobs are every ``EARLY`` and ``APART`` one and the ``HERE`` ones
+    not in ``ran`` (run here).  A job the child did not report (it failed or was
+    stopped) is reported from here.
     """
     done = {s.name for s in report.steps}
-    for name in (n for n in names if JOBS[n].part in (EARLY, APART)):
+    for name in (n for n in names if JOBS[n].part in (EARLY, APART) or n not in ran):
+        if JOBS[name].part == FIRST:
+            continue
         seconds, compiled = _run(name, kit)  # loads what the child compiled
         if name not in done:
             report.step(name, seconds, compiled)
 
 
 def _run_first(
-    names: list[str], kit: Kit, report: _Progress, split: bool
+    names: list[str], kit: Kit, report: _Progress, pool: Path | None
 ) -> tuple[Any, threading.Thread | None]:
-    """The ``FIRST`` jobs; with ``split``, the second process starts at the first compile.
+    """The ``FIRST`` jobs; with a ``pool`` folder, the second process starts at the first compile.
 
-    Returns the second process (released to its ``APART`` jobs) and its reader
-    thread, or (None, None) when every ``FIRST`` job was cached or ``split`` is off.
+    Returns the second process (released to its ``APART`` jobs, then sharing the
+    ``HERE`` jobs through ``pool``) and its reader thread, or (None, None) when
+    every ``FIRST`` job was cached or there is no ``pool``.
     """
     child = reader = None
-    rest = [n for n in names if JOBS[n].part in (EARLY, APART)]
+    rest = [n for n in names if JOBS[n].part in (EARLY, APART, HERE)]
     held = next((n for n in rest if JOBS[n].part == APART), None)
     try:
         for name in (n for n in names if JOBS[n].part == FIRST):
             report.step(name, *_run(name, kit))
-            if split and child is None and not report.steps[-1].cached:
-                child, reader = _second_process(rest, report, held)
+            if pool is not None and child is None and not report.steps[-1].cached:
+                child, reader = _second_process(rest, report, held, pool)
     except BaseException:
         if child is not None:
             end_process(child)

@@ -18,19 +18,22 @@ from service.display import DisplaySettings
 
 #: Where a job runs when :func:`warm_up` has two processes: ``FIRST`` jobs run
 #: before the split (the render path every Galilean job calls), then ``APART``
-#: jobs run in a second process while this one runs the ``HERE`` jobs.  The two
-#: groups compile disjoint kernels: numba numbers a kernel's cache entries by
-#: reading its index, so two processes adding different signatures of one kernel
-#: at once could both write entry 1 (and one index would then name the other's
-#: code).  The ``APART`` side is the longer one (the two scatter kernels: 92 s of
-#: CPU against 74 s here, measured 2026-11-26), so render kernels that only a
-#: Galilean job reached (the depth-only shadows) compile in the first ``HERE``
-#: job instead, before the second process gets to them: it then loads them.
-#: ``EARLY`` jobs start the second process as soon as a ``FIRST`` job had to
-#: compile, and run there beside the rest of the ``FIRST`` jobs, so they must reach
-#: none of their kernels: the Galilean stage's kernels on a made-up map (the scatter
-#: kernels, 9 signatures, none shared with the render path: checked 2026-11-26).
-#: The second process holds its ``APART`` jobs until this one's ``FIRST`` jobs end.
+#: jobs run in a second process while this one runs the ``HERE`` jobs; once its
+#: ``APART`` jobs are done the second process takes ``HERE`` jobs too, each job
+#: claimed by whichever process is free first (:func:`service.warmup.claim`; a
+#: job's ``after`` keeps one that reaches another's kernels with it), so the two
+#: end close together whatever each job costs.  Jobs running at once should
+#: compile disjoint kernels: two processes compiling one kernel both pay for it
+#: (numba's cache saves are locked between processes,
+#: :func:`service.numba_patches.locked_cache_saves`, so the cache stays right).
+#: Render kernels that only a Galilean job reached (the depth-only shadows)
+#: compile in the first ``HERE`` job, before the second process gets to them: it
+#: then loads them.  ``EARLY`` jobs start the second process as soon as a
+#: ``FIRST`` job had to compile, and run there beside the rest of the ``FIRST``
+#: jobs, so they must reach none of their kernels: the Galilean stage's kernels
+#: on a made-up map (the scatter kernels, none shared with the render path:
+#: checked 2026-11-26).  The second process holds its ``APART`` jobs until this
+#: one's ``FIRST`` jobs end.
 FIRST, HERE, APART, EARLY = "first", "here", "apart", "early"
 #: The order the parts run in: jobs are gathered and stably sorted by it.
 PARTS = (FIRST, EARLY, APART, HERE)
@@ -63,6 +66,10 @@ class Job:
     #: a cold ``holo-service`` compiles it before its first frame
     #: (:data:`service.warmup.FIRST_FRAME_JOBS`)
     first_frame: bool = False
+    #: a ``HERE`` job whose kernels that earlier job compiles too: whichever process
+    #: claims that one runs this one (:func:`service.warmup.claim`), so the two
+    #: processes never compile one kernel at once
+    after: str = ""
 
 
 def stage_refreshes(stage: Any, n: int = 3) -> None:

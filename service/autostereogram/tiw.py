@@ -212,11 +212,12 @@ def _spans(edges: np.ndarray, w: int, reach: int, spans: np.ndarray) -> int:
     hide to the left, ``v + 1 - reach .. v`` to the right.  Edges are read eight at
     a time (they are rare on smooth surfaces).  Returns the number of spans.
     """
-    words = edges.view(np.uint64)
     n = 0
     end = -2
-    for i in range(words.shape[0]):
-        if words[i] == 0:
+    for i in range(edges.shape[0] // 8):
+        b = 8 * i  # eight flags at once (not edges.view(np.uint64): 0.3 s more to compile)
+        if (edges[b] | edges[b + 1] | edges[b + 2] | edges[b + 3] | edges[b + 4]
+                | edges[b + 5] | edges[b + 6] | edges[b + 7]) == 0:
             continue
         last = 8 * i + 7
         while edges[last] == 0:

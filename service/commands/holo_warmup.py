@@ -25,6 +25,7 @@ import json
 import os
 import signal
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from service.base.cli_args import int_range, plain_help
@@ -61,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     # warm_up's second process: wait for a line on stdin before this job (its parent
     # is still compiling the render kernels that job uses)
     p.add_argument("--hold-before", choices=list(JOBS), help=argparse.SUPPRESS)
+    # warm_up's second process: run a HERE job only if claimed first in this folder
+    # (its parent takes them from the same folder)
+    p.add_argument("--share", type=Path, help=argparse.SUPPRESS)
     return p
 
 
@@ -111,7 +115,7 @@ def _run(args: argparse.Namespace) -> int:
         if name == args.hold_before:
             sys.stdin.readline()  # the parent's release, or end of file if it is gone
 
-    report = warm_up(progress, args.processes, args.job, before_job)
+    report = warm_up(progress, args.processes, args.job, before_job, args.share)
     if args.job is None:  # only every job's kernels make the cache warm
         mark_warm()  # holo-service then skips its own warm-up child (service.readiness)
     done = {"event": "done", "total": report.total, "compiled": report.compiled,

@@ -68,9 +68,10 @@ def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: 
     left, rows fixed and pixels redone.  One loop for both, so that a pixel is
     decided and written by the same lines: inlined helpers taking the planes
     cost a reference-count pair per plane and call (docs/galilean.md, 2026-11-26,
-    third session).  :func:`finish` passes ``fix`` as a constant, so numba
-    compiles one specialisation per value (``Literal[bool]``) and the scan's
-    carries none of the fix-up's branches.
+    third session).  :func:`finish` passes ``fix`` as a typed ``np.bool_``, not a
+    constant, so numba compiles one kernel for both (a constant compiled one
+    ``Literal[bool]`` specialisation per value: 3 s of CPU more from a cold cache,
+    for a scan no faster; docs/compile-time.md).
 
     **Scan** (``fix`` False): every debris pixel in scan order, eight galpixels
     skipped per test of ``deb64``; each row's debris flags are first copied to
@@ -93,7 +94,8 @@ def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: 
     d0, d1, d2, d3 = dc
     o0, o1, o2, o_dep, o_deb, o_obj = old
     # the right and lower neighbours' debris flags: as the scatter left them
-    later = snap if fix else deb
+    # (``snap``) in the fix-up, else ``deb``; chosen at each read, so that the
+    # scan's reads are of ``deb``, which its own writes keep in registers
     ww = w - 2 * margin
     keep = not fix and snap.size > 0
     expanded = left = 0
@@ -135,7 +137,7 @@ def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: 
                     break
             chain = False
             p = u64(base + c)
-            if later[p] == 0:
+            if (snap[p] if fix else deb[p]) == 0:
                 continue
             # what the band's scan did here: 0 nothing (the scan, the top row),
             # 1 expanded, 2 debris arm
@@ -145,9 +147,9 @@ def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: 
             same_out[p] = 0
             near = (
                 (c > 0 and deb[u64(base + c - 1)] == 0)
-                or (c < w - 1 and later[u64(base + c + 1)] == 0)
+                or (c < w - 1 and (snap[u64(base + c + 1)] if fix else deb[u64(base + c + 1)]) == 0)
                 or (r > 0 and deb[u64(base + c - w)] == 0)
-                or (r < h - 1 and later[u64(base + c + w)] == 0)
+                or (r < h - 1 and (snap[u64(base + c + w)] if fix else deb[u64(base + c + w)]) == 0)
             )
             # expansion (poisson.expand_pixel, same arithmetic)
             first = np.int64(-1)
@@ -162,7 +164,7 @@ def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: 
                     ok, qi = c < w - 1, base + c + 1
                 else:
                     ok, qi = r < h - 1, base + c + w
-                if not ok or (deb[u64(qi)] if kk < 2 else later[u64(qi)]) == 1:
+                if not ok or (deb[u64(qi)] if kk < 2 or not fix else snap[u64(qi)]) == 1:
                     continue
                 sq = np.int64(src_idx[u64(qi)])
                 if sq < 0:
@@ -348,14 +350,14 @@ def finish(
             ((c0, c1, c2), dep, (f0, f1), (m0, m1, m2, m3, m4, m5), (z0, z1, z2),
              (d0, d1, d2, d3), deb, obj),
             (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, deb64, snap if b > 0 else snap[:0],
-            shape, lo, hi, False, n_mot, n_zm, ncol, threshold, n_neighbours, mode, track,
+            shape, lo, hi, np.bool_(False), n_mot, n_zm, ncol, threshold, n_neighbours, mode, track,
             same_out, interior, table, band_stats[b], margin, out_colour, out_depth, out_debris,
             write_out, zs,
         )
     for b in range(1, bands):  # in order: a fix-up reads the row above it as final
         _rows(
             new, (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, deb64, snap if b > 0 else snap[:0],
-            shape, b * rows // bands, (b + 1) * rows // bands, True, n_mot, n_zm, ncol,
+            shape, b * rows // bands, (b + 1) * rows // bands, np.bool_(True), n_mot, n_zm, ncol,
             threshold, n_neighbours, mode, track, same_out, interior, table, band_stats[b],
             margin, out_colour, out_depth, out_debris, write_out, zs,
         )

@@ -71,6 +71,6 @@ def _clouds_drawn(kit: Kit) -> None:
 #: This subsystem's jobs, in order (:data:`service.warmup.JOBS` gathers them).
 WARMUP_JOBS: dict[str, Job] = {
     "level of detail: chains": Job(_chains, HERE),
-    "billboard clouds: build": Job(_clouds_built, HERE),
-    "billboard clouds: draw": Job(_clouds_drawn, HERE),
+    "billboard clouds: build": Job(_clouds_built, HERE, after="level of detail: chains"),
+    "billboard clouds: draw": Job(_clouds_drawn, HERE, after="billboard clouds: build"),
 }

@@ -260,6 +260,30 @@ def _store(
         out[z, r, c, ch] = np.float64(np.float32(rgb[ch])) * scale + offset
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _store_either(
+    out8: np.ndarray, out32: np.ndarray, z: int, r: int, c: int, rgb: tuple, scale: float,
+    offset: float,
+) -> None:
+    """:func:`_store` into ``out8`` (uint8) when it has zones, else into ``out32`` (float32).
+
+    One kernel signature for both outputs of :func:`shade` and :func:`shade_linear`
+    (the other array is empty, (0, 1, 1, 3)): a second signature was a whole
+    compile of a parallel kernel, 3.4-4.5 s of CPU (docs/compile-time.md, render6).
+    """
+    if out8.shape[0] > 0:
+        _store(out8, z, r, c, rgb, scale, offset)
+    else:
+        _store(out32, z, r, c, rgb, scale, offset)
+
+
+def _outputs(out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(out8, out32)`` for :func:`_store_either`: ``out`` and an empty one of the other dtype."""
+    if out.dtype == np.uint8:
+        return out, np.empty((0, 1, 1, 3), np.float32)
+    return np.empty((0, 1, 1, 3), np.uint8), out
+
+
 @nb.njit(cache=True, nogil=True, parallel=True)
 def mark_shown(tri_map: np.ndarray, item: np.ndarray, n_items: int) -> np.ndarray:
     """Which items each zone shows.
@@ -475,9 +499,13 @@ def _point_pixels(
     bg: np.ndarray,
     scale: float,
     offset: float,
-    out: np.ndarray,
+    out8: np.ndarray,
+    out32: np.ndarray,
 ) -> None:
     """Light every covered pixel at its own world point and interpolated normal.
+
+    The output (Z, R, C, 3) is ``out8`` (uint8) when it has zones, else ``out32``
+    (float32) (:func:`_store_either`).
 
     ``affine`` (Z, 4, 3) gives the world point at pixel (c, r) and depth d as
     ``affine[z, 0] + c * affine[z, 1] + r * affine[z, 2] + d * affine[z, 3]`` (see
@@ -492,7 +520,7 @@ def _point_pixels(
         for c in range(cols):
             t = tri_map[z, r, c]
             if t < 0:
-                _store(out, z, r, c, (bg[0], bg[1], bg[2]), scale, offset)
+                _store_either(out8, out32, z, r, c, (bg[0], bg[1], bg[2]), scale, offset)
                 continue
             d = np.float64(depth[z, r, c])
             px = a[0, 0] + c * a[1, 0] + r * a[2, 0] + d * a[3, 0]
@@ -507,7 +535,7 @@ def _point_pixels(
             ny = s * (w0 * cn[t, 0, 1] + w1 * cn[t, 1, 1] + w2 * cn[t, 2, 1])
             nz = s * (w0 * cn[t, 0, 2] + w1 * cn[t, 1, 2] + w2 * cn[t, 2, 2])
             rgb = _light_rgb(px, py, pz, nx, ny, nz, materials[p], views[z], lights, ambient, code)
-            _store(out, z, r, c, rgb, scale, offset)
+            _store_either(out8, out32, z, r, c, rgb, scale, offset)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -928,7 +956,7 @@ def _eval_point(
     geometry = (scene.triangles, scene.triangle_polygon, scene.normals, scene.corner_normals)
     _point_pixels(
         vis.triangle, vis.depth, proj, k.affine, geometry, scene.materials, k.views,
-        k.lights, k.ambient, k.code, k.background, k.scale, k.offset, out,
+        k.lights, k.ambient, k.code, k.background, k.scale, k.offset, *_outputs(out),
     )
 
 

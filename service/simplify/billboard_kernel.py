@@ -152,6 +152,24 @@ def _cover(i: int, j: int, f: int, nrm: np.ndarray, colour: np.ndarray, tex: np.
 
 
 @nb.njit(cache=True, nogil=True)
+def _min_max(a: np.ndarray) -> tuple[float, float]:
+    """``(a.min(), a.max())`` of ``a`` (n >= 1,), the first NaN if any, as numpy's.
+
+    Written out: numba compiles ``.min()`` and ``.max()`` as generic code of their own
+    (an ``nditer`` loop), most of :func:`shoot_texture`'s compile.
+    """
+    lo = a[0]
+    hi = a[0]
+    for i in range(1, a.shape[0]):
+        v = a[i]
+        if lo == lo and (v != v or v < lo):
+            lo = v
+        if hi == hi and (v != v or v > hi):
+            hi = v
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
 def shoot_texture(uv: np.ndarray, faces: np.ndarray, ids: np.ndarray, nrm: np.ndarray,
                   colour: np.ndarray, height: np.ndarray, tex: np.ndarray,
                   normal: np.ndarray) -> None:
@@ -196,8 +214,10 @@ def shoot_texture(uv: np.ndarray, faces: np.ndarray, ids: np.ndarray, nrm: np.nd
             ln = max(np.sqrt(ex * ex + ey * ey), 1e-12)
             nx[k], ny[k] = -sgn * ey / ln, sgn * ex / ln
             off[k] = -(nx[k] * x[k] + ny[k] * y[k])
-        x0, x1 = max(int(x.min() - 1), 0), min(int(x.max() + 1) + 1, w)
-        y0, y1 = max(int(y.min() - 1), 0), min(int(y.max() + 1) + 1, h)
+        xlo, xhi = _min_max(x)
+        ylo, yhi = _min_max(y)
+        x0, x1 = max(int(xlo - 1), 0), min(int(xhi + 1) + 1, w)
+        y0, y1 = max(int(ylo - 1), 0), min(int(yhi + 1) + 1, h)
         for i in range(y0, y1):
             for j in range(x0, x1):
                 inside = True
@@ -205,8 +225,8 @@ def shoot_texture(uv: np.ndarray, faces: np.ndarray, ids: np.ndarray, nrm: np.nd
                     if nx[k] * (j + 0.5) + ny[k] * (i + 0.5) + off[k] < -HALF_DIAGONAL:
                         inside = False
                         break
-                if inside and (x.min() - 0.5 <= j + 1 and j <= x.max() + 0.5
-                               and y.min() - 0.5 <= i + 1 and i <= y.max() + 0.5):
+                if inside and (xlo - 0.5 <= j + 1 and j <= xhi + 0.5
+                               and ylo - 0.5 <= i + 1 and i <= yhi + 0.5):
                     _cover(i, j, f, nrm, colour, tex, normal, height, top)
 
 

@@ -149,6 +149,23 @@ def _nearest(p: np.ndarray, facing: np.ndarray, corners: np.ndarray, normals: np
 
 
 @nb.njit(cache=True, nogil=True)
+def _column_extreme(a: np.ndarray, k: int, sign: float) -> float:
+    """``a[:, k].min()`` (``sign`` -1) or ``.max()`` (1) of ``a`` (n >= 1, m): the first NaN if any.
+
+    As numpy's (and numba's) reduction, written out: numba compiles ``.min()`` and
+    ``.max()`` of a strided column as code of their own, for each layout.
+    """
+    m = a[0, k]
+    for i in range(1, a.shape[0]):
+        if m != m:
+            break
+        v = a[i, k]
+        if v != v or (v < m if sign < 0.0 else v > m):
+            m = v
+    return m
+
+
+@nb.njit(cache=True, nogil=True)
 def _grid(corners: np.ndarray) -> tuple:
     """Triangle boxes and the grid of about T cells they are bucketed in.
 
@@ -165,14 +182,14 @@ def _grid(corners: np.ndarray) -> tuple:
     h = np.empty(3)
     res = np.empty(3, dtype=np.int64)
     side = max(int(np.ceil(t ** (1.0 / 3.0))), 1)
-    ext = np.empty(3)
+    ext = np.empty((3, 1))  # a column, as lo and hi: one signature of _column_extreme
     for k in range(3):
-        origin[k] = lo[:, k].min()
-        ext[k] = hi[:, k].max() - origin[k]
-    cell = max(ext.max() / side, 1e-12)
+        origin[k] = _column_extreme(lo, k, -1.0)
+        ext[k, 0] = _column_extreme(hi, k, 1.0) - origin[k]
+    cell = max(_column_extreme(ext, np.int64(0), 1.0) / side, 1e-12)
     for k in range(3):
-        res[k] = max(int(np.ceil(ext[k] / cell)), 1)
-        h[k] = max(ext[k] / res[k], cell)
+        res[k] = max(int(np.ceil(ext[k, 0] / cell)), 1)
+        h[k] = max(ext[k, 0] / res[k], cell)
     start, items = _build_grid(lo, hi, origin, h, res)
     return lo, hi, origin, h, res, start, items
 

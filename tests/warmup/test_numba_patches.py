@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numba as nb
 import numpy as np
 import pytest
@@ -297,3 +299,49 @@ def test_flag_values_ask_each_option_of_a_class_that_overrides_one(values_origin
     flags = Odd()
     assert numba_patches.flag_values(flags) == values_original(flags)
     assert numba_patches.flag_values(flags)["nrt"] == "always"
+
+
+@pytest.fixture
+def finalize_original(monkeypatch):
+    """numba's own ``CPUTargetOptions.finalize`` in place for the test (restored after)."""
+    from numba.core.cpu import CPUTargetOptions
+
+    original = CPUTargetOptions.finalize
+    original = getattr(original, "__wrapped__", original)
+    monkeypatch.setattr(CPUTargetOptions, "finalize", original)
+    return original
+
+
+def _cfunc_wrapped(kernel) -> bool:
+    """Whether ``kernel``'s one signature was compiled with its C-callable wrapper."""
+    cres = kernel.overloads[kernel.signatures[0]]
+    return cres.fndesc.llvm_cfunc_wrapper_name in cres.library.get_llvm_str()
+
+
+def test_kernels_compile_without_the_cfunc_wrapper_and_run_the_same(finalize_original):
+    from numba.core.cpu import CPUTargetOptions
+
+    a = np.linspace(-2.0, 5.0, 11)
+    theirs = _inlining_source()
+    want = theirs(a, np.empty_like(a), 5)
+    assert numba_patches.no_cfunc_wrappers() is True
+    assert CPUTargetOptions.finalize.__wrapped__ is finalize_original
+    assert numba_patches.no_cfunc_wrappers() is True  # idempotent
+    ours = _inlining_source()
+    np.testing.assert_array_equal(ours(a, np.empty_like(a), 5), want)  # called from Python
+    assert _cfunc_wrapped(theirs) and not _cfunc_wrapped(ours)
+    # the same instructions, fewer of them (local labels renumber: a function fewer)
+    mine, full = (re.sub(r"\.L(BB|func_end|tmp|CPI)\d+(_\d+)?", ".L",
+                         _same_names(k.inspect_asm(k.signatures[0]))).splitlines()
+                  for k in (ours, theirs))
+    assert len(mine) < len(full) and set(mine) <= set(full)
+
+
+def test_a_kernel_that_asks_for_its_cfunc_wrapper_and_numba_cfunc_keep_it(finalize_original):
+    import ctypes
+
+    assert numba_patches.no_cfunc_wrappers() is True
+    asked = nb.njit(no_cfunc_wrapper=False)(lambda x: x + 1.0)
+    assert asked(1.0) == 2.0 and _cfunc_wrapped(asked)
+    callback = nb.cfunc("float64(float64)")(lambda x: x * 2.0)
+    assert callback.ctypes(ctypes.c_double(1.5)) == 3.0

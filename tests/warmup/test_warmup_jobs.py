@@ -56,3 +56,50 @@ def test_a_job_name_registered_twice_is_refused():
     with pytest.raises(ValueError, match="'same' registered twice"):
         warmup._gather((A, B))
     assert list(warmup._gather((B,))) == ["same", "other"]  # EARLY before HERE
+
+
+def test_a_job_that_runs_after_another_names_an_earlier_shared_job():
+    names = list(warmup.JOBS)
+    chained = {n: j.after for n, j in warmup.JOBS.items() if j.after}
+    assert chained, "no job declares the job it follows"
+    for name, after in chained.items():
+        assert warmup.JOBS[name].part == HERE and warmup.JOBS[after].part == HERE, name
+        assert names.index(after) < names.index(name), name
+
+
+def test_a_job_is_claimed_by_the_first_process_to_ask(tmp_path):
+    import subprocess
+    import sys
+
+    name = next(n for n, j in warmup.JOBS.items() if j.part == HERE)
+    ask = ("import sys; from pathlib import Path; from service.warmup import claim; "
+           "print(claim(Path(sys.argv[1]), sys.argv[2]))")
+    first = subprocess.run([sys.executable, "-c", ask, str(tmp_path), name], cwd=ROOT,
+                           capture_output=True, text=True, check=True)
+    assert first.stdout.strip() == "True"
+    assert warmup.claim(tmp_path, name) is False  # the other process has it
+    (held,) = tmp_path.iterdir()
+    assert held.read_text().strip().isdigit()  # the claimer's pid
+
+
+def test_shared_jobs_run_where_claimed_and_a_chain_goes_together(tmp_path, monkeypatch):
+    """Claims the other process holds are skipped, with every job ``after`` them."""
+    ran: list[str] = []
+
+    def job(name: str, after: str = "") -> Job:
+        return Job(lambda kit: ran.append(name), HERE, after=after)
+
+    jobs = {"a": job("a"), "b": job("b"), "b2": job("b2", after="b"), "c": job("c"),
+            "b3": job("b3", after="b2"), "d": job("d", after="c")}
+    monkeypatch.setattr(warmup, "JOBS", jobs)
+    names = list(jobs)
+    # the other process claimed "b" (so its chain b2, b3 too) before this one asks
+    (tmp_path / f"{names.index('b')}.claim").write_text("1")
+    report = warmup._Progress(len(names), None)
+    here = warmup._run_here(names, warmup.Kit(), report, True, None, tmp_path)
+    assert here == ran == ["a", "c", "d"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        f"{names.index(n)}.claim" for n in ("a", "b", "c"))
+    # without a shared folder (one process) every job runs, in order
+    ran.clear()
+    assert warmup._run_here(names, warmup.Kit(), report, False, None, None) == names == ran
