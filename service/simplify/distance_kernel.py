@@ -115,21 +115,22 @@ def _nearest(p: np.ndarray, facing: np.ndarray, corners: np.ndarray, normals: np
     Returns ``(inf, -1)`` when no triangle qualifies.
     """
     lo, hi, origin, h, res, start, items = grid
-    c = np.empty(3, dtype=np.int64)
-    for k in range(3):
-        c[k] = min(max(int(np.floor((p[k] - origin[k]) / h[k])), 0), res[k] - 1)
+    # the cell as three scalars (a 3-array here was allocated per point)
+    c0 = min(max(int(np.floor((p[0] - origin[0]) / h[0])), 0), res[0] - 1)
+    c1 = min(max(int(np.floor((p[1] - origin[1]) / h[1])), 0), res[1] - 1)
+    c2 = min(max(int(np.floor((p[2] - origin[2]) / h[2])), 0), res[2] - 1)
     hmin = min(h[0], h[1], h[2])
     rmax = max(res[0], res[1], res[2])
     found = -1
     for r in range(rmax + 1):
         if r > 0 and best <= ((r - 1) * hmin) ** 2:
             break
-        for x in range(max(c[0] - r, 0), min(c[0] + r, res[0] - 1) + 1):
-            for y in range(max(c[1] - r, 0), min(c[1] + r, res[1] - 1) + 1):
-                on_shell = abs(x - c[0]) == r or abs(y - c[1]) == r
+        for x in range(max(c0 - r, 0), min(c0 + r, res[0] - 1) + 1):
+            for y in range(max(c1 - r, 0), min(c1 + r, res[1] - 1) + 1):
+                on_shell = abs(x - c0) == r or abs(y - c1) == r
                 step = 1 if on_shell else 2 * r
-                z = max(c[2] - r, 0) if on_shell else c[2] - r
-                while z <= min(c[2] + r, res[2] - 1):
+                z = max(c2 - r, 0) if on_shell else c2 - r
+                while z <= min(c2 + r, res[2] - 1):
                     if z >= 0:
                         cell = (x * res[1] + y) * res[2] + z
                         for q in range(start[cell], start[cell + 1]):
