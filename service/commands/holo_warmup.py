@@ -51,8 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jsonl", action="store_true",
                    help="one JSON object per line on stdout instead of progress on stderr")
     p.add_argument("--processes", type=int_range(1, 2), default=2, metavar="N",
-                   help="2 (default): on an empty cache, compile the Galilean stage's "
-                   "kernels in a second process meanwhile; 1: one process")
+                   help="2 (default): on an empty cache, a second process compiles the "
+                   "Galilean stage's kernels meanwhile, then shares the other jobs; 1: one "
+                   "process")
     p.add_argument("--job", action="append", choices=list(JOBS), metavar="NAME",
                    help="run only this job (repeat it); one of: " + "; ".join(JOBS))
     p.add_argument("--nice", type=int_range(0, 19), default=0, metavar="N",
