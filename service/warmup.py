@@ -106,9 +106,12 @@ class WarmupReport:
 
 
 #: The modules whose ``JOBS`` the warm-up gathers: one per subsystem, each beside
-#: the kernels it warms (:mod:`service.warmup_job`).
+#: the kernels it warms (:mod:`service.warmup_job`).  Their order is the jobs' order
+#: within a part: level of detail before the short loaders, autostereogram and
+#: looking-glass jobs, so that its chain of three jobs (``Job.after``: about 20 s,
+#: one process) is not what the two processes end on.
 JOB_MODULES = (
-    render_jobs, engine_jobs, galilean_jobs, loaders_jobs, sird_jobs, lod_jobs, lookingglass,
+    render_jobs, engine_jobs, galilean_jobs, lod_jobs, loaders_jobs, sird_jobs, lookingglass,
 )
 
 
