@@ -125,17 +125,27 @@ def _same_names(asm: str) -> str:
     return "\n".join(line for line in asm.splitlines() if "_ZN" not in line and "0x" not in line)
 
 
+def _numbas_own(monkeypatch, owner: type, name: str, digest: str | None = None):
+    """numba's own ``owner.name`` put back in place for the test (restored after).
+
+    A warm-up earlier in this process may have patched it: numba's is the one the
+    patch wraps (``__wrapped__``).  With ``digest``, the test is skipped where numba's
+    source is not the one the patch was written against.
+    """
+    current = getattr(owner, name)
+    original = getattr(current, "__wrapped__", current)
+    monkeypatch.setattr(owner, name, original)
+    if digest is not None and numba_patches._source_digest(original) != digest:
+        pytest.skip(f"numba {nb.__version__}'s {owner.__name__}.{name} is not the one patched")
+    return original
+
+
 @pytest.fixture
 def inline_original(monkeypatch):
     """numba's own ``InlineWorker.inline_ir`` in place for the test (restored after)."""
     from numba.core.inline_closurecall import InlineWorker
 
-    original = InlineWorker.inline_ir
-    original = getattr(original, "__wrapped__", original)
-    monkeypatch.setattr(InlineWorker, "inline_ir", original)
-    if numba_patches._source_digest(original) != numba_patches.INLINE_IR_SHA256:
-        pytest.skip(f"numba {nb.__version__}'s inline_ir is not the one the patch edits")
-    return original
+    return _numbas_own(monkeypatch, InlineWorker, "inline_ir", numba_patches.INLINE_IR_SHA256)
 
 
 def test_inlining_with_one_memo_makes_the_same_machine_code(inline_original):
@@ -229,12 +239,7 @@ def values_original(monkeypatch):
     """numba's own ``TargetConfig.values`` in place for the test (restored after)."""
     from numba.core.targetconfig import TargetConfig
 
-    original = TargetConfig.values
-    original = getattr(original, "__wrapped__", original)
-    monkeypatch.setattr(TargetConfig, "values", original)
-    if numba_patches._source_digest(original) != numba_patches.FLAG_VALUES_SHA256:
-        pytest.skip(f"numba {nb.__version__}'s TargetConfig.values is not the one replaced")
-    return original
+    return _numbas_own(monkeypatch, TargetConfig, "values", numba_patches.FLAG_VALUES_SHA256)
 
 
 def _flag_sets():
@@ -306,10 +311,7 @@ def finalize_original(monkeypatch):
     """numba's own ``CPUTargetOptions.finalize`` in place for the test (restored after)."""
     from numba.core.cpu import CPUTargetOptions
 
-    original = CPUTargetOptions.finalize
-    original = getattr(original, "__wrapped__", original)
-    monkeypatch.setattr(CPUTargetOptions, "finalize", original)
-    return original
+    return _numbas_own(monkeypatch, CPUTargetOptions, "finalize")
 
 
 def _cfunc_wrapped(kernel) -> bool:
