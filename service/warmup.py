@@ -437,9 +437,7 @@ def _check_child(names: list[str], kit: Kit, report: _Progress, ran: list[str]) 
     stopped) is reported from here.
     """
     done = {s.name for s in report.steps}
-    for name in (n for n in names if JOBS[n].part in (EARLY, APART) or n not in ran):
-        if JOBS[name].part == FIRST:
-            continue
+    for name in (n for n in names if JOBS[n].part != FIRST and n not in ran):
         seconds, compiled = _run(name, kit)  # loads what the child compiled
         if name not in done:
             report.step(name, seconds, compiled)
