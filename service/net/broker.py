@@ -109,7 +109,7 @@ class Broker:
         self._deaths: queue.SimpleQueue[tuple[int | None, str]] = queue.SimpleQueue()
         self.dispatched = 0  # jobs sent to a worker
         self.answered = 0  # replies passed on to their requester
-        self.lost = 0  # jobs held by a worker found dead, handed back
+        self.lost = 0  # jobs held by a worker found dead (handed back, or dropped: no requester)
         self.refused = 0  # jobs handed back at once: no live worker
         self.dropped = 0  # messages whose requester was gone
         #: silences forgiven: a local worker past its silence limit still using the CPU
@@ -148,20 +148,18 @@ class Broker:
     def info(self) -> dict[str, Any]:
         """Worker counts and each live worker (for the service's stats)."""
         now = time.monotonic()
-        with self._books:
+        with self._books:  # one snapshot: dispatched = answered + lost + busy in it
             workers = [
                 {"pid": b.pid, "alive": True, "busy": b.busy_since is not None, "jobs": b.jobs,
                  "last_seen_s": round(now - b.seen, 3)}
                 for b in self.books.values()
             ]
+            counts = {"dispatched": self.dispatched, "answered": self.answered,
+                      "lost": self.lost, "refused": self.refused, "dropped": self.dropped}
         return {
             "ready": sum(not w["busy"] for w in workers),
             "busy": sum(w["busy"] for w in workers),
-            "dispatched": self.dispatched,
-            "answered": self.answered,
-            "lost": self.lost,
-            "refused": self.refused,
-            "dropped": self.dropped,
+            **counts,
             "starved": self.starved,
             "workers": workers,
         }
@@ -204,12 +202,16 @@ class Broker:
             book.busy_since, book.holding = None, None
             self.ready[worker] = None
             self.ready.move_to_end(worker)
-        if kind != READY and len(frames) >= 5:
+            # counted with the busy flag, under one lock: info() never sees it in neither
+            passing = kind != READY and len(frames) >= 5
+            self.answered += passing
+        if passing:
             try:
                 self.front.send_multipart(frames[2:], copy=False)
-                self.answered += 1
             except zmq.ZMQError:
-                self.dropped += 1  # the requester is gone; nothing to do
+                with self._books:  # the requester is gone; nothing to do
+                    self.answered -= 1
+                    self.dropped += 1
 
     def _admit(self, worker: bytes, rest: list[zmq.Frame], now: float) -> Book:
         """A new worker's book from its ``READY`` info (``{"pid", "heartbeat_s"}``)."""
@@ -238,13 +240,12 @@ class Broker:
                 book = self.books[worker]
                 book.busy_since = time.monotonic()
                 book.holding = (bytes(frames[0].buffer), frames[2] if len(frames) > 2 else None)
+                self.dispatched += 1
             try:
                 self.back.send_multipart([worker, b"", *frames], copy=False)
-            except zmq.ZMQError:
-                book.holding = None  # not sent: the next worker gets it
-                self._dead(worker, "gone (its connection closed)")
+            except zmq.ZMQError:  # not sent: the next worker gets it
+                self._dead(worker, "gone (its connection closed)", unsent=True)
                 continue  # vanished: try the next one
-            self.dispatched += 1
             return
         # no live worker took it: lost now, so the requester renders it in process
         holding = (bytes(frames[0].buffer), frames[2] if len(frames) > 2 else None)
@@ -291,17 +292,26 @@ class Broker:
         self.starved += 1
         return True
 
-    def _dead(self, worker: bytes, why: str, report: bool = True) -> None:
-        """Drop a worker; its job back to its requester as ``lost``; report it (pid, why)."""
+    def _dead(self, worker: bytes, why: str, report: bool = True, unsent: bool = False) -> None:
+        """Drop a worker; its job back to its requester as ``lost``; report it (pid, why).
+
+        ``unsent``: its job never reached it (not dispatched after all; the caller
+        offers it to the next worker).  Counts change with the books, under one lock.
+        """
         with self._books:
             book = self.books.pop(worker, None)
             self.ready.pop(worker, None)
+            if book is not None and unsent:
+                book.holding = None
+                self.dispatched -= 1
+            held = book is not None and book.holding is not None
+            self.lost += held
         if book is None:
             return
         if report:
             self._deaths.put((book.pid, why))
-        if book.holding is not None:
-            self.lost += self._lost(book, why)
+        if held:
+            self._lost(book, why)
 
     def _lost(self, book: Book, why: str) -> bool:
         """Tell the requester of the job ``book`` held that it is lost (resend it now).
