@@ -837,7 +837,8 @@ def main(argv: list[str] | None = None) -> int:
         write_page(results, meta, work)
         move_into_place(work, out, owned_entries(out))
     except BaseException:
-        print(f"holo-bench report: {args.out} left as it was; what ran so far is in {work}",
+        # a line of its own: Ctrl-C may land between a progress line's text and its newline
+        print(f"\nholo-bench report: {args.out} left as it was; what ran so far is in {work}",
               file=sys.stderr, flush=True)
         raise
     for r in results:
