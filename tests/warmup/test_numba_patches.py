@@ -347,3 +347,99 @@ def test_a_kernel_that_asks_for_its_cfunc_wrapper_and_numba_cfunc_keep_it(finali
     assert asked(1.0) == 2.0 and _cfunc_wrapped(asked)
     callback = nb.cfunc("float64(float64)")(lambda x: x * 2.0)
     assert callback.ctypes(ctypes.c_double(1.5)) == 3.0
+
+
+@pytest.fixture
+def emissions(monkeypatch):
+    """numba's own library methods in place for the test; the names of libraries emitted.
+
+    numba's ``_finalize_final_module`` (where a library's machine code is emitted) is
+    wrapped to record each library's name before :func:`link_only_machine_code`
+    wraps it in turn, so the list holds what the patch let numba emit.
+    """
+    import functools
+
+    from numba.core.codegen import CPUCodeLibrary, JITCodeLibrary
+
+    for key, digest in numba_patches.LINK_ONLY_SHA256.items():
+        owner = JITCodeLibrary if key.startswith("JIT") else CPUCodeLibrary
+        _numbas_own(monkeypatch, owner, key.split(".")[1], digest)
+    names: list[str] = []
+    emit = CPUCodeLibrary._finalize_final_module
+
+    @functools.wraps(emit)  # its source is still numba's to the patch's check
+    def recorded(self):
+        names.append(str(self.name))
+        return emit(self)
+
+    monkeypatch.setattr(CPUCodeLibrary, "_finalize_final_module", recorded)
+    return names
+
+
+def test_a_parallel_kernels_wrappers_are_linked_never_emitted(emissions):
+    from numba.core.codegen import CPUCodeLibrary
+
+    a = np.linspace(-2.0, 5.0, 11)
+    want = _parallel_source()(a, np.empty_like(a), 5)
+    numba_names = list(emissions)
+    assert "parallelgufuncwrapper" in numba_names  # numba emits the wrappers
+    emissions.clear()
+    assert numba_patches.link_only_machine_code() is True
+    assert numba_patches.link_only_machine_code() is True  # idempotent
+    assert CPUCodeLibrary.finalize.__wrapped__ is not None
+    np.testing.assert_array_equal(_parallel_source()(a, np.empty_like(a), 5), want)
+    assert any(n.endswith(".f") for n in emissions)  # the kernel
+    assert any("parfor_gufunc" in n for n in emissions)  # its entry point was asked for
+    assert "parallelgufuncwrapper" not in emissions
+    assert not any("GufuncWrapper" in n for n in emissions)
+    assert len(emissions) == len(numba_names) - 2
+
+
+_LINKED = '''
+import sys
+from service import numba_patches
+if sys.argv[1] == "patched":
+    assert numba_patches.link_only_machine_code()
+import numpy as np
+import kern
+a = np.arange(12.0)
+print(kern.f(a, np.empty_like(a)).sum(), sum(kern.f.stats.cache_hits.values()),
+      sum(kern.f.stats.cache_misses.values()))
+'''
+
+
+@pytest.mark.timeout(240)
+def test_a_kernel_compiled_so_is_cached_and_loads_without_the_patch(tmp_path):
+    """The object code of a kernel whose wrappers were never emitted is saved and loads."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "kern.py").write_text(
+        "import numba\n\n@numba.njit(parallel=True, cache=True)\ndef f(a, b):\n"
+        "    for i in numba.prange(a.shape[0]):\n        b[i] = a[i] * a[i] + 1.0\n"
+        "    return b\n")
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=os.pathsep.join((str(root), str(tmp_path))))
+
+    def run(how: str) -> list[str]:
+        out = subprocess.run([sys.executable, "-c", _LINKED, how], env=env, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=200, check=True)
+        return out.stdout.split()
+
+    want = str(sum(x * x + 1.0 for x in range(12)))
+    compiled = run("patched")
+    assert compiled == [want, "0", "1"], compiled  # a miss: compiled here, then saved
+    assert run("numba's own") == [want, "1", "0"]  # a hit: its object code loaded
+
+
+def test_link_only_leaves_another_numba_alone(emissions, monkeypatch):
+    from numba.core.codegen import CPUCodeLibrary
+
+    digests = dict(numba_patches.LINK_ONLY_SHA256, **{"CPUCodeLibrary.finalize": "0" * 64})
+    monkeypatch.setattr(numba_patches, "LINK_ONLY_SHA256", digests)
+    before = CPUCodeLibrary.finalize
+    assert numba_patches.link_only_machine_code() is False
+    assert CPUCodeLibrary.finalize is before
