@@ -125,7 +125,7 @@ def _same_names(asm: str) -> str:
     return "\n".join(line for line in asm.splitlines() if "_ZN" not in line and "0x" not in line)
 
 
-def _numbas_own(monkeypatch, owner: type, name: str, digest: str | None = None):
+def _numbas_own(monkeypatch, owner: object, name: str, digest: str | None = None):
     """numba's own ``owner.name`` put back in place for the test (restored after).
 
     A warm-up earlier in this process may have patched it: numba's is the one the
@@ -443,3 +443,57 @@ def test_link_only_leaves_another_numba_alone(emissions, monkeypatch):
     before = CPUCodeLibrary.finalize
     assert numba_patches.link_only_machine_code() is False
     assert CPUCodeLibrary.finalize is before
+
+
+@pytest.fixture
+def live_original(monkeypatch):
+    """numba's own ``compute_live_map`` in place everywhere it is called from (restored after)."""
+    from numba.core import analysis
+
+    original = _numbas_own(monkeypatch, analysis, "compute_live_map",
+                           numba_patches.LIVE_MAP_SHA256)
+    monkeypatch.setattr(ir_utils, "compute_live_map", original)
+    monkeypatch.setattr(parfor, "compute_live_map", original)
+    return original
+
+
+def test_live_map_is_numbas_set_for_set_on_real_compiles(live_original, monkeypatch):
+    """Every liveness numba computes compiling two parallel kernels: ours gives its result."""
+    from numba.core import analysis
+
+    calls = []
+
+    def both(cfg, blocks, uses, defs):
+        theirs = live_original(cfg, blocks, uses, defs)
+        calls.append((numba_patches.live_map(cfg, blocks, uses, defs), theirs))
+        return theirs
+
+    for module in (analysis, ir_utils, parfor):
+        monkeypatch.setattr(module, "compute_live_map", both)
+    a = np.linspace(-2.0, 5.0, 11)
+    _parallel_source()(a, np.empty_like(a), 5)
+    _inlining_source()(a, np.empty_like(a), 5)
+    assert len(calls) > 10
+    for ours, theirs in calls:
+        assert ours == theirs
+    assert sum(len(v) for _, theirs in calls for v in theirs.values()) > 100  # not all empty
+
+
+def test_live_map_patch_is_applied_once_and_compiles_the_same(live_original):
+    from numba.core import analysis
+
+    a = np.linspace(-2.0, 5.0, 11)
+    want = _inlining_source()(a, np.empty_like(a), 5)
+    assert numba_patches.faster_live_map() is True
+    assert numba_patches.faster_live_map() is True  # idempotent
+    assert analysis.compute_live_map is parfor.compute_live_map is numba_patches.live_map
+    assert numba_patches.live_map.__wrapped__ is live_original
+    np.testing.assert_array_equal(_inlining_source()(a, np.empty_like(a), 5), want)
+
+
+def test_live_map_leaves_another_numba_alone(live_original, monkeypatch):
+    from numba.core import analysis
+
+    monkeypatch.setattr(numba_patches, "LIVE_MAP_SHA256", "0" * 64)
+    assert numba_patches.faster_live_map() is False
+    assert analysis.compute_live_map is live_original
