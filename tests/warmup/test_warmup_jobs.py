@@ -103,3 +103,17 @@ def test_shared_jobs_run_where_claimed_and_a_chain_goes_together(tmp_path, monke
     # without a shared folder (one process) every job runs, in order
     ran.clear()
     assert warmup._run_here(names, warmup.Kit(), report, False, None, None) == names == ran
+
+
+def test_the_collector_runs_less_often_while_compiling_and_is_put_back():
+    import gc
+
+    from service.warmup import COMPILE_GC_THRESHOLD, fewer_collections
+
+    before = gc.get_threshold()
+    with pytest.raises(KeyError), fewer_collections():
+        assert gc.get_threshold() == COMPILE_GC_THRESHOLD
+        assert gc.get_freeze_count() > 1000  # the modules alive on entry: never scanned
+        raise KeyError("a job failed")
+    assert gc.get_threshold() == before
+    assert gc.get_freeze_count() == 0
