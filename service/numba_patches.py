@@ -432,12 +432,14 @@ def faster_live_map() -> bool:
 
 
 #: sha256 of the numba sources :func:`link_only_machine_code` wraps (numba 0.68.1): each
-#: library's ``finalize`` links, optimises, then emits machine code in
-#: ``_finalize_final_module``; ``get_pointer_to_function`` and ``_get_compiled_object``
-#: are where machine code is read.
+#: library's ``finalize`` links, optimises (``_optimize_final_module``), then emits
+#: machine code (``_finalize_final_module``); ``get_pointer_to_function`` and
+#: ``_get_compiled_object`` are where machine code is read.
 LINK_ONLY_SHA256 = {
     "CPUCodeLibrary.finalize":
         "4b4c34b83488a72fea5f3d836a8a9f7281674ab245973287a38c9ca07c78af99",
+    "CPUCodeLibrary._optimize_final_module":
+        "e405bd473752613ba43e3becff2b625a039c11f111dff9498ac9bfd215e74846",
     "CPUCodeLibrary._finalize_final_module":
         "95bbf4fcbb90ed9904c2ec85158b65a3dff8fab80d1d8af31c25b6885d5a1a5b",
     "JITCodeLibrary.get_pointer_to_function":
@@ -448,7 +450,7 @@ LINK_ONLY_SHA256 = {
 
 
 def _deferring(finalize: Callable) -> Callable:
-    """numba's ``CodeLibrary.finalize``, its machine code left for when it is read."""
+    """numba's ``CodeLibrary.finalize``: linked now, optimised and emitted when read."""
 
     @functools.wraps(finalize)
     def finalize_deferring(self) -> None:  # noqa: ANN001 -- numba's CodeLibrary
@@ -457,31 +459,33 @@ def _deferring(finalize: Callable) -> Callable:
             finalize(self)
         finally:
             self._holo_defer = False
+        self._finalized = True  # numba's last step, left for later, sets it
 
     return finalize_deferring
 
 
-def _emitting_later(finalize_final_module: Callable) -> Callable:
-    """numba's ``_finalize_final_module``, skipped (pending) inside :func:`_deferring`."""
+def _later(step: Callable, flag: str) -> Callable:
+    """numba's ``step`` of ``finalize``, skipped inside :func:`_deferring` (``flag`` set)."""
 
-    @functools.wraps(finalize_final_module)
-    def emit_later(self) -> None:  # noqa: ANN001 -- numba's CodeLibrary
+    @functools.wraps(step)
+    def step_later(self) -> None:  # noqa: ANN001 -- numba's CodeLibrary
         if getattr(self, "_holo_defer", False):
-            self._holo_pending = True
-            self._finalized = True
+            setattr(self, flag, True)
             return
-        self._holo_pending = False
-        finalize_final_module(self)
+        step(self)
 
-    return emit_later
+    return step_later
 
 
-def _emitting_first(read: Callable, emit: Callable) -> Callable:
-    """A reader of a library's machine code, the pending machine code emitted first."""
+def _emitting_first(read: Callable, optimise: Callable, emit: Callable) -> Callable:
+    """A reader of a library's machine code; the library optimised and emitted first if not yet."""
 
     @functools.wraps(read)
     def read_emitted(self, *args, **kwargs):  # noqa: ANN001, ANN202 -- numba's own
         self._ensure_finalized()
+        if getattr(self, "_holo_unoptimised", False):
+            self._holo_unoptimised = False
+            optimise(self)
         if getattr(self, "_holo_pending", False):
             self._holo_pending = False
             emit(self)
@@ -491,24 +495,27 @@ def _emitting_first(read: Callable, emit: Callable) -> Callable:
 
 
 def link_only_machine_code() -> bool:
-    """Emit a library's machine code only when something reads it; True if in use.
+    """Optimise and emit a library's module only when its machine code is read; True if so.
 
     Each ``prange`` loop of a ``parallel=True`` kernel compiles as a gufunc in a
     library of its own, wrapped by two more (numba's ``_GufuncWrapper`` and
     ``parallelgufuncwrapper``), each linking the one before as LLVM IR, and the
     kernel's library links them all.  numba finalises every library by optimising
-    it and then emitting its machine code, so the loop body, most of a parallel
-    kernel, went through LLVM's code generator four times; nothing ever reads the
-    two wrappers' machine code (only the kernel's runs and is cached).  Here a
-    library's machine code is emitted when its address or object code is first
-    asked for: the kernel's and the gufunc's at once (numba asks for their entry
-    points), the wrappers' never.  A cold warm-up took about a tenth less CPU
-    (docs/compile-time.md, "Machine code nobody reads").
+    its whole module at ``-O3`` and emitting its machine code, so the loop body,
+    most of a parallel kernel, went through LLVM's optimiser and code generator
+    four times, though nothing reads the two wrappers' machine code (only the
+    kernel's runs and is cached).  Here a library is linked when finalised, and its
+    module optimised and emitted when its address or object code is first asked
+    for: the kernel's and the gufunc's at once (numba asks for their entry points),
+    the wrappers' never; their IR is optimised where it runs, in the kernel's
+    module.  Every job of a cold warm-up, one process: 161.8 -> 146.8 s of CPU
+    without the wrappers' machine code, and 144.4 -> 136.3 s more without their
+    optimisation (docs/compile-time.md, session 7).
 
     Not byte for byte the same machine code: emitting a module also rewrites its IR
     for the target (LLVM's code generator preparation), and the kernel used to link
-    the wrappers' rewritten IR.  The refresh measured 0.3-1.5 % slower, renders
-    0.2-0.6 %, within run-to-run spread; outputs are unchanged (the tests).
+    the wrappers' rewritten, re-optimised IR.  Refresh, renders and updates measured
+    within their run-to-run spread (about 1 %); outputs are unchanged (the tests).
     numba is left alone (False) unless the sources it wraps are the ones in
     :data:`LINK_ONLY_SHA256`.  Idempotent; numba's methods stay reachable as
     ``__wrapped__``.
@@ -521,16 +528,19 @@ def link_only_machine_code() -> bool:
         return True
     current = {
         "CPUCodeLibrary.finalize": library.finalize,
+        "CPUCodeLibrary._optimize_final_module": library._optimize_final_module,
         "CPUCodeLibrary._finalize_final_module": library._finalize_final_module,
         "JITCodeLibrary.get_pointer_to_function": jit.get_pointer_to_function,
         "CodeLibrary._get_compiled_object": library._get_compiled_object,
     }
     if any(_source_digest(fn) != LINK_ONLY_SHA256[name] for name, fn in current.items()):
         return False
-    emit = library._finalize_final_module
-    library._finalize_final_module = _emitting_later(emit)
-    library._get_compiled_object = _emitting_first(library._get_compiled_object, emit)
-    jit.get_pointer_to_function = _emitting_first(jit.get_pointer_to_function, emit)
+    optimise, emit = library._optimize_final_module, library._finalize_final_module
+    library._optimize_final_module = _later(optimise, "_holo_unoptimised")
+    library._finalize_final_module = _later(emit, "_holo_pending")
+    library._get_compiled_object = _emitting_first(library._get_compiled_object, optimise,
+                                                   emit)
+    jit.get_pointer_to_function = _emitting_first(jit.get_pointer_to_function, optimise, emit)
     library.finalize = _deferring(library.finalize)
     return True
 

@@ -351,11 +351,12 @@ def test_a_kernel_that_asks_for_its_cfunc_wrapper_and_numba_cfunc_keep_it(finali
 
 @pytest.fixture
 def emissions(monkeypatch):
-    """numba's own library methods in place for the test; the names of libraries emitted.
+    """numba's own library methods in place for the test; the libraries optimised and emitted.
 
-    numba's ``_finalize_final_module`` (where a library's machine code is emitted) is
-    wrapped to record each library's name before :func:`link_only_machine_code`
-    wraps it in turn, so the list holds what the patch let numba emit.
+    numba's ``_optimize_final_module`` and ``_finalize_final_module`` (where a
+    library's module is optimised, and its machine code emitted) are wrapped to
+    record each library's name before :func:`link_only_machine_code` wraps them in
+    turn, so the lists hold what the patch let numba do.
     """
     import functools
 
@@ -364,35 +365,42 @@ def emissions(monkeypatch):
     for key, digest in numba_patches.LINK_ONLY_SHA256.items():
         owner = JITCodeLibrary if key.startswith("JIT") else CPUCodeLibrary
         _numbas_own(monkeypatch, owner, key.split(".")[1], digest)
-    names: list[str] = []
-    emit = CPUCodeLibrary._finalize_final_module
+    done: dict[str, list[str]] = {"optimised": [], "emitted": []}
+    for step, name in (("optimised", "_optimize_final_module"),
+                       ("emitted", "_finalize_final_module")):
+        numbas = getattr(CPUCodeLibrary, name)
 
-    @functools.wraps(emit)  # its source is still numba's to the patch's check
-    def recorded(self):
-        names.append(str(self.name))
-        return emit(self)
+        def recorded(self, numbas=numbas, names=done[step]):
+            names.append(str(self.name))
+            return numbas(self)
 
-    monkeypatch.setattr(CPUCodeLibrary, "_finalize_final_module", recorded)
-    return names
+        # its source is still numba's to the patch's check
+        monkeypatch.setattr(CPUCodeLibrary, name, functools.wraps(numbas)(recorded))
+    return done
 
 
-def test_a_parallel_kernels_wrappers_are_linked_never_emitted(emissions):
+def _wrappers(names: list[str]) -> list[str]:
+    return [n for n in names if n == "parallelgufuncwrapper" or "GufuncWrapper" in n]
+
+
+def test_a_parallel_kernels_wrappers_are_linked_never_optimised_or_emitted(emissions):
     from numba.core.codegen import CPUCodeLibrary
 
     a = np.linspace(-2.0, 5.0, 11)
     want = _parallel_source()(a, np.empty_like(a), 5)
-    numba_names = list(emissions)
-    assert "parallelgufuncwrapper" in numba_names  # numba emits the wrappers
-    emissions.clear()
+    numbas = {step: list(names) for step, names in emissions.items()}
+    assert len(_wrappers(numbas["emitted"])) == len(_wrappers(numbas["optimised"])) == 2
+    for names in emissions.values():
+        names.clear()
     assert numba_patches.link_only_machine_code() is True
     assert numba_patches.link_only_machine_code() is True  # idempotent
     assert CPUCodeLibrary.finalize.__wrapped__ is not None
     np.testing.assert_array_equal(_parallel_source()(a, np.empty_like(a), 5), want)
-    assert any(n.endswith(".f") for n in emissions)  # the kernel
-    assert any("parfor_gufunc" in n for n in emissions)  # its entry point was asked for
-    assert "parallelgufuncwrapper" not in emissions
-    assert not any("GufuncWrapper" in n for n in emissions)
-    assert len(emissions) == len(numba_names) - 2
+    for step, names in emissions.items():
+        assert any(n.endswith(".f") for n in names), step  # the kernel
+        assert any("parfor_gufunc" in n for n in names), step  # its entry point was asked for
+        assert _wrappers(names) == [], step
+        assert len(names) == len(numbas[step]) - 2, step
 
 
 _LINKED = '''
