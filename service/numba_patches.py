@@ -13,11 +13,12 @@ numba's cache sees no difference.
 
 :func:`faster_inlining` does the like for the inliner's copy of a callee's IR (one
 deepcopy memo for all its blocks), :func:`faster_flag_values` for the comparison of
-compiler flags that typing does at every call it resolves, and
-:func:`no_cfunc_wrappers` skips a wrapper no kernel here uses,
-:func:`link_only_machine_code` skips the machine code of libraries only ever linked
-into a kernel (a parallel loop's gufunc wrappers), and
-:func:`locked_cache_saves` makes numba's cache saves atomic between processes.
+compiler flags that typing does at every call it resolves, :func:`faster_live_map`
+for liveness (bit sets instead of sets of names); :func:`no_cfunc_wrappers` skips a
+wrapper no kernel here uses, :func:`link_only_machine_code` the optimisation and
+machine code of libraries only ever linked into a kernel (a parallel loop's gufunc
+wrappers), and :func:`locked_cache_saves` makes numba's cache saves atomic between
+processes.
 :func:`apply_all` applies every one.
 
 Each fix applies only to the function it was written against: if numba's source
