@@ -80,7 +80,7 @@ def test_every_snapshot_accounts_for_every_job(flowing):
             assert front.poll(HANG_S * 1000), "a job was never answered"
             front.recv_multipart()
             answered += 1
-        workers[0].kill()  # one more job may be held by the dead one: lost, still counted
+        workers[0].kill()  # a worker leaving the books while the reader reads
         b.forget(workers[0].pid)
         assert wait_until(lambda: b.live() == 1, HANG_S)
     finally:
