@@ -3,8 +3,13 @@
 
 from __future__ import annotations
 
+import threading
+
 import pytest
-from testkit import SMALL_SERVICE, ServiceProcess, start_service
+import zmq
+from testkit import HANG_S, SMALL_SERVICE, ServiceProcess, start_service
+
+from service.net.broker import Broker
 
 
 @pytest.fixture
@@ -24,3 +29,24 @@ def svc():
         yield s
     finally:
         s.stop()
+
+
+@pytest.fixture
+def broker():
+    """A :class:`Broker` routing on its own thread (job timeout 60 s), and a requester.
+
+    Yields ``(broker, front)``: ``front`` is a DEALER connected to its frontend.
+    """
+    ctx = zmq.Context()
+    b = Broker(ctx, "tcp://127.0.0.1:*", "tcp://127.0.0.1:*", job_timeout_s=60)
+    front = ctx.socket(zmq.DEALER)
+    front.connect(b.front.getsockopt_string(zmq.LAST_ENDPOINT))
+    thread = threading.Thread(target=b.run, daemon=True)
+    thread.start()
+    try:
+        yield b, front
+    finally:
+        b.stop()
+        thread.join(HANG_S)
+        front.close(0)
+        ctx.term()

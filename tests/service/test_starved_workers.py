@@ -15,9 +15,7 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 
-import pytest
 import zmq
 from testkit import HANG_S, wait_until
 
@@ -71,23 +69,6 @@ def test_the_watch_tells_a_working_process_from_a_stopped_or_idle_one():
     finally:
         _end(busy)
         _end(idle)
-
-
-@pytest.fixture
-def broker():
-    ctx = zmq.Context()
-    b = Broker(ctx, "tcp://127.0.0.1:*", "tcp://127.0.0.1:*", job_timeout_s=60)
-    front = ctx.socket(zmq.DEALER)
-    front.connect(b.front.getsockopt_string(zmq.LAST_ENDPOINT))
-    thread = threading.Thread(target=b.run, daemon=True)
-    thread.start()
-    try:
-        yield b, front
-    finally:
-        b.stop()
-        thread.join(HANG_S)
-        front.close(0)
-        ctx.term()
 
 
 def _job(b: Broker, front: zmq.Socket, spin_s: float) -> subprocess.Popen:
