@@ -119,8 +119,9 @@ BATCH = 4096
 GATHER_RUN = 5.0
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy")
-def _scatter_bands_body(
+@nb.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _scatter_band(
+    band: int,
     old: tuple,
     new: tuple,
     src_idx: np.ndarray,
@@ -142,330 +143,366 @@ def _scatter_bands_body(
     threshold: float,
     table: bool,
     gather_run: float,
+    buf: tuple,
     bookkeeping: bool,
 ) -> None:
-    """The body of :func:`scatter_bands` and :func:`scatter_bands_plain`.
+    """Band ``band`` of :func:`scatter_bands` (``bookkeeping``) or :func:`scatter_bands_plain`.
 
-    ``bookkeeping`` is a constant where the two kernels inline this body, so numba
-    prunes the still-galpixel branches and stores from :func:`scatter_bands_plain`
-    (with them, the first refresh after every change was 15-20 % slower).  Two
-    module-level kernels, not one built by a factory: each has its own entry in
-    numba's cache (``holo-warmup`` compiles both; a second process loads both).
+    The kernels' parameters (see :func:`scatter_bands`), and:
+
+    Parameters
+    ----------
+    band : int
+        The band this call does (its new rows, its row of ``stats``,
+        ``reach_out`` and of each batch buffer).
+    buf : tuple
+        The batch buffers (:func:`_batch_buffers`), each shape (bands, size).
+    bookkeeping : bool
+        A constant (``Literal[bool]``: the kernels pass ``True`` or ``False``), so
+        numba compiles a version without the still-galpixel branches and stores
+        for :func:`scatter_bands_plain` (with them, the first refresh after every
+        change was 15-20 % slower).
+
+    Notes
+    -----
+    A function of its own, called from each kernel's ``prange`` loop, rather than
+    the loop's body: numba compiles a ``prange`` body twice over (the kernel, then
+    the body again as a gufunc of its own), so the body as a plain function
+    compiles in about half the CPU (docs/compile-time.md, session 8).
+    ``_nrt=False`` because in a plain function every array argument carries a
+    reference count, and each view or array handed to an inlined helper (here per
+    batch, pixel and run) would cost an atomic increment and decrement; in a gufunc
+    those fold away.  Without them this function allocates nothing (the kernels
+    pass the buffers) and runs within 1-2 % of the gufunc body.
     """
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
     n_col, n_dep, n_frac, n_mot, n_zm, n_dc, n_deb, n_obj = new
     k0 = np.int64(0)
-    rows = max(1, min(h, BATCH // w))
+    rows = _batch_rows(h, w)
     size = rows * w
-    # batch buffers, one row per band (allocated outside the parallel loop)
-    qb_all = np.empty((bands, size), np.int64)  # landing pixel; -1 debris, -2 off the map
-    db_all = np.empty((bands, size), np.int64)  # new depth
-    fxb_all = np.empty((bands, size), np.int16)
-    fyb_all = np.empty((bands, size), np.int16)
-    vxb_all = np.empty((bands, size), np.int32)
-    vyb_all = np.empty((bands, size), np.int32)
-    axb_all = np.empty((bands, size), np.int32)
-    ayb_all = np.empty((bands, size), np.int32)
-    run_i_all = np.empty((bands, size), np.int64)  # first batch index of a run
-    run_q_all = np.empty((bands, size), np.int64)  # its landing pixel
-    run_n_all = np.empty((bands, size), np.int64)  # its length
-    win_i_all = np.empty((bands, size), np.int64)  # every winner's batch index (gathering)
-    win_q_all = np.empty((bands, size), np.int64)  # and its new pixel
-    sb_all = np.empty((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
-    for band in nb.prange(bands):
-        lo, hi = band * h // bands, (band + 1) * h // bands
-        r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
-        qb = qb_all[band]
-        db = db_all[band]
-        fxb = fxb_all[band]
-        fyb = fyb_all[band]
-        vxb = vxb_all[band]
-        vyb = vyb_all[band]
-        axb = axb_all[band]
-        ayb = ayb_all[band]
-        run_i = run_i_all[band]
-        run_q = run_q_all[band]
-        run_n = run_n_all[band]
-        win_i = win_i_all[band]
-        win_q = win_q_all[band]
-        sb = sb_all[band]
-        for k in range(size):  # zeroed here: np.zeros would be a parallel pass of its own
-            sb[k] = 0
-        n_prop = n_clash = n_drop = np.int64(0)
-        mvy = may = mjy = np.int64(0)
-        # how step 3 copies the batch: winner by winner (True) or run by run
-        gather = gather_run == np.inf
-        for z in range(nz):
-            zb = z * h * w
-            q_lo, q_hi = zb + lo * w, zb + hi * w  # this band's new pixels
-            for r0 in range(r_lo, r_hi, rows):
-                nr = min(rows, r_hi - r0)
-                b0 = zb + r0 * w  # flat index of the batch's first pixel
-                own_lo, own_hi = (lo - r0) * w, (hi - r0) * w  # batch indices of own rows
-                # 1. advance (one loop per order: a loop-invariant branch inside
-                #    would keep LLVM from vectorising it)
-                for rr in range(nr):
-                    r = r0 + rr
-                    p0 = zb + r * w
-                    i0 = rr * w
-                    # stretches of whole chunks known static (left to step 2) and
-                    # the stretches between them (long loops: each loop entry
-                    # checks aliasing)
-                    ce = 0
-                    while ce < w:
-                        ca = cb = ce
-                        if not (bookkeeping and use_same):
-                            cb = ce = w
-                        while cb < w and not _all_set(same_in, p0 + cb,
-                                                      p0 + min(w, cb + CHUNK)):
-                            cb = min(w, cb + CHUNK)
-                        ce = max(ce, cb)
-                        while ce < w and _all_set(same_in, p0 + ce, p0 + min(w, ce + CHUNK)):
-                            ce = min(w, ce + CHUNK)
-                        if order == 0:
-                            for c in range(ca, cb):
-                                p, i = u64(p0 + c), u64(i0 + c)
-                                deb = o_deb[p]  # every load before the first store
-                                qr, qc, fx, fy, d = step(
-                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
-                                    k0, k0, k0, k0, k0, k0, k0, k0, k0, 0, fp, fm,
-                                )[:5]  # fmt: skip
-                                qb[i] = _landing(qr, qc, deb, z, h, w)
-                                fxb[i], fyb[i], db[i] = fx, fy, d
-                                if bookkeeping:
-                                    sb[i] = qb[i] == p0 + c
-                        elif order == 1:
-                            for c in range(ca, cb):
-                                p, i = u64(p0 + c), u64(i0 + c)
-                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                                vz, deb = np.int64(o_zm[0][p]), o_deb[p]
-                                qr, qc, fx, fy, d, vx1, vy1 = step(
-                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
-                                    vx, vy, k0, k0, k0, k0, vz, k0, k0, 1, fp, fm,
-                                )[:7]  # fmt: skip
-                                qb[i] = _landing(qr, qc, deb, z, h, w)
-                                fxb[i], fyb[i], db[i], vxb[i], vyb[i] = fx, fy, d, vx1, vy1
-                                if bookkeeping:
-                                    sb[i] = (qb[i] == p0 + c) & ((vx | vy | vz) == 0)
-                        elif order == 2:
-                            for c in range(ca, cb):
-                                p, i = u64(p0 + c), u64(i0 + c)
-                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                                ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
-                                vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
-                                deb = o_deb[p]
-                                qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = step(
-                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
-                                    vx, vy, ax, ay, k0, k0, vz, az, k0, 2, fp, fm,
-                                )[:9]  # fmt: skip
-                                qb[i] = _landing(qr, qc, deb, z, h, w)
-                                fxb[i], fyb[i], db[i] = fx, fy, d
-                                vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
-                                if bookkeeping:
-                                    still = (vx | vy | ax | ay | vz | az) == 0
-                                    sb[i] = (qb[i] == p0 + c) & still
-                        else:
-                            for c in range(ca, cb):
-                                p, i = u64(p0 + c), u64(i0 + c)
-                                vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
-                                ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
-                                jx, jy = np.int64(o_mot[4][p]), np.int64(o_mot[5][p])
-                                vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
-                                jz = np.int64(o_zm[2][p])
-                                deb = o_deb[p]
-                                qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = step(
-                                    r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
-                                    vx, vy, ax, ay, jx, jy, vz, az, jz, 3, fp, fm,
-                                )[:9]  # fmt: skip
-                                qb[i] = _landing(qr, qc, deb, z, h, w)
-                                fxb[i], fyb[i], db[i] = fx, fy, d
-                                vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
-                                if bookkeeping:
-                                    still = (vx | vy | ax | ay | jx | jy | vz | az | jz) == 0
-                                    sb[i] = (qb[i] == p0 + c) & still
-                # the Poisson tests of the band's own old rows in the batch, while
-                # they are in cache (what poisson_interiors would compute)
-                if table:
-                    for r in range(max(r0, lo), min(r0 + nr, hi)):
-                        interior_row(o_dep, o_deb, np.int64(zb + r * w), np.int64(r), h, w,
-                                     threshold, interior)
-                # 2. z-test in scan order; the open run is kept in registers
-                runs = wins = 0
-                ri, rq, rn = np.int64(-2), np.int64(0), np.int64(0)  # no run open
-                skip = 0
-                for i in range(nr * w):
-                    if skip:
-                        skip -= 1
-                        continue
-                    p = u64(b0 + i)
-                    if (bookkeeping and use_same and (i & (CHUNK - 1)) == 0
-                            and own_lo <= i and i + CHUNK <= own_hi
-                            and _all_set(same_in, b0 + i, b0 + i + CHUNK)
-                            and _all_set(n_deb, b0 + i, b0 + i + CHUNK)):
-                        # a chunk of still galpixels on their own pixels, nothing
-                        # landed there yet: each is the first to land on its own
-                        # pixel (as below), all at once
+    lo, hi = band * h // bands, (band + 1) * h // bands
+    r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
+    qb = buf[0][band]
+    db = buf[1][band]
+    fxb = buf[2][band]
+    fyb = buf[3][band]
+    vxb = buf[4][band]
+    vyb = buf[5][band]
+    axb = buf[6][band]
+    ayb = buf[7][band]
+    run_i = buf[8][band]
+    run_q = buf[9][band]
+    run_n = buf[10][band]
+    win_i = buf[11][band]
+    win_q = buf[12][band]
+    sb = buf[13][band]
+    for k in range(size):  # zeroed here: np.zeros would be a parallel pass of its own
+        sb[k] = 0
+    n_prop = n_clash = n_drop = np.int64(0)
+    mvy = may = mjy = np.int64(0)
+    # how step 3 copies the batch: winner by winner (True) or run by run
+    gather = gather_run == np.inf
+    for z in range(nz):
+        zb = z * h * w
+        q_lo, q_hi = zb + lo * w, zb + hi * w  # this band's new pixels
+        for r0 in range(r_lo, r_hi, rows):
+            nr = min(rows, r_hi - r0)
+            b0 = zb + r0 * w  # flat index of the batch's first pixel
+            own_lo, own_hi = (lo - r0) * w, (hi - r0) * w  # batch indices of own rows
+            # 1. advance (one loop per order: a loop-invariant branch inside
+            #    would keep LLVM from vectorising it)
+            for rr in range(nr):
+                r = r0 + rr
+                p0 = zb + r * w
+                i0 = rr * w
+                # stretches of whole chunks known static (left to step 2) and
+                # the stretches between them (long loops: each loop entry
+                # checks aliasing)
+                ce = 0
+                while ce < w:
+                    ca = cb = ce
+                    if not (bookkeeping and use_same):
+                        cb = ce = w
+                    while cb < w and not _all_set(same_in, p0 + cb,
+                                                  p0 + min(w, cb + CHUNK)):
+                        cb = min(w, cb + CHUNK)
+                    ce = max(ce, cb)
+                    while ce < w and _all_set(same_in, p0 + ce, p0 + min(w, ce + CHUNK)):
+                        ce = min(w, ce + CHUNK)
+                    if order == 0:
+                        for c in range(ca, cb):
+                            p, i = u64(p0 + c), u64(i0 + c)
+                            deb = o_deb[p]  # every load before the first store
+                            qr, qc, fx, fy, d = step(
+                                r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                k0, k0, k0, k0, k0, k0, k0, k0, k0, 0, fp, fm,
+                            )[:5]  # fmt: skip
+                            qb[i] = _landing(qr, qc, deb, z, h, w)
+                            fxb[i], fyb[i], db[i] = fx, fy, d
+                            if bookkeeping:
+                                sb[i] = qb[i] == p0 + c
+                    elif order == 1:
+                        for c in range(ca, cb):
+                            p, i = u64(p0 + c), u64(i0 + c)
+                            vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                            vz, deb = np.int64(o_zm[0][p]), o_deb[p]
+                            qr, qc, fx, fy, d, vx1, vy1 = step(
+                                r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                vx, vy, k0, k0, k0, k0, vz, k0, k0, 1, fp, fm,
+                            )[:7]  # fmt: skip
+                            qb[i] = _landing(qr, qc, deb, z, h, w)
+                            fxb[i], fyb[i], db[i], vxb[i], vyb[i] = fx, fy, d, vx1, vy1
+                            if bookkeeping:
+                                sb[i] = (qb[i] == p0 + c) & ((vx | vy | vz) == 0)
+                    elif order == 2:
+                        for c in range(ca, cb):
+                            p, i = u64(p0 + c), u64(i0 + c)
+                            vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                            ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                            vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
+                            deb = o_deb[p]
+                            qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = step(
+                                r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                vx, vy, ax, ay, k0, k0, vz, az, k0, 2, fp, fm,
+                            )[:9]  # fmt: skip
+                            qb[i] = _landing(qr, qc, deb, z, h, w)
+                            fxb[i], fyb[i], db[i] = fx, fy, d
+                            vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
+                            if bookkeeping:
+                                still = (vx | vy | ax | ay | vz | az) == 0
+                                sb[i] = (qb[i] == p0 + c) & still
+                    else:
+                        for c in range(ca, cb):
+                            p, i = u64(p0 + c), u64(i0 + c)
+                            vx, vy = np.int64(o_mot[0][p]), np.int64(o_mot[1][p])
+                            ax, ay = np.int64(o_mot[2][p]), np.int64(o_mot[3][p])
+                            jx, jy = np.int64(o_mot[4][p]), np.int64(o_mot[5][p])
+                            vz, az = np.int64(o_zm[0][p]), np.int64(o_zm[1][p])
+                            jz = np.int64(o_zm[2][p])
+                            deb = o_deb[p]
+                            qr, qc, fx, fy, d, vx1, vy1, ax1, ay1 = step(
+                                r, c, o_frac[0][p], o_frac[1][p], o_dep[p],
+                                vx, vy, ax, ay, jx, jy, vz, az, jz, 3, fp, fm,
+                            )[:9]  # fmt: skip
+                            qb[i] = _landing(qr, qc, deb, z, h, w)
+                            fxb[i], fyb[i], db[i] = fx, fy, d
+                            vxb[i], vyb[i], axb[i], ayb[i] = vx1, vy1, ax1, ay1
+                            if bookkeeping:
+                                still = (vx | vy | ax | ay | jx | jy | vz | az | jz) == 0
+                                sb[i] = (qb[i] == p0 + c) & still
+            # the Poisson tests of the band's own old rows in the batch, while
+            # they are in cache (what poisson_interiors would compute)
+            if table:
+                for r in range(max(r0, lo), min(r0 + nr, hi)):
+                    interior_row(o_dep, o_deb, np.int64(zb + r * w), np.int64(r), h, w,
+                                 threshold, interior)
+            # 2. z-test in scan order; the open run is kept in registers
+            runs = wins = 0
+            ri, rq, rn = np.int64(-2), np.int64(0), np.int64(0)  # no run open
+            skip = 0
+            for i in range(nr * w):
+                if skip:
+                    skip -= 1
+                    continue
+                p = u64(b0 + i)
+                if (bookkeeping and use_same and (i & (CHUNK - 1)) == 0
+                        and own_lo <= i and i + CHUNK <= own_hi
+                        and _all_set(same_in, b0 + i, b0 + i + CHUNK)
+                        and _all_set(n_deb, b0 + i, b0 + i + CHUNK)):
+                    # a chunk of still galpixels on their own pixels, nothing
+                    # landed there yet: each is the first to land on its own
+                    # pixel (as below), all at once
+                    for j in range(b0 + i, b0 + i + CHUNK):
+                        n_deb[u64(j)] = 0
+                    if record:
                         for j in range(b0 + i, b0 + i + CHUNK):
-                            n_deb[u64(j)] = 0
-                        if record:
-                            for j in range(b0 + i, b0 + i + CHUNK):
-                                same_out[u64(j)] = 1
-                        n_prop += CHUNK
-                        skip = CHUNK - 1
-                        continue
-                    known = bookkeeping and use_same and same_in[p] != 0  # still, new holds it
-                    q = b0 + i if known else qb[i]
-                    own = own_lo <= i < own_hi
-                    if q < 0 or q < q_lo or q >= q_hi:
-                        if q != -1 and own:
-                            n_prop += 1
-                            n_drop += q == -2
-                        continue
-                    n_prop += own
-                    fresh = n_deb[u64(q)] != 0
-                    if known and fresh:
-                        # the first to land on its own pixel, which holds it already
-                        n_deb[u64(q)] = 0
-                        if bookkeeping and record:
-                            same_out[u64(q)] = 1
-                        continue
-                    d = np.int64(o_dep[p]) if known else db[i]
-                    if not fresh:
-                        n_clash += 1
-                        if d >= n_dep[u64(q)]:
-                            continue
-                    n_dep[u64(q)] = d
+                            same_out[u64(j)] = 1
+                    n_prop += CHUNK
+                    skip = CHUNK - 1
+                    continue
+                known = bookkeeping and use_same and same_in[p] != 0  # still, new holds it
+                q = b0 + i if known else qb[i]
+                own = own_lo <= i < own_hi
+                if q < 0 or q < q_lo or q >= q_hi:
+                    if q != -1 and own:
+                        n_prop += 1
+                        n_drop += q == -2
+                    continue
+                n_prop += own
+                fresh = n_deb[u64(q)] != 0
+                if known and fresh:
+                    # the first to land on its own pixel, which holds it already
                     n_deb[u64(q)] = 0
-                    if known:  # step 1 skipped it: its batch entries for the copy
-                        _unmoved(p, u64(i), o_frac, fxb, fyb, vxb, vyb, axb, ayb)
-                    # the fraction, object and origin planes here, one galpixel at a
-                    # time, the others by runs in step 3: a loop per plane and run
-                    # costs more than these stores (scatter 5 % less CPU on a head
-                    # turn, 9-11 % on the 100k scene; moving the motion planes here
-                    # too lost it again, the colour planes as well cost 40 %)
-                    n_frac[0][u64(q)] = fxb[u64(i)]
-                    n_frac[1][u64(q)] = fyb[u64(i)]
-                    n_obj[u64(q)] = o_obj[p]
-                    if track:
-                        src_idx[u64(q)] = b0 + i - zb
                     if bookkeeping and record:
-                        still = known or (sb[i] != 0 and _no_colour_motion(o_dc, ncol, p))
-                        same_out[u64(q)] = still
-                    if gather:
-                        win_i[wins], win_q[wins] = i, q
-                        wins += 1
-                    # a run goes on while winners follow each other in the scan and
-                    # land side by side; it is closed at the first that does not
-                    # (nothing to do on the paths that win nothing)
-                    if i == ri + rn and q == rq + rn:
-                        rn += 1
-                    else:
-                        runs, wins = _end_run(run_i, run_q, run_n, runs, wins, ri, rq, rn, gather)
-                        ri, rq, rn = i, q, 1
-                runs, wins = _end_run(run_i, run_q, run_n, runs, wins, ri, rq, rn, gather)
-                # 3. copy the other planes, plane by plane: run by run, or, where
-                #    runs are short, winner by winner (one long loop per plane; a
-                #    loop per run and plane costs more than the run's galpixels)
+                        same_out[u64(q)] = 1
+                    continue
+                d = np.int64(o_dep[p]) if known else db[i]
+                if not fresh:
+                    n_clash += 1
+                    if d >= n_dep[u64(q)]:
+                        continue
+                n_dep[u64(q)] = d
+                n_deb[u64(q)] = 0
+                if known:  # step 1 skipped it: its batch entries for the copy
+                    _unmoved(p, u64(i), o_frac, fxb, fyb, vxb, vyb, axb, ayb)
+                # the fraction, object and origin planes here, one galpixel at a
+                # time, the others by runs in step 3: a loop per plane and run
+                # costs more than these stores (scatter 5 % less CPU on a head
+                # turn, 9-11 % on the 100k scene; moving the motion planes here
+                # too lost it again, the colour planes as well cost 40 %)
+                n_frac[0][u64(q)] = fxb[u64(i)]
+                n_frac[1][u64(q)] = fyb[u64(i)]
+                n_obj[u64(q)] = o_obj[p]
+                if track:
+                    src_idx[u64(q)] = b0 + i - zb
+                if bookkeeping and record:
+                    still = known or (sb[i] != 0 and _no_colour_motion(o_dc, ncol, p))
+                    same_out[u64(q)] = still
                 if gather:
+                    win_i[wins], win_q[wins] = i, q
+                    wins += 1
+                # a run goes on while winners follow each other in the scan and
+                # land side by side; it is closed at the first that does not
+                # (nothing to do on the paths that win nothing)
+                if i == ri + rn and q == rq + rn:
+                    rn += 1
+                else:
+                    runs, wins = _end_run(run_i, run_q, run_n, runs, wins, ri, rq, rn, gather)
+                    ri, rq, rn = i, q, 1
+            runs, wins = _end_run(run_i, run_q, run_n, runs, wins, ri, rq, rn, gather)
+            # 3. copy the other planes, plane by plane: run by run, or, where
+            #    runs are short, winner by winner (one long loop per plane; a
+            #    loop per run and plane costs more than the run's galpixels)
+            if gather:
+                if ncol == 4:
+                    for k in range(wins):
+                        _move_colour(o_col, o_dc, n_col, n_dc,
+                                     u64(b0 + win_i[k]), u64(win_q[k]))
+                else:
+                    for k in range(wins):
+                        p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        n_col[0][q] = o_col[0][p]
+                        n_col[1][q] = o_col[1][p]
+                        n_col[2][q] = o_col[2][p]
+                if order >= 1:
+                    for k in range(wins):
+                        b, q = u64(win_i[k]), u64(win_q[k])
+                        n_mot[0][q] = vxb[b]
+                        n_mot[1][q] = vyb[b]
+                        mvy = max(mvy, abs(np.int64(vyb[b])))
+                if order >= 2:
+                    for k in range(wins):
+                        b, q = u64(win_i[k]), u64(win_q[k])
+                        n_mot[2][q] = axb[b]
+                        n_mot[3][q] = ayb[b]
+                        may = max(may, abs(np.int64(ayb[b])))
+                if order == 3:
+                    for k in range(wins):
+                        p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        n_mot[4][q] = o_mot[4][p]
+                        n_mot[5][q] = o_mot[5][p]
+                        mjy = max(mjy, abs(np.int64(o_mot[5][p])))
+                if order == 1:
+                    for k in range(wins):
+                        n_zm[0][u64(win_q[k])] = o_zm[0][u64(b0 + win_i[k])]
+                elif order == 2:
+                    for k in range(wins):
+                        p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
+                        n_zm[1][q] = o_zm[1][p]
+                elif order == 3:
+                    for k in range(wins):
+                        p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
+                        n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
+                        n_zm[1][q] = z1 + z2
+                        n_zm[2][q] = z2
+            else:
+                for k in range(runs):
+                    i0, q0, m = run_i[k], run_q[k], run_n[k]
+                    s0 = b0 + i0
                     if ncol == 4:
-                        for k in range(wins):
-                            _move_colour(o_col, o_dc, n_col, n_dc,
-                                         u64(b0 + win_i[k]), u64(win_q[k]))
+                        for j in range(m):
+                            _move_colour(o_col, o_dc, n_col, n_dc, u64(s0 + j), u64(q0 + j))
                     else:
-                        for k in range(wins):
-                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
                             n_col[0][q] = o_col[0][p]
                             n_col[1][q] = o_col[1][p]
                             n_col[2][q] = o_col[2][p]
                     if order >= 1:
-                        for k in range(wins):
-                            b, q = u64(win_i[k]), u64(win_q[k])
+                        for j in range(m):
+                            b, q = u64(i0 + j), u64(q0 + j)
                             n_mot[0][q] = vxb[b]
                             n_mot[1][q] = vyb[b]
                             mvy = max(mvy, abs(np.int64(vyb[b])))
                     if order >= 2:
-                        for k in range(wins):
-                            b, q = u64(win_i[k]), u64(win_q[k])
+                        for j in range(m):
+                            b, q = u64(i0 + j), u64(q0 + j)
                             n_mot[2][q] = axb[b]
                             n_mot[3][q] = ayb[b]
                             may = max(may, abs(np.int64(ayb[b])))
                     if order == 3:
-                        for k in range(wins):
-                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
                             n_mot[4][q] = o_mot[4][p]
                             n_mot[5][q] = o_mot[5][p]
                             mjy = max(mjy, abs(np.int64(o_mot[5][p])))
                     if order == 1:
-                        for k in range(wins):
-                            n_zm[0][u64(win_q[k])] = o_zm[0][u64(b0 + win_i[k])]
+                        for j in range(m):
+                            n_zm[0][u64(q0 + j)] = o_zm[0][u64(s0 + j)]
                     elif order == 2:
-                        for k in range(wins):
-                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
                             n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
                             n_zm[1][q] = o_zm[1][p]
                     elif order == 3:
-                        for k in range(wins):
-                            p, q = u64(b0 + win_i[k]), u64(win_q[k])
+                        for j in range(m):
+                            p, q = u64(s0 + j), u64(q0 + j)
                             z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
                             n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
                             n_zm[1][q] = z1 + z2
                             n_zm[2][q] = z2
-                else:
-                    for k in range(runs):
-                        i0, q0, m = run_i[k], run_q[k], run_n[k]
-                        s0 = b0 + i0
-                        if ncol == 4:
-                            for j in range(m):
-                                _move_colour(o_col, o_dc, n_col, n_dc, u64(s0 + j), u64(q0 + j))
-                        else:
-                            for j in range(m):
-                                p, q = u64(s0 + j), u64(q0 + j)
-                                n_col[0][q] = o_col[0][p]
-                                n_col[1][q] = o_col[1][p]
-                                n_col[2][q] = o_col[2][p]
-                        if order >= 1:
-                            for j in range(m):
-                                b, q = u64(i0 + j), u64(q0 + j)
-                                n_mot[0][q] = vxb[b]
-                                n_mot[1][q] = vyb[b]
-                                mvy = max(mvy, abs(np.int64(vyb[b])))
-                        if order >= 2:
-                            for j in range(m):
-                                b, q = u64(i0 + j), u64(q0 + j)
-                                n_mot[2][q] = axb[b]
-                                n_mot[3][q] = ayb[b]
-                                may = max(may, abs(np.int64(ayb[b])))
-                        if order == 3:
-                            for j in range(m):
-                                p, q = u64(s0 + j), u64(q0 + j)
-                                n_mot[4][q] = o_mot[4][p]
-                                n_mot[5][q] = o_mot[5][p]
-                                mjy = max(mjy, abs(np.int64(o_mot[5][p])))
-                        if order == 1:
-                            for j in range(m):
-                                n_zm[0][u64(q0 + j)] = o_zm[0][u64(s0 + j)]
-                        elif order == 2:
-                            for j in range(m):
-                                p, q = u64(s0 + j), u64(q0 + j)
-                                n_zm[0][q] = o_zm[0][p] + o_zm[1][p]
-                                n_zm[1][q] = o_zm[1][p]
-                        elif order == 3:
-                            for j in range(m):
-                                p, q = u64(s0 + j), u64(q0 + j)
-                                z0, z1, z2 = o_zm[0][p], o_zm[1][p], o_zm[2][p]
-                                n_zm[0][q] = z0 + z1 + ((np.int64(z2) + 1) >> 1)
-                                n_zm[1][q] = z1 + z2
-                                n_zm[2][q] = z2
-                # the next batch (rows next to these, much alike) is copied winner
-                # by winner if this one's runs were short
-                gather = wins < gather_run * runs
-        stats[band, 0] += n_prop
-        stats[band, 1] += n_clash
-        stats[band, 2] += n_drop
-        reach_out[band, 0] = mvy
-        reach_out[band, 1] = may
-        reach_out[band, 2] = mjy
+            # the next batch (rows next to these, much alike) is copied winner
+            # by winner if this one's runs were short
+            gather = wins < gather_run * runs
+    stats[band, 0] += n_prop
+    stats[band, 1] += n_clash
+    stats[band, 2] += n_drop
+    reach_out[band, 0] = mvy
+    reach_out[band, 1] = may
+    reach_out[band, 2] = mjy
+
+
+@nb.njit(cache=True, inline="always")
+def _batch_rows(h: int, w: int) -> int:
+    """Rows of a batch: about :data:`BATCH` pixels of rows ``w`` wide, 1 to ``h``."""
+    return max(1, min(h, BATCH // w))
+
+
+@nb.njit(cache=True, inline="always")
+def _batch_buffers(bands: int, size: int) -> tuple:
+    """The batch buffers :func:`_scatter_band` writes, each shape (bands, size).
+
+    Allocated in the kernel, outside its parallel loop: :func:`_scatter_band`
+    allocates nothing (no reference counting).
+    """
+    qb = np.empty((bands, size), np.int64)  # landing pixel; -1 debris, -2 off the map
+    db = np.empty((bands, size), np.int64)  # new depth
+    fxb = np.empty((bands, size), np.int16)
+    fyb = np.empty((bands, size), np.int16)
+    vxb = np.empty((bands, size), np.int32)
+    vyb = np.empty((bands, size), np.int32)
+    axb = np.empty((bands, size), np.int32)
+    ayb = np.empty((bands, size), np.int32)
+    run_i = np.empty((bands, size), np.int64)  # first batch index of a run
+    run_q = np.empty((bands, size), np.int64)  # its landing pixel
+    run_n = np.empty((bands, size), np.int64)  # its length
+    win_i = np.empty((bands, size), np.int64)  # every winner's batch index (gathering)
+    win_q = np.empty((bands, size), np.int64)  # and its new pixel
+    sb = np.empty((bands, size), np.uint8)  # 1: no motion, lands on its own pixel
+    return (qb, db, fxb, fyb, vxb, vyb, axb, ayb, run_i, run_q, run_n, win_i, win_q, sb)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -592,10 +629,16 @@ def scatter_bands(
     static galpixel's colour of -0.0 stays -0.0 where the scan's ``colour + 0.0``
     writes +0.0.
     """
-    _scatter_bands_body(
-        old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
-        same_in, same_out, use_same, record, interior, threshold, table, gather_run, True
-    )
+    buf = _batch_buffers(bands, _batch_rows(shape[1], shape[2]) * shape[2])
+    # a parallel loop takes tuples one level deep: the maps' planes go in one by one
+    o0, o1, o2, o3, o4, o5, o6, o7 = old
+    n0, n1, n2, n3, n4, n5, n6, n7 = new
+    for band in nb.prange(bands):
+        _scatter_band(
+            np.int64(band), (o0, o1, o2, o3, o4, o5, o6, o7), (n0, n1, n2, n3, n4, n5, n6, n7),
+            src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out, same_in,
+            same_out, use_same, record, interior, threshold, table, gather_run, buf, True,
+        )
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -627,12 +670,16 @@ def scatter_bands_plain(
     What a refresh runs when it neither uses nor records ``same``: ``use_same`` and
     ``record`` are ignored (taken as False).
     """
-    _scatter_bands_body(
-        old, new, src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out,
-        same_in, same_out, use_same, record, interior, threshold, table, gather_run, False
-    )
-
-
+    buf = _batch_buffers(bands, _batch_rows(shape[1], shape[2]) * shape[2])
+    # a parallel loop takes tuples one level deep: the maps' planes go in one by one
+    o0, o1, o2, o3, o4, o5, o6, o7 = old
+    n0, n1, n2, n3, n4, n5, n6, n7 = new
+    for band in nb.prange(bands):
+        _scatter_band(
+            np.int64(band), (o0, o1, o2, o3, o4, o5, o6, o7), (n0, n1, n2, n3, n4, n5, n6, n7),
+            src_idx, shape, order, fp, fm, ncol, track, reach, bands, stats, reach_out, same_in,
+            same_out, use_same, record, interior, threshold, table, gather_run, buf, False,
+        )
 
 
 def reach_of(vy: int, ay: int, jy: int, fm: int) -> int:
