@@ -546,6 +546,67 @@ def link_only_machine_code() -> bool:
     return True
 
 
+#: sha256 of ``numba.parfors.parfor_lowering._create_gufunc_for_parfor_body``'s source
+#: (numba 0.68.1), which compiles a ``prange`` body with ``compiler.compile_ir`` and a
+#: pipeline class of its own, ``ParforGufuncCompiler``, and hands on its library.
+PARFOR_BODY_SHA256 = "82b8b3f21ceffc853ac139f2a7daeda9b8c09d3064ef3183e7a20761b1958dd8"
+
+#: The pipeline class numba compiles a ``prange`` body with.
+PARFOR_PIPELINE = "ParforGufuncCompiler"
+
+
+def _no_compile(flags):  # noqa: ANN001, ANN202 -- numba's Flags
+    """A copy of numba's compiler ``flags`` with ``no_compile`` set."""
+    flags = flags.copy()
+    flags.no_compile = True
+    return flags
+
+
+def _body_without_machine_code(compile_ir: Callable) -> Callable:
+    """Wrap numba's ``compile_ir``: a ``prange`` body compiled with ``no_compile`` set."""
+
+    @functools.wraps(compile_ir)
+    def compile_ir_linked(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202 -- numba's own
+        pipeline = kwargs.get("pipeline_class")
+        if getattr(pipeline, "__name__", None) == PARFOR_PIPELINE:
+            if "flags" in kwargs:
+                kwargs["flags"] = _no_compile(kwargs["flags"])
+            else:  # (typingctx, targetctx, func_ir, args, return_type, flags, ...)
+                args = (*args[:5], _no_compile(args[5]), *args[6:])
+        return compile_ir(*args, **kwargs)
+
+    return compile_ir_linked
+
+
+def parfor_bodies_linked_only() -> bool:
+    """Compile each ``prange`` body's gufunc as IR to link, with no machine code of its own.
+
+    numba compiles the body of every ``prange`` loop as a function of its own (the
+    gufunc), asks for its entry point, so its module is optimised at ``-O3`` and its
+    machine code emitted (:func:`link_only_machine_code` cannot defer that), then
+    links it into the kernel's module, which is optimised and emitted again; only
+    the kernel's machine code runs or is cached.  With ``no_compile`` set for the
+    body's pipeline it is lowered and linked, never optimised or emitted on its own.
+    Not the same machine code: the body is optimised once, in the kernel.  That cost
+    the Galilean refresh 1.3-1.6 % while the scatter's whole body was a ``prange``
+    body (session 7); since the body is a function of its own (session 8) the
+    refresh, renders and updates measured even.  A cold warm-up: about 0.94x the
+    CPU (docs/compile-time.md, session 8).  numba is left alone (False) unless its
+    source is the one in :data:`PARFOR_BODY_SHA256`.  Idempotent; numba's function
+    stays reachable as ``__wrapped__``.
+    """
+    # deferred: numba's compiler internals load only when a patch is applied
+    from numba.core import compiler
+    from numba.parfors import parfor_lowering
+
+    if getattr(compiler.compile_ir, "__wrapped__", None) is not None:
+        return True
+    if _source_digest(parfor_lowering._create_gufunc_for_parfor_body) != PARFOR_BODY_SHA256:
+        return False
+    compiler.compile_ir = _body_without_machine_code(compiler.compile_ir)
+    return True
+
+
 def apply_all() -> dict[str, bool]:
     """Every patch of this module (what :func:`service.warmup.warm_up` compiles under).
 
@@ -554,4 +615,5 @@ def apply_all() -> dict[str, bool]:
     return {fn.__name__: fn() for fn in (faster_copy_propagation, faster_inlining,
                                           faster_flag_values, faster_live_map,
                                           no_cfunc_wrappers, link_only_machine_code,
+                                          parfor_bodies_linked_only,
                                           locked_cache_saves)}

@@ -360,8 +360,12 @@ def emissions(monkeypatch):
     """
     import functools
 
+    from numba.core import compiler
     from numba.core.codegen import CPUCodeLibrary, JITCodeLibrary
 
+    # numba's own compile_ir too (parfor_bodies_linked_only wraps it)
+    compile_ir = compiler.compile_ir
+    monkeypatch.setattr(compiler, "compile_ir", getattr(compile_ir, "__wrapped__", compile_ir))
     for key, digest in numba_patches.LINK_ONLY_SHA256.items():
         owner = JITCodeLibrary if key.startswith("JIT") else CPUCodeLibrary
         _numbas_own(monkeypatch, owner, key.split(".")[1], digest)
@@ -403,11 +407,39 @@ def test_a_parallel_kernels_wrappers_are_linked_never_optimised_or_emitted(emiss
         assert len(names) == len(numbas[step]) - 2, step
 
 
+def test_a_prange_body_is_linked_never_optimised_or_emitted_on_its_own(emissions):
+    from numba.core import compiler
+
+    a = np.linspace(-2.0, 5.0, 11)
+    want = _parallel_source()(a, np.empty_like(a), 5)
+    assert numba_patches.link_only_machine_code() is True
+    assert numba_patches.parfor_bodies_linked_only() is True
+    assert numba_patches.parfor_bodies_linked_only() is True  # idempotent
+    assert compiler.compile_ir.__wrapped__ is not None
+    for names in emissions.values():
+        names.clear()
+    np.testing.assert_array_equal(_parallel_source()(a, np.empty_like(a), 5), want)
+    for step, names in emissions.items():
+        assert any(n.endswith(".f") for n in names), step  # the kernel
+        assert not any("parfor_gufunc" in n for n in names), (step, names)  # its body
+        assert _wrappers(names) == [], step
+
+
+def test_parfor_bodies_patch_leaves_another_numba_alone(emissions, monkeypatch):
+    from numba.core import compiler
+
+    monkeypatch.setattr(numba_patches, "PARFOR_BODY_SHA256", "0" * 64)
+    before = compiler.compile_ir
+    assert numba_patches.parfor_bodies_linked_only() is False
+    assert compiler.compile_ir is before
+
+
 _LINKED = '''
 import sys
 from service import numba_patches
 if sys.argv[1] == "patched":
     assert numba_patches.link_only_machine_code()
+    assert numba_patches.parfor_bodies_linked_only()
 import numpy as np
 import kern
 a = np.arange(12.0)
@@ -418,7 +450,7 @@ print(kern.f(a, np.empty_like(a)).sum(), sum(kern.f.stats.cache_hits.values()),
 
 @pytest.mark.timeout(240)
 def test_a_kernel_compiled_so_is_cached_and_loads_without_the_patch(tmp_path):
-    """The object code of a kernel whose wrappers were never emitted is saved and loads."""
+    """The object code of a kernel whose body and wrappers were never emitted is saved and loads."""
     import os
     import subprocess
     import sys
