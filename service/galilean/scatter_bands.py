@@ -172,8 +172,9 @@ def _scatter_band(
     ``_nrt=False`` because in a plain function every array argument carries a
     reference count, and each view or array handed to an inlined helper (here per
     batch, pixel and run) would cost an atomic increment and decrement; in a gufunc
-    those fold away.  Without them this function allocates nothing (the kernels
-    pass the buffers) and runs within 1-2 % of the gufunc body.
+    those fold away.  Without reference counting a function may not allocate, so
+    the kernels allocate the buffers and pass them; it runs within 1-2 % of the
+    gufunc body.
     """
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
@@ -183,6 +184,7 @@ def _scatter_band(
     size = rows * w
     lo, hi = band * h // bands, (band + 1) * h // bands
     r_lo, r_hi = max(0, lo - reach), min(h, hi + reach)
+    # this band's row of each batch buffer, in :func:`_batch_buffers`' order
     qb = buf[0][band]
     db = buf[1][band]
     fxb = buf[2][band]
