@@ -17,6 +17,7 @@ import numpy as np
 
 from service.galilean.poisson_table import interior_row
 from service.galilean.propagate import step, u64
+from service.numba_subroutine import subroutine
 
 
 @nb.njit(cache=True, inline="always")
@@ -119,7 +120,7 @@ BATCH = 4096
 GATHER_RUN = 5.0
 
 
-@nb.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+@subroutine(constants=("bookkeeping",), error_model="numpy")
 def _scatter_band(
     band: int,
     old: tuple,
@@ -168,13 +169,14 @@ def _scatter_band(
     A function of its own, called from each kernel's ``prange`` loop, rather than
     the loop's body: numba compiles a ``prange`` body twice over (the kernel, then
     the body again as a gufunc of its own), so the body as a plain function
-    compiles in about half the CPU (docs/compile-time.md, session 8).
-    ``_nrt=False`` because in a plain function every array argument carries a
+    compiles in about half the CPU (docs/compile-time.md, session 8).  Without
+    reference counting, because in a plain function every array argument carries a
     reference count, and each view or array handed to an inlined helper (here per
     batch, pixel and run) would cost an atomic increment and decrement; in a gufunc
     those fold away.  Without reference counting a function may not allocate, so
     the kernels allocate the buffers and pass them; it runs within 1-2 % of the
-    gufunc body.
+    gufunc body.  A :func:`~service.numba_subroutine.subroutine`: its code is
+    optimised and emitted only inside the two kernels (session 9).
     """
     nz, h, w = shape
     o_col, o_dep, o_frac, o_mot, o_zm, o_dc, o_deb, o_obj = old
