@@ -9,6 +9,7 @@ instead of leaving its kernels to compile in a user's first frames.
 from __future__ import annotations
 
 import ast
+import queue
 from pathlib import Path
 
 import pytest
@@ -103,6 +104,35 @@ def test_shared_jobs_run_where_claimed_and_a_chain_goes_together(tmp_path, monke
     # without a shared folder (one process) every job runs, in order
     ran.clear()
     assert warmup._run_here(names, warmup.Kit(), report, False, None, None) == names == ran
+
+
+def test_the_childs_jobs_load_here_as_it_finishes_them(monkeypatch):
+    """Each job the child reports runs here at once (loaded), before the child ends.
+
+    The child reports "a", and reports "b" only once "a" has run here; "c" it never
+    reports (it failed), so it runs here and is reported from here; "d" ran here.
+    """
+    ran: list[str] = []
+    finished: queue.Queue = queue.Queue()
+
+    def job(name: str) -> Job:
+        def run(kit) -> None:
+            ran.append(name)
+            if name == "a":  # the child goes on only once this process loaded "a"
+                finished.put("b")
+                finished.put(None)
+
+        return Job(run, HERE)
+
+    jobs = {n: job(n) for n in ("first", "a", "b", "c", "d")}
+    jobs["first"] = Job(lambda kit: ran.append("first"), FIRST)
+    monkeypatch.setattr(warmup, "JOBS", jobs)
+    names = list(jobs)
+    report = warmup._Progress(len(names), None)
+    finished.put("a")
+    warmup._check_child(names, warmup.Kit(), report, ["d"], finished)
+    assert ran == ["a", "b", "c"]
+    assert [s.name for s in report.steps] == ["c"]
 
 
 def test_the_collector_runs_less_often_while_compiling_and_is_put_back():
