@@ -18,9 +18,8 @@ In a ``prange`` loop numba types the body twice, the second time with the loop
 index unsigned: pass the index as ``np.int64(i)``, so that both typings agree and
 the subroutine compiles once.
 
-A subroutine may not allocate (compiled without reference counting) and returns
-None; it runs in jitted code only: called from Python it raises numba's
-``NotImplementedError``.
+A subroutine runs in jitted code only: called from Python it raises numba's
+``NotImplementedError``.  Without ``nrt`` it may not allocate.
 """
 
 from __future__ import annotations
@@ -36,7 +35,9 @@ class SubroutineError(HoloError, TypeError):
     """A subroutine declared or called wrongly (a constant argument that is not one)."""
 
 
-def subroutine(*, constants: tuple[str, ...] = (), error_model: str = "python") -> Callable:
+def subroutine(
+    *, constants: tuple[str, ...] = (), error_model: str = "python", nrt: bool = False,
+) -> Callable:
     """Decorate a Python function as a subroutine of the kernels that call it.
 
     Parameters
@@ -48,6 +49,11 @@ def subroutine(*, constants: tuple[str, ...] = (), error_model: str = "python") 
     error_model : str
         numba's ``error_model``: ``"python"`` (division by zero raises) or
         ``"numpy"``.
+    nrt : bool
+        Compile with reference counting, so that the function may allocate (its
+        callers must have it too, as ``numba.njit`` functions do by default).
+        Without it, each array argument, view or array handed to a helper costs
+        nothing; with it, an atomic increment and decrement.
 
     Returns
     -------
@@ -61,40 +67,42 @@ def subroutine(*, constants: tuple[str, ...] = (), error_model: str = "python") 
         unknown = sorted(set(constants) - set(names))
         if unknown:
             raise SubroutineError(f"{fn.__qualname__} has no parameter {unknown}")
-        return _intrinsic(fn, tuple(n in constants for n in names), error_model)
+        return _intrinsic(fn, tuple(n in constants for n in names), error_model, nrt)
 
     return decorate
 
 
-def _compiler(fn: Callable, error_model: str) -> tuple[Callable, dict]:
+def _compiler(fn: Callable, error_model: str, nrt: bool) -> tuple[Callable, dict]:
     """``compile(typingctx, argtys)``: ``fn`` compiled for ``argtys`` once, and its memo."""
     compiled: dict = {}
 
     def compile_once(typingctx: Any, argtys: tuple) -> Any:  # noqa: ANN401 -- numba's
         if argtys not in compiled:
             # deferred: numba's compiler loads when a caller is typed, not on import
-            from numba.core import compiler, types
+            from numba.core import compiler
             from numba.core.registry import cpu_target
 
             flags = compiler.Flags()
             flags.error_model = error_model
+            flags.nrt = nrt
             flags.no_compile = flags.no_cpython_wrapper = flags.no_cfunc_wrapper = True
             context = cpu_target.target_context
             library = context.codegen().create_library(fn.__qualname__)
             compiled[argtys] = compiler.compile_internal(
-                typingctx, context, library, fn, argtys, types.none, flags, {})
+                typingctx, context, library, fn, argtys, None, flags, {})
         return compiled[argtys]
 
     return compile_once, compiled
 
 
-def _intrinsic(fn: Callable, literal: tuple[bool, ...], error_model: str) -> Any:  # noqa: ANN401
+def _intrinsic(fn: Callable, literal: tuple[bool, ...], error_model: str,
+               nrt: bool) -> Any:  # noqa: ANN401
     """The numba intrinsic that types, compiles and calls ``fn`` (see :func:`subroutine`)."""
     # deferred: numba loads with the first kernel module that declares a subroutine
     from numba.core import types
     from numba.extending import intrinsic
 
-    compile_once, compiled = _compiler(fn, error_model)
+    compile_once, compiled = _compiler(fn, error_model, nrt)
     names = list(inspect.signature(fn).parameters)
 
     def lower(context, builder, sig, args):  # noqa: ANN001, ANN202 -- numba's codegen
@@ -110,8 +118,8 @@ def _intrinsic(fn: Callable, literal: tuple[bool, ...], error_model: str) -> Any
             argtys.append(ty if keep else types.unliteral(ty))
         # compiled now, as numba compiles a dispatcher its caller calls: at lowering,
         # amid the caller's own compile, the same work took 1.3x the CPU (session 9)
-        compile_once(typingctx, tuple(argtys))
-        return types.none(*argtys), lower
+        cres = compile_once(typingctx, tuple(argtys))
+        return cres.signature.return_type(*argtys), lower
 
     # numba reads the parameters after the typing context as the call's signature
     context = inspect.Parameter("typingctx", inspect.Parameter.POSITIONAL_OR_KEYWORD)

@@ -19,6 +19,7 @@ import numpy as np
 from service.galilean.poisson_table import interior_at
 from service.galilean.propagate import u64
 from service.galilean.show import show_row
+from service.numba_subroutine import subroutine
 
 
 @nb.njit(cache=True, inline="always")
@@ -54,7 +55,7 @@ def _expanded_colour(
         dep[p] = dep[q]
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: np.ndarray,
           shape: tuple, k0: int, k1: int, fix: bool, n_mot: int, n_zm: int, ncol: int,
           threshold: float, n_neighbours: int, mode: int, track: bool, same_out: np.ndarray,

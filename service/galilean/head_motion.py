@@ -28,6 +28,7 @@ import numpy as np
 from service.display import DisplaySettings
 from service.galilean.fixed_point import Z_EMPTY, Z_LIMIT
 from service.galilean.galpixmap import Galpixmap
+from service.numba_subroutine import subroutine
 from service.render.scene import MotionState
 
 #: Bound on every per-refresh viewer motion component (view units or radians per
@@ -133,7 +134,7 @@ def _add(
     return (abs(mx) > lim) + (abs(my) > lim) + (abs(mz) > zlim)
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _apply_row(
     z: int, r: int, f0: np.ndarray, f1: np.ndarray, depth: np.ndarray, debris: np.ndarray,
     m0: np.ndarray, m1: np.ndarray, m2: np.ndarray, m3: np.ndarray, z0: np.ndarray,

@@ -13,6 +13,7 @@ import numpy as np
 
 from service.galilean.fixed_point import Z_EMPTY
 from service.galilean.propagate import u64
+from service.numba_subroutine import subroutine
 
 #: Debris pixels after the scatter, as a fraction of the map, from which the
 #: expansion reads its Poisson tests from a :func:`poisson_interiors` table
@@ -70,7 +71,7 @@ def poisson_interiors(
         interior_row(dep, deb, np.int64(k * w), np.int64(k % h), h, w, threshold, out)
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine()
 def interior_row(
     dep: np.ndarray,
     deb: np.ndarray,
@@ -84,9 +85,10 @@ def interior_row(
     """One row of :func:`poisson_interiors`: row ``r`` of a zone, from flat pixel ``base``.
 
     Also run by :func:`service.galilean.scatter_bands.scatter_bands` on the old
-    rows each band owns, while they are in cache.  A plain call, not inlined: it
-    is compiled once for all three kernels, outside their parallel passes
-    (inlined into both scatter kernels it cost about 5 s more cold compile).
+    rows each band owns, while they are in cache.  A call, not inlined: it is
+    compiled once for all three kernels, outside their parallel passes (inlined
+    into both scatter kernels it cost about 5 s more cold compile), and as a
+    :func:`~service.numba_subroutine.subroutine` optimised only inside them.
     Callers pass int64 indices (a ``prange`` index would compile it twice).
     """
     if r == 0 or r == h - 1:

@@ -77,6 +77,7 @@ import numpy as np
 
 from service.base.errors import RenderError, SettingsError
 from service.display import DisplaySettings
+from service.numba_subroutine import subroutine
 from service.render.occlusion import Visibility
 from service.render.projection import unproject
 from service.render.scene import Light, SceneArrays
@@ -737,11 +738,12 @@ def _polygon_motion_table(
     """
     n = geometry[3].shape[1]
     for b in nb.prange((n + _CHUNK - 1) // _CHUNK):
-        _table_chunk(b * _CHUNK, min(n, (b + 1) * _CHUNK), geometry, materials, views, needed,
+        lo = np.int64(b) * _CHUNK  # int64 in both typings of the body: compiled once
+        _table_chunk(lo, min(n, lo + _CHUNK), geometry, materials, views, needed,
                      lights, ambient, code, rates, weights, table, dtable)
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _table_chunk(
     lo: int, hi: int, geometry: tuple, materials: np.ndarray, views: np.ndarray,
     needed: np.ndarray, lights: tuple, ambient: float, code: int, rates: tuple,

@@ -132,3 +132,26 @@ def test_the_callers_cache_entry_holds_its_code(tmp_path: Path):
     assert runs == [{"right": True, "compiled": 1}, {"right": True, "compiled": 0}]
     index = sorted(p.name for p in (tmp_path / "cache").rglob("*.nbi"))
     assert len(index) == 1 and "kernel" in index[0]  # no entry of the subroutine's own
+
+
+def test_it_returns_values_and_with_nrt_allocates():
+    def stats(x):
+        """(sum, running sums) of x: a tuple and a new array."""
+        run = np.empty_like(x)
+        s = 0.0
+        for i in range(x.shape[0]):
+            s += x[i]
+            run[i] = s
+        return s, run
+
+    sub = subroutine(nrt=True)(stats)
+
+    @nb.njit(cache=False)
+    def kernel(x):
+        total, run = sub(x)
+        return total, run
+
+    x = np.arange(6.0)
+    total, run = kernel(x)
+    assert total == 15.0
+    np.testing.assert_array_equal(run, np.cumsum(x))
