@@ -46,6 +46,7 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
+from service.numba_subroutine import subroutine
 from service.render.light import MODELS, LightSettings, _light_rgb, pack_lights
 from service.render.occlusion import Visibility
 from service.render.scene import Light, Material, Transform, quaternion_matrices
@@ -261,7 +262,7 @@ def _span(a0: float, da: float, b0: float, db: float, ab: tuple, s: float, hw: f
     return j0, max(j1, j0)
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _tile_runs(q: int, tex: np.ndarray, grid: np.ndarray, gofs: np.ndarray, tile: int,
                runs: np.ndarray) -> int:
     """The texel rectangles of quad ``q`` that hold its shown tiles, into ``runs``.
@@ -314,7 +315,7 @@ def _runs_reaching(runs: np.ndarray, first: int, n: int, i1: int) -> int:
     return n
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _nearest_first(origin: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Quad indices (Q,) by their nearest corner's z, nearest first (early depth rejects)."""
     key = np.empty(origin.shape[0])
@@ -475,7 +476,7 @@ def _front_near(quad: np.ndarray, bquad: np.ndarray, k: int, i: int, j: int, di:
     return True
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _fill_back(k: int, boxes: np.ndarray, bquad: np.ndarray, btexel: np.ndarray,
                bdepth: np.ndarray, depth: np.ndarray, tri: np.ndarray, quad: np.ndarray,
                texel: np.ndarray) -> tuple[int, int]:

@@ -342,7 +342,7 @@ def _until_fixed(step: Callable[[], bool]) -> None:
 
 
 def live_map(cfg, blocks: dict, var_use_map: dict, var_def_map: dict) -> dict:  # noqa: ANN001
-    """numba's ``compute_live_map`` over int bit sets: the variables live at each block's entry.
+    """Numba's ``compute_live_map`` over int bit sets: the variables live at each block's entry.
 
     The same two fixed points as numba's (definitions reaching each block, forward in
     topological order; then liveness, backward), each variable a bit of a Python
@@ -451,7 +451,7 @@ LINK_ONLY_SHA256 = {
 
 
 def _deferring(finalize: Callable) -> Callable:
-    """numba's ``CodeLibrary.finalize``: linked now, optimised and emitted when read."""
+    """Numba's ``CodeLibrary.finalize``: linked now, optimised and emitted when read."""
 
     @functools.wraps(finalize)
     def finalize_deferring(self) -> None:  # noqa: ANN001 -- numba's CodeLibrary
@@ -466,7 +466,7 @@ def _deferring(finalize: Callable) -> Callable:
 
 
 def _later(step: Callable, flag: str) -> Callable:
-    """numba's ``step`` of ``finalize``, skipped inside :func:`_deferring` (``flag`` set)."""
+    """Numba's ``step`` of ``finalize``, skipped inside :func:`_deferring` (``flag`` set)."""
 
     @functools.wraps(step)
     def step_later(self) -> None:  # noqa: ANN001 -- numba's CodeLibrary

@@ -35,6 +35,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.numba_subroutine import subroutine
+
 #: Fixed-point fraction bits of separations and blend weights.
 FRAC_BITS = 8
 
@@ -95,7 +97,7 @@ def _pattern_sample(o: np.ndarray, x: int, r: int, prow: np.ndarray, nc: int,
                          + 128) >> 8
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _row(o: np.ndarray, frow: np.ndarray, part: np.ndarray, prow: np.ndarray, nc: int,
          scale: float) -> int:
     """One row, right to left; returns the constraints kept (blends inside the row).

@@ -45,6 +45,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.numba_subroutine import subroutine
+
 #: Points at or below this height need a rise as steep as their band's sight line.
 BAND_Z = 0.75
 #: Slack on the float32 occluder bounds (their rounding over a sight line's reach is less).
@@ -311,7 +313,7 @@ def _hidden_left(zr: np.ndarray, pg: np.ndarray, x: int, z: float, zmax: float,
     return False
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray,
               pg: np.ndarray, y: int, zmax: float, eye_sep: float,
               mu: float) -> tuple[int, int]:
@@ -360,7 +362,7 @@ def _link_row(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray
     return ncons, nhid
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _link_span(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarray, y: int,
                lo: int, hi: int, reach: int, zmax: float, eye_sep: float,
                mu: float) -> tuple[int, int]:
@@ -420,7 +422,7 @@ def _link_span(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, look: np.ndarra
     return ncons, nhid
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _link_sparse(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, rows: np.ndarray,
               edges: np.ndarray, y: int, zmax: float, eye_sep: float,
               mu: float) -> tuple[int, int]:
@@ -454,7 +456,7 @@ def _link_sparse(zr: np.ndarray, sr: np.ndarray, same: np.ndarray, rows: np.ndar
     return ncons + _link_flat(sr, same, y, done, w), nhid
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> None:
     """Right to left: free pixels take ``prow[x mod Wp]``, linked ones their link's colour."""
     pw = prow.shape[0]

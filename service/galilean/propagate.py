@@ -40,6 +40,7 @@ import numpy as np
 
 from service.galilean.fixed_point import Z_EMPTY, advance, pixel_of
 from service.galilean.poisson import expand_pixel
+from service.numba_subroutine import subroutine
 
 #: Index of each counter in the ``stats`` array the kernels fill.
 STAT_NAMES = ("propagated", "clashes", "dropped", "cached", "promoted", "expanded", "debris")
@@ -498,7 +499,7 @@ def _motion_at(mot: tuple, zm: tuple, p: int, order: int) -> tuple:
     return vx, vy, ax, ay, jx, jy, vz, az, jz
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _spill_incoming(
     old: tuple,
     p: int,
@@ -517,7 +518,7 @@ def _spill_incoming(
         stats[3] += 1
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _spill_resident(new: tuple, cnew: tuple, q: int, stats: np.ndarray) -> None:
     """The galpixel about to be overwritten goes to the cache if nearer than the cache's entry."""
     if cnew[6][q] == 1 or new[1][q] < cnew[1][q]:
@@ -525,7 +526,7 @@ def _spill_resident(new: tuple, cnew: tuple, q: int, stats: np.ndarray) -> None:
         stats[3] += 1
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _cache_pass(
     cold: tuple,
     new: tuple,

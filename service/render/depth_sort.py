@@ -29,6 +29,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.numba_subroutine import subroutine
+
 
 @nb.njit(cache=True, nogil=True)
 def average_z(vertices: np.ndarray, polygons: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -368,7 +370,7 @@ def _sort_runs(keys: np.ndarray, idx: np.ndarray, budget: int) -> bool:
     return True
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _radix_passes(keys: np.ndarray, idx: np.ndarray, bits: int,
                   lo_bit: int) -> tuple[np.ndarray, np.ndarray]:
     """LSD radix passes over the key bits from ``lo_bit`` up: stable by those bits.

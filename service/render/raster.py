@@ -33,6 +33,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from service.numba_subroutine import subroutine
 from service.render.depth_sort import earlier_in_order
 
 
@@ -148,7 +149,7 @@ def _depth_at(proj: np.ndarray, z: int, tris: np.ndarray, w: int, rows: int,
     return st[9] + st[10] * x + st[11] * y
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _takes_tie_proj(d: float, s: float, t: int, w: int, key: tuple, proj: np.ndarray,
                     z: int, tris: np.ndarray, rows: int, x: float, y: float) -> bool:
     """Whether ``t`` (depth ``d``) takes a pixel whose stored depth ``s`` is float32(d).
@@ -418,7 +419,7 @@ def _zbuffer_band_zones(
             marks[b, z, p] |= held[j, z] > 0
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _setup_band(
     tables: tuple, tris: np.ndarray, order: np.ndarray, draw_t: np.ndarray, extent: tuple,
     lo: int, hi: int, xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray,
@@ -455,7 +456,7 @@ def _setup_band(
     return m
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _draw_band(
     xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray, row: np.ndarray,
     m: int, tri_out: np.ndarray, depth_out: np.ndarray, held: np.ndarray,
@@ -510,7 +511,7 @@ def _draw_band(
     return ties > 0
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _draw_band_keyed(
     xs: np.ndarray, plane: np.ndarray, ys: np.ndarray, trs: np.ndarray, row: np.ndarray,
     m: int, tri_out: np.ndarray, depth_out: np.ndarray, key: tuple,
@@ -549,7 +550,7 @@ def _count_held(tri_out: np.ndarray, row: np.ndarray, lo: int, hi: int,
                     held[row[t], z] += 1
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _takes_tie_band(d: float, s: float, t: int, w: int, key: tuple, plane: np.ndarray,
                     row: np.ndarray, z: int, x: float, y: float) -> bool:
     """:func:`_takes_tie_proj` in :func:`_draw_band`: ``w``'s depth from its set-up table row."""

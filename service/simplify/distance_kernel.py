@@ -12,6 +12,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.numba_subroutine import subroutine
+
 
 @nb.njit(cache=True, nogil=True)
 def _point_triangle_sq(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
@@ -75,7 +77,7 @@ def _box_sq(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
     return s
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _build_grid(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, h: np.ndarray,
                 res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bucket triangle boxes ``lo``..``hi`` (T, 3) into a grid: CSR (start, items)."""
@@ -105,7 +107,7 @@ def _build_grid(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, h: np.ndarra
     return count, items
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _nearest(p: np.ndarray, facing: np.ndarray, corners: np.ndarray, normals: np.ndarray,
              grid: tuple, best: float) -> tuple[float, int]:
     """Squared distance from ``p`` to the nearest triangle, and which, searching shells.
@@ -166,7 +168,7 @@ def _column_extreme(a: np.ndarray, k: int, sign: float) -> float:
     return m
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _grid(corners: np.ndarray) -> tuple:
     """Triangle boxes and the grid of about T cells they are bucketed in.
 
