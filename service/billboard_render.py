@@ -216,7 +216,7 @@ def quad_motion_kernel(quad: np.ndarray, depth: np.ndarray, boxes: np.ndarray,
                             b * (cd[n, k, 3 * q + 2, d] - c0)
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _screen_box(o: np.ndarray, u: np.ndarray, v: np.ndarray, ab: tuple, sh: float, s: float,
                 hw: float, hh: float, cols: int, rows: int) -> tuple[int, int, int, int]:
     """Pixel rows and columns [r0, r1) x [c0, c1) whose centres a part of a quad can hold.
@@ -239,7 +239,7 @@ def _screen_box(o: np.ndarray, u: np.ndarray, v: np.ndarray, ab: tuple, sh: floa
             max(int(np.ceil(x0 - 0.5 - 1e-6)), 0), min(int(np.floor(x1 - 0.5 + 1e-6)) + 1, cols))
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _span(a0: float, da: float, b0: float, db: float, ab: tuple, s: float, hw: float, c0: int,
           c1: int) -> tuple[int, int]:
     """Columns [j0, j1) of a row where ``ab[0] <= a0 + da x < ab[1]`` and likewise b in ``ab[2:]``.
@@ -301,7 +301,7 @@ def _tile_runs(q: int, tex: np.ndarray, grid: np.ndarray, gofs: np.ndarray, tile
     return n
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _runs_reaching(runs: np.ndarray, first: int, n: int, i1: int) -> int:
     """Index of the first run from ``first`` on whose rows reach ``i1`` (runs [first, n)).
 
@@ -456,7 +456,7 @@ def draw_quads_kernel(origin: np.ndarray, u: np.ndarray, v: np.ndarray, normal: 
     return writes, covered, visited
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _front_near(quad: np.ndarray, bquad: np.ndarray, k: int, i: int, j: int, di: int,
                 dj: int, reach: int) -> bool:
     """Whether front-facing texels show on both sides of ``(i, j)`` along ``(di, dj)``.
@@ -516,7 +516,7 @@ def _fill_back(k: int, boxes: np.ndarray, bquad: np.ndarray, btexel: np.ndarray,
     return writes, writes
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _between(quad: np.ndarray, depth: np.ndarray, texel: np.ndarray, k: int, i: int,
              j: int) -> tuple[float, int, int]:
     """The nearer of two drawn neighbours across ``(i, j)``: mean depth, quad, texel.

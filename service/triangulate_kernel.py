@@ -12,6 +12,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.numba_subroutine import subroutine
+
 
 @nb.njit(cache=True, nogil=True)
 def _cross2(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
@@ -19,7 +21,7 @@ def _cross2(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) ->
     return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _is_ear(x: np.ndarray, y: np.ndarray, ring: np.ndarray, m: int, i: int) -> bool:
     """Whether corner ``ring[i]`` of the ``m`` left is a convex corner with no other inside."""
     a, b, c = ring[(i - 1) % m], ring[i], ring[(i + 1) % m]
@@ -73,7 +75,7 @@ def ear_clip_2d(x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
     out[t, 0], out[t, 1], out[t, 2] = ring[0], ring[1], ring[2]
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _plane_normal(pts: np.ndarray) -> tuple[float, float, float]:
     """Best-fit plane normal of corners ``pts`` (n, 3): Newell's, or a fallback if tiny.
 
@@ -113,7 +115,7 @@ def _plane_normal(pts: np.ndarray) -> tuple[float, float, float]:
     return b0 / best_len, b1 / best_len, b2 / best_len
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _project(pts: np.ndarray, n0: float, n1: float, n2: float, x: np.ndarray,
              y: np.ndarray) -> None:
     """2-D coordinates of ``pts`` (n, 3) in a right-handed basis (u, v) of the plane.

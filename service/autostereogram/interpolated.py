@@ -75,7 +75,7 @@ def fixed_separation_map(depth: np.ndarray, far: float, inv_range: float, eye_se
 FREE = np.int32(2**31 - 1)
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _pattern_sample(o: np.ndarray, x: int, r: int, prow: np.ndarray, nc: int,
                     scale: float, base: float) -> None:
     """``o[x]`` = the pattern blended at ``u = r * scale`` (mod Wp): the right-most repetition.

@@ -27,9 +27,10 @@ import numba as nb
 import numpy as np
 
 from service.autostereogram.geometry import separation, separation_rows
+from service.numba_subroutine import subroutine
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def copy_chain(o: np.ndarray, srow: np.ndarray, start: int, nc: int, unroll: bool) -> None:
     """``o[x] = o[x + srow[x]]`` for x = start down to 0; ``o`` is one row, (W * nc,) uint8.
 

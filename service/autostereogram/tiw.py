@@ -63,7 +63,7 @@ FIXED_ONE = 16777216
 DENSE_EDGES = 16
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _occluder(zr: np.ndarray, x: int, z: float, zmax: float, step: float, direction: int,
               last: int) -> int:
     """A neighbour on one side (``direction`` -1 or +1) that blocks the sight line, or -1.
@@ -151,7 +151,7 @@ def _fixed_heights(zr: np.ndarray, q: np.ndarray) -> float:
     return m / FIXED_ONE if m >= FIXED_ONE // 2 else (m + 1) / FIXED_ONE
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _look_right(q: np.ndarray, c_band: float, c_min: float, look: np.ndarray) -> None:
     """``look[x]`` = 1 where a neighbour to the right might block ``x``.
 
@@ -178,7 +178,7 @@ def _look_right(q: np.ndarray, c_band: float, c_min: float, look: np.ndarray) ->
         acc_m = max(acc_m, v) - cm
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _steep_edges(zr: np.ndarray, c_min: float, edges: np.ndarray) -> tuple[int, float]:
     """Flag the steps steep enough to hide; returns (their number, a bound on the row's max).
 
@@ -203,7 +203,7 @@ def _steep_edges(zr: np.ndarray, c_min: float, edges: np.ndarray) -> tuple[int, 
     return n, (m + 1) / 16777216.0
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _spans(edges: np.ndarray, w: int, reach: int, spans: np.ndarray) -> int:
     """The pixels a steep edge can reach, as merged spans ``spans[2k] .. spans[2k + 1]``.
 
@@ -238,7 +238,7 @@ def _spans(edges: np.ndarray, w: int, reach: int, spans: np.ndarray) -> int:
     return n
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _look_right_span(zr: np.ndarray, lo: int, hi: int, reach: int, c_band: float, c_min: float,
                 look: np.ndarray) -> None:
     """``look[x]`` = 1 for ``x`` in ``lo .. hi`` where a neighbour to the right might block.
@@ -264,7 +264,7 @@ def _look_right_span(zr: np.ndarray, lo: int, hi: int, reach: int, c_band: float
         acc_m = max(acc_m, z) - cm
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _link_flat(sr: np.ndarray, same: np.ndarray, y: int, lo: int, hi: int) -> int:
     """TIW's constraint loop over points ``lo .. hi - 1`` that nothing can hide.
 
@@ -479,7 +479,7 @@ def _colour_row(o: np.ndarray, same: np.ndarray, prow: np.ndarray, nc: int) -> N
         u = u - 1 if u > 0 else pw - 1
 
 
-@nb.njit(cache=True)
+@subroutine(nrt=True)
 def _empty_row(o: np.ndarray, same: np.ndarray, keep_links: bool, prow: np.ndarray,
                nc: int) -> int:
     """A row on the far plane, where the pattern is ``s(0)`` wide: the pattern, tiled.

@@ -265,7 +265,7 @@ def _triangle_order(polygon_order: np.ndarray, triangle_polygon: np.ndarray) -> 
     return out
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _to_keys(keys: np.ndarray) -> None:
     """In place: float64 values (viewed as uint64 ``keys``) to keys that sort as they do.
 
@@ -340,7 +340,7 @@ def _radix_order(keys: np.ndarray, idx: np.ndarray, bits: int) -> np.ndarray:
     return _radix_passes(keys, idx, bits, np.int64(0))[1]
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _sort_runs(keys: np.ndarray, idx: np.ndarray, budget: int) -> bool:
     """Insertion-sort runs of equal high 32 bits by the whole key; False past ``budget`` moves.
 

@@ -537,7 +537,7 @@ def _draw_band_keyed(
                         tz[c] = t
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _count_held(tri_out: np.ndarray, row: np.ndarray, lo: int, hi: int,
                 held: np.ndarray) -> None:
     """``held`` (m, Z): how many pixels of rows ``lo..hi`` each triangle holds, counted."""

@@ -15,6 +15,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from service.numba_subroutine import subroutine
+
 HALF_DIAGONAL = 0.7072
 """Half a texel's diagonal (slightly over sqrt(2) / 2), the slack of conservative cover."""
 
@@ -31,7 +33,7 @@ def _extent(v: np.ndarray, f: np.ndarray, d: np.ndarray) -> tuple[float, float]:
     return lo, hi
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _add_bins(row: np.ndarray, a: float, b: float, rho0: float, drho: float,
               w: float) -> None:
     """Add ``w`` to every bin of ``row`` whose centre lies in ``[a, b]``."""
@@ -138,7 +140,7 @@ def face_distance(v: np.ndarray, faces: np.ndarray, ids: np.ndarray, d: np.ndarr
     return out
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _cover(i: int, j: int, f: int, nrm: np.ndarray, colour: np.ndarray, tex: np.ndarray,
            normal: np.ndarray, height: np.ndarray, top: np.ndarray) -> None:
     """Texel (i, j) shows face ``f`` if it is the highest there so far."""

@@ -15,7 +15,7 @@ import numpy as np
 from service.numba_subroutine import subroutine
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _point_triangle_sq(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
     """Squared distance from point ``p`` to triangle ``a b c`` (Ericson, RTCD 5.1.5)."""
     ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
@@ -65,7 +65,7 @@ def _point_triangle_sq(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarra
     return e0 * e0 + e1 * e1 + e2 * e2
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _box_sq(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
     """Squared distance from ``p`` to the axis-aligned box ``lo``..``hi``."""
     s = 0.0
@@ -151,7 +151,7 @@ def _nearest(p: np.ndarray, facing: np.ndarray, corners: np.ndarray, normals: np
     return best, found
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _column_extreme(a: np.ndarray, k: int, sign: float) -> float:
     """``a[:, k].min()`` (``sign`` -1) or ``.max()`` (1) of ``a`` (n >= 1, m): the first NaN if any.
 

@@ -46,6 +46,7 @@ import numba as nb
 import numpy as np
 
 from service.display import DisplaySettings
+from service.numba_subroutine import subroutine
 from service.render.occlusion import Visibility
 from service.render.scene import SceneArrays
 
@@ -82,7 +83,7 @@ def _claims_zero_edge(ex: float, ey: float, sign: float) -> bool:
     return -sign * ex > 0.0
 
 
-@nb.njit(cache=True, nogil=True)
+@subroutine(nrt=True)
 def _box(
     tri: np.ndarray, t: float, geom: np.ndarray, rows: int, cols: int, out: np.ndarray
 ) -> None:
