@@ -33,6 +33,25 @@ def test_exit_status_is_128_plus_the_signal():
     assert Received(signal.SIGINT).name == "SIGINT" and Received().name == ""
 
 
+# Output left in the buffers of stdout and stderr, a status, and an atexit
+# handler that must not run (exit_now skips the interpreter's teardown).
+EXIT_NOW_CHILD = """
+import atexit, sys
+from service.base.signals import exit_now
+atexit.register(lambda: print("atexit ran"))
+sys.stdout.write("kept out")
+sys.stderr.write("kept err")
+exit_now(3)
+print("not reached")
+"""
+
+
+def test_exit_now_flushes_both_streams_and_keeps_the_status():
+    p = subprocess.run([sys.executable, "-c", EXIT_NOW_CHILD], capture_output=True, text=True,
+                       cwd=ROOT, timeout=60)
+    assert (p.returncode, p.stdout, p.stderr) == (3, "kept out", "kept err")
+
+
 # A main thread waiting on an event, stopped through stop_on_signals.
 LOOP_CHILD = """
 import sys, threading
