@@ -55,18 +55,19 @@ def _expanded_colour(
         dep[p] = dep[q]
 
 
-@subroutine(nrt=True)
+@subroutine()
 def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: np.ndarray,
           shape: tuple, k0: int, k1: int, fix: bool, n_mot: int, n_zm: int, ncol: int,
           threshold: float, n_neighbours: int, mode: int, track: bool, same_out: np.ndarray,
           interior: np.ndarray, table: bool, counts: np.ndarray, margin: int,
           out_colour: np.ndarray, out_depth: np.ndarray, out_debris: np.ndarray, write_out: bool,
-          zs: float) -> None:
+          zs: float, columns: np.ndarray) -> None:
     """:func:`finish`'s scan of a band's rows ``[k0, k1)`` (row ``k`` = ``z H + r``), or its fix-up.
 
     ``new`` is the new map as :func:`planes`, ``old`` the old map's colour planes,
     depth, debris and object planes; ``counts`` (4,) accumulates expanded, debris
-    left, rows fixed and pixels redone.  One loop for both, so that a pixel is
+    left, rows fixed and pixels redone; ``columns`` (2, W) int64 is the fix-up's
+    scratch (it allocates nothing: no reference counting).  One loop for both, so that a pixel is
     decided and written by the same lines: inlined helpers taking the planes
     cost a reference-count pair per plane and call (docs/galilean.md, 2026-11-26,
     third session).  :func:`finish` passes ``fix`` as a typed ``np.bool_``, not a
@@ -102,7 +103,7 @@ def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: 
     expanded = left = 0
     n8 = 8 * deb64.size
     # fix-up: columns it expanded in the row above (ascending), and in this row
-    prev, cur = np.empty(w, np.int64), np.empty(w, np.int64)
+    prev, cur = columns[0], columns[1]
     n_prev = 0
     for k in range(k0, k1):
         z = k // h
@@ -243,7 +244,7 @@ def _rows(new: tuple, old: tuple, src_idx: np.ndarray, deb64: np.ndarray, snap: 
     counts[1] += left
 
 
-@nb.njit(cache=True, nogil=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True, _nrt=False)
 def finish(
     new: tuple,
     old: tuple,
@@ -269,6 +270,7 @@ def finish(
     bands: int,
     snap: np.ndarray,
     band_stats: np.ndarray,
+    columns: np.ndarray,
     zs: float = 1.0,
 ) -> None:
     """Second pass after :func:`scatter_bands`: debris arm, expansion and display copy.
@@ -329,6 +331,11 @@ def finish(
         Scratch for the scatter's debris flags (unused, may be empty, with one band).
     band_stats : ndarray, shape (bands, 4), int64
         Out: per band expanded, debris left, rows fixed up and pixels scanned again.
+    columns : ndarray, shape (bands, 2, W), int64
+        Scratch of the fix-up (overwritten): the kernel allocates nothing, so it
+        compiles without reference counting (``_nrt=False``; its own code, which
+        unpacks and repacks the maps' tuples, then carries no reference-count
+        pair per array).
     zs : float
         Depth unit of the display copy (2^-fz).
     """
@@ -353,14 +360,14 @@ def finish(
             (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, deb64, snap if b > 0 else snap[:0],
             shape, lo, hi, np.bool_(False), n_mot, n_zm, ncol, threshold, n_neighbours, mode, track,
             same_out, interior, table, band_stats[b], margin, out_colour, out_depth, out_debris,
-            write_out, zs,
+            write_out, zs, columns[b],
         )
     for b in range(1, bands):  # in order: a fix-up reads the row above it as final
         _rows(
             new, (o0, o1, o2, o_dep, o_deb, o_obj), src_idx, deb64, snap if b > 0 else snap[:0],
             shape, b * rows // bands, (b + 1) * rows // bands, np.bool_(True), n_mot, n_zm, ncol,
             threshold, n_neighbours, mode, track, same_out, interior, table, band_stats[b],
-            margin, out_colour, out_depth, out_debris, write_out, zs,
+            margin, out_colour, out_depth, out_debris, write_out, zs, columns[b],
         )
     for b in range(bands):
         stats[5] += band_stats[b, 0]

@@ -52,6 +52,7 @@ from service.galilean.poisson_table import TABLE_FROM, poisson_interiors
 from service.galilean.propagate import STAT_NAMES, planes, scatter
 from service.galilean.scatter_bands import (
     GATHER_RUN,
+    batch_buffers,
     map_reach,
     reach_of,
     scatter_bands,
@@ -293,6 +294,10 @@ class GalileanStage:
         self._plain, self._plain_checked = False, float("-inf")
         #: the thread loading it from numba's cache, while it does
         self._plain_loader: threading.Thread | None = None
+        #: the scatter kernels' batch buffers and the finish's fix-up scratch (the
+        #: kernels allocate nothing: :meth:`_batch_buffers`, :meth:`_fix_columns`)
+        self._batch: tuple | None = None
+        self._columns: np.ndarray | None = None
 
     def _planes(self, gp: Galpixmap) -> tuple:
         """:func:`planes` of one of the stage's maps, built once per map and field set.
@@ -306,6 +311,18 @@ class GalileanStage:
         if kept is None or any(a is not b for a, b in zip(kept[0], arrays, strict=True)):
             kept = self._plane_views[id(gp)] = (arrays, planes(arrays))
         return kept[1]
+
+    def _batch_buffers(self, bands: int) -> tuple:
+        """:func:`batch_buffers` for ``bands`` bands, made once and kept."""
+        if self._batch is None or self._batch[0].shape[0] != bands:
+            self._batch = batch_buffers(bands, self.shape)
+        return self._batch
+
+    def _fix_columns(self, bands: int) -> np.ndarray:
+        """:func:`finish`'s fix-up scratch, (bands, 2, W) int64, made once and kept."""
+        if self._columns is None or self._columns.shape[0] != bands:
+            self._columns = np.empty((bands, 2, self.shape[2]), np.int64)
+        return self._columns
 
     def _plain_ready(self, args: tuple) -> bool:
         """Whether :func:`scatter_bands_plain` is loaded for ``args``' types.
@@ -674,6 +691,7 @@ class GalileanStage:
                 thr,
                 table,
                 GATHER_RUN,
+                self._batch_buffers(bands),
             )
             # the bookkeeping compiled out when it is neither used nor recorded
             plain = not (record or self._same_valid) and self._plain_ready(args)
@@ -719,6 +737,7 @@ class GalileanStage:
             fbands,
             self._snap,
             np.zeros((fbands, 4), np.int64),
+            self._fix_columns(fbands),
             2.0**-self.fixed.fz,
         )
         self._reach = next_reach

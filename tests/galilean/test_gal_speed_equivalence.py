@@ -23,6 +23,7 @@ from service.galilean.poisson_table import poisson_interiors
 from service.galilean.propagate import STAT_NAMES, planes, second_sweep, sweep
 from service.galilean.scatter_bands import (
     GATHER_RUN,
+    batch_buffers,
     map_reach,
     reach_of,
     scatter_bands,
@@ -291,7 +292,7 @@ def test_bands_scatter_like_one_band_whatever_the_band_count(order: int) -> None
         scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
                       st.fixed.fp, st.fixed.fm, 4, True, r, bands, stats, out,
                       np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False, True,
-                      interior, thr, table, GATHER_RUN)
+                      interior, thr, table, GATHER_RUN, batch_buffers(bands, st.shape))
         assert same(interior, want) if table else (interior == 7).all()
         results.append((new, src, stats.sum(0), out.max(0)))
     first = results[0]
@@ -517,7 +518,7 @@ def test_plain_scatter_is_the_banded_one_with_its_bookkeeping_off(table: bool) -
             n, 9, np.uint8)
         kernel(st._planes(st.map), st._planes(st._spare), origin, st.shape, 2, st.fixed.fp,
                st.fixed.fm, st.map.colour_planes, True, reach, 3, stats, top, same_in, same_out,
-               False, False, interior, thr, table, GATHER_RUN)
+               False, False, interior, thr, table, GATHER_RUN, batch_buffers(3, st.shape))
         results.append([*(a.copy() for a in st._spare.arrays()), origin, same_out, stats, top,
                         interior])
     assert results[0][-3][:, 0].sum() > 0 and (results[0][-4] == 7).all()
@@ -599,7 +600,7 @@ def test_finish_in_bands_like_one_band(
         finish(planes(n.arrays()), planes(old.arrays()), s, debris_words(n.debris), st.shape,
                n.motion.shape[0], n.zmotion.shape[0], 4, threshold, neighbours, mode, margin,
                *shown, True, True, stats, same_out, interior, table, bands,
-               np.zeros(src.size, np.uint8), band_stats, 0.5)
+               np.zeros(src.size, np.uint8), band_stats, np.full((bands, 2, w), -5, np.int64), 0.5)
         results.append((n, s, stats, same_out, shown, band_stats))
     first = results[0]
     assert first[2][5] > 0 or threshold < 0
@@ -638,7 +639,8 @@ def test_scatter_copies_alike_by_runs_and_by_winners(order: int, colour_motion: 
             scatter_bands(planes(old.arrays()), planes(new.arrays()), src, st.shape, order,
                           st.fixed.fp, st.fixed.fm, ncol, True, reach, bands, stats, top,
                           np.zeros(src.size, np.uint8), np.zeros(src.size, np.uint8), False,
-                          False, np.zeros(src.size, np.uint8), -1.0, False, gather_run)
+                          False, np.zeros(src.size, np.uint8), -1.0, False, gather_run,
+                          batch_buffers(bands, st.shape))
             results.append((new, src, stats.sum(0), top.max(0)))
     first = results[0]
     assert first[2][1] > 0  # clashes: pixels written twice, the later winner kept
