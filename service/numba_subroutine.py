@@ -110,15 +110,26 @@ def _intrinsic(fn: Callable, literal: tuple[bool, ...], error_model: str,
         context.active_code_library.add_linking_library(cres.library)
         return context.call_internal(builder, cres.fndesc, sig, args)
 
+    failed: list[Exception] = []  # why the body did not compile for constant arguments
+
     def typer(typingctx, *args):  # noqa: ANN001, ANN002, ANN202 -- numba's typer
         argtys = []
         for name, keep, ty in zip(names, literal, args, strict=True):
             if keep and not isinstance(ty, types.Literal):
+                # numba retries a failed typing with the constants as plain types:
+                # the first failure is what went wrong
+                if failed:
+                    raise failed.pop()
                 raise SubroutineError(f"{fn.__qualname__}: {name} must be a constant, not {ty}")
             argtys.append(ty if keep else types.unliteral(ty))
         # compiled now, as numba compiles a dispatcher its caller calls: at lowering,
         # amid the caller's own compile, the same work took 1.3x the CPU (session 9)
-        cres = compile_once(typingctx, tuple(argtys))
+        try:
+            cres = compile_once(typingctx, tuple(argtys))
+        except Exception as exc:
+            failed[:] = [exc]
+            raise
+        failed.clear()
         return cres.signature.return_type(*argtys), lower
 
     # numba reads the parameters after the typing context as the call's signature

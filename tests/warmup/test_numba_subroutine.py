@@ -59,6 +59,26 @@ def test_a_constant_parameter_passed_a_variable_is_a_typing_error():
         kernel(np.ones(3), np.ones(3), True)
 
 
+def _broken(x, add):
+    """A body that does not type: ``undefined_name`` is no global."""
+    if add:
+        return x + undefined_name  # noqa: F821 -- the typing error under test
+    return x
+
+
+def test_a_body_that_fails_to_compile_reports_its_own_error():
+    """numba retries a failed typing with the constants unliteral: the body's error is kept."""
+    broken = subroutine(constants=("add",))(_broken)
+
+    @nb.njit(cache=False)
+    def kernel(x):
+        return broken(x, True)
+
+    with pytest.raises(nb.core.errors.TypingError, match="undefined_name") as err:
+        kernel(1.0)
+    assert "must be a constant" not in str(err.value)
+
+
 def test_an_unknown_constant_is_refused_where_it_is_declared():
     with pytest.raises(SubroutineError, match=r"has no parameter \['sub'\]"):
         subroutine(constants=("sub",))(_axpy)
